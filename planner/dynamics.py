@@ -1,0 +1,212 @@
+"""Dynamics quantities of the free-flying robot at one state (SPEC section 2).
+
+All quantities come from one MuJoCo evaluation (kinematics and composite rigid body) and
+are converted to the project's conventions (:mod:`planner.state`): base twist
+``x_b' = (v_b, w_b)`` in the orbit frame, linear rows before angular rows, hand velocity of
+the hand point in the orbit frame.
+
+A :class:`DynamicsWorkspace` owns MuJoCo scratch memory; it is cheap to call repeatedly and
+must not be shared between threads (make one per thread, as with pinocchio's ``Data``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.gravity_gradient import Orbit, gravity_gradient_torque_base_nm
+from planner.mjcf import compile_model
+from planner.model import RobotModel
+from planner.mujoco_conventions import MjLayout, velocity_matrix_to_ours, write_state
+from planner.state import State
+
+__all__ = ["DynamicsWorkspace", "HandPose", "Quantities"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class HandPose:
+    """Hand point and orientation in the robot, base and orbit frames."""
+
+    pos_robot_m: Array
+    rot_robot_from_hand: Array
+    pos_base_m: Array
+    rot_base_from_hand: Array
+    pos_orbit_m: Array
+    rot_orbit_from_hand: Array
+
+
+@dataclass(frozen=True, eq=False)
+class Quantities:
+    """Everything the planners need at one state. Orbit frame unless a name says otherwise.
+
+    Shapes for n joints: ``J_b`` (6, 6), ``J_m`` (6, n), ``H_b`` (6, 6), ``H_bm`` (6, n),
+    ``H_m`` (n, n), ``H_b_tilde`` (3, 3), ``H_bm_tilde`` (3, n), ``reaction_map`` (3, n),
+    ``J_g`` (6, n), ``rns_projector`` (n, n), ``rns_basis`` (n, n - 3).
+    """
+
+    hand: HandPose
+    total_mass_kg: float
+    com_orbit_m: Array
+    #: eq. (6): hand twist ``x_h' = J_b x_b' + J_m phi'``.
+    J_b: Array
+    J_m: Array
+    #: eq. (1): inertia blocks for ``(x_b', phi')``, wheels locked (part of the base).
+    H_b: Array
+    H_bm: Array
+    H_m: Array
+    #: eq. (2): linear momentum (kg m/s).
+    linear_momentum_nms: Array
+    #: eq. (3) plus wheels: angular momentum about the system CoM (N m s).
+    angular_momentum_nms: Array
+    #: wheel rotors' momentum relative to the base, ``I_w * rate`` along each axis (N m s).
+    wheel_momentum_nms: Array
+    #: eq. (3): ``L = H~_b w_b + H~_bm phi' + h_w`` about the system CoM.
+    H_b_tilde: Array
+    H_bm_tilde: Array
+    #: eq. (9): ``w_b = reaction_map @ phi'`` at zero momentum, ``-H~_b^-1 H~_bm``.
+    reaction_map: Array
+    #: eq. (8): ``J_g = J_m - J_b H_b^-1 H_bm``.
+    J_g: Array
+    #: eq. (5): ``I - H~_bm^+ H~_bm`` and an orthonormal basis of its range.
+    rns_projector: Array
+    rns_basis: Array
+    #: smallest singular value of ``H~_bm`` (kg m^2); near 0 the RNS gains a dimension.
+    coupling_min_singular_kgm2: float
+    #: H_c, the whole system's inertia about its CoM (equal to ``H_b_tilde``), base frame.
+    inertia_com_base_kgm2: Array
+    #: eq. (11), base frame (N m).
+    gravity_gradient_torque_base_nm: Array
+
+    @property
+    def inertia_com_orbit_kgm2(self) -> Array:
+        """H_c in the orbit frame (the same matrix as ``H_b_tilde``)."""
+        return self.H_b_tilde
+
+
+class DynamicsWorkspace:
+    """Evaluates :class:`Quantities` of ``model`` at any :class:`State`."""
+
+    def __init__(self, model: RobotModel, orbit: Orbit | None = None) -> None:
+        self.model = model
+        self.orbit = orbit or Orbit()
+        self._mjm = compile_model(model)
+        self._mjd = mujoco.MjData(self._mjm)
+        self._layout = MjLayout.of(self._mjm, model.n_joints, len(model.wheels))
+        n = model.n_joints
+        nv = self._mjm.nv
+        self._full_m = np.zeros((nv, nv))
+        self._jacp = np.zeros((3, nv))
+        self._jacr = np.zeros((3, nv))
+        self._n = n
+        self._total_mass_kg = float(mujoco.mj_getTotalmass(self._mjm))
+
+    # -- evaluation ----------------------------------------------------------------------
+
+    def _load(self, state: State) -> Array:
+        write_state(self._mjd, self._layout, state)
+        mujoco.mj_kinematics(self._mjm, self._mjd)
+        mujoco.mj_comPos(self._mjm, self._mjd)
+        return state.rot_orbit_from_base
+
+    def _hand_pose(self, state: State, rot_orbit_from_base: Array) -> HandPose:
+        d, site = self._mjd, self._layout.hand_site
+        pos_orbit = d.site_xpos[site].copy()
+        rot_orbit_from_hand = d.site_xmat[site].reshape(3, 3).copy()
+        rot_base_from_orbit = rot_orbit_from_base.T
+        pos_base = rot_base_from_orbit @ (pos_orbit - state.pos_base_orbit_m)
+        rot_base_from_hand = rot_base_from_orbit @ rot_orbit_from_hand
+        # The robot frame is parallel to the base frame.
+        return HandPose(
+            pos_robot_m=pos_base - self.model.pos_base_from_robot_m,
+            rot_robot_from_hand=rot_base_from_hand,
+            pos_base_m=pos_base,
+            rot_base_from_hand=rot_base_from_hand,
+            pos_orbit_m=pos_orbit,
+            rot_orbit_from_hand=rot_orbit_from_hand,
+        )
+
+    def hand_pose(self, state: State) -> HandPose:
+        """Forward kinematics only."""
+        rot = self._load(state)
+        return self._hand_pose(state, rot)
+
+    def hand_jacobian(self, state: State) -> tuple[HandPose, Array, Array]:
+        """Hand pose with ``J_b`` (6, 6) and ``J_m`` (6, n), eq. (6)."""
+        rot = self._load(state)
+        return self._hand_pose(state, rot), *self._jacobians(rot)
+
+    def _jacobians(self, rot: Array) -> tuple[Array, Array]:
+        d = self._mjd
+        site = self._layout.hand_site
+        mujoco.mj_jacSite(self._mjm, d, self._jacp, self._jacr, site)
+        jac = velocity_matrix_to_ours(np.vstack([self._jacp, self._jacr]), rot, rows=False)
+        return jac[:, :6], jac[:, 6 : 6 + self._n]
+
+    def evaluate(self, state: State) -> Quantities:
+        """All quantities at ``state``."""
+        n = self._n
+        rot = self._load(state)
+        mujoco.mj_crb(self._mjm, self._mjd)
+        mujoco.mj_fullM(self._mjm, self._mjd, self._full_m)
+        big_m = velocity_matrix_to_ours(self._full_m, rot, rows=True)
+        hand = self._hand_pose(state, rot)
+        J_b, J_m = self._jacobians(rot)
+
+        H_b = big_m[:6, :6]
+        H_bm = big_m[:6, 6 : 6 + n]
+        H_m = big_m[6 : 6 + n, 6 : 6 + n]
+        H_bw = big_m[:6, 6 + n :]  # base rows, wheel columns
+
+        mass = self._total_mass_kg
+        com = self._mjd.subtree_com[self._layout.base_body].copy()
+        # Schur complement of the linear block: eliminating v_b with eq. (2) gives eq. (3).
+        H_wv = H_b[3:, :3]
+        H_b_tilde = H_b[3:, 3:] - H_wv @ H_b[:3, 3:] / mass
+        H_bm_tilde = H_bm[3:, :] - H_wv @ H_bm[:3, :] / mass
+        H_bw_tilde = H_bw[3:, :] - H_wv @ H_bw[:3, :] / mass
+
+        wheel_rates = state.wheel_rates_radps
+        linear_momentum = (
+            H_b[:3] @ state.base_twist_orbit + H_bm[:3] @ state.joint_rates_radps
+            + H_bw[:3] @ wheel_rates
+        )
+        angular_momentum = (
+            H_b_tilde @ state.omega_base_orbit_radps + H_bm_tilde @ state.joint_rates_radps
+            + H_bw_tilde @ wheel_rates
+        )
+        spin = np.array([w.spin_inertia_kgm2 for w in self.model.wheels])
+
+        reaction_map = -np.linalg.solve(H_b_tilde, H_bm_tilde)
+        J_g = J_m - J_b @ np.linalg.solve(H_b, H_bm)
+        _, sing, vt = np.linalg.svd(H_bm_tilde)
+        rns_basis = vt[3:].T
+        inertia_base = rot.T @ H_b_tilde @ rot
+        return Quantities(
+            hand=hand,
+            total_mass_kg=mass,
+            com_orbit_m=com,
+            J_b=J_b,
+            J_m=J_m,
+            H_b=H_b,
+            H_bm=H_bm,
+            H_m=H_m,
+            linear_momentum_nms=linear_momentum,
+            angular_momentum_nms=angular_momentum,
+            wheel_momentum_nms=spin * wheel_rates,
+            H_b_tilde=H_b_tilde,
+            H_bm_tilde=H_bm_tilde,
+            reaction_map=reaction_map,
+            J_g=J_g,
+            rns_projector=rns_basis @ rns_basis.T,
+            rns_basis=rns_basis,
+            coupling_min_singular_kgm2=float(sing[-1]),
+            inertia_com_base_kgm2=inertia_base,
+            gravity_gradient_torque_base_nm=gravity_gradient_torque_base_nm(
+                inertia_base, rot, self.orbit
+            ),
+        )

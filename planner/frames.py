@@ -1,0 +1,82 @@
+"""Rotation conventions, stated once.
+
+- Quaternions are scalar-last ``(x, y, z, w)`` everywhere in the project (scipy's order).
+  MuJoCo's scalar-first order is converted only in :mod:`planner.mujoco_conventions`.
+- Roll, pitch, yaw follow SPEC section 7: ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (z-y-x).
+- ``rot_a_from_b`` maps coordinates in frame b to frame a, so compositions cancel:
+  ``rot_orbit_from_hand = rot_orbit_from_base @ rot_base_from_hand``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "IDENTITY_QUAT_XYZW",
+    "matrix_from_quat_xyzw",
+    "matrix_from_rpy",
+    "quat_xyzw_from_matrix",
+    "rotation_angle_rad",
+    "rpy_from_matrix",
+    "skew",
+]
+
+IDENTITY_QUAT_XYZW: NDArray[np.float64] = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Cross-product matrix: ``skew(a) @ b == np.cross(a, b)``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def matrix_from_rpy(rpy_rad: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` from ``(roll, pitch, yaw)`` in radians."""
+    roll, pitch, yaw = (float(a) for a in rpy_rad)
+    return np.asarray(
+        Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix(), dtype=np.float64
+    )
+
+
+def rpy_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(roll, pitch, yaw)`` in radians of ``Rz(yaw) Ry(pitch) Rx(roll)``.
+
+    At pitch = +-90 deg (gimbal lock) roll is set to 0 and yaw carries the whole
+    rotation about the vertical, so the result still rebuilds ``rot`` exactly.
+    """
+    r = np.asarray(rot, dtype=np.float64)
+    pitch = float(np.arctan2(-r[2, 0], np.hypot(r[0, 0], r[1, 0])))
+    if np.hypot(r[0, 0], r[1, 0]) < 1e-9:
+        roll = 0.0
+        # With roll = 0 and pitch = +-90 deg: r[0,1] = -sin(yaw), r[1,1] = cos(yaw).
+        yaw = float(np.arctan2(-r[0, 1], r[1, 1]))
+    else:
+        roll = float(np.arctan2(r[2, 1], r[2, 2]))
+        yaw = float(np.arctan2(r[1, 0], r[0, 0]))
+    return np.array([roll, pitch, yaw])
+
+
+def matrix_from_quat_xyzw(quat_xyzw: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rotation matrix of a scalar-last unit quaternion."""
+    x, y, z, w = (float(c) for c in quat_xyzw)
+    n = x * x + y * y + z * z + w * w
+    s = 2.0 / n
+    return np.array(
+        [
+            [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+            [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
+            [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
+        ]
+    )
+
+
+def quat_xyzw_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Scalar-last unit quaternion with ``w >= 0``."""
+    quat = np.asarray(Rotation.from_matrix(rot).as_quat(), dtype=np.float64)
+    return quat if quat[3] >= 0.0 else -quat
+
+
+def rotation_angle_rad(rot: NDArray[np.float64]) -> float:
+    """Angle of a rotation matrix (0 to pi), robust near 0 and pi."""
+    return float(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
