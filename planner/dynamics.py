@@ -172,16 +172,18 @@ class DynamicsWorkspace:
 
         wheel_rates = state.wheel_rates_radps
         linear_momentum = (
-            H_b[:3] @ state.base_twist_orbit + H_bm[:3] @ state.joint_rates_radps
+            H_b[:3] @ state.base_twist_orbit
+            + H_bm[:3] @ state.joint_rates_radps
             + H_bw[:3] @ wheel_rates
         )
         angular_momentum = (
-            H_b_tilde @ state.omega_base_orbit_radps + H_bm_tilde @ state.joint_rates_radps
+            H_b_tilde @ state.omega_base_orbit_radps
+            + H_bm_tilde @ state.joint_rates_radps
             + H_bw_tilde @ wheel_rates
         )
         spin = np.array([w.spin_inertia_kgm2 for w in self.model.wheels])
 
-        reaction_map = -np.linalg.solve(H_b_tilde, H_bm_tilde)
+        reaction_map = -np.asarray(np.linalg.solve(H_b_tilde, H_bm_tilde), dtype=np.float64)
         J_g = J_m - J_b @ np.linalg.solve(H_b, H_bm)
         _, sing, vt = np.linalg.svd(H_bm_tilde)
         rns_basis = vt[3:].T

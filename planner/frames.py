@@ -34,9 +34,7 @@ def skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
 def matrix_from_rpy(rpy_rad: NDArray[np.float64]) -> NDArray[np.float64]:
     """``Rz(yaw) Ry(pitch) Rx(roll)`` from ``(roll, pitch, yaw)`` in radians."""
     roll, pitch, yaw = (float(a) for a in rpy_rad)
-    return np.asarray(
-        Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix(), dtype=np.float64
-    )
+    return np.asarray(Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix(), dtype=np.float64)
 
 
 def rpy_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:

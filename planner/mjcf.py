@@ -52,7 +52,7 @@ class MjcfOptions:
 
 
 def _vec(a: Array) -> str:
-    return " ".join(f"{float(x):.12g}" for x in a)
+    return " ".join(repr(float(x)) for x in a)
 
 
 def _full_inertia(inertia: Array) -> str:
@@ -71,7 +71,7 @@ def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
         f' timestep="{opt.timestep_s:.12g}">',
         '    <flag contact="disable"/>',
         "  </option>",
-        "  <default><geom contype=\"0\" conaffinity=\"0\" rgba=\"0.8 0.8 0.85 1\"/></default>",
+        '  <default><geom contype="0" conaffinity="0" rgba="0.8 0.8 0.85 1"/></default>',
         "  <worldbody>",
         '    <body name="base" pos="0 0 0">',
         '      <freejoint name="base_free"/>',
@@ -85,8 +85,10 @@ def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
     for i, link in enumerate(model.links):
         lo, hi = model.joint_limit_rad[i]
         damping = 0.0 if opt.servo is None else float(opt.servo.kd_nms_per_rad[i])
-        end = model.links[i + 1].joint_pos_robot_m if i + 1 < model.n_joints else (
-            model.hand_pos_robot_m
+        end = (
+            model.links[i + 1].joint_pos_robot_m
+            if i + 1 < model.n_joints
+            else (model.hand_pos_robot_m)
         )
         lines += [
             f'{indent}<body name="{link.name}" pos="{_vec(link.joint_pos_robot_m - parent_pos)}">',
@@ -94,15 +96,14 @@ def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
             f' axis="{_vec(link.joint_axis_robot)}" range="{lo:.12g} {hi:.12g}"'
             f' damping="{damping:.12g}"/>',
             f'{indent}  <inertial pos="{_vec(link.com_robot_m - link.joint_pos_robot_m)}"'
-            f' mass="{link.mass_kg:.12g}" fullinertia="{_full_inertia(link.inertia_com_robot_kgm2)}"/>',
+            f' mass="{link.mass_kg!r}"'
+            f' fullinertia="{_full_inertia(link.inertia_com_robot_kgm2)}"/>',
             f'{indent}  <geom type="capsule" size="0.06"'
             f' fromto="0 0 0 {_vec(end - link.joint_pos_robot_m)}"/>',
         ]
         parent_pos = link.joint_pos_robot_m
         indent += "  "
-    lines.append(
-        f'{indent}<site name="hand" pos="{_vec(model.hand_pos_robot_m - parent_pos)}"/>'
-    )
+    lines.append(f'{indent}<site name="hand" pos="{_vec(model.hand_pos_robot_m - parent_pos)}"/>')
     for _ in model.links:
         indent = indent[:-2]
         lines.append(f"{indent}</body>")

@@ -63,9 +63,7 @@ class State:
         norm = float(np.linalg.norm(self.quat_orbit_from_base_xyzw))
         if not 0.5 < norm < 2.0:
             raise InvalidInput(f"quat_orbit_from_base_xyzw is not a rotation (norm {norm:.3g})")
-        object.__setattr__(
-            self, "quat_orbit_from_base_xyzw", self.quat_orbit_from_base_xyzw / norm
-        )
+        object.__setattr__(self, "quat_orbit_from_base_xyzw", self.quat_orbit_from_base_xyzw / norm)
 
     @property
     def rot_orbit_from_base(self) -> Array:

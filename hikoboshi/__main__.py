@@ -1,0 +1,3 @@
+from hikoboshi.cli import main
+
+main()

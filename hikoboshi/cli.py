@@ -1,0 +1,160 @@
+"""``hikoboshi``: the command line."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
+model_app = typer.Typer(no_args_is_help=True, help="The ETS-VII model: export and quantities.")
+app.add_typer(model_app, name="model")
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _fail(reason: str) -> NoReturn:
+    """One line on stderr, exit status 2."""
+    err_console.print(f"error: {reason}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+@model_app.command("urdf")
+def model_urdf() -> None:
+    """Print the default model as URDF (base, arm and a hand link)."""
+    from planner.model import default_model
+    from planner.urdf import urdf_xml
+
+    sys.stdout.write(urdf_xml(default_model()))
+
+
+@model_app.command("mjcf")
+def model_mjcf() -> None:
+    """Print the MuJoCo model (MJCF) the simulator steps."""
+    from planner.mjcf import mjcf_xml
+    from planner.model import default_model
+
+    sys.stdout.write(mjcf_xml(default_model()))
+
+
+def _parse_joints_deg(text: str, n: int) -> np.ndarray:
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != n:
+        _fail(f"--joints-deg needs {n} comma-separated angles, got {len(parts)}: {text!r}")
+    values = []
+    for i, part in enumerate(parts):
+        try:
+            value = float(part)
+        except ValueError:
+            _fail(f"--joints-deg value {i + 1} is not a number: {part!r}")
+        if not np.isfinite(value):
+            _fail(f"--joints-deg value {i + 1} is not finite: {part!r}")
+        values.append(value)
+    return np.array(values)
+
+
+def quantities_document(joints_deg: np.ndarray) -> dict[str, Any]:
+    """The JSON object of ``hikoboshi model quantities`` (base at nominal, zero momentum)."""
+    from planner.dynamics import DynamicsWorkspace
+    from planner.frames import rpy_from_matrix
+    from planner.model import default_model
+    from planner.state import State
+
+    model = default_model()
+    joints_rad = model.check_joints(np.radians(joints_deg))
+    q = DynamicsWorkspace(model).evaluate(State(joints_rad=joints_rad))
+    return {
+        "joints_deg": joints_deg.tolist(),
+        "total_mass_kg": q.total_mass_kg,
+        "hand_position_robot_m": q.hand.pos_robot_m.tolist(),
+        "hand_rpy_deg": np.degrees(rpy_from_matrix(q.hand.rot_robot_from_hand)).tolist(),
+        "generalized_jacobian": q.J_g.tolist(),
+        "base_reaction_map": q.reaction_map.tolist(),
+        "system_inertia_com_kgm2": q.inertia_com_orbit_kgm2.tolist(),
+        "gravity_gradient_torque_nm": q.gravity_gradient_torque_base_nm.tolist(),
+    }
+
+
+@model_app.command("quantities")
+def model_quantities(
+    joints_deg: Annotated[
+        str, typer.Option("--joints-deg", help="Six joint angles in degrees: J1,J2,J3,J4,J5,J6")
+    ],
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Planning quantities at one arm pose, base at the orbit frame's nominal attitude."""
+    from planner.errors import PlannerError
+
+    values = _parse_joints_deg(joints_deg, 6)
+    try:
+        doc = quantities_document(values)
+    except PlannerError as exc:
+        _fail(str(exc))
+    if as_json:
+        sys.stdout.write(json.dumps(doc) + "\n")
+        return
+    table = Table(title=f"ETS-VII at joints {joints_deg} deg")
+    table.add_column("quantity")
+    table.add_column("value")
+    for key, value in doc.items():
+        table.add_row(key, json.dumps(np.round(np.asarray(value), 6).tolist()))
+    console.print(table)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Where to write the results.")] = Path("out/demo"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
+) -> None:
+    """The main job: simulate PTP A->B on the free-floating model and report the base's
+    attitude response against the eq. (10) prediction."""
+    from hikoboshi import foundation_demo
+
+    with Progress(
+        TextColumn("[bold]PTP A->B, free drift"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} s simulated"),
+        TimeRemainingColumn(),
+        console=err_console,
+        disable=as_json,
+    ) as progress:
+        task = progress.add_task("sim", total=1.0)
+
+        def on_progress(t_s: float, end_s: float) -> None:
+            progress.update(task, completed=t_s, total=end_s)
+
+        summary = foundation_demo.run(out, on_progress=on_progress)
+    if as_json:
+        sys.stdout.write(json.dumps(summary) + "\n")
+        return
+    table = Table(title="Base attitude after PTP A->B (roll, pitch, yaw in deg)")
+    table.add_column("")
+    table.add_column("roll")
+    table.add_column("pitch")
+    table.add_column("yaw")
+    for label, key in (
+        ("simulated (MuJoCo, lagging servos)", "simulated_final_rpy_deg"),
+        ("predicted (eq. 10, ideal tracking)", "predicted_final_rpy_deg"),
+        ("peak |excursion|", "peak_rpy_deg"),
+    ):
+        table.add_row(label, *(f"{v:+.4f}" for v in summary[key]))
+    console.print(table)
+    console.print(
+        f"joints at B: {summary['joints_b_deg']} deg; motion {summary['motion_duration_s']} s, "
+        f"{summary['commands']} commands at 4 Hz; max servo lag per joint "
+        f"{summary['max_servo_lag_deg']} deg; angular momentum drift "
+        f"{summary['angular_momentum_drift_nms']:.2e} N m s"
+    )
+    console.print(f"Look at: {summary['summary_json']} and {summary['series_csv']}")
+
+
+def main() -> None:
+    app()

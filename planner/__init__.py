@@ -1,0 +1,10 @@
+"""Pure flight dynamics and planning for the ETS-VII free-flying robot.
+
+numpy, scipy and MuJoCo only: no I/O, no clock, no logging setup. Time, randomness and
+parameters come in as arguments.
+
+Modules: ``model`` (the canonical description), ``frames`` and ``state`` (conventions),
+``mujoco_conventions`` (the one place that speaks MuJoCo's), ``mjcf`` and ``urdf``
+(exports), ``dynamics`` (quantities of SPEC section 2), ``gravity_gradient``, ``ik``,
+``ptp``, ``free_drift`` (eq. 9-10 prediction) and ``simulation`` (the free-floating core).
+"""

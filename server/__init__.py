@@ -1,0 +1,1 @@
+"""The ground service (FastAPI + SQLAlchemy). Built by the ground-server issue."""
