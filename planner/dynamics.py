@@ -16,7 +16,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import lapack
 
+from planner.errors import DidNotConverge
 from planner.gravity_gradient import Orbit, gravity_gradient_torque_base_nm
 from planner.mjcf import compile_model
 from planner.model import RobotModel
@@ -100,8 +102,8 @@ class DynamicsWorkspace:
         n = model.n_joints
         nv = self._mjm.nv
         self._full_m = np.zeros((nv, nv))
-        self._jacp = np.zeros((3, nv))
-        self._jacr = np.zeros((3, nv))
+        self._jac = np.zeros((6, nv))
+        self._spin_inertia_kgm2 = np.array([w.spin_inertia_kgm2 for w in model.wheels])
         self._n = n
         self._total_mass_kg = float(mujoco.mj_getTotalmass(self._mjm))
 
@@ -111,15 +113,14 @@ class DynamicsWorkspace:
         write_state(self._mjd, self._layout, state)
         mujoco.mj_kinematics(self._mjm, self._mjd)
         mujoco.mj_comPos(self._mjm, self._mjd)
-        return state.rot_orbit_from_base
+        return np.asarray(self._mjd.xmat[self._layout.base_body].reshape(3, 3))
 
     def _hand_pose(self, state: State, rot_orbit_from_base: Array) -> HandPose:
         d, site = self._mjd, self._layout.hand_site
         pos_orbit = d.site_xpos[site].copy()
         rot_orbit_from_hand = d.site_xmat[site].reshape(3, 3).copy()
-        rot_base_from_orbit = rot_orbit_from_base.T
-        pos_base = rot_base_from_orbit @ (pos_orbit - state.pos_base_orbit_m)
-        rot_base_from_hand = rot_base_from_orbit @ rot_orbit_from_hand
+        pos_base = (pos_orbit - state.pos_base_orbit_m) @ rot_orbit_from_base
+        rot_base_from_hand = rot_orbit_from_base.T @ rot_orbit_from_hand
         # The robot frame is parallel to the base frame.
         return HandPose(
             pos_robot_m=pos_base - self.model.pos_base_from_robot_m,
@@ -141,10 +142,9 @@ class DynamicsWorkspace:
         return self._hand_pose(state, rot), *self._jacobians(rot)
 
     def _jacobians(self, rot: Array) -> tuple[Array, Array]:
-        d = self._mjd
-        site = self._layout.hand_site
-        mujoco.mj_jacSite(self._mjm, d, self._jacp, self._jacr, site)
-        jac = velocity_matrix_to_ours(np.vstack([self._jacp, self._jacr]), rot, rows=False)
+        jac = self._jac
+        mujoco.mj_jacSite(self._mjm, self._mjd, jac[:3], jac[3:], self._layout.hand_site)
+        jac = velocity_matrix_to_ours(jac, rot, rows=False)
         return jac[:, :6], jac[:, 6 : 6 + self._n]
 
     def evaluate(self, state: State) -> Quantities:
@@ -160,32 +160,36 @@ class DynamicsWorkspace:
         H_b = big_m[:6, :6]
         H_bm = big_m[:6, 6 : 6 + n]
         H_m = big_m[6 : 6 + n, 6 : 6 + n]
-        H_bw = big_m[:6, 6 + n :]  # base rows, wheel columns
-
         mass = self._total_mass_kg
         com = self._mjd.subtree_com[self._layout.base_body].copy()
         # Schur complement of the linear block: eliminating v_b with eq. (2) gives eq. (3).
-        H_wv = H_b[3:, :3]
-        H_b_tilde = H_b[3:, 3:] - H_wv @ H_b[:3, 3:] / mass
-        H_bm_tilde = H_bm[3:, :] - H_wv @ H_bm[:3, :] / mass
-        H_bw_tilde = H_bw[3:, :] - H_wv @ H_bw[:3, :] / mass
+        # Row block for (w_b, phi', wheel rates) about the system CoM:
+        tilde = big_m[3:6, 3:] - big_m[3:6, :3] @ big_m[:3, 3:] / mass
+        H_b_tilde = tilde[:, :3]
+        H_bm_tilde = tilde[:, 3 : 3 + n]
 
-        wheel_rates = state.wheel_rates_radps
-        linear_momentum = (
-            H_b[:3] @ state.base_twist_orbit
-            + H_bm[:3] @ state.joint_rates_radps
-            + H_bw[:3] @ wheel_rates
+        qvel = np.concatenate(
+            [
+                state.vel_base_orbit_mps,
+                state.omega_base_orbit_radps,
+                state.joint_rates_radps,
+                state.wheel_rates_radps,
+            ]
         )
-        angular_momentum = (
-            H_b_tilde @ state.omega_base_orbit_radps
-            + H_bm_tilde @ state.joint_rates_radps
-            + H_bw_tilde @ wheel_rates
-        )
-        spin = np.array([w.spin_inertia_kgm2 for w in self.model.wheels])
+        linear_momentum = big_m[:3] @ qvel
+        angular_momentum = tilde @ qvel[3:]
 
-        reaction_map = -np.asarray(np.linalg.solve(H_b_tilde, H_bm_tilde), dtype=np.float64)
-        J_g = J_m - J_b @ np.linalg.solve(H_b, H_bm)
-        _, sing, vt = np.linalg.svd(H_bm_tilde)
+        # One 3x3 solve serves eq. (9) and eq. (8): with X = H_b^-1 H_bm split into its
+        # linear and angular rows, X_w = H~_b^-1 H~_bm and X_v = (H_vm - H_vw X_w) / m.
+        _, _, x_w, info = lapack.dgesv(H_b_tilde, H_bm_tilde)
+        if info != 0:
+            raise DidNotConverge(f"H~_b is singular (LAPACK dgesv info {info})")
+        x_v = (H_bm[:3, :] - H_b[:3, 3:] @ x_w) / mass
+        J_g = J_m - J_b[:, :3] @ x_v - J_b[:, 3:] @ x_w
+        reaction_map = -x_w
+        _, sing, vt, info = lapack.dgesdd(H_bm_tilde)
+        if info != 0:
+            raise DidNotConverge(f"SVD of H~_bm failed (LAPACK dgesdd info {info})")
         rns_basis = vt[3:].T
         inertia_base = rot.T @ H_b_tilde @ rot
         return Quantities(
@@ -199,7 +203,7 @@ class DynamicsWorkspace:
             H_m=H_m,
             linear_momentum_nms=linear_momentum,
             angular_momentum_nms=angular_momentum,
-            wheel_momentum_nms=spin * wheel_rates,
+            wheel_momentum_nms=self._spin_inertia_kgm2 * state.wheel_rates_radps,
             H_b_tilde=H_b_tilde,
             H_bm_tilde=H_bm_tilde,
             reaction_map=reaction_map,

@@ -49,7 +49,15 @@ def gravity_gradient_torque_base_nm(
     is Earth-pointing this is eq. (13), ``3 mu / R^3 * (-H_yz, H_xz, 0)``.
     """
     # Unit vector from the Earth's centre to the spacecraft, base frame: -z_orbit.
-    r_hat = -np.asarray(rot_orbit_from_base)[2, :]
-    return np.asarray(
-        orbit.gradient_coefficient_ps2 * np.cross(r_hat, inertia_com_base_kgm2 @ r_hat)
+    rot = np.asarray(rot_orbit_from_base)
+    r = -rot[2, :]
+    h = np.asarray(inertia_com_base_kgm2) @ r
+    k = orbit.gradient_coefficient_ps2
+    # r x (H r), written out: np.cross costs ten times more on 3-vectors.
+    return np.array(
+        [
+            k * (r[1] * h[2] - r[2] * h[1]),
+            k * (r[2] * h[0] - r[0] * h[2]),
+            k * (r[0] * h[1] - r[1] * h[0]),
+        ]
     )

@@ -89,12 +89,15 @@ class MjLayout:
 
 def write_state(mjd: mujoco.MjData, layout: MjLayout, state: State) -> None:
     """Set qpos/qvel from a :class:`State` (wheel angles are left as they are)."""
-    rot = matrix_from_quat_xyzw(state.quat_orbit_from_base_xyzw)
+    x, y, z, w = state.quat_orbit_from_base_xyzw
     mjd.qpos[0:3] = state.pos_base_orbit_m
-    mjd.qpos[3:7] = quat_wxyz_from_xyzw(state.quat_orbit_from_base_xyzw)
+    mjd.qpos[3:7] = (w, x, y, z)
     mjd.qpos[layout.joint_qpos] = state.joints_rad
     mjd.qvel[0:3] = state.vel_base_orbit_mps
-    mjd.qvel[3:6] = rot.T @ state.omega_base_orbit_radps
+    # body-frame rate: rotate the orbit-frame one by the conjugate quaternion
+    omega_body = np.empty(3)
+    mujoco.mju_rotVecQuat(omega_body, state.omega_base_orbit_radps, np.array([w, -x, -y, -z]))
+    mjd.qvel[3:6] = omega_body
     mjd.qvel[layout.joint_qvel] = state.joint_rates_radps
     mjd.qvel[layout.wheel_qvel] = state.wheel_rates_radps
 
