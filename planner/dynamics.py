@@ -147,6 +147,26 @@ class DynamicsWorkspace:
         jac = velocity_matrix_to_ours(jac, rot, rows=False)
         return jac[:, :6], jac[:, 6 : 6 + self._n]
 
+    def momentum_blocks(self, joints_rad: Array) -> tuple[Array, Array]:
+        """``H~_b`` (3, 3) and ``H~_bm`` (3, n) in the **base** frame at these joints (eq. 3).
+
+        The fast path for integrating eq. (9)-(10): in the base frame both depend on the
+        joint angles only. ``reaction_map = -solve(H~_b, H~_bm)``.
+        """
+        d = self._mjd
+        d.qpos[:] = self._mjm.qpos0
+        d.qpos[self._layout.joint_qpos] = joints_rad
+        mujoco.mj_kinematics(self._mjm, d)
+        mujoco.mj_comPos(self._mjm, d)
+        mujoco.mj_crb(self._mjm, d)
+        mujoco.mj_fullM(self._mjm, d, self._full_m)
+        big_m = self._full_m  # base at identity: MuJoCo's coordinates are ours
+        n = self._n
+        tilde = big_m[3:6, 3 : 6 + n] - big_m[3:6, :3] @ big_m[:3, 3 : 6 + n] / (
+            self._total_mass_kg
+        )
+        return tilde[:, :3].copy(), tilde[:, 3:].copy()
+
     def evaluate(self, state: State) -> Quantities:
         """All quantities at ``state``."""
         n = self._n

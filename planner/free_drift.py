@@ -18,7 +18,6 @@ from numpy.typing import NDArray
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.frames import IDENTITY_QUAT_XYZW
-from planner.state import State
 
 __all__ = ["predict_base_attitude", "quat_multiply_xyzw"]
 
@@ -40,8 +39,9 @@ def quat_multiply_xyzw(a: Array, b: Array) -> Array:
 
 
 def _omega_base(ws: DynamicsWorkspace, joints: Array, rates: Array) -> Array:
-    q = ws.evaluate(State(joints_rad=joints))
-    return np.asarray(q.reaction_map @ rates)  # base frame: the base is at nominal here
+    """Eq. (9) in the base frame."""
+    h_b, h_bm = ws.momentum_blocks(joints)
+    return np.asarray(-np.linalg.solve(h_b, h_bm @ rates))
 
 
 def predict_base_attitude(

@@ -1,0 +1,257 @@
+"""A plan: what the ground uplinks and what it expects to see (pure data, JSON round trip).
+
+A plan holds joint commands exactly one command period (0.25 s, 4 Hz) apart, time-tagged in
+seconds from the plan's start; attitude-control commands at their own times; named segments
+that locate each phase; the prediction under ideal tracking; and summary metrics.
+
+JSON: floats are written with ``repr`` precision, so ``Plan.from_json(plan.to_json())``
+reproduces every number exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.attitude_control import AcsMode
+from planner.errors import InvalidInput, JointLimitExceeded
+from planner.model import RobotModel
+from planner.ptp import COMMAND_PERIOD_S
+
+__all__ = [
+    "SEGMENT_KINDS",
+    "AcsCommand",
+    "Plan",
+    "Prediction",
+    "Segment",
+    "check_plan_limits",
+]
+
+Array = NDArray[np.float64]
+
+SEGMENT_KINDS = (
+    "ptp",
+    "reactionless",
+    "gjm",
+    "hold",
+    "settle",
+    "coordination",
+    "nonholonomic",
+)
+
+PLAN_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Segment:
+    name: str
+    kind: str
+    t_start_s: float
+    t_end_s: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in SEGMENT_KINDS:
+            raise InvalidInput(f"segment kind {self.kind!r} is not one of {SEGMENT_KINDS}")
+        if not self.t_end_s >= self.t_start_s:
+            raise InvalidInput(
+                f"segment {self.name!r} ends at {self.t_end_s} s before it starts at "
+                f"{self.t_start_s} s"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class AcsCommand:
+    """An attitude-control command, executed at ``t_s`` (s from the plan's start)."""
+
+    t_s: float
+    mode: AcsMode
+    target_quat_orbit_from_base_xyzw: Array = field(
+        default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
+    )
+    feedforward: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "t_s": self.t_s,
+            "mode": self.mode.value,
+            "target_quat_orbit_from_base_xyzw": [
+                float(v) for v in self.target_quat_orbit_from_base_xyzw
+            ],
+            "feedforward": self.feedforward,
+        }
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> AcsCommand:
+        return cls(
+            t_s=float(doc["t_s"]),
+            mode=AcsMode(doc["mode"]),
+            target_quat_orbit_from_base_xyzw=np.array(
+                doc["target_quat_orbit_from_base_xyzw"], dtype=np.float64
+            ),
+            feedforward=bool(doc["feedforward"]),
+        )
+
+
+_PREDICTION_COLUMNS = {
+    "t_s": 1,
+    "joints_rad": 2,
+    "quat_orbit_from_base_xyzw": 2,
+    "rpy_base_rad": 2,
+    "omega_base_orbit_radps": 2,
+    "hand_pos_orbit_m": 2,
+    "quat_orbit_from_hand_xyzw": 2,
+    "reaction_momentum_orbit_nms": 2,
+    "wheel_momentum_nms": 2,
+}
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction:
+    """States under ideal tracking, row k at ``t_s[k]`` (orbit frame unless named).
+
+    ``reaction_momentum_orbit_nms`` is ``H~_bm phi'`` (eq. 3), the momentum the arm's motion
+    carries; ``wheel_momentum_nms`` the rotors' momentum relative to the base, base frame.
+    """
+
+    t_s: Array
+    joints_rad: Array
+    quat_orbit_from_base_xyzw: Array
+    rpy_base_rad: Array
+    omega_base_orbit_radps: Array
+    hand_pos_orbit_m: Array
+    quat_orbit_from_hand_xyzw: Array
+    reaction_momentum_orbit_nms: Array
+    wheel_momentum_nms: Array
+
+    def to_dict(self) -> dict[str, Any]:
+        return {name: np.asarray(getattr(self, name)).tolist() for name in _PREDICTION_COLUMNS}
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> Prediction:
+        return cls(**{name: np.array(doc[name], dtype=np.float64) for name in _PREDICTION_COLUMNS})
+
+
+@dataclass(frozen=True, eq=False)
+class Plan:
+    experiment: str
+    parameters: Mapping[str, Any]
+    initial_joints_rad: Array
+    command_times_s: Array  # (k,), from 0, exactly COMMAND_PERIOD_S apart
+    command_joints_rad: Array  # (k, n)
+    segments: tuple[Segment, ...]
+    prediction: Prediction
+    metrics: Mapping[str, float]
+    acs_commands: tuple[AcsCommand, ...] = ()
+    initial_quat_orbit_from_base_xyzw: Array = field(
+        default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
+    )
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.command_times_s, dtype=np.float64)
+        joints = np.asarray(self.command_joints_rad, dtype=np.float64)
+        if times.ndim != 1 or times.size == 0 or joints.shape[:1] != times.shape:
+            raise InvalidInput(f"plan commands: times {times.shape} and joints {joints.shape}")
+        expected = np.arange(times.size) * COMMAND_PERIOD_S + times[0]
+        if not np.array_equal(times, expected):
+            raise InvalidInput(f"plan commands must be exactly {COMMAND_PERIOD_S} s apart")
+        if not (np.all(np.isfinite(joints)) and np.all(np.isfinite(times))):
+            raise InvalidInput("plan commands must be finite")
+        object.__setattr__(self, "command_times_s", times)
+        object.__setattr__(self, "command_joints_rad", joints)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.command_times_s[-1] - self.command_times_s[0])
+
+    def segment(self, name: str) -> Segment:
+        for seg in self.segments:
+            if seg.name == name:
+                return seg
+        raise KeyError(name)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format_version": PLAN_FORMAT_VERSION,
+            "experiment": self.experiment,
+            "parameters": dict(self.parameters),
+            "initial_joints_rad": [float(v) for v in self.initial_joints_rad],
+            "initial_quat_orbit_from_base_xyzw": [
+                float(v) for v in self.initial_quat_orbit_from_base_xyzw
+            ],
+            "commands": [
+                {"t_s": float(t), "joints_rad": [float(v) for v in q]}
+                for t, q in zip(self.command_times_s, self.command_joints_rad, strict=True)
+            ],
+            "acs_commands": [c.to_dict() for c in self.acs_commands],
+            "segments": [
+                {"name": s.name, "kind": s.kind, "t_start_s": s.t_start_s, "t_end_s": s.t_end_s}
+                for s in self.segments
+            ],
+            "prediction": self.prediction.to_dict(),
+            "metrics": dict(self.metrics),
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> Plan:
+        try:
+            if doc.get("format_version") != PLAN_FORMAT_VERSION:
+                raise InvalidInput(
+                    f"plan format_version {doc.get('format_version')!r} is not "
+                    f"{PLAN_FORMAT_VERSION}"
+                )
+            commands = doc["commands"]
+            return cls(
+                experiment=str(doc["experiment"]),
+                parameters=dict(doc["parameters"]),
+                initial_joints_rad=np.array(doc["initial_joints_rad"], dtype=np.float64),
+                initial_quat_orbit_from_base_xyzw=np.array(
+                    doc["initial_quat_orbit_from_base_xyzw"], dtype=np.float64
+                ),
+                command_times_s=np.array([c["t_s"] for c in commands], dtype=np.float64),
+                command_joints_rad=np.array([c["joints_rad"] for c in commands], dtype=np.float64),
+                acs_commands=tuple(AcsCommand.from_dict(c) for c in doc["acs_commands"]),
+                segments=tuple(Segment(**s) for s in doc["segments"]),
+                prediction=Prediction.from_dict(doc["prediction"]),
+                metrics={str(k): float(v) for k, v in doc["metrics"].items()},
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, InvalidInput):
+                raise
+            raise InvalidInput(f"malformed plan document: {exc!r}") from exc
+
+    @classmethod
+    def from_json(cls, text: str) -> Plan:
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InvalidInput(f"plan is not JSON: {exc}") from exc
+        if not isinstance(doc, dict):
+            raise InvalidInput("plan JSON must be an object")
+        return cls.from_dict(doc)
+
+
+def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 1e-9) -> None:
+    """Every commanded joint within its angle limit and every step within its rate limit.
+
+    Raises :class:`JointLimitExceeded` naming the joint, the value and the limit.
+    """
+    for q in plan.command_joints_rad:
+        model.check_joints(q)
+    if plan.command_times_s.size < 2:
+        return
+    rates = np.abs(np.diff(plan.command_joints_rad, axis=0)) / COMMAND_PERIOD_S
+    worst = np.max(rates, axis=0)
+    for i, (rate, limit) in enumerate(zip(worst, model.joint_rate_limit_radps, strict=True)):
+        if rate > limit * (1.0 + rate_tolerance):
+            raise JointLimitExceeded(
+                i + 1, math.degrees(rate), math.degrees(limit), "deg/s", what="moves at"
+            )

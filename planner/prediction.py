@@ -1,0 +1,207 @@
+"""What a plan predicts: the states under ideal joint tracking, at every command time.
+
+The joints follow the commands exactly (linear between consecutive 4 Hz commands, as on
+board). The base and wheels obey angular-momentum balance about the system CoM (eq. 3):
+
+    R^T L = H~_b w_b + H~_bm phi' + h_w        (base frame)
+    dL/dt = R N_gg                             (orbit frame; 0 without gravity gradient)
+    dh_w/dt = wheel torque from the attitude-control law (planner.attitude_control)
+
+so ``w_b = H~_b^-1 (R^T L - H~_bm phi' - h_w)``; with no control and zero momentum this is
+eq. (9) and its integral eq. (10). The attitude quaternion, the wheel momentum and L are
+integrated with RK4, ``sub_steps`` per command interval. (The rotors' own share of the base's
+angular acceleration, ``I_w a . w_b'``, is left out of dh_w/dt: 0.15 kg m^2 against thousands.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.attitude_control import (
+    AcsGains,
+    AcsMode,
+    attitude_error_rad,
+    momentum_feedforward_torque_nm,
+    wheel_torque_nm,
+)
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InvalidInput
+from planner.frames import (
+    IDENTITY_QUAT_XYZW,
+    matrix_from_quat_xyzw,
+    quat_xyzw_from_matrix,
+    rpy_from_matrix,
+)
+from planner.free_drift import quat_multiply_xyzw
+from planner.gravity_gradient import Orbit, gravity_gradient_torque_base_nm
+from planner.plan import AcsCommand, Prediction
+from planner.state import State
+
+__all__ = ["predict"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class _Acs:
+    mode: AcsMode
+    target: Array
+    feedforward: bool
+
+
+def _acs_at(commands: Sequence[AcsCommand], t_s: float, default: _Acs) -> _Acs:
+    current = default
+    for c in commands:
+        if c.t_s <= t_s + 1e-9:
+            current = _Acs(c.mode, c.target_quat_orbit_from_base_xyzw, c.feedforward)
+    return current
+
+
+def predict(
+    ws: DynamicsWorkspace,
+    command_times_s: Array,
+    command_joints_rad: Array,
+    *,
+    acs_commands: Sequence[AcsCommand] = (),
+    acs_gains: AcsGains | None = None,
+    initial_quat_orbit_from_base_xyzw: Array | None = None,
+    initial_wheel_momentum_nms: Array | None = None,
+    orbit: Orbit | None = None,
+    sub_steps: int = 4,
+) -> Prediction:
+    """Predicted states at each command time (see the module docstring).
+
+    ``acs_commands`` switch the attitude-control mode and target at their times (free drift
+    before the first); ``acs_gains`` is needed when any command is ``feedback`` or uses
+    feedforward. ``orbit`` switches the gravity-gradient torque on.
+    """
+    times = np.asarray(command_times_s, dtype=np.float64)
+    joints = np.asarray(command_joints_rad, dtype=np.float64)
+    n = ws.model.n_joints
+    if times.ndim != 1 or times.size < 1 or joints.shape != (times.size, n):
+        raise InvalidInput("command times (k,) and joints (k, n) do not match")
+    if np.any(np.diff(times) <= 0.0):
+        raise InvalidInput("command times must increase")
+    needs_gains = any(c.mode is AcsMode.FEEDBACK or c.feedforward for c in acs_commands)
+    if needs_gains and acs_gains is None:
+        raise InvalidInput("attitude-control commands need acs_gains")
+    ordered = sorted(acs_commands, key=lambda c: c.t_s)
+    free = _Acs(AcsMode.FREE_DRIFT, IDENTITY_QUAT_XYZW, False)
+    feedforward = (
+        momentum_feedforward_torque_nm(ws, times, joints)
+        if any(c.feedforward for c in ordered)
+        else np.zeros((max(times.size - 1, 0), 3))
+    )
+
+    quat = (
+        IDENTITY_QUAT_XYZW.copy()
+        if initial_quat_orbit_from_base_xyzw is None
+        else np.asarray(initial_quat_orbit_from_base_xyzw, dtype=np.float64)
+    )
+    h_w = (
+        np.zeros(3)
+        if initial_wheel_momentum_nms is None
+        else np.array(initial_wheel_momentum_nms, dtype=np.float64)
+    )
+    # Total angular momentum (orbit frame) of a system starting with the base and arm at
+    # rest: just the wheels'.
+    momentum = matrix_from_quat_xyzw(quat) @ h_w
+
+    cache: dict[str, tuple[Array, Array, Array]] = {}
+
+    def blocks(phi: Array) -> tuple[Array, Array]:
+        # Holds evaluate the same pose many times over.
+        last = cache.get("last")
+        if last is None or not np.array_equal(last[0], phi):
+            h_b, h_bm = ws.momentum_blocks(phi)
+            cache["last"] = (phi.copy(), h_b, h_bm)
+            return h_b, h_bm
+        return last[1], last[2]
+
+    def rates(
+        phi: Array, rate: Array, quat_now: Array, h_now: Array, l_now: Array
+    ) -> tuple[Array, Array, Array, Array]:
+        h_b, h_bm = blocks(phi)
+        rot = matrix_from_quat_xyzw(quat_now)
+        reaction = h_bm @ rate
+        omega: Array = np.asarray(np.linalg.solve(h_b, rot.T @ l_now - reaction - h_now), float)
+        return omega, rot, h_b, reaction
+
+    def derivative(phi: Array, rate: Array, y: Array, acs: _Acs, ff: Array) -> Array:
+        quat_now, h_now, l_now = y[:4] / np.linalg.norm(y[:4]), y[4:7], y[7:10]
+        omega, rot, h_b, _ = rates(phi, rate, quat_now, h_now, l_now)
+        dquat = 0.5 * quat_multiply_xyzw(quat_now, np.array([*omega, 0.0]))
+        torque = np.zeros(3)
+        if acs.mode is AcsMode.FEEDBACK or acs.feedforward:
+            assert acs_gains is not None
+            torque = wheel_torque_nm(
+                acs_gains,
+                acs.mode,
+                attitude_error=attitude_error_rad(quat_now, acs.target),
+                omega_base_radps=omega,
+                feedforward_nm=ff if acs.feedforward else None,
+            )
+            # A wheel at capacity takes no more torque in the same sense.
+            full = (np.abs(h_now) >= acs_gains.momentum_limit_nms) & (torque * h_now > 0)
+            torque = np.where(full, 0.0, torque)
+        dl = np.zeros(3)
+        if orbit is not None:
+            dl = rot @ gravity_gradient_torque_base_nm(h_b, rot, orbit)  # H~_b is H_c
+        return np.concatenate([dquat, torque, dl])
+
+    y = np.concatenate([quat, h_w, momentum])
+    states = [y.copy()]
+    omegas = []
+    reactions = []
+    for k in range(times.size):
+        # Rates at command k: the interval that starts there (the last holds still).
+        rate = (
+            (joints[k + 1] - joints[k]) / (times[k + 1] - times[k])
+            if k + 1 < times.size
+            else np.zeros(n)
+        )
+        omega, rot, _, reaction = rates(joints[k], rate, y[:4], y[4:7], y[7:10])
+        omegas.append(rot @ omega)
+        reactions.append(rot @ reaction)
+        if k + 1 == times.size:
+            break
+        acs = _acs_at(ordered, float(times[k]), free)
+        dt = (times[k + 1] - times[k]) / sub_steps
+        for j in range(sub_steps):
+            tau = j * dt
+            phi0 = joints[k] + rate * tau
+            phi_mid = phi0 + 0.5 * dt * rate
+            phi1 = phi0 + dt * rate
+            ff = feedforward[k]
+            k1 = derivative(phi0, rate, y, acs, ff)
+            k2 = derivative(phi_mid, rate, y + 0.5 * dt * k1, acs, ff)
+            k3 = derivative(phi_mid, rate, y + 0.5 * dt * k2, acs, ff)
+            k4 = derivative(phi1, rate, y + dt * k3, acs, ff)
+            y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            y[:4] /= np.linalg.norm(y[:4])
+        states.append(y.copy())
+    ys = np.array(states)
+    quats = np.array([q if q[3] >= 0 else -q for q in ys[:, :4]])
+    hand_pos = np.zeros((times.size, 3))
+    hand_quat = np.zeros((times.size, 4))
+    rpy = np.zeros((times.size, 3))
+    for k in range(times.size):
+        hand = ws.hand_pose(State(joints_rad=joints[k], quat_orbit_from_base_xyzw=quats[k]))
+        hand_pos[k] = hand.pos_orbit_m
+        hand_quat[k] = quat_xyzw_from_matrix(hand.rot_orbit_from_hand)
+        rpy[k] = rpy_from_matrix(matrix_from_quat_xyzw(quats[k]))
+    return Prediction(
+        t_s=times.copy(),
+        joints_rad=joints.copy(),
+        quat_orbit_from_base_xyzw=quats,
+        rpy_base_rad=rpy,
+        omega_base_orbit_radps=np.array(omegas),
+        hand_pos_orbit_m=hand_pos,
+        quat_orbit_from_hand_xyzw=hand_quat,
+        reaction_momentum_orbit_nms=np.array(reactions),
+        wheel_momentum_nms=ys[:, 4:7],
+    )
