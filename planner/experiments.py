@@ -1,0 +1,214 @@
+"""Experiment 1 of SPEC section 3: the PTP baseline and reactionless manipulation, as plans.
+
+- :func:`plan_ptp`: conventional joint-interpolated PTP from A to B with wheel feedback on,
+  then a settling wait (the baseline with a large reaction; flight: about 100 s to settle).
+- :func:`plan_reactionless`: from B, the hand about 0.35 m toward +z (robot frame) at
+  0.015 m/s in the reaction null space, a pause, then back at 0.0075 m/s (the same path
+  retraced), wheel feedback on. Optionally pre-shaped for the servos' lag.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner._builder import CommandBuilder
+from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InvalidInput
+from planner.frames import matrix_from_rpy
+from planner.ik import solve_ik
+from planner.plan import AcsCommand, Plan, check_plan_limits
+from planner.prediction import predict
+from planner.ptp import COMMAND_PERIOD_S, ptp_commands
+from planner.reactionless import reactionless_line, retime_path
+from planner.servo_compensation import compensate_servo_lag
+from planner.simulation import default_servo_gains
+
+__all__ = [
+    "POSE_B_POS_ROBOT_M",
+    "POSE_B_RPY_DEG",
+    "PtpParams",
+    "ReactionlessParams",
+    "attitude_metrics",
+    "joints_at_pose_b",
+    "plan_ptp",
+    "plan_reactionless",
+]
+
+Array = NDArray[np.float64]
+
+#: SPEC 1.2: pose B, 0.15 m above the grapple point.
+POSE_B_POS_ROBOT_M = (1.170, 0.407, 0.490)
+POSE_B_RPY_DEG = (0.0, 90.0, -37.0)
+
+
+def _check_period(name: str, value: float) -> None:
+    n = round(value / COMMAND_PERIOD_S)
+    if not np.isfinite(value) or value < 0 or abs(n * COMMAND_PERIOD_S - value) > 1e-9:
+        raise InvalidInput(f"{name} = {value} s must be a non-negative multiple of 0.25 s")
+
+
+def joints_at_pose_b(ws: DynamicsWorkspace) -> Array:
+    """IK solution for pose B nearest the all-zero pose."""
+    rot = matrix_from_rpy(np.radians(POSE_B_RPY_DEG))
+    return solve_ik(ws, np.array(POSE_B_POS_ROBOT_M), rot)[0].joints_rad
+
+
+def attitude_metrics(plan_t_s: Array, quats_xyzw: Array, *, band_deg: float) -> dict[str, float]:
+    """Peak attitude excursion and the last time it was outside ``band_deg``."""
+    from scipy.spatial.transform import Rotation
+
+    angle_deg = np.degrees(Rotation.from_quat(quats_xyzw).magnitude())
+    outside = np.flatnonzero(angle_deg > band_deg)
+    return {
+        "peak_attitude_deg": float(np.max(angle_deg)),
+        "final_attitude_deg": float(angle_deg[-1]),
+        "last_outside_band_s": float(plan_t_s[outside[-1]]) if outside.size else 0.0,
+        "settle_band_deg": band_deg,
+    }
+
+
+@dataclass(frozen=True)
+class PtpParams:
+    start_joints_deg: tuple[float, ...] = (0.0,) * 6
+    goal_joints_deg: tuple[float, ...] | None = None  # None: pose B by IK
+    rate_fraction: float = 0.9
+    settle_s: float = 120.0
+    acs_feedback: bool = True
+    settle_band_deg: float = 0.02
+
+
+def plan_ptp(
+    ws: DynamicsWorkspace, params: PtpParams = PtpParams(), gains: AcsGains | None = None
+) -> Plan:
+    """Experiment 1's baseline: PTP A -> B, then a settling wait."""
+    model = ws.model
+    _check_period("settle_s", params.settle_s)
+    start = model.check_joints(np.radians(params.start_joints_deg))
+    goal = (
+        joints_at_pose_b(ws)
+        if params.goal_joints_deg is None
+        else model.check_joints(np.radians(params.goal_joints_deg))
+    )
+    _, move = ptp_commands(model, start, goal, rate_fraction=params.rate_fraction)
+    builder = CommandBuilder(start)
+    t0, t1 = builder.block(move, "A->B", "ptp")
+    builder.hold(params.settle_s, "settle", "settle")
+    times, joints = builder.arrays()
+    gains = gains or default_acs_gains(ws)
+    mode = AcsMode.FEEDBACK if params.acs_feedback else AcsMode.FREE_DRIFT
+    acs = (AcsCommand(0.0, mode),)
+    prediction = predict(ws, times, joints, acs_commands=acs, acs_gains=gains)
+    metrics = attitude_metrics(
+        times, prediction.quat_orbit_from_base_xyzw, band_deg=params.settle_band_deg
+    )
+    metrics["settling_time_after_motion_s"] = max(0.0, metrics["last_outside_band_s"] - t1)
+    metrics["motion_duration_s"] = t1 - t0
+    plan = Plan(
+        experiment="ptp",
+        parameters={**asdict(params), "goal_joints_deg": np.degrees(goal).tolist()},
+        initial_joints_rad=start,
+        command_times_s=times,
+        command_joints_rad=joints,
+        segments=tuple(builder.segments),
+        prediction=prediction,
+        metrics=metrics,
+        acs_commands=acs,
+    )
+    check_plan_limits(model, plan)
+    return plan
+
+
+@dataclass(frozen=True)
+class ReactionlessParams:
+    start_joints_deg: tuple[float, ...] | None = None  # None: pose B
+    direction_robot: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    distance_m: float = 0.35
+    out_speed_mps: float = 0.015
+    back_speed_mps: float = 0.0075
+    ramp_s: float = 2.0
+    orientation_weight_m: float = 0.3
+    pause_s: float = 10.0
+    tail_s: float = 30.0
+    compensate_servo_lag: bool = False
+    settle_band_deg: float = 0.02
+
+
+def plan_reactionless(
+    ws: DynamicsWorkspace,
+    params: ReactionlessParams = ReactionlessParams(),
+    gains: AcsGains | None = None,
+) -> Plan:
+    """Experiment 1: B -> C reactionless at the outbound speed, pause, C -> B retraced."""
+    model = ws.model
+    for name in ("pause_s", "tail_s"):
+        _check_period(name, getattr(params, name))
+    if not (params.out_speed_mps > 0 and params.back_speed_mps > 0):
+        raise InvalidInput(
+            f"speeds must be positive, got {params.out_speed_mps} and {params.back_speed_mps} m/s"
+        )
+    start = (
+        joints_at_pose_b(ws)
+        if params.start_joints_deg is None
+        else model.check_joints(np.radians(params.start_joints_deg))
+    )
+    path = reactionless_line(
+        ws,
+        start,
+        direction_robot=np.array(params.direction_robot),
+        distance_m=params.distance_m,
+        speed_mps=params.out_speed_mps,
+        ramp_s=params.ramp_s,
+        orientation_weight_m=params.orientation_weight_m,
+    )
+    out = retime_path(path, scale=1.0)
+    back = retime_path(path, scale=params.out_speed_mps / params.back_speed_mps, reverse=True)
+    builder = CommandBuilder(start)
+    out_t = builder.block(out, "B->C", "reactionless")
+    builder.hold(params.pause_s, "pause at C")
+    back_t = builder.block(back, "C->B", "reactionless")
+    builder.hold(params.tail_s, "hold at B")
+    times, desired = builder.arrays()
+    joints = desired
+    if params.compensate_servo_lag:
+        joints = compensate_servo_lag(ws, default_servo_gains(model), times, desired)
+    gains = gains or default_acs_gains(ws)
+    acs = (AcsCommand(0.0, AcsMode.FEEDBACK),)
+    prediction = predict(ws, times, desired, acs_commands=acs, acs_gains=gains)
+    hand = path.hand_pos_robot_m - path.hand_pos_robot_m[0]
+    direction = np.array(params.direction_robot) / np.linalg.norm(params.direction_robot)
+    lateral = hand - np.outer(hand @ direction, direction)
+    metrics = attitude_metrics(
+        times, prediction.quat_orbit_from_base_xyzw, band_deg=params.settle_band_deg
+    )
+    metrics.update(
+        {
+            "hand_travel_m": float(hand[-1] @ direction),
+            "hand_lateral_max_m": float(np.max(np.linalg.norm(lateral, axis=1))),
+            "hand_orientation_change_max_deg": float(
+                np.degrees(np.max(path.hand_orientation_change_rad))
+            ),
+            "min_coupling_singular_kgm2": path.min_coupling_singular_kgm2,
+            "out_duration_s": out_t[1] - out_t[0],
+            "back_duration_s": back_t[1] - back_t[0],
+            "max_reaction_momentum_nms": float(
+                np.max(np.linalg.norm(prediction.reaction_momentum_orbit_nms, axis=1))
+            ),
+        }
+    )
+    plan = Plan(
+        experiment="reactionless",
+        parameters={**asdict(params), "start_joints_deg": np.degrees(start).tolist()},
+        initial_joints_rad=start,
+        command_times_s=times,
+        command_joints_rad=joints,
+        segments=tuple(builder.segments),
+        prediction=prediction,
+        metrics=metrics,
+        acs_commands=acs,
+    )
+    check_plan_limits(model, plan)
+    return plan

@@ -1,0 +1,267 @@
+"""Reactionless manipulation in the reaction null space (RNS), SPEC experiment 1, eq. (4)-(5).
+
+Zero reaction is the hard constraint: every joint rate is ``phi' = N zeta`` with ``N`` an
+orthonormal basis of the null space of ``H~_bm`` (3-D for ETS-VII), so the arm's motion
+carries no angular momentum and the base does not turn. Inside those three freedoms the hand
+tasks are met by priority (damped least squares at each level, so a task that becomes
+singular degrades smoothly instead of demanding huge rates):
+
+1. progress of the hand along the motion's direction at the commanded speed;
+2. the hand's lateral position on the line and its orientation (weighted, with a
+   proportional correction of the errors so that nothing accumulates).
+
+Three freedoms cannot hold six task coordinates, so the orientation drifts where the
+constraint leaves no room; the plan reports by how much. The return leg is the outbound
+joint path retraced at its own speed: retracing a reactionless path is reactionless, and
+it returns the arm to exactly the joints it started from (a reactionless path that only aimed
+the hand back would, the constraint being non-holonomic, end at other joints).
+
+Everything is computed in the base (= robot-parallel) frame at the base's nominal attitude:
+the base does not turn, by construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InfeasibleGoal, InvalidInput, JointLimitExceeded
+from planner.ptp import COMMAND_PERIOD_S
+from planner.state import State
+
+__all__ = [
+    "ReactionlessPath",
+    "ReactionlessSearch",
+    "reactionless_line",
+    "retime_path",
+    "search_reactionless_path",
+]
+
+Array = NDArray[np.float64]
+
+_DAMPING = 1e-4  # DLS damping (squared singular-value scale) in the null-space coordinates
+_LATERAL_GAIN_PS = 2.0  # 1/s, correction of the hand's distance from the line
+_ORIENTATION_GAIN_PS = 1.0  # 1/s, correction of the hand's orientation
+_ORIENTATION_WEIGHT_M = 0.3  # metres of position error worth one radian of orientation
+
+
+@dataclass(frozen=True, eq=False)
+class ReactionlessPath:
+    """A densely sampled reactionless joint path (rows at ``t_s``)."""
+
+    t_s: Array
+    joints_rad: Array
+    hand_pos_robot_m: Array
+    hand_orientation_change_rad: Array  # angle from the start orientation
+    min_coupling_singular_kgm2: float  # smallest singular value of H~_bm along the path
+
+
+def _dls(a: Array, b: Array) -> Array:
+    """Damped least-squares solution of ``a x = b``."""
+    return np.asarray(a.T @ np.linalg.solve(a @ a.T + _DAMPING * np.eye(a.shape[0]), b))
+
+
+def _rns_basis(ws: DynamicsWorkspace, joints: Array) -> tuple[Array, float]:
+    _, h_bm = ws.momentum_blocks(joints)
+    _, sing, vt = np.linalg.svd(h_bm)
+    return vt[3:].T, float(sing[-1])
+
+
+def _speed_profile(t: Array, duration_s: float, ramp_s: float, speed: float) -> Array:
+    """Trapezoidal speed with raised-cosine ramps at both ends."""
+    up = np.clip(t / ramp_s, 0.0, 1.0)
+    down = np.clip((duration_s - t) / ramp_s, 0.0, 1.0)
+    return np.asarray(speed * 0.5 * (1.0 - np.cos(np.pi * np.minimum(up, down))))
+
+
+def reactionless_line(
+    ws: DynamicsWorkspace,
+    start_joints_rad: Array,
+    *,
+    direction_robot: Array,
+    distance_m: float,
+    speed_mps: float,
+    ramp_s: float = 2.0,
+    dt_s: float = 0.05,
+    orientation_weight_m: float = _ORIENTATION_WEIGHT_M,
+) -> ReactionlessPath:
+    """Move the hand ``distance_m`` along ``direction_robot`` at ``speed_mps``, reactionless.
+
+    ``orientation_weight_m`` trades the hand's orientation against its lateral position in
+    the second priority level (metres of lateral error worth one radian): at 0.3 the B -> C
+    leg keeps within 7 cm of the line and turns the hand by about 15 deg; a strictly
+    straight line would turn it by about 66 deg and need more than the 3 deg/s rate limit.
+
+    Raises :class:`JointLimitExceeded` when a joint would pass its limit and
+    :class:`InfeasibleGoal` when the null space allows no progress along the direction.
+    """
+    model = ws.model
+    q = model.check_joints(start_joints_rad).copy()
+    direction = np.asarray(direction_robot, dtype=np.float64)
+    if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
+        raise InvalidInput(f"direction_robot must be a non-zero 3-vector, got {direction}")
+    direction = direction / np.linalg.norm(direction)
+    if not (distance_m > 0 and speed_mps > 0 and ramp_s >= 0):
+        raise InvalidInput(
+            f"distance {distance_m} m, speed {speed_mps} m/s and ramp {ramp_s} s must be positive"
+        )
+    # Duration so that the area under the speed profile is the distance.
+    duration_s = distance_m / speed_mps + ramp_s
+    n_steps = int(np.ceil(duration_s / dt_s))
+    dt = duration_s / n_steps
+    lateral = np.eye(3) - np.outer(direction, direction)
+    hand0 = ws.hand_pose(State(joints_rad=q))
+    start_pos, rot0 = hand0.pos_robot_m, hand0.rot_robot_from_hand
+    lo, hi = model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]
+
+    def joint_rate(t: float, phi: Array) -> tuple[Array, float]:
+        hand, _, J_m = ws.hand_jacobian(State(joints_rad=phi))
+        basis, sing = _rns_basis(ws, phi)
+        speed = float(_speed_profile(np.array([t]), duration_s, ramp_s, speed_mps)[0])
+        # Where the hand should be along the line at time t (integral of the profile).
+        a_v, a_w = J_m[:3] @ basis, J_m[3:] @ basis
+        a1 = (direction @ a_v)[None, :]
+        zeta = _dls(a1, np.array([speed]))
+        p1 = np.eye(3) - np.linalg.pinv(a1) @ a1
+        pos_err = lateral @ (start_pos - hand.pos_robot_m)
+        rot_err = Rotation.from_matrix(rot0 @ hand.rot_robot_from_hand.T).as_rotvec()
+        a2 = np.vstack([lateral @ a_v, orientation_weight_m * a_w])
+        b2 = np.concatenate(
+            [_LATERAL_GAIN_PS * pos_err, orientation_weight_m * _ORIENTATION_GAIN_PS * rot_err]
+        )
+        zeta = zeta + p1 @ _dls(a2 @ p1, b2 - a2 @ zeta)
+        return basis @ zeta, sing
+
+    times = [0.0]
+    path = [q.copy()]
+    min_sing = np.inf
+    for k in range(n_steps):
+        t = k * dt
+        k1, s1 = joint_rate(t, q)
+        k2, _ = joint_rate(t + 0.5 * dt, q + 0.5 * dt * k1)
+        k3, _ = joint_rate(t + 0.5 * dt, q + 0.5 * dt * k2)
+        k4, _ = joint_rate(t + dt, q + dt * k3)
+        q = q + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        min_sing = min(min_sing, s1)
+        for i in np.flatnonzero((q < lo) | (q > hi)):
+            limit = hi[i] if q[i] > hi[i] else lo[i]
+            raise JointLimitExceeded(int(i) + 1, np.degrees(q[i]), np.degrees(limit), "deg")
+        times.append((k + 1) * dt)
+        path.append(q.copy())
+    joints = np.array(path)
+    hands = [ws.hand_pose(State(joints_rad=p)) for p in joints]
+    pos = np.array([h.pos_robot_m for h in hands])
+    travelled = float((pos[-1] - start_pos) @ direction)
+    if travelled < 0.9 * distance_m:
+        raise InfeasibleGoal(
+            f"the reaction null space allowed only {travelled:.3f} m of the {distance_m:.3f} m "
+            "along the direction"
+        )
+    orientation = np.array(
+        [Rotation.from_matrix(rot0.T @ h.rot_robot_from_hand).magnitude() for h in hands]
+    )
+    return ReactionlessPath(
+        t_s=np.array(times),
+        joints_rad=joints,
+        hand_pos_robot_m=pos,
+        hand_orientation_change_rad=orientation,
+        min_coupling_singular_kgm2=float(min_sing),
+    )
+
+
+def retime_path(path: ReactionlessPath, *, scale: float, reverse: bool = False) -> Array:
+    """Joint commands on the 4 Hz grid for the path run ``scale`` times slower (and
+    backwards if ``reverse``): rows at ``k * COMMAND_PERIOD_S`` from 0, the last exactly at
+    the path's end (the duration is rounded up to whole periods)."""
+    t = path.t_s * scale
+    joints = path.joints_rad[::-1] if reverse else path.joints_rad
+    n = int(np.ceil(t[-1] / COMMAND_PERIOD_S - 1e-9))
+    grid = np.minimum(np.arange(n + 1) * COMMAND_PERIOD_S, t[-1])
+    return np.column_stack([np.interp(grid, t, joints[:, i]) for i in range(joints.shape[1])])
+
+
+@dataclass(frozen=True, eq=False)
+class ReactionlessSearch:
+    """Outcome of :func:`search_reactionless_path` (beyond the paper)."""
+
+    joints_rad: Array  # the reactionless path found, rows every step
+    reached: bool
+    position_error_m: float  # remaining distance to the goal position
+    orientation_error_rad: float  # remaining orientation error
+    best_position_error_m: float  # closest approach along the path
+    reason: str
+
+
+def search_reactionless_path(
+    ws: DynamicsWorkspace,
+    start_joints_rad: Array,
+    goal_pos_robot_m: Array,
+    goal_rot_robot_from_hand: Array,
+    *,
+    orientation_weight_m: float = _ORIENTATION_WEIGHT_M,
+    step_rad: float = 0.005,
+    max_steps: int = 4000,
+    tol_m: float = 1e-3,
+) -> ReactionlessSearch:
+    """Descend the hand-pose error toward a goal while staying exactly in the RNS.
+
+    Each step moves the joints by at most ``step_rad`` along ``N zeta``, the null-space motion
+    that most reduces the weighted pose error. It stops at the goal, at a joint limit, or when
+    the null space no longer reduces the error (a local minimum of the reachable set: the
+    reaction constraint being non-holonomic, a different route could still exist).
+    """
+    model = ws.model
+    q = model.check_joints(start_joints_rad).copy()
+    lo, hi = model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]
+    path = [q.copy()]
+    best = np.inf
+    reason = f"step budget of {max_steps} exhausted"
+
+    def errors(phi: Array) -> tuple[Array, Array, Array]:
+        hand, _, J_m = ws.hand_jacobian(State(joints_rad=phi))
+        e_pos = goal_pos_robot_m - hand.pos_robot_m
+        e_rot = Rotation.from_matrix(goal_rot_robot_from_hand @ hand.rot_robot_from_hand.T)
+        err = np.concatenate([e_pos, orientation_weight_m * e_rot.as_rotvec()])
+        jac = np.vstack([J_m[:3], orientation_weight_m * J_m[3:]])
+        return err, jac, e_pos
+
+    stalled = 0
+    for _ in range(max_steps):
+        err, jac, e_pos = errors(q)
+        best = min(best, float(np.linalg.norm(e_pos)))
+        if np.linalg.norm(e_pos) < tol_m and np.linalg.norm(err[3:]) < tol_m:
+            reason = "goal reached"
+            break
+        basis, _ = _rns_basis(ws, q)
+        step = basis @ _dls(jac @ basis, err)
+        norm = float(np.linalg.norm(step))
+        if norm > step_rad:
+            step *= step_rad / norm
+        q_new = q + step
+        if np.any((q_new < lo) | (q_new > hi)):
+            joint = int(np.flatnonzero((q_new < lo) | (q_new > hi))[0]) + 1
+            reason = f"joint {joint} reached its limit"
+            break
+        new_err, _, _ = errors(q_new)
+        if np.linalg.norm(new_err) >= np.linalg.norm(err) - 1e-7:
+            stalled += 1
+            if stalled >= 20:
+                reason = "the reaction null space no longer reduces the pose error"
+                break
+        else:
+            stalled = 0
+        q = q_new
+        path.append(q.copy())
+    err, _, e_pos = errors(q)
+    return ReactionlessSearch(
+        joints_rad=np.array(path),
+        reached=reason == "goal reached",
+        position_error_m=float(np.linalg.norm(e_pos)),
+        orientation_error_rad=float(np.linalg.norm(err[3:]) / orientation_weight_m),
+        best_position_error_m=float(best),
+        reason=reason,
+    )
