@@ -16,6 +16,7 @@ axis (base frame); the base feels its negative.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -24,7 +25,6 @@ from numpy.typing import NDArray
 
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
-from planner.frames import matrix_from_quat_xyzw
 
 __all__ = [
     "AcsGains",
@@ -80,13 +80,24 @@ def default_acs_gains(
 
 
 def attitude_error_rad(quat_orbit_from_base_xyzw: Array, target_quat_xyzw: Array) -> Array:
-    """Rotation vector of ``rot_target_from_base`` (rad; ~ the base-frame error)."""
-    from scipy.spatial.transform import Rotation
+    """Rotation vector of ``rot_target_from_base`` (rad; ~ the base-frame error).
 
-    rot = matrix_from_quat_xyzw(target_quat_xyzw).T @ matrix_from_quat_xyzw(
-        quat_orbit_from_base_xyzw
-    )
-    return np.asarray(Rotation.from_matrix(rot).as_rotvec(), dtype=np.float64)
+    From the error quaternion ``conj(target) * q``, taking the short way round.
+    """
+    tx, ty, tz, tw = target_quat_xyzw
+    x, y, z, w = quat_orbit_from_base_xyzw
+    # conj(t) * q (Hamilton product, scalar last)
+    ex = tw * x - tx * w - ty * z + tz * y
+    ey = tw * y + tx * z - ty * w - tz * x
+    ez = tw * z - tx * y + ty * x - tz * w
+    ew = tw * w + tx * x + ty * y + tz * z
+    if ew < 0.0:
+        ex, ey, ez, ew = -ex, -ey, -ez, -ew
+    s = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if s < 1e-12:
+        return np.array([2.0 * ex, 2.0 * ey, 2.0 * ez])
+    angle = 2.0 * math.atan2(s, ew)
+    return np.array([ex, ey, ez]) * (angle / s)
 
 
 def wheel_torque_nm(

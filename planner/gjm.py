@@ -106,9 +106,10 @@ class GjmParams:
             if not math.isfinite(value):
                 raise InvalidInput(f"{f.name} must be finite, got {value!r}")
             if f.name.endswith("_s"):
-                least = "0" if f.name in ("lead_s", "pause_s", "tail_s") else "more than 0"
-                if value < 0.0 or (value == 0.0 and least != "0"):
-                    raise InvalidInput(f"{f.name} = {value} s must be {least} s")
+                may_be_zero = f.name in ("lead_s", "pause_s", "tail_s")
+                if value < 0.0 or (value == 0.0 and not may_be_zero):
+                    least = "at least" if may_be_zero else "more than"
+                    raise InvalidInput(f"{f.name} = {value} s must be {least} 0 s")
                 periods = value / COMMAND_PERIOD_S
                 if abs(periods - round(periods)) > 1e-9:
                     raise InvalidInput(
@@ -241,7 +242,11 @@ def _start_joints(ws: DynamicsWorkspace, params: GjmParams) -> Array:
     rot = matrix_from_rpy(np.radians([0.0, params.hand_pitch_deg, 0.0]))
     try:
         solutions = solve_ik(
-            ws, ws.model.hand_pos_robot_m, rot, reference_joints_rad=np.zeros(6), n_starts=4
+            ws,
+            ws.model.hand_pos_robot_m,
+            rot,
+            reference_joints_rad=np.zeros(ws.model.n_joints),
+            n_starts=4,
         )
     except DidNotConverge as exc:
         raise InfeasibleGoal(

@@ -9,7 +9,9 @@ board). The base and wheels obey angular-momentum balance about the system CoM (
 
 so ``w_b = H~_b^-1 (R^T L - H~_bm phi' - h_w)``; with no control and zero momentum this is
 eq. (9) and its integral eq. (10). The attitude quaternion, the wheel momentum and L are
-integrated with RK4, ``sub_steps`` per command interval. (The rotors' own share of the base's
+integrated with RK4, ``sub_steps`` per command interval. The base translates so that the
+system centre of mass stays put (eq. 2 at zero linear momentum); positions are orbit-frame
+coordinates with the origin at the initial base CoM. (The rotors' own share of the base's
 angular acceleration, ``I_w a . w_b'``, is left out of dh_w/dt: 0.15 kg m^2 against thousands.)
 """
 
@@ -71,7 +73,7 @@ def predict(
     initial_quat_orbit_from_base_xyzw: Array | None = None,
     initial_wheel_momentum_nms: Array | None = None,
     orbit: Orbit | None = None,
-    sub_steps: int = 4,
+    sub_steps: int = 2,
 ) -> Prediction:
     """Predicted states at each command time (see the module docstring).
 
@@ -189,8 +191,20 @@ def predict(
     hand_pos = np.zeros((times.size, 3))
     hand_quat = np.zeros((times.size, 4))
     rpy = np.zeros((times.size, 3))
+    # Eq. (2) with zero linear momentum: the system CoM stays where it starts, and the base
+    # moves under it as the arm moves.
+    com0 = ws.evaluate(State(joints_rad=joints[0], quat_orbit_from_base_xyzw=quats[0])).com_orbit_m
     for k in range(times.size):
-        hand = ws.hand_pose(State(joints_rad=joints[k], quat_orbit_from_base_xyzw=quats[k]))
+        offset = ws.evaluate(
+            State(joints_rad=joints[k], quat_orbit_from_base_xyzw=quats[k])
+        ).com_orbit_m
+        hand = ws.hand_pose(
+            State(
+                joints_rad=joints[k],
+                quat_orbit_from_base_xyzw=quats[k],
+                pos_base_orbit_m=com0 - offset,
+            )
+        )
         hand_pos[k] = hand.pos_orbit_m
         hand_quat[k] = quat_xyzw_from_matrix(hand.rot_orbit_from_hand)
         rpy[k] = rpy_from_matrix(matrix_from_quat_xyzw(quats[k]))
