@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -107,6 +108,73 @@ def model_quantities(
     for key, value in doc.items():
         table.add_row(key, json.dumps(np.round(np.asarray(value), 6).tolist()))
     console.print(table)
+
+
+def _plan_help() -> str:
+    from hikoboshi.planning_cli import parameters_help
+
+    return (
+        "Plan an experiment (ptp, reactionless, gjm, coordination, nonholonomic, pass) as a "
+        "4 Hz time-tagged command plan with its prediction, and write it as JSON. Parameters "
+        "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
+        "paper's experiment.\n\nParameters:\n\n" + parameters_help()
+    )
+
+
+@app.command("plan", help=_plan_help())
+def plan_command(
+    experiment: Annotated[
+        str, typer.Argument(help="ptp, reactionless, gjm, coordination, nonholonomic or pass")
+    ],
+    out: Annotated[Path, typer.Option("--out", help="Plan JSON file to write.")],
+    assignments: Annotated[
+        list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable.")
+    ] = None,
+    optimise_offset_flag: Annotated[
+        bool,
+        typer.Option(
+            "--optimise-offset",
+            help="coordination: optimise the offset size and switch times in the closed loop.",
+        ),
+    ] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+) -> None:
+    from hikoboshi.planning_cli import make_plan, write_atomically
+    from planner.errors import PlannerError
+
+    try:
+        status = (
+            contextlib.nullcontext()
+            if as_json
+            else console.status(f"planning {experiment}", spinner="dots")
+        )
+        with status:
+            plan = make_plan(
+                experiment, assignments or [], optimise_offset_flag=optimise_offset_flag
+            )
+    except PlannerError as exc:
+        _fail(str(exc))
+    write_atomically(out, plan.to_json())
+    if as_json:
+        sys.stdout.write(json.dumps({"out": str(out), "metrics": dict(plan.metrics)}) + "\n")
+        return
+    table = Table(
+        title=f"{experiment}: {plan.command_times_s.size} commands, {plan.duration_s:.2f} s"
+    )
+    table.add_column("segment")
+    table.add_column("kind")
+    table.add_column("from s", justify="right")
+    table.add_column("to s", justify="right")
+    for seg in plan.segments:
+        table.add_row(seg.name, seg.kind, f"{seg.t_start_s:.2f}", f"{seg.t_end_s:.2f}")
+    console.print(table)
+    metrics = Table(title="metrics")
+    metrics.add_column("name")
+    metrics.add_column("value", justify="right")
+    for key, value in plan.metrics.items():
+        metrics.add_row(key, f"{value:.6g}")
+    console.print(metrics)
+    console.print(f"wrote {out}")
 
 
 @app.command()

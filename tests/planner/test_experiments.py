@@ -1,0 +1,222 @@
+"""Experiment 1 (PTP baseline, reactionless), servo-lag compensation and experiment 3."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from planner.attitude_control import AcsMode, default_acs_gains
+from planner.closed_loop import fly
+from planner.coordination import (
+    CoordinationParams,
+    closed_loop_metrics,
+    optimise_offset,
+    plan_coordination,
+)
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InvalidInput, JointLimitExceeded
+from planner.experiments import (
+    PtpParams,
+    ReactionlessParams,
+    joints_at_pose_b,
+    plan_ptp,
+    plan_reactionless,
+)
+from planner.frames import matrix_from_rpy
+from planner.plan import Plan, check_plan_limits
+from planner.prediction import predict
+from planner.reactionless import reactionless_line, search_reactionless_path
+from planner.simulation import FreeFloatingSimulator, follow_commands
+from planner.state import State
+
+
+def _attitude_change_deg(quats: np.ndarray) -> np.ndarray:
+    return np.degrees(Rotation.from_quat(quats).magnitude())
+
+
+def _free_drift_change_deg(ws: DynamicsWorkspace, plan: Plan) -> float:
+    """Ideal tracking of the plan's commands with the wheels off (no help from the ACS)."""
+    free = predict(ws, plan.command_times_s, plan.command_joints_rad)
+    return float(np.max(_attitude_change_deg(free.quat_orbit_from_base_xyzw)))
+
+
+@pytest.fixture(scope="module")
+def ws() -> DynamicsWorkspace:
+    from planner.model import default_model
+
+    return DynamicsWorkspace(default_model())
+
+
+@pytest.fixture(scope="module")
+def reactionless(ws: DynamicsWorkspace) -> Plan:
+    return plan_reactionless(ws)
+
+
+def test_ptp_baseline_turns_the_base_by_degrees(ws: DynamicsWorkspace) -> None:
+    plan = plan_ptp(ws)
+    check_plan_limits(ws.model, plan)
+    np.testing.assert_allclose(np.diff(plan.command_times_s), 0.25, rtol=0, atol=0)
+    assert _free_drift_change_deg(ws, plan) > 1.0  # "changes it by degrees"
+    # with feedback on, the base comes back, but only after a settling wait
+    assert plan.metrics["peak_attitude_deg"] > 0.2
+    assert plan.metrics["settling_time_after_motion_s"] > 30.0
+    assert plan.metrics["final_attitude_deg"] < 0.02
+
+
+def test_reactionless_plan_leaves_the_base_still(ws: DynamicsWorkspace, reactionless: Plan) -> None:
+    plan = reactionless
+    check_plan_limits(ws.model, plan)
+    np.testing.assert_allclose(np.diff(plan.command_times_s), 0.25, rtol=0, atol=0)
+    # The issue's criterion, with the wheels off so that nothing hides a reaction.
+    assert _free_drift_change_deg(ws, plan) < 0.01
+    # ... against a PTP motion between the same two poses, which turns it by a degree.
+    c_joints = plan.command_joints_rad[round(plan.segment("B->C").t_end_s / 0.25)]
+    ptp = plan_ptp(
+        ws,
+        PtpParams(
+            start_joints_deg=tuple(np.degrees(plan.initial_joints_rad)),
+            goal_joints_deg=tuple(np.degrees(c_joints)),
+            settle_s=0.0,
+        ),
+    )
+    assert _free_drift_change_deg(ws, ptp) > 100 * _free_drift_change_deg(ws, plan)
+    # about 0.35 m up at 0.015 m/s, and back to B's joints exactly (the path is retraced)
+    assert plan.metrics["hand_travel_m"] == pytest.approx(0.35, abs=0.01)
+    np.testing.assert_array_equal(plan.command_joints_rad[-1], plan.initial_joints_rad)
+    assert plan.metrics["back_duration_s"] == pytest.approx(
+        2 * plan.metrics["out_duration_s"], abs=0.5
+    )
+    # the constraint costs hand orientation; the plan says how much
+    assert 1.0 < plan.metrics["hand_orientation_change_max_deg"] < 30.0
+
+
+def test_reactionless_faster_leg_leaves_the_larger_residual_in_flight(
+    ws: DynamicsWorkspace, reactionless: Plan
+) -> None:
+    gains = default_acs_gains(ws)
+    flown = fly(
+        ws,
+        reactionless.command_times_s,
+        reactionless.command_joints_rad,
+        acs_commands=reactionless.acs_commands,
+        acs_gains=gains,
+    )
+    angle = _attitude_change_deg(flown.quat_orbit_from_base_xyzw)
+    out, back = reactionless.segment("B->C"), reactionless.segment("C->B")
+    peak_out = np.max(angle[(flown.t_s >= out.t_start_s) & (flown.t_s <= out.t_end_s + 5)])
+    peak_back = np.max(angle[(flown.t_s >= back.t_start_s) & (flown.t_s <= back.t_end_s + 5)])
+    assert peak_out < 0.01  # the lagging servos leave a small residual ...
+    assert peak_out > 2 * peak_back  # ... that grows with speed (SPEC 3.1)
+
+
+def test_servo_lag_compensation_shrinks_the_residual_reaction(
+    ws: DynamicsWorkspace, reactionless: Plan
+) -> None:
+    compensated = plan_reactionless(ws, ReactionlessParams(compensate_servo_lag=True))
+    peaks = []
+    tracking = []
+    for plan in (reactionless, compensated):
+        sim = FreeFloatingSimulator(ws.model, State(joints_rad=plan.command_joints_rad[0]))
+        flown = follow_commands(
+            sim, plan.command_times_s, plan.command_joints_rad, end_time_s=plan.duration_s
+        )
+        peaks.append(np.max(_attitude_change_deg(flown.quat_orbit_from_base_xyzw)))
+        desired = np.column_stack(
+            [
+                np.interp(
+                    flown.t_s, reactionless.command_times_s, reactionless.command_joints_rad[:, i]
+                )
+                for i in range(6)
+            ]
+        )
+        tracking.append(np.degrees(np.max(np.abs(flown.joints_rad - desired))))
+    plain_deg, shaped_deg = peaks
+    # measured: 6.0e-4 deg -> 0.8e-4 deg, joint tracking 0.68 deg -> 0.014 deg
+    assert shaped_deg < plain_deg / 3.0
+    assert tracking[1] < tracking[0] / 10.0
+
+
+def test_reactionless_refuses_motion_past_a_joint_limit(ws: DynamicsWorkspace) -> None:
+    with pytest.raises(JointLimitExceeded, match=r"exceeds limit 170\.000 deg"):
+        reactionless_line(
+            ws,
+            np.radians([31.6, 21.4, -8.8, 165.0, 0.0, 68.6]),
+            direction_robot=np.array([0.0, 0.0, 1.0]),
+            distance_m=0.35,
+            speed_mps=0.015,
+        )
+    with pytest.raises(InvalidInput):
+        plan_reactionless(ws, ReactionlessParams(out_speed_mps=0.0))
+
+
+def test_search_for_a_reactionless_path_from_a_to_b_reports_honestly(
+    ws: DynamicsWorkspace,
+) -> None:
+    goal_rot = matrix_from_rpy(np.radians([0.0, 90.0, -37.0]))
+    goal_pos = np.array([1.170, 0.407, 0.490])
+    result = search_reactionless_path(ws, np.zeros(6), goal_pos, goal_rot)
+    # SPEC 3.1: no continuous reactionless path from A to B within the joint ranges was found
+    # in flight planning; ours stops short too and says why.
+    assert not result.reached
+    assert result.reason
+    start_distance = np.linalg.norm(goal_pos - np.array([1.162, -0.267, 1.497]))
+    assert result.best_position_error_m < start_distance  # it did get closer
+    # and every step stayed in the null space
+    free = predict(ws, np.arange(result.joints_rad.shape[0]) * 0.25, result.joints_rad)
+    assert np.max(_attitude_change_deg(free.quat_orbit_from_base_xyzw)) < 0.01
+    assert joints_at_pose_b(ws).shape == (6,)
+
+
+@pytest.fixture(scope="module")
+def coordination(ws: DynamicsWorkspace) -> Plan:
+    return plan_coordination(ws)
+
+
+def test_coordination_plan_has_three_variants_with_their_attitude_commands(
+    ws: DynamicsWorkspace, coordination: Plan
+) -> None:
+    plan = coordination
+    check_plan_limits(ws.model, plan)
+    kinds = [s.name for s in plan.segments if s.kind == "coordination"]
+    assert len(kinds) == 6  # forward and back for (a), (b), (c)
+    assert any(c.feedforward for c in plan.acs_commands)
+    targets = [
+        c
+        for c in plan.acs_commands
+        if not np.allclose(c.target_quat_orbit_from_base_xyzw, [0, 0, 0, 1])
+    ]
+    assert len(targets) == 2  # (c): one offset per leg
+    assert all(c.mode is AcsMode.FEEDBACK for c in plan.acs_commands)
+    # the forward leg's eq. (10) offset pitches the base down, the backward leg's up
+    assert plan.metrics["offset_forward_pitch_deg"] < -0.1
+    assert plan.metrics["offset_back_pitch_deg"] == pytest.approx(
+        -plan.metrics["offset_forward_pitch_deg"], rel=0.05
+    )
+    # hand 0.2 m forward along x and back, orientation held
+    forward = plan.segment("(a) feedback: forward")
+    k = round(forward.t_end_s / 0.25)
+    hand0 = ws.hand_pose(State(joints_rad=plan.command_joints_rad[0]))
+    hand1 = ws.hand_pose(State(joints_rad=plan.command_joints_rad[k]))
+    np.testing.assert_allclose(hand1.pos_robot_m - hand0.pos_robot_m, [0.2, 0, 0], atol=1e-3)
+
+
+def test_momentum_feedforward_cancels_the_reaction_under_ideal_tracking(
+    coordination: Plan,
+) -> None:
+    m = coordination.metrics
+    assert m["predicted_feedforward_pitch_range_deg"] < m["predicted_feedback_pitch_range_deg"]
+
+
+@pytest.mark.slow
+def test_optimised_offset_beats_the_unoptimised_rule_in_the_closed_loop(
+    ws: DynamicsWorkspace,
+) -> None:
+    params = CoordinationParams(settle_s=100.0)
+    optimum = optimise_offset(ws, params, max_evaluations=20)
+    objective = optimum.pitch_range_deg + 0.002 * optimum.settling_time_s
+    baseline = optimum.paper_rule_pitch_range_deg + 0.002 * optimum.paper_rule_settling_time_s
+    assert objective < baseline
+    feedback = closed_loop_metrics(ws, params, "feedback")
+    assert optimum.settling_time_s < feedback["settling_time_s"]
+    assert -1.0 < optimum.offset_forward_pitch_deg < 0.0

@@ -1,0 +1,74 @@
+"""``hikoboshi plan``: the contract other tools rely on (real subprocesses)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*HIKOBOSHI, *args], capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.parametrize(
+    ("experiment", "kinds"),
+    [
+        ("ptp", {"ptp", "settle"}),
+        ("reactionless", {"reactionless", "hold"}),
+        ("gjm", {"gjm", "hold"}),
+    ],
+)
+def test_plan_writes_the_documented_file(tmp_path: Path, experiment: str, kinds: set[str]) -> None:
+    out = tmp_path / f"{experiment}.json"
+    result = run("plan", experiment, "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    doc = json.loads(out.read_text())
+    assert doc["experiment"] == experiment
+    assert len(doc["initial_joints_rad"]) == 6
+    times = np.array([c["t_s"] for c in doc["commands"]])
+    np.testing.assert_array_equal(np.diff(times), 0.25)
+    assert times[0] == 0.0
+    assert all(len(c["joints_rad"]) == 6 for c in doc["commands"])
+    assert {s["kind"] for s in doc["segments"]} == kinds
+    for seg in doc["segments"]:
+        assert set(seg) >= {"name", "kind", "t_start_s", "t_end_s"}
+        assert 0.0 <= seg["t_start_s"] <= seg["t_end_s"] <= times[-1]
+    assert json.loads(result.stdout)["out"] == str(out)
+
+
+def test_plan_help_lists_the_parameters() -> None:
+    result = run("plan", "--help")
+    assert result.returncode == 0
+    for name in ("out_speed_mps", "approach_distance_m", "offset_scale", "window_s"):
+        assert name in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (["ptp", "--set", "nope=1"], "unknown parameter 'nope'"),
+        (["ptp", "--set", "settle_s=abc"], "parameter settle_s"),
+        (["ptp", "--set", "goal_joints_deg=0,0,175,0,0,0"], "joint 3 at 175.000 deg exceeds"),
+        (["reactionless", "--set", "out_speed_mps=0.03"], "deg/s exceeds limit 3.000 deg/s"),
+        (["gjm", "--set", "approach_s=3.1"], "approach_s"),
+        (["teleport"], "unknown experiment 'teleport'"),
+        (["ptp", "--optimise-offset"], "coordination experiment only"),
+    ],
+)
+def test_bad_parameters_exit_with_one_line_and_write_nothing(
+    tmp_path: Path, args: list[str], reason: str
+) -> None:
+    out = tmp_path / "plan.json"
+    result = run("plan", *args[:1], "--out", str(out), *args[1:])
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and reason in lines[0], result.stderr
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []  # no temporary file left behind either
