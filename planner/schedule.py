@@ -36,7 +36,7 @@ EXPERIMENTS = ("ptp", "reactionless", "gjm", "coordination", "nonholonomic")
 class PassParams:
     window_s: float = 1260.0  # SPEC 3/5: about 20 minutes of robot time
     experiments: tuple[str, ...] = EXPERIMENTS
-    transfer_settle_s: float = 60.0  # after each PTP transfer between experiments
+    transfer_settle_s: float = 45.0  # after each PTP transfer between experiments
     ptp_settle_s: float = 100.0  # experiment 1's settling wait (flight: about 100 s)
     coordination_settle_s: float = 80.0
     coordination_pause_s: float = 10.0
