@@ -6,5 +6,8 @@ parameters come in as arguments.
 Modules: ``model`` (the canonical description), ``frames`` and ``state`` (conventions),
 ``mujoco_conventions`` (the one place that speaks MuJoCo's), ``mjcf`` and ``urdf``
 (exports), ``dynamics`` (quantities of SPEC section 2), ``gravity_gradient``, ``ik``,
-``ptp``, ``free_drift`` (eq. 9-10 prediction) and ``simulation`` (the free-floating core).
+``ptp``, ``free_drift`` (eq. 9-10 prediction) and ``simulation`` (the free-floating core);
+the planners ``experiments`` (PTP, reactionless), ``reactionless``, ``gjm``,
+``coordination``, ``nonholonomic``, ``servo_compensation`` and ``schedule``, on the
+shared ``plan``, ``prediction``, ``attitude_control`` and ``closed_loop``.
 """
