@@ -1,0 +1,271 @@
+"""The space-ground wire protocol, version 1: what crosses the relay link.
+
+Every message is one JSON object in one websocket text frame, with ``"v"`` (the protocol
+version) and ``"type"``. Times are integer nanoseconds of the **onboard clock**
+(``*_time_ns``); angles in radians, rates in rad/s, momentum in N m s. The full description,
+with the sequencing and acknowledgement rules, is ``docs/protocol.md``.
+
+Ground -> spacecraft: ``command`` (``joints`` or ``acs``), ``telemetry_ack``, ``retransmit``,
+``ping``. Spacecraft -> ground: ``hello``, ``command_ack``, ``telemetry``, ``pong``, ``error``.
+
+:func:`decode` accepts only well-formed messages of this version and raises
+:class:`WireError` (with a reason fit for an ``error`` reply) for anything else.
+"""
+
+from __future__ import annotations
+
+import json
+from enum import StrEnum
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+__all__ = [
+    "MAX_MESSAGE_BYTES",
+    "PROTOCOL_VERSION",
+    "AcsCommandMsg",
+    "AcsModeName",
+    "BufferState",
+    "CommandAck",
+    "CommandStage",
+    "ErrorMsg",
+    "GroundMessage",
+    "Hello",
+    "JointCommandMsg",
+    "Ping",
+    "Pong",
+    "RejectReason",
+    "Retransmit",
+    "SpacecraftMessage",
+    "TelemetryAck",
+    "TelemetryFrame",
+    "TelemetryMsg",
+    "WireError",
+    "decode_ground",
+    "decode_spacecraft",
+    "encode",
+]
+
+PROTOCOL_VERSION = 1
+#: Larger messages are refused unread (a backlog dump is split into smaller batches).
+MAX_MESSAGE_BYTES = 256 * 1024
+#: At most this many frames in one telemetry message.
+MAX_FRAMES_PER_MESSAGE = 200
+
+
+class WireError(ValueError):
+    """A message that is not a valid protocol message; the text is the reason."""
+
+
+class _Obj(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class _Msg(_Obj):
+    v: Literal[1] = 1
+
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Vec6 = Annotated[list[float], Field(min_length=6, max_length=6)]
+Quat = Annotated[list[float], Field(min_length=4, max_length=4)]
+Seq = Annotated[int, Field(ge=0, lt=2**53)]
+TimeNs = Annotated[int, Field(ge=0, lt=2**63)]
+
+
+class AcsModeName(StrEnum):
+    FEEDBACK = "feedback"
+    FREE_DRIFT = "free_drift"
+
+
+# --- ground -> spacecraft ----------------------------------------------------------------
+
+
+class JointCommandMsg(_Msg):
+    """Joint targets to reach at ``execute_time_ns``; between consecutive joint commands
+    (tags one command period apart) the target moves linearly."""
+
+    type: Literal["command"] = "command"
+    kind: Literal["joints"] = "joints"
+    seq: Seq
+    execute_time_ns: TimeNs
+    joints_rad: Vec6
+
+
+class AcsCommandMsg(_Msg):
+    """Attitude-control mode, target and momentum feedforward from ``execute_time_ns``."""
+
+    type: Literal["command"] = "command"
+    kind: Literal["acs"] = "acs"
+    seq: Seq
+    execute_time_ns: TimeNs
+    mode: AcsModeName
+    target_quat_orbit_from_base_xyzw: Quat = Field(default_factory=lambda: [0.0, 0.0, 0.0, 1.0])
+    feedforward: bool = False
+
+
+class TelemetryAck(_Msg):
+    """Every frame with ``seq <= through_seq`` arrived, and those in ``ranges`` (inclusive)."""
+
+    type: Literal["telemetry_ack"] = "telemetry_ack"
+    through_seq: Annotated[int, Field(ge=-1, lt=2**53)]
+    ranges: Annotated[list[tuple[Seq, Seq]], Field(max_length=1000)] = Field(default_factory=list)
+
+
+class Retransmit(_Msg):
+    """Send these frames again (inclusive ranges), oldest first."""
+
+    type: Literal["retransmit"] = "retransmit"
+    ranges: Annotated[list[tuple[Seq, Seq]], Field(min_length=1, max_length=1000)]
+
+
+class Ping(_Msg):
+    type: Literal["ping"] = "ping"
+    ping_id: Seq
+    ground_time_ns: TimeNs
+
+
+# --- spacecraft -> ground ----------------------------------------------------------------
+
+
+class Hello(_Msg):
+    """First message after (re)connecting: who is there and what its clock says."""
+
+    type: Literal["hello"] = "hello"
+    vehicle: str = Field(max_length=64)
+    onboard_time_ns: TimeNs
+    time_scale: Annotated[float, Field(gt=0, le=1000)]
+    next_telemetry_seq: Seq
+    last_command_seq: Annotated[int, Field(ge=-1)] = -1
+
+
+class CommandStage(StrEnum):
+    RECEIVED = "received"
+    EXECUTED = "executed"
+    REJECTED = "rejected"
+
+
+class RejectReason(StrEnum):
+    LATE = "late"  # arrived at or after its tag; never executed late
+    OUT_OF_LIMITS = "out_of_limits"  # joint angle or rate beyond its limit
+    MALFORMED = "malformed"  # tag off the onboard grid, not a rotation, ...
+    DUPLICATE = "duplicate"  # this seq was seen before; the first one stands
+    LINK_LOST = "link_lost"  # queued when the link dropped: the arm holds instead
+
+
+class CommandAck(_Msg):
+    type: Literal["command_ack"] = "command_ack"
+    seq: Seq
+    stage: CommandStage
+    reason: RejectReason | None = None
+    detail: str | None = Field(default=None, max_length=300)
+    onboard_time_ns: TimeNs
+
+
+class BufferState(_Obj):
+    queued: Annotated[int, Field(ge=0)]
+    next_execute_time_ns: TimeNs | None = None
+    last_executed_seq: Annotated[int, Field(ge=-1)] = -1
+
+
+class TelemetryFrame(_Obj):
+    """One sample of the vehicle (SPEC section 6), measured with sensor noise."""
+
+    seq: Seq
+    generation_time_ns: TimeNs
+    joints_rad: Vec6
+    joint_targets_rad: Vec6
+    quat_orbit_from_base_xyzw: Quat
+    omega_base_in_base_radps: Vec3  # gyro: base rate in the base frame
+    wheel_speeds_radps: Vec3  # relative to the base
+    wheel_momentum_nms: Vec3  # I_w * speed, base frame
+    acs_mode: AcsModeName
+    acs_target_quat_xyzw: Quat
+    acs_feedforward: bool
+    buffer: BufferState
+
+
+class TelemetryMsg(_Msg):
+    type: Literal["telemetry"] = "telemetry"
+    frames: Annotated[list[TelemetryFrame], Field(min_length=1, max_length=MAX_FRAMES_PER_MESSAGE)]
+    retransmission: bool = False
+
+
+class Pong(_Msg):
+    type: Literal["pong"] = "pong"
+    ping_id: Seq
+    ground_time_ns: TimeNs
+    onboard_time_ns: TimeNs
+
+
+class ErrorMsg(_Msg):
+    """The reply to a message that could not be understood; the process carries on."""
+
+    type: Literal["error"] = "error"
+    reason: str = Field(max_length=500)
+    ref_type: str | None = Field(default=None, max_length=64)
+
+
+GroundMessage = Annotated[
+    JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping,
+    Field(discriminator="type"),
+]
+SpacecraftMessage = Annotated[
+    Hello | CommandAck | TelemetryMsg | Pong | ErrorMsg, Field(discriminator="type")
+]
+
+_COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
+_GROUND_OTHER = TypeAdapter(
+    Annotated[TelemetryAck | Retransmit | Ping, Field(discriminator="type")]
+)
+_SPACECRAFT = TypeAdapter(SpacecraftMessage)
+
+
+def encode(message: _Obj) -> str:
+    return message.model_dump_json()
+
+
+def _load(text: str | bytes) -> dict[str, object]:
+    if len(text) > MAX_MESSAGE_BYTES:
+        raise WireError(f"message of {len(text)} bytes exceeds {MAX_MESSAGE_BYTES} bytes")
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise WireError(f"not JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise WireError("a message must be a JSON object")
+    version = doc.get("v")
+    if version != PROTOCOL_VERSION:
+        raise WireError(f"protocol version {version!r} is not {PROTOCOL_VERSION}")
+    if not isinstance(doc.get("type"), str):
+        raise WireError("a message needs a string 'type'")
+    return doc
+
+
+def _reason(exc: ValidationError) -> str:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "message"
+    return f"{where}: {first['msg']}"[:400]
+
+
+def decode_ground(
+    text: str | bytes,
+) -> JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping:
+    """A ground -> spacecraft message, or :class:`WireError`."""
+    doc = _load(text)
+    try:
+        if doc["type"] == "command":
+            return _COMMAND.validate_python(doc)
+        if doc["type"] in ("telemetry_ack", "retransmit", "ping"):
+            return _GROUND_OTHER.validate_python(doc)
+    except ValidationError as exc:
+        raise WireError(f"invalid {doc['type']}: {_reason(exc)}") from None
+    raise WireError(f"unknown message type {str(doc['type'])[:64]!r}")
+
+
+def decode_spacecraft(text: str | bytes) -> Hello | CommandAck | TelemetryMsg | Pong | ErrorMsg:
+    """A spacecraft -> ground message, or :class:`WireError`."""
+    doc = _load(text)
+    try:
+        return _SPACECRAFT.validate_python(doc)
+    except ValidationError as exc:
+        raise WireError(f"invalid {str(doc['type'])[:64]}: {_reason(exc)}") from None
