@@ -224,5 +224,80 @@ def demo(
     console.print(f"Look at: {summary['summary_json']} and {summary['series_csv']}")
 
 
+@app.command()
+def spacecraft(
+    ground: Annotated[str, typer.Option(help="Ground link endpoint, ws://HOST:PORT/PATH")],
+    token: Annotated[str, typer.Option(help="API token with the spacecraft role")],
+    time_scale: Annotated[float, typer.Option(help="Onboard seconds per wall second")] = 1.0,
+    delay: Annotated[float | None, typer.Option(help="One-way delay, s (both directions)")] = None,
+    jitter: Annotated[float | None, typer.Option(help="Delay jitter, s (1 sigma)")] = None,
+    loss: Annotated[float | None, typer.Option(help="Message loss probability [0, 1)")] = None,
+    outage: Annotated[
+        list[str] | None, typer.Option(help="LOS window START:END in onboard s; repeatable")
+    ] = None,
+    bandwidth: Annotated[float | None, typer.Option(help="Link bandwidth cap, bytes/s")] = None,
+    link_config: Annotated[
+        Path | None, typer.Option(help="TOML file with [link], [uplink], [downlink] tables")
+    ] = None,
+    telemetry_rate_hz: Annotated[float, typer.Option(help="Telemetry frames per second")] = 10.0,
+    seed: Annotated[int, typer.Option(help="Seed for link and sensor noise")] = 0,
+) -> None:
+    """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link."""
+    import asyncio
+    import dataclasses
+    import logging
+    import signal
+
+    from spacecraft.vehicle import VehicleConfig
+
+    from spacecraft.link import LinkConfig, load_link_config, parse_outage
+    from spacecraft.process import ProcessConfig, SpacecraftProcess
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    try:
+        if link_config is not None:
+            up, down = load_link_config(link_config)
+        else:
+            up, down = LinkConfig(seed=seed), LinkConfig(seed=seed + 1)
+        changes: dict[str, Any] = {}
+        if delay is not None:
+            changes["delay_s"] = delay
+        if jitter is not None:
+            changes["jitter_s"] = jitter
+        if loss is not None:
+            changes["loss"] = loss
+        if bandwidth is not None:
+            changes["bandwidth_bps"] = bandwidth
+        if outage:
+            changes["outages"] = tuple(parse_outage(o) for o in outage)
+        up = dataclasses.replace(up, **changes)
+        down = dataclasses.replace(down, **changes)
+        config = ProcessConfig(
+            ground_url=ground,
+            token=token,
+            time_scale=time_scale,
+            vehicle=VehicleConfig(telemetry_period_s=1.0 / telemetry_rate_hz),
+            uplink=up,
+            downlink=down,
+            seed=seed,
+        )
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+
+    async def main_async() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        process = SpacecraftProcess(config)
+        await process.run(stop)
+        err_console.print(
+            f"spacecraft stopped: {process.store.unacked} frames unacknowledged, "
+            f"{process.connections} connections"
+        )
+
+    asyncio.run(main_async())
+
+
 def main() -> None:
     app()

@@ -2,8 +2,9 @@
 
 The same ingredients the spacecraft uses on board: lagging joint servos that follow the
 4 Hz commands (linear between them), the wheel law of :mod:`planner.attitude_control` run at
-the sample rate with the active attitude-control command, momentum feedforward computed from
-the commands, wheel torque and momentum limits. Planners use it to evaluate and optimise
+the sample rate with the active attitude-control command, the feedforward's eq. (9) reaction
+rate computed from the commanded motion, wheel torque and momentum limits (the spacecraft
+adds sensor noise and gravity gradient). Planners use it to evaluate and optimise
 against the closed loop.
 """
 
@@ -18,7 +19,7 @@ from planner.attitude_control import (
     AcsGains,
     AcsMode,
     attitude_error_rad,
-    momentum_feedforward_torque_nm,
+    reaction_rate_radps,
     wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
@@ -71,23 +72,20 @@ def fly(
     )
     ordered = sorted(acs_commands, key=lambda c: c.t_s)
     command_t = np.array([c.t_s for c in ordered])
-    feedforward = (
-        momentum_feedforward_torque_nm(ws, times, joints)
-        if any(c.feedforward for c in ordered)
-        else None
-    )
+
+    def commanded_reaction_rate(t_s: float) -> Array:
+        # The servo target and its rate at t_s: linear between consecutive commands.
+        i = int(np.searchsorted(times, t_s + 1e-9, side="right")) - 1
+        if i < 0 or i + 1 >= times.size:
+            return np.zeros(3)
+        rate = (joints[i + 1] - joints[i]) / (times[i + 1] - times[i])
+        return reaction_rate_radps(ws, joints[i] + rate * (t_s - times[i]), rate)
 
     def controller(t_s: float, state: State) -> Array:
         k = int(np.searchsorted(command_t, t_s + 1e-9, side="right")) - 1
-        if k < 0:
+        if k < 0 or ordered[k].mode is AcsMode.FREE_DRIFT:
             return np.zeros(3)
         acs = ordered[k]
-        ff = None
-        if acs.feedforward and feedforward is not None:
-            i = int(np.clip(np.searchsorted(times, t_s, side="right") - 1, 0, len(feedforward) - 1))
-            ff = feedforward[i] if times[0] <= t_s < times[-1] else np.zeros(3)
-        if acs.mode is AcsMode.FREE_DRIFT and ff is None:
-            return np.zeros(3)
         return wheel_torque_nm(
             acs_gains,
             acs.mode,
@@ -95,7 +93,7 @@ def fly(
                 state.quat_orbit_from_base_xyzw, acs.target_quat_orbit_from_base_xyzw
             ),
             omega_base_radps=state.rot_orbit_from_base.T @ state.omega_base_orbit_radps,
-            feedforward_nm=ff,
+            reaction_rate_radps=commanded_reaction_rate(t_s) if acs.feedforward else None,
         )
 
     return follow_commands(

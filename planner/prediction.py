@@ -27,7 +27,6 @@ from planner.attitude_control import (
     AcsGains,
     AcsMode,
     attitude_error_rad,
-    momentum_feedforward_torque_nm,
     wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
@@ -78,8 +77,8 @@ def predict(
     """Predicted states at each command time (see the module docstring).
 
     ``acs_commands`` switch the attitude-control mode and target at their times (free drift
-    before the first); ``acs_gains`` is needed when any command is ``feedback`` or uses
-    feedforward. ``orbit`` switches the gravity-gradient torque on.
+    before the first); ``acs_gains`` is needed when any command is ``feedback`` (feedforward
+    acts through the feedback loop). ``orbit`` switches the gravity-gradient torque on.
     """
     times = np.asarray(command_times_s, dtype=np.float64)
     joints = np.asarray(command_joints_rad, dtype=np.float64)
@@ -88,16 +87,11 @@ def predict(
         raise InvalidInput("command times (k,) and joints (k, n) do not match")
     if np.any(np.diff(times) <= 0.0):
         raise InvalidInput("command times must increase")
-    needs_gains = any(c.mode is AcsMode.FEEDBACK or c.feedforward for c in acs_commands)
+    needs_gains = any(c.mode is AcsMode.FEEDBACK for c in acs_commands)
     if needs_gains and acs_gains is None:
         raise InvalidInput("attitude-control commands need acs_gains")
     ordered = sorted(acs_commands, key=lambda c: c.t_s)
     free = _Acs(AcsMode.FREE_DRIFT, IDENTITY_QUAT_XYZW, False)
-    feedforward = (
-        momentum_feedforward_torque_nm(ws, times, joints)
-        if any(c.feedforward for c in ordered)
-        else np.zeros((max(times.size - 1, 0), 3))
-    )
 
     quat = (
         IDENTITY_QUAT_XYZW.copy()
@@ -133,19 +127,24 @@ def predict(
         omega: Array = np.asarray(np.linalg.solve(h_b, rot.T @ l_now - reaction - h_now), float)
         return omega, rot, h_b, reaction
 
-    def derivative(phi: Array, rate: Array, y: Array, acs: _Acs, ff: Array) -> Array:
+    def derivative(phi: Array, rate: Array, y: Array, acs: _Acs) -> Array:
         quat_now, h_now, l_now = y[:4] / np.linalg.norm(y[:4]), y[4:7], y[7:10]
-        omega, rot, h_b, _ = rates(phi, rate, quat_now, h_now, l_now)
+        omega, rot, h_b, reaction = rates(phi, rate, quat_now, h_now, l_now)
         dquat = 0.5 * quat_multiply_xyzw(quat_now, np.array([*omega, 0.0]))
         torque = np.zeros(3)
-        if acs.mode is AcsMode.FEEDBACK or acs.feedforward:
+        if acs.mode is AcsMode.FEEDBACK:
             assert acs_gains is not None
             torque = wheel_torque_nm(
                 acs_gains,
                 acs.mode,
                 attitude_error=attitude_error_rad(quat_now, acs.target),
                 omega_base_radps=omega,
-                feedforward_nm=ff if acs.feedforward else None,
+                # eq. (9) of the commanded motion: the same as reaction_rate_radps()
+                reaction_rate_radps=(
+                    np.asarray(-np.linalg.solve(h_b, reaction), dtype=np.float64)
+                    if acs.feedforward
+                    else None
+                ),
             )
             # A wheel at capacity takes no more torque in the same sense.
             full = (np.abs(h_now) >= acs_gains.momentum_limit_nms) & (torque * h_now > 0)
@@ -178,11 +177,10 @@ def predict(
             phi0 = joints[k] + rate * tau
             phi_mid = phi0 + 0.5 * dt * rate
             phi1 = phi0 + dt * rate
-            ff = feedforward[k]
-            k1 = derivative(phi0, rate, y, acs, ff)
-            k2 = derivative(phi_mid, rate, y + 0.5 * dt * k1, acs, ff)
-            k3 = derivative(phi_mid, rate, y + 0.5 * dt * k2, acs, ff)
-            k4 = derivative(phi1, rate, y + dt * k3, acs, ff)
+            k1 = derivative(phi0, rate, y, acs)
+            k2 = derivative(phi_mid, rate, y + 0.5 * dt * k1, acs)
+            k3 = derivative(phi_mid, rate, y + 0.5 * dt * k2, acs)
+            k4 = derivative(phi1, rate, y + dt * k3, acs)
             y = y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
             y[:4] /= np.linalg.norm(y[:4])
         states.append(y.copy())

@@ -201,21 +201,48 @@ def test_coordination_plan_has_three_variants_with_their_attitude_commands(
     np.testing.assert_allclose(hand1.pos_robot_m - hand0.pos_robot_m, [0.2, 0, 0], atol=1e-3)
 
 
-def test_momentum_feedforward_cancels_the_reaction_under_ideal_tracking(
+def test_feedforward_answers_the_start_fast_then_overshoots_as_in_flight(
     coordination: Plan,
 ) -> None:
+    """Experiment 3b under ideal tracking (paper 3.5, Fig. 9). The feedforward is the flight's
+    angular-velocity type (planner.attitude_control), no longer an ideal momentum
+    cancellation, so this asserts what the flight showed instead of "beats feedback": a
+    smaller first dip than feedback alone, then a recovery that adds to the deceleration
+    reaction and overshoots positive, a wider range than feedback alone."""
+    pitch = np.degrees(coordination.prediction.rpy_base_rad[:, 1])
+    t = coordination.command_times_s
+
+    def dip_and_peak(label: str, variant: str) -> tuple[float, float]:
+        forward = coordination.segment(f"{label} {variant}: forward")
+        back = coordination.segment(f"{label} {variant}: back")
+        leg = (t >= forward.t_start_s) & (t <= forward.t_end_s)
+        before_back = (t >= forward.t_start_s) & (t < back.t_start_s)
+        return float(np.min(pitch[leg])), float(np.max(pitch[before_back]))
+
+    fb_dip, fb_peak = dip_and_peak("(a)", "feedback")
+    ff_dip, ff_peak = dip_and_peak("(b)", "feedforward")
+    # measured: dips -0.20 (a) and -0.09 (b) deg; peaks +0.06 and +0.39 deg
+    assert fb_dip < -0.1
+    assert ff_dip > 0.6 * fb_dip  # the feedforward answers the start reaction faster ...
+    assert ff_peak > 0.3 and ff_peak > 3.0 * fb_peak  # ... and then overshoots strongly
     m = coordination.metrics
-    assert m["predicted_feedforward_pitch_range_deg"] < m["predicted_feedback_pitch_range_deg"]
+    assert m["predicted_feedforward_pitch_range_deg"] > m["predicted_feedback_pitch_range_deg"]
 
 
 @pytest.mark.slow
 def test_optimised_offset_beats_the_unoptimised_rule_in_the_closed_loop(
     ws: DynamicsWorkspace,
 ) -> None:
-    params = CoordinationParams(settle_s=100.0)
-    optimum = optimise_offset(ws, params, max_evaluations=20)
-    objective = optimum.pitch_range_deg + 0.002 * optimum.settling_time_s
-    baseline = optimum.paper_rule_pitch_range_deg + 0.002 * optimum.paper_rule_settling_time_s
+    # Calibrated wheel law (docs/spacecraft.md): feedback alone settles in about 100 s, so the
+    # window is 150 s (at 100 s its settling time was cut off at the window's end), and a
+    # second of settling weighs 0.006 deg of range. At the default 0.002 deg/s the objective
+    # prefers no offset at all (feedback's range, 0.50 deg, is the smallest) and Nelder-Mead
+    # stops there, which no longer says anything about the offset rule.
+    weight = 0.006
+    params = CoordinationParams(settle_s=150.0)
+    optimum = optimise_offset(ws, params, max_evaluations=20, settle_weight_deg_per_s=weight)
+    objective = optimum.pitch_range_deg + weight * optimum.settling_time_s
+    baseline = optimum.paper_rule_pitch_range_deg + weight * optimum.paper_rule_settling_time_s
     assert objective < baseline
     feedback = closed_loop_metrics(ws, params, "feedback")
     assert optimum.settling_time_s < feedback["settling_time_s"]

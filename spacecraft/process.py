@@ -1,0 +1,295 @@
+"""The spacecraft process: the vehicle behind an emulated relay link, talking websocket.
+
+One asyncio loop owns everything. The onboard clock runs at ``time_scale`` times wall time
+(``onboard_s = (wall - wall0) * time_scale``), and every onboard duration (link delay,
+telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x takes a minute.
+
+- **Uplink**: a message from the ground reaches the vehicle only after the uplink emulator's
+  delay (it may be lost, or fall in an outage); the vehicle is advanced to the delivery
+  instant before it sees the message, so "late" means late in onboard time.
+- **Downlink**: acknowledgements, errors, pongs and telemetry leave through the downlink
+  emulator and are written to the socket at their delivery instant; telemetry stays in the
+  onboard store (:mod:`spacecraft.downlink`) until the ground acknowledges it.
+- **Connection**: reconnects after any drop with exponential backoff; a drop is a link loss for
+  the vehicle (queued joint commands are refused, the arm holds). ``hello`` is the session
+  handshake and goes straight to the ground.
+- **Stop** (SIGTERM): the vehicle stops, the link keeps running until every telemetry frame has
+  been acknowledged or ``drain_timeout_s`` (wall) has passed, then the process exits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import heapq
+import itertools
+import json
+import logging
+import random
+import time
+from dataclasses import dataclass, field
+
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+
+from spacecraft.downlink import Downlink, DownlinkConfig
+from spacecraft.link import LinkConfig, LinkEmulator
+from spacecraft.vehicle import Vehicle, VehicleConfig
+from telemetry.wire import (
+    AcsCommandMsg,
+    CommandAck,
+    CommandStage,
+    ErrorMsg,
+    Hello,
+    JointCommandMsg,
+    Ping,
+    Pong,
+    RejectReason,
+    Retransmit,
+    TelemetryAck,
+    TelemetryMsg,
+    WireError,
+    decode_ground,
+    encode,
+)
+
+__all__ = ["ProcessConfig", "SpacecraftProcess"]
+
+log = logging.getLogger("hikoboshi.spacecraft")
+
+#: Frames larger than this close the socket (the library's guard); smaller ones that are
+#: still over the protocol's limit get an ``error`` reply.
+SOCKET_MAX_BYTES = 4 * 1024 * 1024
+
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    ground_url: str
+    token: str
+    time_scale: float = 1.0
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    uplink: LinkConfig = field(default_factory=LinkConfig)
+    downlink: LinkConfig = field(default_factory=lambda: LinkConfig(seed=1))
+    telemetry_store: DownlinkConfig = field(default_factory=DownlinkConfig)
+    epoch_ns: int | None = None  # onboard clock at start; default: wall clock, whole second
+    seed: int = 0
+    backoff_initial_s: float = 0.2  # wall seconds
+    backoff_max_s: float = 5.0
+    drain_timeout_s: float = 30.0  # wall seconds
+
+    def __post_init__(self) -> None:
+        if not 0 < self.time_scale <= 1000:
+            raise ValueError(f"time_scale = {self.time_scale} must lie in (0, 1000]")
+        if not self.ground_url.startswith(("ws://", "wss://")):
+            raise ValueError(f"ground URL {self.ground_url!r} must start with ws:// or wss://")
+
+
+class SpacecraftProcess:
+    def __init__(self, config: ProcessConfig) -> None:
+        self.config = config
+        epoch = config.epoch_ns if config.epoch_ns is not None else int(time.time()) * 10**9
+        self.epoch_ns = epoch
+        self.vehicle = Vehicle(config.vehicle, epoch_ns=epoch, seed=config.seed)
+        self.uplink = LinkEmulator(config.uplink)
+        self.downlink_link = LinkEmulator(config.downlink)
+        self.store = Downlink(config.telemetry_store)
+        self._wall0 = time.monotonic()
+        self._ws: ClientConnection | None = None
+        self._connected = asyncio.Event()
+        self._incoming: list[tuple[float, int, str | bytes]] = []  # (deliver_s, n, raw)
+        self._outgoing: list[tuple[float, int, str]] = []  # (deliver_s, n, text)
+        self._counter = itertools.count()
+        self._outbox: list[str] = []  # made while disconnected: sent after reconnecting
+        self._stopping = False
+        self.connections = 0
+        self.errors_replied = 0
+
+    # -- clock ---------------------------------------------------------------------------
+
+    def onboard_s(self) -> float:
+        return (time.monotonic() - self._wall0) * self.config.time_scale
+
+    def _wall_delay(self, onboard_s: float) -> float:
+        return max(0.0, (onboard_s - self.onboard_s()) / self.config.time_scale)
+
+    def onboard_ns(self, onboard_s: float) -> int:
+        return self.epoch_ns + round(onboard_s * 1e9)
+
+    # -- downlink ------------------------------------------------------------------------
+
+    def _send(self, text: str) -> None:
+        """Hand one message to the downlink emulator."""
+        if not self._connected.is_set():
+            self._outbox.append(text)
+            return
+        deliver = self.downlink_link.send(self.onboard_s(), len(text.encode()))
+        if deliver is not None:
+            heapq.heappush(self._outgoing, (deliver, next(self._counter), text))
+
+    async def _sender(self) -> None:
+        while True:
+            if not self._outgoing:
+                await asyncio.sleep(0.002)
+                continue
+            deliver, _, text = self._outgoing[0]
+            delay = self._wall_delay(deliver)
+            if delay > 0:
+                await asyncio.sleep(min(delay, 0.01))
+                continue
+            heapq.heappop(self._outgoing)
+            ws = self._ws
+            if ws is None:
+                continue  # the socket went down while the message was in the relay
+            with contextlib.suppress(ConnectionClosed):
+                await ws.send(text)
+
+    # -- uplink --------------------------------------------------------------------------
+
+    def _handle(self, raw: str | bytes) -> None:
+        try:
+            message = decode_ground(raw)
+        except WireError as exc:
+            self.errors_replied += 1
+            self._send(self._error_reply(raw, str(exc)))
+            return
+        if isinstance(message, JointCommandMsg | AcsCommandMsg):
+            self._send(encode(self.vehicle.receive(message)))
+        elif isinstance(message, TelemetryAck):
+            self.store.on_ack(message.through_seq, message.ranges)
+        elif isinstance(message, Retransmit):
+            self.store.on_retransmit(message.ranges)
+        elif isinstance(message, Ping):
+            pong = Pong(
+                ping_id=message.ping_id,
+                ground_time_ns=message.ground_time_ns,
+                onboard_time_ns=self.vehicle.onboard_time_ns,
+            )
+            self._send(encode(pong))
+
+    def _error_reply(self, raw: str | bytes, reason: str) -> str:
+        """A command with a readable seq is refused as such; anything else gets ``error``."""
+        doc: object = None
+        with contextlib.suppress(ValueError, UnicodeDecodeError, RecursionError):
+            if len(raw) <= 64 * 1024:
+                doc = json.loads(raw)
+        if isinstance(doc, dict) and doc.get("type") == "command":
+            seq = doc.get("seq")
+            if isinstance(seq, int) and not isinstance(seq, bool) and 0 <= seq < 2**53:
+                return encode(
+                    CommandAck(
+                        seq=seq,
+                        stage=CommandStage.REJECTED,
+                        reason=RejectReason.MALFORMED,
+                        detail=reason[:300],
+                        onboard_time_ns=self.vehicle.onboard_time_ns,
+                    )
+                )
+        ref = doc.get("type") if isinstance(doc, dict) else None
+        return encode(ErrorMsg(reason=reason[:500], ref_type=ref if isinstance(ref, str) else None))
+
+    async def _receiver(self, ws: ClientConnection) -> None:
+        async for raw in ws:
+            deliver = self.uplink.send(self.onboard_s(), len(raw))
+            if deliver is not None:
+                heapq.heappush(self._incoming, (deliver, next(self._counter), raw))
+
+    # -- the onboard loop ----------------------------------------------------------------
+
+    def _advance(self, onboard_s: float) -> None:
+        acks, frames = self.vehicle.advance_to(self.onboard_ns(onboard_s))
+        for ack in acks:
+            self._send(encode(ack))
+        self.store.add(frames)
+
+    def _flush_telemetry(self, now_s: float) -> None:
+        if not self._connected.is_set():
+            return
+        for frames, retransmission in self.store.due(now_s):
+            self._send(encode(TelemetryMsg(frames=frames, retransmission=retransmission)))
+
+    async def _onboard(self, stop: asyncio.Event) -> None:
+        tick_s = self.config.vehicle.telemetry_period_s / 2
+        while True:
+            now = self.onboard_s()
+            while self._incoming and self._incoming[0][0] <= now:
+                deliver, _, raw = heapq.heappop(self._incoming)
+                if not self._stopping:
+                    self._advance(deliver)
+                self._handle(raw)
+            if stop.is_set() and not self._stopping:
+                self._stopping = True
+                log.info("stopping: draining %d unacknowledged frames", self.store.unacked)
+            if not self._stopping:
+                self._advance(now)
+            self._flush_telemetry(now)
+            if self._stopping and self.store.unacked == 0:
+                return
+            await asyncio.sleep(tick_s / self.config.time_scale)
+
+    # -- connection ----------------------------------------------------------------------
+
+    async def _connection(self, stop: asyncio.Event) -> None:
+        delay = self.config.backoff_initial_s
+        rng = random.Random(self.config.seed)
+        while not stop.is_set() or self._stopping:
+            try:
+                async with connect(
+                    self.config.ground_url,
+                    additional_headers={"Authorization": f"Bearer {self.config.token}"},
+                    max_size=SOCKET_MAX_BYTES,
+                    proxy=None,
+                    open_timeout=5,
+                ) as ws:
+                    self._ws = ws
+                    self.connections += 1
+                    delay = self.config.backoff_initial_s
+                    hello = Hello(
+                        vehicle=self.config.vehicle.vehicle_name,
+                        onboard_time_ns=self.onboard_ns(self.onboard_s()),
+                        time_scale=self.config.time_scale,
+                        next_telemetry_seq=self.vehicle.next_telemetry_seq,
+                        last_command_seq=self.vehicle.last_command_seq,
+                    )
+                    await ws.send(encode(hello))
+                    self._connected.set()
+                    backlog, self._outbox = self._outbox, []
+                    for text in backlog:
+                        self._send(text)
+                    log.info("connected to %s", self.config.ground_url)
+                    await self._receiver(ws)
+            except (OSError, ConnectionClosed, InvalidHandshake, InvalidURI, TimeoutError) as exc:
+                log.warning("link to ground down: %s", exc)
+            finally:
+                was_connected = self._connected.is_set()
+                self._connected.clear()
+                self._ws = None
+                if was_connected:
+                    self._outgoing.clear()  # in the relay when the link went: lost
+                    for ack in self.vehicle.link_lost():
+                        self._outbox.append(encode(ack))
+            if stop.is_set() and not self._stopping:
+                return
+            await asyncio.sleep(delay * (0.5 + rng.random()))
+            delay = min(delay * 2.0, self.config.backoff_max_s)
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Run until ``stop`` is set and the telemetry is drained (or the drain times out)."""
+        tasks = [
+            asyncio.create_task(self._sender(), name="sender"),
+            asyncio.create_task(self._connection(stop), name="connection"),
+        ]
+        onboard = asyncio.create_task(self._onboard(stop), name="onboard")
+        try:
+            await stop.wait()
+            try:
+                await asyncio.wait_for(asyncio.shield(onboard), self.config.drain_timeout_s)
+            except TimeoutError:
+                log.error("drain timed out with %d frames unacknowledged", self.store.unacked)
+        finally:
+            for task in [*tasks, onboard]:
+                task.cancel()
+            for task in [*tasks, onboard]:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+            if self._ws is not None:
+                await self._ws.close()

@@ -1,0 +1,496 @@
+"""The flight segment: onboard computer and truth simulation, driven by onboard time.
+
+Deterministic and free of I/O: the spacecraft process (``spacecraft.process``) owns the
+sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked command,
+:meth:`Vehicle.advance_to` with the onboard time it has reached, and
+:meth:`Vehicle.link_lost` when the relay link drops. Onboard rules (SPEC section 6,
+docs/spacecraft.md):
+
+- **Time.** The onboard clock starts at ``epoch_ns`` and moves on the truth simulation's
+  step grid (10 ms); :meth:`~Vehicle.advance_to` stops on the last grid point at or before the
+  time it is given and never goes back.
+- **Acceptance** (:meth:`~Vehicle.receive`, in this order): a seq seen before, accepted or
+  not, is ``duplicate`` and has no effect; a tag off the step grid, an attitude target whose
+  norm is not 1 (within 1e-3), or a joint command for a tag that a queued joint command
+  already holds is ``malformed`` (attitude commands may share a tag: they execute in seq
+  order); a tag at or before the onboard time is ``late`` (never executed); a joint
+  angle beyond +-170 deg, or a move faster than 3 deg/s from the queued joint command
+  before it (or, with none, from the current servo target, starting now) or to the queued
+  one after it, is ``out_of_limits``.
+- **Execution.** The truth simulation is stepped exactly to each tag and the command executes
+  there. A joint command sets the servo target to its joints; from there the target moves
+  linearly to the next queued joint command, reaching it at that command's tag (rate =
+  difference / tag difference: between consecutive 4 Hz commands, difference / 0.25 s);
+  with none queued it holds. A joint command that arrives while the target holds (or that
+  becomes the next one, ahead of the command being ramped to) is ramped to from where the
+  target stands. The target therefore never steps and never moves faster than the checked
+  rate limit: across a gap left by a lost command it keeps moving toward the next one
+  instead of holding and then jumping. An attitude-control command switches mode, target
+  and feedforward at its tag.
+- **Attitude control** runs every ``control_period_s`` on the *measured* (noisy) attitude and
+  rate with :func:`planner.attitude_control.wheel_torque_nm`; its feedforward is eq. (9) of
+  the commanded motion (the servo target and its ramp rate). Wheel torque and momentum are
+  limited in the simulator.
+- **Telemetry**: a frame every ``telemetry_period_s`` on the epoch grid, seq from 0.
+- **Link lost**: queued joint commands are refused (``link_lost``) and the arm holds the
+  target it has reached; attitude control carries on in its mode (queued attitude commands
+  still execute at their tags).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.attitude_control import (
+    AcsGains,
+    AcsMode,
+    attitude_error_rad,
+    default_acs_gains,
+    reaction_rate_radps,
+    wheel_torque_nm,
+)
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import PlannerError
+from planner.model import RobotModel, default_model
+from planner.simulation import FreeFloatingSimulator, SimConfig
+from planner.state import State
+from spacecraft._buffer import CommandBuffer
+from spacecraft._sensors import Measurement, SensorNoise, measure
+from telemetry.wire import (
+    AcsCommandMsg,
+    AcsModeName,
+    BufferState,
+    CommandAck,
+    CommandStage,
+    JointCommandMsg,
+    RejectReason,
+    TelemetryFrame,
+)
+
+__all__ = ["SensorNoise", "Vehicle", "VehicleConfig", "VehicleError"]
+
+Array = NDArray[np.float64]
+
+#: SPEC 6: telemetry at least 4 Hz.
+MAX_TELEMETRY_PERIOD_S = 0.25
+#: An attitude target is a rotation if its norm is 1 within this.
+QUAT_NORM_TOLERANCE = 1e-3
+# Rates are compared with the limit with this relative slack (plans sit at 0.9 of it; the
+# slack only absorbs rounding).
+_RATE_SLACK = 1e-9
+_IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+class VehicleError(ValueError):
+    """A bad vehicle configuration. (Commands are never raised on: they are acknowledged.)"""
+
+
+def _default_sim() -> SimConfig:
+    return SimConfig(gravity_gradient=True)
+
+
+def _grid_ns(name: str, value_s: float, step_ns: int) -> int:
+    value_ns = round(value_s * 1e9)
+    if not (math.isfinite(value_s) and value_ns > 0 and value_ns % step_ns == 0):
+        raise VehicleError(
+            f"{name} = {value_s!r} s must be a positive multiple of the {step_ns / 1e6:g} ms "
+            "simulation step"
+        )
+    if abs(value_ns / 1e9 - value_s) > 1e-12:
+        raise VehicleError(f"{name} = {value_s!r} s is not a whole number of nanoseconds")
+    return value_ns
+
+
+@dataclass(frozen=True, eq=False)
+class VehicleConfig:
+    """What the flight segment is. ``acs_gains=None`` means the calibrated defaults
+    (:func:`planner.attitude_control.default_acs_gains`); their torque and momentum limits are
+    the wheels' limits in the truth simulation."""
+
+    model: RobotModel = field(default_factory=default_model)
+    sim: SimConfig = field(default_factory=_default_sim)
+    acs_gains: AcsGains | None = None
+    telemetry_period_s: float = 0.1
+    control_period_s: float = 0.1
+    command_period_s: float = 0.25
+    noise: SensorNoise = field(default_factory=SensorNoise)
+    initial_joints_rad: tuple[float, ...] = (0.0,) * 6
+    initial_quat_orbit_from_base_xyzw: tuple[float, float, float, float] = _IDENTITY
+    initial_acs_mode: AcsModeName = AcsModeName.FEEDBACK  # target identity, no feedforward
+    vehicle_name: str = "ETS-VII"
+
+    def __post_init__(self) -> None:
+        step_ns = self.step_ns
+        _grid_ns("telemetry_period_s", self.telemetry_period_s, step_ns)
+        if self.telemetry_period_s > MAX_TELEMETRY_PERIOD_S:
+            raise VehicleError(
+                f"telemetry_period_s = {self.telemetry_period_s} s is slower than 4 Hz "
+                f"(at most {MAX_TELEMETRY_PERIOD_S} s)"
+            )
+        _grid_ns("control_period_s", self.control_period_s, step_ns)
+        _grid_ns("command_period_s", self.command_period_s, step_ns)
+        if not self.sim.servo_enabled:
+            raise VehicleError("the vehicle needs the joint servos (sim.servo_enabled)")
+        if len(self.initial_joints_rad) != self.model.n_joints:
+            raise VehicleError(
+                f"initial_joints_rad has {len(self.initial_joints_rad)} angles, "
+                f"the arm {self.model.n_joints} joints"
+            )
+        try:
+            self.model.check_joints(np.array(self.initial_joints_rad))
+        except PlannerError as exc:
+            raise VehicleError(f"initial joints: {exc}") from None
+        norm = float(np.linalg.norm(self.initial_quat_orbit_from_base_xyzw))
+        if not abs(norm - 1.0) <= QUAT_NORM_TOLERANCE:
+            raise VehicleError(f"initial attitude quaternion has norm {norm:.6g}, not 1")
+        if not 0 < len(self.vehicle_name) <= 64:
+            raise VehicleError(f"vehicle_name {self.vehicle_name!r} must have 1 to 64 characters")
+
+    @property
+    def step_ns(self) -> int:
+        step_ns = round(self.sim.timestep_s * 1e9)
+        if step_ns <= 0 or abs(step_ns / 1e9 - self.sim.timestep_s) > 1e-15:
+            raise VehicleError(
+                f"sim.timestep_s = {self.sim.timestep_s!r} s is not a whole number of ns"
+            )
+        return step_ns
+
+
+class Vehicle:
+    """The spacecraft's onboard computer around its truth simulation (see the module doc)."""
+
+    def __init__(self, config: VehicleConfig, *, epoch_ns: int, seed: int) -> None:
+        if epoch_ns < 0:
+            raise VehicleError(f"epoch_ns = {epoch_ns} must not be negative")
+        self.config = config
+        model = config.model
+        self._ws = DynamicsWorkspace(model, config.sim.orbit)
+        self._gains = config.acs_gains or default_acs_gains(self._ws)
+        q0 = np.array(config.initial_joints_rad, dtype=np.float64)
+        self._sim = FreeFloatingSimulator(
+            model,
+            State(
+                joints_rad=q0,
+                quat_orbit_from_base_xyzw=np.array(config.initial_quat_orbit_from_base_xyzw),
+            ),
+            replace(
+                config.sim,
+                wheel_torque_limit_nm=self._gains.torque_limit_nm,
+                wheel_momentum_limit_nms=self._gains.momentum_limit_nms,
+            ),
+        )
+        self._epoch_ns = epoch_ns
+        self._step_ns = config.step_ns
+        self._timestep_s = config.sim.timestep_s
+        self._telemetry_ns = _grid_ns("telemetry_period_s", config.telemetry_period_s, 1)
+        self._control_ns = _grid_ns("control_period_s", config.control_period_s, 1)
+        self._rng = np.random.default_rng(seed)
+        self._spin_inertia = np.array([w.spin_inertia_kgm2 for w in model.wheels])
+
+        self._buffer = CommandBuffer()
+        self._seen: set[int] = set()
+        self._last_command_seq = -1
+        self._last_executed_seq = -1
+        self._next_frame_seq = 0
+        self._next_frame_ns = epoch_ns
+        self._next_control_ns = epoch_ns
+        # The servo target moves at `_target_rate` toward the earliest queued joint command
+        # (its tag is `_ramp_to_ns`), or holds (None).
+        self._target_rate = np.zeros(model.n_joints)
+        self._ramp_to_ns: int | None = None
+
+        self._acs_mode = AcsMode(config.initial_acs_mode.value)
+        self._acs_target = np.array(_IDENTITY)
+        self._acs_feedforward = False
+        self._wheel_torque = np.zeros(3)
+        self._sample: tuple[int, State, Measurement] | None = None
+
+    # -- clock and counters -------------------------------------------------------------
+
+    @property
+    def epoch_ns(self) -> int:
+        return self._epoch_ns
+
+    @property
+    def onboard_time_ns(self) -> int:
+        return self._epoch_ns + self._sim.step_count * self._step_ns
+
+    @property
+    def next_telemetry_seq(self) -> int:
+        """The seq the next telemetry frame will carry (= frames generated so far)."""
+        return self._next_frame_seq
+
+    @property
+    def last_command_seq(self) -> int:
+        """The highest command seq received, accepted or not (-1 before the first)."""
+        return self._last_command_seq
+
+    # -- state for tests and tools ------------------------------------------------------
+
+    @property
+    def gains(self) -> AcsGains:
+        return self._gains
+
+    @property
+    def acs_mode(self) -> AcsModeName:
+        return AcsModeName(self._acs_mode.value)
+
+    @property
+    def acs_target_quat_xyzw(self) -> Array:
+        return self._acs_target.copy()
+
+    @property
+    def acs_feedforward(self) -> bool:
+        return self._acs_feedforward
+
+    @property
+    def queued(self) -> int:
+        return len(self._buffer)
+
+    def true_state(self) -> State:
+        return self._sim.state()
+
+    def joint_target_rad(self) -> Array:
+        """The servo target now (the commanded joints exactly at each command's tag)."""
+        return self._sim.joint_target_rad()
+
+    def wheel_momentum_nms(self) -> Array:
+        """Rotor momentum relative to the base, ``I_w * speed`` (N m s, base frame)."""
+        return self._sim.wheel_momentum_nms()
+
+    def wheel_torque_command_nm(self) -> Array:
+        """The wheel motor torque the attitude controller commands (clipped at the torque
+        limit; the simulator also stops a wheel at its momentum capacity)."""
+        return self._wheel_torque.copy()
+
+    # -- uplink ---------------------------------------------------------------------------
+
+    def receive(self, cmd: JointCommandMsg | AcsCommandMsg) -> CommandAck:
+        """Check a command against the onboard rules and queue it: ``received``, or
+        ``rejected`` with the reason and a detail that names the value and the limit."""
+        now = self.onboard_time_ns
+        if cmd.seq in self._seen:
+            return self._reject(
+                cmd.seq, now, RejectReason.DUPLICATE, f"seq {cmd.seq} was received before"
+            )
+        self._seen.add(cmd.seq)
+        self._last_command_seq = max(self._last_command_seq, cmd.seq)
+        if isinstance(cmd, AcsCommandMsg):
+            quat = np.array(cmd.target_quat_orbit_from_base_xyzw, dtype=np.float64)
+            norm = float(np.linalg.norm(quat))
+            if not abs(norm - 1.0) <= QUAT_NORM_TOLERANCE:
+                return self._reject(
+                    cmd.seq,
+                    now,
+                    RejectReason.MALFORMED,
+                    f"target quaternion has norm {norm:.6g}, not 1 (tolerance "
+                    f"{QUAT_NORM_TOLERANCE:g})",
+                )
+            cmd = cmd.model_copy(update={"target_quat_orbit_from_base_xyzw": list(quat / norm)})
+        rejection = self._check_time(cmd, now)
+        if rejection is None and isinstance(cmd, JointCommandMsg):
+            rejection = self._check_joints(cmd, now)
+        if rejection is not None:
+            return self._reject(cmd.seq, now, *rejection)
+        self._buffer.add(cmd)
+        if isinstance(cmd, JointCommandMsg) and (
+            self._ramp_to_ns is None or cmd.execute_time_ns < self._ramp_to_ns
+        ):
+            self._ramp_to_next(now)  # it is the next one now: head for it from here
+        return CommandAck(seq=cmd.seq, stage=CommandStage.RECEIVED, onboard_time_ns=now)
+
+    def _check_time(
+        self, cmd: JointCommandMsg | AcsCommandMsg, now: int
+    ) -> tuple[RejectReason, str] | None:
+        tag = cmd.execute_time_ns
+        off = (tag - self._epoch_ns) % self._step_ns
+        if off:
+            return RejectReason.MALFORMED, (
+                f"execute_time_ns {tag} is {off} ns off the onboard "
+                f"{self._step_ns / 1e6:g} ms step grid (epoch {self._epoch_ns})"
+            )
+        if tag <= now:
+            return RejectReason.LATE, (
+                f"execute_time_ns {tag} is {(now - tag) / 1e9:.3f} s at or before "
+                f"onboard time {now}"
+            )
+        other = self._buffer.joint_taken_by(tag) if isinstance(cmd, JointCommandMsg) else None
+        if other is not None:
+            return RejectReason.MALFORMED, (
+                f"execute_time_ns {tag} already holds joint command seq {other.seq}"
+            )
+        return None
+
+    def _check_joints(self, cmd: JointCommandMsg, now: int) -> tuple[RejectReason, str] | None:
+        model = self.config.model
+        q = np.array(cmd.joints_rad, dtype=np.float64)
+        for i, (angle, (lo, hi)) in enumerate(zip(q, model.joint_limit_rad, strict=True)):
+            if angle < lo or angle > hi:
+                limit = hi if angle > hi else lo
+                return RejectReason.OUT_OF_LIMITS, (
+                    f"joint {i + 1} at {math.degrees(angle):.3f} deg exceeds limit "
+                    f"{math.degrees(limit):.3f} deg"
+                )
+        tag = cmd.execute_time_ns
+        before, after = self._buffer.joint_neighbours(tag)
+        steps: list[tuple[Array, int, str]] = []
+        if before is not None:
+            prev = np.array(before.joints_rad)
+            steps.append((prev, tag - before.execute_time_ns, f"from seq {before.seq}"))
+        else:  # it will be ramped to from where the target stands now
+            steps.append((self._sim.joint_target_rad(), tag - now, "from the current target"))
+        if after is not None:
+            steps.append(
+                (np.array(after.joints_rad), after.execute_time_ns - tag, f"to seq {after.seq}")
+            )
+        limits = model.joint_rate_limit_radps
+        for other, dt_ns, relation in steps:
+            rates = np.abs(q - other) / (dt_ns / 1e9)
+            worst = int(np.argmax(rates / limits))
+            if rates[worst] > limits[worst] * (1.0 + _RATE_SLACK):
+                return RejectReason.OUT_OF_LIMITS, (
+                    f"joint {worst + 1} moves {math.degrees(abs(q[worst] - other[worst])):.3f} "
+                    f"deg in {dt_ns / 1e9:.3f} s {relation}: "
+                    f"{math.degrees(rates[worst]):.3f} deg/s exceeds limit "
+                    f"{math.degrees(limits[worst]):.3f} deg/s"
+                )
+        return None
+
+    def _reject(self, seq: int, now: int, reason: RejectReason, detail: str) -> CommandAck:
+        return CommandAck(
+            seq=seq,
+            stage=CommandStage.REJECTED,
+            reason=reason,
+            detail=detail[:300],
+            onboard_time_ns=now,
+        )
+
+    def link_lost(self) -> list[CommandAck]:
+        """SPEC 6 safe state: refuse every queued joint command (``link_lost``) and hold the
+        servo target where it stands; attitude control carries on in its mode."""
+        now = self.onboard_time_ns
+        acks = [
+            self._reject(
+                cmd.seq, now, RejectReason.LINK_LOST, "link lost: the arm holds its target"
+            )
+            for cmd in self._buffer.pop_joints()
+        ]
+        self._ramp_to_next(now)  # nothing queued: hold
+        return acks
+
+    # -- time ---------------------------------------------------------------------------
+
+    def advance_to(self, time_ns: int) -> tuple[list[CommandAck], list[TelemetryFrame]]:
+        """Run the vehicle to ``time_ns`` (onboard clock; down to the step grid). Returns the
+        ``executed`` acks and the telemetry frames generated on the way, in time order."""
+        acks: list[CommandAck] = []
+        frames: list[TelemetryFrame] = []
+        if time_ns < self.onboard_time_ns:
+            return acks, frames
+        end = self._epoch_ns + (time_ns - self._epoch_ns) // self._step_ns * self._step_ns
+        while True:
+            tag = self._buffer.next_tag_ns()
+            t = min(self._next_control_ns, self._next_frame_ns)
+            if tag is not None:
+                t = min(t, tag)
+            if t > end:
+                break
+            self._step_to(t)
+            if tag == t:  # commands first: control and telemetry at t see their effect
+                acks += self._execute(t)
+            if t == self._next_control_ns:
+                self._control(t)
+                self._next_control_ns += self._control_ns
+            if t == self._next_frame_ns:
+                frames.append(self._frame(t))
+                self._next_frame_ns += self._telemetry_ns
+        self._step_to(end)
+        return acks, frames
+
+    def _step_to(self, t: int) -> None:
+        steps = (t - self.onboard_time_ns) // self._step_ns
+        if steps > 0:
+            self._sim.advance(steps * self._timestep_s, wheel_torque_nm=self._wheel_torque)
+
+    def _execute(self, t: int) -> list[CommandAck]:
+        acks = []
+        for cmd in self._buffer.pop_due(t):
+            if isinstance(cmd, JointCommandMsg):
+                self._sim.set_joint_target(np.array(cmd.joints_rad, dtype=np.float64))
+                self._ramp_to_next(t)
+            else:
+                self._acs_mode = AcsMode(cmd.mode.value)
+                self._acs_target = np.array(cmd.target_quat_orbit_from_base_xyzw)
+                self._acs_feedforward = cmd.feedforward
+                self._control(t)  # the switch takes effect at the tag, not at the next tick
+            self._last_executed_seq = cmd.seq
+            acks.append(CommandAck(seq=cmd.seq, stage=CommandStage.EXECUTED, onboard_time_ns=t))
+        return acks
+
+    def _ramp_to_next(self, now: int) -> None:
+        """Move the servo target from where it stands now to the earliest queued joint
+        command, reaching it at its tag; hold if there is none."""
+        target = self._sim.joint_target_rad()
+        nxt = self._buffer.first_joint()
+        if nxt is None:
+            rate, self._ramp_to_ns = np.zeros_like(target), None
+        else:
+            duration_s = (nxt.execute_time_ns - now) / 1e9
+            rate = (np.array(nxt.joints_rad) - target) / duration_s
+            self._ramp_to_ns = nxt.execute_time_ns
+        self._sim.set_joint_target(target, rate)
+        self._target_rate = rate
+
+    # -- onboard attitude control and telemetry -------------------------------------------
+
+    def _measure(self, t: int) -> tuple[State, Measurement]:
+        """The sensor sample at ``t`` (one per instant: control and telemetry share it)."""
+        if self._sample is None or self._sample[0] != t:
+            state = self._sim.state()
+            self._sample = (t, state, measure(state, self.config.noise, self._rng))
+        return self._sample[1], self._sample[2]
+
+    def _control(self, t: int) -> None:
+        if self._acs_mode is AcsMode.FREE_DRIFT:
+            self._wheel_torque = np.zeros(3)
+            return
+        _, m = self._measure(t)
+        reaction = (
+            reaction_rate_radps(self._ws, self._sim.joint_target_rad(), self._target_rate)
+            if self._acs_feedforward
+            else None
+        )
+        self._wheel_torque = wheel_torque_nm(
+            self._gains,
+            self._acs_mode,
+            attitude_error=attitude_error_rad(m.quat_orbit_from_base_xyzw, self._acs_target),
+            omega_base_radps=m.omega_base_in_base_radps,
+            reaction_rate_radps=reaction,
+        )
+
+    def _frame(self, t: int) -> TelemetryFrame:
+        state, m = self._measure(t)
+        frame = TelemetryFrame(
+            seq=self._next_frame_seq,
+            generation_time_ns=t,
+            joints_rad=m.joints_rad.tolist(),
+            joint_targets_rad=self._sim.joint_target_rad().tolist(),
+            quat_orbit_from_base_xyzw=m.quat_orbit_from_base_xyzw.tolist(),
+            omega_base_in_base_radps=m.omega_base_in_base_radps.tolist(),
+            wheel_speeds_radps=state.wheel_rates_radps.tolist(),
+            wheel_momentum_nms=(self._spin_inertia * state.wheel_rates_radps).tolist(),
+            acs_mode=self.acs_mode,
+            acs_target_quat_xyzw=self._acs_target.tolist(),
+            acs_feedforward=self._acs_feedforward,
+            buffer=BufferState(
+                queued=len(self._buffer),
+                next_execute_time_ns=self._buffer.next_tag_ns(),
+                last_executed_seq=self._last_executed_seq,
+            ),
+        )
+        self._next_frame_seq += 1
+        return frame

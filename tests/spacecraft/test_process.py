@@ -1,0 +1,223 @@
+"""The spacecraft process against a minimal ground over a real websocket, accelerated 20x.
+
+In-process (the same code the CLI runs) except for the last test, which starts the real
+``hikoboshi spacecraft`` process and stops it with SIGTERM.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Awaitable, Callable
+
+import numpy as np
+import pytest
+
+from spacecraft.link import LinkConfig, Outage
+from spacecraft.process import ProcessConfig, SpacecraftProcess
+from telemetry.wire import CommandStage, JointCommandMsg, RejectReason
+from tests.spacecraft.ground_stub import TOKEN, GroundStub
+
+SCALE = 20.0
+PERIOD_NS = 250_000_000
+
+
+def _config(stub: GroundStub, **link: object) -> ProcessConfig:
+    return ProcessConfig(
+        ground_url=stub.url,
+        token=TOKEN,
+        time_scale=SCALE,
+        uplink=LinkConfig(seed=11, **link),  # type: ignore[arg-type]
+        downlink=LinkConfig(seed=12, **link),  # type: ignore[arg-type]
+        seed=3,
+        backoff_initial_s=0.05,
+        backoff_max_s=0.5,
+        drain_timeout_s=20.0,
+    )
+
+
+def run_session(
+    scenario: Callable[[GroundStub, SpacecraftProcess], Awaitable[None]], **link: object
+) -> tuple[GroundStub, SpacecraftProcess]:
+    async def main() -> tuple[GroundStub, SpacecraftProcess]:
+        stub = GroundStub()
+        await stub.start()
+        process = SpacecraftProcess(_config(stub, **link))
+        stop = asyncio.Event()
+        runner = asyncio.create_task(process.run(stop))
+        try:
+            await stub.wait_for(lambda: stub.hellos, timeout_s=10.0)
+            await scenario(stub, process)
+        finally:
+            stop.set()
+            await asyncio.wait_for(runner, timeout=30.0)
+            await stub.stop()
+        return stub, process
+
+    return asyncio.run(main())
+
+
+def _next_tag(stub: GroundStub, lead_s: float) -> int:
+    t = stub.onboard_now_ns() + round(lead_s * 1e9)
+    return math.ceil(t / PERIOD_NS) * PERIOD_NS
+
+
+def test_commands_execute_exactly_at_their_tags_late_and_duplicates_refused() -> None:
+    joints = [np.radians([0.1 * k, -0.05 * k, 0.0, 0.05 * k, 0.0, 0.0]) for k in range(8)]
+    tags: list[int] = []
+
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        tag0 = _next_tag(stub, 6.0)  # one-way delay 3 s + 2 s margin + slack
+        for k, q in enumerate(joints):
+            tags.append(tag0 + k * PERIOD_NS)
+            await stub.send(JointCommandMsg(seq=k, execute_time_ns=tags[-1], joints_rad=list(q)))
+        late = _next_tag(stub, -2.0)
+        await stub.send(JointCommandMsg(seq=100, execute_time_ns=late, joints_rad=[0.3] * 6))
+        await stub.send(JointCommandMsg(seq=3, execute_time_ns=tags[3], joints_rad=[0.2] * 6))
+
+        def done() -> bool:
+            executed = {a.seq for a in stub.acks if a.stage is CommandStage.EXECUTED}
+            last = max((f.generation_time_ns for f in stub.frames.values()), default=0)
+            return executed >= set(range(8)) and last > tags[-1] + 3 * 10**9
+
+        await stub.wait_for(done, timeout_s=20.0)
+
+    stub, _ = run_session(scenario)
+    executed = {a.seq: a for a in stub.acks if a.stage is CommandStage.EXECUTED}
+    assert [executed[k].onboard_time_ns for k in range(8)] == tags  # exactly at the tags
+    rejected = {a.seq: a for a in stub.acks if a.stage is CommandStage.REJECTED}
+    assert rejected[100].reason is RejectReason.LATE and 100 not in executed
+    assert rejected[3].reason is RejectReason.DUPLICATE
+    frames = sorted(stub.frames.values(), key=lambda f: f.seq)
+    by_time = {f.generation_time_ns: f for f in frames}
+    coinciding = [k for k, tag in enumerate(tags) if tag in by_time]  # every 0.5 s
+    assert len(coinciding) >= 3
+    for k in coinciding:
+        np.testing.assert_allclose(by_time[tags[k]].joint_targets_rad, joints[k], atol=1e-12)
+    # the duplicate (0.2 rad on every joint) never took effect
+    assert all(max(f.joint_targets_rad) < 0.1 for f in frames)
+    # commands stopped: the arm holds the last target
+    after = [f for f in frames if f.generation_time_ns > tags[-1]]
+    assert len(after) >= 20
+    for f in after:
+        np.testing.assert_allclose(f.joint_targets_rad, joints[-1], atol=1e-12)
+    settled = [f for f in after if f.generation_time_ns > tags[-1] + 2 * 10**9]
+    spread = np.ptp(np.array([f.joints_rad for f in settled]), axis=0)
+    assert np.max(spread) < np.radians(0.05)  # still, up to encoder noise and servo settling
+
+
+def test_every_frame_reaches_the_ground_exactly_once_through_loss_and_an_outage() -> None:
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        # 90 s onboard: a 30 s LOS from 20 s to 50 s, 10 % loss both ways all along.
+        await asyncio.sleep(90.0 / SCALE)
+
+    stub, process = run_session(scenario, loss=0.1, outages=(Outage(20.0, 50.0),))
+    produced = process.vehicle.next_telemetry_seq
+    assert produced >= 800  # 10 Hz over 90 s
+    assert sorted(stub.frames) == list(range(produced))  # every frame, stored once
+    assert process.store.unacked == 0
+    # the scenario was real: frames were lost and sent again, and some arrived twice
+    assert process.store.resent > 300  # at least the 30 s outage's worth
+    assert process.downlink_link.stats.dropped_outage > 0
+    assert process.downlink_link.stats.dropped_loss > 0
+    assert stub.duplicates >= 0
+
+
+def test_hostile_messages_get_error_replies_and_the_vehicle_carries_on() -> None:
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        for text in (
+            "{not json",
+            '{"v":1,"type":"self_destruct"}',
+            '{"v":1,"type":"ping","ping_id":"abc","ground_time_ns":0}',
+            '{"v":9,"type":"ping"}',
+            '{"v":1,"type":"ping","pad":"' + "x" * 300_000 + '"}',
+            b"\xff\xfe\x00binary",
+        ):
+            await stub.send(text)
+        bad_command = (
+            '{"v":1,"type":"command","kind":"joints","seq":55,"execute_time_ns":0,'
+            '"joints_rad":[0,0,0,0,0,"oops"]}'
+        )
+        await stub.send(bad_command)
+        await stub.wait_for(
+            lambda: len(stub.errors) >= 6 and any(a.seq == 55 for a in stub.acks), 10.0
+        )
+        seq_before = max(stub.frames)
+        # Past the socket's own limit the connection closes; the spacecraft reconnects.
+        await stub.send('{"v":1,"type":"ping","pad":"' + "x" * (5 * 2**20) + '"}')
+        await stub.wait_for(lambda: len(stub.hellos) >= 2, 10.0)
+        await stub.wait_for(lambda: max(stub.frames) > seq_before + 30, 10.0)
+
+    stub, process = run_session(scenario)
+    reasons = " | ".join(e.reason for e in stub.errors)
+    for expected in ("not JSON", "unknown message type", "ping_id", "version 9", "exceeds"):
+        assert expected in reasons
+    malformed = next(a for a in stub.acks if a.seq == 55)
+    assert malformed.stage is CommandStage.REJECTED and malformed.reason is RejectReason.MALFORMED
+    assert process.connections == 2
+    assert sorted(stub.frames) == list(range(process.vehicle.next_telemetry_seq))
+
+
+def test_a_dropped_link_refuses_queued_commands_and_holds_the_arm() -> None:
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        tag0 = _next_tag(stub, 20.0)
+        for k in range(4):
+            q = np.radians([0.5 * k, 0, 0, 0, 0, 0])  # 2 deg/s
+            await stub.send(
+                JointCommandMsg(seq=k, execute_time_ns=tag0 + k * PERIOD_NS, joints_rad=list(q))
+            )
+        await stub.wait_for(lambda: len(stub.acks) >= 4, 10.0)
+        assert all(a.stage is CommandStage.RECEIVED for a in stub.acks)
+        assert stub.connection is not None
+        await stub.connection.close()
+        await stub.wait_for(lambda: len(stub.hellos) >= 2, 10.0)
+        await stub.wait_for(
+            lambda: sum(a.reason is RejectReason.LINK_LOST for a in stub.acks) >= 4, 10.0
+        )
+        await asyncio.sleep(25.0 / SCALE)  # past the tags
+
+    stub, _ = run_session(scenario)
+    assert not any(a.stage is CommandStage.EXECUTED for a in stub.acks)
+    assert all(max(np.abs(f.joint_targets_rad)) < 1e-12 for f in stub.frames.values())
+
+
+@pytest.mark.slow
+def test_the_real_process_stops_cleanly_on_sigterm_with_nothing_lost() -> None:
+    async def main() -> tuple[GroundStub, str, int]:
+        stub = GroundStub()
+        await stub.start()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "hikoboshi",
+            "spacecraft",
+            "--ground",
+            stub.url,
+            "--token",
+            TOKEN,
+            "--time-scale",
+            str(SCALE),
+            "--loss",
+            "0.05",
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+        )
+        await stub.wait_for(lambda: len(stub.frames) > 100, timeout_s=30.0)
+        proc.send_signal(signal.SIGTERM)
+        started = time.monotonic()
+        _, err = await asyncio.wait_for(proc.communicate(), timeout=40.0)
+        assert time.monotonic() - started < 30.0
+        await stub.stop()
+        return stub, err.decode(), proc.returncode or 0
+
+    stub, stderr, code = asyncio.run(main())
+    assert code == 0, stderr
+    assert "spacecraft stopped: 0 frames unacknowledged" in stderr
+    assert sorted(stub.frames) == list(range(max(stub.frames) + 1))

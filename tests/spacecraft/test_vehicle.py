@@ -1,0 +1,541 @@
+"""The flight segment (spacecraft.vehicle): onboard command rules, execution on the time
+grid, safe state, truth-simulation invariants, attitude control, telemetry, and the
+calibration against the flight results (docs/spacecraft.md)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from planner.dynamics import DynamicsWorkspace
+from planner.model import default_model
+from planner.simulation import SimConfig
+from spacecraft._calibration import coordination_metrics, fly_plan, plan_messages
+from spacecraft.vehicle import SensorNoise, Vehicle, VehicleConfig, VehicleError
+from telemetry.wire import (
+    AcsCommandMsg,
+    AcsModeName,
+    CommandAck,
+    CommandStage,
+    JointCommandMsg,
+    RejectReason,
+    TelemetryFrame,
+)
+
+EPOCH = 1_700_000_000_000_000_000
+PERIOD = 250_000_000  # 4 Hz commands
+SECOND = 1_000_000_000
+T0 = EPOCH + 2 * SECOND  # first tag used by most tests
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+@pytest.fixture(scope="module")
+def config() -> VehicleConfig:
+    return VehicleConfig()  # defaults: gravity gradient on, calibrated gains, noise
+
+
+def _vehicle(config: VehicleConfig, seed: int = 7) -> Vehicle:
+    return Vehicle(config, epoch_ns=EPOCH, seed=seed)
+
+
+def _joints(seq: int, tag: int, deg: list[float] | np.ndarray) -> JointCommandMsg:
+    return JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=list(np.radians(deg)))
+
+
+def _ramp_deg(k: int) -> np.ndarray:
+    """Command k of a motion at 2 deg/s on joint 1 and -1 deg/s on joint 4 (within 3 deg/s)."""
+    return np.array([0.5 * k, 0.0, 0.0, -0.25 * k, 0.0, 0.0])
+
+
+def _received(ack: CommandAck) -> None:
+    assert ack.stage is CommandStage.RECEIVED, ack
+
+
+def _rejected(ack: CommandAck, reason: RejectReason, *words: str) -> None:
+    assert ack.stage is CommandStage.REJECTED and ack.reason is reason, ack
+    for word in words:
+        assert ack.detail is not None and word in ack.detail, (word, ack.detail)
+
+
+# -- execution on the grid ----------------------------------------------------------------
+
+
+def test_commands_execute_exactly_at_their_tags_with_linear_ramps(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    tags = [T0 + k * PERIOD for k in range(6)]
+    for k, tag in enumerate(tags):
+        _received(v.receive(_joints(k, tag, _ramp_deg(k))))
+    assert v.queued == 6 and v.last_command_seq == 5
+    executed: list[CommandAck] = []
+    for k, tag in enumerate(tags):
+        acks, _ = v.advance_to(tag)
+        executed += acks
+        assert v.onboard_time_ns == tag
+        # the servo target is the commanded joints, exactly, at the tag
+        np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(k)))
+        if k + 1 < len(tags):
+            # ... and moves linearly toward the next command in between (40 % and 80 %)
+            for fraction in (0.4, 0.8):
+                v.advance_to(tag + round(fraction * PERIOD))
+                expected = np.radians(_ramp_deg(k) + fraction * (_ramp_deg(k + 1) - _ramp_deg(k)))
+                np.testing.assert_allclose(v.joint_target_rad(), expected, rtol=0, atol=1e-12)
+    assert [a.seq for a in executed] == list(range(6))
+    assert all(a.stage is CommandStage.EXECUTED for a in executed)
+    assert [a.onboard_time_ns for a in executed] == tags
+    # the last one holds
+    v.advance_to(tags[-1] + 3 * SECOND)
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(5)))
+
+
+def test_one_long_advance_executes_everything_in_time_order(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    tags = [T0 + k * PERIOD for k in range(8)]
+    # uplinked out of order, with an attitude command sharing a tag with a joint command
+    for k in (3, 0, 7, 1, 5, 2, 6, 4):
+        _received(v.receive(_joints(k, tags[k], _ramp_deg(k))))
+    _received(v.receive(AcsCommandMsg(seq=21, execute_time_ns=tags[2], mode="free_drift")))
+    # attitude commands may share a tag (plans repeat one at a segment boundary): seq order
+    _received(v.receive(AcsCommandMsg(seq=20, execute_time_ns=tags[2], mode="feedback")))
+    acks, frames = v.advance_to(tags[-1] + 55_000_000)  # off the 10 ms grid: floors to it
+    assert v.onboard_time_ns == tags[-1] + 50_000_000
+    assert [(a.seq, a.onboard_time_ns) for a in acks] == sorted(
+        [(k, tags[k]) for k in range(8)] + [(20, tags[2]), (21, tags[2])],
+        key=lambda x: (x[1], x[0]),
+    )
+    assert v.acs_mode is AcsModeName.FREE_DRIFT  # seq 21, the last at that tag
+    assert frames[-1].buffer.last_executed_seq == 7 and frames[-1].buffer.queued == 0
+    # the clock never goes back
+    assert v.advance_to(EPOCH) == ([], [])
+    assert v.onboard_time_ns == tags[-1] + 50_000_000
+
+
+def test_a_missing_successor_holds_then_the_late_successor_is_ramped_to(
+    config: VehicleConfig,
+) -> None:
+    v = _vehicle(config)
+    _received(v.receive(_joints(0, T0, _ramp_deg(0))))
+    _received(v.receive(_joints(1, T0 + PERIOD, _ramp_deg(1))))
+    v.advance_to(T0 + PERIOD + 50_000_000)
+    held = np.radians(_ramp_deg(1))
+    np.testing.assert_array_equal(v.joint_target_rad(), held)  # no successor: holds
+    # the successor (tag + 1 period) arrives 50 ms after the hold began: ramp from here
+    tag2 = T0 + 2 * PERIOD
+    _received(v.receive(_joints(2, tag2, _ramp_deg(2))))
+    v.advance_to(tag2 - 100_000_000)  # half-way through the remaining 200 ms
+    np.testing.assert_allclose(
+        v.joint_target_rad(), np.radians(0.5 * (_ramp_deg(1) + _ramp_deg(2))), rtol=0, atol=1e-12
+    )
+    v.advance_to(tag2)
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(2)))
+
+
+def test_across_a_lost_command_the_target_keeps_moving_and_never_steps(
+    config: VehicleConfig,
+) -> None:
+    """Command 2 of 0..4 is lost: the target goes straight from command 1 to command 3 (a
+    hold and then a jump at command 3's tag would step it by two periods' motion)."""
+    v = _vehicle(config)
+    for k in (0, 1, 3, 4):
+        _received(v.receive(_joints(k, T0 + k * PERIOD, _ramp_deg(k))))
+    v.advance_to(T0 + PERIOD)
+    for fraction in (0.2, 0.5, 0.96):  # on the 10 ms grid
+        v.advance_to(T0 + PERIOD + round(fraction * 2 * PERIOD))
+        expected = _ramp_deg(1) + fraction * (_ramp_deg(3) - _ramp_deg(1))
+        np.testing.assert_allclose(v.joint_target_rad(), np.radians(expected), rtol=0, atol=1e-12)
+    v.advance_to(T0 + 3 * PERIOD)
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(3)))
+    # the rate check spans a gap too: 1.6 deg in a 0.5 s gap is 3.2 deg/s, 1.4 deg is not
+    faster = _ramp_deg(4) + np.array([1.6, 0, 0, 0, 0, 0])
+    _rejected(
+        v.receive(_joints(6, T0 + 6 * PERIOD, faster)), RejectReason.OUT_OF_LIMITS, "from seq 4"
+    )
+    _received(v.receive(_joints(7, T0 + 6 * PERIOD, faster - [0.2, 0, 0, 0, 0, 0])))
+
+
+# -- refusals -------------------------------------------------------------------------------
+
+
+def test_a_late_command_is_refused_and_never_executed(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    v.advance_to(T0)
+    _rejected(v.receive(_joints(0, T0, [0.1] * 6)), RejectReason.LATE, "at or before")
+    _rejected(v.receive(_joints(1, T0 - PERIOD, [0.1] * 6)), RejectReason.LATE)
+    _received(v.receive(_joints(2, T0 + 10_000_000, [0.0] * 6)))  # one step ahead is in time
+    acks, frames = v.advance_to(T0 + 5 * SECOND)
+    assert [a.seq for a in acks] == [2]
+    np.testing.assert_array_equal(v.joint_target_rad(), np.zeros(6))
+    assert all(f.joint_targets_rad == [0.0] * 6 for f in frames)
+
+
+def test_a_duplicate_seq_has_no_effect(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    _received(v.receive(_joints(5, T0, _ramp_deg(1))))
+    _rejected(
+        v.receive(_joints(6, T0 + PERIOD, [171.0, 0, 0, 0, 0, 0])), RejectReason.OUT_OF_LIMITS
+    )
+    queued = v.queued
+    # the same seq with other joints and another tag, and a refused seq sent again
+    _rejected(v.receive(_joints(5, T0 + PERIOD, _ramp_deg(2))), RejectReason.DUPLICATE, "seq 5")
+    _rejected(v.receive(_joints(6, T0 + PERIOD, _ramp_deg(2))), RejectReason.DUPLICATE)
+    assert v.queued == queued == 1
+    acks, _ = v.advance_to(T0 + 2 * SECOND)
+    assert [a.seq for a in acks] == [5]
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(1)))
+    assert v.last_command_seq == 6
+
+
+def test_limits_and_malformed_commands_are_refused_with_reasons(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    _rejected(
+        v.receive(_joints(0, T0, [0, 0, 0, 171.0, 0, 0])),
+        RejectReason.OUT_OF_LIMITS,
+        "joint 4",
+        "171.000 deg",
+        "limit 170.000 deg",
+    )
+    _rejected(
+        v.receive(_joints(1, T0, [0, -170.5, 0, 0, 0, 0])), RejectReason.OUT_OF_LIMITS, "joint 2"
+    )
+    _received(v.receive(_joints(2, T0, [0, 0, 0, 0, 0, 0])))
+    # 1 deg in one 0.25 s period is 4 deg/s, beyond the 3 deg/s rate limit
+    _rejected(
+        v.receive(_joints(3, T0 + PERIOD, [0, 1.0, 0, 0, 0, 0])),
+        RejectReason.OUT_OF_LIMITS,
+        "joint 2",
+        "4.000 deg/s",
+        "limit 3.000 deg/s",
+    )
+    # ... also measured to the queued command after it
+    _received(v.receive(_joints(4, T0 + 2 * PERIOD, [0, 0, 0, 0, 0, 1.0])))  # 2 deg/s
+    _rejected(
+        v.receive(_joints(5, T0 + PERIOD, [0, 0, 0, 0, 0, 0.0])),
+        RejectReason.OUT_OF_LIMITS,
+        "joint 6",
+        "to seq 4",
+    )
+    # tags off the 10 ms grid, an attitude target that is not a rotation, a taken tag
+    _rejected(
+        v.receive(_joints(6, T0 + 3 * PERIOD + 5_000_000, [0] * 6)),
+        RejectReason.MALFORMED,
+        "off the onboard 10 ms step grid",
+    )
+    _rejected(
+        v.receive(
+            AcsCommandMsg(
+                seq=7,
+                execute_time_ns=T0,
+                mode="feedback",
+                target_quat_orbit_from_base_xyzw=[0.0, 0.0, 0.0, 1.01],
+            )
+        ),
+        RejectReason.MALFORMED,
+        "norm 1.01",
+    )
+    _rejected(v.receive(_joints(8, T0, [0] * 6)), RejectReason.MALFORMED, "seq 2")
+    # a quaternion within the tolerance is accepted and stored normalised
+    _received(
+        v.receive(
+            AcsCommandMsg(
+                seq=9,
+                execute_time_ns=T0,
+                mode="feedback",
+                target_quat_orbit_from_base_xyzw=[0.0, 0.0, 0.0, 1.0005],
+            )
+        )
+    )
+    assert v.queued == 3 and v.last_command_seq == 9
+    acks, _ = v.advance_to(T0 + SECOND)
+    assert sorted(a.seq for a in acks) == [2, 4, 9]
+    np.testing.assert_allclose(v.acs_target_quat_xyzw, IDENTITY, rtol=0, atol=1e-15)
+
+
+# -- holding and the safe state --------------------------------------------------------------
+
+
+def test_the_arm_holds_still_when_commands_stop(config: VehicleConfig) -> None:
+    v = _vehicle(config)
+    for k in range(21):
+        v.receive(_joints(k, T0 + k * PERIOD, _ramp_deg(k)))
+    last_tag = T0 + 20 * PERIOD
+    v.advance_to(last_tag)
+    final = np.radians(_ramp_deg(20))
+    # servo lag at 2 deg/s: the joint trails its target by a few tenths of a degree (SPEC 6)
+    lag_deg = np.degrees(np.max(np.abs(v.true_state().joints_rad - final)))
+    assert 0.2 < lag_deg < 1.0
+    _, frames = v.advance_to(last_tag + 60 * SECOND)
+    assert all(f.joint_targets_rad == list(final) for f in frames)  # the target is constant
+    settled = v.true_state().joints_rad
+    # servo settling (damping ratio 0.9, 6 rad/s): within 1e-4 deg after 5 s, measured 4e-5
+    assert np.degrees(np.max(np.abs(settled - final))) < 1e-4
+    v.advance_to(last_tag + 120 * SECOND)
+    drift_deg = np.degrees(np.max(np.abs(v.true_state().joints_rad - settled)))
+    assert drift_deg < 1e-4  # no drift while holding (measured 3e-5 deg)
+
+
+def test_link_loss_refuses_queued_joint_commands_and_holds_the_arm(
+    config: VehicleConfig,
+) -> None:
+    v = _vehicle(config)
+    for k in range(20):
+        v.receive(_joints(k, T0 + k * PERIOD, _ramp_deg(k)))
+    acs_tag = T0 + 10 * SECOND
+    v.receive(AcsCommandMsg(seq=50, execute_time_ns=acs_tag, mode="feedback", feedforward=True))
+    v.advance_to(T0 + 5 * PERIOD + 100_000_000)  # mid-ramp between commands 5 and 6
+    holding = v.joint_target_rad()
+    assert np.all(holding[[0, 3]] != np.radians(_ramp_deg(5))[[0, 3]])  # it was moving
+    acks = v.link_lost()
+    assert [a.seq for a in acks] == list(range(6, 20))
+    assert all(a.reason is RejectReason.LINK_LOST for a in acks)
+    assert all(a.onboard_time_ns == v.onboard_time_ns for a in acks)
+    assert v.queued == 1  # the attitude command stays queued
+    executed, frames = v.advance_to(acs_tag + SECOND)
+    assert [a.seq for a in executed] == [50]  # attitude control carries on
+    assert v.acs_mode is AcsModeName.FEEDBACK and v.acs_feedforward
+    assert all(f.joint_targets_rad == list(holding) for f in frames)
+    # the next command is checked against the held target: a jump is out of limits ...
+    tag = v.onboard_time_ns + PERIOD
+    _rejected(
+        v.receive(_joints(60, tag, _ramp_deg(19))), RejectReason.OUT_OF_LIMITS, "current target"
+    )
+    # ... and one that starts from it is ramped to from there
+    resume = np.degrees(holding) + np.array([0.5, 0, 0, 0, 0, 0])
+    _received(v.receive(_joints(61, tag, resume)))
+    v.advance_to(tag)
+    np.testing.assert_allclose(v.joint_target_rad(), np.radians(resume), rtol=0, atol=1e-15)
+
+
+# -- truth simulation and attitude control ---------------------------------------------------
+
+
+def test_free_drift_conserves_momentum() -> None:
+    config = VehicleConfig(
+        sim=SimConfig(gravity_gradient=False), initial_acs_mode=AcsModeName.FREE_DRIFT
+    )
+    v = _vehicle(config)
+    ws = DynamicsWorkspace(config.model)
+    rate_deg = np.array([2.0, -1.5, 2.5, 1.0, -2.0, 2.8])
+    for k in range(41):  # 10 s on every joint, then a hold
+        v.receive(_joints(k, EPOCH + SECOND + k * PERIOD, rate_deg * 0.25 * k))
+    angular, linear, arm = [], [], []
+    for i in range(1, 301):
+        v.advance_to(EPOCH + i * 100_000_000)
+        state = v.true_state()
+        q = ws.evaluate(state)
+        angular.append(q.angular_momentum_nms)
+        linear.append(q.linear_momentum_nms)
+        arm.append(q.H_bm_tilde @ state.joint_rates_radps)
+    # RK4 at 10 ms through the servo transients: measured 1.3e-8 N m s and 5e-9 kg m/s
+    # against an arm momentum of 2.8 N m s
+    assert np.max(np.abs(arm)) > 1.0
+    assert np.max(np.abs(angular)) < 1e-7
+    assert np.max(np.abs(linear)) < 1e-7
+    assert np.max(np.abs(v.wheel_momentum_nms())) < 1e-9  # no wheel torque (measured 3e-13)
+    assert (
+        np.degrees(Rotation.from_quat(v.true_state().quat_orbit_from_base_xyzw).magnitude()) > 0.1
+    )
+
+
+def test_feedback_returns_a_disturbed_attitude_to_its_target() -> None:
+    tilt = Rotation.from_euler("ZYX", [0.2, -0.5, 0.3], degrees=True).as_quat()
+    v = _vehicle(VehicleConfig(initial_quat_orbit_from_base_xyzw=tuple(tilt)))
+    offset = Rotation.from_euler("ZYX", [0.0, 0.25, 0.0], degrees=True)
+    v.receive(
+        AcsCommandMsg(
+            seq=0,
+            execute_time_ns=EPOCH + 200 * SECOND,
+            mode="feedback",
+            target_quat_orbit_from_base_xyzw=list(offset.as_quat()),
+        )
+    )
+    errors = []
+    for i in range(1, 201):
+        v.advance_to(EPOCH + i * SECOND)
+        errors.append(Rotation.from_quat(v.true_state().quat_orbit_from_base_xyzw).magnitude())
+    errors_deg = np.degrees(errors)
+    assert errors_deg[0] > 0.5
+    # bandwidth 0.04 rad/s, damping 0.7: measured 0.032 deg at 100 s, 0.016 deg from 160 s
+    # and 0.010 deg from 180 s on (gravity gradient holds the base 0.007 deg off its target;
+    # sensor noise moves it a few 1e-4 deg)
+    assert 0.02 < errors_deg[99] < 0.05
+    assert np.all(errors_deg[179:] < 0.015)
+    assert np.max(np.abs(v.wheel_momentum_nms())) > 0.1  # the wheels did the work
+    # a new target (the offset destination of experiment 3c) is followed just as well
+    v.advance_to(EPOCH + 400 * SECOND)
+    reached = Rotation.from_quat(v.true_state().quat_orbit_from_base_xyzw)
+    assert np.degrees((offset.inv() * reached).magnitude()) < 0.015  # measured 0.008 deg
+
+
+# -- telemetry --------------------------------------------------------------------------------
+
+
+def test_telemetry_every_period_with_consecutive_seqs_and_sample_times(
+    config: VehicleConfig,
+) -> None:
+    v = _vehicle(config)
+    v.receive(_joints(0, T0, [0.2] * 6))
+    frames = []
+    rng = np.random.default_rng(1)
+    t = EPOCH
+    while t < EPOCH + 30 * SECOND:  # irregular, off-grid advances
+        t += int(rng.integers(1, 700_000_000))
+        frames += v.advance_to(t)[1]
+    n = len(frames)
+    assert [f.seq for f in frames] == list(range(n))
+    assert [f.generation_time_ns for f in frames] == [EPOCH + k * 100_000_000 for k in range(n)]
+    assert n == v.next_telemetry_seq and frames[-1].generation_time_ns <= t
+    assert frames[0].buffer.queued == 1 and frames[0].buffer.next_execute_time_ns == T0
+    assert frames[-1].buffer.queued == 0 and frames[-1].buffer.next_execute_time_ns is None
+    assert frames[-1].buffer.last_executed_seq == 0
+    assert frames[-1].acs_mode is AcsModeName.FEEDBACK and frames[-1].acs_target_quat_xyzw == (
+        IDENTITY
+    )
+    # the same seed gives the same frames however the time is cut (to rounding: the
+    # simulator turns the gravity-gradient torque into the orbit frame at each of its calls)
+    again = _vehicle(config)
+    again.receive(_joints(0, T0, [0.2] * 6))
+    assert _frames_close(again.advance_to(t)[1], frames, atol=1e-9)
+    other = _vehicle(config, seed=8)
+    other.receive(_joints(0, T0, [0.2] * 6))
+    assert not _frames_close(other.advance_to(t)[1], frames, atol=1e-6)
+
+
+def _frames_close(a: list[TelemetryFrame], b: list[TelemetryFrame], *, atol: float) -> bool:
+    """Equal frames, floats to ``atol`` (exact when the seeds differ would be a bug)."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b, strict=True):
+        dx, dy = x.model_dump(), y.model_dump()
+        for key, value in dx.items():
+            if isinstance(value, list):
+                if not np.allclose(value, dy[key], rtol=0, atol=atol):
+                    return False
+            elif value != dy[key]:
+                return False
+    return True
+
+
+def test_telemetry_noise_has_the_configured_statistics() -> None:
+    noise = SensorNoise(
+        attitude_rad=math.radians(0.01), rate_radps=math.radians(0.001), joint_rad=1e-4
+    )
+    v = _vehicle(VehicleConfig(noise=noise), seed=11)
+    v.advance_to(EPOCH)  # the frame at the epoch; then one frame per call
+    d_att, d_rate, d_joint = [], [], []
+    for k in range(1, 1001):
+        _, frames = v.advance_to(EPOCH + k * 100_000_000)
+        (frame,) = frames
+        truth = v.true_state()
+        measured = Rotation.from_quat(frame.quat_orbit_from_base_xyzw)
+        d_att.append(
+            (Rotation.from_quat(truth.quat_orbit_from_base_xyzw).inv() * measured).as_rotvec()
+        )
+        true_rate = truth.rot_orbit_from_base.T @ truth.omega_base_orbit_radps
+        d_rate.append(np.array(frame.omega_base_in_base_radps) - true_rate)
+        d_joint.append(np.array(frame.joints_rad) - truth.joints_rad)
+    # 3000 (attitude, rate) and 6000 (joint) samples: the sample sigma is within 5 % (about
+    # four standard errors) and the mean within 4 standard errors of zero
+    for samples, sigma in (
+        (d_att, noise.attitude_rad),
+        (d_rate, noise.rate_radps),
+        (d_joint, noise.joint_rad),
+    ):
+        values = np.ravel(samples)
+        assert np.std(values) == pytest.approx(sigma, rel=0.05)
+        assert abs(np.mean(values)) < 4 * sigma / math.sqrt(values.size)
+
+
+def test_configuration_is_checked() -> None:
+    with pytest.raises(VehicleError, match="slower than 4 Hz"):
+        VehicleConfig(telemetry_period_s=0.5)
+    with pytest.raises(VehicleError, match="multiple of the 10 ms"):
+        VehicleConfig(control_period_s=0.015)
+    with pytest.raises(VehicleError, match="initial joints"):
+        VehicleConfig(initial_joints_rad=(0, 0, 0, 3.1, 0, 0))
+    with pytest.raises(ValueError, match="must be finite"):
+        SensorNoise(joint_rad=-1.0)
+
+
+# -- calibration against the flight (docs/spacecraft.md) -------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ws() -> DynamicsWorkspace:
+    return DynamicsWorkspace(default_model())
+
+
+def test_plans_become_uplink_messages_in_tag_order(ws: DynamicsWorkspace) -> None:
+    from planner.experiments import PtpParams, plan_ptp
+
+    plan = plan_ptp(ws, PtpParams(goal_joints_deg=(2.0, 0, 0, 0, 0, 0), settle_s=1.0))
+    msgs = plan_messages(plan, epoch_ns=EPOCH, first_seq=10)
+    assert [m.seq for m in msgs] == list(range(10, 10 + len(msgs)))
+    assert isinstance(msgs[0], AcsCommandMsg) and msgs[0].execute_time_ns == EPOCH + SECOND
+    joints = [m for m in msgs if isinstance(m, JointCommandMsg)]
+    assert [m.execute_time_ns for m in joints] == [
+        EPOCH + SECOND + round(t * 1e9) for t in plan.command_times_s
+    ]
+
+
+@pytest.mark.slow
+def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
+    ws: DynamicsWorkspace, config: VehicleConfig
+) -> None:
+    from planner.experiments import plan_ptp
+    from planner.gjm import plan_gjm
+
+    ptp = plan_ptp(ws)
+    flight = fly_plan(ptp, config)
+    assert flight.rejected == 0
+    motion_end = ptp.segment("A->B").t_end_s
+    outside = flight.t_s[flight.attitude_deg > 0.02]
+    # flight: about 100 s to settle; ours 100.4 s in the truth simulation
+    assert 85.0 < outside[-1] - motion_end < 115.0
+    # the feedback pulled the base back: far below the 1.3 deg free drift would leave
+    assert 0.3 < np.max(flight.attitude_deg) < 0.8
+
+    gjm = plan_gjm(ws)
+    flight = fly_plan(gjm, config)
+    assert flight.rejected == 0
+    pitch = flight.pitch_deg - flight.pitch_deg[0]
+    # flight: about -0.6 deg (ours -0.607, with lagging servos and gravity gradient)
+    assert np.min(pitch) == pytest.approx(-0.6, abs=0.05)
+
+
+@pytest.mark.slow
+def test_the_attitude_modes_differ_on_the_coordination_motion_as_in_flight(
+    ws: DynamicsWorkspace, config: VehicleConfig
+) -> None:
+    """Experiment 3 (paper 3.5, Fig. 9) flown through the vehicle, all three variants."""
+    from planner.coordination import plan_coordination
+
+    plan = plan_coordination(ws)
+    flight = fly_plan(plan, config)
+    assert flight.rejected == 0
+    a, b, c = (coordination_metrics(flight, plan, label) for label in ("(a)", "(b)", "(c)"))
+    # (a) feedback: a dip, a positive swing, then back to 0 (flight -0.5 to +0.4 deg; ours
+    # -0.19 to +0.31: our loop is stiffer, see docs/spacecraft.md)
+    assert -0.3 < a["pitch_min_deg"] < -0.1 and 0.2 < a["pitch_max_deg"] < 0.45
+    # (b) feedforward: a faster first response (flight: within -0.3 deg) ...
+    assert b["first_dip_deg"] > 0.6 * a["first_dip_deg"]
+    assert b["first_dip_deg"] > -0.3
+    # ... then the recovery adds to the deceleration reaction: a strong positive overshoot
+    assert b["peak_before_back_leg_deg"] > max(0.3, 3.0 * a["peak_before_back_leg_deg"])
+    assert b["pitch_range_deg"] > a["pitch_range_deg"]
+    # (c) offset destination: the fastest to settle after the motion, as in flight ...
+    assert c["settling_time_s"] < 0.8 * min(a["settling_time_s"], b["settling_time_s"])
+    # ... but NOT the smallest range, unlike the flight: holding a tilt of Omega_b costs more
+    # than our stiffer feedback lets the base dip (a known difference, docs/spacecraft.md)
+    assert c["pitch_range_deg"] > a["pitch_range_deg"]
+
+
+def test_default_vehicle_uses_gravity_gradient_and_the_calibrated_wheels(
+    config: VehicleConfig,
+) -> None:
+    assert config.sim.gravity_gradient
+    v = _vehicle(config)
+    inertia = np.diag(DynamicsWorkspace(config.model).momentum_blocks(np.zeros(6))[0])
+    np.testing.assert_allclose(v.gains.kp_nm_per_rad, inertia * 0.04**2, rtol=1e-12)
+    np.testing.assert_allclose(v.gains.kd_nms_per_rad, 2 * 0.7 * inertia * 0.04, rtol=1e-12)
