@@ -252,6 +252,9 @@ def plan_coordination(
     return plan
 
 
+_OPTIMISATION_WINDOW_S = 150.0
+
+
 @dataclass(frozen=True)
 class OffsetOptimum:
     offset_scale: float
@@ -342,13 +345,21 @@ def optimise_offset(
     params: CoordinationParams = CoordinationParams(),
     *,
     gains: AcsGains | None = None,
-    settle_weight_deg_per_s: float = 0.002,
+    settle_weight_deg_per_s: float = 0.006,
     max_evaluations: int = 40,
 ) -> OffsetOptimum:
     """Offset size (as a multiple of eq. (10)'s Omega_b) and switch delays that minimise
-    ``pitch range + settle_weight * settling time`` in the closed loop (20 ms steps)."""
+    ``pitch range + settle_weight * settling time`` in the closed loop (20 ms steps).
+
+    A second of settling weighs 0.006 deg of range: with the calibrated wheel law plain
+    feedback already has the smallest range (docs/spacecraft.md), so a lighter weight makes
+    "no offset" the optimum and says nothing about the rule. Each trial is flown with at
+    least 150 s after the motion, so that a settling time near feedback's 100 s is measured
+    rather than cut off at the window's end.
+    """
     gains = gains or default_acs_gains(ws)
     config = SimConfig(timestep_s=0.02)
+    params = params_for(params, "offset", settle_s=max(params.settle_s, _OPTIMISATION_WINDOW_S))
     block = _block(ws, params)
     count = 0
 
