@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import InvalidInput
-from planner.plan import Segment
+from planner.model import RobotModel
+from planner.plan import AcsCommand, Plan, Prediction, Segment, check_plan_limits
 from planner.ptp import COMMAND_PERIOD_S
 
 Array = NDArray[np.float64]
@@ -46,6 +50,34 @@ class CommandBuilder:
         if n < 0 or abs(n * COMMAND_PERIOD_S - duration_s) > 1e-9:
             raise InvalidInput(f"hold {name!r} of {duration_s} s is not whole 0.25 s periods")
         return self.block(np.tile(self._rows[-1], (n + 1, 1)), name, kind)
+
+    def plan(
+        self,
+        model: RobotModel,
+        *,
+        experiment: str,
+        parameters: Mapping[str, Any],
+        prediction: Prediction,
+        metrics: Mapping[str, float],
+        acs_commands: Sequence[AcsCommand],
+        joints_rad: Array | None = None,
+    ) -> Plan:
+        """The plan of these commands (or of ``joints_rad`` on the same grid, e.g. pre-shaped
+        ones), checked against the joint and rate limits."""
+        times, rows = self.arrays()
+        plan = Plan(
+            experiment=experiment,
+            parameters=dict(parameters),
+            initial_joints_rad=rows[0],
+            command_times_s=times,
+            command_joints_rad=rows if joints_rad is None else joints_rad,
+            segments=tuple(self.segments),
+            prediction=prediction,
+            metrics=dict(metrics),
+            acs_commands=tuple(acs_commands),
+        )
+        check_plan_limits(model, plan)
+        return plan
 
     def arrays(self) -> tuple[Array, Array]:
         rows = np.array(self._rows)

@@ -10,6 +10,7 @@ against the closed loop.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -49,16 +50,10 @@ def fly(
     times = np.asarray(command_times_s, dtype=np.float64)
     joints = np.asarray(command_joints_rad, dtype=np.float64)
     base_config = sim_config or SimConfig()
-    config = SimConfig(
-        timestep_s=base_config.timestep_s,
-        integrator=base_config.integrator,
-        servo=base_config.servo,
-        servo_enabled=base_config.servo_enabled,
+    config = dataclasses.replace(
+        base_config,
         wheel_torque_limit_nm=acs_gains.torque_limit_nm,
         wheel_momentum_limit_nms=acs_gains.momentum_limit_nms,
-        gravity_gradient=base_config.gravity_gradient,
-        gravity_gradient_update_s=base_config.gravity_gradient_update_s,
-        orbit=base_config.orbit,
     )
     quat0 = (
         IDENTITY_QUAT_XYZW

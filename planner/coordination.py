@@ -30,7 +30,7 @@ from planner.closed_loop import fly
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InfeasibleGoal, InvalidInput
 from planner.free_drift import predict_base_attitude
-from planner.plan import AcsCommand, Plan, check_plan_limits
+from planner.plan import AcsCommand, Plan
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S
 from planner.simulation import SimConfig
@@ -237,19 +237,14 @@ def plan_coordination(
             times[mask], pitch_deg[mask], motion_end_s=motion_end, band_deg=params.settle_band_deg
         ).items():
             metrics[f"predicted_{variant}_{key}"] = value
-    plan = Plan(
+    return builder.plan(
+        model,
         experiment="coordination",
         parameters={**asdict(params), "variants": list(params.variants)},
-        initial_joints_rad=start,
-        command_times_s=times,
-        command_joints_rad=joints,
-        segments=tuple(builder.segments),
         prediction=prediction,
         metrics=metrics,
-        acs_commands=tuple(acs),
+        acs_commands=acs,
     )
-    check_plan_limits(model, plan)
-    return plan
 
 
 _OPTIMISATION_WINDOW_S = 150.0

@@ -20,7 +20,7 @@ from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
-from planner.plan import AcsCommand, Plan, check_plan_limits
+from planner.plan import AcsCommand, Plan
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, ptp_commands
 from planner.reactionless import reactionless_line, retime_path
@@ -107,19 +107,14 @@ def plan_ptp(
     )
     metrics["settling_time_after_motion_s"] = max(0.0, metrics["last_outside_band_s"] - t1)
     metrics["motion_duration_s"] = t1 - t0
-    plan = Plan(
+    return builder.plan(
+        model,
         experiment="ptp",
         parameters={**asdict(params), "goal_joints_deg": np.degrees(goal).tolist()},
-        initial_joints_rad=start,
-        command_times_s=times,
-        command_joints_rad=joints,
-        segments=tuple(builder.segments),
         prediction=prediction,
         metrics=metrics,
         acs_commands=acs,
     )
-    check_plan_limits(model, plan)
-    return plan
 
 
 @dataclass(frozen=True)
@@ -199,16 +194,12 @@ def plan_reactionless(
             ),
         }
     )
-    plan = Plan(
+    return builder.plan(
+        model,
         experiment="reactionless",
         parameters={**asdict(params), "start_joints_deg": np.degrees(start).tolist()},
-        initial_joints_rad=start,
-        command_times_s=times,
-        command_joints_rad=joints,
-        segments=tuple(builder.segments),
         prediction=prediction,
         metrics=metrics,
         acs_commands=acs,
+        joints_rad=joints,
     )
-    check_plan_limits(model, plan)
-    return plan
