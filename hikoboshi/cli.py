@@ -248,10 +248,9 @@ def spacecraft(
     import logging
     import signal
 
-    from spacecraft.vehicle import VehicleConfig
-
     from spacecraft.link import LinkConfig, load_link_config, parse_outage
     from spacecraft.process import ProcessConfig, SpacecraftProcess
+    from spacecraft.vehicle import VehicleConfig
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     try:
