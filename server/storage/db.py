@@ -1,0 +1,150 @@
+"""Engines, sessions and migrations.
+
+- :func:`make_engine`: SQLite (a file, WAL) or PostgreSQL (psycopg 3) from one URL.
+- :func:`session_factory`: the ``sessionmaker`` the service opens its transactions with.
+- :func:`upgrade`: Alembic migrations to ``head``, programmatically (no ``alembic.ini``).
+- :func:`schema_diff`: what Alembic's autogenerate sees between the models and a database;
+  empty after :func:`upgrade` (a test holds it so).
+
+SQLite transactions. The ``sqlite3`` driver's legacy mode starts a transaction only before
+DML and autocommits DDL; here SQLAlchemy emits ``BEGIN IMMEDIATE`` itself, so every session
+is one real transaction (migrations included) that takes the write lock up front. A deferred
+``BEGIN`` would let a session read, then fail at once with ``SQLITE_BUSY`` when it tries to
+write after another writer committed (WAL cannot upgrade a stale snapshot); taking the lock
+at ``BEGIN`` makes such sessions wait (``busy_timeout``) instead. WAL still lets readers
+outside a transaction (the driver's own connections, backups) proceed. Keep sessions short.
+
+PostgreSQL URLs may name the driver or not: ``postgresql://`` is taken as
+``postgresql+psycopg://`` (psycopg 3 is the only PostgreSQL driver installed).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+from typing import Any
+
+from alembic import command
+from alembic.autogenerate import compare_metadata
+from alembic.config import Config
+from alembic.migration import MigrationContext
+from sqlalchemy import URL, Connection, Engine, create_engine, event, make_url
+from sqlalchemy.orm import Session, sessionmaker
+
+from server.storage.errors import InvalidArgument
+from server.storage.models import Base
+
+__all__ = [
+    "SQLITE_FILENAME",
+    "alembic_config",
+    "make_engine",
+    "schema_diff",
+    "session_factory",
+    "sqlite_url",
+    "upgrade",
+]
+
+SQLITE_FILENAME = "hikoboshi.sqlite3"
+MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
+
+#: Applied to every new SQLite connection. WAL: readers do not block the writer; with WAL,
+#: synchronous=NORMAL is durable across an application crash (a power cut may lose the last
+#: commits, never the file). busy_timeout: wait for the write lock rather than fail.
+SQLITE_PRAGMAS = (
+    "PRAGMA journal_mode = WAL",
+    "PRAGMA synchronous = NORMAL",
+    "PRAGMA foreign_keys = ON",
+    "PRAGMA busy_timeout = 10000",
+    "PRAGMA cache_size = -65536",  # KiB: 64 MiB of page cache
+    "PRAGMA temp_store = MEMORY",
+)
+
+# NaN/inf are not JSON (and jsonb refuses them): fail at the write, on every backend alike.
+_json_dumps = functools.partial(json.dumps, allow_nan=False)
+
+
+def sqlite_url(data_dir: Path) -> str:
+    """The URL of the default database: one SQLite file under ``data_dir``."""
+    return URL.create("sqlite", database=str(Path(data_dir) / SQLITE_FILENAME)).render_as_string()
+
+
+def make_engine(url: str | URL, *, echo: bool = False) -> Engine:
+    """An engine for ``url``: ``sqlite:///PATH`` or ``postgresql[+psycopg]://...``.
+
+    SQLite gets WAL, foreign keys, a busy timeout and ``BEGIN IMMEDIATE`` transactions (see
+    the module docstring), and the file's directory is created. Anything else is refused.
+    """
+    parsed = make_url(url)
+    backend = parsed.get_backend_name()
+    if backend == "sqlite":
+        return _sqlite_engine(parsed, echo=echo)
+    if backend == "postgresql":
+        if parsed.drivername == "postgresql":
+            parsed = parsed.set(drivername="postgresql+psycopg")
+        if parsed.get_driver_name() != "psycopg":
+            raise InvalidArgument(
+                f"PostgreSQL driver {parsed.get_driver_name()!r} is not supported; use psycopg"
+            )
+        return create_engine(parsed, echo=echo, pool_pre_ping=True, json_serializer=_json_dumps)
+    raise InvalidArgument(f"database {backend!r} is not supported; use sqlite or postgresql")
+
+
+def _sqlite_engine(url: URL, *, echo: bool) -> Engine:
+    database = url.database or ""
+    if database and database != ":memory:" and not database.startswith("file:"):
+        Path(database).parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(url, echo=echo, json_serializer=_json_dumps)
+
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_connection: Any, _record: Any) -> None:
+        # Take transaction control from the driver (emitted on "begin" below).
+        dbapi_connection.isolation_level = None
+        cursor = dbapi_connection.cursor()
+        try:
+            for pragma in SQLITE_PRAGMAS:
+                cursor.execute(pragma)
+        finally:
+            cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(connection: Connection) -> None:
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+    return engine
+
+
+def session_factory(engine: Engine) -> sessionmaker[Session]:
+    """Sessions on ``engine``; objects stay readable after commit (responses are built then)."""
+    return sessionmaker(engine, expire_on_commit=False)
+
+
+def alembic_config(connection: Connection | None = None, *, url: str | None = None) -> Config:
+    """An Alembic configuration for our migrations, on an open ``connection`` or a ``url``.
+
+    For a new revision: ``alembic.command.revision(alembic_config(url=...),
+    message="...", autogenerate=True)`` against a database at ``head``.
+    """
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS_DIR))
+    if url is not None:
+        # ConfigParser interpolation: a literal % must be doubled.
+        config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
+    if connection is not None:
+        config.attributes["connection"] = connection
+    return config
+
+
+def upgrade(engine: Engine, revision: str = "head") -> None:
+    """Migrate the database to ``revision`` in one transaction (DDL included, both backends)."""
+    with engine.begin() as connection:
+        command.upgrade(alembic_config(connection), revision)
+
+
+def schema_diff(engine: Engine) -> list[Any]:
+    """Alembic autogenerate's differences between the models and the database (types too)."""
+    with engine.connect() as connection:
+        context = MigrationContext.configure(
+            connection, opts={"compare_type": True, "compare_server_default": True}
+        )
+        return list(compare_metadata(context, Base.metadata))

@@ -1,0 +1,477 @@
+"""Repository functions: every read and write of the ground service's tables.
+
+Every function takes keyword arguments only, the first being the ``session``; none commits
+or rolls back (the service owns the transaction). Writes flush, so database errors surface
+at the call, mapped to :mod:`server.storage.errors`; after one, roll the session back.
+Times are integer ns (see :mod:`server.storage.models` for which clock).
+
+    plans      add_plan, get_plan, list_plans
+    passes     add_pass, get_pass, list_passes, update_pass_state (optimistic lock)
+    commands   add_commands (bulk), get_command, update_command_stage, list_commands
+    events     add_event, list_events
+    analysis   add_analysis, get_analysis, list_analyses
+    telemetry  ingest_frames, frame_seqs, missing_seqs, count_frames, telemetry_range,
+               telemetry_buckets (from ``_telemetry``)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping, Sequence
+from typing import Any
+
+from sqlalchemy import ColumnElement, func, insert, select
+from sqlalchemy.exc import IntegrityError, StatementError
+from sqlalchemy.orm import Session, defer
+from sqlalchemy.orm.exc import StaleDataError
+
+from planner.plan import Plan
+from server.storage._common import (
+    Page,
+    canonical_id,
+    check_one_of,
+    check_page,
+    check_time_range,
+    new_id,
+    require_pass,
+)
+from server.storage._telemetry import (
+    Bucket,
+    IngestResult,
+    count_frames,
+    frame_seqs,
+    ingest_frames,
+    missing_seqs,
+    telemetry_buckets,
+    telemetry_range,
+)
+from server.storage.errors import Conflict, InvalidArgument, NotFound
+from server.storage.models import (
+    COMMAND_STAGES,
+    PASS_STATES,
+    AnalysisRecord,
+    CommandRecord,
+    EventRecord,
+    PassRecord,
+    PlanRecord,
+)
+from telemetry.wire import AcsCommandMsg, JointCommandMsg
+
+__all__ = [
+    "Bucket",
+    "IngestResult",
+    "Page",
+    "add_analysis",
+    "add_commands",
+    "add_event",
+    "add_pass",
+    "add_plan",
+    "count_frames",
+    "frame_seqs",
+    "get_analysis",
+    "get_command",
+    "get_pass",
+    "get_plan",
+    "ingest_frames",
+    "list_analyses",
+    "list_commands",
+    "list_events",
+    "list_passes",
+    "list_plans",
+    "missing_seqs",
+    "telemetry_buckets",
+    "telemetry_range",
+    "update_command_stage",
+    "update_pass_state",
+]
+
+#: Fields of a wire command that have their own columns; the rest is the payload.
+_COMMAND_COLUMNS = {"v", "type", "kind", "seq", "execute_time_ns"}
+
+
+def _flush(session: Session, what: str) -> None:
+    try:
+        session.flush()
+    except IntegrityError as exc:
+        raise Conflict(f"{what}: {exc.orig}") from exc
+    except StatementError as exc:
+        if isinstance(exc.orig, ValueError):  # a value JSON cannot take (NaN), on SQLite
+            raise InvalidArgument(f"{what}: {exc.orig}") from exc
+        raise
+    except ValueError as exc:  # the same from psycopg, which dumps JSON itself
+        raise InvalidArgument(f"{what}: {exc}") from exc
+
+
+# --- plans ---------------------------------------------------------------------------------
+
+
+def add_plan(
+    *, session: Session, plan: Plan, created_at_ns: int, plan_id: str | None = None
+) -> PlanRecord:
+    """Store ``plan`` (its JSON document and a summary); a new UUID unless ``plan_id``."""
+    key = new_id() if plan_id is None else canonical_id(plan_id, what="plan")
+    if plan_id is not None and session.get(PlanRecord, key) is not None:
+        raise Conflict(f"plan {key} is already stored")
+    record = PlanRecord(
+        id=key,
+        experiment=plan.experiment,
+        parameters=dict(plan.parameters),
+        document=plan.to_json(),
+        duration_s=plan.duration_s,
+        n_commands=len(plan.command_times_s) + len(plan.acs_commands),
+        created_at_ns=created_at_ns,
+    )
+    session.add(record)
+    _flush(session, f"plan {record.id}")
+    return record
+
+
+def get_plan(*, session: Session, plan_id: str) -> PlanRecord:
+    """The plan, document included (``Plan.from_json(record.document)`` rebuilds it)."""
+    record = session.get(PlanRecord, canonical_id(plan_id, what="plan"))
+    if record is None:
+        raise NotFound(f"plan {plan_id!r} not found")
+    return record
+
+
+def list_plans(
+    *, session: Session, experiment: str | None = None, offset: int = 0, limit: int = 100
+) -> Page[PlanRecord]:
+    """Plans, newest first, without their documents (reading ``document`` raises)."""
+    check_page(offset, limit)
+    where: list[ColumnElement[bool]] = []
+    if experiment is not None:
+        where.append(PlanRecord.experiment == experiment)
+    query = (
+        select(PlanRecord)
+        .where(*where)
+        .options(defer(PlanRecord.document, raiseload=True))
+        .order_by(PlanRecord.created_at_ns.desc(), PlanRecord.id)
+        .offset(offset)
+        .limit(limit)
+    )
+    count = session.scalar(select(func.count()).select_from(PlanRecord).where(*where)) or 0
+    return Page(items=list(session.scalars(query)), count=count)
+
+
+# --- passes --------------------------------------------------------------------------------
+
+
+def add_pass(
+    *,
+    session: Session,
+    name: str,
+    plan_id: str,
+    aos_time_ns: int,
+    los_time_ns: int,
+    relay: str,
+    created_at_ns: int,
+    pass_id: str | None = None,
+) -> PassRecord:
+    """A new pass of ``plan_id`` in state ``scheduled``, version 1."""
+    plan_key = get_plan(session=session, plan_id=plan_id).id
+    if los_time_ns < aos_time_ns:
+        raise InvalidArgument(f"pass LOS {los_time_ns} ns is before its AOS {aos_time_ns} ns")
+    key = new_id() if pass_id is None else canonical_id(pass_id, what="pass")
+    if pass_id is not None and session.get(PassRecord, key) is not None:
+        raise Conflict(f"pass {key} is already stored")
+    record = PassRecord(
+        id=key,
+        name=name,
+        plan_id=plan_key,
+        aos_time_ns=aos_time_ns,
+        los_time_ns=los_time_ns,
+        relay=relay,
+        state="scheduled",
+        state_reason=None,
+        epoch_ns=None,
+        created_at_ns=created_at_ns,
+        updated_at_ns=created_at_ns,
+    )
+    session.add(record)
+    _flush(session, f"pass {record.id}")
+    return record
+
+
+def get_pass(*, session: Session, pass_id: str, refresh: bool = False) -> PassRecord:
+    """The pass; ``refresh`` re-reads it even when the session already holds it."""
+    record = session.get(PassRecord, canonical_id(pass_id, what="pass"), populate_existing=refresh)
+    if record is None:
+        raise NotFound(f"pass {pass_id!r} not found")
+    return record
+
+
+def list_passes(
+    *,
+    session: Session,
+    states: Collection[str] | None = None,
+    offset: int = 0,
+    limit: int = 100,
+) -> Page[PassRecord]:
+    """Passes in AOS order, optionally only those in ``states``."""
+    check_page(offset, limit)
+    where: list[ColumnElement[bool]] = []
+    if states is not None:
+        for state in states:
+            check_one_of(state, PASS_STATES, what="pass state")
+        where.append(PassRecord.state.in_(list(states)))
+    query = (
+        select(PassRecord)
+        .where(*where)
+        .order_by(PassRecord.aos_time_ns, PassRecord.id)
+        .offset(offset)
+        .limit(limit)
+    )
+    count = session.scalar(select(func.count()).select_from(PassRecord).where(*where)) or 0
+    return Page(items=list(session.scalars(query)), count=count)
+
+
+def update_pass_state(
+    *,
+    session: Session,
+    pass_id: str,
+    expected_version: int,
+    state: str,
+    updated_at_ns: int,
+    reason: str | None = None,
+    epoch_ns: int | None = None,
+) -> PassRecord:
+    """Move the pass to ``state`` (with ``reason``; ``epoch_ns`` if given), version + 1.
+
+    Raises :class:`Conflict` unless the stored version is ``expected_version``: the row is
+    read afresh (``FOR UPDATE`` on PostgreSQL) and the UPDATE is also conditional on the
+    version, so a writer in between is caught either way. Which transitions are allowed is
+    the service's rule, not the storage's.
+    """
+    check_one_of(state, PASS_STATES, what="pass state")
+    key = canonical_id(pass_id, what="pass")
+    # The stored version, read past the session's own copy (which may be from an earlier
+    # transaction): a plain column query does not go through the identity map.
+    current = session.scalar(
+        select(PassRecord.version).where(PassRecord.id == key).with_for_update()
+    )
+    if current is None:
+        raise NotFound(f"pass {pass_id!r} not found")
+    if current != expected_version:
+        raise Conflict(f"pass {key} is at version {current}, not the expected {expected_version}")
+    record = session.get_one(PassRecord, key)
+    if record.version != current:
+        session.expire(record)  # a stale copy: reload it rather than write against it
+    record.state = state
+    record.state_reason = reason
+    record.updated_at_ns = updated_at_ns
+    if epoch_ns is not None:
+        record.epoch_ns = epoch_ns
+    try:
+        session.flush()
+    except StaleDataError as exc:
+        raise Conflict(f"pass {key} changed under version {expected_version}") from exc
+    return record
+
+
+# --- commands ------------------------------------------------------------------------------
+
+
+def add_commands(
+    *,
+    session: Session,
+    pass_id: str,
+    commands: Sequence[JointCommandMsg | AcsCommandMsg],
+    queued_at_ns: int,
+) -> int:
+    """Queue ``commands`` for the pass in one bulk insert; the number stored.
+
+    A ``seq`` the pass already has raises :class:`Conflict` (and nothing of the batch is
+    kept once the session rolls back).
+    """
+    key = require_pass(session, pass_id)
+    rows = [
+        {
+            "pass_id": key,
+            "seq": command.seq,
+            "kind": command.kind,
+            "execute_time_ns": command.execute_time_ns,
+            "payload": command.model_dump(mode="json", exclude=_COMMAND_COLUMNS),
+            "stage": "queued",
+            "queued_at_ns": queued_at_ns,
+        }
+        for command in commands
+    ]
+    if not rows:
+        return 0
+    try:
+        session.execute(insert(CommandRecord), rows)
+    except IntegrityError as exc:
+        raise Conflict(f"commands of pass {key}: {exc.orig}") from exc
+    return len(rows)
+
+
+def get_command(*, session: Session, pass_id: str, seq: int) -> CommandRecord:
+    record = session.get(CommandRecord, (canonical_id(pass_id, what="pass"), seq))
+    if record is None:
+        raise NotFound(f"command {seq} of pass {pass_id!r} not found")
+    return record
+
+
+def update_command_stage(
+    *,
+    session: Session,
+    pass_id: str,
+    seq: int,
+    stage: str,
+    time_ns: int,
+    reject_reason: str | None = None,
+) -> CommandRecord:
+    """Set the command's stage and record ``time_ns`` as ``<stage>_at_ns``.
+
+    ``time_ns`` is on the clock the models name for that stage (onboard for ``received``,
+    ``executed``, ``rejected``). The stage is set as given, even backwards: acknowledgements
+    may arrive out of order, and which one wins is the service's rule.
+    """
+    check_one_of(stage, COMMAND_STAGES, what="command stage")
+    record = get_command(session=session, pass_id=pass_id, seq=seq)
+    record.stage = stage
+    setattr(record, f"{stage}_at_ns", time_ns)
+    if reject_reason is not None:
+        record.reject_reason = reject_reason
+    _flush(session, f"command {seq} of pass {pass_id}")
+    return record
+
+
+def list_commands(
+    *,
+    session: Session,
+    pass_id: str,
+    stages: Collection[str] | None = None,
+    execute_from_ns: int | None = None,
+    execute_to_ns: int | None = None,
+    limit: int | None = None,
+) -> list[CommandRecord]:
+    """The pass's commands by time tag (then seq): only ``stages`` if given, and only tags
+    in ``[execute_from_ns, execute_to_ns)`` for the bounds given."""
+    where: list[ColumnElement[bool]] = [CommandRecord.pass_id == canonical_id(pass_id, what="pass")]
+    if stages is not None:
+        for stage in stages:
+            check_one_of(stage, COMMAND_STAGES, what="command stage")
+        where.append(CommandRecord.stage.in_(list(stages)))
+    if execute_from_ns is not None:
+        where.append(CommandRecord.execute_time_ns >= execute_from_ns)
+    if execute_to_ns is not None:
+        where.append(CommandRecord.execute_time_ns < execute_to_ns)
+    query = (
+        select(CommandRecord)
+        .where(*where)
+        .order_by(CommandRecord.execute_time_ns, CommandRecord.seq)
+    )
+    if limit is not None:
+        check_page(0, limit)
+        query = query.limit(limit)
+    return list(session.scalars(query))
+
+
+# --- events --------------------------------------------------------------------------------
+
+
+def add_event(
+    *,
+    session: Session,
+    time_ns: int,
+    kind: str,
+    actor: str,
+    detail: Mapping[str, Any] | None = None,
+    pass_id: str | None = None,
+) -> EventRecord:
+    """Append to the audit log; the record carries its new ``id``."""
+    record = EventRecord(
+        pass_id=None if pass_id is None else require_pass(session, pass_id),
+        time_ns=time_ns,
+        kind=kind,
+        actor=actor,
+        detail=dict(detail or {}),
+    )
+    session.add(record)
+    _flush(session, f"event {kind!r}")
+    return record
+
+
+def list_events(
+    *,
+    session: Session,
+    pass_id: str | None = None,
+    kinds: Collection[str] | None = None,
+    t0_ns: int | None = None,
+    t1_ns: int | None = None,
+    offset: int = 0,
+    limit: int = 100,
+) -> Page[EventRecord]:
+    """Events in time order (then id), filtered by pass, kinds and ``[t0_ns, t1_ns)``."""
+    check_page(offset, limit)
+    where: list[ColumnElement[bool]] = []
+    if pass_id is not None:
+        where.append(EventRecord.pass_id == canonical_id(pass_id, what="pass"))
+    if kinds is not None:
+        where.append(EventRecord.kind.in_(list(kinds)))
+    if t0_ns is not None and t1_ns is not None:
+        check_time_range(t0_ns, t1_ns)
+    if t0_ns is not None:
+        where.append(EventRecord.time_ns >= t0_ns)
+    if t1_ns is not None:
+        where.append(EventRecord.time_ns < t1_ns)
+    query = (
+        select(EventRecord)
+        .where(*where)
+        .order_by(EventRecord.time_ns, EventRecord.id)
+        .offset(offset)
+        .limit(limit)
+    )
+    count = session.scalar(select(func.count()).select_from(EventRecord).where(*where)) or 0
+    return Page(items=list(session.scalars(query)), count=count)
+
+
+# --- analysis ------------------------------------------------------------------------------
+
+
+def add_analysis(
+    *,
+    session: Session,
+    pass_id: str,
+    kind: str,
+    result: Mapping[str, Any],
+    created_at_ns: int,
+) -> AnalysisRecord:
+    """Store an analysis result (JSON: no NaN or infinity); the newest of a kind is current."""
+    record = AnalysisRecord(
+        pass_id=require_pass(session, pass_id),
+        kind=kind,
+        created_at_ns=created_at_ns,
+        result=dict(result),
+    )
+    session.add(record)
+    _flush(session, f"analysis {kind!r} of pass {pass_id}")
+    return record
+
+
+def get_analysis(*, session: Session, pass_id: str, kind: str) -> AnalysisRecord:
+    """The newest analysis of ``kind`` for the pass."""
+    query = (
+        select(AnalysisRecord)
+        .where(
+            AnalysisRecord.pass_id == canonical_id(pass_id, what="pass"),
+            AnalysisRecord.kind == kind,
+        )
+        .order_by(AnalysisRecord.created_at_ns.desc(), AnalysisRecord.id.desc())
+        .limit(1)
+    )
+    record = session.scalar(query)
+    if record is None:
+        raise NotFound(f"no {kind!r} analysis of pass {pass_id!r}")
+    return record
+
+
+def list_analyses(*, session: Session, pass_id: str) -> list[AnalysisRecord]:
+    """Every analysis of the pass, oldest first."""
+    query = (
+        select(AnalysisRecord)
+        .where(AnalysisRecord.pass_id == canonical_id(pass_id, what="pass"))
+        .order_by(AnalysisRecord.created_at_ns, AnalysisRecord.id)
+    )
+    return list(session.scalars(query))

@@ -1,0 +1,99 @@
+"""Small, valid objects to store: a plan, wire commands, telemetry frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.attitude_control import AcsMode
+from planner.plan import AcsCommand, Plan, Prediction, Segment
+from telemetry.wire import (
+    AcsCommandMsg,
+    AcsModeName,
+    BufferState,
+    JointCommandMsg,
+    TelemetryFrame,
+)
+
+#: Onboard time of frame 0, and the 10 Hz frame period.
+T0_NS = 5_000_000_000_000
+FRAME_PERIOD_NS = 100_000_000
+
+
+def make_plan(n_commands: int = 9, experiment: str = "ptp") -> Plan:
+    """A small plan: joint commands 0.25 s apart, one ACS command, a short prediction."""
+    times_s = np.arange(n_commands, dtype=np.float64) * 0.25
+    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(6)
+    k = 5
+    prediction = Prediction(
+        t_s=np.linspace(0.0, float(times_s[-1]), k),
+        joints_rad=np.zeros((k, 6)),
+        quat_orbit_from_base_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
+        rpy_base_rad=np.zeros((k, 3)),
+        omega_base_orbit_radps=np.zeros((k, 3)),
+        hand_pos_orbit_m=np.ones((k, 3)),
+        quat_orbit_from_hand_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
+        reaction_momentum_orbit_nms=np.zeros((k, 3)),
+        wheel_momentum_nms=np.zeros((k, 3)),
+    )
+    return Plan(
+        experiment=experiment,
+        parameters={"out_speed_mps": 0.01, "label": "A->B"},
+        initial_joints_rad=np.zeros(6),
+        command_times_s=times_s,
+        command_joints_rad=joints_rad,
+        segments=(Segment("move", "ptp", 0.0, float(times_s[-1])),),
+        prediction=prediction,
+        metrics={"max_rate_degps": 1.5},
+        acs_commands=(AcsCommand(t_s=0.0, mode=AcsMode.FREE_DRIFT),),
+    )
+
+
+def make_commands(n: int, *, first_seq: int = 0) -> list[JointCommandMsg | AcsCommandMsg]:
+    """An ACS command, then joint commands on the 4 Hz grid."""
+    out: list[JointCommandMsg | AcsCommandMsg] = [
+        AcsCommandMsg(
+            seq=first_seq,
+            execute_time_ns=T0_NS,
+            mode=AcsModeName.FREE_DRIFT,
+            target_quat_orbit_from_base_xyzw=[0.0, 0.0, 0.1, 0.995],
+            feedforward=True,
+        )
+    ]
+    for i in range(1, n):
+        out.append(
+            JointCommandMsg(
+                seq=first_seq + i,
+                execute_time_ns=T0_NS + i * 250_000_000,
+                joints_rad=[0.01 * i, -0.01 * i, 0.0, 0.5, 0.0, 0.25],
+            )
+        )
+    return out
+
+
+def make_frame(seq: int, rng: np.random.Generator | None = None) -> TelemetryFrame:
+    """Frame ``seq`` at 10 Hz; random values when ``rng`` is given, else values from seq."""
+    rng = rng if rng is not None else np.random.default_rng(seq)
+    v = rng.normal(size=29).tolist()
+    return TelemetryFrame(
+        seq=seq,
+        generation_time_ns=T0_NS + seq * FRAME_PERIOD_NS,
+        joints_rad=v[0:6],
+        joint_targets_rad=v[6:12],
+        quat_orbit_from_base_xyzw=v[12:16],
+        omega_base_in_base_radps=v[16:19],
+        wheel_speeds_radps=v[19:22],
+        wheel_momentum_nms=v[22:25],
+        acs_mode=AcsModeName.FEEDBACK if seq % 2 else AcsModeName.FREE_DRIFT,
+        acs_target_quat_xyzw=v[25:29],
+        acs_feedforward=bool(seq % 3),
+        buffer=BufferState(
+            queued=seq % 7,
+            next_execute_time_ns=None if seq % 5 == 0 else T0_NS + seq * 1000,
+            last_executed_seq=seq // 4 - 1,
+        ),
+    )
+
+
+def make_frames(seqs: range | list[int], seed: int = 0) -> list[TelemetryFrame]:
+    rng = np.random.default_rng(seed)
+    return [make_frame(s, rng) for s in seqs]
