@@ -1,0 +1,1 @@
+"""HTTP and websocket routes. Routes parse and authorise; services do the work."""

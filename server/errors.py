@@ -1,0 +1,80 @@
+"""One JSON error shape for every failure the API reports, and the map from domain errors.
+
+    {"error": {"code": "not_found", "message": "pass 1234 does not exist", "detail": ...}}
+
+Planner domain errors are 422 (the request was understood but cannot be planned), storage
+``NotFound`` 404, ``Conflict`` 409, ``InvalidArgument`` 400, service errors their own 4xx,
+request validation 422. Nothing a client sends should produce a 500.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from planner.errors import PlannerError
+from server.storage.errors import Conflict, InvalidArgument, NotFound
+
+__all__ = ["ServiceError", "error_body", "install_error_handlers"]
+
+
+class ServiceError(Exception):
+    """A request the service refuses: ``status`` (4xx), ``code`` and a message."""
+
+    def __init__(self, status: int, code: str, message: str, detail: Any = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.code = code
+        self.message = message
+        self.detail = detail
+
+
+def error_body(code: str, message: str, detail: Any = None) -> dict[str, Any]:
+    return {"error": {"code": code, "message": message, "detail": detail}}
+
+
+def _json(status: int, code: str, message: str, detail: Any = None) -> JSONResponse:
+    return JSONResponse(status_code=status, content=error_body(code, message, detail))
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(ServiceError)
+    async def service_error(_: Request, exc: ServiceError) -> JSONResponse:
+        return _json(exc.status, exc.code, exc.message, exc.detail)
+
+    @app.exception_handler(PlannerError)
+    async def planner_error(_: Request, exc: PlannerError) -> JSONResponse:
+        return _json(422, type(exc).__name__, str(exc))
+
+    @app.exception_handler(NotFound)
+    async def not_found(_: Request, exc: NotFound) -> JSONResponse:
+        return _json(404, "not_found", str(exc))
+
+    @app.exception_handler(Conflict)
+    async def conflict(_: Request, exc: Conflict) -> JSONResponse:
+        return _json(409, "conflict", str(exc))
+
+    @app.exception_handler(InvalidArgument)
+    async def invalid(_: Request, exc: InvalidArgument) -> JSONResponse:
+        return _json(400, "invalid_argument", str(exc))
+
+    @app.exception_handler(RequestValidationError)
+    async def validation(_: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [
+            {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))} for e in exc.errors()
+        ]
+        message = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in errors[:5])
+        return _json(422, "invalid_request", message or "invalid request", errors)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        code = {401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed"}
+        return JSONResponse(
+            status_code=exc.status_code,
+            content=error_body(code.get(exc.status_code, "http_error"), str(exc.detail)),
+            headers=getattr(exc, "headers", None),
+        )

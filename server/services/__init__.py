@@ -1,0 +1,1 @@
+"""The ground service's work, free of FastAPI: each function owns its transaction."""

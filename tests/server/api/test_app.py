@@ -1,0 +1,67 @@
+"""The application skeleton: lifespan, error shape, authentication and roles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from fastapi import Depends
+from fastapi.testclient import TestClient
+
+from server.api.deps import Principal, require
+from server.app import create_app
+from server.settings import ApiToken, Role, Settings
+
+TOKENS = {
+    "v-token": ApiToken(name="vera", role=Role.VIEWER),
+    "o-token": ApiToken(name="otto", role=Role.OPERATOR),
+    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
+}
+
+
+@pytest.fixture()
+def client(tmp_path: Path) -> TestClient:
+    app = create_app(Settings(data_dir=tmp_path, tokens=TOKENS))
+
+    @app.get("/api/_probe/operator")
+    def operator_only(who: Principal = Depends(require(Role.OPERATOR))) -> dict[str, str]:
+        return {"name": who.name}
+
+    @app.get("/api/_probe/viewer")
+    def viewer_ok(who: Principal = Depends(require(Role.VIEWER))) -> dict[str, str]:
+        return {"name": who.name}
+
+    with TestClient(app) as c:
+        yield c  # type: ignore[misc]
+
+
+def test_lifespan_opens_a_migrated_sqlite_database(client: TestClient, tmp_path: Path) -> None:
+    assert client.get("/api/health").json() == {"status": "ok"}
+    assert (tmp_path / "hikoboshi.sqlite3").exists()
+
+
+def test_unknown_routes_use_the_one_error_shape(client: TestClient) -> None:
+    body = client.get("/api/nothing-here").json()
+    assert body["error"]["code"] == "not_found"
+
+
+@pytest.mark.parametrize(
+    ("path", "token", "status", "code"),
+    [
+        ("/api/_probe/viewer", None, 401, "unauthorized"),
+        ("/api/_probe/viewer", "wrong", 401, "unauthorized"),
+        ("/api/_probe/viewer", "v-token", 200, None),
+        ("/api/_probe/viewer", "o-token", 200, None),
+        ("/api/_probe/viewer", "s-token", 403, "forbidden"),
+        ("/api/_probe/operator", "v-token", 403, "forbidden"),
+        ("/api/_probe/operator", "o-token", 200, None),
+    ],
+)
+def test_tokens_and_roles(
+    client: TestClient, path: str, token: str | None, status: int, code: str | None
+) -> None:
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    response = client.get(path, headers=headers)
+    assert response.status_code == status
+    if code is not None:
+        assert response.json()["error"]["code"] == code
