@@ -13,11 +13,14 @@ from server.errors import ServiceError
 from server.settings import Role, Settings
 
 __all__ = [
+    "OperatorDep",
     "Principal",
     "SessionDep",
     "SettingsDep",
+    "ViewerDep",
     "authenticate",
     "require",
+    "websocket_principal",
 ]
 
 

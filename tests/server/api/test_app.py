@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from fastapi import Depends
 from fastapi.testclient import TestClient
 
-from server.api.deps import Principal, require
+from server.api.deps import OperatorDep, ViewerDep
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 
@@ -24,11 +23,11 @@ def client(tmp_path: Path) -> TestClient:
     app = create_app(Settings(data_dir=tmp_path, tokens=TOKENS))
 
     @app.get("/api/_probe/operator")
-    def operator_only(who: Principal = Depends(require(Role.OPERATOR))) -> dict[str, str]:
+    def operator_only(who: OperatorDep) -> dict[str, str]:
         return {"name": who.name}
 
     @app.get("/api/_probe/viewer")
-    def viewer_ok(who: Principal = Depends(require(Role.VIEWER))) -> dict[str, str]:
+    def viewer_ok(who: ViewerDep) -> dict[str, str]:
         return {"name": who.name}
 
     with TestClient(app) as c:
