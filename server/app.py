@@ -8,7 +8,14 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from server.api import control as control_api
+from server.api import link as link_api
+from server.api import passes as passes_api
+from server.api import plans as plans_api
+from server.api import telemetry as telemetry_api
 from server.errors import install_error_handlers
+from server.services.link import GroundLink
+from server.services.runner import PassRunner
 from server.settings import Settings
 from server.storage.db import make_engine, session_factory, upgrade
 
@@ -23,9 +30,13 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.settings = settings
         app.state.engine = engine
         app.state.sessions = session_factory(engine)
+        app.state.link = GroundLink(sessions=app.state.sessions)
+        app.state.runner = PassRunner(link=app.state.link, settings=settings)
         try:
             yield
         finally:
+            await app.state.runner.shutdown()
+            await app.state.link.close()
             engine.dispose()
 
     app = FastAPI(
@@ -35,6 +46,11 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     install_error_handlers(app)
+    app.include_router(link_api.router)
+    app.include_router(control_api.router)
+    app.include_router(plans_api.router)
+    app.include_router(passes_api.router)
+    app.include_router(telemetry_api.router)
 
     @app.get("/api/health", tags=["service"])
     def health() -> dict[str, str]:

@@ -1,0 +1,229 @@
+"""The experiments the planner offers, their parameters, and planning one by name.
+
+One table serves the command line (``NAME=VALUE`` text) and the ground service (JSON
+values), so both accept the same parameters and refuse the same mistakes with the same
+:class:`~planner.errors.InvalidInput` messages.
+
+    experiments()            name -> (parameters dataclass, planner function)
+    resolve(name)            one entry, or InvalidInput naming the known experiments
+    parse_assignments(...)   ["NAME=VALUE", ...] -> parameters (text, as on a command line)
+    parameters_from_values   {NAME: JSON value} -> parameters (a string is read as text)
+    plan_experiment(...)     the plan (seconds of CPU: callers off the event loop run it)
+
+Durations (parameters named ``*_s``) are limited to :data:`MAX_DURATION_S`: nothing longer
+fits one contact window (``PassParams.window_s`` <= 3600 s), and a larger value would only
+allocate a plan that can never fly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+from planner.coordination import CoordinationParams, optimise_offset, plan_coordination
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InvalidInput
+from planner.experiments import PtpParams, ReactionlessParams, plan_ptp, plan_reactionless
+from planner.gjm import GjmParams, plan_gjm
+from planner.model import default_model
+from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
+from planner.plan import Plan
+from planner.schedule import PassParams, plan_pass
+
+__all__ = [
+    "MAX_DURATION_S",
+    "MAX_ITEMS",
+    "Entry",
+    "experiments",
+    "parameters_from_values",
+    "parse_assignments",
+    "plan_experiment",
+    "resolve",
+    "type_name",
+]
+
+Entry = tuple[type[Any], Callable[..., Plan]]
+
+#: The longest duration parameter accepted (s): one contact window at most.
+MAX_DURATION_S = 3600.0
+#: The most items a tuple parameter may hold.
+MAX_ITEMS = 64
+
+
+def experiments() -> dict[str, Entry]:
+    """Experiment name -> (parameters dataclass, planner ``f(workspace, params) -> Plan``)."""
+    return {
+        "ptp": (PtpParams, plan_ptp),
+        "reactionless": (ReactionlessParams, plan_reactionless),
+        "gjm": (GjmParams, plan_gjm),
+        "coordination": (CoordinationParams, plan_coordination),
+        "nonholonomic": (NonholonomicParams, plan_nonholonomic),
+        "pass": (PassParams, plan_pass),
+    }
+
+
+def resolve(experiment: str) -> Entry:
+    table = experiments()
+    if experiment not in table:
+        raise InvalidInput(f"unknown experiment {_show(experiment)}; choose from {sorted(table)}")
+    return table[experiment]
+
+
+def type_name(hint: Any) -> str:
+    return str(hint).replace("typing.", "").replace("<class '", "").replace("'>", "")
+
+
+def _show(value: Any) -> str:
+    """``repr`` cut short: messages quote what a client sent, which may be long."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _finite(name: str, value: float) -> float:
+    if not math.isfinite(value):
+        raise InvalidInput(f"parameter {name}: not finite: {value!r}")
+    return value
+
+
+def _from_text(name: str, text: str, hint: Any) -> Any:
+    """``text`` (command-line form: tuples comma-separated, ``none`` for an Optional) as
+    ``hint``."""
+    args = typing.get_args(hint)
+    if type(None) in args:  # Optional[...]: "none" means the default derivation
+        if text.strip().lower() in ("", "none"):
+            return None
+        hint = next(a for a in args if a is not type(None))
+        args = typing.get_args(hint)
+    try:
+        if hint is bool:
+            lowered = text.strip().lower()
+            if lowered not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(f"not a boolean: {_show(text)}")
+            return lowered in ("true", "1", "yes")
+        if hint is float:
+            return _finite(name, float(text))
+        if hint is int:
+            return int(text)
+        if hint is str:
+            return text
+        if typing.get_origin(hint) is tuple:
+            parts = [p.strip() for p in text.split(",") if p.strip()]
+            if len(parts) > MAX_ITEMS:
+                raise ValueError(f"{len(parts)} items exceed the limit of {MAX_ITEMS}")
+            return tuple(_from_text(name, p, args[0]) for p in parts)
+    except ValueError as exc:
+        if isinstance(exc, InvalidInput):
+            raise
+        raise InvalidInput(f"parameter {name}: {exc}") from None
+    raise InvalidInput(f"parameter {name} has a type that cannot be set: {type_name(hint)}")
+
+
+def _from_value(name: str, value: Any, hint: Any) -> Any:
+    """A JSON value as ``hint``; a string for a non-string parameter is read as text."""
+    args = typing.get_args(hint)
+    if type(None) in args:
+        if value is None:
+            return None
+        hint = next(a for a in args if a is not type(None))
+        args = typing.get_args(hint)
+    if isinstance(value, str) and hint is not str:
+        return _from_text(name, value, hint)
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is bool and isinstance(value, bool):
+        return value
+    if hint is float and number:
+        try:
+            return _finite(name, float(value))
+        except OverflowError:  # an int beyond any float
+            raise InvalidInput(f"parameter {name}: {_show(value)} is out of range") from None
+    if hint is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if hint is str and isinstance(value, str):
+        return value
+    if typing.get_origin(hint) is tuple and isinstance(value, list | tuple):
+        if len(value) > MAX_ITEMS:
+            raise InvalidInput(f"parameter {name}: {len(value)} items exceed {MAX_ITEMS}")
+        return tuple(_from_value(name, item, args[0]) for item in value)
+    raise InvalidInput(f"parameter {name}: expected {type_name(hint)}, got {_show(value)}")
+
+
+def _build(params_type: type[Any], values: dict[str, Any]) -> Any:
+    for key, value in values.items():
+        if key.endswith("_s") and isinstance(value, float) and abs(value) > MAX_DURATION_S:
+            raise InvalidInput(
+                f"parameter {key} = {value} s exceeds the limit of {MAX_DURATION_S} s"
+            )
+    try:
+        params = params_type(**values)
+    except TypeError as exc:
+        raise InvalidInput(str(exc)) from None
+    check = getattr(params, "check", None)
+    if callable(check):
+        check()
+    return params
+
+
+def _field_hints(params_type: type[Any]) -> dict[str, Any]:
+    hints = typing.get_type_hints(params_type)
+    return {f.name: hints[f.name] for f in dataclasses.fields(params_type)}
+
+
+def _unknown(params_type: type[Any], key: str, known: Sequence[str]) -> InvalidInput:
+    return InvalidInput(
+        f"unknown parameter {_show(key)} for {params_type.__name__}; known: {sorted(known)}"
+    )
+
+
+def parse_assignments(params_type: type[Any], assignments: Sequence[str]) -> Any:
+    """Parameters from ``NAME=VALUE`` strings; unset fields keep their defaults."""
+    hints = _field_hints(params_type)
+    values: dict[str, Any] = {}
+    for assignment in assignments:
+        if "=" not in assignment:
+            raise InvalidInput(f"--set needs NAME=VALUE, got {_show(assignment)}")
+        key, text = assignment.split("=", 1)
+        key = key.strip()
+        if key not in hints:
+            raise _unknown(params_type, key, list(hints))
+        values[key] = _from_text(key, text, hints[key])
+    return _build(params_type, values)
+
+
+def parameters_from_values(params_type: type[Any], values: Mapping[str, Any]) -> Any:
+    """Parameters from ``{NAME: value}`` as JSON carries them (numbers, booleans, strings,
+    lists for tuples, ``null`` for an Optional); unset fields keep their defaults."""
+    hints = _field_hints(params_type)
+    converted: dict[str, Any] = {}
+    for key, value in values.items():
+        if key not in hints:
+            raise _unknown(params_type, key, list(hints))
+        converted[key] = _from_value(key, value, hints[key])
+    return _build(params_type, converted)
+
+
+def plan_experiment(experiment: str, params: Any, *, optimise_offset_flag: bool = False) -> Plan:
+    """Plan ``experiment`` with ``params`` (of its dataclass) on the default model.
+
+    ``optimise_offset_flag`` (coordination only) first optimises the offset size and switch
+    times in the closed loop and records the optimum in the metrics.
+    """
+    _, planner_fn = resolve(experiment)
+    if optimise_offset_flag and experiment != "coordination":
+        raise InvalidInput("--optimise-offset applies to the coordination experiment only")
+    ws = DynamicsWorkspace(default_model())
+    if optimise_offset_flag:
+        optimum = optimise_offset(ws, params)
+        params = dataclasses.replace(
+            params,
+            offset_scale=optimum.offset_scale,
+            offset_on_delay_s=optimum.on_delay_s,
+            offset_off_delay_s=optimum.off_delay_s,
+        )
+        optimised: Plan = planner_fn(ws, params)
+        extra = {f"optimum.{k}": float(v) for k, v in dataclasses.asdict(optimum).items()}
+        return dataclasses.replace(optimised, metrics={**optimised.metrics, **extra})
+    plan: Plan = planner_fn(ws, params)
+    return plan

@@ -1,0 +1,57 @@
+"""``/api/link``: the spacecraft's websocket (docs/protocol.md), for the ``spacecraft`` role.
+
+A bad token or role is accepted and then closed with 1008 and the reason (closing before
+the handshake would lose the reason to a bare HTTP 403). Every text (or binary) frame goes
+to :class:`server.services.link.GroundLink`, which answers a malformed one with ``error``
+and keeps the connection.
+"""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from server.api.deps import websocket_principal
+from server.errors import ServiceError
+from server.services.link import Connection, GroundLink
+from server.settings import Role
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["link"])
+
+
+@router.websocket("/api/link")
+async def spacecraft_link(websocket: WebSocket) -> None:
+    await websocket.accept()
+    try:
+        principal = websocket_principal(websocket, Role.SPACECRAFT)
+    except ServiceError as exc:
+        await websocket.close(code=1008, reason=exc.message[:120])
+        return
+    link: GroundLink = websocket.app.state.link
+
+    async def close(code: int, reason: str) -> None:
+        await websocket.close(code=code, reason=reason)
+
+    conn = Connection(actor=principal.name, send_text=websocket.send_text, close=close)
+    await link.attach(conn)
+    reason = "closed"
+    try:
+        while True:
+            message = await websocket.receive()
+            received_mono = time.monotonic()
+            if message["type"] == "websocket.disconnect":
+                reason = f"closed by the spacecraft ({message.get('code')})"
+                break
+            raw = message.get("text")
+            if raw is None:
+                raw = message.get("bytes") or b""
+            await link.handle(conn, raw, received_mono)
+    except WebSocketDisconnect as exc:
+        reason = f"closed by the spacecraft ({exc.code})"
+    except RuntimeError as exc:  # the socket was closed under us (superseded)
+        reason = str(exc)[:200]
+    finally:
+        await link.detach(conn, reason)

@@ -1,0 +1,66 @@
+"""``/api/passes``: schedule a pass (operator); read passes and their commands (viewer)."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.schemas import (
+    ERROR_RESPONSES,
+    CommandsPublic,
+    CommandStage,
+    PassCreate,
+    PassesPublic,
+    PassPublic,
+    PassState,
+)
+from server.services import passes as service
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/passes", tags=["passes"], responses=ERROR_RESPONSES)
+
+
+@router.post("", status_code=201, response_model=PassPublic)
+def schedule_pass(
+    request: PassCreate, session: SessionDep, settings: SettingsDep, who: OperatorDep
+) -> PassPublic:
+    """Schedule a pass of a stored plan; its window must hold the plan and the uplink lead."""
+    return service.schedule_pass(
+        session=session, settings=settings, request=request, actor=who.name, now_ns=time.time_ns()
+    )
+
+
+@router.get("", response_model=PassesPublic)
+def list_passes(
+    session: SessionDep,
+    _: ViewerDep,
+    state: Annotated[list[PassState] | None, Query()] = None,
+    offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> PassesPublic:
+    """Passes in AOS order, only those in ``state`` (repeatable) if given."""
+    return service.list_passes(session=session, states=state, offset=offset, limit=limit)
+
+
+@router.get("/{pass_id}", response_model=PassPublic)
+def get_pass(pass_id: str, session: SessionDep, _: ViewerDep) -> PassPublic:
+    return service.get_pass(session=session, pass_id=pass_id)
+
+
+@router.get("/{pass_id}/commands", response_model=CommandsPublic)
+def list_commands(
+    pass_id: str,
+    session: SessionDep,
+    _: ViewerDep,
+    stage: Annotated[list[CommandStage] | None, Query()] = None,
+    offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> CommandsPublic:
+    """The pass's commands by time tag, only those at ``stage`` (repeatable) if given."""
+    return service.list_commands(
+        session=session, pass_id=pass_id, stages=stage, offset=offset, limit=limit
+    )

@@ -1,0 +1,272 @@
+"""What the REST API reads and writes (pydantic): ``XCreate`` in, ``XPublic`` out,
+``XsPublic(data, count)`` for a page of a listing.
+
+Times: ground times are ISO-8601 UTC (``created_at``, ``aos_time``); onboard times, which
+the spacecraft stamps, are integer ns (``execute_time_ns``) with an ISO rendering beside
+them where a client plots them. Tables live apart, in :mod:`server.storage.models`.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from typing import Any, Literal
+
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
+
+__all__ = [
+    "ERROR_RESPONSES",
+    "CommandPublic",
+    "CommandsPublic",
+    "ErrorPublic",
+    "EventPublic",
+    "EventsPublic",
+    "PassCreate",
+    "PassPublic",
+    "PassesPublic",
+    "PlanBrief",
+    "PlanCreate",
+    "PlanPublic",
+    "PlanSummary",
+    "PlanValidation",
+    "PlansPublic",
+    "SegmentPublic",
+    "TelemetryBucketPublic",
+    "TelemetryPublic",
+    "TelemetryRowPublic",
+    "ValidationIssue",
+    "iso_from_ns",
+    "ns_from_datetime",
+]
+
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+#: Ground times a client may give: int64 ns reach 2262; keep well inside.
+EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
+LATEST = datetime(2200, 1, 1, tzinfo=UTC)
+#: The largest int64, the upper bound of every ``*_ns`` a client may give.
+MAX_NS = 2**63 - 1
+
+PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted"]
+CommandStage = Literal["queued", "released", "sent", "received", "executed", "rejected", "expired"]
+
+
+def iso_from_ns(time_ns: int) -> datetime:
+    """A UTC datetime (microsecond resolution) for ns since the Unix epoch."""
+    return _EPOCH + timedelta(microseconds=time_ns // 1000)
+
+
+def ns_from_datetime(value: datetime) -> int:
+    """ns since the Unix epoch for an aware datetime, exactly."""
+    return (value - _EPOCH) // timedelta(microseconds=1) * 1000
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+
+# --- plans ---------------------------------------------------------------------------------
+
+
+class PlanCreate(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"experiment": "ptp", "parameters": {"settle_s": 0.25}}]}
+    )
+
+    experiment: str = Field(max_length=64, description="ptp, reactionless, gjm, ...")
+    #: As JSON carries them: numbers, booleans, strings, lists for tuples, null for None.
+    parameters: dict[str, Any] = Field(default_factory=dict)
+
+
+class SegmentPublic(_Out):
+    name: str
+    kind: str
+    t_start_s: float
+    t_end_s: float
+
+
+class PlanBrief(_Out):
+    """A plan in a listing: its summary without metrics and segments."""
+
+    id: str
+    experiment: str
+    parameters: dict[str, Any]
+    duration_s: float
+    n_commands: int
+    created_at: datetime
+
+
+class PlanPublic(PlanBrief):
+    metrics: dict[str, float]
+    segments: list[SegmentPublic]
+
+
+class PlansPublic(BaseModel):
+    data: list[PlanBrief]
+    count: int
+
+
+class ValidationIssue(BaseModel):
+    code: str
+    message: str
+
+
+class PlanSummary(BaseModel):
+    """A plan as it would be stored: no id and no creation time yet."""
+
+    experiment: str
+    parameters: dict[str, Any]
+    duration_s: float
+    n_commands: int
+    metrics: dict[str, float]
+    segments: list[SegmentPublic]
+
+
+class PlanValidation(BaseModel):
+    valid: bool
+    errors: list[ValidationIssue]
+    summary: PlanSummary | None = None
+
+
+# --- passes --------------------------------------------------------------------------------
+
+
+class PassCreate(BaseModel):
+    plan_id: str = Field(max_length=64)
+    name: str = Field(min_length=1, max_length=128)
+    #: Acquisition and loss of signal, ISO-8601 with a zone (UTC).
+    aos_time: AwareDatetime
+    los_time: AwareDatetime
+    relay: str = Field(default="TDRS", min_length=1, max_length=64)
+
+
+class PassPublic(_Out):
+    id: str
+    name: str
+    plan_id: str
+    aos_time: datetime
+    los_time: datetime
+    relay: str
+    state: str
+    state_reason: str | None
+    #: Onboard time of the plan's t = 0, once known (ns, onboard clock).
+    epoch_ns: int | None
+    created_at: datetime
+    updated_at: datetime
+    version: int
+
+
+class PassesPublic(BaseModel):
+    data: list[PassPublic]
+    count: int
+
+
+# --- commands ------------------------------------------------------------------------------
+
+
+class CommandPublic(BaseModel):
+    """A command and when it reached each stage: ground stages (``queued`` ... ``sent``,
+    ``expired``) as ISO-8601 UTC, onboard stages (``received``, ``executed``, ``rejected``)
+    as ns on the onboard clock."""
+
+    seq: int
+    kind: str
+    execute_time_ns: int
+    payload: dict[str, Any]
+    stage: str
+    reject_reason: str | None
+    queued_at: datetime
+    released_at: datetime | None
+    sent_at: datetime | None
+    expired_at: datetime | None
+    received_at_ns: int | None
+    executed_at_ns: int | None
+    rejected_at_ns: int | None
+
+
+class CommandsPublic(BaseModel):
+    data: list[CommandPublic]
+    count: int
+
+
+# --- telemetry -----------------------------------------------------------------------------
+
+
+class TelemetryRowPublic(BaseModel):
+    seq: int
+    generation_time_ns: int
+    generation_time: datetime
+    values: dict[str, float | int | bool | str | None]
+
+
+class TelemetryBucketPublic(BaseModel):
+    """Frames with ``t_start_ns <= generation_time_ns < t_start_ns + width_ns``."""
+
+    t_start_ns: int
+    t_start: datetime
+    count: int
+    min: dict[str, float]
+    max: dict[str, float]
+    mean: dict[str, float]
+
+
+class TelemetryPublic(BaseModel):
+    """Raw frames (``mode == "raw"``: ``rows``) or decimated buckets (``"buckets"``)."""
+
+    pass_id: str
+    mode: Literal["raw", "buckets"]
+    fields: list[str]
+    t0_ns: int
+    t1_ns: int
+    #: Raw rows returned, or buckets (the non-empty ones).
+    count: int
+    #: Raw mode: more frames lie in the range than ``limit``; ask again from the last one.
+    truncated: bool = False
+    width_ns: int | None = None
+    rows: list[TelemetryRowPublic] | None = None
+    buckets: list[TelemetryBucketPublic] | None = None
+
+
+# --- events --------------------------------------------------------------------------------
+
+
+class EventPublic(BaseModel):
+    id: int
+    pass_id: str | None
+    time: datetime
+    time_ns: int
+    kind: str
+    actor: str
+    detail: dict[str, Any]
+
+
+class EventsPublic(BaseModel):
+    data: list[EventPublic]
+    count: int
+
+
+# --- errors --------------------------------------------------------------------------------
+
+
+class ErrorDetail(BaseModel):
+    code: str
+    message: str
+    detail: Any = None
+
+
+class ErrorPublic(BaseModel):
+    """The one error shape (:mod:`server.errors`)."""
+
+    error: ErrorDetail
+
+
+#: Documented on every router, so the OpenAPI document describes the replies clients get.
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorPublic, "description": description}
+    for status, description in (
+        (400, "Invalid argument"),
+        (401, "No or unknown API token"),
+        (403, "The token's role may not do this"),
+        (404, "Not found"),
+        (409, "Conflict"),
+        (422, "Invalid request, or a plan that cannot be made"),
+    )
+}

@@ -1,0 +1,159 @@
+"""Passes: schedule one against a stored plan, list and read them, list their commands.
+
+A window must hold the whole plan and the uplink lead before its first command: the
+ground sends each command at least (one-way delay + margin) before its time tag (SPEC 6),
+and nothing can be sent before AOS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime
+
+from sqlalchemy.orm import Session
+
+from server.errors import ServiceError
+from server.schemas import (
+    EARLIEST,
+    LATEST,
+    CommandPublic,
+    CommandsPublic,
+    PassCreate,
+    PassesPublic,
+    PassPublic,
+    iso_from_ns,
+    ns_from_datetime,
+)
+from server.settings import Settings
+from server.storage import repository as repo
+from server.storage.models import CommandRecord, PassRecord
+
+__all__ = ["get_pass", "list_commands", "list_passes", "schedule_pass"]
+
+
+def public(record: PassRecord) -> PassPublic:
+    return PassPublic(
+        id=record.id,
+        name=record.name,
+        plan_id=record.plan_id,
+        aos_time=iso_from_ns(record.aos_time_ns),
+        los_time=iso_from_ns(record.los_time_ns),
+        relay=record.relay,
+        state=record.state,
+        state_reason=record.state_reason,
+        epoch_ns=record.epoch_ns,
+        created_at=iso_from_ns(record.created_at_ns),
+        updated_at=iso_from_ns(record.updated_at_ns),
+        version=record.version,
+    )
+
+
+def schedule_pass(
+    *, session: Session, settings: Settings, request: PassCreate, actor: str, now_ns: int
+) -> PassPublic:
+    """Store a ``scheduled`` pass and the audit event ``pass_scheduled`` in one transaction.
+
+    404 for an unknown plan; 422 for a window that is reversed, outside 1970..2200 or too
+    short for the plan.
+    """
+    for label, value in (("aos_time", request.aos_time), ("los_time", request.los_time)):
+        if not EARLIEST <= value < LATEST:
+            raise ServiceError(
+                422, "time_out_of_range", f"{label} {value.isoformat()} is outside 1970..2200"
+            )
+    aos_ns = ns_from_datetime(request.aos_time)
+    los_ns = ns_from_datetime(request.los_time)
+    if los_ns <= aos_ns:
+        raise ServiceError(
+            422,
+            "window_reversed",
+            f"los_time {request.los_time.isoformat()} is not after "
+            f"aos_time {request.aos_time.isoformat()}",
+        )
+    try:
+        plan = repo.get_plan(session=session, plan_id=request.plan_id)
+        lead_s = settings.link_one_way_delay_s + settings.uplink_margin_s
+        window_s = (los_ns - aos_ns) / 1e9
+        if window_s < plan.duration_s + lead_s:
+            raise ServiceError(
+                422,
+                "window_too_short",
+                f"window of {window_s:.3f} s is shorter than plan {plan.id}'s "
+                f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s uplink lead",
+            )
+        record = repo.add_pass(
+            session=session,
+            name=request.name,
+            plan_id=plan.id,
+            aos_time_ns=aos_ns,
+            los_time_ns=los_ns,
+            relay=request.relay,
+            created_at_ns=now_ns,
+        )
+        repo.add_event(
+            session=session,
+            time_ns=now_ns,
+            kind="pass_scheduled",
+            actor=actor,
+            pass_id=record.id,
+            detail={
+                "plan_id": plan.id,
+                "name": record.name,
+                "aos_time_ns": aos_ns,
+                "los_time_ns": los_ns,
+                "relay": record.relay,
+            },
+        )
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    return public(record)
+
+
+def get_pass(*, session: Session, pass_id: str) -> PassPublic:
+    return public(repo.get_pass(session=session, pass_id=pass_id))
+
+
+def list_passes(
+    *, session: Session, states: Sequence[str] | None, offset: int, limit: int
+) -> PassesPublic:
+    page = repo.list_passes(session=session, states=states, offset=offset, limit=limit)
+    return PassesPublic(data=[public(r) for r in page.items], count=page.count)
+
+
+def _iso(time_ns: int | None) -> datetime | None:
+    return None if time_ns is None else iso_from_ns(time_ns)
+
+
+def _command(record: CommandRecord) -> CommandPublic:
+    return CommandPublic(
+        seq=record.seq,
+        kind=record.kind,
+        execute_time_ns=record.execute_time_ns,
+        payload=record.payload,
+        stage=record.stage,
+        reject_reason=record.reject_reason,
+        queued_at=iso_from_ns(record.queued_at_ns),
+        released_at=_iso(record.released_at_ns),
+        sent_at=_iso(record.sent_at_ns),
+        expired_at=_iso(record.expired_at_ns),
+        received_at_ns=record.received_at_ns,
+        executed_at_ns=record.executed_at_ns,
+        rejected_at_ns=record.rejected_at_ns,
+    )
+
+
+def list_commands(
+    *, session: Session, pass_id: str, stages: Sequence[str] | None, offset: int, limit: int
+) -> CommandsPublic:
+    """The pass's commands by time tag, one page of them, and how many match.
+
+    The repository lists a pass's commands without an offset or a count, so the page is
+    cut here; a pass holds a few thousand commands at most (one window at 4 Hz).
+    """
+    repo.get_pass(session=session, pass_id=pass_id)  # 404 for an unknown pass
+    records = repo.list_commands(session=session, pass_id=pass_id, stages=stages)
+    return CommandsPublic(
+        data=[_command(r) for r in records[offset : offset + limit]], count=len(records)
+    )

@@ -1,0 +1,135 @@
+"""Plans: run the planner on a request, store the result, read plans back.
+
+Planning takes seconds of CPU and touches no database: it runs before the transaction
+opens, so no lock (SQLite takes the write lock at ``BEGIN``) is held while it runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from planner.catalogue import parameters_from_values, plan_experiment, resolve
+from planner.errors import PlannerError
+from planner.plan import Plan
+from server.errors import ServiceError
+from server.schemas import (
+    PlanBrief,
+    PlanCreate,
+    PlanPublic,
+    PlansPublic,
+    PlanSummary,
+    PlanValidation,
+    SegmentPublic,
+    ValidationIssue,
+    iso_from_ns,
+)
+from server.storage import repository as repo
+from server.storage.models import PlanRecord
+
+__all__ = ["create_plan", "get_plan", "get_plan_document", "list_plans", "plan", "validate"]
+
+
+def plan(request: PlanCreate) -> tuple[Plan, str]:
+    """The plan for ``request`` and its JSON document; planner errors propagate (422).
+
+    A numerical failure other than the planner's own errors (a singular matrix, an
+    overflow) is still caused by the parameters sent: 422 ``planning_failed``, not a 500.
+    """
+    params_type, _ = resolve(request.experiment)
+    params = parameters_from_values(params_type, request.parameters)
+    try:
+        result = plan_experiment(request.experiment, params)
+        document = result.to_json()  # refuses NaN and infinity
+    except PlannerError:
+        raise
+    except (ValueError, ArithmeticError) as exc:
+        raise ServiceError(
+            422, "planning_failed", f"{request.experiment} could not be planned: {exc}"
+        ) from exc
+    return result, document
+
+
+def _summary(result: Plan) -> PlanSummary:
+    return PlanSummary(
+        experiment=result.experiment,
+        parameters=json.loads(json.dumps(dict(result.parameters))),
+        duration_s=result.duration_s,
+        n_commands=len(result.command_times_s) + len(result.acs_commands),
+        metrics=dict(result.metrics),
+        segments=[
+            SegmentPublic(name=s.name, kind=s.kind, t_start_s=s.t_start_s, t_end_s=s.t_end_s)
+            for s in result.segments
+        ],
+    )
+
+
+def validate(request: PlanCreate) -> PlanValidation:
+    """The checks of :func:`create_plan`, planning included, without storing anything."""
+    try:
+        result, _ = plan(request)
+    except PlannerError as exc:
+        return PlanValidation(
+            valid=False, errors=[ValidationIssue(code=type(exc).__name__, message=str(exc))]
+        )
+    except ServiceError as exc:
+        return PlanValidation(
+            valid=False, errors=[ValidationIssue(code=exc.code, message=exc.message)]
+        )
+    return PlanValidation(valid=True, errors=[], summary=_summary(result))
+
+
+def _brief(record: PlanRecord) -> PlanBrief:
+    return PlanBrief(
+        id=record.id,
+        experiment=record.experiment,
+        parameters=record.parameters,
+        duration_s=record.duration_s,
+        n_commands=record.n_commands,
+        created_at=iso_from_ns(record.created_at_ns),
+    )
+
+
+def _public(record: PlanRecord, document: Mapping[str, Any]) -> PlanPublic:
+    return PlanPublic(
+        **_brief(record).model_dump(),
+        metrics=document["metrics"],
+        segments=[SegmentPublic(**s) for s in document["segments"]],
+    )
+
+
+def create_plan(*, session: Session, request: PlanCreate, actor: str, now_ns: int) -> PlanPublic:
+    """Plan, then store the plan and an audit event ``plan_created`` in one transaction."""
+    result, document = plan(request)
+    try:
+        record = repo.add_plan(session=session, plan=result, created_at_ns=now_ns)
+        repo.add_event(
+            session=session,
+            time_ns=now_ns,
+            kind="plan_created",
+            actor=actor,
+            detail={"plan_id": record.id, "experiment": record.experiment},
+        )
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    return _public(record, json.loads(document))
+
+
+def get_plan(*, session: Session, plan_id: str) -> PlanPublic:
+    record = repo.get_plan(session=session, plan_id=plan_id)
+    return _public(record, json.loads(record.document))
+
+
+def get_plan_document(*, session: Session, plan_id: str) -> str:
+    """The plan's JSON document as stored (``Plan.from_json`` reads it back)."""
+    return repo.get_plan(session=session, plan_id=plan_id).document
+
+
+def list_plans(*, session: Session, experiment: str | None, offset: int, limit: int) -> PlansPublic:
+    page = repo.list_plans(session=session, experiment=experiment, offset=offset, limit=limit)
+    return PlansPublic(data=[_brief(r) for r in page.items], count=page.count)

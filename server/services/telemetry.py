@@ -1,0 +1,129 @@
+"""Telemetry of a pass, raw or decimated, and the audit log.
+
+Field names are checked here against the storage's whitelists so that an unknown one is
+a 422 naming it (the storage would refuse it too, as a 400).
+"""
+
+from __future__ import annotations
+
+from sqlalchemy.orm import Session
+
+from server.errors import ServiceError
+from server.schemas import (
+    EventPublic,
+    EventsPublic,
+    TelemetryBucketPublic,
+    TelemetryPublic,
+    TelemetryRowPublic,
+    iso_from_ns,
+)
+from server.storage import repository as repo
+from server.storage._telemetry import MAX_BUCKETS
+from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
+
+__all__ = ["MAX_BUCKETS", "list_events", "telemetry"]
+
+
+def parse_fields(text: str | None, *, allowed: tuple[str, ...], what: str) -> list[str]:
+    """``"j1,j2"`` -> ``["j1", "j2"]``, each in ``allowed``; every allowed field if none."""
+    if text is None or not text.strip():
+        return list(allowed)
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    for name in names:
+        if name not in allowed:
+            shown = name if len(name) <= 40 else name[:37] + "..."
+            raise ServiceError(
+                422,
+                "unknown_field",
+                f"telemetry field {shown!r} is not one of the {what} fields {list(allowed)}",
+                {"field": shown},
+            )
+    if len(set(names)) != len(names):
+        raise ServiceError(422, "repeated_field", f"telemetry fields {names} repeat a name")
+    return names
+
+
+def telemetry(
+    *,
+    session: Session,
+    pass_id: str,
+    t0_ns: int,
+    t1_ns: int,
+    fields: str | None,
+    buckets: int | None,
+    limit: int,
+) -> TelemetryPublic:
+    """Frames with ``t0_ns <= generation_time_ns < t1_ns``: the first ``limit`` raw rows, or
+    ``buckets`` equal spans with min / max / mean per field (empty spans left out)."""
+    if t1_ns <= t0_ns:
+        raise ServiceError(422, "empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
+    if buckets is None:
+        names = parse_fields(fields, allowed=TELEMETRY_FIELDS, what="telemetry")
+        rows = repo.telemetry_range(
+            session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names
+        )
+        kept = [tuple(row) for row in rows[:limit]]
+        return TelemetryPublic(
+            pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+            mode="raw",
+            fields=names,
+            t0_ns=t0_ns,
+            t1_ns=t1_ns,
+            count=len(kept),
+            truncated=len(rows) > limit,
+            rows=[
+                TelemetryRowPublic(
+                    seq=row[0],
+                    generation_time_ns=row[1],
+                    generation_time=iso_from_ns(row[1]),
+                    values={name: row[2 + i] for i, name in enumerate(names)},
+                )
+                for row in kept
+            ],
+        )
+    names = parse_fields(fields, allowed=BUCKET_FIELDS, what="numeric (bucketable)")
+    result = repo.telemetry_buckets(
+        session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
+    )
+    return TelemetryPublic(
+        pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+        mode="buckets",
+        fields=names,
+        t0_ns=t0_ns,
+        t1_ns=t1_ns,
+        count=len(result),
+        width_ns=-(-(t1_ns - t0_ns) // buckets),
+        buckets=[
+            TelemetryBucketPublic(
+                t_start_ns=b.t_start_ns,
+                t_start=iso_from_ns(b.t_start_ns),
+                count=b.count,
+                min=b.min,
+                max=b.max,
+                mean=b.mean,
+            )
+            for b in result
+        ],
+    )
+
+
+def list_events(*, session: Session, pass_id: str | None, offset: int, limit: int) -> EventsPublic:
+    """The audit log in time order, of one pass if given (404 for an unknown pass)."""
+    if pass_id is not None:
+        pass_id = repo.get_pass(session=session, pass_id=pass_id).id
+    page = repo.list_events(session=session, pass_id=pass_id, offset=offset, limit=limit)
+    return EventsPublic(
+        data=[
+            EventPublic(
+                id=e.id,
+                pass_id=e.pass_id,
+                time=iso_from_ns(e.time_ns),
+                time_ns=e.time_ns,
+                kind=e.kind,
+                actor=e.actor,
+                detail=e.detail,
+            )
+            for e in page.items
+        ],
+        count=page.count,
+    )

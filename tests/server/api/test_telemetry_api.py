@@ -1,0 +1,133 @@
+"""``/api/passes/{id}/telemetry``: raw rows and decimation against frames ingested through
+the storage, compared with NumPy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from planner.plan import Plan
+from server.storage import repository as repo
+from telemetry.wire import TelemetryFrame
+from tests.server.api.conftest import VIEWER, sessions
+from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames
+
+N_FRAMES = 95
+RECEIVED_NS = 1_790_000_000_000_000_000
+
+
+@pytest.fixture()
+def pass_with_frames(client: TestClient, ptp_plan: Plan) -> tuple[str, list[TelemetryFrame]]:
+    frames = make_frames(range(N_FRAMES), seed=7)
+    with sessions(client)() as session:
+        plan_id = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id
+        pass_id = repo.add_pass(
+            session=session,
+            name="p",
+            plan_id=plan_id,
+            aos_time_ns=0,
+            los_time_ns=10**12,
+            relay="TDRS",
+            created_at_ns=0,
+        ).id
+        repo.ingest_frames(
+            session=session, pass_id=pass_id, frames=frames, reception_time_ns=RECEIVED_NS
+        )
+        session.commit()
+    return pass_id, frames
+
+
+def test_raw_rows_in_a_time_range(
+    client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]]
+) -> None:
+    pass_id, frames = pass_with_frames
+    t0, t1 = T0_NS + 10 * FRAME_PERIOD_NS, T0_NS + 20 * FRAME_PERIOD_NS
+    body = client.get(
+        f"/api/passes/{pass_id}/telemetry?t0={t0}&t1={t1}&fields=j1,acs_mode,buffer_queued",
+        headers=VIEWER,
+    ).json()
+    assert body["mode"] == "raw" and body["buckets"] is None and body["truncated"] is False
+    assert body["fields"] == ["j1", "acs_mode", "buffer_queued"]
+    assert [r["seq"] for r in body["rows"]] == list(range(10, 20)) and body["count"] == 10
+    for row, frame in zip(body["rows"], frames[10:20], strict=True):
+        assert row["generation_time_ns"] == frame.generation_time_ns
+        assert row["values"] == {
+            "j1": frame.joints_rad[0],
+            "acs_mode": str(frame.acs_mode),
+            "buffer_queued": frame.buffer.queued,
+        }
+    assert body["rows"][0]["generation_time"] == "1970-01-01T01:23:21Z"  # T0_NS + 1 s
+
+
+def test_raw_rows_are_limited(
+    client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]]
+) -> None:
+    pass_id, _ = pass_with_frames
+    body = client.get(f"/api/passes/{pass_id}/telemetry?limit=7", headers=VIEWER).json()
+    assert body["count"] == 7 and body["truncated"] is True
+    assert [r["seq"] for r in body["rows"]] == list(range(7))
+    assert "reception_time_ns" in body["rows"][0]["values"]  # every field by default
+
+
+def test_buckets_match_numpy(
+    client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]]
+) -> None:
+    pass_id, frames = pass_with_frames
+    t0, t1, n = T0_NS, T0_NS + N_FRAMES * FRAME_PERIOD_NS, 10
+    body = client.get(
+        f"/api/passes/{pass_id}/telemetry?t0={t0}&t1={t1}&fields=j2,wz,buffer_queued&buckets={n}",
+        headers=VIEWER,
+    ).json()
+    assert body["mode"] == "buckets" and body["rows"] is None
+    width = body["width_ns"]
+    assert width == -(-(t1 - t0) // n)
+    times = np.array([f.generation_time_ns for f in frames])
+    values = {
+        "j2": np.array([f.joints_rad[1] for f in frames]),
+        "wz": np.array([f.omega_base_in_base_radps[2] for f in frames]),
+        "buffer_queued": np.array([f.buffer.queued for f in frames], dtype=np.float64),
+    }
+    index = (times - t0) // width
+    assert [b["t_start_ns"] for b in body["buckets"]] == [t0 + k * width for k in range(n)]
+    for k, bucket in enumerate(body["buckets"]):
+        inside = index == k
+        assert bucket["count"] == int(inside.sum())
+        for name, v in values.items():
+            assert bucket["min"][name] == v[inside].min()
+            assert bucket["max"][name] == v[inside].max()
+            # SQL sums in its own order: equal to a few ulps, not bit for bit
+            assert bucket["mean"][name] == pytest.approx(v[inside].mean(), rel=1e-12, abs=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("query", "needle"),
+    [
+        ("fields=j1,j9", "'j9'"),
+        ("fields=acs_mode&buckets=3", "'acs_mode'"),
+        ("fields=j1,j1", "repeat"),
+        ("t0=5&t1=5", "empty"),
+        ("buckets=0", "buckets"),
+        ("t1=-1", "t1"),
+    ],
+)
+def test_bad_queries_are_422_naming_the_culprit(
+    client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]], query: str, needle: str
+) -> None:
+    pass_id, _ = pass_with_frames
+    response = client.get(f"/api/passes/{pass_id}/telemetry?{query}", headers=VIEWER)
+    assert response.status_code == 422, response.text
+    assert needle in response.json()["error"]["message"]
+
+
+def test_unknown_pass_and_missing_token(client: TestClient) -> None:
+    url = "/api/passes/00000000-0000-0000-0000-000000000000/telemetry"
+    assert client.get(url, headers=VIEWER).status_code == 404
+    assert client.get(url).status_code == 401
+    assert client.get(f"{url}?buckets=4", headers=VIEWER).status_code == 404
+    assert (
+        client.get(
+            "/api/events?pass_id=00000000-0000-0000-0000-000000000000", headers=VIEWER
+        ).status_code
+        == 404
+    )

@@ -1,0 +1,157 @@
+"""The real ground service under uvicorn on loopback, and the spacecraft process in-process.
+
+The server runs in a thread with its own event loop; the spacecraft, the REST client and the
+assertions run in the test's loop. Both ends meet only on the wire, as in flight.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import httpx
+import uvicorn
+from fastapi import FastAPI
+from sqlalchemy.orm import Session, sessionmaker
+
+from planner.dynamics import DynamicsWorkspace
+from planner.experiments import PtpParams, plan_ptp
+from planner.model import default_model
+from server.app import create_app
+from server.settings import ApiToken, Role, Settings
+from server.storage import repository as repo
+from server.storage.db import make_engine, session_factory
+from spacecraft.link import LinkConfig
+from spacecraft.process import ProcessConfig, SpacecraftProcess
+from telemetry.wire import TelemetryFrame
+
+TOKENS = {
+    "v-token": ApiToken(name="vera", role=Role.VIEWER),
+    "o-token": ApiToken(name="otto", role=Role.OPERATOR),
+    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
+}
+OPERATOR = {"Authorization": "Bearer o-token"}
+VIEWER = {"Authorization": "Bearer v-token"}
+SCALE = 20.0
+
+
+@dataclass
+class Ground:
+    app: FastAPI
+    url: str
+    sessions: sessionmaker[Session]
+
+    @property
+    def ws_url(self) -> str:
+        return self.url.replace("http://", "ws://") + "/api/link"
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@contextmanager
+def running_ground(database_url: str) -> Iterator[Ground]:
+    app = create_app(Settings(database_url=database_url, tokens=TOKENS))
+    port = _free_port()
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20.0
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.01)
+    engine = make_engine(database_url)
+    try:
+        yield Ground(app, f"http://127.0.0.1:{port}", session_factory(engine))
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30.0)
+        engine.dispose()
+
+
+def store_pass(
+    sessions: sessionmaker[Session], name: str, goal_deg: tuple[float, ...], settle_s: float
+) -> str:
+    """A PTP plan (joints only moved by ``goal_deg``) and a scheduled pass of it."""
+    plan = plan_ptp(
+        DynamicsWorkspace(default_model()), PtpParams(goal_joints_deg=goal_deg, settle_s=settle_s)
+    )
+    now = time.time_ns()
+    with sessions() as session:
+        plan_record = repo.add_plan(session=session, plan=plan, created_at_ns=now)
+        record = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=plan_record.id,
+            aos_time_ns=now,
+            los_time_ns=now + 1200 * 10**9,
+            relay="TDRS-W",
+            created_at_ns=now,
+        )
+        session.commit()
+        return record.id
+
+
+def spacecraft(ground: Ground, **link: Any) -> tuple[SpacecraftProcess, list[TelemetryFrame]]:
+    """The spacecraft process at 20x, and the list every frame it generates is added to."""
+    process = SpacecraftProcess(
+        ProcessConfig(
+            ground_url=ground.ws_url,
+            token="s-token",
+            time_scale=SCALE,
+            uplink=LinkConfig(seed=11, **link),
+            downlink=LinkConfig(seed=12, **link),
+            seed=3,
+            backoff_initial_s=0.05,
+            backoff_max_s=0.5,
+            drain_timeout_s=30.0,
+        )
+    )
+    generated: list[TelemetryFrame] = []
+    add = process.store.add
+
+    def recording_add(frames: Any) -> None:
+        frames = list(frames)
+        generated.extend(frames)
+        add(frames)
+
+    process.store.add = recording_add  # type: ignore[method-assign]
+    return process, generated
+
+
+async def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = await asyncio.to_thread(predicate)
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: not within {timeout_s} s")
+        await asyncio.sleep(0.05)
+
+
+def pass_state(ground: Ground, pass_id: str) -> str:
+    with ground.sessions() as session:
+        return repo.get_pass(session=session, pass_id=pass_id).state
+
+
+async def connected(client: httpx.AsyncClient) -> None:
+    async def probe() -> bool:
+        response = await client.get("/api/link/status", headers=VIEWER)
+        return bool(response.json()["connected"])
+
+    deadline = time.monotonic() + 20.0
+    while not await probe():
+        assert time.monotonic() < deadline, "the spacecraft did not connect"
+        await asyncio.sleep(0.05)
