@@ -298,5 +298,26 @@ def spacecraft(
     asyncio.run(main_async())
 
 
+@app.command()
+def serve(
+    host: Annotated[str, typer.Option(help="Address to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="Port to listen on")] = 8000,
+) -> None:
+    """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
+    under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...)."""
+    import uvicorn
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    try:
+        settings = Settings.from_env()
+    except ValueError as exc:
+        _fail(f"bad settings in the environment: {exc}")
+    if not settings.tokens:
+        err_console.print("warning: HIKOBOSHI_TOKENS is empty: every API call will be refused")
+    uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
+
+
 def main() -> None:
     app()
