@@ -59,7 +59,8 @@ from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.errors import Conflict
 from server.storage.models import CommandRecord
-from telemetry.wire import AcsCommandMsg, AcsModeName, JointCommandMsg, encode
+from telemetry.uplink import GRID_NS, Command, plan_commands
+from telemetry.wire import JointCommandMsg, encode
 
 __all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
 
@@ -73,45 +74,12 @@ TRANSITIONS = {
     "complete": {"los"},
     "aborted": {"scheduled", "aos", "running", "los"},
 }
-GRID_NS = 250_000_000  # the 4 Hz command grid
-ACS_GRID_NS = 10_000_000  # the onboard 10 ms tag grid
 START_SLACK_S = 1.0  # onboard s beyond delay + margin, for the first command
 #: Wall s allowed for the start transaction itself (its first use of a fresh PostgreSQL
 #: connection can take a few hundred ms: at 20x that is seconds onboard).
 START_SLACK_WALL_S = 0.5
 SETTLE_S = 2.0  # onboard s after the last tag before LOS
 UNSENT = ("queued", "released")
-
-Command = JointCommandMsg | AcsCommandMsg
-
-
-def plan_commands(plan: Plan, *, epoch_ns: int, first_seq: int) -> list[Command]:
-    """The plan's commands at onboard tags (plan ``t = 0`` at ``epoch_ns``), seq in tag order
-    (an ACS command before a joint command of the same tag)."""
-    items: list[tuple[int, int, Any]] = []
-    for t_s, q in zip(plan.command_times_s, plan.command_joints_rad, strict=True):
-        items.append((epoch_ns + round(float(t_s) * 1e9), 1, [float(v) for v in q]))
-    for acs in plan.acs_commands:
-        tag = epoch_ns + round(acs.t_s * 1e9 / ACS_GRID_NS) * ACS_GRID_NS
-        items.append((tag, 0, acs))
-    items.sort(key=lambda item: (item[0], item[1]))
-    out: list[Command] = []
-    for seq, (tag, order, what) in enumerate(items, start=first_seq):
-        if order == 1:
-            out.append(JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=what))
-        else:
-            out.append(
-                AcsCommandMsg(
-                    seq=seq,
-                    execute_time_ns=tag,
-                    mode=AcsModeName(what.mode.value),
-                    target_quat_orbit_from_base_xyzw=[
-                        float(v) for v in what.target_quat_orbit_from_base_xyzw
-                    ],
-                    feedforward=what.feedforward,
-                )
-            )
-    return out
 
 
 def _transition(

@@ -1,0 +1,195 @@
+"""A flown pass as arrays: what the analyses, the MCAP recorder and replay work from.
+
+One :class:`PassRecording` holds everything the ground kept of a pass: the plan that was
+uplinked (with its prediction), the plan's onboard epoch, the telemetry frames as column
+arrays (row ``k`` is the frame with ``seq[k]``, rows in ascending ``seq``), the commands with
+the time each stage was reached, and the audit events. It is pure data: the server builds one
+from its database, the MCAP reader from a file, tests from an offline flight.
+
+Times follow the storage conventions: ``generation_time_ns`` and the acknowledgement stages
+of a command are onboard time; ``reception_time_ns`` and the other stages are ground time.
+:meth:`PassRecording.t_s` puts frames on the plan's clock (s from the plan's ``t = 0``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.plan import Plan
+from telemetry.wire import TelemetryFrame
+
+__all__ = [
+    "FRAME_ARRAYS",
+    "CommandRow",
+    "EventRow",
+    "FrameArrays",
+    "PassRecording",
+    "frames_to_arrays",
+]
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Column name -> row width (1 = one value per frame). Units as in telemetry.wire.
+FRAME_ARRAYS: dict[str, int] = {
+    "seq": 1,
+    "generation_time_ns": 1,
+    "reception_time_ns": 1,
+    "joints_rad": 6,
+    "joint_targets_rad": 6,
+    "quat_orbit_from_base_xyzw": 4,
+    "omega_base_in_base_radps": 3,
+    "wheel_speeds_radps": 3,
+    "wheel_momentum_nms": 3,
+    "acs_mode": 1,
+    "acs_target_quat_xyzw": 4,
+    "acs_feedforward": 1,
+    "buffer_queued": 1,
+    "buffer_next_execute_time_ns": 1,  # -1 where nothing was queued
+    "buffer_last_executed_seq": 1,
+}
+
+
+@dataclass(frozen=True, eq=False)
+class FrameArrays:
+    """Telemetry frames as columns, one row per frame, ascending ``seq``."""
+
+    seq: IntArray
+    generation_time_ns: IntArray
+    reception_time_ns: IntArray
+    joints_rad: Array
+    joint_targets_rad: Array
+    quat_orbit_from_base_xyzw: Array
+    omega_base_in_base_radps: Array
+    wheel_speeds_radps: Array
+    wheel_momentum_nms: Array
+    acs_mode: NDArray[np.str_]
+    acs_target_quat_xyzw: Array
+    acs_feedforward: NDArray[np.bool_]
+    buffer_queued: IntArray
+    buffer_next_execute_time_ns: IntArray
+    buffer_last_executed_seq: IntArray
+
+    def __post_init__(self) -> None:
+        n = len(self.seq)
+        for name, width in FRAME_ARRAYS.items():
+            shape = np.shape(getattr(self, name))
+            want = (n,) if width == 1 else (n, width)
+            if shape != want:
+                raise ValueError(f"frame column {name} has shape {shape}, expected {want}")
+        if n > 1 and not bool(np.all(np.diff(self.seq) > 0)):
+            raise ValueError("frame rows must be in strictly ascending seq")
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+    def take(self, rows: IntArray | NDArray[np.bool_] | slice) -> FrameArrays:
+        """The selected rows (an index array, a mask or a slice)."""
+        return FrameArrays(**{name: getattr(self, name)[rows] for name in FRAME_ARRAYS})
+
+    @classmethod
+    def empty(cls) -> FrameArrays:
+        return frames_to_arrays([], [])
+
+
+def frames_to_arrays(
+    frames: Sequence[TelemetryFrame], reception_time_ns: Sequence[int] | None = None
+) -> FrameArrays:
+    """Column arrays of wire frames (sorted by seq; the first copy of a seq kept).
+    ``reception_time_ns`` defaults to each frame's generation time."""
+    if reception_time_ns is None:
+        reception_time_ns = [f.generation_time_ns for f in frames]
+    if len(reception_time_ns) != len(frames):
+        raise ValueError(f"{len(reception_time_ns)} reception times for {len(frames)} frames")
+    first: dict[int, tuple[TelemetryFrame, int]] = {}
+    for frame, rx in zip(frames, reception_time_ns, strict=True):
+        first.setdefault(frame.seq, (frame, rx))
+    rows = [first[s] for s in sorted(first)]
+
+    def col(get: Any, dtype: Any, width: int) -> Any:
+        data = np.array([get(f, rx) for f, rx in rows], dtype=dtype)
+        return data.reshape((len(rows),) if width == 1 else (len(rows), width))
+
+    return FrameArrays(
+        seq=col(lambda f, rx: f.seq, np.int64, 1),
+        generation_time_ns=col(lambda f, rx: f.generation_time_ns, np.int64, 1),
+        reception_time_ns=col(lambda f, rx: rx, np.int64, 1),
+        joints_rad=col(lambda f, rx: f.joints_rad, np.float64, 6),
+        joint_targets_rad=col(lambda f, rx: f.joint_targets_rad, np.float64, 6),
+        quat_orbit_from_base_xyzw=col(lambda f, rx: f.quat_orbit_from_base_xyzw, np.float64, 4),
+        omega_base_in_base_radps=col(lambda f, rx: f.omega_base_in_base_radps, np.float64, 3),
+        wheel_speeds_radps=col(lambda f, rx: f.wheel_speeds_radps, np.float64, 3),
+        wheel_momentum_nms=col(lambda f, rx: f.wheel_momentum_nms, np.float64, 3),
+        acs_mode=col(lambda f, rx: f.acs_mode.value, np.str_, 1),
+        acs_target_quat_xyzw=col(lambda f, rx: f.acs_target_quat_xyzw, np.float64, 4),
+        acs_feedforward=col(lambda f, rx: f.acs_feedforward, np.bool_, 1),
+        buffer_queued=col(lambda f, rx: f.buffer.queued, np.int64, 1),
+        buffer_next_execute_time_ns=col(
+            lambda f, rx: _or_minus_one(f.buffer.next_execute_time_ns), np.int64, 1
+        ),
+        buffer_last_executed_seq=col(lambda f, rx: f.buffer.last_executed_seq, np.int64, 1),
+    )
+
+
+def _or_minus_one(value: int | None) -> int:
+    return -1 if value is None else value
+
+
+@dataclass(frozen=True)
+class CommandRow:
+    """One command of the pass and the time it reached each stage (``None``: never).
+    ``payload`` is the kind's own wire fields (``joints_rad``; or ``mode``,
+    ``target_quat_orbit_from_base_xyzw``, ``feedforward``)."""
+
+    seq: int
+    kind: str
+    execute_time_ns: int
+    payload: Mapping[str, Any]
+    stage: str
+    reject_reason: str | None = None
+    stage_times_ns: Mapping[str, int | None] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EventRow:
+    """An audit event: ``actor`` did ``kind`` at ``time_ns`` (ground)."""
+
+    time_ns: int
+    kind: str
+    actor: str
+    detail: Mapping[str, Any]
+
+
+@dataclass(frozen=True, eq=False)
+class PassRecording:
+    """Everything kept of one pass (see the module doc)."""
+
+    name: str
+    plan: Plan
+    #: Onboard time of the plan's t = 0.
+    epoch_ns: int
+    frames: FrameArrays
+    commands: tuple[CommandRow, ...] = ()
+    events: tuple[EventRow, ...] = ()
+    #: Free-form facts about the pass (id, state, relay, AOS/LOS, source).
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def t_s(self) -> Array:
+        """Frame times on the plan's clock: s from the plan's ``t = 0``."""
+        return (self.frames.generation_time_ns - self.epoch_ns).astype(np.float64) / 1e9
+
+    @classmethod
+    def from_frames(
+        cls,
+        name: str,
+        plan: Plan,
+        epoch_ns: int,
+        frames: Iterable[TelemetryFrame],
+        **kwargs: Any,
+    ) -> PassRecording:
+        return cls(name, plan, epoch_ns, frames_to_arrays(list(frames)), **kwargs)
