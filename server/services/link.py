@@ -105,16 +105,34 @@ class LinkUnavailable(Exception):
 # --- plumbing ------------------------------------------------------------------------------
 
 
+FrameCallback = Callable[[str, list[TelemetryFrame], int], None]
+
+
 class Publisher:
-    """An in-process publish hook: subscribers get every event dict (a future console push).
-    A subscriber must not block; one that raises is logged and kept."""
+    """An in-process publish hook for the consoles: subscribers get every event dict once it
+    is committed, and every newly archived telemetry frame (``pass_id, frames,
+    reception_time_ns``). A subscriber must not block; one that raises is logged and kept."""
 
     def __init__(self) -> None:
         self._subscribers: list[Callable[[dict[str, Any]], None]] = []
+        self._frame_subscribers: list[FrameCallback] = []
 
     def subscribe(self, callback: Callable[[dict[str, Any]], None]) -> Callable[[], None]:
         self._subscribers.append(callback)
         return lambda: self._subscribers.remove(callback)
+
+    def subscribe_frames(self, callback: FrameCallback) -> Callable[[], None]:
+        self._frame_subscribers.append(callback)
+        return lambda: self._frame_subscribers.remove(callback)
+
+    def publish_frames(
+        self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
+    ) -> None:
+        for callback in list(self._frame_subscribers):
+            try:
+                callback(pass_id, frames, reception_time_ns)
+            except Exception:
+                log.exception("frame subscriber failed on pass %s", pass_id)
 
     def publish(self, events: list[dict[str, Any]]) -> None:
         for event in events:
@@ -522,6 +540,8 @@ class GroundLink:
 
         if by_pass:
             self.duplicates += await self.db.run(job)
+            for pass_id, frames in by_pass.items():
+                self.publisher.publish_frames(pass_id, frames, reception_ns)
         stored = {frame.seq for frames in by_pass.values() for frame in frames}
         for frame in fresh:
             if self.held.add(frame.seq):
