@@ -32,6 +32,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.sessions = session_factory(engine)
         app.state.link = GroundLink(sessions=app.state.sessions)
         app.state.runner = PassRunner(link=app.state.link, settings=settings)
+        await app.state.runner.recover()
         try:
             yield
         finally:

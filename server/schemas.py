@@ -270,3 +270,40 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         (422, "Invalid request, or a plan that cannot be made"),
     )
 }
+
+
+class PassSummaryPublic(BaseModel):
+    """What a pass delivered: the frames of its telemetry window and its commands' fates.
+
+    ``frames_expected`` counts the frame slots of the window (onboard ``[start, end)``) at
+    the rate the stored frames show; ``None`` until a frame is stored. ``duplicates_dropped``
+    counts the copies the ground threw away since the service started; ``duplicates_stored``
+    is what the archive holds twice (it must stay 0).
+    """
+
+    pass_id: str
+    name: str
+    state: str
+    state_reason: str | None
+    epoch_ns: int | None
+    telemetry_start_ns: int | None
+    telemetry_end_ns: int | None
+    frames_expected: int | None
+    frames_stored: int
+    frames_missing: int | None
+    gaps_open: int | None
+    duplicates_stored: int
+    duplicates_dropped: int
+    commands_total: int
+    commands_sent: int
+    commands_executed: int
+    commands_rejected: dict[str, int]
+    commands_expired: int
+    commands_outstanding: int
+
+
+# --- analyses, reports, recordings -------------------------------------------------------
+
+#: The stored post-pass analyses (server.services.analyses), one row of each per run.
+AnalysisKind = Literal["pass_analysis", "inertia_identification", "gravity_gradient_resim"]
+ReportCell = float | int | str | bool | None

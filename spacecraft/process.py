@@ -38,7 +38,9 @@ from spacecraft.vehicle import Vehicle, VehicleConfig
 from telemetry.wire import (
     AcsCommandMsg,
     CommandAck,
+    CommandQuery,
     CommandStage,
+    CommandUnknown,
     ErrorMsg,
     Hello,
     JointCommandMsg,
@@ -158,6 +160,17 @@ class SpacecraftProcess:
             self.store.on_ack(message.through_seq, message.ranges)
         elif isinstance(message, Retransmit):
             self.store.on_retransmit(message.ranges)
+        elif isinstance(message, CommandQuery):
+            unknown = []
+            for seq in message.seqs:
+                ack = self.vehicle.outcome(seq)
+                if ack is None:
+                    unknown.append(seq)
+                else:
+                    self._send(encode(ack))
+            if unknown:
+                reply = CommandUnknown(seqs=unknown, onboard_time_ns=self.vehicle.onboard_time_ns)
+                self._send(encode(reply))
         elif isinstance(message, Ping):
             pong = Pong(
                 ping_id=message.ping_id,

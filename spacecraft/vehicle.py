@@ -193,6 +193,9 @@ class Vehicle:
 
         self._buffer = CommandBuffer()
         self._seen: set[int] = set()
+        #: seq -> the latest acknowledgement of every command received (a duplicate's
+        #: rejection never replaces its original's), for ``command_query``.
+        self._outcomes: dict[int, CommandAck] = {}
         self._last_command_seq = -1
         self._last_executed_seq = -1
         self._next_frame_seq = 0
@@ -278,6 +281,15 @@ class Vehicle:
                 cmd.seq, now, RejectReason.DUPLICATE, f"seq {cmd.seq} was received before"
             )
         self._seen.add(cmd.seq)
+        ack = self._accept(cmd, now)
+        self._outcomes[cmd.seq] = ack
+        return ack
+
+    def outcome(self, seq: int) -> CommandAck | None:
+        """The latest acknowledgement of command ``seq`` (None: never received)."""
+        return self._outcomes.get(seq)
+
+    def _accept(self, cmd: JointCommandMsg | AcsCommandMsg, now: int) -> CommandAck:
         self._last_command_seq = max(self._last_command_seq, cmd.seq)
         if isinstance(cmd, AcsCommandMsg):
             quat = np.array(cmd.target_quat_orbit_from_base_xyzw, dtype=np.float64)
@@ -379,6 +391,7 @@ class Vehicle:
             )
             for cmd in self._buffer.pop_joints()
         ]
+        self._outcomes.update((ack.seq, ack) for ack in acks)
         self._ramp_to_next(now)  # nothing queued: hold
         return acks
 
@@ -428,7 +441,9 @@ class Vehicle:
                 self._acs_feedforward = cmd.feedforward
                 self._control(t)  # the switch takes effect at the tag, not at the next tick
             self._last_executed_seq = cmd.seq
-            acks.append(CommandAck(seq=cmd.seq, stage=CommandStage.EXECUTED, onboard_time_ns=t))
+            ack = CommandAck(seq=cmd.seq, stage=CommandStage.EXECUTED, onboard_time_ns=t)
+            self._outcomes[cmd.seq] = ack
+            acks.append(ack)
         return acks
 
     def _ramp_to_next(self, now: int) -> None:

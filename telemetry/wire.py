@@ -27,7 +27,9 @@ __all__ = [
     "AcsModeName",
     "BufferState",
     "CommandAck",
+    "CommandQuery",
     "CommandStage",
+    "CommandUnknown",
     "ErrorMsg",
     "GroundMessage",
     "Hello",
@@ -124,6 +126,15 @@ class Ping(_Msg):
     ground_time_ns: TimeNs
 
 
+class CommandQuery(_Msg):
+    """Ask what became of these commands (their acknowledgements may have been lost): the
+    spacecraft answers each seq it knows with its latest ``command_ack`` again, and the
+    others with one ``command_unknown``."""
+
+    type: Literal["command_query"] = "command_query"
+    seqs: Annotated[list[Seq], Field(min_length=1, max_length=1000)]
+
+
 # --- spacecraft -> ground ----------------------------------------------------------------
 
 
@@ -197,6 +208,14 @@ class Pong(_Msg):
     onboard_time_ns: TimeNs
 
 
+class CommandUnknown(_Msg):
+    """The reply to ``command_query`` for seqs the vehicle never received."""
+
+    type: Literal["command_unknown"] = "command_unknown"
+    seqs: Annotated[list[Seq], Field(min_length=1, max_length=1000)]
+    onboard_time_ns: TimeNs
+
+
 class ErrorMsg(_Msg):
     """The reply to a message that could not be understood; the process carries on."""
 
@@ -206,16 +225,17 @@ class ErrorMsg(_Msg):
 
 
 GroundMessage = Annotated[
-    JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping,
+    JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping | CommandQuery,
     Field(discriminator="type"),
 ]
 SpacecraftMessage = Annotated[
-    Hello | CommandAck | TelemetryMsg | Pong | ErrorMsg, Field(discriminator="type")
+    Hello | CommandAck | TelemetryMsg | Pong | CommandUnknown | ErrorMsg,
+    Field(discriminator="type"),
 ]
 
 _COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
 _GROUND_OTHER = TypeAdapter(
-    Annotated[TelemetryAck | Retransmit | Ping, Field(discriminator="type")]
+    Annotated[TelemetryAck | Retransmit | Ping | CommandQuery, Field(discriminator="type")]
 )
 _SPACECRAFT = TypeAdapter(SpacecraftMessage)
 
@@ -249,20 +269,22 @@ def _reason(exc: ValidationError) -> str:
 
 def decode_ground(
     text: str | bytes,
-) -> JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping:
+) -> JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping | CommandQuery:
     """A ground -> spacecraft message, or :class:`WireError`."""
     doc = _load(text)
     try:
         if doc["type"] == "command":
             return _COMMAND.validate_python(doc)
-        if doc["type"] in ("telemetry_ack", "retransmit", "ping"):
+        if doc["type"] in ("telemetry_ack", "retransmit", "ping", "command_query"):
             return _GROUND_OTHER.validate_python(doc)
     except ValidationError as exc:
         raise WireError(f"invalid {doc['type']}: {_reason(exc)}") from None
     raise WireError(f"unknown message type {str(doc['type'])[:64]!r}")
 
 
-def decode_spacecraft(text: str | bytes) -> Hello | CommandAck | TelemetryMsg | Pong | ErrorMsg:
+def decode_spacecraft(
+    text: str | bytes,
+) -> Hello | CommandAck | TelemetryMsg | Pong | CommandUnknown | ErrorMsg:
     """A spacecraft -> ground message, or :class:`WireError`."""
     doc = _load(text)
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request
 
 from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
 from server.schemas import (
@@ -16,8 +16,10 @@ from server.schemas import (
     PassesPublic,
     PassPublic,
     PassState,
+    PassSummaryPublic,
 )
 from server.services import passes as service
+from server.services.summary import pass_summary
 
 __all__ = ["router"]
 
@@ -64,3 +66,13 @@ def list_commands(
     return service.list_commands(
         session=session, pass_id=pass_id, stages=stage, offset=offset, limit=limit
     )
+
+
+@router.get("/{pass_id}/summary", response_model=PassSummaryPublic)
+def get_summary(
+    pass_id: str, session: SessionDep, _: ViewerDep, request: Request
+) -> PassSummaryPublic:
+    """Frames expected, stored and missing in the pass's telemetry window; its commands by
+    outcome (rejected by reason); duplicates dropped and stored."""
+    dropped = request.app.state.link.duplicates_by_pass.get(pass_id, 0)
+    return pass_summary(session=session, pass_id=pass_id, duplicates_dropped=dropped)

@@ -39,9 +39,11 @@ import itertools
 import json
 import logging
 import math
+import queue
+import sys
+import threading
 import time
 from collections.abc import Awaitable, Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -52,6 +54,8 @@ from server.storage import repository as repo
 from server.storage.models import CommandRecord
 from telemetry.wire import (
     CommandAck,
+    CommandQuery,
+    CommandUnknown,
     ErrorMsg,
     Hello,
     Ping,
@@ -144,16 +148,26 @@ class Publisher:
 
 
 class Database:
-    """One transaction per call, on one worker thread (see the module docstring).
+    """Transactions on one worker thread, in the order they were asked for (see the module
+    docstring), with group commit: the jobs waiting when the worker comes round run in one
+    transaction, so a burst of acknowledgements costs one commit, not hundreds. A job that
+    fails rolls its whole group back; the group is then run again one job per transaction,
+    so only the failing job fails.
 
     A job returns the event dicts it wrote; they are published once it has committed.
     """
 
+    MAX_GROUP = 256
+
     def __init__(self, sessions: sessionmaker[Session], publisher: Publisher) -> None:
         self._sessions = sessions
         self._publisher = publisher
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ground-db")
+        self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._worker, name="ground-db", daemon=True)
+        self._thread.start()
         self._pending: set[asyncio.Future[Any]] = set()
+        self.groups = 0
+        self.jobs = 0
 
     def _transaction(self, job: Callable[[Session], T]) -> T:
         with self._sessions() as session:
@@ -165,9 +179,60 @@ class Database:
                 raise
             return result
 
-    async def run(self, job: Callable[[Session], T]) -> T:
+    def _worker(self) -> None:
+        while True:
+            first = self._queue.get()
+            if first is None:
+                return
+            group = [first]
+            stop = False
+            while len(group) < self.MAX_GROUP:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if item is None:
+                    stop = True
+                    break
+                group.append(item)
+            self._run_group(group)
+            if stop:
+                return
+
+    def _run_group(self, group: list[_Job]) -> None:
+        self.groups += 1
+        self.jobs += len(group)
+        outcomes: list[tuple[bool, Any]]
+        try:
+            with self._sessions() as session:
+                try:
+                    results = [job.fn(session) for job in group]
+                    session.commit()
+                except BaseException:
+                    session.rollback()
+                    raise
+            outcomes = [(True, r) for r in results]
+        except Exception:
+            if len(group) == 1:
+                outcomes = [(False, sys.exc_info()[1])]
+            else:
+                outcomes = []
+                for job in group:  # isolate the failure: one transaction each
+                    try:
+                        outcomes.append((True, self._transaction(job.fn)))
+                    except Exception as exc:
+                        outcomes.append((False, exc))
+        for job, (ok, value) in zip(group, outcomes, strict=True):
+            job.loop.call_soon_threadsafe(_settle, job.future, ok, value)
+
+    def _enqueue(self, job: Callable[[Session], T]) -> asyncio.Future[T]:
         loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self._executor, self._transaction, job)
+        future: asyncio.Future[T] = loop.create_future()
+        self._queue.put(_Job(job, future, loop))
+        return future
+
+    async def run(self, job: Callable[[Session], T]) -> T:
+        return await self._enqueue(job)
 
     async def write(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
         """Run ``job`` (which returns the events it wrote) and publish its events."""
@@ -176,8 +241,7 @@ class Database:
     def submit(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
         """Queue ``job`` without waiting (the emitter must not wait for a commit); its
         events are published when it commits, a failure is logged."""
-        loop = asyncio.get_running_loop()
-        future = loop.run_in_executor(self._executor, self._transaction, job)
+        future = self._enqueue(job)
         self._pending.add(future)
 
         def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
@@ -197,7 +261,24 @@ class Database:
             await asyncio.gather(*list(self._pending), return_exceptions=True)
 
     def close(self) -> None:
-        self._executor.shutdown(wait=True)
+        self._queue.put(None)
+        self._thread.join()
+
+
+@dataclass
+class _Job:
+    fn: Callable[[Session], Any]
+    future: asyncio.Future[Any]
+    loop: asyncio.AbstractEventLoop
+
+
+def _settle(future: asyncio.Future[Any], ok: bool, value: Any) -> None:
+    if future.cancelled():
+        return
+    if ok:
+        future.set_result(value)
+    else:
+        future.set_exception(value)
 
 
 def event_dict(
@@ -211,10 +292,10 @@ def write_event(
 ) -> dict[str, Any]:
     """Add an event row (ground time now) and return it as the dict to publish."""
     now = time.time_ns()
-    repo.add_event(
+    record = repo.add_event(
         session=session, time_ns=now, kind=kind, actor=actor, detail=detail, pass_id=pass_id
     )
-    return event_dict(kind, actor, detail, pass_id, now)
+    return {**event_dict(kind, actor, detail, pass_id, now), "id": record.id}
 
 
 def set_command_stage(
@@ -366,6 +447,8 @@ class GroundLink:
         self._newest: tuple[int, int] | None = None  # (seq, generation ns)
         self._oldest: tuple[int, int] | None = None
         self.duplicates = 0
+        #: pass id -> copies of its frames dropped since the service started
+        self.duplicates_by_pass: dict[str, int] = {}
         self.frames_outside_pass = 0
         self.retransmit_requests = 0
         self.errors_replied = 0
@@ -473,6 +556,8 @@ class GroundLink:
             await self._on_telemetry(message)
         elif isinstance(message, CommandAck):
             await self._on_command_ack(message)
+        elif isinstance(message, CommandUnknown):
+            await self._on_command_unknown(message)
         elif isinstance(message, Pong):
             sent = self._pings.pop(message.ping_id, None)
             if sent is not None:
@@ -518,16 +603,18 @@ class GroundLink:
         by_pass: dict[str, list[TelemetryFrame]] = {}
         fresh: list[TelemetryFrame] = []
         for frame in message.frames:
+            pass_id = self._window_of(frame)
             if frame.seq in self.held:
                 self.duplicates += 1
+                if pass_id is not None:
+                    self.duplicates_by_pass[pass_id] = self.duplicates_by_pass.get(pass_id, 0) + 1
                 continue
             fresh.append(frame)
-            pass_id = self._window_of(frame)
             if pass_id is not None:
                 by_pass.setdefault(pass_id, []).append(frame)
 
-        def job(session: Session) -> int:
-            duplicates = 0
+        def job(session: Session) -> dict[str, int]:
+            duplicates = {}
             for pass_id, frames in by_pass.items():
                 result = repo.ingest_frames(
                     session=session,
@@ -535,11 +622,15 @@ class GroundLink:
                     frames=frames,
                     reception_time_ns=reception_ns,
                 )
-                duplicates += result.duplicates
+                duplicates[pass_id] = result.duplicates
             return duplicates
 
         if by_pass:
-            self.duplicates += await self.db.run(job)
+            # Copies the archive already held (after a ground restart the in-memory set
+            # starts empty): dropped by the storage's dedupe.
+            for pass_id, n in (await self.db.run(job)).items():
+                self.duplicates += n
+                self.duplicates_by_pass[pass_id] = self.duplicates_by_pass.get(pass_id, 0) + n
             for pass_id, frames in by_pass.items():
                 self.publisher.publish_frames(pass_id, frames, reception_ns)
         stored = {frame.seq for frames in by_pass.values() for frame in frames}
@@ -606,7 +697,48 @@ class GroundLink:
                 detail=ack.detail,
             )
 
+        # Not awaited: acknowledgements queue behind each other in order and share commits.
+        self.db.submit(job)
+
+    async def _on_command_unknown(self, message: CommandUnknown) -> None:
+        """The vehicle never received these: lost on the uplink; they can no longer run."""
+        actor = self.vehicle or "spacecraft"
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            events: list[dict[str, Any]] = []
+            for seq in message.seqs:
+                key = self.command_pass.get(seq) or session.scalar(
+                    select(CommandRecord.pass_id)
+                    .where(CommandRecord.seq == seq)
+                    .order_by(CommandRecord.queued_at_ns.desc())
+                    .limit(1)
+                )
+                if key is None:
+                    continue
+                record = repo.get_command(session=session, pass_id=key, seq=seq)
+                if record.stage != "sent" or record.execute_time_ns > message.onboard_time_ns:
+                    continue  # received after all, or still in flight and not due yet
+                events += set_command_stage(
+                    session,
+                    pass_id=key,
+                    seq=seq,
+                    stage="expired",
+                    time_ns=time.time_ns(),
+                    actor=actor,
+                    detail="never reached the vehicle (lost on the uplink)",
+                )
+            return events
+
         await self.db.write(job)
+
+    async def query_commands(self, seqs: list[int]) -> bool:
+        """Ask the vehicle what became of these commands (lost acknowledgements)."""
+        if not seqs:
+            return True
+        ok = True
+        for lo in range(0, len(seqs), 1000):
+            ok = await self.send(encode(CommandQuery(seqs=seqs[lo : lo + 1000]))) and ok
+        return ok
 
     # -- status --------------------------------------------------------------------------
 

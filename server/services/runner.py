@@ -8,7 +8,7 @@ event ``pass_state`` (actor, from, to, reason) in the same transaction.
 
 **Start** (needs a connected spacecraft with a known clock): ``aos`` then ``running`` in one
 transaction. The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + (one-way delay +
-uplink margin + 1 s + the onboard time of 0.5 s wall for the start transaction), rounded up
+uplink margin + 1 s + the onboard time of 1 s wall for the start transaction), rounded up
 to the 0.25 s grid; the plan's joint and ACS commands are
 queued with ``seq`` from one past the highest the vehicle has seen (the stored commands and
 ``hello.last_command_seq``), in tag order. The pass's telemetry window opens at onboard now.
@@ -18,13 +18,22 @@ margin)``. The deadline is an absolute ``time.monotonic`` instant computed from 
 ``hello`` clock mapping (onboard seconds divided by the time scale), never an accumulated
 sleep, so the cadence is isochronous and does not drift. Stages ``released`` then ``sent``
 (ground times) are written without the emitter waiting for the commit. With the link down
-the command waits; a command that can no longer reach the vehicle before its tag (less
-than the one-way delay left) is marked ``expired`` instead. ``emission_lags_s`` keeps how
-late each release was after its deadline (wall s).
+the command waits; a command that could no longer be sent with (one-way delay + half the
+margin) before its tag is marked ``expired`` instead: SPEC 6 asks for delay + margin, and
+half the margin is kept as the release's own tolerance (an event loop a few ms late must
+not expire a command; a link back after an outage must not send one that jitter could
+make late). ``emission_lags_s`` keeps how late each release was after its deadline (wall s).
 
 **Completion**: at the last tag + :data:`SETTLE_S` onboard the pass goes ``los`` (the
-telemetry window closes there); once no command is left ``sent`` or ``received`` (or
-after two one-way delays + margin more) it is ``complete``.
+telemetry window closes there); commands whose tag has passed without a final
+acknowledgement are asked about (``command_query``, up to :data:`MAX_COMMAND_QUERIES`
+times: acks lost on the downlink come again, commands lost on the uplink come back
+``command_unknown`` and expire); once no command is left ``sent`` or ``received`` (or
+the queries are used up) it is ``complete``.
+
+**Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the
+passes and resumes a pass left ``running`` or ``los`` by a process that did not shut
+down (a graceful stop aborts the running pass instead, holding the arm).
 
 **Abort**: the emitter stops; commands not yet sent are ``expired``; a hold is sent: one
 joint command at the next 0.25 s grid tag at least (delay + margin) ahead, holding the
@@ -41,6 +50,7 @@ import contextlib
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,10 +67,11 @@ from server.services.link import (
 )
 from server.settings import Settings
 from server.storage import repository as repo
+from server.storage._common import canonical_id
 from server.storage.errors import Conflict
-from server.storage.models import CommandRecord
+from server.storage.models import CommandRecord, PassRecord
 from telemetry.uplink import GRID_NS, Command, plan_commands
-from telemetry.wire import JointCommandMsg, encode
+from telemetry.wire import AcsCommandMsg, JointCommandMsg, encode
 
 __all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
 
@@ -77,13 +88,23 @@ TRANSITIONS = {
 START_SLACK_S = 1.0  # onboard s beyond delay + margin, for the first command
 #: Wall s allowed for the start transaction itself (its first use of a fresh PostgreSQL
 #: connection can take a few hundred ms: at 20x that is seconds onboard).
-START_SLACK_WALL_S = 0.5
+START_SLACK_WALL_S = 1.0
 SETTLE_S = 2.0  # onboard s after the last tag before LOS
 UNSENT = ("queued", "released")
+#: After LOS, ask the vehicle about unacknowledged commands at most this many times.
+MAX_COMMAND_QUERIES = 3
+#: Telemetry windows of this many recent passes are reopened after a restart.
+RECOVERED_WINDOWS = 50
 
 
 def _transition(
-    session: Session, pass_id: str, to: str, actor: str, reason: str, epoch_ns: int | None = None
+    session: Session,
+    pass_id: str,
+    to: str,
+    actor: str,
+    reason: str,
+    epoch_ns: int | None = None,
+    **window_ns: int | None,
 ) -> dict[str, Any]:
     record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
     if record.state not in TRANSITIONS[to]:
@@ -97,6 +118,8 @@ def _transition(
         updated_at_ns=time.time_ns(),
         reason=reason,
         epoch_ns=epoch_ns,
+        telemetry_start_ns=window_ns.get("telemetry_start_ns"),
+        telemetry_end_ns=window_ns.get("telemetry_end_ns"),
     )
     detail: dict[str, Any] = {"from": previous, "to": to, "reason": reason}
     detail["version"] = record.version
@@ -105,21 +128,55 @@ def _transition(
     return write_event(session, "pass_state", actor, detail, record.id)
 
 
+def command_from_record(record: CommandRecord) -> Command:
+    """The wire message a stored command was (or will be) sent as."""
+    fields = {"seq": record.seq, "execute_time_ns": record.execute_time_ns, **record.payload}
+    if record.kind == "joints":
+        return JointCommandMsg.model_validate(fields)
+    return AcsCommandMsg.model_validate(fields)
+
+
+def _hold_job(
+    pass_id: str, hold: JointCommandMsg, actor: str
+) -> Callable[[Session], list[dict[str, Any]]]:
+    def job(session: Session) -> list[dict[str, Any]]:
+        key = repo.get_pass(session=session, pass_id=pass_id).id
+        repo.add_commands(
+            session=session, pass_id=key, commands=[hold], queued_at_ns=time.time_ns()
+        )
+        detail = {"seq": hold.seq, "execute_time_ns": hold.execute_time_ns}
+        return [write_event(session, "hold_queued", actor, detail, key)]
+
+    return job
+
+
+def _event_job(
+    kind: str, detail: dict[str, Any], pass_id: str
+) -> Callable[[Session], list[dict[str, Any]]]:
+    return lambda session: [write_event(session, kind, "ground", detail, pass_id)]
+
+
 @dataclass
 class _Active:
     pass_id: str
     name: str
+    #: The commands still to send, in tag order.
     commands: list[Command]
     window: TelemetryWindow
+    last_tag_ns: int
+    #: The highest seq of the pass (a hold takes the next one).
+    max_seq: int
     stop: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
     last_sent_joints: list[float] | None = None
+    last_sent_tag_ns: int = -1
 
 
 class PassRunner:
     def __init__(self, *, link: GroundLink, settings: Settings) -> None:
         self._link = link
         self._delay_s = settings.link_one_way_delay_s
+        self._margin_s = settings.uplink_margin_s
         self._lead_ns = round((settings.link_one_way_delay_s + settings.uplink_margin_s) * 1e9)
         self._active: _Active | None = None
         self._lock = asyncio.Lock()
@@ -138,6 +195,12 @@ class PassRunner:
             link = self._link
             if not link.connected:
                 raise LinkUnavailable("no spacecraft is connected: a pass needs the link")
+            # The window opens before the start transaction: storing thousands of commands
+            # takes longer than the relay delay at high time scales, and the frames
+            # generated meanwhile must already find their pass.
+            window = TelemetryWindow(
+                canonical_id(pass_id, what="pass"), start_ns=link.onboard_now_ns()
+            )
 
             def job(session: Session) -> tuple[list[dict[str, Any]], _Active]:
                 record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
@@ -160,13 +223,29 @@ class PassRunner:
                     queued_at_ns=time.time_ns(),
                 )
                 reason = f"started: {len(commands)} commands from seq {first_seq}"
-                events.append(_transition(session, record.id, "running", actor, reason, epoch_ns))
-                window = TelemetryWindow(record.id, start_ns=now_ns)
-                return events, _Active(record.id, record.name, commands, window)
+                events.append(
+                    _transition(
+                        session,
+                        record.id,
+                        "running",
+                        actor,
+                        reason,
+                        epoch_ns,
+                        telemetry_start_ns=window.start_ns,
+                    )
+                )
+                last_tag = commands[-1].execute_time_ns
+                max_seq = max(c.seq for c in commands)
+                active = _Active(record.id, record.name, commands, window, last_tag, max_seq)
+                return events, active
 
-            events, active = await link.db.run(job)
+            link.windows.append(window)
+            try:
+                events, active = await link.db.run(job)
+            except BaseException:
+                link.windows.remove(window)
+                raise
             link.publisher.publish(events)
-            link.windows.append(active.window)
             for command in active.commands:
                 link.command_pass[command.seq] = active.pass_id
             self._active = active
@@ -195,7 +274,7 @@ class PassRunner:
         released_ns = time.time_ns()
         while True:
             left_s = (command.execute_time_ns - link.onboard_now_ns()) / 1e9
-            if left_s < self._delay_s:
+            if left_s < self._delay_s + self._margin_s / 2:
                 self._record(active, command.seq, [("expired", time.time_ns())])
                 return True
             if link.connected and await link.send(encode(command)):
@@ -203,6 +282,7 @@ class PassRunner:
                 self._record(active, command.seq, stages)
                 if isinstance(command, JointCommandMsg):
                     active.last_sent_joints = list(command.joints_rad)
+                    active.last_sent_tag_ns = command.execute_time_ns
                 return True
             if not await self._wait(time.monotonic() + 0.01, active.stop):
                 return False
@@ -229,8 +309,7 @@ class PassRunner:
             for command in active.commands:
                 if not await self._emit(active, command):
                     return  # aborted: abort() finishes the pass
-            last_tag = active.commands[-1].execute_time_ns
-            los_ns = last_tag + round(SETTLE_S * 1e9)
+            los_ns = active.last_tag_ns + round(SETTLE_S * 1e9)
             if not await self._wait(link.mono_at_onboard(los_ns), active.stop):
                 return
             await link.db.drain()
@@ -239,35 +318,177 @@ class PassRunner:
             # only after this task has ended, from whatever state it left.
             if active.stop.is_set():
                 return
-            active.window.end_ns = link.onboard_now_ns()
+            end = link.onboard_now_ns()
+            active.window.end_ns = end
             reason = f"last command's tag + {SETTLE_S} s passed"
-            await link.db.write(lambda s: [_transition(s, active.pass_id, "los", "ground", reason)])
-            wait_ns = round((2 * self._delay_s + 2.0) * 1e9)
-            give_up = link.mono_at_onboard(link.onboard_now_ns() + wait_ns)
-
-            def outstanding(session: Session) -> int:
-                rows = repo.list_commands(
-                    session=session, pass_id=active.pass_id, stages=("sent", "received")
-                )
-                return len(rows)
-
-            left = await link.db.run(outstanding)
-            while left and time.monotonic() < give_up and not active.stop.is_set():
-                await self._wait(time.monotonic() + 0.05, active.stop)
-                left = await link.db.run(outstanding)
-            if active.stop.is_set():
-                return
-            reason = "every command acknowledged" if not left else f"{left} unacknowledged"
             await link.db.write(
-                lambda s: [_transition(s, active.pass_id, "complete", "ground", reason)]
+                lambda s: [
+                    _transition(s, active.pass_id, "los", "ground", reason, telemetry_end_ns=end)
+                ]
             )
-            if self._active is active:
-                self._active = None
+            await self._finish(active)
         except Exception:
             log.exception("pass %s: the runner failed", active.pass_id)
             with contextlib.suppress(Exception):
                 await self._abort_locked(active.pass_id, "ground", "runner failure")
             raise
+
+    async def _finish(self, active: _Active) -> None:
+        """After LOS: wait for the last acknowledgements, asking the vehicle about commands
+        whose tag has passed without one (``command_query``: acks lost on the downlink,
+        commands lost on the uplink), then ``complete``."""
+        link = self._link
+        # Onboard s between queries: a round trip and a second to answer.
+        period_s = 2 * self._delay_s + 1.0
+
+        def outstanding(session: Session) -> list[tuple[int, int]]:
+            rows = repo.list_commands(
+                session=session, pass_id=active.pass_id, stages=("sent", "received")
+            )
+            return [(r.seq, r.execute_time_ns) for r in rows]
+
+        left = await link.db.run(outstanding)
+        queries = 0
+        next_query = time.monotonic()
+        while left and queries <= MAX_COMMAND_QUERIES and not active.stop.is_set():
+            if time.monotonic() >= next_query:
+                if link.connected:
+                    due = [seq for seq, tag in left if tag < link.onboard_now_ns()]
+                    if due and await link.query_commands(due):
+                        queries += 1
+                    next_query = link.mono_at_onboard(link.onboard_now_ns() + round(period_s * 1e9))
+                else:
+                    next_query = time.monotonic() + 0.05
+            await self._wait(time.monotonic() + 0.05, active.stop)
+            left = await link.db.run(outstanding)
+        if active.stop.is_set():
+            return
+        reason = "every command acknowledged" if not left else f"{len(left)} unacknowledged"
+        await link.db.write(
+            lambda s: [_transition(s, active.pass_id, "complete", "ground", reason)]
+        )
+        if self._active is active:
+            self._active = None
+
+    # -- recovery after a restart --------------------------------------------------------
+
+    async def recover(self) -> None:
+        """After the service (re)starts: reopen the telemetry windows of recent passes (late
+        and resent frames still reach their pass), and resume a pass the previous process
+        left ``running`` or ``los`` (it stopped without shutting down: killed, crashed).
+        The emitter picks up at the first command never sent, once the spacecraft is back;
+        commands whose tag comes too close meanwhile expire. No spacecraft before the pass's
+        scheduled LOS: the pass is aborted with that reason."""
+        link = self._link
+
+        def job(session: Session) -> tuple[list[TelemetryWindow], list[dict[str, Any]]]:
+            recent = session.scalars(
+                select(PassRecord)
+                .where(PassRecord.telemetry_start_ns.is_not(None))
+                .order_by(PassRecord.telemetry_start_ns.desc())
+                .limit(RECOVERED_WINDOWS)
+            ).all()
+            windows = [
+                TelemetryWindow(r.id, start_ns=r.telemetry_start_ns or 0, end_ns=r.telemetry_end_ns)
+                for r in reversed(recent)
+            ]
+            unfinished = session.scalars(
+                select(PassRecord).where(PassRecord.state.in_(("aos", "running", "los")))
+            ).all()
+            found = []
+            for record in unfinished:
+                rows = repo.list_commands(session=session, pass_id=record.id)
+                found.append(
+                    {
+                        "id": record.id,
+                        "name": record.name,
+                        "state": record.state,
+                        "los_time_ns": record.los_time_ns,
+                        "start_ns": record.telemetry_start_ns,
+                        "commands": rows,
+                    }
+                )
+            return windows, found
+
+        windows, unfinished = await link.db.run(job)
+        link.windows.extend(windows)
+        for info in unfinished:
+            if self._active is not None or info["state"] == "aos" or not info["commands"]:
+                reason = "ground service restarted before the pass was running"
+                if self._active is not None:
+                    reason = "ground service restarted with another pass to resume"
+                await self._abort_locked(info["id"], "ground", reason)
+                continue
+            rows: list[CommandRecord] = info["commands"]
+            for row in rows:
+                link.command_pass[row.seq] = info["id"]
+            unsent = [command_from_record(r) for r in rows if r.stage in UNSENT]
+            unsent.sort(key=lambda c: (c.execute_time_ns, c.seq))
+            window = next((w for w in windows if w.pass_id == info["id"]), None)
+            if window is None:
+                window = TelemetryWindow(info["id"], start_ns=info["start_ns"] or 0)
+                link.windows.append(window)
+            active = _Active(
+                info["id"],
+                info["name"],
+                unsent,
+                window,
+                last_tag_ns=max(r.execute_time_ns for r in rows),
+                max_seq=max(r.seq for r in rows),
+            )
+            sent_joints = [r for r in rows if r.kind == "joints" and r.sent_at_ns is not None]
+            if sent_joints:
+                last = max(sent_joints, key=lambda r: r.seq)
+                active.last_sent_joints = list(last.payload["joints_rad"])
+                active.last_sent_tag_ns = last.execute_time_ns
+            detail = {"state": info["state"], "unsent": len(unsent), "commands": len(rows)}
+            await link.db.write(_event_job("pass_resumed", detail, info["id"]))
+            self._active = active
+            active.task = asyncio.create_task(
+                self._resume(active, info["state"], info["los_time_ns"]),
+                name=f"pass-{active.pass_id}",
+            )
+
+    async def _resume(self, active: _Active, state: str, los_time_ns: int) -> None:
+        while not self._link.connected:
+            if active.stop.is_set():
+                return
+            if time.time_ns() > los_time_ns:
+                reason = "ground service restarted mid-pass; no spacecraft before LOS"
+                await self.abort(active.pass_id, "ground", reason)
+                return
+            await asyncio.sleep(0.05)
+        # The stage writes are not awaited by the emitter, so the killed process may have
+        # sent commands whose ``sent`` never committed. The vehicle's hello names the
+        # highest seq it has received, and seqs go out in order: those are not sent again
+        # (the vehicle would refuse a duplicate), but asked about.
+        link = self._link
+        seen = link.last_command_seq
+        found = [c.seq for c in active.commands if c.seq <= seen]
+        if found:
+            active.commands = [c for c in active.commands if c.seq > seen]
+
+            def job(session: Session) -> list[dict[str, Any]]:
+                events: list[dict[str, Any]] = []
+                now = time.time_ns()
+                for seq in found:
+                    events += set_command_stage(
+                        session,
+                        pass_id=active.pass_id,
+                        seq=seq,
+                        stage="sent",
+                        time_ns=now,
+                        actor="ground",
+                        detail="sent before the ground restarted (the vehicle has seen it)",
+                    )
+                return events
+
+            await link.db.write(job)
+            await link.query_commands(found)
+        if state == "los":
+            await self._finish(active)
+        else:
+            await self._run(active)
 
     # -- abort ---------------------------------------------------------------------------
 
@@ -283,14 +504,31 @@ class PassRunner:
             if active.task is not None and active.task is not asyncio.current_task():
                 with contextlib.suppress(Exception, asyncio.CancelledError):
                     await active.task
-        await link.db.drain()
+        # The hold goes first, before any database work: its tag is (delay + margin) ahead
+        # of now, and a backlog of writes must not make it late.
         hold: JointCommandMsg | None = None
         if active is not None and active.last_sent_joints is not None and link.connected:
             earliest = link.onboard_now_ns() + self._lead_ns
-            tag = math.ceil(earliest / GRID_NS) * GRID_NS
-            hold = JointCommandMsg(seq=0, execute_time_ns=tag, joints_rad=active.last_sent_joints)
+            tag = max(math.ceil(earliest / GRID_NS) * GRID_NS, active.last_sent_tag_ns + GRID_NS)
+            seq = max(active.max_seq, link.last_command_seq) + 1
+            hold = JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=active.last_sent_joints)
+            link.command_pass[seq] = pass_id
+            # Queued (not awaited) before it is sent: the writes run in order, so the row
+            # exists before the hold's acknowledgement is filed.
+            link.db.submit(_hold_job(pass_id, hold, actor))
+            released = time.time_ns()
+            if await link.send(encode(hold)):
+                self._record(active, seq, [("released", released), ("sent", time.time_ns())])
+        end: int | None = None  # the clock unknown: leave the window open
+        if hold is not None:
+            end = hold.execute_time_ns + round(SETTLE_S * 1e9)
+        elif link.connected:
+            end = link.onboard_now_ns()
+        if active is not None:
+            active.window.end_ns = end
+        await link.db.drain()
 
-        def job(session: Session) -> tuple[list[dict[str, Any]], JointCommandMsg | None]:
+        def job(session: Session) -> list[dict[str, Any]]:
             key = repo.get_pass(session=session, pass_id=pass_id, refresh=True).id
             events: list[dict[str, Any]] = []
             now = time.time_ns()
@@ -298,33 +536,12 @@ class PassRunner:
                 events += set_command_stage(
                     session, pass_id=key, seq=record.seq, stage="expired", time_ns=now, actor=actor
                 )
-            held = None
-            if hold is not None:
-                used = session.scalar(select(func.max(CommandRecord.seq))) or 0
-                held = hold.model_copy(update={"seq": max(used, link.last_command_seq) + 1})
-                repo.add_commands(session=session, pass_id=key, commands=[held], queued_at_ns=now)
-                detail = {"seq": held.seq, "execute_time_ns": held.execute_time_ns}
-                events.append(write_event(session, "hold_queued", actor, detail, key))
-            events.append(_transition(session, key, "aborted", actor, reason))
-            return events, held
+            events.append(_transition(session, key, "aborted", actor, reason, telemetry_end_ns=end))
+            return events
 
-        events, held = await link.db.run(job)
-        link.publisher.publish(events)
-        if active is not None:
-            end: int | None = None  # the clock unknown: leave the window open
-            with contextlib.suppress(LinkUnavailable):
-                end = link.onboard_now_ns()
-            if held is not None:
-                link.command_pass[held.seq] = pass_id
-                end = held.execute_time_ns + round(SETTLE_S * 1e9)
-                released = time.time_ns()
-                if await link.send(encode(held)):
-                    self._record(
-                        active, held.seq, [("released", released), ("sent", time.time_ns())]
-                    )
-            active.window.end_ns = end
-            if self._active is active:
-                self._active = None
+        link.publisher.publish(await link.db.run(job))
+        if active is not None and self._active is active:
+            self._active = None
 
     async def shutdown(self) -> None:
         """The service stops: a running pass is aborted (its remaining commands expire)."""

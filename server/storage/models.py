@@ -133,6 +133,9 @@ class PassRecord(Base):
     state_reason: Mapped[str | None] = mapped_column(Text)
     #: Onboard time of the plan's t = 0, once it is known.
     epoch_ns: Mapped[int | None]
+    #: Onboard times: frames generated in [start, end) belong to the pass (end NULL: open).
+    telemetry_start_ns: Mapped[int | None]
+    telemetry_end_ns: Mapped[int | None]
     created_at_ns: Mapped[int]
     updated_at_ns: Mapped[int]
     version: Mapped[int] = mapped_column()

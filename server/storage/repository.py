@@ -234,8 +234,11 @@ def update_pass_state(
     updated_at_ns: int,
     reason: str | None = None,
     epoch_ns: int | None = None,
+    telemetry_start_ns: int | None = None,
+    telemetry_end_ns: int | None = None,
 ) -> PassRecord:
-    """Move the pass to ``state`` (with ``reason``; ``epoch_ns`` if given), version + 1.
+    """Move the pass to ``state`` (with ``reason``; ``epoch_ns`` and the telemetry window's
+    ends if given), version + 1.
 
     Raises :class:`Conflict` unless the stored version is ``expected_version``: the row is
     read afresh (``FOR UPDATE`` on PostgreSQL) and the UPDATE is also conditional on the
@@ -261,6 +264,10 @@ def update_pass_state(
     record.updated_at_ns = updated_at_ns
     if epoch_ns is not None:
         record.epoch_ns = epoch_ns
+    if telemetry_start_ns is not None:
+        record.telemetry_start_ns = telemetry_start_ns
+    if telemetry_end_ns is not None:
+        record.telemetry_end_ns = telemetry_end_ns
     try:
         session.flush()
     except StaleDataError as exc:

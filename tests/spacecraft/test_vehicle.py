@@ -187,6 +187,29 @@ def test_a_duplicate_seq_has_no_effect(config: VehicleConfig) -> None:
     assert v.last_command_seq == 6
 
 
+def test_outcome_is_the_latest_ack_of_each_command_received(config: VehicleConfig) -> None:
+    """What ``command_query`` answers with: never a duplicate's refusal, always the latest
+    stage (received, then executed; or refused on link loss)."""
+    v = _vehicle(config)
+    assert v.outcome(0) is None  # never received
+    _received(v.receive(_joints(0, T0, _ramp_deg(1))))
+    _received(v.receive(_joints(1, T0 + PERIOD, _ramp_deg(2))))
+    _rejected(v.receive(_joints(2, v.onboard_time_ns, [0.0] * 6)), RejectReason.LATE)
+    _rejected(v.receive(_joints(0, T0 + 2 * PERIOD, _ramp_deg(3))), RejectReason.DUPLICATE)
+    first = v.outcome(0)
+    assert first is not None and first.stage is CommandStage.RECEIVED
+    late = v.outcome(2)
+    assert late is not None and late.reason is RejectReason.LATE
+    acks, _ = v.advance_to(T0)
+    assert acks == [v.outcome(0)]  # the executed ack replaced the received one
+    executed = v.outcome(0)
+    assert executed is not None and executed.stage is CommandStage.EXECUTED
+    assert executed.onboard_time_ns == T0
+    lost = v.link_lost()
+    assert [a.seq for a in lost] == [1] and v.outcome(1) == lost[0]
+    assert v.outcome(3) is None
+
+
 def test_limits_and_malformed_commands_are_refused_with_reasons(config: VehicleConfig) -> None:
     v = _vehicle(config)
     _rejected(

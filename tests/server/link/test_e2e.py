@@ -1,4 +1,4 @@
-"""End to end: the ground service (uvicorn, loopback) and the spacecraft process at 20x.
+"""End to end: the ground service (uvicorn, loopback) and the spacecraft process at 10x.
 
 What an operator would check: every command executed at its tag with its stages stored,
 every telemetry frame of the pass stored once, the pass's transitions in the audit log.
@@ -7,16 +7,17 @@ every telemetry frame of the pass stored once, the pass's transitions in the aud
 from __future__ import annotations
 
 import asyncio
-import statistics
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
 
+from server.services.summary import pass_summary
 from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from spacecraft.link import Outage
+from spacecraft.process import SpacecraftProcess
 from telemetry.wire import TelemetryFrame
 from tests.server.link.harness import (
     OPERATOR,
@@ -58,7 +59,7 @@ async def _fly(
     name: str,
     timeout_s: float,
     **link: object,
-) -> list[TelemetryFrame]:
+) -> tuple[list[TelemetryFrame], SpacecraftProcess]:
     """Start the pass over REST, wait for it to complete, stop the spacecraft (drain)."""
     process, generated = spacecraft(ground, **link)
     stop = asyncio.Event()
@@ -76,7 +77,7 @@ async def _fly(
         stop.set()
         await asyncio.wait_for(task, 40.0)
     assert process.store.unacked == 0  # drained: every frame acknowledged
-    return generated
+    return generated, process
 
 
 def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
@@ -84,14 +85,15 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
 ) -> None:
     with running_ground(database_url) as ground:
         pass_id = store_pass(ground.sessions, "nominal-1", (6.0, -3.0, 0.0, 6.0, 0.0, 0.0), 4.0)
-        generated = asyncio.run(_fly(ground, pass_id, "nominal-1", 30.0))
-        lags = sorted(ground.app.state.runner.emission_lags_s)
+        generated, _ = asyncio.run(_fly(ground, pass_id, "nominal-1", 30.0))
         expected = _window_frames(ground, generated)
         with ground.sessions() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             stored = repo.frame_seqs(session=session, pass_id=pass_id)
+            summary = pass_summary(session=session, pass_id=pass_id)
             n_rows = repo.count_frames(session=session, pass_id=pass_id)
             record = repo.get_pass(session=session, pass_id=pass_id)
+            summary = pass_summary(session=session, pass_id=pass_id)
         status = ground.app.state.link.status()
         transitions = _pass_events(ground, pass_id)
     assert len(commands) == 35  # 34 joint commands and one ACS command
@@ -106,6 +108,10 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
     assert len(expected) > 100
     assert stored == expected == list(range(expected[0], expected[-1] + 1))
     assert n_rows == len(stored)
+    assert (summary.frames_expected, summary.frames_stored) == (len(expected), len(expected))
+    assert (summary.frames_missing, summary.gaps_open, summary.duplicates_stored) == (0, 0, 0)
+    assert summary.commands_executed == summary.commands_sent == summary.commands_total == 35
+    assert summary.commands_rejected == {} and summary.commands_outstanding == 0
     assert transitions == [
         ("scheduled", "aos", "otto"),
         ("aos", "running", "otto"),
@@ -115,33 +121,51 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
     assert status.frames_missing == 0 and status.round_trip_s is not None
     # 2 x 3 s of relay (onboard s), plus however long the pong queued behind telemetry writes
     assert status.round_trip_s > 5.5
-    # isochronous release: how late each release was after its monotonic deadline (wall s)
-    p50, p99 = lags[len(lags) // 2], lags[int(0.99 * (len(lags) - 1))]
-    print(f"emission lag p50 {p50 * 1e3:.2f} ms, p99 {p99 * 1e3:.2f} ms over {len(lags)}")
-    # 20 ms wall is 0.4 s onboard at 20x, well inside the 2 s uplink margin
-    assert p99 < 0.02 and statistics.mean(lags) >= 0
+    # (how late each release was after its deadline is measured in bench/bench_uplink.py)
 
 
 @pytest.mark.slow
 def test_loss_and_a_30_s_outage_lose_no_frame_of_the_pass(tmp_path: Path) -> None:
     with running_ground(sqlite_url(tmp_path)) as ground:
-        # 52 s of plan at 20x; LOS 15-45 s onboard after the spacecraft starts, in the pass
+        # 52 s of plan at 10x; LOS 15-45 s onboard after the spacecraft starts, in the pass
         pass_id = store_pass(ground.sessions, "lossy", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 45.0)
-        generated = asyncio.run(
+        generated, process = asyncio.run(
             _fly(ground, pass_id, "lossy", 60.0, loss=0.1, outages=(Outage(15.0, 45.0),))
         )
         expected = _window_frames(ground, generated)
         with ground.sessions() as session:
+            commands = repo.list_commands(session=session, pass_id=pass_id)
             stored = repo.frame_seqs(session=session, pass_id=pass_id)
+            summary = pass_summary(session=session, pass_id=pass_id)
             retransmits = repo.list_events(session=session, kinds=["retransmit_requested"]).count
         status = ground.app.state.link.status()
     assert len(expected) > 500
     assert stored == expected  # frames missing == 0 after the drain
+    assert summary.frames_expected == len(expected) and summary.frames_missing == 0
+    assert summary.gaps_open == 0 and summary.duplicates_stored == 0
+    assert summary.commands_expired + sum(summary.commands_rejected.values()) > 0
+    assert summary.commands_outstanding == 0
     assert status.frames_missing == 0
     assert retransmits > 0 and status.duplicates >= 0
     # the outage was inside the pass: its frames came back later
     outage = [f for f in generated if f.seq in set(expected)]
     assert outage
+    # Every command's stage on the ground is what became of it on board, although acks
+    # were lost (10 %) and the outage ate commands: the ground asked (command_query).
+    onboard = {c.seq: process.vehicle.outcome(c.seq) for c in commands}
+    for c in commands:
+        ack = onboard[c.seq]
+        if ack is None:
+            assert c.stage == "expired", c  # never reached the vehicle
+        else:
+            assert c.stage == ack.stage.value, (c, ack)
+            if c.stage == "executed":
+                assert c.executed_at_ns == c.execute_time_ns
+    # The pass began inside the outage: the commands sent then were lost (expired); the
+    # vehicle refused the first ones after it (a jump from the held target breaks the rate
+    # limit), so both outcomes are exercised, each over dozens of commands.
+    lost = sum(1 for c in commands if onboard[c.seq] is None)
+    assert lost > 10 and len(commands) - lost > 50
 
 
 def test_abort_mid_pass_expires_the_rest_and_holds_the_arm(tmp_path: Path) -> None:
@@ -186,7 +210,8 @@ def test_abort_mid_pass_expires_the_rest_and_holds_the_arm(tmp_path: Path) -> No
             await asyncio.wait_for(task, 40.0)
 
     with running_ground(sqlite_url(tmp_path)) as ground:
-        pass_id = store_pass(ground.sessions, "abortive", (20.0, 0.0, 0.0, 20.0, 0.0, 0.0), 10.0)
+        # A long settle: under load the abort may come late, and must still find commands unsent.
+        pass_id = store_pass(ground.sessions, "abortive", (20.0, 0.0, 0.0, 20.0, 0.0, 0.0), 60.0)
         asyncio.run(scenario(ground, pass_id))
         with ground.sessions() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
@@ -208,7 +233,8 @@ def test_abort_mid_pass_expires_the_rest_and_holds_the_arm(tmp_path: Path) -> No
     assert set(stages) <= {"executed", "expired"}
     first_expired = stages.index("expired")
     assert stages[first_expired:] == ["expired"] * (len(stages) - first_expired)
-    assert hold.stage == "executed" and hold.executed_at_ns == hold.execute_time_ns
+    assert hold.stage == "executed", hold.reject_reason
+    assert hold.executed_at_ns == hold.execute_time_ns
     # the hold repeats the last joint target sent (every sent command executed)
     plan_joints = [c for c in commands if c.kind == "joints" and c.seq != hold_seq]
     last_sent = [c for c in plan_joints if c.stage == "executed"][-1]

@@ -25,7 +25,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0001"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0002"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
@@ -82,3 +82,32 @@ def test_sqlite_connections_get_wal_and_foreign_keys(engine: Engine) -> None:
         assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
         assert conn.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
         assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == 10000
+
+
+def test_0002_keeps_the_passes_of_0001(empty_engine: Engine) -> None:
+    upgrade(empty_engine, "0001")
+    # 32 hex digits: SQLite's stored form of a UUID, and a valid uuid literal on PostgreSQL.
+    plan_id, pass_id = "0" * 31 + "1", "0" * 31 + "2"
+    with empty_engine.begin() as conn:
+        conn.execute(
+            text(
+                "INSERT INTO plans (id, experiment, parameters, document, duration_s, "
+                "n_commands, created_at_ns) VALUES (:id, 'ptp', '{}', '{}', 1.0, 4, 1)"
+            ),
+            {"id": plan_id},
+        )
+        conn.execute(
+            text(
+                "INSERT INTO passes (id, name, plan_id, aos_time_ns, los_time_ns, relay, state, "
+                "created_at_ns, updated_at_ns, version) VALUES "
+                "(:id, 'p1', :plan, 10, 20, 'TDRS', 'complete', 1, 1, 1)"
+            ),
+            {"id": pass_id, "plan": plan_id},
+        )
+    upgrade(empty_engine)
+    with empty_engine.connect() as conn:
+        row = conn.execute(
+            text("SELECT name, state, telemetry_start_ns, telemetry_end_ns FROM passes")
+        ).one()
+    assert tuple(row) == ("p1", "complete", None, None)
+    assert schema_diff(empty_engine) == []

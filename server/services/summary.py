@@ -1,0 +1,104 @@
+"""A pass's summary: the frames of its telemetry window and what became of its commands.
+
+The frame count expected is the number of frame slots in the window: frames are numbered
+without gaps at a fixed rate (docs/protocol.md), so a stored frame's ``(seq,
+generation_time_ns)`` and the rate between the first and the last stored frame place every
+slot of ``[start, end)``, including those lost at either edge.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from server.schemas import PassSummaryPublic
+from server.storage import repository as repo
+from server.storage.models import CommandRecord, TelemetryFrameRecord
+
+__all__ = ["pass_summary"]
+
+
+def _expected_seqs(
+    session: Session, pass_id: str, start_ns: int | None, end_ns: int | None
+) -> tuple[int, int] | None:
+    """The first and last frame seq of the window, or None when no frame says the rate."""
+    frame = TelemetryFrameRecord
+    lo_seq, hi_seq, lo_ns, hi_ns = session.execute(
+        select(
+            func.min(frame.seq),
+            func.max(frame.seq),
+            func.min(frame.generation_time_ns),
+            func.max(frame.generation_time_ns),
+        ).where(frame.pass_id == pass_id)
+    ).one()
+    if lo_seq is None:
+        return None
+    first, last = int(lo_seq), int(hi_seq)
+    if hi_seq > lo_seq:
+        period_ns = (hi_ns - lo_ns) / (hi_seq - lo_seq)
+        if start_ns is not None:
+            first -= max(0, math.floor((lo_ns - start_ns) / period_ns + 1e-6))
+        if end_ns is not None:
+            last += max(0, math.ceil((end_ns - hi_ns) / period_ns - 1e-6) - 1)
+    return first, last
+
+
+def pass_summary(
+    *, session: Session, pass_id: str, duplicates_dropped: int = 0
+) -> PassSummaryPublic:
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    key = record.id
+    seqs = repo.frame_seqs(session=session, pass_id=key)
+    rows = repo.count_frames(session=session, pass_id=key)
+    span = _expected_seqs(session, key, record.telemetry_start_ns, record.telemetry_end_ns)
+    expected = missing = gaps = None
+    if span is not None:
+        first, last = span
+        expected = last - first + 1
+        inside = [s for s in seqs if first <= s <= last]
+        missing = expected - len(inside)
+        gaps = 0
+        previous = first - 1
+        for seq in [*inside, last + 1]:
+            if seq > previous + 1:
+                gaps += 1
+            previous = seq
+    cmd = CommandRecord
+    stages = dict(
+        session.execute(
+            select(cmd.stage, func.count()).where(cmd.pass_id == key).group_by(cmd.stage)
+        ).all()
+    )
+    rejected = dict(
+        session.execute(
+            select(cmd.reject_reason, func.count())
+            .where(cmd.pass_id == key, cmd.stage == "rejected")
+            .group_by(cmd.reject_reason)
+        ).all()
+    )
+    sent = session.scalar(
+        select(func.count()).where(cmd.pass_id == key, cmd.sent_at_ns.is_not(None))
+    )
+    return PassSummaryPublic(
+        pass_id=key,
+        name=record.name,
+        state=record.state,
+        state_reason=record.state_reason,
+        epoch_ns=record.epoch_ns,
+        telemetry_start_ns=record.telemetry_start_ns,
+        telemetry_end_ns=record.telemetry_end_ns,
+        frames_expected=expected,
+        frames_stored=len(seqs),
+        frames_missing=missing,
+        gaps_open=gaps,
+        duplicates_stored=rows - len(seqs),
+        duplicates_dropped=duplicates_dropped,
+        commands_total=sum(stages.values()),
+        commands_sent=sent or 0,
+        commands_executed=stages.get("executed", 0),
+        commands_rejected={str(k): int(v) for k, v in rejected.items()},
+        commands_expired=stages.get("expired", 0),
+        commands_outstanding=sum(stages.get(s, 0) for s in ("sent", "received")),
+    )
