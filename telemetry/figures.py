@@ -1,0 +1,234 @@
+"""Figures of the post-pass analyses (paper Figs. 5, 6, 8, 9, 11 and predicted-vs-flown), as
+PNG bytes.
+
+Each function draws one :mod:`telemetry.analysis` result on a fresh
+:class:`matplotlib.figure.Figure` with the Agg canvas and returns the PNG. Figures are built
+without :mod:`matplotlib.pyplot`, so nothing is registered globally and nothing is left open.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Callable
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from telemetry.analysis import (
+    EndpointAnalysis,
+    HandAttitudeAnalysis,
+    JointTrackingAnalysis,
+    PassAnalysis,
+    PhasePlaneAnalysis,
+    PredictedVsFlown,
+    ReactionAnalysis,
+)
+
+__all__ = [
+    "endpoint_figure",
+    "hand_attitude_figure",
+    "joint_tracking_figure",
+    "pass_figures",
+    "phase_plane_figure",
+    "predicted_vs_flown_figure",
+    "reaction_figure",
+]
+
+_RPY = ("roll", "pitch", "yaw")
+_DPI = 100
+
+
+def _png(draw: Callable[[Figure], None], size_in: tuple[float, float]) -> bytes:
+    fig = Figure(figsize=size_in, dpi=_DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    draw(fig)
+    buffer = io.BytesIO()
+    # Fixed metadata: the same analysis gives the same bytes.
+    fig.savefig(buffer, format="png", metadata={"Software": None})
+    return buffer.getvalue()
+
+
+def _shade(ax: Axes, spans: list[tuple[float, float]]) -> None:
+    for a, b in spans:
+        ax.axvspan(a, b, color="0.9", zorder=0)
+
+
+def reaction_figure(result: ReactionAnalysis) -> bytes:
+    """Fig. 5: hand speed, reaction momentum and base attitude against time."""
+
+    def draw(fig: Figure) -> None:
+        axes = fig.subplots(3, 1, sharex=True)
+        spans = [(m.t_start_s, m.t_end_s) for m in result.motions]
+        for ax in axes:
+            _shade(ax, spans)
+        axes[0].plot(result.t_s, result.hand_speed_mps)
+        axes[0].set_ylabel("hand speed (m/s)")
+        for i, axis in enumerate("xyz"):
+            axes[1].plot(result.t_s, result.reaction_momentum_orbit_nms[:, i], label=axis)
+        axes[1].set_ylabel("H~bm phi' (N m s)")
+        axes[1].legend(loc="upper right", fontsize="small")
+        for i, name in enumerate(_RPY):
+            axes[2].plot(result.t_s, result.rpy_base_deg[:, i], label=name)
+        axes[2].set_ylabel("base attitude (deg)")
+        axes[2].set_xlabel("t (s)")
+        axes[2].legend(loc="upper right", fontsize="small")
+        for m in result.motions:
+            if m.settling_time_s is not None and m.settling_time_s > 0:
+                axes[2].axvline(m.t_end_s + m.settling_time_s, color="k", ls=":", lw=0.8)
+        fig.suptitle(f"PTP and reactionless motion (settling band {result.settle_band_deg} deg)")
+
+    return _png(draw, (8, 7))
+
+
+def joint_tracking_figure(
+    result: JointTrackingAnalysis, kind: str | None = "reactionless"
+) -> bytes:
+    """Fig. 6: commanded and measured joint angles and their error, for segments of ``kind``
+    (all analysed segments when ``None`` or when there are none of that kind)."""
+    chosen = [i for i, s in enumerate(result.segments) if kind is None or s.kind == kind]
+    if not chosen:
+        chosen = list(range(len(result.segments)))
+    rows = np.isin(result.segment_index, chosen)
+
+    def draw(fig: Figure) -> None:
+        axes = fig.subplots(2, 1, sharex=True)
+        t = result.t_s[rows]
+        for j in range(result.commanded_deg.shape[1]):
+            (line,) = axes[0].plot(t, result.measured_deg[rows, j], ".", ms=1.5)
+            axes[0].plot(t, result.commanded_deg[rows, j], "-", lw=0.8, color=line.get_color())
+            axes[1].plot(t, result.error_deg[rows, j], ".", ms=1.5, label=f"joint {j + 1}")
+        axes[0].set_ylabel("joint angle (deg)\nline: commanded, dots: measured")
+        axes[1].set_ylabel("measured - commanded (deg)")
+        axes[1].set_xlabel("t (s)")
+        axes[1].legend(loc="upper right", fontsize="small", ncols=3, markerscale=5)
+        fig.suptitle(f"Joint tracking ({kind or 'all motions'}); worst joint {result.worst_joint}")
+
+    return _png(draw, (8, 6))
+
+
+def hand_attitude_figure(result: HandAttitudeAnalysis) -> bytes:
+    """Fig. 8: hand and base attitude (orbit frame) against time and the pointing plot."""
+
+    def draw(fig: Figure) -> None:
+        subfigures = fig.subfigures(1, 2, width_ratios=[2, 1])
+        assert isinstance(subfigures, np.ndarray)
+        left, right = subfigures[0], subfigures[1]
+        axes = left.subplots(2, 1, sharex=True)
+        rel = result.rpy_hand_orbit_deg - (result.rpy_hand_orbit_deg[:1] if result.t_s.size else 0)
+        for i, name in enumerate(_RPY):
+            axes[0].plot(result.t_s, rel[:, i], label=f"hand {name}")
+            axes[1].plot(result.t_s, result.rpy_base_deg[:, i], label=f"base {name}")
+        axes[0].set_ylabel("hand attitude change,\norbit frame (deg)")
+        axes[1].set_ylabel("base attitude (deg)")
+        axes[1].set_xlabel("t (s)")
+        for ax in axes:
+            ax.legend(loc="upper right", fontsize="small")
+        ax = right.subplots()
+        ax.plot(result.pointing_yaw_deg, result.pointing_pitch_deg, ".", ms=2, label="flown")
+        pred = result.predicted_rpy_hand_orbit_deg
+        ax.plot(pred[:, 2], pred[:, 1], "-", lw=0.8, color="k", label="predicted")
+        ax.set_xlabel("approach-axis yaw (deg)")
+        ax.set_ylabel("approach-axis pitch (deg)")
+        ax.legend(fontsize="small")
+        fig.suptitle("Hand attitude in the orbit frame (GJM)")
+
+    return _png(draw, (10, 5))
+
+
+def phase_plane_figure(result: PhasePlaneAnalysis) -> bytes:
+    """Fig. 9: pitch against pitch rate for each attitude-control variant."""
+
+    def draw(fig: Figure) -> None:
+        axes = np.atleast_1d(fig.subplots(1, len(result.variants), sharex=True, sharey=True))
+        for ax, v in zip(axes, result.variants, strict=True):
+            ax.plot(v.pitch_deg, v.pitch_rate_degps, lw=0.8)
+            ax.axhline(0.0, color="0.6", lw=0.5)
+            ax.axvline(0.0, color="0.6", lw=0.5)
+            rng = "n/a" if v.pitch_range_deg is None else f"{v.pitch_range_deg:.2f} deg"
+            settle = "n/a" if v.settling_time_s is None else f"{v.settling_time_s:.0f} s"
+            ax.set_title(f"{v.label} {v.variant}\nrange {rng}, settles {settle}", fontsize=9)
+            ax.set_xlabel("pitch (deg)")
+        axes[0].set_ylabel("pitch rate (deg/s)")
+        fig.suptitle("Base pitch phase plane")
+
+    return _png(draw, (4 * max(1, len(result.variants)), 4))
+
+
+def endpoint_figure(result: EndpointAnalysis) -> bytes:
+    """Fig. 11: joints and base attitude through the non-holonomic motion, with prediction."""
+
+    def draw(fig: Figure) -> None:
+        axes = fig.subplots(2, 1, sharex=True)
+        for ax in axes:
+            _shade(ax, [(result.motion_start_s, result.motion_end_s)])
+        for j in range(result.joints_deg.shape[1]):
+            (line,) = axes[0].plot(result.t_s, result.joints_deg[:, j], label=f"joint {j + 1}")
+            axes[0].plot(
+                result.predicted_t_s, result.predicted_joints_deg[:, j], "--", lw=0.8,
+                color=line.get_color(),
+            )  # fmt: skip
+        for i, name in enumerate(_RPY):
+            (line,) = axes[1].plot(result.t_s, result.rpy_base_deg[:, i], label=name)
+            axes[1].plot(
+                result.predicted_t_s, result.predicted_rpy_base_deg[:, i], "--", lw=0.8,
+                color=line.get_color(),
+            )  # fmt: skip
+        axes[0].set_ylabel("joint angle (deg)")
+        axes[1].set_ylabel("base attitude (deg)")
+        axes[1].set_xlabel("t (s); dashed: predicted")
+        axes[0].legend(loc="upper right", fontsize="small", ncols=2)
+        axes[1].legend(loc="upper right", fontsize="small")
+        err = result.attitude_change_error_deg
+        text = "n/a" if err is None else ", ".join(f"{v:+.3f}" for v in err)
+        fig.suptitle(f"Non-holonomic motion; attitude change error (r, p, y) {text} deg")
+
+    return _png(draw, (8, 6))
+
+
+def predicted_vs_flown_figure(result: PredictedVsFlown) -> bytes:
+    """Predicted against flown base attitude, and the attitude and joint differences."""
+
+    def draw(fig: Figure) -> None:
+        axes = fig.subplots(3, 1, sharex=True)
+        for i, name in enumerate(_RPY):
+            (line,) = axes[0].plot(result.t_s, result.rpy_base_flown_deg[:, i], lw=0.8, label=name)
+            axes[0].plot(
+                result.t_s, result.rpy_base_predicted_deg[:, i], "--", lw=0.8,
+                color=line.get_color(),
+            )  # fmt: skip
+        axes[0].set_ylabel("base attitude (deg)\ndashed: predicted")
+        axes[0].legend(loc="upper right", fontsize="small")
+        axes[1].plot(result.t_s, result.attitude_difference_deg, lw=0.8)
+        axes[1].set_ylabel("attitude difference (deg)")
+        for j in range(result.joint_difference_deg.shape[1]):
+            axes[2].plot(result.t_s, result.joint_difference_deg[:, j], lw=0.8, label=f"{j + 1}")
+        axes[2].set_ylabel("joint difference (deg)")
+        axes[2].set_xlabel("t (s)")
+        axes[2].legend(loc="upper right", fontsize="small", ncols=3, title="joint")
+        fig.suptitle("Predicted against flown")
+
+    return _png(draw, (9, 7))
+
+
+def pass_figures(analysis: PassAnalysis) -> dict[str, bytes]:
+    """Every figure that applies to ``analysis``, by name."""
+    out: dict[str, bytes] = {}
+    if analysis.reaction is not None:
+        out["reaction"] = reaction_figure(analysis.reaction)
+    if analysis.joint_tracking is not None:
+        out["joint_tracking"] = joint_tracking_figure(analysis.joint_tracking)
+    if analysis.hand_attitude is not None:
+        out["hand_attitude"] = hand_attitude_figure(analysis.hand_attitude)
+    if analysis.phase_plane is not None:
+        out["phase_plane"] = phase_plane_figure(analysis.phase_plane)
+    if analysis.endpoint is not None:
+        out["endpoint"] = endpoint_figure(analysis.endpoint)
+    if analysis.predicted_vs_flown is not None:
+        out["predicted_vs_flown"] = predicted_vs_flown_figure(analysis.predicted_vs_flown)
+    return out

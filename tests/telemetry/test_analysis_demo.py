@@ -1,0 +1,275 @@
+"""The post-pass analyses on the demo pass (tests/telemetry/conftest.py: the whole schedule
+flown through the simulated vehicle with sensor noise and gravity gradient).
+
+Numbers measured on the demo pass (seed 7) are quoted next to each tolerance.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from planner.dynamics import DynamicsWorkspace
+from planner.frames import matrix_from_quat_xyzw
+from planner.state import State
+from telemetry.analysis import PassAnalysis, analyse_pass, arm_reaction
+from telemetry.analysis._common import window_mask
+from telemetry.recording import PassRecording
+
+
+@pytest.fixture(scope="module")
+def analysis(demo_recording: PassRecording, model: object) -> PassAnalysis:
+    return analyse_pass(demo_recording)
+
+
+def test_every_experiment_is_analysed(analysis: PassAnalysis) -> None:
+    assert analysis.experiments == ("ptp", "reactionless", "gjm", "coordination", "nonholonomic")
+    assert analysis.skipped == ()
+    assert analysis.missing == ()
+    assert not analysis.coverage.ends_early and analysis.coverage.gaps_s == ()
+
+
+def test_to_dict_is_json_and_deterministic(
+    analysis: PassAnalysis, demo_recording: PassRecording
+) -> None:
+    doc = analysis.to_dict()
+    text = json.dumps(doc, allow_nan=False)
+    assert json.loads(text) == doc
+    assert analyse_pass(demo_recording).to_dict() == doc
+
+
+# --- experiment 1 (Fig. 5) ---------------------------------------------------------------
+
+
+def test_ptp_settles_far_longer_than_the_reactionless_legs(analysis: PassAnalysis) -> None:
+    reaction = analysis.reaction
+    assert reaction is not None and reaction.settle_band_deg == 0.05
+    (ptp,) = reaction.motion("ptp")
+    legs = reaction.motion("reactionless")
+    assert [m.segment for m in legs] == ["reactionless: B->C", "reactionless: C->B"]
+    # Measured: PTP 80.4 s to within 0.05 deg of its final attitude (flight: about 100 s),
+    # peak 0.57 deg; the reactionless legs never leave the band (0 s).
+    assert ptp.settling_time_s is not None and ptp.settling_time_s > 50.0
+    assert ptp.peak_excursion_deg is not None and ptp.peak_excursion_deg > 0.4
+    for leg in legs:
+        assert leg.settling_time_s is not None and leg.settling_time_s < 5.0, leg
+        assert leg.peak_excursion_deg is not None and leg.peak_excursion_deg < 0.1 * (
+            ptp.peak_excursion_deg
+        )
+
+
+def test_faster_reactionless_leg_has_the_larger_residual_reaction(
+    analysis: PassAnalysis,
+) -> None:
+    assert analysis.reaction is not None
+    fast, slow = analysis.reaction.motion("reactionless")
+    # Speeds from the measured joints (plan: 0.015 and 0.0075 m/s).
+    assert fast.peak_hand_speed_mps is not None and slow.peak_hand_speed_mps is not None
+    assert fast.peak_hand_speed_mps == pytest.approx(0.015, rel=0.15)
+    assert slow.peak_hand_speed_mps == pytest.approx(0.0075, rel=0.15)
+    # RMS |H~_bm phi'| over the leg: 0.0095 against 0.0056 N m s (noise floor in the hold
+    # after, 0.005 N m s; noise-free truth 0.009 against 0.002).
+    assert fast.rms_reaction_momentum_nms is not None and slow.rms_reaction_momentum_nms
+    assert fast.rms_reaction_momentum_nms > 1.4 * slow.rms_reaction_momentum_nms
+    # The raw attitude excursion also orders them (0.033 against 0.015 deg), but that is
+    # mostly the PTP's recovery tail (see test_analysis_ideal), not the legs' reaction.
+    assert fast.peak_excursion_deg is not None and slow.peak_excursion_deg is not None
+    assert fast.peak_excursion_deg > slow.peak_excursion_deg
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="does not hold on our data: the servo-lag attitude residual against the "
+    "prediction is 5e-4 (fast) and 2e-4 deg (slow) in the noise-free truth, ten times below "
+    "the 0.005 deg attitude noise; measured 0.0059 (fast) against 0.0071 deg (slow)",
+)
+def test_faster_reactionless_leg_leaves_the_larger_attitude_residual(
+    analysis: PassAnalysis,
+) -> None:
+    assert analysis.reaction is not None
+    fast, slow = analysis.reaction.motion("reactionless")
+    assert fast.peak_residual_deg is not None and slow.peak_residual_deg is not None
+    assert fast.peak_residual_deg > slow.peak_residual_deg
+
+
+def test_reaction_momentum_obeys_momentum_conservation_in_free_drift(
+    demo_recording: PassRecording, workspace: DynamicsWorkspace
+) -> None:
+    """GJM approach, free drift: ``H~_bm phi' + H~_b w_b + R h_w`` stays constant (eq. 3)
+    while ``H~_bm phi'`` alone reaches about 4 N m s."""
+    seg = demo_recording.plan.segment("gjm: approach")
+    t = demo_recording.t_s()
+    rows = window_mask(t, seg.t_start_s - 5.0, seg.t_end_s + 5.0)
+    f = demo_recording.frames
+    result = arm_reaction(
+        workspace,
+        t[rows],
+        f.joints_rad[rows],
+        f.quat_orbit_from_base_xyzw[rows],
+        f.omega_base_in_base_radps[rows],
+    )
+    wheels = np.array(
+        [
+            matrix_from_quat_xyzw(q) @ h
+            for q, h in zip(
+                f.quat_orbit_from_base_xyzw[rows], f.wheel_momentum_nms[rows], strict=True
+            )
+        ]
+    )
+    arm = result.reaction_momentum_orbit_nms
+    total = arm + result.base_momentum_orbit_nms + wheels
+    swing = float(np.max(np.linalg.norm(arm, axis=1)))  # the arm starts and ends at rest
+    drift = float(np.max(np.linalg.norm(total - total.mean(axis=0), axis=1)))
+    assert swing > 3.0  # measured 4.1 N m s
+    # Measured 0.25 N m s: the gyro's 9e-6 rad/s noise times H~_b (up to 7090 kg m^2) is
+    # 0.06 N m s 1-sigma per axis; gravity gradient adds under 0.01 N m s in 30 s.
+    assert drift < 0.1 * swing, (drift, swing)
+
+
+# --- Fig. 6 ---------------------------------------------------------------------------------
+
+
+def test_joint_tracking_shows_servo_lag(
+    analysis: PassAnalysis, demo_recording: PassRecording
+) -> None:
+    tracking = analysis.joint_tracking
+    assert tracking is not None
+    legs = [s for s in tracking.segments if s.kind == "reactionless"]
+    assert len(legs) == 2
+    # The faster leg lags more on every moving joint: error ~ rate x servo lag.
+    fast, slow = legs
+    assert max(fast.rms_error_deg) > 1.7 * max(slow.rms_error_deg)
+    # Measured: joint 3 lags most (RMS 0.51 deg, joint 4 0.47 deg); the paper saw joint 4.
+    assert fast.worst_joint == 3 and slow.worst_joint == 3
+    # A lag, not noise: the error has the opposite sign of the commanded rate.
+    rows = tracking.segment_index == tracking.segments.index(fast)
+    j = fast.worst_joint - 1
+    rate = np.gradient(tracking.commanded_deg[rows, j], tracking.t_s[rows])
+    error = tracking.error_deg[rows, j]
+    assert float(np.corrcoef(rate, error)[0, 1]) < -0.8
+
+
+# --- experiment 2 (Fig. 8) --------------------------------------------------------------
+
+
+def test_hand_attitude_is_held_while_the_base_turns(analysis: PassAnalysis) -> None:
+    hand = analysis.hand_attitude
+    assert hand is not None
+    for span in ("approach", "retreat"):
+        hold = hand.hold(span)
+        assert hold.base_change_max_deg is not None and hold.hand_change_max_deg is not None
+        # Measured: base 0.55 / 0.70 deg, hand 0.093 / 0.093 deg (flight: +-0.1 deg).
+        assert hold.base_change_max_deg > 0.45, hold
+        assert hold.hand_change_max_deg < 0.15, hold
+        assert hold.hold_ratio is not None and hold.hold_ratio < 0.25
+    # The pointing plot starts at the planned -23 deg hand pitch.
+    assert hand.pointing_pitch_deg[0] == pytest.approx(-23.0, abs=0.3)
+
+
+def test_hand_attitude_frames_compose(
+    analysis: PassAnalysis, demo_recording: PassRecording, workspace: DynamicsWorkspace
+) -> None:
+    """rot_orbit_from_hand = rot_orbit_from_base @ rot_base_from_hand, and the pointing
+    angles are the approach axis's yaw and pitch in the orbit frame."""
+    hand = analysis.hand_attitude
+    assert hand is not None
+    t = demo_recording.t_s()
+    k = int(np.flatnonzero(np.isclose(t, hand.t_s[300]))[0])
+    f = demo_recording.frames
+    rot_base_from_hand = workspace.hand_pose(State(joints_rad=f.joints_rad[k])).rot_base_from_hand
+    rot = matrix_from_quat_xyzw(f.quat_orbit_from_base_xyzw[k]) @ rot_base_from_hand
+    axis = rot[:, 0]
+    assert np.degrees(np.arctan2(axis[1], axis[0])) == pytest.approx(
+        hand.pointing_yaw_deg[300], abs=1e-9
+    )
+    assert np.degrees(np.arcsin(-axis[2])) == pytest.approx(hand.pointing_pitch_deg[300], abs=1e-9)
+
+
+# --- experiment 3 (Fig. 9) --------------------------------------------------------------
+
+
+def test_phase_plane_variants(analysis: PassAnalysis) -> None:
+    plane = analysis.phase_plane
+    assert plane is not None
+    assert [v.variant for v in plane.variants] == ["feedback", "feedforward", "offset"]
+    fb, ff, off = plane.variants
+    # Measured pitch ranges: feedback -0.24..+0.31, feedforward -0.28..+0.48 (the recovery
+    # adds to the deceleration reaction: strongest positive overshoot, as in flight),
+    # offset -0.45..+0.39 deg.
+    assert ff.pitch_max_deg is not None and fb.pitch_max_deg is not None
+    assert off.pitch_max_deg is not None
+    assert ff.pitch_max_deg > max(fb.pitch_max_deg, off.pitch_max_deg) + 0.05
+    # Feedforward's first response is faster than feedback's, within -0.3 deg (flight).
+    assert ff.pitch_min_deg is not None and -0.3 < ff.pitch_min_deg < 0.0
+    for v in plane.variants:
+        assert v.settling_time_s is not None  # all settle within their 80 s wait
+    # Measured settling: offset 57.5 s, feedforward 67.0 s.
+    assert off.settling_time_s is not None and ff.settling_time_s is not None
+    assert off.settling_time_s < ff.settling_time_s
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="does not hold on our data: pitch range offset 0.843 deg (-0.453..+0.390) against "
+    "feedforward 0.765 deg (-0.280..+0.485); the plan's prediction agrees (0.832 against "
+    "0.763): the eq. (10) offset at scale 1 is -0.57 deg, the flight used -0.35 deg",
+)
+def test_offset_destination_beats_momentum_feedforward_on_range(analysis: PassAnalysis) -> None:
+    plane = analysis.phase_plane
+    assert plane is not None
+    ff, off = plane.variant("feedforward"), plane.variant("offset")
+    assert off.pitch_range_deg is not None and ff.pitch_range_deg is not None
+    assert off.pitch_range_deg < ff.pitch_range_deg
+
+
+def test_gyro_pitch_rate_integrates_to_the_pitch(analysis: PassAnalysis) -> None:
+    """Frames check: the gyro's base-frame y rate, integrated, against the pitch change of the
+    quaternions (both as the phase plane shows them)."""
+    plane = analysis.phase_plane
+    assert plane is not None
+    v = plane.variant("feedback")
+    dt = np.diff(v.t_s)
+    integral = np.concatenate(
+        [[0.0], np.cumsum(0.5 * (v.pitch_rate_degps[1:] + v.pitch_rate_degps[:-1]) * dt)]
+    )
+    change = v.pitch_deg - v.pitch_deg[0]
+    assert v.pitch_range_deg is not None and v.pitch_range_deg > 0.4  # measured 0.55 deg
+    # Measured within 0.005 deg: 0.005 deg attitude noise averaged over 1 s plus the gyro's
+    # random walk (9e-6 rad/s over 160 s at 10 Hz: 0.002 deg); a sign or axis slip would
+    # give errors of the order of the range.
+    assert float(np.max(np.abs(integral - change))) < 0.03 * v.pitch_range_deg
+
+
+# --- experiment 4 (Fig. 11) -------------------------------------------------------------
+
+
+def test_nonholonomic_end_point_errors(analysis: PassAnalysis) -> None:
+    end = analysis.endpoint
+    assert end is not None
+    assert end.target_joints_deg == pytest.approx((0.0,) * 6, abs=1e-9)
+    # Measured: joints within 0.0015 deg of phi_end (encoder noise 0.005 deg, averaged).
+    assert end.max_joint_error_deg is not None and end.max_joint_error_deg < 0.01
+    # Measured change error (-0.026, +0.081, 0.000) deg: gravity gradient in 125 s of free
+    # drift, which the pass prediction leaves out (flight: 0.2 deg of roll).
+    assert end.attitude_change_error_deg is not None
+    assert float(np.linalg.norm(end.attitude_change_error_deg)) < 0.2
+    assert end.attitude_error_angle_deg is not None and end.attitude_error_angle_deg < 0.2
+
+
+# --- predicted against flown ------------------------------------------------------------
+
+
+def test_predicted_vs_flown_per_segment(analysis: PassAnalysis) -> None:
+    comparison = analysis.predicted_vs_flown
+    assert comparison is not None
+    assert len(comparison.segments) == 33
+    for seg in comparison.segments:
+        assert seg.attitude_peak_deg is not None and seg.joint_peak_max_deg is not None
+        # Measured at most 0.095 deg (nonholonomic tail, gravity gradient in free drift).
+        assert seg.attitude_peak_deg < 0.15, seg
+        if seg.kind in ("hold", "settle"):
+            assert seg.joint_peak_max_deg < 0.05, seg  # servos caught up (measured 0.037)
+    ptp = comparison.segment("ptp: A->B")
+    assert ptp.joint_peak_max_deg is not None and ptp.joint_peak_max_deg > 0.3  # lag, 0.82
