@@ -1,0 +1,219 @@
+"""Foxglove well-known schemas (JSON encoding) and the robot's frame transforms for them.
+
+``foxglove.FrameTransforms`` is Foxglove's published schema (field names exactly as in
+foxglove-sdk ``schemas/jsonschema/FrameTransforms.json``): ``transforms[]`` of
+``timestamp{sec, nsec}``, ``parent_frame_id``, ``child_frame_id``, ``translation{x, y, z}``
+and ``rotation{x, y, z, w}``, where translation and rotation place the child frame in the
+parent frame (a point in the child maps to ``rotation * p + translation`` in the parent).
+
+:func:`frame_transforms` gives one such message per telemetry frame: the base in the orbit
+frame (:data:`ORBIT_FRAME`, the root) from the recorded attitude, then every link of the URDF
+of :func:`planner.urdf.urdf_xml` relative to its URDF parent, at the measured joint angles.
+Link poses come from the model's own MuJoCo kinematics (:func:`planner.mjcf.compile_model`),
+so they are the planner's, not a second derivation. The base's position in the orbit frame is
+not telemetered: its translation is zero (the base centre of mass at the orbit origin).
+"""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from planner.mjcf import compile_model
+from planner.model import RobotModel
+from planner.mujoco_conventions import MjLayout
+
+__all__ = [
+    "FRAME_TRANSFORMS_SCHEMA",
+    "FRAME_TRANSFORMS_SCHEMA_NAME",
+    "ORBIT_FRAME",
+    "STRING_SCHEMA",
+    "STRING_SCHEMA_NAME",
+    "frame_transforms",
+    "link_poses_base",
+    "urdf_tree",
+]
+
+Array = NDArray[np.float64]
+
+ORBIT_FRAME = "orbit"
+FRAME_TRANSFORMS_SCHEMA_NAME = "foxglove.FrameTransforms"
+#: A message with one string field ``data`` (ROS ``std_msgs/String``), for the URDF topic.
+STRING_SCHEMA_NAME = "std_msgs/String"
+
+_XYZ = ("x", "y", "z")
+_XYZW = ("x", "y", "z", "w")
+
+
+def _numbers_object(title: str, keys: tuple[str, ...]) -> dict[str, Any]:
+    return {
+        "title": title,
+        "type": "object",
+        "properties": {k: {"type": "number"} for k in keys},
+        "required": list(keys),
+    }
+
+
+FRAME_TRANSFORMS_SCHEMA: dict[str, Any] = {
+    "title": FRAME_TRANSFORMS_SCHEMA_NAME,
+    "description": "An array of FrameTransform messages",
+    "type": "object",
+    "properties": {
+        "transforms": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.FrameTransform",
+                "description": "The pose of a child frame in a parent frame",
+                "type": "object",
+                "properties": {
+                    "timestamp": {
+                        "title": "time",
+                        "type": "object",
+                        "properties": {
+                            "sec": {"type": "integer", "minimum": 0},
+                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+                        },
+                    },
+                    "parent_frame_id": {"type": "string"},
+                    "child_frame_id": {"type": "string"},
+                    "translation": _numbers_object("foxglove.Vector3", _XYZ),
+                    "rotation": _numbers_object("foxglove.Quaternion", _XYZW),
+                },
+                "required": [
+                    "timestamp",
+                    "parent_frame_id",
+                    "child_frame_id",
+                    "translation",
+                    "rotation",
+                ],
+            },
+        }
+    },
+    "required": ["transforms"],
+}
+
+STRING_SCHEMA: dict[str, Any] = {
+    "title": STRING_SCHEMA_NAME,
+    "type": "object",
+    "properties": {"data": {"type": "string"}},
+    "required": ["data"],
+}
+
+
+def urdf_tree(urdf: str) -> list[tuple[str, str]]:
+    """``(parent, child)`` link names of every joint of a URDF document, in document order."""
+    root = ET.fromstring(urdf)
+    tree = []
+    for joint in root.iter("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None:
+            raise ValueError(f"URDF joint {joint.get('name')!r} lacks a parent or a child")
+        tree.append((str(parent.get("link")), str(child.get("link"))))
+    return tree
+
+
+def link_poses_base(model: RobotModel, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
+    """URDF link name -> ``(pos_base_m (N, 3), rot_base_from_link (N, 3, 3))`` for each row
+    of ``joints_rad`` (N, n), from the model's MuJoCo kinematics with the base at identity.
+
+    MuJoCo's ``base`` body is URDF's ``base_link``, its ``robot_origin`` site ``robot_base``,
+    its ``hand`` site ``hand``; link bodies share their URDF names.
+    """
+    mjm = compile_model(model)
+    mjd = mujoco.MjData(mjm)
+    layout = MjLayout.of(mjm, model.n_joints, len(model.wheels))
+    robot_site = int(mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_SITE, "robot_origin"))
+    bodies = {"base_link": layout.base_body} | {
+        link.name: body for link, body in zip(model.links, layout.link_bodies, strict=True)
+    }
+    sites = {"robot_base": robot_site, "hand": layout.hand_site}
+    q = np.asarray(joints_rad, dtype=np.float64).reshape(-1, model.n_joints)
+    names = [*bodies, *sites]
+    pos = np.empty((len(names), len(q), 3))
+    rot = np.empty((len(names), len(q), 3, 3))
+    body_ids = list(bodies.values())
+    site_ids = list(sites.values())
+    nb = len(body_ids)
+    for k, row in enumerate(q):
+        mjd.qpos[:] = mjm.qpos0  # base at the origin, identity attitude
+        mjd.qpos[layout.joint_qpos] = row
+        mujoco.mj_kinematics(mjm, mjd)
+        pos[:nb, k] = mjd.xpos[body_ids]
+        rot[:nb, k] = mjd.xmat[body_ids].reshape(-1, 3, 3)
+        pos[nb:, k] = mjd.site_xpos[site_ids]
+        rot[nb:, k] = mjd.site_xmat[site_ids].reshape(-1, 3, 3)
+    return {name: (pos[i], rot[i]) for i, name in enumerate(names)}
+
+
+def _quat_xyzw(rot: Array) -> Array:
+    """Scalar-last unit quaternions of (N, 3, 3) matrices, ``w >= 0`` (planner.frames)."""
+    quat = np.asarray(Rotation.from_matrix(rot).as_quat(), dtype=np.float64).reshape(-1, 4)
+    return np.where(quat[:, 3:4] < 0.0, -quat, quat)
+
+
+def _json_str(text: str) -> str:
+    """A JSON string literal safe inside a %-format template."""
+    return json.dumps(text).replace("%", "%%")
+
+
+def frame_transforms(
+    model: RobotModel,
+    urdf: str,
+    generation_time_ns: NDArray[np.int64],
+    quat_orbit_from_base_xyzw: Array,
+    joints_rad: Array,
+) -> list[bytes]:
+    """One ``foxglove.FrameTransforms`` message (JSON, UTF-8) per row: ``orbit -> base_link``
+    with the recorded attitude as is, then each joint of ``urdf`` (parent -> child) at the
+    row's joint angles. Timestamps are the generation times (onboard clock). Every input must
+    be finite and every time non-negative."""
+    tree = urdf_tree(urdf)
+    poses = link_poses_base(model, joints_rad)
+    unknown = sorted({name for edge in tree for name in edge} - set(poses))
+    if unknown:
+        raise ValueError(f"URDF links {unknown} have no pose in the MuJoCo model")
+    roots = {p for p, _ in tree} - {c for _, c in tree}
+    if roots != {"base_link"}:
+        raise ValueError(f"URDF tree must be rooted at base_link, found roots {sorted(roots)}")
+
+    n = len(generation_time_ns)
+    # Columns per row: sec, nsec, then (x, y, z, qx, qy, qz, qw) per edge, base first.
+    base = np.hstack([np.zeros((n, 3)), np.asarray(quat_orbit_from_base_xyzw, np.float64)])
+    blocks = [base]
+    for parent, child in tree:
+        pos_p, rot_p = poses[parent]
+        pos_c, rot_c = poses[child]
+        # child in parent: R_p^T (p_c - p_p), R_p^T R_c
+        pos_rel = np.einsum("nji,nj->ni", rot_p, pos_c - pos_p)
+        rot_rel = np.einsum("nji,njk->nik", rot_p, rot_c)
+        blocks.append(np.hstack([pos_rel, _quat_xyzw(rot_rel)]))
+    values = np.hstack(blocks).tolist()  # Python floats: %r is repr, exact in JSON
+    sec, nsec = np.divmod(np.asarray(generation_time_ns, dtype=np.int64), 1_000_000_000)
+
+    template = "".join(
+        [
+            '{"transforms":[',
+            ",".join(
+                '{"timestamp":{"sec":%d,"nsec":%d},'
+                f'"parent_frame_id":{_json_str(parent)},"child_frame_id":{_json_str(child)},'
+                '"translation":{"x":%r,"y":%r,"z":%r},'
+                '"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}'
+                for parent, child in [(ORBIT_FRAME, "base_link"), *tree]
+            ),
+            "]}",
+        ]
+    )
+    n_edges = len(tree) + 1
+    out = []
+    for s, ns, row in zip(sec.tolist(), nsec.tolist(), values, strict=True):
+        args: list[Any] = []
+        for e in range(n_edges):
+            args += [s, ns, *row[7 * e : 7 * e + 7]]
+        out.append((template % tuple(args)).encode())
+    return out

@@ -1,0 +1,234 @@
+"""MCAP import: the exact :class:`~telemetry.recording.PassRecording` that was exported.
+
+Everything is checked before anything is built: the file is read whole, its summary, our
+metadata record, each required channel and its schema, then every message of our channels
+against its schema, then the counts and per-channel sequences. Any failure raises
+:class:`~telemetry.mcap.RecordingFileError`; a partial recording is never returned.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+from collections.abc import Mapping
+from typing import IO, Any
+
+import numpy as np
+from mcap.reader import McapReader, make_reader
+from mcap.records import Channel, Schema
+from mcap.summary import Summary
+
+from planner.errors import InvalidInput
+from planner.plan import Plan
+from telemetry.mcap._errors import RecordingFileError
+from telemetry.mcap._jsonschema import SchemaViolation
+from telemetry.mcap._schemas import (
+    FORMAT,
+    FORMAT_VERSION,
+    METADATA_NAME,
+    OWN_SCHEMAS,
+    SCHEMA_ENCODING,
+    TOPIC_COMMANDS,
+    TOPIC_EVENTS,
+    TOPIC_PLAN,
+    TOPIC_TELEMETRY,
+    validators,
+)
+from telemetry.recording import FRAME_ARRAYS, CommandRow, EventRow, FrameArrays, PassRecording
+
+__all__ = ["read_mcap"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_VALIDATORS = validators()
+_INT_COLUMNS = {"seq", "generation_time_ns", "reception_time_ns"} | {
+    n for n in FRAME_ARRAYS if n.startswith("buffer_")
+}
+
+
+def _read_bytes(source: str | os.PathLike[str] | IO[bytes]) -> bytes:
+    if isinstance(source, str | os.PathLike):
+        with open(source, "rb") as f:
+            return f.read()
+    return source.read()
+
+
+def _summary(reader: McapReader) -> Summary:
+    summary = reader.get_summary()
+    if summary is None:
+        raise RecordingFileError("MCAP file has no summary section (truncated or unfinished)")
+    return summary
+
+
+def _metadata(reader: McapReader) -> dict[str, str]:
+    for record in reader.iter_metadata():
+        if record.name == METADATA_NAME:
+            return dict(record.metadata)
+    raise RecordingFileError(
+        f"not a Hikoboshi pass recording: no {METADATA_NAME!r} metadata record"
+    )
+
+
+def _check_metadata(meta: Mapping[str, str]) -> None:
+    if meta.get("format") != FORMAT:
+        raise RecordingFileError(f"metadata format {meta.get('format')!r} is not {FORMAT!r}")
+    if meta.get("format_version") != str(FORMAT_VERSION):
+        raise RecordingFileError(
+            f"recording format version {meta.get('format_version')!r} is not {FORMAT_VERSION}"
+        )
+    for key in ("name", "epoch_ns", "meta_json", "frames", "commands", "events"):
+        if key not in meta:
+            raise RecordingFileError(f"metadata {METADATA_NAME!r} lacks {key!r}")
+
+
+def _channels(summary: Summary) -> dict[str, Channel]:
+    by_topic: dict[str, Channel] = {}
+    for channel in summary.channels.values():
+        if channel.topic in OWN_SCHEMAS:
+            if channel.topic in by_topic:
+                raise RecordingFileError(f"channel {channel.topic} appears twice")
+            by_topic[channel.topic] = channel
+    for topic, want in OWN_SCHEMAS.items():
+        if topic not in by_topic:
+            raise RecordingFileError(f"required channel {topic} is missing")
+        channel = by_topic[topic]
+        if channel.message_encoding != "json":
+            raise RecordingFileError(
+                f"channel {topic} has message encoding {channel.message_encoding!r}, not 'json'"
+            )
+        schema: Schema | None = summary.schemas.get(channel.schema_id)
+        if schema is None or schema.encoding != SCHEMA_ENCODING or schema.name != want["title"]:
+            got = None if schema is None else f"{schema.name} ({schema.encoding})"
+            raise RecordingFileError(
+                f"channel {topic} has schema {got}, expected {want['title']} ({SCHEMA_ENCODING})"
+            )
+        try:
+            same = json.loads(schema.data) == want
+        except ValueError:
+            same = False
+        if not same:
+            raise RecordingFileError(
+                f"channel {topic}: schema {schema.name} differs from this version's"
+            )
+    return by_topic
+
+
+def _messages(reader: McapReader, channels: dict[str, Channel]) -> dict[str, list[Any]]:
+    """topic -> its decoded, validated messages in the writer's row order."""
+    rows: dict[str, dict[int, Any]] = {topic: {} for topic in channels}
+    topic_of = {c.id: topic for topic, c in channels.items()}
+    for _, channel, message in reader.iter_messages(topics=list(channels), log_time_order=False):
+        topic = topic_of.get(channel.id)
+        if topic is None:
+            continue
+        where = f"{topic} message {message.sequence}"
+        try:
+            doc = json.loads(message.data)
+        except ValueError as exc:
+            raise RecordingFileError(f"{where} is not JSON: {exc}") from None
+        try:
+            _VALIDATORS[topic](doc)
+        except SchemaViolation as exc:
+            raise RecordingFileError(f"{where} breaks its schema: {exc}") from None
+        if message.sequence in rows[topic]:
+            raise RecordingFileError(f"{where} appears twice")
+        rows[topic][message.sequence] = doc
+    out: dict[str, list[Any]] = {}
+    for topic, by_seq in rows.items():
+        if sorted(by_seq) != list(range(len(by_seq))):
+            missing = sorted(set(range(max(by_seq, default=-1) + 1)) - set(by_seq))
+            raise RecordingFileError(f"{topic} lacks messages {missing[:5]} (truncated?)")
+        out[topic] = [by_seq[k] for k in range(len(by_seq))]
+    return out
+
+
+def _count(meta: Mapping[str, str], key: str, got: int, topic: str) -> None:
+    if meta[key] != str(got):
+        raise RecordingFileError(f"{topic} holds {got} messages, metadata says {meta[key]}")
+
+
+def _string_dtype(meta: Mapping[str, str]) -> np.dtype[np.str_]:
+    text = meta.get("acs_mode_dtype", "")
+    if re.fullmatch(r"[<>]U[0-9]{1,4}", text) is None:
+        raise RecordingFileError(f"metadata acs_mode_dtype {text[:32]!r} is not a string dtype")
+    return np.dtype(text)
+
+
+def _frames(docs: list[dict[str, Any]], mode_dtype: np.dtype[np.str_]) -> FrameArrays:
+    n = len(docs)
+    columns: dict[str, Any] = {}
+    for name, width in FRAME_ARRAYS.items():
+        values = [d[name] for d in docs]
+        if width > 1:
+            columns[name] = np.array(values, dtype=np.float64).reshape(n, width)
+        elif name in _INT_COLUMNS:
+            columns[name] = np.array(values, dtype=np.int64).reshape(n)
+        elif name == "acs_mode":
+            natural = np.array(values, dtype=np.str_).reshape(n)
+            if natural.dtype.itemsize > mode_dtype.itemsize:
+                raise RecordingFileError(
+                    f"acs_mode values of {natural.dtype} do not fit its dtype {mode_dtype}"
+                )
+            columns[name] = natural.astype(mode_dtype)
+        else:
+            columns[name] = np.array(values, dtype=np.bool_).reshape(n)
+    return FrameArrays(**columns)
+
+
+def _build(meta: Mapping[str, str], messages: dict[str, list[Any]]) -> PassRecording:
+    _count(meta, "frames", len(messages[TOPIC_TELEMETRY]), TOPIC_TELEMETRY)
+    _count(meta, "commands", len(messages[TOPIC_COMMANDS]), TOPIC_COMMANDS)
+    _count(meta, "events", len(messages[TOPIC_EVENTS]), TOPIC_EVENTS)
+    if len(messages[TOPIC_PLAN]) != 1:
+        raise RecordingFileError(f"{TOPIC_PLAN} holds {len(messages[TOPIC_PLAN])} messages, not 1")
+    try:
+        plan = Plan.from_dict(messages[TOPIC_PLAN][0])
+    except InvalidInput as exc:
+        raise RecordingFileError(f"{TOPIC_PLAN}: {exc}") from None
+    try:
+        epoch_ns = int(meta["epoch_ns"])
+        extra = json.loads(meta["meta_json"])
+    except ValueError as exc:
+        raise RecordingFileError(f"metadata {METADATA_NAME!r}: {exc}") from None
+    if not isinstance(extra, dict):
+        raise RecordingFileError(f"metadata {METADATA_NAME!r}: meta_json is not an object")
+    try:
+        frames = _frames(messages[TOPIC_TELEMETRY], _string_dtype(meta))
+    except (ValueError, OverflowError) as exc:
+        raise RecordingFileError(f"{TOPIC_TELEMETRY}: {exc}") from None
+    return PassRecording(
+        name=meta["name"],
+        plan=plan,
+        epoch_ns=epoch_ns,
+        frames=frames,
+        commands=tuple(CommandRow(**d) for d in messages[TOPIC_COMMANDS]),
+        events=tuple(EventRow(**d) for d in messages[TOPIC_EVENTS]),
+        meta=extra,
+    )
+
+
+def read_mcap(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> PassRecording:
+    """The recording that :func:`~telemetry.mcap.write_mcap` wrote (a stream is read from its
+    current position to its end). Only our channels are read; the derived Foxglove and plot
+    channels are not needed. Raises :class:`~telemetry.mcap.RecordingFileError`."""
+    data = _read_bytes(path_or_stream)
+    if not data.startswith(_MAGIC):
+        raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
+    try:
+        reader = make_reader(io.BytesIO(data), validate_crcs=True)
+        summary = _summary(reader)
+        meta = _metadata(reader)
+        _check_metadata(meta)
+        channels = _channels(summary)
+        messages = _messages(reader, channels)
+    except RecordingFileError:
+        raise
+    except Exception as exc:
+        # The mcap library signals damaged input with many types (McapError, struct.error,
+        # zstd errors, EndOfFile, KeyError, ...), none of them documented as its contract.
+        # Whatever it raises while parsing, the file is not a readable recording.
+        raise RecordingFileError(
+            f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
+        ) from exc
+    return _build(meta, messages)

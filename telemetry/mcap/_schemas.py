@@ -1,0 +1,186 @@
+"""Topics, JSON schemas and the metadata record of our own channels (the ones read back).
+
+Each schema is written into the file (``jsonschema`` encoding) and compiled by
+:mod:`telemetry.mcap._jsonschema` for the reader, so the file and the reader agree by
+construction.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from telemetry.mcap._jsonschema import Validator, compile_schema
+from telemetry.recording import FRAME_ARRAYS
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "METADATA_NAME",
+    "OWN_SCHEMAS",
+    "SCHEMA_ENCODING",
+    "TOPIC_COMMANDS",
+    "TOPIC_EVENTS",
+    "TOPIC_PLAN",
+    "TOPIC_TELEMETRY",
+    "URDF_ATTACHMENT",
+    "schema_bytes",
+    "validators",
+]
+
+FORMAT = "hikoboshi.pass-recording"
+FORMAT_VERSION = 1
+#: The MCAP metadata record that marks a file as ours and holds the recording's scalars.
+METADATA_NAME = "hikoboshi.recording"
+URDF_ATTACHMENT = "ets7.urdf"
+SCHEMA_ENCODING = "jsonschema"
+
+TOPIC_TELEMETRY = "/hikoboshi/telemetry"
+TOPIC_COMMANDS = "/hikoboshi/commands"
+TOPIC_EVENTS = "/hikoboshi/events"
+TOPIC_PLAN = "/hikoboshi/plan"
+
+_INT: dict[str, Any] = {"type": "integer"}
+_TIME_NS: dict[str, Any] = {"type": "integer", "minimum": 0}
+_STR: dict[str, Any] = {"type": "string"}
+_NUMBERS: dict[str, Any] = {"type": "array", "items": {"type": "number"}}
+
+
+def _numbers(n: int) -> dict[str, Any]:
+    return {"type": "array", "items": {"type": "number"}, "minItems": n, "maxItems": n}
+
+
+def _object(title: str, description: str, **properties: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": list(properties),
+        "additionalProperties": False,
+    }
+
+
+# Width-1 frame columns that are not int64 (the others are; wider ones are float64 rows).
+_FRAME_SCALARS: dict[str, dict[str, Any]] = {
+    "acs_mode": _STR,
+    "acs_feedforward": {"type": "boolean"},
+    "generation_time_ns": _TIME_NS,
+    "seq": {"type": "integer", "minimum": 0},
+}
+
+TELEMETRY_SCHEMA = _object(
+    "hikoboshi.TelemetryFrame",
+    "One telemetry frame as archived (telemetry.recording.FRAME_ARRAYS). Onboard clock "
+    "except reception_time_ns (ground). rad, rad/s, N m s; quaternions x, y, z, w. "
+    "buffer_next_execute_time_ns is -1 where nothing was queued.",
+    **{
+        name: (_numbers(width) if width > 1 else _FRAME_SCALARS.get(name, _INT))
+        for name, width in FRAME_ARRAYS.items()
+    },
+)
+
+COMMAND_SCHEMA = _object(
+    "hikoboshi.Command",
+    "A command of the pass and the time it reached each stage (null: never). "
+    "execute_time_ns and the received/executed/rejected stages are onboard time, the "
+    "other stages ground time.",
+    seq={"type": "integer", "minimum": 0},
+    kind=_STR,
+    execute_time_ns=_TIME_NS,
+    payload={"type": "object"},
+    stage=_STR,
+    reject_reason={"type": ["string", "null"]},
+    stage_times_ns={"type": "object", "additionalProperties": {"type": ["integer", "null"]}},
+)
+
+EVENT_SCHEMA = _object(
+    "hikoboshi.Event",
+    "An audit event: actor did kind at time_ns (ground clock).",
+    time_ns=_TIME_NS,
+    kind=_STR,
+    actor=_STR,
+    detail={"type": "object"},
+)
+
+_PREDICTION_COLUMNS: dict[str, Any] = {
+    "t_s": _NUMBERS,
+    **{
+        name: {"type": "array", "items": _NUMBERS}
+        for name in (
+            "joints_rad",
+            "quat_orbit_from_base_xyzw",
+            "rpy_base_rad",
+            "omega_base_orbit_radps",
+            "hand_pos_orbit_m",
+            "quat_orbit_from_hand_xyzw",
+            "reaction_momentum_orbit_nms",
+            "wheel_momentum_nms",
+        )
+    },
+}
+_PREDICTION = {
+    "type": "object",
+    "properties": _PREDICTION_COLUMNS,
+    "required": list(_PREDICTION_COLUMNS),
+}
+
+PLAN_SCHEMA = {
+    "title": "hikoboshi.Plan",
+    "description": "The uplinked plan, exactly planner.plan.Plan.to_json(): joint commands "
+    "(t_s from the plan's t = 0), ACS commands, segments, the prediction under ideal "
+    "tracking and metrics. Its log time is the plan's t = 0 on the onboard clock.",
+    "type": "object",
+    "properties": {
+        "format_version": _INT,
+        "experiment": _STR,
+        "parameters": {"type": "object"},
+        "initial_joints_rad": _NUMBERS,
+        "initial_quat_orbit_from_base_xyzw": _numbers(4),
+        "commands": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {"t_s": {"type": "number"}, "joints_rad": _NUMBERS},
+                "required": ["t_s", "joints_rad"],
+                "additionalProperties": False,
+            },
+        },
+        "acs_commands": {"type": "array", "items": {"type": "object"}},
+        "segments": {"type": "array", "items": {"type": "object"}},
+        "prediction": _PREDICTION,
+        "metrics": {"type": "object", "additionalProperties": {"type": "number"}},
+    },
+    "required": [
+        "format_version",
+        "experiment",
+        "parameters",
+        "initial_joints_rad",
+        "initial_quat_orbit_from_base_xyzw",
+        "commands",
+        "acs_commands",
+        "segments",
+        "prediction",
+        "metrics",
+    ],
+    "additionalProperties": False,
+}
+
+#: topic -> schema of the channels :func:`read_mcap` needs.
+OWN_SCHEMAS: dict[str, dict[str, Any]] = {
+    TOPIC_TELEMETRY: TELEMETRY_SCHEMA,
+    TOPIC_COMMANDS: COMMAND_SCHEMA,
+    TOPIC_EVENTS: EVENT_SCHEMA,
+    TOPIC_PLAN: PLAN_SCHEMA,
+}
+
+
+def schema_bytes(schema: dict[str, Any]) -> bytes:
+    return json.dumps(schema, separators=(",", ":")).encode()
+
+
+def validators() -> dict[str, Validator]:
+    """topic -> compiled validator of its messages."""
+    return {
+        topic: compile_schema(schema, name=schema["title"]) for topic, schema in OWN_SCHEMAS.items()
+    }
