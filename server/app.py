@@ -8,12 +8,14 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from server.api import console as console_api
 from server.api import control as control_api
 from server.api import link as link_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
 from server.api import telemetry as telemetry_api
 from server.errors import install_error_handlers
+from server.services.console import ConsoleHub
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
 from server.settings import Settings
@@ -33,9 +35,16 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.link = GroundLink(sessions=app.state.sessions)
         app.state.runner = PassRunner(link=app.state.link, settings=settings)
         await app.state.runner.recover()
+        app.state.console = ConsoleHub(
+            publisher=app.state.link.publisher,
+            link_status=app.state.link.status,
+            sessions=app.state.sessions,
+        )
+        app.state.console.start()
         try:
             yield
         finally:
+            await app.state.console.close()
             await app.state.runner.shutdown()
             await app.state.link.close()
             engine.dispose()
@@ -48,6 +57,7 @@ def create_app(settings: Settings) -> FastAPI:
     )
     install_error_handlers(app)
     app.include_router(link_api.router)
+    app.include_router(console_api.router)
     app.include_router(control_api.router)
     app.include_router(plans_api.router)
     app.include_router(passes_api.router)

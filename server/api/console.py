@@ -1,0 +1,89 @@
+"""``/api/console``: the consoles' websocket (docs/console.md), for viewers and operators.
+
+The token comes in the ``Authorization`` header, the ``token`` query parameter, or (when
+neither is given) a first message ``{"v": 1, "type": "auth", "token": ...}`` within the
+auth timeout: browsers cannot set headers on a websocket, and a token in the URL ends up in
+access logs. A missing or bad token or a role other than viewer or operator is accepted and
+then closed with 1008 and the reason (a close before the handshake would lose the reason).
+Every later frame goes to :class:`server.services.console.ConsoleHub`, which answers a bad
+one with ``error`` and keeps the connection.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from server.api.deps import Principal, authenticate, websocket_principal
+from server.errors import ServiceError
+from server.services.console import AuthMsg, ConsoleHub, ProtocolError, decode_client
+from server.settings import Role, Settings
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["console"])
+
+#: Roles that may watch (what ``require(Role.VIEWER)`` admits on REST).
+_WATCHERS = (Role.VIEWER, Role.OPERATOR)
+
+
+async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
+    if websocket.headers.get("authorization") or websocket.query_params.get("token"):
+        return websocket_principal(websocket, Role.VIEWER)
+    try:
+        first = await asyncio.wait_for(websocket.receive(), hub.limits.auth_timeout_s)
+    except TimeoutError:
+        raise ServiceError(401, "unauthorized", "no auth message in time") from None
+    if first["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(first.get("code", 1000))
+    raw = first.get("text")
+    if raw is None:
+        raw = first.get("bytes") or b""
+    try:
+        message = decode_client(raw, hub.limits.max_message_bytes)
+    except ProtocolError as exc:
+        raise ServiceError(401, "unauthorized", f"auth expected first: {exc}") from None
+    if not isinstance(message, AuthMsg):
+        raise ServiceError(401, "unauthorized", f"auth expected first, not {message.type}")
+    settings: Settings = websocket.app.state.settings
+    principal = authenticate(settings, f"Bearer {message.token}")
+    if principal.role not in _WATCHERS:
+        raise ServiceError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
+    return principal
+
+
+@router.websocket("/api/console")
+async def console(websocket: WebSocket) -> None:
+    await websocket.accept()
+    hub: ConsoleHub = websocket.app.state.console
+    try:
+        principal = await _principal(websocket, hub)
+    except ServiceError as exc:
+        await websocket.close(code=1008, reason=exc.message[:120])
+        return
+    except WebSocketDisconnect:
+        return
+
+    async def close(code: int, reason: str) -> None:
+        await websocket.close(code=code, reason=reason)
+
+    client = hub.connect(
+        actor=principal.name,
+        role=principal.role.value,
+        send_text=websocket.send_text,
+        close=close,
+    )
+    try:
+        while not client.closing:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            raw = message.get("text")
+            if raw is None:
+                raw = message.get("bytes") or b""
+            await hub.handle(client, raw)
+    except (WebSocketDisconnect, RuntimeError):  # gone, or closed under us (kill)
+        pass
+    finally:
+        await hub.disconnect(client)

@@ -1,0 +1,163 @@
+"""A stored pass as a :class:`telemetry.recording.PassRecording`: what the analyses, the MCAP
+recorder, reports and replay work from.
+
+:func:`load_recording` reads the plan, the telemetry frames (one query, straight into
+column arrays), the commands with their stage times and the pass's audit events. A pass
+that has not started yet (no epoch) has nothing to analyse: :class:`NotFlown`.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from planner.plan import Plan
+from server.errors import ServiceError
+from server.storage import repository as repo
+from server.storage.models import EventRecord, TelemetryFrameRecord
+from telemetry.mcap import write_mcap
+from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
+
+__all__ = ["NotFlown", "load_recording", "recording_mcap"]
+
+_STAGES = ("queued", "released", "sent", "received", "executed", "rejected", "expired")
+_F = TelemetryFrameRecord
+_COLUMNS = (
+    _F.seq,
+    _F.generation_time_ns,
+    _F.reception_time_ns,
+    *(getattr(_F, f"j{i}") for i in range(1, 7)),
+    *(getattr(_F, f"t{i}") for i in range(1, 7)),
+    _F.qx,
+    _F.qy,
+    _F.qz,
+    _F.qw,
+    _F.wx,
+    _F.wy,
+    _F.wz,
+    _F.ws1,
+    _F.ws2,
+    _F.ws3,
+    _F.hw1,
+    _F.hw2,
+    _F.hw3,
+    _F.acs_mode,
+    _F.tqx,
+    _F.tqy,
+    _F.tqz,
+    _F.tqw,
+    _F.acs_feedforward,
+    _F.buffer_queued,
+    _F.buffer_next_execute_time_ns,
+    _F.buffer_last_executed_seq,
+)
+
+
+class NotFlown(ServiceError):
+    """The pass has not started: no epoch, no telemetry, nothing to analyse or export."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(409, "pass_not_flown", message)
+
+
+def _frames(session: Session, pass_id: str) -> FrameArrays:
+    rows = session.execute(
+        select(*_COLUMNS).where(_F.pass_id == pass_id).order_by(_F.seq, _F.generation_time_ns)
+    ).all()
+    # Storage keeps the first copy of a seq; a seq reused with another time (an onboard
+    # restart) is kept there too, but a recording holds one frame per seq: the first.
+    seen: set[int] = set()
+    unique = []
+    for row in rows:
+        if row[0] not in seen:
+            seen.add(row[0])
+            unique.append(row)
+    n = len(unique)
+    numbers = np.array(
+        [[r[k] for k in (*range(28), 29, 30, 31, 32)] for r in unique], dtype=np.float64
+    ).reshape(n, 32)
+    ints = np.array(
+        [(r[0], r[1], r[2], r[34], -1 if r[35] is None else r[35], r[36]) for r in unique],
+        dtype=np.int64,
+    ).reshape(n, 6)
+    return FrameArrays(
+        seq=ints[:, 0].copy(),
+        generation_time_ns=ints[:, 1].copy(),
+        reception_time_ns=ints[:, 2].copy(),
+        joints_rad=numbers[:, 3:9].copy(),
+        joint_targets_rad=numbers[:, 9:15].copy(),
+        quat_orbit_from_base_xyzw=numbers[:, 15:19].copy(),
+        omega_base_in_base_radps=numbers[:, 19:22].copy(),
+        wheel_speeds_radps=numbers[:, 22:25].copy(),
+        wheel_momentum_nms=numbers[:, 25:28].copy(),
+        acs_mode=np.array([r[28] for r in unique], dtype=np.str_).reshape(n),
+        acs_target_quat_xyzw=numbers[:, 28:32].copy(),
+        acs_feedforward=np.array([bool(r[33]) for r in unique], dtype=np.bool_).reshape(n),
+        buffer_queued=ints[:, 3].copy(),
+        buffer_next_execute_time_ns=ints[:, 4].copy(),
+        buffer_last_executed_seq=ints[:, 5].copy(),
+    )
+
+
+def load_recording(*, session: Session, pass_id: str) -> PassRecording:
+    """Everything stored of one pass (404 unknown, 409 never started)."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    if record.epoch_ns is None:
+        raise NotFlown(f"pass {record.name!r} is {record.state}: it has not flown")
+    plan = Plan.from_json(repo.get_plan(session=session, plan_id=record.plan_id).document)
+    commands = tuple(
+        CommandRow(
+            seq=c.seq,
+            kind=c.kind,
+            execute_time_ns=c.execute_time_ns,
+            payload=dict(c.payload),
+            stage=c.stage,
+            reject_reason=c.reject_reason,
+            stage_times_ns={s: getattr(c, f"{s}_at_ns") for s in _STAGES},
+        )
+        for c in repo.list_commands(session=session, pass_id=record.id)
+    )
+    events = tuple(
+        EventRow(time_ns=e.time_ns, kind=e.kind, actor=e.actor, detail=dict(e.detail))
+        for e in session.scalars(
+            select(EventRecord)
+            .where(EventRecord.pass_id == record.id)
+            .order_by(EventRecord.time_ns, EventRecord.id)
+        )
+    )
+    meta: dict[str, Any] = {
+        "pass_id": record.id,
+        "state": record.state,
+        "state_reason": record.state_reason,
+        "relay": record.relay,
+        "aos_time_ns": record.aos_time_ns,
+        "los_time_ns": record.los_time_ns,
+        "telemetry_start_ns": record.telemetry_start_ns,
+        "telemetry_end_ns": record.telemetry_end_ns,
+        "plan_id": record.plan_id,
+    }
+    return PassRecording(
+        name=record.name,
+        plan=plan,
+        epoch_ns=record.epoch_ns,
+        frames=_frames(session, record.id),
+        commands=commands,
+        events=events,
+        meta=meta,
+    )
+
+
+def recording_mcap(*, session: Session, pass_id: str) -> tuple[str, bytes]:
+    """The pass's name and its recording as MCAP bytes (404 unknown, 409 never started).
+
+    The read transaction ends before the file is written (seconds for a whole pass): on
+    SQLite a transaction holds the write lock the link needs."""
+    recording = load_recording(session=session, pass_id=pass_id)
+    session.rollback()
+    buffer = io.BytesIO()
+    write_mcap(recording, buffer)
+    return recording.name, buffer.getvalue()

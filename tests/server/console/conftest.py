@@ -1,0 +1,204 @@
+"""An application per test on a fresh database (SQLite and PostgreSQL, see
+``tests/server/conftest.py``), and ways to drive its publisher the way the link does."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy.orm import Session
+from starlette.testclient import WebSocketTestSession
+
+from planner.plan import Plan
+from server.app import create_app
+from server.services.console import ConsoleHub
+from server.services.link import Connection, GroundLink, TelemetryWindow, write_event
+from server.settings import ApiToken, Role, Settings
+from server.storage import repository as repo
+from server.storage.db import sqlite_url
+from spacecraft.offline import OfflineFlight, fly_offline
+from telemetry.uplink import plan_commands
+from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
+from tests.server.conftest import BACKENDS
+from tests.server.storage.factories import T0_NS, make_plan
+
+TOKENS = {
+    "v-token": ApiToken(name="vera", role=Role.VIEWER),
+    "o-token": ApiToken(name="otto", role=Role.OPERATOR),
+    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
+}
+CONSOLE = "/api/console?token=v-token"
+
+
+@pytest.fixture(params=BACKENDS)
+def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "sqlite":
+        return sqlite_url(tmp_path)
+    url: str = request.getfixturevalue("postgres_schema_url")
+    return url
+
+
+@pytest.fixture()
+def client(database_url: str, tmp_path: Path) -> Iterator[TestClient]:
+    settings = Settings(data_dir=tmp_path, database_url=database_url, tokens=TOKENS)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def hub(client: TestClient) -> ConsoleHub:
+    console: ConsoleHub = client.app.state.console  # type: ignore[attr-defined]
+    return console
+
+
+def link(client: TestClient) -> GroundLink:
+    ground_link: GroundLink = client.app.state.link  # type: ignore[attr-defined]
+    return ground_link
+
+
+def add_pass(client: TestClient, name: str = "pass-1") -> str:
+    now = time.time_ns()
+    with client.app.state.sessions() as session:  # type: ignore[attr-defined]
+        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=now)
+        record = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=plan.id,
+            aos_time_ns=now,
+            los_time_ns=now + 10**12,
+            relay="TDRS-W",
+            created_at_ns=now,
+        )
+        session.commit()
+        return record.id
+
+
+@pytest.fixture(scope="session")
+def flight() -> tuple[Plan, OfflineFlight]:
+    """A short plan flown offline: 61 frames at 10 Hz over 6 s onboard, 18 commands (17
+    joint commands slow enough that none is rejected, one ACS command)."""
+    plan = make_plan(17)
+    flown = fly_offline(plan, after_s=1.0)
+    assert not flown.rejected, flown.rejected[:3]
+    return plan, flown
+
+
+#: Ground time at which a flown pass's batches were received (batch k: + k ms).
+RECEIVED_NS = 1_717_171_717_000_000_000
+
+
+def add_flown_pass(
+    client: TestClient, flight: tuple[Plan, OfflineFlight], name: str = "flown", batch: int = 8
+) -> str:
+    """Store the flight as a completed pass (plan, commands, frames in batches of ``batch``,
+    epoch) as the link would have; its id."""
+    plan, flown = flight
+    now = time.time_ns()
+    with client.app.state.sessions() as session:  # type: ignore[attr-defined]
+        plan_id = repo.add_plan(session=session, plan=plan, created_at_ns=now).id
+        pass_id = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=plan_id,
+            aos_time_ns=now,
+            los_time_ns=now + 10**12,
+            relay="TDRS-W",
+            created_at_ns=now,
+        ).id
+        commands = plan_commands(plan, epoch_ns=flown.epoch_ns, first_seq=0)
+        repo.add_commands(session=session, pass_id=pass_id, commands=commands, queued_at_ns=now)
+        for k, lo in enumerate(range(0, len(flown.frames), batch)):
+            repo.ingest_frames(
+                session=session,
+                pass_id=pass_id,
+                frames=flown.frames[lo : lo + batch],
+                reception_time_ns=RECEIVED_NS + k * 10**6,
+            )
+        repo.update_pass_state(
+            session=session,
+            pass_id=pass_id,
+            expected_version=1,
+            state="complete",
+            updated_at_ns=now,
+            epoch_ns=flown.epoch_ns,
+        )
+        session.commit()
+    return pass_id
+
+
+_numbers = itertools.count(1)
+
+
+def emit_events(
+    client: TestClient, kinds: list[str], pass_id: str | None = None
+) -> list[dict[str, Any]]:
+    """Write one event of each kind (committed, in order) and publish them as the link does;
+    each carries a unique ``detail.n``."""
+    details = [{"n": next(_numbers), "seq": 7, "stage": "sent"} for _ in kinds]
+
+    def job(session: Session) -> list[dict[str, Any]]:
+        return [
+            write_event(session, kind, "tester", detail, pass_id)
+            for kind, detail in zip(kinds, details, strict=True)
+        ]
+
+    client.portal.call(link(client).db.write, job)  # type: ignore[union-attr]
+    return details
+
+
+class FakeSpacecraft:
+    """Telemetry through the real :class:`GroundLink` (stored, then published) without a
+    spacecraft process: a connection that discards what the ground sends."""
+
+    def __init__(self, client: TestClient, pass_id: str):
+        self.client = client
+        ground = link(client)
+
+        async def discard(_: Any, *__: Any) -> None:
+            return None
+
+        self.conn = Connection(actor="ets7", send_text=discard, close=discard)
+        portal = client.portal
+        assert portal is not None
+        self.portal = portal
+        hello = Hello(
+            vehicle="ETS-VII", onboard_time_ns=T0_NS, time_scale=1.0, next_telemetry_seq=0
+        )
+        portal.call(ground.attach, self.conn)
+        portal.call(ground.handle, self.conn, encode(hello))
+        ground.windows.append(TelemetryWindow(pass_id=pass_id, start_ns=0))
+
+    def send(self, frames: list[TelemetryFrame]) -> None:
+        message = encode(TelemetryMsg(frames=frames))
+        self.portal.call(link(self.client).handle, self.conn, message)
+
+
+def drain(ws: WebSocketTestSession) -> list[dict[str, Any]]:
+    """Every message queued for the console before now: a ping, and what came before its
+    pong (the server answers in order, so no timeout is needed)."""
+    marker = f"drain-{next(_numbers)}"
+    ws.send_json({"v": 1, "type": "ping", "id": marker})
+    out: list[dict[str, Any]] = []
+    while True:
+        message: dict[str, Any] = ws.receive_json()
+        if message["type"] == "pong" and message["id"] == marker:
+            return out
+        out.append(message)
+
+
+def subscribe(ws: WebSocketTestSession, **fields: Any) -> dict[str, Any]:
+    """Subscribe and return the ``subscribed`` reply (the first message after it)."""
+    ws.send_json({"v": 1, "type": "subscribe", **fields})
+    reply: dict[str, Any] = ws.receive_json()
+    assert reply["type"] == "subscribed", reply
+    return reply
+
+
+def welcome(ws: WebSocketTestSession) -> dict[str, Any]:
+    message: dict[str, Any] = ws.receive_json()
+    assert message["type"] == "welcome", message
+    return message

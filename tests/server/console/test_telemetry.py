@@ -1,0 +1,93 @@
+"""Telemetry on the console: columns a browser can plot, per pass, decimated on request."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi.testclient import TestClient
+
+from server.storage.models import TELEMETRY_FIELDS
+from tests.server.console.conftest import (
+    CONSOLE,
+    FakeSpacecraft,
+    add_pass,
+    drain,
+    subscribe,
+    welcome,
+)
+from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+
+VIEWER = {"Authorization": "Bearer v-token"}
+
+
+def frames_of(messages: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
+    """Frame seq -> its values, from telemetry messages (columns to rows)."""
+    out: dict[int, dict[str, Any]] = {}
+    for message in messages:
+        columns = message["columns"]
+        assert all(len(c) == message["count"] for c in columns.values())
+        for i, seq in enumerate(columns["seq"]):
+            out[seq] = {name: values[i] for name, values in columns.items()}
+    return out
+
+
+def test_frames_arrive_as_columns_equal_to_what_is_stored(client: TestClient) -> None:
+    pass_id = add_pass(client)
+    other = add_pass(client, "pass-2")
+    spacecraft = FakeSpacecraft(client, pass_id)
+    frames = make_frames(range(12))
+    with client.websocket_connect(CONSOLE) as ws:
+        welcome(ws)
+        reply = subscribe(ws, topic="telemetry", pass_id=pass_id.upper())  # any UUID spelling
+        assert reply["pass_id"] == pass_id and reply["seq"] == 0
+        subscribe(ws, topic="telemetry", pass_id=other)  # no frames of that pass
+        for lo in range(0, 12, 4):
+            spacecraft.send(frames[lo : lo + 4])
+        messages = drain(ws)
+    assert [(m["type"], m["pass_id"], m["seq"]) for m in messages] == [
+        ("telemetry", pass_id, 1),
+        ("telemetry", pass_id, 2),
+        ("telemetry", pass_id, 3),
+    ]
+    assert list(messages[0]["columns"]) == ["seq", "generation_time_ns", *TELEMETRY_FIELDS]
+    got = frames_of(messages)
+    assert sorted(got) == list(range(12))
+    for frame in frames:
+        row = got[frame.seq]
+        assert row["generation_time_ns"] == frame.generation_time_ns
+        assert [row[f"j{i}"] for i in range(1, 7)] == frame.joints_rad
+        assert [row[n] for n in ("qx", "qy", "qz", "qw")] == frame.quat_orbit_from_base_xyzw
+        assert row["acs_mode"] == frame.acs_mode.value
+        assert row["buffer_next_execute_time_ns"] == frame.buffer.next_execute_time_ns
+    # The same numbers as the archive gives over REST.
+    fields = ",".join(TELEMETRY_FIELDS)
+    response = client.get(f"/api/passes/{pass_id}/telemetry?fields={fields}", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    for stored in response.json()["rows"]:
+        assert got[stored["seq"]] == {
+            "seq": stored["seq"],
+            "generation_time_ns": stored["generation_time_ns"],
+            **stored["values"],
+        }
+
+
+def test_max_rate_decimates_by_generation_time_and_fields_trim_columns(client: TestClient) -> None:
+    pass_id = add_pass(client)
+    spacecraft = FakeSpacecraft(client, pass_id)
+    with client.websocket_connect(CONSOLE) as ws:
+        welcome(ws)
+        subscribe(ws, topic="telemetry", pass_id=pass_id, max_rate_hz=2.5, fields=["j1", "wz"])
+        for lo in range(0, 30, 3):  # 10 Hz frames, three a message
+            spacecraft.send(make_frames(range(lo, lo + 3)))
+        messages = drain(ws)
+    got = frames_of(messages)
+    # One frame per 0.4 s of generation time: every fourth.
+    assert FRAME_PERIOD_NS * 4 == 400_000_000
+    assert sorted(got) == list(range(0, 30, 4))
+    assert all(
+        list(m["columns"]) == ["seq", "generation_time_ns", "reception_time_ns", "j1", "wz"]
+        for m in messages
+    )
+    # Messages all of whose frames are decimated away are not sent; seqs still increase.
+    seqs = [m["seq"] for m in messages]
+    assert seqs == sorted(set(seqs)) and len(seqs) < 10
