@@ -14,9 +14,12 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from hikoboshi import post_cli
+
 app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
 model_app = typer.Typer(no_args_is_help=True, help="The ETS-VII model: export and quantities.")
 app.add_typer(model_app, name="model")
+post_cli.register(app)  # report, mcap export|import
 
 console = Console()
 err_console = Console(stderr=True)

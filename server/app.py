@@ -8,11 +8,13 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from server.api import analyses as analyses_api
 from server.api import console as console_api
 from server.api import control as control_api
 from server.api import link as link_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
+from server.api import recordings as recordings_api
 from server.api import telemetry as telemetry_api
 from server.errors import install_error_handlers
 from server.services.console import ConsoleHub
@@ -60,7 +62,9 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(console_api.router)
     app.include_router(control_api.router)
     app.include_router(plans_api.router)
+    app.include_router(recordings_api.router)  # before passes: /api/passes/import
     app.include_router(passes_api.router)
+    app.include_router(analyses_api.router)
     app.include_router(telemetry_api.router)
 
     @app.get("/api/health", tags=["service"])

@@ -39,6 +39,9 @@ class Settings(BaseModel):
     link_one_way_delay_s: float = 3.0
     uplink_margin_s: float = 2.0
     command_period_s: float = 0.25
+    #: The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
+    #: pass is 14 MB).
+    max_import_bytes: int = 256 * 1024 * 1024
 
     def resolved_database_url(self) -> str:
         from server.storage.db import sqlite_url

@@ -6,6 +6,9 @@ import pytest
 
 from planner.dynamics import DynamicsWorkspace
 from planner.model import RobotModel, default_model
+from planner.schedule import plan_pass
+from spacecraft.offline import fly_offline
+from telemetry.recording import PassRecording
 
 
 @pytest.fixture(scope="session")
@@ -16,3 +19,16 @@ def model() -> RobotModel:
 @pytest.fixture()
 def workspace(model: RobotModel) -> DynamicsWorkspace:
     return DynamicsWorkspace(model)
+
+
+@pytest.fixture(scope="session")
+def demo_recording(model: RobotModel) -> PassRecording:
+    """A flown demo pass (the whole ETS-VII schedule through the real vehicle, default
+    sensor noise and gravity gradient, perfect link), shared by the post-pass tests of a
+    session (telemetry and server): about 17 s to plan and fly, once."""
+    plan = plan_pass(DynamicsWorkspace(model))
+    flight = fly_offline(plan, seed=7)
+    assert not flight.rejected, flight.rejected[:3]
+    return PassRecording.from_frames(
+        "demo", plan, flight.epoch_ns, flight.frames, meta={"source": "offline flight, seed 7"}
+    )

@@ -10,6 +10,8 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
     commands   add_commands (bulk), get_command, update_command_stage, list_commands
     events     add_event, list_events
     analysis   add_analysis, get_analysis, list_analyses
+    import     add_frame_arrays, add_command_rows, add_event_rows: a whole recorded pass
+               (from ``_import``)
     telemetry  ingest_frames, frame_seqs, missing_seqs, count_frames, telemetry_range,
                telemetry_buckets (from ``_telemetry``)
 """
@@ -34,6 +36,7 @@ from server.storage._common import (
     new_id,
     require_pass,
 )
+from server.storage._import import add_command_rows, add_event_rows, add_frame_arrays
 from server.storage._telemetry import (
     Bucket,
     IngestResult,
@@ -61,8 +64,11 @@ __all__ = [
     "IngestResult",
     "Page",
     "add_analysis",
+    "add_command_rows",
     "add_commands",
     "add_event",
+    "add_event_rows",
+    "add_frame_arrays",
     "add_pass",
     "add_plan",
     "count_frames",

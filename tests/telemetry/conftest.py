@@ -1,22 +1,2 @@
-"""A flown demo pass (the whole ETS-VII schedule through the real vehicle, default sensor
-noise and gravity gradient, perfect link), shared by the post-pass tests of a session."""
-
-from __future__ import annotations
-
-import pytest
-
-from planner.dynamics import DynamicsWorkspace
-from planner.model import RobotModel
-from planner.schedule import plan_pass
-from spacecraft.offline import fly_offline
-from telemetry.recording import PassRecording
-
-
-@pytest.fixture(scope="session")
-def demo_recording(model: RobotModel) -> PassRecording:
-    plan = plan_pass(DynamicsWorkspace(model))
-    flight = fly_offline(plan, seed=7)
-    assert not flight.rejected, flight.rejected[:3]
-    return PassRecording.from_frames(
-        "demo", plan, flight.epoch_ns, flight.frames, meta={"source": "offline flight, seed 7"}
-    )
+"""The post-pass tests use ``demo_recording`` from tests/conftest.py (shared with the
+server's report tests, so the pass is flown once per session)."""

@@ -23,8 +23,10 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
+from server.api import analyses as analyses_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
+from server.api import recordings as recordings_api
 from server.api import telemetry as telemetry_api
 from tests.server.api.conftest import OPERATOR
 
@@ -36,7 +38,13 @@ CHECKS = [
 ]
 EXAMPLES_PER_OPERATION = 25
 #: The operations of these routers (the link and control routes have their own tests).
-ROUTERS = (plans_api.router, passes_api.router, telemetry_api.router)
+ROUTERS = (
+    plans_api.router,
+    passes_api.router,
+    telemetry_api.router,
+    analyses_api.router,
+    recordings_api.router,
+)
 
 
 def _ours() -> set[tuple[str, str]]:
@@ -57,7 +65,7 @@ def test_every_operation_conforms_and_never_fails_on_the_server(client: TestClie
         for op in (result.ok() for result in schema.get_all_operations())
         if (op.method.upper(), op.path) in ours
     ]
-    assert len(operations) == len(ours) == 12
+    assert len(operations) == len(ours) == 20
     for operation in operations:
 
         @settings(

@@ -1,0 +1,74 @@
+"""``/api/passes/{id}/recording.mcap`` (viewer) and ``/api/passes/import`` (operator): a pass
+as one MCAP file, out and in (docs/mcap.md)."""
+
+from __future__ import annotations
+
+import re
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.errors import ServiceError
+from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
+from server.services import recordings as service
+from server.services.imports import import_mcap
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES)
+
+_BINARY = {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}
+
+
+def _filename(name: str) -> str:
+    """A file name for Content-Disposition: the pass name in safe characters."""
+    return (re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "pass")[:100] + ".mcap"
+
+
+@router.get(
+    "/{pass_id}/recording.mcap",
+    response_class=Response,
+    responses={200: {"content": _BINARY, "description": "The pass as one MCAP file"}},
+)
+def download_recording(pass_id: str, session: SessionDep, _: ViewerDep) -> Response:
+    """Everything stored of the flown pass as MCAP: telemetry, plan with prediction,
+    commands with their stages, audit events; plus Foxglove transforms and plot channels."""
+    name, data = service.recording_mcap(session=session, pass_id=pass_id)
+    return Response(
+        data,
+        media_type="application/octet-stream",
+        headers={"Content-Disposition": f'attachment; filename="{_filename(name)}"'},
+    )
+
+
+@router.post(
+    "/import",
+    status_code=201,
+    response_model=PassImportPublic,
+    openapi_extra={"requestBody": {"required": True, "content": _BINARY}},
+    responses={413: {"model": ErrorPublic, "description": "The upload exceeds the size limit"}},
+)
+async def import_recording(
+    request: Request, session: SessionDep, settings: SettingsDep, who: OperatorDep
+) -> PassImportPublic:
+    """Store an MCAP pass recording (the body, as ``hikoboshi mcap export`` or
+    ``recording.mcap`` writes it) as a new, finished pass marked imported. A file that is
+    not a readable recording is refused with the reader's reason; nothing is stored."""
+    limit = settings.max_import_bytes
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > limit:
+        raise _too_large(int(declared), limit)
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise _too_large(len(body), limit)
+    return await run_in_threadpool(import_mcap, session, bytes(body), who.name, source="upload")
+
+
+def _too_large(size: int, limit: int) -> ServiceError:
+    return ServiceError(
+        413, "recording_too_large", f"upload of {size} bytes exceeds the limit of {limit} bytes"
+    )

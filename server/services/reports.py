@@ -1,0 +1,505 @@
+"""Pass reports: the newest stored analyses as tables, as JSON and as one HTML page.
+
+:func:`build_report` and :func:`render_html` are pure (the command line uses them on a
+recording file, without a database); :func:`pass_report` and :func:`pass_report_html` read
+the newest stored run of a pass.
+
+Figures in the served HTML are ``data:`` URIs, so the page is one self-contained document:
+a browser ``<img>`` cannot send the ``Authorization`` header the API needs, and a page the
+console fetches with its token and shows from a blob (or saves) has nothing left to fetch.
+The alternative, short-lived signed figure URLs, would put a credential in URLs (history,
+logs, Referer) and need a signing key the service does not otherwise have. The cost is
+about 0.8 MB of base64 for the demo pass's six figures, in a page fetched on demand.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from server.errors import ServiceError
+from server.schemas import (
+    ReportAnalysisPublic,
+    ReportCell,
+    ReportPublic,
+    ReportTablePublic,
+    iso_from_ns,
+)
+from server.services import analyses
+from server.storage import repository as repo
+from telemetry.identification import INERTIA_PARAMETER_NAMES
+
+__all__ = [
+    "FIGURE_CAPTIONS",
+    "build_report",
+    "pass_report",
+    "pass_report_html",
+    "render_html",
+    "stored_report",
+]
+
+FIGURE_CAPTIONS = {
+    "predicted_vs_flown": "Predicted against flown: base attitude, attitude and joint differences.",
+    "reaction": "Experiment 1 (paper Fig. 5): PTP against reactionless motion.",
+    "joint_tracking": "Joint tracking (Fig. 6): commanded against measured joints.",
+    "hand_attitude": "Experiment 2 (Fig. 8): hand attitude held while the base turns.",
+    "phase_plane": "Experiment 3 (Fig. 9): base pitch phase plane per attitude-control variant.",
+    "endpoint": "Experiment 4 (Fig. 11): non-holonomic motion and its end-point errors.",
+}
+_RPY = ("roll", "pitch", "yaw")
+
+
+def _table(
+    id_: str, title: str, columns: Sequence[str], rows: list[list[Any]], notes: Sequence[str] = ()
+) -> ReportTablePublic:
+    return ReportTablePublic(
+        id=id_, title=title, columns=list(columns), rows=rows, notes=list(notes)
+    )
+
+
+def _get(doc: Mapping[str, Any], *keys: str) -> list[Any]:
+    return [doc.get(k) for k in keys]
+
+
+def _vector(values: Any, n: int) -> list[Any]:
+    return list(values) if isinstance(values, list) and len(values) == n else [None] * n
+
+
+def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
+    out = []
+    cov = doc.get("coverage") or {}
+    notes = [f"missing: {m}" for m in doc.get("missing", [])]
+    notes += [f"skipped (not in the plan): {s}" for s in doc.get("skipped", [])]
+    out.append(
+        _table(
+            "coverage",
+            "Telemetry coverage (plan clock)",
+            ["frames", "period_s", "first_t_s", "last_t_s", "plan_end_s", "gaps", "ends_early"],
+            [
+                [
+                    *_get(cov, "frames", "period_s", "first_t_s", "last_t_s", "plan_end_s"),
+                    len(cov.get("gaps_s", [])),
+                    cov.get("ends_early"),
+                ]
+            ],
+            notes,
+        )
+    )
+    pvf = doc.get("predicted_vs_flown")
+    if pvf:
+        out.append(
+            _table(
+                "predicted_vs_flown",
+                "Predicted against flown, per plan segment (flown minus the plan's prediction)",
+                [
+                    "segment",
+                    "kind",
+                    "frames",
+                    "attitude_rms_deg",
+                    "attitude_peak_deg",
+                    "joint_peak_max_deg",
+                ],
+                [
+                    _get(
+                        s,
+                        "segment",
+                        "kind",
+                        "frames",
+                        "attitude_rms_deg",
+                        "attitude_peak_deg",
+                        "joint_peak_max_deg",
+                    )
+                    for s in pvf.get("segments", [])
+                ],
+            )
+        )
+    reaction = doc.get("reaction")
+    if reaction:
+        out.append(
+            _table(
+                "reaction",
+                f"Experiment 1: settling after each motion (band {reaction.get('settle_band_deg')}"
+                " deg)",
+                [
+                    "segment",
+                    "kind",
+                    "settling_time_s",
+                    "peak_excursion_deg",
+                    "peak_hand_speed_mps",
+                    "rms_reaction_momentum_nms",
+                    "peak_residual_deg",
+                    "note",
+                ],
+                [
+                    _get(
+                        m,
+                        "segment",
+                        "kind",
+                        "settling_time_s",
+                        "peak_excursion_deg",
+                        "peak_hand_speed_mps",
+                        "rms_reaction_momentum_nms",
+                        "peak_residual_deg",
+                        "note",
+                    )
+                    for m in reaction.get("motions", [])
+                ],
+            )
+        )
+    tracking = doc.get("joint_tracking")
+    if tracking:
+        out.append(
+            _table(
+                "joint_tracking",
+                "Joint tracking: RMS of measured minus commanded "
+                f"({tracking.get('commanded_source')})",
+                [
+                    "segment",
+                    "kind",
+                    "frames",
+                    "worst_joint",
+                    *(f"j{j}_rms_error_deg" for j in range(1, 7)),
+                ],
+                [
+                    [
+                        *_get(s, "segment", "kind", "frames", "worst_joint"),
+                        *_vector(s.get("rms_error_deg"), 6),
+                    ]
+                    for s in tracking.get("segments", [])
+                ],
+            )
+        )
+    hand = doc.get("hand_attitude")
+    if hand:
+        out.append(
+            _table(
+                "hand_attitude",
+                "Experiment 2: hand attitude held in the orbit frame while the base turns",
+                [
+                    "span",
+                    "t_start_s",
+                    "t_end_s",
+                    "hand_change_max_deg",
+                    "base_change_max_deg",
+                    "hold_ratio",
+                ],
+                [
+                    _get(
+                        h,
+                        "span",
+                        "t_start_s",
+                        "t_end_s",
+                        "hand_change_max_deg",
+                        "base_change_max_deg",
+                        "hold_ratio",
+                    )
+                    for h in hand.get("holds", [])
+                ],
+            )
+        )
+    plane = doc.get("phase_plane")
+    if plane:
+        out.append(
+            _table(
+                "phase_plane",
+                "Experiment 3: base pitch per attitude-control variant",
+                [
+                    "variant",
+                    "label",
+                    "pitch_min_deg",
+                    "pitch_max_deg",
+                    "pitch_range_deg",
+                    "settling_time_s",
+                    "settled",
+                    "note",
+                ],
+                [
+                    _get(
+                        v,
+                        "variant",
+                        "label",
+                        "pitch_min_deg",
+                        "pitch_max_deg",
+                        "pitch_range_deg",
+                        "settling_time_s",
+                        "settled",
+                        "note",
+                    )
+                    for v in plane.get("variants", [])
+                ],
+            )
+        )
+    end = doc.get("endpoint")
+    if end:
+        rows = [
+            [
+                "attitude error (final against target)",
+                *_vector(end.get("attitude_error_deg"), 3),
+                end.get("attitude_error_angle_deg"),
+            ],
+            [
+                "attitude change error (flown against predicted change)",
+                *_vector(end.get("attitude_change_error_deg"), 3),
+                None,
+            ],
+            [
+                "attitude error against nominal",
+                *_vector(end.get("attitude_error_nominal_deg"), 3),
+                None,
+            ],
+            ["largest joint error", None, None, None, end.get("max_joint_error_deg")],
+        ]
+        out.append(
+            _table(
+                "endpoint",
+                "Experiment 4: non-holonomic end-point errors",
+                ["quantity", "roll_deg", "pitch_deg", "yaw_deg", "angle_deg"],
+                rows,
+            )
+        )
+    return out
+
+
+def _identification_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
+    estimate = doc.get("parameters_kgm2", {})
+    error = doc.get("standard_error_kgm2", {})
+    reference = (doc.get("reference") or {}).get("parameters_kgm2", {})
+    rows = []
+    for name in INERTIA_PARAMETER_NAMES:
+        value, sigma, truth = estimate.get(name), error.get(name), reference.get(name)
+        diff = None if value is None or truth is None else value - truth
+        ratio = None if diff is None or not sigma else diff / sigma
+        rows.append([name, value, sigma, truth, diff, ratio])
+    segments = doc.get("segments_s", [])
+    notes = [
+        f"{doc.get('n_blocks')} blocks of {doc.get('block_s')} s ({doc.get('n_samples')} "
+        f"samples) in {len(segments)} motion segments; condition number "
+        f"{doc.get('condition_number')}",
+        f"residual RMS per axis (orbit frame, N m s): {doc.get('residual_rms_nms')}",
+        f"reference: {(doc.get('reference') or {}).get('source', 'none')}",
+    ]
+    principal = [
+        [i + 1, value, sigma]
+        for i, (value, sigma) in enumerate(
+            zip(
+                doc.get("principal_moments_kgm2", []),
+                doc.get("principal_standard_error_kgm2", []),
+                strict=False,
+            )
+        )
+    ]
+    return [
+        _table(
+            "inertia_identification",
+            "Base inertia identified from momentum conservation (base frame, about the base CoM)",
+            [
+                "parameter",
+                "identified_kgm2",
+                "standard_error_kgm2",
+                "reference_kgm2",
+                "difference_kgm2",
+                "difference_sigma",
+            ],
+            rows,
+            notes,
+        ),
+        _table(
+            "inertia_principal",
+            "Principal moments of the identified inertia",
+            ["moment", "identified_kgm2", "standard_error_kgm2"],
+            principal,
+        ),
+    ]
+
+
+def _resim_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
+    rows = []
+    for seg in doc.get("segments", []):
+        for key, label in (("with_gg", "with eq. (11)"), ("without_gg", "without")):
+            run = seg.get(key) or {}
+            rows.append(
+                [
+                    seg.get("t_start_s"),
+                    seg.get("t_end_s"),
+                    label,
+                    *_vector(run.get("rms_residual_deg"), 3),
+                    run.get("rms_residual_angle_deg"),
+                    *_vector(run.get("final_residual_deg"), 3),
+                ]
+            )
+    return [
+        _table(
+            "gravity_gradient_resim",
+            "Free drift re-simulated with and without the gravity-gradient torque: residual "
+            "against the recorded attitude (base frame)",
+            [
+                "t_start_s",
+                "t_end_s",
+                "run",
+                *(f"rms_{a}_deg" for a in _RPY),
+                "rms_angle_deg",
+                *(f"final_{a}_deg" for a in _RPY),
+            ],
+            rows,
+            [
+                f"initial momentum and attitude from the first {doc.get('initial_window_s')} s of "
+                "each segment"
+            ],
+        )
+    ]
+
+
+_TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
+    "pass_analysis": _pass_tables,
+    "inertia_identification": _identification_tables,
+    "gravity_gradient_resim": _resim_tables,
+}
+
+
+def build_report(
+    *,
+    pass_id: str | None,
+    name: str,
+    state: str | None,
+    experiment: str,
+    imported: bool,
+    documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
+    figure_names: Sequence[str],
+) -> ReportPublic:
+    """The report of stored documents (``kind -> (document, created_at_ns)``, as
+    :mod:`server.services.analyses` stores them)."""
+    statuses, tables = [], []
+    for kind in analyses.KINDS:
+        if kind not in documents:
+            statuses.append(ReportAnalysisPublic(kind=kind, status="absent"))
+            continue
+        doc, created_ns = documents[kind]
+        created = None if created_ns is None else iso_from_ns(created_ns)
+        if doc.get("status") == "ok":
+            statuses.append(ReportAnalysisPublic(kind=kind, status="ok", created_at=created))
+            tables += _TABLES[kind](doc.get("result") or {})
+        else:
+            error = doc.get("error") or {}
+            reason = f"{error.get('type', 'error')}: {error.get('message', '')}"
+            statuses.append(
+                ReportAnalysisPublic(kind=kind, status="failed", created_at=created, error=reason)
+            )
+    order = list(FIGURE_CAPTIONS)
+    names = sorted(figure_names, key=lambda n: (order.index(n) if n in order else len(order), n))
+    return ReportPublic(
+        pass_id=pass_id,
+        name=name,
+        state=state,
+        experiment=experiment,
+        imported=imported,
+        analyses=statuses,
+        tables=tables,
+        figures=names,
+    )
+
+
+def _cell(value: ReportCell) -> str:
+    if value is None:
+        return "&ndash;"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.5g}"
+    return html.escape(str(value))
+
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; }
+th { background: #f2f2f2; } td:first-child, th:first-child { text-align: left; }
+.failed { color: #a00; } figure { margin: 1em 0; } img { max-width: 100%; }
+"""
+
+
+def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
+    """One HTML page of ``report``; ``image_src`` gives each figure's ``src`` (a data: URI
+    for the server, a file name next to the page for the command line). Every text from the
+    report is escaped."""
+    e = html.escape
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>Pass report: {e(report.name)}</title><style>{_STYLE}</style></head><body>",
+        f"<h1>Pass report: {e(report.name)}</h1>",
+        "<p>",
+        f"pass {e(report.pass_id or '(from a file)')}; experiment {e(report.experiment)}; "
+        f"state {e(report.state or 'unknown')}{'; imported' if report.imported else ''}",
+        "</p><h2>Analyses</h2><ul>",
+    ]
+    for status in report.analyses:
+        when = "" if status.created_at is None else f" ({status.created_at.isoformat()})"
+        cls = ' class="failed"' if status.status != "ok" else ""
+        why = "" if status.error is None else f": {e(status.error)}"
+        parts.append(f"<li{cls}>{e(status.kind)}: {e(status.status)}{e(when)}{why}</li>")
+    parts.append("</ul>")
+    for table in report.tables:
+        parts.append(f'<h2 id="{e(table.id)}">{e(table.title)}</h2><table><thead><tr>')
+        parts += [f"<th>{e(c)}</th>" for c in table.columns]
+        parts.append("</tr></thead><tbody>")
+        for row in table.rows:
+            parts.append("<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>")
+        parts.append("</tbody></table>")
+        parts += [f"<p>{e(note)}</p>" for note in table.notes]
+    if report.figures:
+        parts.append("<h2>Figures</h2>")
+    for name in report.figures:
+        caption = FIGURE_CAPTIONS.get(name, name)
+        src = image_src.get(name, "")
+        parts.append(
+            f'<figure id="figure-{e(name)}"><img src="{e(src)}" alt="{e(caption)}">'
+            f"<figcaption>{e(caption)}</figcaption></figure>"
+        )
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[str, bytes]]:
+    """The report of the pass's newest analyses and their figures (PNG bytes by name); 404
+    before the first run."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    rows = analyses.newest_documents(session=session, pass_id=record.id)
+    if not rows:
+        raise ServiceError(
+            404,
+            "analysis_not_run",
+            f"pass {record.id} has no analyses yet: POST /api/passes/{record.id}/analyses",
+        )
+    figures = analyses.figures(session=session, pass_id=record.id)
+    imported = repo.list_events(
+        session=session, pass_id=record.id, kinds=["pass_imported"], limit=1
+    ).count
+    report = build_report(
+        pass_id=record.id,
+        name=record.name,
+        state=record.state,
+        experiment=repo.get_plan(session=session, plan_id=record.plan_id).experiment,
+        imported=imported > 0,
+        documents={kind: (r.result, r.created_at_ns) for kind, r in rows.items()},
+        figure_names=list(figures),
+    )
+    return report, figures
+
+
+def pass_report(*, session: Session, pass_id: str) -> ReportPublic:
+    """The report of the pass's newest analyses; 404 before the first run."""
+    return stored_report(session, pass_id)[0]
+
+
+def pass_report_html(*, session: Session, pass_id: str) -> str:
+    """The report as one self-contained HTML page (figures as data: URIs)."""
+    report, figures = stored_report(session, pass_id)
+    sources = {
+        name: "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+        for name, png in figures.items()
+    }
+    return render_html(report, sources)

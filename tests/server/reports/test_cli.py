@@ -1,0 +1,99 @@
+"""``hikoboshi report`` and ``hikoboshi mcap export|import`` against the configured database
+(``DATABASE_URL``: SQLite and PostgreSQL), and ``report`` of an .mcap file."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from hikoboshi.cli import app
+from telemetry.mcap import read_mcap
+from telemetry.recording import PassRecording
+
+runner = CliRunner()
+
+
+@pytest.fixture()
+def env(database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.setenv("DATABASE_URL", database_url)
+    monkeypatch.setenv("HIKOBOSHI_DATA_DIR", str(tmp_path / "data"))
+    return tmp_path
+
+
+def run(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 0, (result.output, result.exception)
+    return result.output
+
+
+def test_import_report_and_export_a_stored_pass(
+    env: Path, short_mcap: bytes, short_recording: PassRecording
+) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    out = run("mcap", "import", str(source))
+    match = re.search(r"imported pass ([0-9a-f-]{36}) .*: 571 frames, 12 commands, 2 events", out)
+    assert match, out
+    pass_id = match.group(1)
+
+    out = run("report", pass_id, "--out", str(env / "report"))
+    assert "gravity_gradient_resim: failed (InsufficientData: no free-drift segment" in out
+    report = json.loads((env / "report" / "report.json").read_text())
+    assert report["pass_id"] == pass_id and report["imported"] is True
+    assert [a["status"] for a in report["analyses"]] == ["ok", "ok", "failed"]
+    page = (env / "report" / "report.html").read_text()
+    for name in report["figures"]:
+        assert f'src="{name}.png"' in page
+        assert (env / "report" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    run("mcap", "export", pass_id, "--out", str(env / "out" / "again.mcap"))
+    again = read_mcap(io.BytesIO((env / "out" / "again.mcap").read_bytes()))
+    assert again.name == short_recording.name
+    assert again.frames.joints_rad.tobytes() == short_recording.frames.joints_rad.tobytes()
+
+
+def test_report_of_a_file_matches_the_report_of_the_stored_pass(
+    env: Path, short_mcap: bytes
+) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    run("report", str(source), "--out", str(env / "from-file"))
+    pass_id = re.findall(r"[0-9a-f-]{36}", run("mcap", "import", str(source)))[0]
+    run("report", pass_id, "--out", str(env / "from-db"))
+    from_file = json.loads((env / "from-file" / "report.json").read_text())
+    from_db = json.loads((env / "from-db" / "report.json").read_text())
+    assert from_file["pass_id"] is None and from_file["imported"] is False
+    assert from_file["tables"] == from_db["tables"] and from_file["tables"]
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (("report", "no-such-pass", "--out", "x"), "not found"),
+        (("report", "missing.mcap", "--out", "x"), "No such file"),
+        (
+            ("mcap", "export", "00000000-0000-4000-8000-000000000000", "--out", "x.mcap"),
+            "not found",
+        ),
+        (("mcap", "import", "missing.mcap"), "No such file"),
+    ],
+)
+def test_failures_are_one_line_and_status_2(
+    env: Path, args: tuple[str, ...], reason: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(env)
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 2
+    assert reason in result.output and result.output.startswith("error: ")
+
+
+def test_importing_a_file_that_is_not_a_recording_fails_with_the_reason(env: Path) -> None:
+    bad = env / "bad.mcap"
+    bad.write_bytes(b"hello")
+    result = runner.invoke(app, ["mcap", "import", str(bad)])
+    assert result.exit_code == 2 and "not an MCAP file" in result.output
