@@ -182,11 +182,115 @@ def plan_command(
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option(help="Where to write the results.")] = Path("out/demo"),
+    out: Annotated[Path, typer.Option(help="Where the database, logs and summary go.")] = Path(
+        "out/demo"
+    ),
+    speed: Annotated[float, typer.Option(help="Onboard seconds per wall second.")] = 20.0,
+    loss: Annotated[float, typer.Option(help="Relay message loss probability [0, 1).")] = 0.0,
+    outage: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="LOS window START:END, onboard s from the spacecraft's start; repeatable"
+        ),
+    ] = None,
+    port: Annotated[int, typer.Option(help="Ground service port (a free one if taken).")] = 8000,
+    seed: Annotated[int, typer.Option(help="Seed for the relay and the sensors.")] = 0,
+    experiments: Annotated[
+        str | None,
+        typer.Option(
+            help="Comma-separated subset of ptp,reactionless,gjm,coordination,"
+            "nonholonomic (default: the whole schedule)"
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
 ) -> None:
-    """The main job: simulate PTP A->B on the free-floating model and report the base's
-    attitude response against the eq. (10) prediction."""
+    """The main job: the ground service on SQLite, the simulated spacecraft as its own
+    process, and the whole ETS-VII pass (all four experiments) at --speed times real time."""
+    from hikoboshi.demo import DemoError, DemoOptions, run_demo
+    from spacecraft.link import parse_outage
+
+    if not 0 < speed <= 1000:
+        _fail(f"--speed {speed} must lie in (0, 1000]")
+    if not 0 <= loss < 1:
+        _fail(f"--loss {loss} must lie in [0, 1)")
+    for window in outage or []:
+        try:
+            parse_outage(window)
+        except ValueError as exc:
+            _fail(f"--outage {window}: {exc}")
+    chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
+    options = DemoOptions(
+        out=out,
+        speed=speed,
+        loss=loss,
+        outages=tuple(outage or ()),
+        port=port,
+        seed=seed,
+        experiments=chosen,
+    )
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f}"),
+        TimeRemainingColumn(),
+        console=err_console,
+        disable=as_json,
+    ) as progress:
+        tasks: dict[str, Any] = {}
+
+        def on_progress(phase: str, done: float, total: float) -> None:
+            if phase not in tasks:
+                label = "pass (onboard s)" if phase == "pass" else phase
+                tasks[phase] = progress.add_task(label, total=total)
+            progress.update(tasks[phase], completed=done, total=total)
+
+        try:
+            summary = run_demo(options, on_progress)
+        except DemoError as exc:
+            _fail(f"demo stopped: {exc} (logs in {out})")
+    if as_json:
+        sys.stdout.write(json.dumps(summary) + "\n")
+    else:
+        _print_demo(summary)
+    ok = summary["final_state"] == "complete" and summary["frames_missing"] == 0
+    if not ok:
+        raise typer.Exit(1)
+
+
+def _print_demo(summary: dict[str, Any]) -> None:
+    keys = (
+        "frames_expected",
+        "frames_stored",
+        "frames_missing",
+        "gaps_open",
+        "duplicates_dropped",
+        "duplicates_stored",
+        "commands_sent",
+        "commands_executed",
+        "commands_rejected",
+        "commands_expired",
+        "commands_outstanding",
+    )
+    table = Table(title=f"{summary['name']}: {summary['final_state']}")
+    table.add_column("")
+    table.add_column("")
+    for key in keys:
+        table.add_row(key, str(summary[key]))
+    console.print(table)
+    console.print(json.dumps({k: summary[k] for k in keys}))
+    console.print(f"Pass: {summary['pass_url']} (API docs: {summary['api_docs_url']})")
+    console.print(f"Summary: {summary['database'].rsplit('/', 1)[0]}/summary.json")
+    console.print(f"Database: {summary['database']}")
+    console.print(f"To browse it again: {summary['serve_again']}")
+
+
+@app.command("ptp-demo")
+def ptp_demo(
+    out: Annotated[Path, typer.Option(help="Where to write the results.")] = Path("out/ptp-demo"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
+) -> None:
+    """Simulate PTP A->B on the free-floating model (no ground, no link) and report the
+    base's attitude response against the eq. (10) prediction."""
     from hikoboshi import foundation_demo
 
     with Progress(

@@ -74,7 +74,7 @@ def test_urdf_command_prints_the_model() -> None:
 
 
 def test_demo_runs_and_reports_the_attitude_response(tmp_path: Path) -> None:
-    result = run("demo", "--json", "--out", str(tmp_path / "demo"))
+    result = run("ptp-demo", "--json", "--out", str(tmp_path / "demo"))
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert (tmp_path / "demo" / "summary.json").exists()

@@ -445,6 +445,8 @@ class GroundLink:
         self._requested_at: dict[int, float] = {}
         self.windows: list[TelemetryWindow] = []
         self._newest: tuple[int, int] | None = None  # (seq, generation ns)
+        #: The newest frame received (highest seq): what the vehicle last said it does.
+        self.latest_frame: TelemetryFrame | None = None
         self._oldest: tuple[int, int] | None = None
         self.duplicates = 0
         #: pass id -> copies of its frames dropped since the service started
@@ -641,6 +643,7 @@ class GroundLink:
                     self.frames_outside_pass += 1
                 if self._newest is None or frame.seq > self._newest[0]:
                     self._newest = (frame.seq, frame.generation_time_ns)
+                    self.latest_frame = frame
                 if self._oldest is None or frame.seq < self._oldest[0]:
                     self._oldest = (frame.seq, frame.generation_time_ns)
         await self._acknowledge()

@@ -91,8 +91,12 @@ START_SLACK_S = 1.0  # onboard s beyond delay + margin, for the first command
 START_SLACK_WALL_S = 1.0
 SETTLE_S = 2.0  # onboard s after the last tag before LOS
 UNSENT = ("queued", "released")
+#: Refusals that mean the arm no longer follows the plan, and how many in a row stop it
+#: (2 s of joint commands).
+REFUSALS = ("out_of_limits", "late")
+MAX_REFUSED_IN_A_ROW = 8
 #: After LOS, ask the vehicle about unacknowledged commands at most this many times.
-MAX_COMMAND_QUERIES = 3
+MAX_COMMAND_QUERIES = 5
 #: Telemetry windows of this many recent passes are reopened after a restart.
 RECOVERED_WINDOWS = 50
 
@@ -170,6 +174,9 @@ class _Active:
     task: asyncio.Task[None] | None = None
     last_sent_joints: list[float] | None = None
     last_sent_tag_ns: int = -1
+    #: Where to hold on abort instead of the last target sent (the vehicle's own target
+    #: when it stopped following the plan).
+    hold_joints: list[float] | None = None
 
 
 class PassRunner:
@@ -181,6 +188,54 @@ class PassRunner:
         self._active: _Active | None = None
         self._lock = asyncio.Lock()
         self.emission_lags_s: list[float] = []
+        self._refused_in_a_row = 0
+        self._diverged: asyncio.Task[None] | None = None
+        self._background: set[asyncio.Task[int]] = set()
+        self._closing = asyncio.Event()
+        link.publisher.subscribe(self._watch)
+
+    def _watch(self, event: dict[str, Any]) -> None:
+        """Stop a pass the vehicle no longer follows: :data:`MAX_REFUSED_IN_A_ROW` joint
+        commands refused in a row (``out_of_limits`` or ``late``: after lost commands each
+        next one is a jump from where the arm stopped, and every later one is too). The
+        plan cannot continue from there; the pass is aborted and the arm held where the
+        vehicle's own target is."""
+        active = self._active
+        if active is None or event.get("kind") != "command_stage":
+            return
+        if event.get("pass_id") != active.pass_id:
+            return
+        detail = event.get("detail", {})
+        if detail.get("stage") == "executed":
+            self._refused_in_a_row = 0
+        elif detail.get("stage") == "rejected" and detail.get("reason") in REFUSALS:
+            self._refused_in_a_row += 1
+            if self._refused_in_a_row >= MAX_REFUSED_IN_A_ROW and self._diverged is None:
+                reason = (
+                    f"the vehicle refused {self._refused_in_a_row} commands in a row "
+                    f"(last: {detail.get('reason')}, seq {detail.get('seq')}): the arm no "
+                    "longer follows the plan"
+                )
+                self._diverged = asyncio.get_running_loop().create_task(
+                    self._abort_diverged(active, reason)
+                )
+
+    async def _abort_diverged(self, active: _Active, reason: str) -> None:
+        try:
+            frame = self._link.latest_frame
+            if frame is not None:
+                active.hold_joints = list(frame.joint_targets_rad)
+            await self.abort(active.pass_id, "ground", reason)
+        except Exception:
+            log.exception("pass %s: abort after divergence failed", active.pass_id)
+        finally:
+            self._diverged = None
+            self._refused_in_a_row = 0
+
+    @property
+    def resolving(self) -> bool:
+        """Whether the stages of an aborted pass's last commands are still being resolved."""
+        return bool(self._background)
 
     @property
     def active_pass_id(self) -> str | None:
@@ -240,6 +295,7 @@ class PassRunner:
                 return events, active
 
             link.windows.append(window)
+            self._refused_in_a_row = 0
             try:
                 events, active = await link.db.run(job)
             except BaseException:
@@ -335,22 +391,33 @@ class PassRunner:
 
     async def _finish(self, active: _Active) -> None:
         """After LOS: wait for the last acknowledgements, asking the vehicle about commands
-        whose tag has passed without one (``command_query``: acks lost on the downlink,
-        commands lost on the uplink), then ``complete``."""
+        whose tag has passed without one, then ``complete``."""
+        left = await self._resolve_outstanding(active.pass_id, active.stop)
+        if active.stop.is_set():
+            return
+        reason = "every command acknowledged" if not left else f"{left} unacknowledged"
+        await self._link.db.write(
+            lambda s: [_transition(s, active.pass_id, "complete", "ground", reason)]
+        )
+        if self._active is active:
+            self._active = None
+
+    async def _resolve_outstanding(self, pass_id: str, stop: asyncio.Event) -> int:
+        """Ask the vehicle (``command_query``: acks lost on the downlink, commands lost on
+        the uplink) about the pass's commands still ``sent`` or ``received`` once their tag
+        has passed, up to :data:`MAX_COMMAND_QUERIES` times; how many are left unresolved."""
         link = self._link
         # Onboard s between queries: a round trip and a second to answer.
         period_s = 2 * self._delay_s + 1.0
 
         def outstanding(session: Session) -> list[tuple[int, int]]:
-            rows = repo.list_commands(
-                session=session, pass_id=active.pass_id, stages=("sent", "received")
-            )
+            rows = repo.list_commands(session=session, pass_id=pass_id, stages=("sent", "received"))
             return [(r.seq, r.execute_time_ns) for r in rows]
 
         left = await link.db.run(outstanding)
         queries = 0
         next_query = time.monotonic()
-        while left and queries <= MAX_COMMAND_QUERIES and not active.stop.is_set():
+        while left and queries < MAX_COMMAND_QUERIES and not stop.is_set():
             if time.monotonic() >= next_query:
                 if link.connected:
                     due = [seq for seq, tag in left if tag < link.onboard_now_ns()]
@@ -359,16 +426,24 @@ class PassRunner:
                     next_query = link.mono_at_onboard(link.onboard_now_ns() + round(period_s * 1e9))
                 else:
                     next_query = time.monotonic() + 0.05
-            await self._wait(time.monotonic() + 0.05, active.stop)
+            await self._wait(time.monotonic() + 0.05, stop)
             left = await link.db.run(outstanding)
-        if active.stop.is_set():
-            return
-        reason = "every command acknowledged" if not left else f"{len(left)} unacknowledged"
-        await link.db.write(
-            lambda s: [_transition(s, active.pass_id, "complete", "ground", reason)]
+        if left and not stop.is_set() and queries:
+            # the last answers are a round trip away
+            await self._wait(
+                link.mono_at_onboard(link.onboard_now_ns() + round(period_s * 1e9)), stop
+            )
+            left = await link.db.run(outstanding)
+        return len(left)
+
+    def _resolve_later(self, pass_id: str) -> None:
+        """After an abort: the commands already sent still run on board; resolve their
+        stages in the background as their tags pass."""
+        task = asyncio.get_running_loop().create_task(
+            self._resolve_outstanding(pass_id, self._closing)
         )
-        if self._active is active:
-            self._active = None
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
 
     # -- recovery after a restart --------------------------------------------------------
 
@@ -507,11 +582,12 @@ class PassRunner:
         # The hold goes first, before any database work: its tag is (delay + margin) ahead
         # of now, and a backlog of writes must not make it late.
         hold: JointCommandMsg | None = None
-        if active is not None and active.last_sent_joints is not None and link.connected:
+        hold_joints = None if active is None else active.hold_joints or active.last_sent_joints
+        if active is not None and hold_joints is not None and link.connected:
             earliest = link.onboard_now_ns() + self._lead_ns
             tag = max(math.ceil(earliest / GRID_NS) * GRID_NS, active.last_sent_tag_ns + GRID_NS)
             seq = max(active.max_seq, link.last_command_seq) + 1
-            hold = JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=active.last_sent_joints)
+            hold = JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=hold_joints)
             link.command_pass[seq] = pass_id
             # Queued (not awaited) before it is sent: the writes run in order, so the row
             # exists before the hold's acknowledgement is filed.
@@ -542,6 +618,8 @@ class PassRunner:
         link.publisher.publish(await link.db.run(job))
         if active is not None and self._active is active:
             self._active = None
+        if active is not None and link.connected:
+            self._resolve_later(pass_id)
 
     async def shutdown(self) -> None:
         """The service stops: a running pass is aborted (its remaining commands expire)."""
@@ -549,4 +627,8 @@ class PassRunner:
         if active is not None:
             with contextlib.suppress(Exception):
                 await self.abort(active.pass_id, "ground", "ground service stopped")
+        self._closing.set()
+        for task in list(self._background):
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await task
         await self._link.db.drain()

@@ -157,3 +157,24 @@ async def connected(client: httpx.AsyncClient) -> None:
     while not await probe():
         assert time.monotonic() < deadline, "the spacecraft did not connect"
         await asyncio.sleep(0.05)
+
+
+def settled(ground: Ground, pass_id: str) -> bool:
+    """The pass has ended, the spacecraft's frames reach past its telemetry window, and the
+    ground is done asking about commands in flight (all answered, or the queries used up):
+    stopping the spacecraft now loses nothing of the pass."""
+    with ground.sessions() as session:
+        record = repo.get_pass(session=session, pass_id=pass_id)
+        outstanding = repo.list_commands(
+            session=session, pass_id=pass_id, stages=("sent", "received")
+        )
+    newest = ground.app.state.link._newest
+    runner = ground.app.state.runner
+    resolved = not outstanding or (runner.active_pass_id is None and not runner.resolving)
+    return (
+        record.state in ("complete", "aborted")
+        and record.telemetry_end_ns is not None
+        and newest is not None
+        and newest[1] >= record.telemetry_end_ns
+        and resolved
+    )
