@@ -202,6 +202,9 @@ def demo(
             "nonholonomic (default: the whole schedule)"
         ),
     ] = None,
+    serve_after: Annotated[
+        bool, typer.Option("--serve-after", help="Keep the service up afterwards (Ctrl-C).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
@@ -227,6 +230,8 @@ def demo(
         port=port,
         seed=seed,
         experiments=chosen,
+        serve_after=serve_after,
+        on_ready=None if as_json else _announce,
     )
     with Progress(
         TextColumn("[bold]{task.description}"),
@@ -257,6 +262,13 @@ def demo(
         raise typer.Exit(1)
 
 
+def _announce(console_url: str, viewer_token: str, operator_token: str) -> None:
+    err_console.print(
+        f"Ground service up: console {console_url} (sign in with the viewer token "
+        f"{viewer_token} or the operator token {operator_token}); API docs {console_url}docs"
+    )
+
+
 def _print_demo(summary: dict[str, Any]) -> None:
     keys = (
         "frames_expected",
@@ -278,7 +290,10 @@ def _print_demo(summary: dict[str, Any]) -> None:
         table.add_row(key, str(summary[key]))
     console.print(table)
     console.print(json.dumps({k: summary[k] for k in keys}))
-    console.print(f"Pass: {summary['pass_url']} (API docs: {summary['api_docs_url']})")
+    console.print(f"Report: {summary['report_html']} (and report.json)")
+    console.print(f"Recording (MCAP, opens in Foxglove): {summary['recording_mcap']}")
+    if summary["analyses_failed"]:
+        console.print(f"Analyses that failed (see the report): {summary['analyses_failed']}")
     console.print(f"Summary: {summary['database'].rsplit('/', 1)[0]}/summary.json")
     console.print(f"Database: {summary['database']}")
     console.print(f"To browse it again: {summary['serve_again']}")

@@ -10,12 +10,15 @@
    the 4 Hz commands and archives the telemetry; the job follows the pass until it ends.
 5. The spacecraft is stopped (it drains its telemetry store), and the pass summary
    (``GET /api/passes/{id}/summary``) is printed and written to ``OUT/summary.json``.
+6. The post-pass analyses run on the server; the report (``report.html``, ``report.json``)
+   and the MCAP recording (``pass.mcap``) are written to ``OUT``.
 
 Only public interfaces are used: REST, the link websocket, process signals.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import secrets
@@ -62,6 +65,10 @@ class DemoOptions:
     #: A subset of the schedule's experiments (all four by default).
     experiments: tuple[str, ...] = ()
     timeout_s: float = 900.0
+    #: Keep the ground service up after the pass (console, reports) until Ctrl-C.
+    serve_after: bool = False
+    #: Called once the service is up: (console URL, viewer token, operator token).
+    on_ready: Callable[[str, str, str], None] | None = None
     extra_spacecraft_args: tuple[str, ...] = field(default=())
 
 
@@ -73,6 +80,9 @@ class _Api:
         self._token = token
 
     def call(self, method: str, path: str, body: Any = None, timeout_s: float = 120.0) -> Any:
+        return json.loads(self.raw(method, path, body, timeout_s))
+
+    def raw(self, method: str, path: str, body: Any = None, timeout_s: float = 120.0) -> bytes:
         data = None if body is None else json.dumps(body).encode()
         request = urllib.request.Request(
             self.base + path,
@@ -82,7 +92,8 @@ class _Api:
         )
         try:
             with urllib.request.urlopen(request, timeout=timeout_s) as response:
-                return json.loads(response.read())
+                body_out: bytes = response.read()
+                return body_out
         except urllib.error.HTTPError as exc:
             raise DemoError(f"{method} {path}: {exc.code} {exc.read().decode()[:500]}") from None
 
@@ -166,6 +177,8 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     started = time.monotonic()
     with _ground(settings, port):
         api = _Api(base, operator)
+        if options.on_ready is not None:
+            options.on_ready(f"{base}/", _token_of(tokens, Role.VIEWER), operator)
         report("planning the pass (all four experiments)", 0, 1)
         parameters = {"experiments": list(options.experiments)} if options.experiments else {}
         plan = api.call("POST", "/api/plans", {"experiment": "pass", "parameters": parameters})
@@ -223,6 +236,22 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             report("draining the onboard telemetry store", 1, 1)
         summary = api.call("GET", f"/api/passes/{pass_id}/summary")
         link = api.call("GET", "/api/link/status")
+        report("post-pass analyses, report and recording", 0, 3)
+        analyses = api.call("POST", f"/api/passes/{pass_id}/analyses", timeout_s=600.0)
+        failed = [a["kind"] for a in analyses["data"] if a["status"] != "ok"]
+        report("post-pass analyses, report and recording", 1, 3)
+        (out / "report.html").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report.html"))
+        (out / "report.json").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report"))
+        report("post-pass analyses, report and recording", 2, 3)
+        (out / "pass.mcap").write_bytes(
+            api.raw("GET", f"/api/passes/{pass_id}/recording.mcap", timeout_s=600.0)
+        )
+        report("post-pass analyses, report and recording", 3, 3)
+        if options.serve_after:
+            report(f"serving {base}/ until Ctrl-C", 0, 1)
+            with contextlib.suppress(KeyboardInterrupt):
+                while True:
+                    time.sleep(1.0)
     result = {
         **summary,
         "final_state": state,
@@ -240,6 +269,12 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             f"HIKOBOSHI_DATA_DIR={out} HIKOBOSHI_TOKENS=$(cat {out}/tokens) "
             f"hikoboshi serve --port {port}"
         ),
+        "analyses_failed": failed,
+        "report_html": str((out / "report.html").resolve()),
+        "report_json": str((out / "report.json").resolve()),
+        "recording_mcap": str((out / "pass.mcap").resolve()),
+        "console_url": f"{base}/",
+        "viewer_token": _token_of(tokens, Role.VIEWER),
         "api_docs_url": f"{base}/docs",
         "pass_url": f"{base}/api/passes/{pass_id}",
         "summary_url": f"{base}/api/passes/{pass_id}/summary",

@@ -67,6 +67,9 @@ def test_demo_through_loss_and_an_outage_stores_every_frame_once(tmp_path: Path)
     assert summary["commands_executed"] > 400
     # the main job leaves what it needs to be looked at again, tokens private
     assert Path(summary["database"]).exists()
+    assert (out / "pass.mcap").read_bytes()[:8] == b"\x89MCAP0\r\n"
+    report = json.loads((out / "report.json").read_text())
+    assert report and "<html" in (out / "report.html").read_text().lower()
     assert stat.S_IMODE((out / "tokens").stat().st_mode) == 0o600
 
 
