@@ -177,17 +177,36 @@ class _FreeDrift:
         self, ws: DynamicsWorkspace, t_s: Array, joints_rad: Array, wheel_nms: Array, gg: bool
     ) -> None:
         self.ws, self.t, self.q, self.h, self.gg = ws, t_s, joints_rad, wheel_nms, gg
+        #: (k, fraction of interval k) -> momentum blocks along the joint path: RK4 with one
+        #: substep asks at the nodes and midpoints only, and every run of a segment follows
+        #: the same path, so each configuration is evaluated once.
+        self._blocks: dict[tuple[int, float], tuple[Array, Array]] = {}
+
+    def blocks(self, k: int, a: float) -> tuple[Array, Array]:
+        key = (k + 1, 0.0) if a == 1.0 else (k, a)
+        found = self._blocks.get(key)
+        if found is None:
+            q = (1 - a) * self.q[k] + a * self.q[k + 1]
+            h_b, h_bm = self.ws.momentum_blocks(q)
+            found = self._blocks[key] = (h_b.copy(), h_bm.copy())
+        return found
+
+    def with_gg(self, gg: bool) -> _FreeDrift:
+        """The same path (and its cached blocks), with or without gravity gradient."""
+        other = _FreeDrift.__new__(_FreeDrift)
+        other.__dict__.update(self.__dict__)
+        other.gg = gg
+        return other
 
     def __call__(self, k: int, tau: float, y: Array) -> Array:
         """``d(quat, L)/dt`` at ``t[k] + tau`` within interval k."""
         dt = self.t[k + 1] - self.t[k]
         a = tau / dt
-        q = (1 - a) * self.q[k] + a * self.q[k + 1]
         rate = (self.q[k + 1] - self.q[k]) / dt
         h_w = (1 - a) * self.h[k] + a * self.h[k + 1]
         quat, momentum = y[:4], y[4:]
         rot = _rot(quat)
-        h_b, h_bm = self.ws.momentum_blocks(q)
+        h_b, h_bm = self.blocks(k, a)
         omega = np.linalg.solve(h_b, rot.T @ momentum - h_bm @ rate - h_w)
         dquat = 0.5 * _quat_mul_xyzw(quat, np.array([*omega, 0.0]))
         dmom = (
@@ -271,10 +290,11 @@ def _segment(
     window = np.flatnonzero(ends <= max(initial_window_s, float(ends[0])))
     weights = np.diff(t)[window]
     runs = []
+    path = _FreeDrift(ws, t, q, h_w, True)
     for gg in (True, False):
         known = momentum[window] - (impulse[window] if gg else 0.0)
         momentum0 = np.average(known, axis=0, weights=weights)
-        rhs = _FreeDrift(ws, t, q, h_w, gg)
+        rhs = path.with_gg(gg)
         sim = _integrate(rhs, quats[0], momentum0, substeps)
         # Take the first sample's attitude noise off: shift by the window's mean residual.
         first = np.flatnonzero(t - t[0] <= initial_window_s)
