@@ -23,6 +23,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
+from planner.plan import Plan
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
@@ -63,7 +64,11 @@ def _free_port() -> int:
 
 @contextmanager
 def running_ground(database_url: str) -> Iterator[Ground]:
-    app = create_app(Settings(database_url=database_url, tokens=TOKENS))
+    # A 4 s uplink margin (flight default 2 s): commands then tolerate 2 s onboard, 200 ms
+    # of wall at 10x, of release lateness before they expire; a loaded CI machine stalls
+    # an event loop that long now and then, and these tests are about the stages, not it.
+    settings = Settings(database_url=database_url, tokens=TOKENS, uplink_margin_s=4.0)
+    app = create_app(settings)
     port = _free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
     server = uvicorn.Server(config)
@@ -83,12 +88,19 @@ def running_ground(database_url: str) -> Iterator[Ground]:
 
 
 def store_pass(
-    sessions: sessionmaker[Session], name: str, goal_deg: tuple[float, ...], settle_s: float
+    sessions: sessionmaker[Session],
+    name: str,
+    goal_deg: tuple[float, ...],
+    settle_s: float,
+    edit: Callable[[Plan], Plan] | None = None,
 ) -> str:
-    """A PTP plan (joints only moved by ``goal_deg``) and a scheduled pass of it."""
+    """A PTP plan (joints only moved by ``goal_deg``; changed by ``edit`` if given) and a
+    scheduled pass of it."""
     plan = plan_ptp(
         DynamicsWorkspace(default_model()), PtpParams(goal_joints_deg=goal_deg, settle_s=settle_s)
     )
+    if edit is not None:
+        plan = edit(plan)
     now = time.time_ns()
     with sessions() as session:
         plan_record = repo.add_plan(session=session, plan=plan, created_at_ns=now)
