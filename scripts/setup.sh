@@ -1,13 +1,18 @@
 #!/usr/bin/env bash
-# Create or update .venv from the locked requirements; safe to run again.
+# Create or update .venv from the locked requirements, and build the operator console
+# (web/dist); safe to run again.
 #   scripts/setup.sh          what the main job needs
-#   scripts/setup.sh --test   also the test and lint tools
+#   scripts/setup.sh --test   also the test and lint tools, and Chromium for the browser tests
+# Node.js and npm (and, with --test, Chromium) come from apt-get when missing and this runs
+# as root; otherwise install them first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 lock=requirements.lock
+testing=0
 if [ "${1:-}" = "--test" ]; then
   lock=requirements-dev.lock
+  testing=1
 fi
 
 python=${PYTHON:-python3}
@@ -16,3 +21,33 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -r "$lock"
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+
+# --- system packages: apt-get only for what is missing ----------------------------------
+apt_packages=()
+command -v npm >/dev/null 2>&1 || apt_packages+=(nodejs npm)
+if [ "$testing" = 1 ] && [ ! -x /usr/bin/chromium ]; then
+  apt_packages+=(chromium)
+fi
+if [ "${#apt_packages[@]}" -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq --no-install-recommends "${apt_packages[@]}" >/dev/null
+  else
+    echo "setup: missing ${apt_packages[*]}; install them (apt-get install ${apt_packages[*]})" >&2
+    # The main job still runs without the console (the server says it is not built);
+    # the tests need it.
+    [ "$testing" = 1 ] && exit 1
+  fi
+fi
+
+# --- the operator console: locked npm packages, then the build into web/dist -----------
+if command -v npm >/dev/null 2>&1; then
+  stamp=web/node_modules/.hikoboshi-lock.sha256
+  want=$(sha256sum web/package-lock.json | cut -d' ' -f1)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    (cd web && npm ci --no-audit --no-fund --loglevel=error)
+    echo "$want" > "$stamp"
+  fi
+  (cd web && npm run --silent build)
+fi

@@ -1,0 +1,77 @@
+"""The operator console: the static files ``web/`` builds into ``web/dist`` (``npm ci &&
+npm run build``, which ``scripts/setup.sh`` runs), served at ``/``.
+
+``/`` (and ``/index.html``) is the console's page; ``/assets/...`` its content-hashed
+bundles (cached for good); ``/model/...`` the model files the setup script exports next to
+it. Without a build, ``/`` answers 503 with a page that says how to build it, so an
+operator never mistakes a missing console for a dead server. Nothing here is under
+``/api`` and nothing is in the OpenAPI document.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter
+from fastapi.responses import FileResponse, HTMLResponse, Response
+
+from server.errors import ServiceError
+
+__all__ = ["DEFAULT_DIST", "make_router"]
+
+#: ``web/dist`` of the checkout this package runs from (an editable install).
+DEFAULT_DIST = Path(__file__).resolve().parents[2] / "web" / "dist"
+
+_NOT_BUILT = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>Hikoboshi: console not built</title>
+<style>body{{background:#0d1017;color:#e6e9ef;font:15px/1.5 system-ui,sans-serif;
+margin:10vh auto;max-width:640px}}code,pre{{background:#151a23;padding:2px 6px}}</style>
+</head><body><h1>The operator console is not built</h1>
+<p>The ground service is running (the API is at <a href="/docs" style="color:#4fc3f7">/docs</a>),
+but there is no console in <code>{dist}</code>.</p>
+<p>Build it (Node 20 and npm), then reload this page:</p>
+<pre>bash scripts/setup.sh          # or: cd web &amp;&amp; npm ci &amp;&amp; npm run build</pre>
+</body></html>
+"""
+
+#: Content types of the files a build holds (the console's own, nothing else is served).
+_TYPES = {
+    ".js": "text/javascript",
+    ".css": "text/css",
+    ".map": "application/json",
+    ".txt": "text/plain",
+    ".urdf": "application/xml",
+}
+
+
+def _file(root: Path, name: str, cache: str) -> Response:
+    """``root/name`` if it is a file of a known type inside ``root``, else 404."""
+    path = (root / name).resolve()
+    if not path.is_relative_to(root.resolve()) or not path.is_file() or path.suffix not in _TYPES:
+        raise ServiceError(404, "not_found", f"no console file {name!r}")
+    return FileResponse(path, media_type=_TYPES[path.suffix], headers={"Cache-Control": cache})
+
+
+def make_router(dist: Path = DEFAULT_DIST) -> APIRouter:
+    """Routes serving the console built in ``dist``."""
+    router = APIRouter(include_in_schema=False)
+
+    @router.get("/")
+    @router.get("/index.html")
+    def index() -> Response:
+        page = dist / "index.html"
+        if not page.is_file():
+            return HTMLResponse(_NOT_BUILT.format(dist=dist), status_code=503)
+        # Always revalidated: it names the current bundles.
+        return FileResponse(page, media_type="text/html", headers={"Cache-Control": "no-cache"})
+
+    @router.get("/assets/{name}")
+    def asset(name: str) -> Response:
+        # Names carry a content hash: a file never changes under its name.
+        return _file(dist / "assets", name, "public, max-age=31536000, immutable")
+
+    @router.get("/model/{name}")
+    def model(name: str) -> Response:
+        return _file(dist / "model", name, "no-cache")
+
+    return router

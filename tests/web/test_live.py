@@ -1,0 +1,142 @@
+"""The live pass view and commanding, in the browser, while a pass flies at 20x.
+
+What a flight controller relies on: the link shows connected, the plots fill as telemetry
+streams (point counts grow), command stages appear, an operator starts and aborts with the
+pass name typed, and a viewer sees the same pages without the controls (the server refuses
+a forced request with 403 anyway).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import httpx
+
+from server.storage import repository as repo
+from tests.server.link.harness import VIEWER, Ground, pass_state, store_pass
+from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, FlyingSpacecraft
+
+
+def _wait_connected(ground: Ground) -> None:
+    deadline = time.monotonic() + 20.0
+    while not httpx.get(f"{ground.url}/api/link/status", headers=VIEWER).json()["connected"]:
+        assert time.monotonic() < deadline, "the spacecraft did not connect"
+        time.sleep(0.05)
+
+
+def _points(page: Any) -> list[int]:
+    counts: list[int] = page.evaluate("() => window.hikoboshiLive.pointCounts()")
+    return counts
+
+
+def _confirm(page: Any, name: str, button: str) -> None:
+    page.click(f"[data-test={button}]")
+    go = page.locator("[data-test=confirm-go]")
+    page.fill("[data-test=confirm-input]", name[:-1])  # not yet the name: still refused
+    assert go.is_disabled()
+    page.fill("[data-test=confirm-input]", name)
+    go.click()
+    page.wait_for_selector(".backdrop", state="detached")
+
+
+def test_operator_starts_watches_and_aborts_a_pass(
+    console: Console, ground: Ground, flying: FlyingSpacecraft
+) -> None:
+    # A long settle keeps the pass running while the test looks at it (400 s onboard = 20 s).
+    pass_id = store_pass(ground.sessions, "web-live", (4.0, 3.0, 0.0, 0.0, 0.0, 0.0), 400.0)
+    _wait_connected(ground)
+    page = console.page
+    console.sign_in(OPERATOR_TOKEN, f"#/live/{pass_id}")
+    assert page.text_content("[data-test=role]") == "operator"
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=link-connected]')"
+        "?.textContent.startsWith('connected')"
+    )
+    assert page.text_content("[data-test=pass-state]") == "SCHEDULED"
+
+    _confirm(page, "web-live", "start")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=pass-state]').textContent === 'RUNNING'"
+    )
+    # The plots fill: every plot gains points, and keeps gaining them.
+    console.wait("() => Math.min(...window.hikoboshiLive.pointCounts()) > 30", "plots fill")
+    first = _points(page)
+    console.wait(
+        f"() => window.hikoboshiLive.pointCounts().every((n, i) => n > {first}[i] + 30)",
+        "plots keep filling",
+    )
+    # Command stages arrive: executed commands counted on the timeline.
+    console.wait(
+        "() => Number(document.querySelector('[data-stage=executed]')?.dataset.count) > 5",
+        "commands executed",
+    )
+    assert page.is_hidden("[data-test=stale]")
+    rtt = page.text_content("[data-test=link-rtt]")
+    assert rtt is not None and rtt.endswith(" s")
+    console.screenshot("live-operator-running")
+
+    # The spacecraft goes quiet: within seconds the view says the data is stale.
+    flying.stop()
+    console.wait(
+        "() => !document.querySelector('[data-test=stale]').hidden"
+        " && document.querySelector('[data-test=values]').classList.contains('is-stale')",
+        "stale badge",
+    )
+    assert page.text_content("[data-test=stale]").startswith("STALE")
+    console.wait(
+        "() => document.querySelector('[data-test=link-connected]').textContent"
+        " === 'NOT CONNECTED'",
+        "link shows disconnected",
+    )
+    console.screenshot("live-operator-stale")
+
+    _confirm(page, "web-live", "abort")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=pass-state]').textContent === 'ABORTED'"
+    )
+    assert pass_state(ground, pass_id) == "aborted"
+    with ground.sessions() as session:
+        events = repo.list_events(session=session, pass_id=pass_id, kinds=["pass_state"]).items
+    assert [(e.detail["to"], e.actor) for e in events][-1] == ("aborted", "otto")
+    assert page.locator("[data-test=start], [data-test=abort]").count() == 0
+    console.screenshot("live-operator-aborted")
+
+
+def test_viewer_sees_the_pass_without_controls(console: Console, ground: Ground) -> None:
+    pass_id = store_pass(ground.sessions, "web-view", (4.0, 0.0, 0.0, 0.0, 0.0, 0.0), 5.0)
+    page = console.page
+    console.sign_in(VIEWER_TOKEN, f"#/live/{pass_id}")
+    assert page.text_content("[data-test=role]") == "viewer"
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=pass-state]')?.textContent === 'SCHEDULED'"
+    )
+    page.wait_for_selector("[data-test=link-connected]")
+    assert page.locator("[data-test=start], [data-test=abort]").count() == 0
+    console.screenshot("live-viewer")
+
+    page.goto(f"{ground.url}/#/passes")
+    page.wait_for_selector(f"[data-pass='{pass_id}']")
+    assert page.locator("[data-test=start], [data-test=abort]").count() == 0
+    console.screenshot("passes-viewer")
+
+    # Forced: the server refuses a viewer's start whatever the page shows.
+    response = page.request.post(
+        f"{ground.url}/api/passes/{pass_id}/start",
+        data={"confirm": "START web-view"},
+        headers={"Authorization": f"Bearer {VIEWER_TOKEN}"},
+    )
+    assert response.status == 403
+    assert response.json()["error"]["code"] == "forbidden"
+    assert pass_state(ground, pass_id) == "scheduled"
+
+
+def test_a_refused_token_stays_on_the_sign_in(console: Console) -> None:
+    page = console.page
+    page.goto(console.base_url)
+    page.fill("[data-test=token]", "not-a-token")
+    page.click("[data-test=signin]")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=signin-error]').textContent.includes('unknown')"
+    )
+    assert page.evaluate("() => sessionStorage.getItem('hikoboshi.token')") is None

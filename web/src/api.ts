@@ -1,0 +1,171 @@
+// REST client: the token from the sign-in, the server's one error shape, and the
+// feature probe (which optional endpoints this server offers, from its OpenAPI document).
+
+export type Role = "viewer" | "operator";
+
+export interface PassPublic {
+  id: string;
+  name: string;
+  plan_id: string;
+  aos_time: string;
+  los_time: string;
+  relay: string;
+  state: string;
+  state_reason: string | null;
+  epoch_ns: number | null;
+  created_at: string;
+  updated_at: string;
+  version: number;
+}
+
+export interface CommandPublic {
+  seq: number;
+  kind: string;
+  execute_time_ns: number;
+  payload: Record<string, unknown>;
+  stage: string;
+  reject_reason: string | null;
+}
+
+export interface Segment {
+  name: string;
+  kind: string;
+  t_start_s: number;
+  t_end_s: number;
+}
+
+export interface PlanBrief {
+  id: string;
+  experiment: string;
+  parameters: Record<string, unknown>;
+  duration_s: number;
+  n_commands: number;
+  created_at: string;
+}
+
+export interface PlanPublic extends PlanBrief {
+  metrics: Record<string, number>;
+  segments: Segment[];
+}
+
+export interface Prediction {
+  t_s: number[];
+  joints_rad: number[][];
+  quat_orbit_from_base_xyzw: number[][];
+  rpy_base_rad: number[][];
+  omega_base_orbit_radps: number[][];
+  wheel_momentum_nms: number[][];
+}
+
+export interface PlanDocument {
+  experiment: string;
+  parameters: Record<string, unknown>;
+  segments: Segment[];
+  prediction: Prediction;
+  metrics: Record<string, number>;
+}
+
+export interface PlanValidation {
+  valid: boolean;
+  errors: { code: string; message: string }[];
+  summary: (Omit<PlanPublic, "id" | "created_at">) | null;
+}
+
+export interface LinkStatus {
+  connected: boolean;
+  vehicle: string | null;
+  time_scale: number | null;
+  onboard_time_ns: number | null;
+  round_trip_s: number | null;
+  frames_received: number;
+  frames_behind: number | null;
+  open_gaps: [number, number][];
+  frames_missing: number;
+  active_pass_id?: string | null;
+}
+
+export interface TelemetryPage {
+  count: number;
+  truncated: boolean;
+  rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[] | null;
+}
+
+/** A refused request: the HTTP status and the server's error code and message. */
+export class ApiError extends Error {
+  constructor(
+    readonly status: number,
+    readonly code: string,
+    message: string,
+  ) {
+    super(message);
+  }
+}
+
+const TOKEN_KEY = "hikoboshi.token";
+
+export function storedToken(): string | null {
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+
+export function storeToken(token: string | null): void {
+  if (token === null) sessionStorage.removeItem(TOKEN_KEY);
+  else sessionStorage.setItem(TOKEN_KEY, token);
+}
+
+export async function request<T>(method: string, path: string, body?: unknown): Promise<T> {
+  const headers: Record<string, string> = {};
+  const token = storedToken();
+  if (token) headers.Authorization = `Bearer ${token}`;
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const response = await fetch(path, {
+    method,
+    headers,
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  const text = await response.text();
+  let parsed: unknown = null;
+  try {
+    parsed = text ? JSON.parse(text) : null;
+  } catch {
+    parsed = null;
+  }
+  if (!response.ok) {
+    const error = (parsed as { error?: { code?: string; message?: string } } | null)?.error;
+    throw new ApiError(
+      response.status,
+      error?.code ?? `http_${response.status}`,
+      error?.message ?? `${method} ${path}: HTTP ${response.status}`,
+    );
+  }
+  return parsed as T;
+}
+
+export const get = <T>(path: string): Promise<T> => request<T>("GET", path);
+export const post = <T>(path: string, body: unknown): Promise<T> => request<T>("POST", path, body);
+
+/** Every page of a ``{data, count}`` listing. */
+export async function getAll<T>(path: string, pageSize = 1000): Promise<T[]> {
+  const out: T[] = [];
+  const sep = path.includes("?") ? "&" : "?";
+  for (;;) {
+    const page = await get<{ data: T[]; count: number }>(
+      `${path}${sep}offset=${out.length}&limit=${pageSize}`,
+    );
+    out.push(...page.data);
+    if (page.data.length === 0 || out.length >= page.count) return out;
+  }
+}
+
+let features: Promise<Set<string>> | null = null;
+
+/** The API paths this server offers (its OpenAPI document): optional endpoints are used
+ * when listed, and shown as not available otherwise, without probing them into 404s. */
+export function apiPaths(): Promise<Set<string>> {
+  if (features === null) {
+    features = fetch("/openapi.json")
+      .then((r) => (r.ok ? r.json() : { paths: {} }))
+      .then((doc: { paths?: Record<string, unknown> }) => new Set(Object.keys(doc.paths ?? {})))
+      .catch(() => new Set<string>());
+  }
+  return features;
+}

@@ -1,0 +1,230 @@
+// The satellite and its arm in 3D (three.js), built from the model's URDF (boxes, cylinders
+// and spheres; revolute and fixed joints). Frames: the scene's root is the orbit frame
+// (x flight direction, z nadir) turned so nadir points down the screen; the base body is
+// placed by quat_orbit_from_base. A second, translucent arm shows the commanded targets.
+// Renders on demand (when a pose changes or the camera moves), never in a busy loop.
+
+import * as THREE from "three";
+import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { storedToken } from "./api";
+
+interface UrdfJoint {
+  name: string;
+  type: string;
+  parent: string;
+  child: string;
+  xyz: number[];
+  rpy: number[];
+  axis: number[];
+}
+
+const nums = (s: string | null | undefined, n: number, dflt = 0): number[] => {
+  const parts = (s ?? "").trim().split(/\s+/).filter(Boolean).map(Number);
+  return Array.from({ length: n }, (_, i) => parts[i] ?? dflt);
+};
+
+function originOf(el: Element | null): { xyz: number[]; rpy: number[] } {
+  const o = el?.querySelector(":scope > origin");
+  return { xyz: nums(o?.getAttribute("xyz"), 3), rpy: nums(o?.getAttribute("rpy"), 3) };
+}
+
+function place(obj: THREE.Object3D, xyz: number[], rpy: number[]): void {
+  obj.position.set(xyz[0], xyz[1], xyz[2]);
+  // URDF rpy: fixed-axis roll, pitch, yaw = Rz(yaw) Ry(pitch) Rx(roll): three's "ZYX".
+  obj.quaternion.setFromEuler(new THREE.Euler(rpy[0], rpy[1], rpy[2], "ZYX"));
+}
+
+function visualMesh(visual: Element, opacity: number): THREE.Object3D | null {
+  const geometryEl = visual.querySelector("geometry > *");
+  if (!geometryEl) return null;
+  let geometry: THREE.BufferGeometry;
+  switch (geometryEl.tagName) {
+    case "box": {
+      const [x, y, z] = nums(geometryEl.getAttribute("size"), 3, 0.1);
+      geometry = new THREE.BoxGeometry(x, y, z);
+      break;
+    }
+    case "cylinder": {
+      const r = Number(geometryEl.getAttribute("radius") ?? 0.05);
+      const l = Number(geometryEl.getAttribute("length") ?? 0.1);
+      geometry = new THREE.CylinderGeometry(r, r, l, 20);
+      geometry.rotateX(Math.PI / 2); // URDF cylinders lie along z, three's along y
+      break;
+    }
+    case "sphere":
+      geometry = new THREE.SphereGeometry(Number(geometryEl.getAttribute("radius") ?? 0.05), 20, 14);
+      break;
+    default:
+      return null;
+  }
+  const rgba = nums(visual.querySelector("material > color")?.getAttribute("rgba"), 4, 0.8);
+  const material = new THREE.MeshStandardMaterial({
+    color: new THREE.Color(rgba[0], rgba[1], rgba[2]),
+    transparent: opacity < 1,
+    opacity,
+    metalness: 0.2,
+    roughness: 0.6,
+  });
+  const mesh = new THREE.Mesh(geometry, material);
+  const { xyz, rpy } = originOf(visual);
+  place(mesh, xyz, rpy);
+  return mesh;
+}
+
+/** One copy of the robot: the base body and the revolute joints in URDF order. */
+class Robot {
+  readonly root: THREE.Group;
+  readonly joints: { pivot: THREE.Group; axis: THREE.Vector3 }[] = [];
+
+  constructor(doc: Document, opacity: number, withBase: boolean) {
+    const links = new Map<string, THREE.Group>();
+    for (const link of doc.querySelectorAll("robot > link")) {
+      const g = new THREE.Group();
+      g.name = link.getAttribute("name") ?? "";
+      const isBase = g.name === "base_link";
+      if (withBase || !isBase) {
+        for (const visual of link.querySelectorAll(":scope > visual")) {
+          const mesh = visualMesh(visual, isBase ? Math.min(opacity, 0.9) : opacity);
+          if (mesh) g.add(mesh);
+        }
+      }
+      links.set(g.name, g);
+    }
+    const joints: UrdfJoint[] = [...doc.querySelectorAll("robot > joint")].map((j) => ({
+      name: j.getAttribute("name") ?? "",
+      type: j.getAttribute("type") ?? "fixed",
+      parent: j.querySelector("parent")?.getAttribute("link") ?? "",
+      child: j.querySelector("child")?.getAttribute("link") ?? "",
+      ...originOf(j),
+      axis: nums(j.querySelector("axis")?.getAttribute("xyz"), 3, 0),
+    }));
+    const children = new Set(joints.map((j) => j.child));
+    for (const j of joints) {
+      const parent = links.get(j.parent);
+      const child = links.get(j.child);
+      if (!parent || !child) continue;
+      const frame = new THREE.Group();
+      place(frame, j.xyz, j.rpy);
+      const pivot = new THREE.Group();
+      frame.add(pivot);
+      pivot.add(child);
+      parent.add(frame);
+      if (j.type === "revolute" || j.type === "continuous") {
+        this.joints.push({ pivot, axis: new THREE.Vector3(...j.axis).normalize() });
+      }
+    }
+    const rootName = [...links.keys()].find((n) => !children.has(n)) ?? "base_link";
+    this.root = new THREE.Group();
+    this.root.add(links.get(rootName) ?? new THREE.Group());
+  }
+
+  setJoints(anglesRad: ArrayLike<number>): void {
+    this.joints.forEach((j, i) => {
+      const a = anglesRad[i];
+      if (Number.isFinite(a)) j.pivot.quaternion.setFromAxisAngle(j.axis, a);
+    });
+  }
+}
+
+export class SatelliteView {
+  private renderer: THREE.WebGLRenderer;
+  private scene = new THREE.Scene();
+  private camera: THREE.PerspectiveCamera;
+  private controls: OrbitControls;
+  private orbit = new THREE.Group(); // the orbit frame
+  private body = new THREE.Group(); // the base body frame
+  private robot: Robot | null = null;
+  private ghost: Robot | null = null;
+  private pending = false;
+  readonly el: HTMLElement;
+
+  constructor(parent: HTMLElement) {
+    this.el = document.createElement("div");
+    this.el.className = "view3d";
+    parent.appendChild(this.el);
+    this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(devicePixelRatio);
+    this.renderer.setClearColor(0x0d1017);
+    this.el.appendChild(this.renderer.domElement);
+    this.camera = new THREE.PerspectiveCamera(40, 1, 0.05, 100);
+    this.camera.position.set(5.5, 2.5, 5.5);
+    this.controls = new OrbitControls(this.camera, this.renderer.domElement);
+    this.controls.target.set(0, 0.3, 0);
+    this.controls.addEventListener("change", () => this.request());
+    this.scene.add(new THREE.AmbientLight(0xffffff, 0.55));
+    const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+    sun.position.set(4, 6, 3);
+    this.scene.add(sun);
+    // Orbit frame (x flight, z nadir) -> screen (y up): nadir points down.
+    this.orbit.rotation.x = Math.PI / 2;
+    this.orbit.add(new THREE.AxesHelper(0.8));
+    this.orbit.add(this.body);
+    this.scene.add(this.orbit);
+    new ResizeObserver(() => this.resize()).observe(this.el);
+    this.resize();
+  }
+
+  /** Build from URDF text; false when it cannot be read. */
+  load(urdf: string): boolean {
+    const doc = new DOMParser().parseFromString(urdf, "application/xml");
+    if (doc.querySelector("parsererror") || !doc.querySelector("robot")) return false;
+    this.robot = new Robot(doc, 1, true);
+    this.ghost = new Robot(doc, 0.3, false);
+    this.body.add(this.robot.root, this.ghost.root);
+    this.request();
+    return true;
+  }
+
+  /** Measured joints (rad), targets (rad, or null to hide), quat_orbit_from_base (x, y, z, w). */
+  setPose(joints: ArrayLike<number>, targets: ArrayLike<number> | null, quat: ArrayLike<number> | null): void {
+    this.robot?.setJoints(joints);
+    if (this.ghost) {
+      this.ghost.root.visible = targets !== null;
+      if (targets) this.ghost.setJoints(targets);
+    }
+    if (quat && [0, 1, 2, 3].every((i) => Number.isFinite(quat[i]))) {
+      this.body.quaternion.set(quat[0], quat[1], quat[2], quat[3]).normalize();
+    }
+    this.request();
+  }
+
+  private resize(): void {
+    const w = this.el.clientWidth || 300;
+    const h = this.el.clientHeight || 260;
+    this.renderer.setSize(w, h);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.request();
+  }
+
+  private request(): void {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => {
+      this.pending = false;
+      this.renderer.render(this.scene, this.camera);
+    });
+  }
+
+  dispose(): void {
+    this.controls.dispose();
+    this.renderer.dispose();
+  }
+}
+
+let urdfText: Promise<string | null> | null = null;
+
+/** The model's URDF: ``GET /api/model/urdf`` when the server offers it, else the copy the
+ * setup script exports next to the console (``/model/ets7.urdf``); null if neither. */
+export function fetchUrdf(paths: Set<string>): Promise<string | null> {
+  if (urdfText === null) {
+    const url = paths.has("/api/model/urdf") ? "/api/model/urdf" : "/model/ets7.urdf";
+    const headers: Record<string, string> = {};
+    const token = storedToken();
+    if (token) headers.Authorization = `Bearer ${token}`;
+    urdfText = fetch(url, { headers })
+      .then((r) => (r.ok ? r.text() : null))
+      .catch(() => null);
+  }
+  return urdfText;
+}

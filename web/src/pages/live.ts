@@ -1,0 +1,437 @@
+// The live pass view: what is happening now (pass state, link, latest values, plots, 3D),
+// what comes next (AOS/LOS countdown, the plan's next segment, queued commands), and
+// whether the spacecraft does what the plan predicted (the prediction under every plot).
+// Stale data is shown as stale (no telemetry for 2 s: a STALE badge and greyed values; no
+// link status for two heartbeats: the link is stale); missing frames are gaps.
+
+import {
+  ApiError, get, getAll,
+  type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
+} from "../api";
+import type { Ctx } from "../main";
+import type { Message } from "../socket";
+import { RAW_FIELDS, TelemetryStore } from "../store";
+import { clear, clock, fmt, h, utc } from "../ui";
+import { passControls } from "./control";
+import { PassView, predictionColumns } from "./passview";
+
+/** No telemetry for this long (wall s) while the pass is live: STALE. */
+export const TELEMETRY_STALE_S = 2.0;
+/** No link message for two heartbeats: the link status is stale (docs/console.md). */
+const LINK_STALE_S = 10.0;
+const LIVE_STATES = new Set(["aos", "running", "los"]);
+const STAGE_COLORS: Record<string, string> = {
+  queued: "#5a6272",
+  released: "#7e8aa3",
+  sent: "#4f8df7",
+  received: "#4fc3f7",
+  executed: "#81c784",
+  rejected: "#e57373",
+  expired: "#ffb74d",
+};
+const STAGES = Object.keys(STAGE_COLORS);
+/** Stages in the order a command reaches them (the three outcomes last). */
+const STAGE_RANK: Record<string, number> = {
+  queued: 0, released: 1, sent: 2, received: 3, executed: 4, rejected: 4, expired: 4,
+};
+
+async function choosePass(): Promise<PassPublic | null> {
+  const status = await get<LinkStatus>("/api/link/status");
+  if (status.active_pass_id) return get<PassPublic>(`/api/passes/${status.active_pass_id}`);
+  const passes = await getAll<PassPublic>("/api/passes");
+  const live = passes.find((p) => LIVE_STATES.has(p.state));
+  if (live) return live;
+  const next = passes.filter((p) => p.state === "scheduled");
+  if (next.length) return next[0];
+  return passes.length ? passes[passes.length - 1] : null;
+}
+
+export function livePage(root: HTMLElement, ctx: Ctx, params: string[]): () => void {
+  let disposed = false;
+  let cleanup: (() => void) | null = null;
+  const message = h("p.muted", {}, "Finding the pass…");
+  root.append(message);
+  const load = params[0] ? get<PassPublic>(`/api/passes/${params[0]}`) : choosePass();
+  load
+    .then((pass) => {
+      if (disposed) return;
+      if (pass === null) {
+        message.textContent = "No pass yet: plan an experiment and schedule a pass in Planning.";
+        return;
+      }
+      if (!params[0]) history.replaceState(null, "", `#/live/${pass.id}`);
+      message.remove();
+      cleanup = liveView(root, ctx, pass);
+    })
+    .catch((e: Error) => {
+      message.textContent = e instanceof ApiError && e.status === 404 ? `Pass ${params[0]} not found.` : e.message;
+      message.className = "error";
+    });
+  return () => {
+    disposed = true;
+    cleanup?.();
+  };
+}
+
+function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void {
+  let pass = initial;
+  let plan: PlanDocument | null = null;
+  let store = new TelemetryStore(pass.epoch_ns ?? 0);
+  let renderedVersion = -1;
+  let link: LinkStatus | null = null;
+  let linkAtMs = 0; // performance.now() of the last link status
+  let acsMode = "—";
+  let bufferQueued: number | null = null;
+  const commands = new Map<number, CommandPublic>();
+  let commandsDirty = true;
+  let windowS: number | null = null; // null: the whole pass
+
+  // --- layout -------------------------------------------------------------------------
+  const title = h("h1.passname", { "data-test": "pass-name" });
+  const stateBadge = h("span.badge", { "data-test": "pass-state" });
+  const countdown = h("span.countdown", { "data-test": "countdown" });
+  const segmentNow = h("span.segment", { "data-test": "segment" });
+  const controls = h("span");
+  const staleBadge = h("span.badge.stale", { "data-test": "stale", hidden: true }, "STALE");
+  const windowSel = h("select", { "data-test": "window" },
+    h("option", { value: "" }, "whole pass"),
+    h("option", { value: "120" }, "last 2 min"),
+    h("option", { value: "30" }, "last 30 s"));
+  windowSel.addEventListener("change", () => {
+    windowS = windowSel.value ? Number(windowSel.value) : null;
+    renderedVersion = -1;
+  });
+  const reportLink = h("a", { href: `#/report/${pass.id}` }, "Report");
+  const top = h("section.passbar", {},
+    title, stateBadge, countdown, segmentNow, staleBadge, h("span.spacer"),
+    h("label.inline", {}, "Plots: ", windowSel), reportLink, controls);
+
+  const linkPanel = h("div.panel.link", { "data-test": "link" });
+  const valuesPanel = h("div.panel.values", { "data-test": "values" });
+  const timelineCanvas = h("canvas.timeline", { "data-test": "timeline" });
+  const stageCounts = h("div.stages", { "data-test": "stage-counts" });
+  const nextList = h("ol.cmdlist", { "data-test": "next-commands" });
+  const timelinePanel = h("div.panel.commands", {},
+    h("h3", {}, "Commands"), stageCounts, timelineCanvas, h("h4", {}, "Next and latest"), nextList);
+  const status = h("section.status", {}, linkPanel, valuesPanel, timelinePanel);
+  root.append(top, status);
+  const view = new PassView(root, ctx.paths);
+  root.dataset.pass = pass.id;
+
+  // --- data ---------------------------------------------------------------------------
+  const loadPlan = (): void => {
+    get<PlanDocument>(`/api/plans/${pass.plan_id}/document`)
+      .then((doc) => {
+        plan = doc;
+        view.setPrediction(predictionColumns(doc));
+        renderedVersion = -1;
+      })
+      .catch(() => view.setPrediction(null));
+  };
+
+  let telemetryLoading = false;
+  const loadTelemetry = async (): Promise<void> => {
+    if (telemetryLoading) return;
+    telemetryLoading = true;
+    try {
+      const target = store;
+      let t0 = 0;
+      for (;;) {
+        const page = await get<{ rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[]; truncated: boolean }>(
+          `/api/passes/${pass.id}/telemetry?t0=${t0}&limit=10000&fields=${RAW_FIELDS.join(",")}`,
+        );
+        if (target !== store) return;
+        const rows = page.rows ?? [];
+        store.addRows(rows);
+        if (!page.truncated || rows.length === 0) break;
+        t0 = rows[rows.length - 1].generation_time_ns + 1;
+      }
+    } finally {
+      telemetryLoading = false;
+    }
+  };
+
+  const loadCommands = async (): Promise<void> => {
+    const all = await getAll<CommandPublic>(`/api/passes/${pass.id}/commands`);
+    // A stage pushed while the REST answer was on its way may be newer: keep the later one.
+    for (const c of all) {
+      const known = commands.get(c.seq);
+      if (known && STAGE_RANK[known.stage] > STAGE_RANK[c.stage]) c.stage = known.stage;
+      commands.set(c.seq, c);
+    }
+    commandsDirty = true;
+  };
+
+  const refreshPass = async (): Promise<void> => {
+    const fresh = await get<PassPublic>(`/api/passes/${pass.id}`);
+    const epochChanged = fresh.epoch_ns !== pass.epoch_ns;
+    pass = fresh;
+    if (epochChanged && fresh.epoch_ns !== null) {
+      store = new TelemetryStore(fresh.epoch_ns);
+      renderedVersion = -1;
+      void loadTelemetry();
+    }
+    renderPass();
+  };
+
+  let commandReload: number | undefined = undefined;
+  const onMessage = (m: Message): void => {
+    if (m.type === "telemetry" && m.pass_id === pass.id) {
+      const columns = m.columns as Record<string, unknown[]>;
+      store.addColumns(columns);
+      const modes = columns.acs_mode as string[] | undefined;
+      if (modes?.length) acsMode = modes[modes.length - 1];
+      const queued = columns.buffer_queued as number[] | undefined;
+      if (queued?.length) bufferQueued = queued[queued.length - 1];
+    } else if (m.type === "link") {
+      link = m.status as LinkStatus;
+      linkAtMs = performance.now();
+      renderLink();
+    } else if (m.type === "event") {
+      const event = m.event as { kind: string; pass_id: string | null; detail: Record<string, unknown> };
+      if (event.pass_id !== pass.id) return;
+      if (event.kind === "pass_state") {
+        void refreshPass();
+        void loadCommands();
+      }
+      if (event.kind === "command_stage") {
+        const c = commands.get(event.detail.seq as number);
+        if (c) {
+          c.stage = event.detail.stage as string;
+          commandsDirty = true;
+        } else if (commandReload === undefined) {
+          // A command not loaded yet (made at start): reload once, however many stages
+          // stream in meanwhile (a debounce that restarts would starve while they do).
+          commandReload = window.setTimeout(() => {
+            commandReload = undefined;
+            void loadCommands();
+          }, 300);
+        }
+      }
+    }
+  };
+  const offMessage = ctx.on(onMessage);
+  const offResync = ctx.onResync((topic, passId) => {
+    if (topic === "telemetry" && passId === pass.id) void loadTelemetry();
+    if (topic === "commands") void loadCommands();
+    if (topic === "passes") void refreshPass();
+  });
+
+  ctx.socket.subscribe("link", null);
+  ctx.socket.subscribe("passes", null);
+  ctx.socket.subscribe("commands", null, {}, () => void loadCommands());
+  ctx.socket.subscribe("telemetry", pass.id, { max_rate_hz: 10 }, () => void loadTelemetry());
+  get<LinkStatus>("/api/link/status").then((s) => {
+    if (link === null) {
+      link = s;
+      linkAtMs = performance.now();
+      renderLink();
+    }
+  }).catch(() => undefined);
+  loadPlan();
+
+  // --- rendering ------------------------------------------------------------------------
+  function renderPass(): void {
+    title.textContent = pass.name;
+    stateBadge.textContent = pass.state.toUpperCase();
+    stateBadge.className = `badge state-${pass.state}`;
+    stateBadge.title = pass.state_reason ?? "";
+    clear(controls);
+    controls.append(passControls(ctx, pass, () => void refreshPass()));
+  }
+
+  const onboardNowNs = (): number | null => {
+    if (!link?.connected || link.onboard_time_ns === null) return null;
+    return link.onboard_time_ns + (performance.now() - linkAtMs) * 1e6 * (link.time_scale ?? 1);
+  };
+
+  function renderLink(): void {
+    const s = link;
+    clear(linkPanel);
+    const stale = s !== null && (performance.now() - linkAtMs) / 1000 > LINK_STALE_S;
+    linkPanel.classList.toggle("is-stale", stale || !ctx.socket.connected);
+    const row = (k: string, v: string | Node, test?: string) =>
+      h("div.kv", {}, h("span.k", {}, k), h("span.v", test ? { "data-test": test } : {}, v));
+    linkPanel.append(h("h3", {}, "Link ", stale ? h("span.badge.stale", {}, "STALE") : null));
+    if (!s) {
+      linkPanel.append(h("p.muted", {}, "No link status yet."));
+      return;
+    }
+    const gaps = s.open_gaps ?? [];
+    linkPanel.append(
+      row("spacecraft", h(`b.${s.connected ? "ok" : "bad"}`, {}, s.connected ? `connected (${s.vehicle ?? "?"})` : "NOT CONNECTED"), "link-connected"),
+      row("round trip", s.round_trip_s === null ? "—" : `${fmt(s.round_trip_s, 2)} s`, "link-rtt"),
+      row("frames behind", s.frames_behind === null ? "—" : String(s.frames_behind), "link-behind"),
+      row("open gaps", gaps.length ? gaps.slice(0, 4).map(([a, b]) => `${a}–${b}`).join(", ") + (gaps.length > 4 ? ` +${gaps.length - 4}` : "") : "none", "link-gaps"),
+      row("frames missing", String(s.frames_missing ?? 0)),
+      row("time scale", s.time_scale === null ? "—" : `${s.time_scale}×`),
+      row("console socket", ctx.socket.socketRttMs === null ? "—" : `${fmt(ctx.socket.socketRttMs, 0)} ms`),
+    );
+  }
+
+  function renderValues(stale: boolean): void {
+    const f = store.latest;
+    valuesPanel.classList.toggle("is-stale", stale);
+    clear(valuesPanel);
+    const age = store.lastFrameMs === null ? null : (performance.now() - store.lastFrameMs) / 1000;
+    valuesPanel.append(h("h3", {}, "Latest telemetry ", h("span.muted.small", {}, age === null ? "(none live)" : `${fmt(age, 1)} s ago`)));
+    if (!f) {
+      valuesPanel.append(h("p.muted", {}, "No telemetry for this pass yet."));
+      return;
+    }
+    const D = 180 / Math.PI;
+    const table = h("table.vals", {},
+      h("tr", {}, h("th", {}, ""), ...[1, 2, 3, 4, 5, 6].map((i) => h("th", {}, `J${i}`))),
+      h("tr", {}, h("th", {}, "meas °"), ...[0, 1, 2, 3, 4, 5].map((i) => h("td", {}, fmt(f.v[i] * D, 2)))),
+      h("tr", {}, h("th", {}, "cmd °"), ...[0, 1, 2, 3, 4, 5].map((i) => h("td", {}, fmt(f.v[6 + i] * D, 2)))));
+    const n = store.rpy[0].length - 1;
+    const body = h("table.vals", {},
+      h("tr", {}, h("th", {}, ""), h("th", {}, "x / roll"), h("th", {}, "y / pitch"), h("th", {}, "z / yaw")),
+      h("tr", {}, h("th", {}, "attitude °"), ...[0, 1, 2].map((i) => h("td", {}, fmt(store.rpy[i][n], 3)))),
+      h("tr", {}, h("th", {}, "rate °/s"), ...[0, 1, 2].map((i) => h("td", {}, fmt(store.rates[i][n], 4)))),
+      h("tr", {}, h("th", {}, "wheel N m s"), ...[0, 1, 2].map((i) => h("td", {}, fmt(f.v[19 + i], 3)))));
+    valuesPanel.append(table, body,
+      h("div.kv", {}, h("span.k", {}, "ACS"), h("span.v", {}, acsMode)),
+      h("div.kv", {}, h("span.k", {}, "onboard queue"), h("span.v", {}, bufferQueued === null ? "—" : String(bufferQueued))),
+      h("div.kv", {}, h("span.k", {}, "frames"), h("span.v", { "data-test": "frame-count" }, String(store.count))));
+  }
+
+  function planRange(): [number, number] | null {
+    const end = plan ? plan.prediction.t_s[plan.prediction.t_s.length - 1] : null;
+    const first = store.first ? store.t(store.first.genNs) : null;
+    const last = store.latest ? store.t(store.latest.genNs) : null;
+    if (windowS !== null && last !== null) return [last - windowS, last];
+    const lo = Math.min(0, first ?? 0);
+    const hi = Math.max(end ?? 0, last ?? 0);
+    return hi > lo ? [lo, hi] : null;
+  }
+
+  function renderCommands(tNow: number | null): void {
+    const list = [...commands.values()].sort((a, b) => a.execute_time_ns - b.execute_time_ns);
+    const counts = new Map<string, number>();
+    for (const c of list) counts.set(c.stage, (counts.get(c.stage) ?? 0) + 1);
+    clear(stageCounts);
+    for (const stage of STAGES) {
+      const n = counts.get(stage) ?? 0;
+      stageCounts.append(h("span.stage", { "data-stage": stage, "data-count": n, style: `--c:${STAGE_COLORS[stage]}` }, `${stage} ${n}`));
+    }
+    // The strip: one tick per command at its tag, coloured by stage; "now" in amber.
+    const c = timelineCanvas;
+    const w = c.clientWidth || 300;
+    const hgt = 36;
+    const dpr = devicePixelRatio;
+    c.width = Math.round(w * dpr);
+    c.height = Math.round(hgt * dpr);
+    const g = c.getContext("2d");
+    const range = planRange();
+    if (g && range && pass.epoch_ns !== null) {
+      g.setTransform(dpr, 0, 0, dpr, 0, 0);
+      g.clearRect(0, 0, w, hgt);
+      const px = (t: number) => ((t - range[0]) / (range[1] - range[0])) * w;
+      for (const cmd of list) {
+        g.fillStyle = STAGE_COLORS[cmd.stage] ?? "#888";
+        const x = px((cmd.execute_time_ns - pass.epoch_ns) / 1e9);
+        g.fillRect(x, cmd.kind === "acs" ? 2 : 10, 1.5, cmd.kind === "acs" ? 6 : 24);
+      }
+      if (plan) {
+        g.fillStyle = "#aab";
+        g.font = "9px sans-serif";
+        for (const s of plan.segments) g.fillRect(px(s.t_start_s), 0, 1, hgt);
+      }
+      if (tNow !== null) {
+        g.fillStyle = "#e8b04a";
+        g.fillRect(px(tNow) - 1, 0, 2, hgt);
+      }
+    }
+    // Next two queued and the latest three past their tag.
+    clear(nextList);
+    const nowNs = pass.epoch_ns !== null && tNow !== null ? pass.epoch_ns + tNow * 1e9 : null;
+    const future = nowNs === null ? list.filter((x) => x.stage === "queued") : list.filter((x) => x.execute_time_ns > nowNs);
+    const past = nowNs === null ? [] : list.filter((x) => x.execute_time_ns <= nowNs);
+    const item = (cmd: CommandPublic, when: string) =>
+      h("li", { "data-stage": cmd.stage }, h("span.tag", {}, when), ` #${cmd.seq} ${cmd.kind} `,
+        h("span.stage", { style: `--c:${STAGE_COLORS[cmd.stage] ?? "#888"}` }, cmd.stage),
+        cmd.reject_reason ? h("span.error", {}, ` ${cmd.reject_reason}`) : null);
+    const tagOf = (cmd: CommandPublic) =>
+      pass.epoch_ns === null ? "" : `t=${fmt((cmd.execute_time_ns - pass.epoch_ns) / 1e9, 2)} s`;
+    for (const cmd of past.slice(-3)) nextList.append(item(cmd, tagOf(cmd)));
+    for (const cmd of future.slice(0, 2)) nextList.append(item(cmd, tagOf(cmd) + (nowNs !== null ? ` (in ${fmt((cmd.execute_time_ns - nowNs) / 1e9 / (link?.time_scale ?? 1), 1)} s)` : "")));
+    if (!list.length) nextList.append(h("li.muted", {}, "No commands yet (they are made when the pass starts)."));
+  }
+
+  function segmentText(tNow: number | null): string {
+    if (!plan || tNow === null) return "";
+    const segs: Segment[] = plan.segments;
+    const now = segs.find((s) => s.t_start_s <= tNow && tNow < s.t_end_s);
+    const next = segs.find((s) => s.t_start_s > tNow);
+    const scale = link?.time_scale ?? 1;
+    return [
+      `t = ${fmt(tNow, 1)} s`,
+      now ? `now: ${now.name}` : "",
+      next ? `next: ${next.name} in ${clock((next.t_start_s - tNow) / scale)}` : "",
+    ].filter(Boolean).join(" · ");
+  }
+
+  const tick = (): void => {
+    // Countdown on the ground clock (corrected by the console socket's pong).
+    const now = ctx.socket.groundNowMs();
+    const aos = Date.parse(pass.aos_time);
+    const los = Date.parse(pass.los_time);
+    if (pass.state === "scheduled") countdown.textContent = now < aos ? `AOS in ${clock((aos - now) / 1000)}` : `AOS ${clock((now - aos) / 1000)} ago · LOS in ${clock((los - now) / 1000)}`;
+    else if (LIVE_STATES.has(pass.state)) countdown.textContent = now < los ? `LOS in ${clock((los - now) / 1000)}` : `LOS passed ${clock((now - los) / 1000)} ago`;
+    else countdown.textContent = `AOS ${utc(pass.aos_time)} · LOS ${utc(pass.los_time)}`;
+    const onboard = onboardNowNs();
+    const tNow = onboard !== null && pass.epoch_ns !== null && LIVE_STATES.has(pass.state) ? (onboard - pass.epoch_ns) / 1e9 : null;
+    segmentNow.textContent = segmentText(tNow);
+    // Stale: the pass is live and no frame for TELEMETRY_STALE_S (or the socket is down).
+    const age = store.lastFrameMs === null ? Infinity : (performance.now() - store.lastFrameMs) / 1000;
+    const stale = LIVE_STATES.has(pass.state) && (age > TELEMETRY_STALE_S || !ctx.socket.connected);
+    staleBadge.hidden = !stale;
+    staleBadge.textContent = Number.isFinite(age) ? `STALE ${fmt(age, 1)} s` : "STALE: no telemetry";
+    root.classList.toggle("telemetry-stale", stale);
+    if (store.version !== renderedVersion) {
+      renderedVersion = store.version;
+      view.setXRange(planRange());
+      view.showStore(store);
+    }
+    view.setMarker(tNow);
+    renderValues(stale);
+    if (performance.now() - linkAtMs > 1000) renderLink();
+    if (commandsDirty || tNow !== null) {
+      commandsDirty = false;
+      renderCommands(tNow);
+    }
+  };
+
+  renderPass();
+  renderLink();
+  // 10 Hz, drawn in the next animation frame: plots, values, countdown.
+  let raf = 0;
+  const tickMs: number[] = []; // the cost of the last ticks (the bench reads them)
+  const timer = window.setInterval(() => {
+    if (!raf) raf = requestAnimationFrame(() => {
+      raf = 0;
+      const t0 = performance.now();
+      tick();
+      tickMs.push(performance.now() - t0);
+      if (tickMs.length > 2000) tickMs.splice(0, 1000);
+    });
+  }, 100);
+  (window as unknown as { hikoboshiLive?: unknown }).hikoboshiLive = {
+    pointCounts: () => view.pointCounts(),
+    frames: () => store.count,
+    store: () => store,
+    tickMs: () => tickMs.splice(0),
+  };
+
+  return () => {
+    window.clearInterval(timer);
+    cancelAnimationFrame(raf);
+    window.clearTimeout(commandReload);
+    offMessage();
+    offResync();
+    ctx.socket.unsubscribe("telemetry", pass.id);
+    view.dispose();
+    delete (window as unknown as { hikoboshiLive?: unknown }).hikoboshiLive;
+  };
+}

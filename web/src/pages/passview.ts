@@ -1,0 +1,181 @@
+// The plots of a pass, shared by the live view, the plan preview and the report: joints
+// (measured, servo target, plan), base attitude, base rates, wheel momentum, the pitch
+// phase plane and the 3D view. Fed by a TelemetryStore (flown) and a plan document
+// (prediction, drawn dashed underneath).
+
+import type { PlanDocument } from "../api";
+import { fetchUrdf, SatelliteView } from "../model3d";
+import { COLORS, PhasePlane, timePlot, type PredLine, type TimePlot } from "../plots";
+import { rpyFromQuat, type Column, type Frame, type TelemetryStore } from "../store";
+import { h } from "../ui";
+
+const DEG = 180 / Math.PI;
+const AXES = ["x", "y", "z"];
+
+export interface PredictionColumns {
+  t: number[];
+  joints: number[][]; // deg, per joint
+  rpy: number[][]; // deg
+  rates: number[][]; // deg/s, base frame
+  momentum: number[][]; // N m s
+  quat: number[][]; // rows, x y z w
+  jointsRad: number[][]; // rows
+}
+
+/** The plan's prediction in display units; rates turned from the orbit frame to the base
+ * frame (the gyro's), omega_base = R^T omega_orbit with R = rot_orbit_from_base. */
+export function predictionColumns(doc: PlanDocument): PredictionColumns {
+  const p = doc.prediction;
+  const n = p.t_s.length;
+  const out: PredictionColumns = {
+    t: p.t_s,
+    joints: Array.from({ length: 6 }, (_, i) => p.joints_rad.map((r) => r[i] * DEG)),
+    rpy: [[], [], []],
+    rates: [[], [], []],
+    momentum: Array.from({ length: 3 }, (_, i) => p.wheel_momentum_nms.map((r) => r[i])),
+    quat: p.quat_orbit_from_base_xyzw,
+    jointsRad: p.joints_rad,
+  };
+  for (let k = 0; k < n; k++) {
+    const [x, y, z, w] = p.quat_orbit_from_base_xyzw[k];
+    const rpy = rpyFromQuat(x, y, z, w);
+    const o = p.omega_base_orbit_radps[k];
+    // Columns of R: R^T o = (col0 . o, col1 . o, col2 . o).
+    const c0 = [1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w)];
+    const c1 = [2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)];
+    const c2 = [2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)];
+    const ob = [c0, c1, c2].map((c) => c[0] * o[0] + c[1] * o[1] + c[2] * o[2]);
+    for (let i = 0; i < 3; i++) {
+      out.rpy[i].push(rpy[i] * DEG);
+      out.rates[i].push(ob[i] * DEG);
+    }
+  }
+  return out;
+}
+
+export class PassView {
+  readonly el: HTMLElement;
+  readonly joints: TimePlot[] = [];
+  readonly attitude: TimePlot;
+  readonly rates: TimePlot;
+  readonly momentum: TimePlot;
+  readonly phase: PhasePlane;
+  view3d: SatelliteView | null = null;
+  private pred: PredictionColumns | null = null;
+  private plots: TimePlot[];
+
+  constructor(parent: HTMLElement, paths: Set<string>) {
+    this.el = h("section.passview");
+    parent.appendChild(this.el);
+    const jointGrid = h("div.grid.joints", { "data-test": "joint-plots" });
+    const bodyGrid = h("div.grid.body");
+    const side = h("div.side");
+    const caption = h("p.caption.muted.small", {},
+      "Solid: flown (telemetry). Thin dashed: commanded servo target. Grey dashed: the plan's prediction. Amber line: now / replay time. Breaks in a line: missing frames.");
+    this.el.append(h("div.plots", {}, caption, jointGrid, bodyGrid), side);
+    for (let i = 0; i < 6; i++) {
+      this.joints.push(
+        timePlot(jointGrid, `Joint ${i + 1}`, "deg", [
+          { label: "measured", color: COLORS[i] },
+          { label: "commanded", color: COLORS[i], dash: [4, 3], width: 1 },
+        ], 150, 1.0),
+      );
+    }
+    const three = (color: string[]) => AXES.map((a, i) => ({ label: a, color: color[i] }));
+    this.attitude = timePlot(bodyGrid, "Base attitude roll / pitch / yaw", "deg", [
+      { label: "roll", color: COLORS[0] },
+      { label: "pitch", color: COLORS[1] },
+      { label: "yaw", color: COLORS[2] },
+    ], 170, 0.05);
+    this.rates = timePlot(bodyGrid, "Base rates (base frame)", "deg/s", three(COLORS.slice(3)), 170, 0.01);
+    this.momentum = timePlot(bodyGrid, "Wheel momentum", "N m s", three([COLORS[0], COLORS[1], COLORS[2]]), 170, 0.1);
+    this.plots = [...this.joints, this.attitude, this.rates, this.momentum];
+    this.attitude.el.dataset.test = "plot-attitude";
+    this.rates.el.dataset.test = "plot-rates";
+    this.momentum.el.dataset.test = "plot-momentum";
+    this.phase = new PhasePlane(side);
+    const holder = h("div.view3d-holder", {}, h("div.phase-title", {}, "Satellite and arm (solid: measured, ghost: commanded)"));
+    side.appendChild(holder);
+    void fetchUrdf(paths).then((urdf) => {
+      if (!this.el.isConnected && !holder.isConnected) return;
+      const view = new SatelliteView(holder);
+      if (urdf === null || !view.load(urdf)) {
+        view.dispose();
+        view.el.remove();
+        holder.append(h("p.unavailable", {}, "3D model not available: the console was built without the model (run scripts/setup.sh)."));
+        return;
+      }
+      this.view3d = view;
+      const initial = this.pred;
+      if (initial) view.setPose(initial.jointsRad[0], null, initial.quat[0]);
+    });
+  }
+
+  setPrediction(pred: PredictionColumns | null): void {
+    this.pred = pred;
+    const lines = (cols: number[][]): PredLine[] => (pred ? cols.map((y) => ({ x: pred.t, y })) : []);
+    this.joints.forEach((p, i) => p.setPrediction(pred ? [{ x: pred.t, y: pred.joints[i] }] : []));
+    this.attitude.setPrediction(lines(pred?.rpy ?? []));
+    this.rates.setPrediction(lines(pred?.rates ?? []));
+    this.momentum.setPrediction(lines(pred?.momentum ?? []));
+    this.phase.setPlanned(pred ? { x: pred.rpy[1], y: pred.rates[1] } : null);
+  }
+
+  /** Plot what ``store`` holds. */
+  showStore(store: TelemetryStore): void {
+    this.joints.forEach((p, i) => p.update(store.x, [store.joints[i], store.targets[i]]));
+    this.attitude.update(store.x, store.rpy);
+    this.rates.update(store.x, store.rates);
+    this.momentum.update(store.x, store.momentum);
+    const last = store.latest;
+    this.phase.set(store.rpy[1], store.rates[1], last ? this.pitchPoint(last) : null);
+    if (last) this.showFrame(last);
+  }
+
+  /** Plot the prediction as the data (the plan preview, before anything flies). */
+  showPredictionAsData(pred: PredictionColumns): void {
+    const none: Column = pred.t.map(() => null);
+    this.joints.forEach((p, i) => p.update(pred.t, [pred.joints[i], none]));
+    this.attitude.update(pred.t, pred.rpy);
+    this.rates.update(pred.t, pred.rates);
+    this.momentum.update(pred.t, pred.momentum);
+  }
+
+  private pitchPoint(f: Frame): [number, number] {
+    const rpy = rpyFromQuat(f.v[12], f.v[13], f.v[14], f.v[15]);
+    return [rpy[1] * DEG, f.v[17] * DEG];
+  }
+
+  /** The 3D pose and phase-plane point of one frame. */
+  showFrame(f: Frame): void {
+    this.view3d?.setPose(f.v.subarray(0, 6), f.v.subarray(6, 12), f.v.subarray(12, 16));
+  }
+
+  /** The predicted pose at plan time ``t`` (preview). */
+  showPredictedAt(t: number): void {
+    const pred = this.pred;
+    if (!pred || pred.t.length === 0) return;
+    let k = pred.t.findIndex((v) => v >= t);
+    if (k < 0) k = pred.t.length - 1;
+    this.view3d?.setPose(pred.jointsRad[k], null, pred.quat[k]);
+    this.phase.set([], [], [pred.rpy[1][k], pred.rates[1][k]]);
+  }
+
+  setMarker(t: number | null): void {
+    for (const p of this.plots) p.setMarker(t);
+  }
+
+  setXRange(range: [number, number] | null): void {
+    for (const p of this.plots) p.setXRange(range);
+  }
+
+  /** Points on each plot (the tests and the bench read these). */
+  pointCounts(): number[] {
+    return this.plots.map((p) => p.points());
+  }
+
+  dispose(): void {
+    this.view3d?.dispose();
+    for (const p of this.plots) p.plot.destroy();
+  }
+}
