@@ -132,6 +132,11 @@ def spacecraft(ground: Ground, **link: Any) -> tuple[SpacecraftProcess, list[Tel
             drain_timeout_s=30.0,
         )
     )
+    return process, generated_frames(process)
+
+
+def generated_frames(process: SpacecraftProcess) -> list[TelemetryFrame]:
+    """The list every telemetry frame the process generates from now on is added to."""
     generated: list[TelemetryFrame] = []
     add = process.store.add
 
@@ -141,7 +146,7 @@ def spacecraft(ground: Ground, **link: Any) -> tuple[SpacecraftProcess, list[Tel
         add(frames)
 
     process.store.add = recording_add  # type: ignore[method-assign]
-    return process, generated
+    return generated
 
 
 async def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str) -> Any:

@@ -27,8 +27,14 @@ from server.storage.db import make_engine, session_factory, sqlite_url
 from server.storage.models import EventRecord
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from telemetry.wire import TelemetryFrame
-from tests.server.link.harness import OPERATOR, VIEWER, _free_port, store_pass, wait_for
+from tests.server.link.harness import (
+    OPERATOR,
+    VIEWER,
+    _free_port,
+    generated_frames,
+    store_pass,
+    wait_for,
+)
 
 #: Slower than the other end-to-end tests: a restart takes seconds of wall time, and at 20x
 #: that would be a minute onboard. At 10x it is 20-40 s of a 130 s pass.
@@ -113,15 +119,7 @@ def test_a_killed_ground_resumes_the_pass_and_loses_no_row(
             drain_timeout_s=30.0,
         )
     )
-    generated: list[TelemetryFrame] = []
-    add = process.store.add
-
-    def recording_add(frames: Any) -> None:
-        frames = list(frames)
-        generated.extend(frames)
-        add(frames)
-
-    process.store.add = recording_add  # type: ignore[method-assign]
+    generated = generated_frames(process)
 
     def executed(pass_id: str) -> int:
         with sessions() as session:
