@@ -180,15 +180,31 @@ class _FreeDrift:
         #: (k, fraction of interval k) -> momentum blocks along the joint path: RK4 with one
         #: substep asks at the nodes and midpoints only, and every run of a segment follows
         #: the same path, so each configuration is evaluated once.
-        self._blocks: dict[tuple[int, float], tuple[Array, Array]] = {}
+        #: Per configuration also ``H~_b^-1``; per (interval, fraction) ``H~_b^-1 H~_bm phi'``
+        #: with that interval's joint rate.
+        self._config: dict[tuple[int, float], tuple[Array, Array, Array]] = {}
+        self._blocks: dict[tuple[int, float], tuple[Array, Array, Array]] = {}
 
-    def blocks(self, k: int, a: float) -> tuple[Array, Array]:
+    def _configuration(self, k: int, a: float) -> tuple[Array, Array, Array]:
         key = (k + 1, 0.0) if a == 1.0 else (k, a)
-        found = self._blocks.get(key)
+        found = self._config.get(key)
         if found is None:
             q = (1 - a) * self.q[k] + a * self.q[k + 1]
             h_b, h_bm = self.ws.momentum_blocks(q)
-            found = self._blocks[key] = (h_b.copy(), h_bm.copy())
+            inverse = np.asarray(np.linalg.inv(h_b), dtype=np.float64)
+            found = (h_b.copy(), inverse, h_bm.copy())
+            self._config[key] = found
+        return found
+
+    def blocks(self, k: int, a: float) -> tuple[Array, Array, Array]:
+        """``H~_b``, ``H~_b^-1`` and ``H~_b^-1 H~_bm phi'`` at fraction ``a`` of interval k
+        (the joint rate is that interval's)."""
+        found = self._blocks.get((k, a))
+        if found is None:
+            h_b, inverse, h_bm = self._configuration(k, a)
+            rate = (self.q[k + 1] - self.q[k]) / (self.t[k + 1] - self.t[k])
+            arm: Array = inverse @ (h_bm @ rate)
+            found = self._blocks[(k, a)] = (h_b, inverse, arm)
         return found
 
     def with_gg(self, gg: bool) -> _FreeDrift:
@@ -202,12 +218,11 @@ class _FreeDrift:
         """``d(quat, L)/dt`` at ``t[k] + tau`` within interval k."""
         dt = self.t[k + 1] - self.t[k]
         a = tau / dt
-        rate = (self.q[k + 1] - self.q[k]) / dt
         h_w = (1 - a) * self.h[k] + a * self.h[k + 1]
         quat, momentum = y[:4], y[4:]
         rot = _rot(quat)
-        h_b, h_bm = self.blocks(k, a)
-        omega = np.linalg.solve(h_b, rot.T @ momentum - h_bm @ rate - h_w)
+        h_b, inverse, arm = self.blocks(k, a)
+        omega = inverse @ (rot.T @ momentum - h_w) - arm
         dquat = 0.5 * _quat_mul_xyzw(quat, np.array([*omega, 0.0]))
         dmom = (
             rot @ gravity_gradient_torque_base_nm(h_b, rot, self.ws.orbit)
