@@ -89,8 +89,9 @@ class FrameArrays:
         return len(self.seq)
 
     def take(self, rows: IntArray | NDArray[np.bool_] | slice) -> FrameArrays:
-        """The selected rows (an index array, a mask or a slice)."""
-        return FrameArrays(**{name: getattr(self, name)[rows] for name in FRAME_ARRAYS})
+        """A copy of the selected rows (an index array, a mask or a slice): never a view,
+        so changing it leaves this one as it was."""
+        return FrameArrays(**{name: getattr(self, name)[rows].copy() for name in FRAME_ARRAYS})
 
     @classmethod
     def empty(cls) -> FrameArrays:

@@ -183,3 +183,10 @@ def test_a_recording_with_time_running_backwards_is_refused(
     bad = PassRecording("bad", demo_recording.plan, demo_recording.epoch_ns, frames)
     with pytest.raises(ValueError, match="frame 6: generation_time_ns runs backwards"):
         Replay(bad)
+
+
+def test_take_copies_even_a_slice(demo_recording: PassRecording) -> None:
+    before = demo_recording.frames.joints_rad[0, 0]
+    frames = demo_recording.frames.take(slice(0, 3))
+    frames.joints_rad[0, 0] = before + 1.0
+    assert demo_recording.frames.joints_rad[0, 0] == before
