@@ -12,6 +12,7 @@ from server.api import analyses as analyses_api
 from server.api import console as console_api
 from server.api import control as control_api
 from server.api import link as link_api
+from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
 from server.api import recordings as recordings_api
@@ -67,6 +68,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(passes_api.router)
     app.include_router(analyses_api.router)
     app.include_router(telemetry_api.router)
+    app.include_router(model_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])

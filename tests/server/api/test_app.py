@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
+from planner.model import default_model
+from planner.urdf import urdf_xml
 from server.api.deps import OperatorDep, ViewerDep
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
@@ -64,3 +67,13 @@ def test_tokens_and_roles(
     assert response.status_code == status
     if code is not None:
         assert response.json()["error"]["code"] == code
+
+
+def test_the_model_urdf_is_the_planner_s_and_needs_a_token(client: TestClient) -> None:
+    assert client.get("/api/model/urdf").status_code == 401
+    response = client.get("/api/model/urdf", headers={"Authorization": "Bearer v-token"})
+    assert response.status_code == 200
+    assert response.headers["content-type"].startswith("application/xml")
+    assert response.text == urdf_xml(default_model())
+    links = {link.get("name") for link in ET.fromstring(response.text).iter("link")}
+    assert {"base_link", "link1", "link6"} <= links

@@ -24,6 +24,7 @@ from schemathesis.specs.openapi.checks import (
 )
 
 from server.api import analyses as analyses_api
+from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
 from server.api import recordings as recordings_api
@@ -44,6 +45,7 @@ ROUTERS = (
     telemetry_api.router,
     analyses_api.router,
     recordings_api.router,
+    model_api.router,
 )
 
 
@@ -65,7 +67,7 @@ def test_every_operation_conforms_and_never_fails_on_the_server(client: TestClie
         for op in (result.ok() for result in schema.get_all_operations())
         if (op.method.upper(), op.path) in ours
     ]
-    assert len(operations) == len(ours) == 20
+    assert len(operations) == len(ours) == 21
     for operation in operations:
 
         @settings(
