@@ -27,7 +27,7 @@ import json
 import logging
 import random
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
@@ -54,6 +54,9 @@ from telemetry.wire import (
     decode_ground,
     encode,
 )
+
+#: Wall seconds the resend timeout allows the ground for its own processing.
+RESEND_WALL_S = 1.0
 
 __all__ = ["ProcessConfig", "SpacecraftProcess"]
 
@@ -94,7 +97,13 @@ class SpacecraftProcess:
         self.vehicle = Vehicle(config.vehicle, epoch_ns=epoch, seed=config.seed)
         self.uplink = LinkEmulator(config.uplink)
         self.downlink_link = LinkEmulator(config.downlink)
-        self.store = Downlink(config.telemetry_store)
+        # Resend after the onboard timeout plus a second of wall time per unit of time
+        # scale: at 20x the 10 s timeout is half a wall second, less than a loaded ground
+        # may take to acknowledge, and early resends only feed its backlog.
+        store = config.telemetry_store
+        self.store = Downlink(
+            replace(store, resend_after_s=store.resend_after_s + RESEND_WALL_S * config.time_scale)
+        )
         self._wall0 = time.monotonic()
         self._ws: ClientConnection | None = None
         self._connected = asyncio.Event()

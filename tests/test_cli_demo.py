@@ -60,7 +60,7 @@ def test_demo_through_loss_and_an_outage_stores_every_frame_once(tmp_path: Path)
         + sum(summary["commands_rejected"].values())
     )
     assert summary["commands_outstanding"] == 0 and ended == summary["commands_total"]
-    # The pass starts about 30 s onboard; the PTP motion ends near 84 s, so the outage
+    # The pass starts about 32 s onboard; the PTP motion ends near 86 s, so the outage
     # eats commands of the hold at B: lost (expired), and the next one after it is the
     # same target, so the plan carries on.
     assert summary["commands_expired"] > 20

@@ -87,6 +87,11 @@ T = TypeVar("T")
 
 #: The spacecraft resends unacknowledged frames after this long (onboard s, protocol doc).
 RESEND_WINDOW_S = 10.0
+#: A gap is asked for once it has stayed open this long (onboard s): the relay's jitter
+#: delivers frames out of order.
+GAP_GRACE_S = 1.0
+#: Wall seconds added to the onboard windows for each end's own processing time.
+WALL_ALLOWANCE_S = 1.0
 #: A ping this often (onboard s) while connected.
 PING_PERIOD_S = 10.0
 #: A stage only ever moves to a higher rank; the last three end a command.
@@ -443,6 +448,7 @@ class GroundLink:
         # downlink
         self.held = SeqRanges()
         self._requested_at: dict[int, float] = {}
+        self._gap_seen_at: dict[int, float] = {}
         self.windows: list[TelemetryWindow] = []
         self._newest: tuple[int, int] | None = None  # (seq, generation ns)
         #: The newest frame received (highest seq): what the vehicle last said it does.
@@ -655,10 +661,21 @@ class GroundLink:
             through = ranges.pop(0)[1]
         await self.send(encode(TelemetryAck(through_seq=through, ranges=ranges[:MAX_ACK_RANGES])))
         now = time.monotonic()
-        window_s = RESEND_WINDOW_S / self.time_scale
+        # Onboard time scaled to wall, plus wall time for the two ends' own processing:
+        # at high time scales the onboard windows shrink below what a loaded machine takes
+        # to handle a message, and asking early only brings copies.
+        window_s = RESEND_WINDOW_S / self.time_scale + WALL_ALLOWANCE_S
+        grace_s = GAP_GRACE_S / self.time_scale + WALL_ALLOWANCE_S / 5
         due: list[tuple[int, int]] = []
-        for lo, hi in self.held.gaps():
+        gaps = self.held.gaps()
+        missing = {seq for lo, hi in gaps for seq in range(lo, hi + 1)}
+        self._gap_seen_at = {
+            seq: self._gap_seen_at.get(seq, now) for seq in missing
+        }  # a gap is asked for once it has stayed open a while (jitter reorders frames)
+        for lo, hi in gaps:
             for seq in range(lo, hi + 1):
+                if now - self._gap_seen_at[seq] < grace_s:
+                    continue
                 if now - self._requested_at.get(seq, -math.inf) >= window_s:
                     self._requested_at[seq] = now
                     if due and due[-1][1] == seq - 1:
