@@ -37,6 +37,46 @@ interface Stream {
 
 const key = (topic: string, passId: string | null): string => `${topic}|${passId ?? ""}`;
 
+/** What a replay's owner hears (docs/console.md, "Replay of a recorded pass"). */
+export interface ReplayHandlers {
+  /** ``replay_opened``: also after a reconnect, when the replay was opened again. */
+  opened(m: Message): void;
+  /** ``replay_state``. */
+  state(m: Message): void;
+  /** A data message (``topic: "replay"``): ``telemetry`` or ``commands``. */
+  data(m: Message): void;
+  /** An ``error`` answering one of this console's replay requests. */
+  error(reason: string, refType: string): void;
+  /** The socket dropped: the server closed the replay (it is opened again on reconnect). */
+  lost(): void;
+}
+
+/** One replay opened by this console: requests go through it, replies come to its handlers. */
+export class ReplayHandle {
+  id: string | null = null;
+  closed = false;
+
+  constructor(
+    private readonly socket: ConsoleSocket,
+    readonly passId: string,
+    readonly options: Record<string, unknown>,
+    readonly handlers: ReplayHandlers,
+  ) {}
+
+  /** ``replay_play``, ``replay_pause``, ``replay_step``, ``replay_speed``, ``replay_seek``. */
+  request(type: string, fields: Record<string, unknown> = {}): void {
+    if (this.closed || this.id === null) return;
+    this.socket.sendRaw({ type, replay_id: this.id, ...fields });
+  }
+
+  /** ``replay_close`` (now, or as soon as the pending open is answered). */
+  close(): void {
+    if (this.closed) return;
+    this.closed = true;
+    this.socket.forgetReplay(this);
+  }
+}
+
 export class ConsoleSocket {
   private ws: WebSocket | null = null;
   private streams = new Map<string, Stream>();
@@ -46,6 +86,10 @@ export class ConsoleSocket {
   private pingTimer: number | undefined;
   private pings = new Map<number, number>();
   private pingId = 0;
+  /** Replays this console opened, by replay_id; and the opens awaiting their answer, in order. */
+  private replays = new Map<string, ReplayHandle>();
+  private replayOpens: ReplayHandle[] = [];
+  private replayHandles = new Set<ReplayHandle>();
   /** Ground time minus browser time (ms), from the last pong. */
   clockOffsetMs = 0;
   /** The console socket's round trip (ms), from the last pong. */
@@ -71,6 +115,7 @@ export class ConsoleSocket {
     ws.onclose = (ev) => {
       this.ws = null;
       this.setConnected(false);
+      this.dropReplays();
       window.clearInterval(this.pingTimer);
       if (ev.code === 1008 && this.welcome === null) {
         this.closed = true;
@@ -96,6 +141,96 @@ export class ConsoleSocket {
 
   private send(message: Record<string, unknown>): void {
     if (this.ws?.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify({ v: 1, ...message }));
+  }
+
+  /** Send a message as is (``v: 1`` added): the replay requests. */
+  sendRaw(message: Record<string, unknown>): void {
+    this.send(message);
+  }
+
+  /** Open a replay of a flown pass; ``options`` are replay_open's (``speed``, ``paused``,
+   * ``fields``). Opened again (same options) after a reconnect, until closed. */
+  openReplay(passId: string, options: Record<string, unknown>, handlers: ReplayHandlers): ReplayHandle {
+    const handle = new ReplayHandle(this, passId, options, handlers);
+    this.replayHandles.add(handle);
+    if (this.welcome !== null && this.connected) this.sendReplayOpen(handle);
+    return handle;
+  }
+
+  private sendReplayOpen(handle: ReplayHandle): void {
+    this.replayOpens.push(handle);
+    this.send({ type: "replay_open", pass_id: handle.passId, ...handle.options });
+  }
+
+  /** A handle closed: close its replay on the server (or when its open is answered). */
+  forgetReplay(handle: ReplayHandle): void {
+    this.replayHandles.delete(handle);
+    if (handle.id !== null) {
+      this.replays.delete(handle.id);
+      this.send({ type: "replay_close", replay_id: handle.id });
+    }
+  }
+
+  /** The socket dropped: the server ended every replay of this console. */
+  private dropReplays(): void {
+    const handles = [...this.replayHandles];
+    this.replays.clear();
+    this.replayOpens = [];
+    for (const handle of handles) {
+      handle.id = null;
+      handle.handlers.lost();
+    }
+  }
+
+  /** Replay traffic (dispatched before anything else): true when ``m`` was one. */
+  private receiveReplay(m: Message): boolean {
+    if (m.topic === "replay") {
+      const handle = this.replays.get(m.replay_id as string);
+      if (handle && !handle.closed) handle.handlers.data(m);
+      return true;
+    }
+    switch (m.type) {
+      case "replay_opened": {
+        const handle = this.replayOpens.shift();
+        const id = m.replay_id as string;
+        if (!handle || handle.closed) {
+          // Its page went away before the answer: close it at once.
+          this.send({ type: "replay_close", replay_id: id });
+          return true;
+        }
+        handle.id = id;
+        this.replays.set(id, handle);
+        handle.handlers.opened(m);
+        return true;
+      }
+      case "replay_state": {
+        const handle = this.replays.get(m.replay_id as string);
+        if (handle && !handle.closed) handle.handlers.state(m);
+        return true;
+      }
+      case "replay_closed": {
+        const handle = this.replays.get(m.replay_id as string);
+        if (handle) {
+          this.replays.delete(handle.id as string);
+          handle.id = null;
+        }
+        return true;
+      }
+      case "error": {
+        const refType = typeof m.ref_type === "string" ? m.ref_type : "";
+        if (!refType.startsWith("replay_")) return false;
+        console.warn("console websocket (replay):", m.reason);
+        if (refType === "replay_open") {
+          const handle = this.replayOpens.shift();
+          if (handle && !handle.closed) handle.handlers.error(String(m.reason), refType);
+          return true;
+        }
+        for (const handle of this.replays.values()) handle.handlers.error(String(m.reason), refType);
+        return true;
+      }
+      default:
+        return false;
+    }
   }
 
   private sendSubscribe(s: Stream): void {
@@ -154,6 +289,7 @@ export class ConsoleSocket {
   }
 
   private receive(m: Message): void {
+    if (this.receiveReplay(m)) return;
     switch (m.type) {
       case "welcome": {
         this.backoffMs = 250;
@@ -163,6 +299,7 @@ export class ConsoleSocket {
         this.handlers.welcome(this.welcome);
         // Resume every stream: with the old seq and epoch (a new epoch answers resync).
         for (const s of this.streams.values()) this.sendSubscribe(s);
+        for (const handle of this.replayHandles) this.sendReplayOpen(handle);
         this.ping();
         window.clearInterval(this.pingTimer);
         this.pingTimer = window.setInterval(() => this.ping(), 5000);

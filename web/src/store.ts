@@ -151,6 +151,18 @@ export class TelemetryStore {
     this.add(frames, false);
   }
 
+  /** Frames already held by another store (copied as they are). */
+  addFrames(frames: Frame[]): void {
+    this.add(frames, false);
+  }
+
+  /** The frames before onboard time ``ns``, in time order. */
+  framesBefore(ns: number): Frame[] {
+    const out: Frame[] = [];
+    for (const f of this.frames) if (f.genNs < ns) out.push(f);
+    return out.sort((a, b) => a.genNs - b.genNs);
+  }
+
   /** The frame at or just before plan time ``t`` (replay), or null. */
   frameAt(t: number): Frame | null {
     const ns = this.epochNs + t * 1e9;

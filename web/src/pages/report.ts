@@ -1,13 +1,15 @@
 // After the pass: what it delivered (the summary), the server's report and recording when
 // this server offers them (its OpenAPI document lists them; otherwise "not available"),
 // predicted-vs-flown overlays of the whole archive, downloads (JSON of the archive, PNG of
-// every plot), and replay: play, pause, speed and seek over the archived frames.
+// every plot), and replay: the server's replay over the console websocket (play, pause,
+// speed, step and seek; docs/console.md), its telemetry drawn on the same plots.
 
 import {
   get, getAll, post, storedToken,
   type CommandPublic, type PassPublic, type PlanDocument,
 } from "../api";
 import type { Ctx } from "../main";
+import type { Message } from "../socket";
 import { RAW_FIELDS, TelemetryStore } from "../store";
 import { clear, fmt, h, utc } from "../ui";
 import { PassView, predictionColumns } from "./passview";
@@ -17,6 +19,22 @@ const OPTIONAL = [
   { path: "/api/passes/{pass_id}/report.html", label: "Report (HTML)", file: "report.html", suffix: "report.html" },
   { path: "/api/passes/{pass_id}/recording.mcap", label: "Recording (MCAP)", file: "recording.mcap", suffix: "recording.mcap" },
 ];
+
+/** The replay speeds offered: real time ×N, as fast as possible, step by step. */
+const SPEEDS = [
+  { value: "rt:1", label: "1×" },
+  { value: "rt:10", label: "10×" },
+  { value: "rt:60", label: "60×" },
+  { value: "rt:300", label: "300×" },
+  { value: "afap", label: "As fast as possible" },
+  { value: "step", label: "Step by step" },
+];
+
+function speedSpec(value: string): Record<string, unknown> {
+  if (value === "afap") return { mode: "as_fast_as_possible", batch_frames: 100 };
+  if (value === "step") return { mode: "step" };
+  return { mode: "real_time", factor: Number(value.slice(3)) };
+}
 
 /** Download a protected resource (the token goes in a header, never in the URL). */
 async function download(url: string, filename: string): Promise<void> {
@@ -45,55 +63,154 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
   const artefacts = h("div.panel", { "data-test": "artefacts" }, h("h3", {}, "Report and downloads"));
   const serverReport = h("div.panel.wide", { "data-test": "server-report" });
   const play = h("button", { type: "button", "data-test": "replay-play", disabled: true }, "▶ Play");
+  const step = h("button", { type: "button", "data-test": "replay-step", disabled: true, title: "One frame" }, "▶| Step");
   const speed = h("select", { "data-test": "replay-speed" },
-    ...[1, 10, 60].map((s) => h("option", { value: String(s), selected: s === 10 }, `${s}×`)));
+    ...SPEEDS.map((s) => h("option", { value: s.value, selected: s.value === "rt:10" }, s.label)));
   const scrub = h("input", { type: "range", min: "0", max: "1000", value: "0", step: "any", "data-test": "replay-scrub", disabled: true });
-  const tLabel = h("span.mono", { "data-test": "replay-time" }, "");
+  const tLabel = h("span.mono", { "data-test": "replay-time" }, "Opening the replay…");
   root.append(
     h("div.passbar", {}, title, h("span.spacer"), h("a", { href: `#/live/${passId}` }, "Live view")),
     h("section.status", {}, summary, artefacts),
     serverReport,
-    h("div.replaybar", {}, h("b", {}, "Replay "), play, speed, scrub, tLabel),
+    h("div.replaybar", {}, h("b", {}, "Replay "), play, step, speed, scrub, tLabel),
   );
   const view = new PassView(root, ctx.paths);
-  let store: TelemetryStore | null = null;
-  let span: [number, number] = [0, 0];
-  let t = 0;
-  let timer = 0;
-  let lastTick = 0;
+  let disposed = false;
+  /** The whole archive (REST): the predicted-vs-flown overlay, and the history before a seek. */
+  let archive: TelemetryStore | null = null;
+  /** What the replay has shown: the archive before the seek point, then the replay's frames. */
+  let shown: TelemetryStore | null = null;
+  let epochNs = 0;
+  let range: [number, number] = [0, 0]; // onboard ns, the seekable range
+  let playing = false;
+  let finished = false;
+  /** The seq of the last seek's answer: data at or below it is from before the seek. */
+  let seekSeq = -1;
+  /** Where to seek after the replay was opened again (reconnect), onboard ns. */
+  let resumeNs: number | null = null;
+  let received = 0;
+  let redraw = 0;
 
-  const seek = (time: number): void => {
-    if (!store) return;
-    t = Math.min(Math.max(time, span[0]), span[1]);
-    scrub.value = String(((t - span[0]) / Math.max(span[1] - span[0], 1e-9)) * 1000);
-    tLabel.textContent = `t = ${fmt(t, 1)} s`;
+  const planT = (ns: number): number => (ns - epochNs) / 1e9;
+  const showPosition = (ns: number): void => {
+    const t = planT(ns);
+    scrub.value = String(((ns - range[0]) / Math.max(range[1] - range[0], 1)) * 1000);
     root.dataset.replayT = t.toFixed(3);
     view.setMarker(t);
-    const f = store.frameAt(t);
-    if (f) view.showFrame(f);
+  };
+  const scheduleRedraw = (): void => {
+    if (redraw) return;
+    redraw = requestAnimationFrame(() => {
+      redraw = 0;
+      if (disposed || !shown) return;
+      view.showStore(shown);
+      root.dataset.replayShown = String(shown.count);
+    });
+  };
+  /** The replay's plots restart at onboard ``ns``: the archive's frames before it, then
+   * whatever the replay sends. */
+  const restartAt = (ns: number | null): void => {
+    const s = new TelemetryStore(epochNs);
+    if (archive) s.addFrames(archive.framesBefore(ns ?? Number.POSITIVE_INFINITY));
+    shown = s;
+    scheduleRedraw();
+  };
+  const setPlaying = (value: boolean): void => {
+    playing = value;
+    play.textContent = value ? "❚❚ Pause" : "▶ Play";
+    root.dataset.replaying = String(value);
+  };
+
+  const applyState = (m: Message): void => {
+    setPlaying(m.playing as boolean);
+    finished = m.finished as boolean;
+    const position = m.position as number;
+    const frames = m.frames as number;
+    const playheadNs = m.playhead_ns as number;
+    resumeNs = playheadNs;
+    root.dataset.replayReason = m.reason as string;
+    root.dataset.replayPosition = String(position);
+    root.dataset.replayFrames = String(frames);
+    root.dataset.replayNextNs = String(m.next_generation_time_ns ?? "");
+    root.dataset.replayStates = String(Number(root.dataset.replayStates ?? 0) + 1);
+    tLabel.textContent = `t = ${fmt(m.playhead_t_s as number, 1)} s · frame ${Math.min(position, frames)} / ${frames}${finished ? " · end" : ""}`;
+    showPosition(playheadNs);
+  };
+
+  const replay = ctx.socket.openReplay(passId, { paused: true, speed: speedSpec("rt:10"), fields: [...RAW_FIELDS] }, {
+    opened(m) {
+      const resume = resumeNs; // the playhead before a reconnect, if any
+      epochNs = m.epoch_ns as number;
+      range = [m.first_generation_time_ns as number, m.last_generation_time_ns as number];
+      root.dataset.replayId = m.replay_id as string;
+      root.dataset.replayFirstNs = String(range[0]);
+      root.dataset.replayLastNs = String(range[1]);
+      play.disabled = false;
+      step.disabled = false;
+      scrub.disabled = false;
+      applyState(m);
+      const wanted = speed.value;
+      if (wanted !== "rt:10") replay.request("replay_speed", { speed: speedSpec(wanted) });
+      if (resume !== null && resume > range[0]) seekTo(resume);
+    },
+    state(m) {
+      if (m.reason === "seek") {
+        seekSeq = m.seq as number;
+        root.dataset.replaySeeks = String(Number(root.dataset.replaySeeks ?? 0) + 1);
+        restartAt((m.next_generation_time_ns as number | null) ?? null);
+      }
+      applyState(m);
+    },
+    data(m) {
+      if ((m.seq as number) <= seekSeq || m.type !== "telemetry") return;
+      const columns = m.columns as Record<string, unknown[]>;
+      const gen = columns.generation_time_ns as number[];
+      if (gen.length === 0) return;
+      if (!shown) restartAt(gen[0]);
+      if (root.dataset.replayFirstRow === undefined) root.dataset.replayFirstRow = String(m.row);
+      received += gen.length;
+      root.dataset.replayReceived = String(received);
+      root.dataset.replayLastRow = String((m.row as number) + gen.length - 1);
+      shown!.addColumns(columns, false);
+      const last = shown!.latest;
+      if (last) view.showFrame(last);
+      showPosition(gen[gen.length - 1]);
+      scheduleRedraw();
+    },
+    error(reason) {
+      tLabel.textContent = `Replay: ${reason}`;
+    },
+    lost() {
+      play.disabled = true;
+      step.disabled = true;
+      scrub.disabled = true;
+      setPlaying(false);
+      tLabel.textContent = "Replay: the console reconnects…";
+    },
+  });
+
+  const seekTo = (ns: number): void => {
+    const target = Math.round(Math.min(Math.max(ns, range[0]), range[1]));
+    root.dataset.replaySeekNs = String(target);
+    delete root.dataset.replayFirstRow;
+    replay.request("replay_seek", { onboard_time_ns: target });
   };
   scrub.addEventListener("input", () => {
-    seek(span[0] + (Number(scrub.value) / 1000) * (span[1] - span[0]));
+    seekTo(range[0] + (Number(scrub.value) / 1000) * (range[1] - range[0]));
   });
   play.addEventListener("click", () => {
-    if (timer) {
-      window.clearInterval(timer);
-      timer = 0;
-      play.textContent = "▶ Play";
-      root.dataset.replaying = "false";
+    if (playing) {
+      replay.request("replay_pause");
       return;
     }
-    if (t >= span[1]) seek(span[0]);
-    play.textContent = "❚❚ Pause";
-    root.dataset.replaying = "true";
-    lastTick = performance.now();
-    timer = window.setInterval(() => {
-      const now = performance.now();
-      seek(t + ((now - lastTick) / 1000) * Number(speed.value));
-      lastTick = now;
-      if (t >= span[1]) play.click();
-    }, 50);
+    if (finished) seekTo(range[0]); // from the start again
+    replay.request("replay_play");
   });
+  step.addEventListener("click", () => {
+    if (finished) return;
+    replay.request("replay_step");
+  });
+  speed.addEventListener("change", () => replay.request("replay_speed", { speed: speedSpec(speed.value) }));
 
   const load = async (): Promise<void> => {
     const pass = await get<PassPublic>(`/api/passes/${passId}`);
@@ -121,19 +238,10 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
       if (!page.truncated || got.length === 0) break;
       t0 = got[got.length - 1].generation_time_ns + 1;
     }
-    store = s;
-    view.showStore(s);
+    archive = s;
+    if (shown === null) view.showStore(s); // until the replay shows something
     root.dataset.frames = String(s.count);
-    const first = s.first;
-    const last = s.latest;
-    if (first && last) {
-      span = [s.t(first.genNs), s.t(last.genNs)];
-      play.disabled = false;
-      scrub.disabled = false;
-      seek(span[0]);
-    } else {
-      tLabel.textContent = "No archived telemetry: nothing to replay.";
-    }
+    if (s.count === 0) tLabel.textContent = "No archived telemetry: nothing to replay.";
     // Downloads built here: the archive as JSON, every plot as PNG.
     const json = h("button", { type: "button", "data-test": "download-json" }, "Telemetry + commands (JSON)");
     json.addEventListener("click", () =>
@@ -168,7 +276,9 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
   });
 
   return () => {
-    window.clearInterval(timer);
+    disposed = true;
+    cancelAnimationFrame(redraw);
+    replay.close();
     view.dispose();
   };
 }
