@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
+from planner.free_drift import quat_multiply_xyzw
 from planner.gravity_gradient import gravity_gradient_torque_base_nm
 from planner.model import RobotModel, default_model
 from telemetry._momentum import InsufficientData, rotations_from_quats
@@ -145,19 +146,6 @@ class GravityGradientResim:
         }
 
 
-def _quat_mul_xyzw(a: Array, b: Array) -> Array:
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
 def _rot(quat_xyzw: Array) -> Array:
     x, y, z, w = quat_xyzw / np.linalg.norm(quat_xyzw)
     return np.array(
@@ -223,7 +211,7 @@ class _FreeDrift:
         rot = _rot(quat)
         h_b, inverse, arm = self.blocks(k, a)
         omega = inverse @ (rot.T @ momentum - h_w) - arm
-        dquat = 0.5 * _quat_mul_xyzw(quat, np.array([*omega, 0.0]))
+        dquat = 0.5 * quat_multiply_xyzw(quat, np.array([*omega, 0.0]))
         dmom = (
             rot @ gravity_gradient_torque_base_nm(h_b, rot, self.ws.orbit)
             if self.gg
