@@ -373,7 +373,9 @@ def rewrite(
 
 def test_an_unchanged_rewrite_still_reads(small_bytes: bytes) -> None:
     # The helper itself changes nothing unless asked: the failures below are its edits'.
-    read_mcap(io.BytesIO(rewrite(small_bytes)))
+    assert_same_recording(
+        read_mcap(io.BytesIO(rewrite(small_bytes))), read_mcap(io.BytesIO(small_bytes))
+    )
 
 
 def _set(key: str, value: Any) -> Any:
