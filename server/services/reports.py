@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -61,6 +61,13 @@ def _table(
     )
 
 
+def _records_table(
+    id_: str, title: str, columns: Sequence[str], records: Iterable[Mapping[str, Any]]
+) -> ReportTablePublic:
+    """A table with one row per record, each cell the record's value of its column."""
+    return _table(id_, title, columns, [_get(r, *columns) for r in records])
+
+
 def _get(doc: Mapping[str, Any], *keys: str) -> list[Any]:
     return [doc.get(k) for k in keys]
 
@@ -92,7 +99,7 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
     pvf = doc.get("predicted_vs_flown")
     if pvf:
         out.append(
-            _table(
+            _records_table(
                 "predicted_vs_flown",
                 "Predicted against flown, per plan segment (flown minus the plan's prediction)",
                 [
@@ -103,24 +110,13 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                     "attitude_peak_deg",
                     "joint_peak_max_deg",
                 ],
-                [
-                    _get(
-                        s,
-                        "segment",
-                        "kind",
-                        "frames",
-                        "attitude_rms_deg",
-                        "attitude_peak_deg",
-                        "joint_peak_max_deg",
-                    )
-                    for s in pvf.get("segments", [])
-                ],
+                pvf.get("segments", []),
             )
         )
     reaction = doc.get("reaction")
     if reaction:
         out.append(
-            _table(
+            _records_table(
                 "reaction",
                 f"Experiment 1: settling after each motion (band {reaction.get('settle_band_deg')}"
                 " deg)",
@@ -134,20 +130,7 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                     "peak_residual_deg",
                     "note",
                 ],
-                [
-                    _get(
-                        m,
-                        "segment",
-                        "kind",
-                        "settling_time_s",
-                        "peak_excursion_deg",
-                        "peak_hand_speed_mps",
-                        "rms_reaction_momentum_nms",
-                        "peak_residual_deg",
-                        "note",
-                    )
-                    for m in reaction.get("motions", [])
-                ],
+                reaction.get("motions", []),
             )
         )
     tracking = doc.get("joint_tracking")
@@ -176,7 +159,7 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
     hand = doc.get("hand_attitude")
     if hand:
         out.append(
-            _table(
+            _records_table(
                 "hand_attitude",
                 "Experiment 2: hand attitude held in the orbit frame while the base turns",
                 [
@@ -187,24 +170,13 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                     "base_change_max_deg",
                     "hold_ratio",
                 ],
-                [
-                    _get(
-                        h,
-                        "span",
-                        "t_start_s",
-                        "t_end_s",
-                        "hand_change_max_deg",
-                        "base_change_max_deg",
-                        "hold_ratio",
-                    )
-                    for h in hand.get("holds", [])
-                ],
+                hand.get("holds", []),
             )
         )
     plane = doc.get("phase_plane")
     if plane:
         out.append(
-            _table(
+            _records_table(
                 "phase_plane",
                 "Experiment 3: base pitch per attitude-control variant",
                 [
@@ -217,20 +189,7 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                     "settled",
                     "note",
                 ],
-                [
-                    _get(
-                        v,
-                        "variant",
-                        "label",
-                        "pitch_min_deg",
-                        "pitch_max_deg",
-                        "pitch_range_deg",
-                        "settling_time_s",
-                        "settled",
-                        "note",
-                    )
-                    for v in plane.get("variants", [])
-                ],
+                plane.get("variants", []),
             )
         )
     end = doc.get("endpoint")
