@@ -87,3 +87,12 @@ def engine(empty_engine: Engine) -> Engine:
 def session(engine: Engine) -> Iterator[Session]:
     with session_factory(engine)() as session:
         yield session
+
+
+@pytest.fixture(params=BACKENDS)
+def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """A fresh database's URL, on each backend (PostgreSQL skipped when none answers)."""
+    if request.param == "sqlite":
+        return sqlite_url(tmp_path)
+    url: str = request.getfixturevalue("postgres_schema_url")
+    return url

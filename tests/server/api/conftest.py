@@ -16,25 +16,16 @@ from planner.experiments import PtpParams
 from planner.plan import Plan
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
-from server.storage.db import sqlite_url
-from tests.server.conftest import BACKENDS
 
 TOKENS = {
     "v-token": ApiToken(name="vera", role=Role.VIEWER),
     "o-token": ApiToken(name="otto", role=Role.OPERATOR),
+    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
 }
 VIEWER = {"Authorization": "Bearer v-token"}
 OPERATOR = {"Authorization": "Bearer o-token"}
 #: The cheapest real plan: PTP A -> B with a quarter-second settle (about 0.6 s to plan).
 CHEAP_PTP: dict[str, Any] = {"experiment": "ptp", "parameters": {"settle_s": 0.25}}
-
-
-@pytest.fixture(params=BACKENDS)
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return sqlite_url(tmp_path)
-    url: str = request.getfixturevalue("postgres_schema_url")
-    return url
 
 
 @pytest.fixture()

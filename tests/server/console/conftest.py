@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -15,39 +13,18 @@ from sqlalchemy.orm import Session
 from starlette.testclient import WebSocketTestSession
 
 from planner.plan import Plan
-from server.app import create_app
 from server.services.console import ConsoleHub
 from server.services.link import Connection, GroundLink, TelemetryWindow, write_event
-from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
-from server.storage.db import sqlite_url
 from spacecraft.offline import OfflineFlight, fly_offline
 from telemetry.uplink import plan_commands
 from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
-from tests.server.conftest import BACKENDS
+from tests.server.api.conftest import client
 from tests.server.storage.factories import T0_NS, make_plan
 
-TOKENS = {
-    "v-token": ApiToken(name="vera", role=Role.VIEWER),
-    "o-token": ApiToken(name="otto", role=Role.OPERATOR),
-    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
-}
+__all__ = ["client"]  # the fixture, shared with the API tests
+
 CONSOLE = "/api/console?token=v-token"
-
-
-@pytest.fixture(params=BACKENDS)
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return sqlite_url(tmp_path)
-    url: str = request.getfixturevalue("postgres_schema_url")
-    return url
-
-
-@pytest.fixture()
-def client(database_url: str, tmp_path: Path) -> Iterator[TestClient]:
-    settings = Settings(data_dir=tmp_path, database_url=database_url, tokens=TOKENS)
-    with TestClient(create_app(settings)) as c:
-        yield c
 
 
 def hub(client: TestClient) -> ConsoleHub:

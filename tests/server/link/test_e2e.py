@@ -35,14 +35,6 @@ from tests.server.link.harness import (
 TARGETS = tuple(f"t{i}" for i in range(1, 7))
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return sqlite_url(tmp_path)
-    url: str = request.getfixturevalue("postgres_schema_url")
-    return url
-
-
 def _window_frames(ground: Ground, generated: list[TelemetryFrame]) -> list[int]:
     [window] = ground.app.state.link.windows
     assert window.end_ns is not None

@@ -23,7 +23,7 @@ import pytest
 from sqlalchemy import select
 
 from server.storage import repository as repo
-from server.storage.db import make_engine, session_factory, sqlite_url
+from server.storage.db import make_engine, session_factory
 from server.storage.models import EventRecord
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
@@ -40,14 +40,6 @@ from tests.server.link.harness import (
 #: that would be a minute onboard. At 10x it is 20-40 s of a 130 s pass.
 SCALE = 10.0
 TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
-
-
-@pytest.fixture(params=["sqlite", "postgresql"])
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return sqlite_url(tmp_path)
-    url: str = request.getfixturevalue("postgres_schema_url")
-    return url
 
 
 @contextmanager
