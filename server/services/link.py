@@ -317,7 +317,11 @@ def set_command_stage(
     """Move a command forward to ``stage`` at ``time_ns`` (on the clock the storage models
     name for it) and write the event; nothing if that would move it backwards."""
     record = repo.get_command(session=session, pass_id=pass_id, seq=seq)
-    if STAGE_RANK[stage] <= STAGE_RANK[record.stage]:
+    # The vehicle's own word beats the ground's inference: a command taken as lost
+    # (``command_unknown`` -> expired) that then reaches the vehicle after all is what the
+    # vehicle says it is.
+    overrules = record.stage == "expired" and stage in ("executed", "rejected")
+    if STAGE_RANK[stage] <= STAGE_RANK[record.stage] and not overrules:
         return []
     previous = record.stage
     repo.update_command_stage(
