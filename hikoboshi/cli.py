@@ -363,6 +363,16 @@ def spacecraft(
     ] = None,
     telemetry_rate_hz: Annotated[float, typer.Option(help="Telemetry frames per second")] = 10.0,
     seed: Annotated[int, typer.Option(help="Seed for link and sensor noise")] = 0,
+    los_policy: Annotated[
+        str,
+        typer.Option(
+            help="Silence from the ground: 'continue' the loaded schedule, or 'hold' the arm "
+            "(refuse queued joint commands) after --los-hold-after seconds"
+        ),
+    ] = "continue",
+    los_hold_after: Annotated[
+        float | None, typer.Option(help="Onboard seconds of silence before 'hold' holds the arm")
+    ] = None,
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link."""
     import asyncio
@@ -397,7 +407,11 @@ def spacecraft(
             ground_url=ground,
             token=token,
             time_scale=time_scale,
-            vehicle=VehicleConfig(telemetry_period_s=1.0 / telemetry_rate_hz),
+            vehicle=VehicleConfig(
+                telemetry_period_s=1.0 / telemetry_rate_hz,
+                los_policy=los_policy,  # type: ignore[arg-type]  # VehicleConfig checks it
+                los_hold_after_s=los_hold_after,
+            ),
             uplink=up,
             downlink=down,
             seed=seed,

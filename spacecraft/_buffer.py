@@ -1,4 +1,5 @@
-"""The onboard command buffer: accepted, not yet executed commands, ordered by time tag.
+"""The onboard command buffer (the PUS 11 time-based schedule): accepted, not yet executed
+commands, ordered by time tag.
 
 At most one joint command per tag (the vehicle refuses a second one before it gets here);
 attitude-control commands may share a tag and then execute in seq order (the last wins).
@@ -7,6 +8,7 @@ attitude-control commands may share a tag and then execute in seq order (the las
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable
 
 from telemetry.wire import AcsCommandMsg, JointCommandMsg
 
@@ -20,9 +22,14 @@ class CommandBuffer:
         self._joints: dict[int, JointCommandMsg] = {}
         self._joint_tags: list[int] = []  # sorted
         self._acs: dict[int, list[AcsCommandMsg]] = {}
+        self._n_acs = 0
 
     def __len__(self) -> int:
-        return len(self._joints) + sum(len(c) for c in self._acs.values())
+        return len(self._joints) + self._n_acs
+
+    @property
+    def joints_queued(self) -> int:
+        return len(self._joints)
 
     def add(self, command: Command) -> None:
         tag = command.execute_time_ns
@@ -31,6 +38,7 @@ class CommandBuffer:
             bisect.insort(self._joint_tags, tag)
         else:
             self._acs.setdefault(tag, []).append(command)
+            self._n_acs += 1
 
     def joint_taken_by(self, tag_ns: int) -> JointCommandMsg | None:
         """The queued joint command that already holds this tag, if any."""
@@ -55,6 +63,11 @@ class CommandBuffer:
         tags = self._joint_tags[:1] + ([min(self._acs)] if self._acs else [])
         return min(tags) if tags else None
 
+    def last_tag_ns(self) -> int | None:
+        """The latest tag in the buffer (None when it is empty)."""
+        tags = self._joint_tags[-1:] + ([max(self._acs)] if self._acs else [])
+        return max(tags) if tags else None
+
     def pop_due(self, tag_ns: int) -> list[Command]:
         """The commands tagged exactly ``tag_ns``, in sequence order, removed from the buffer."""
         due: list[Command] = []
@@ -62,7 +75,9 @@ class CommandBuffer:
         if joint is not None:
             self._joint_tags.remove(tag_ns)
             due.append(joint)
-        due += self._acs.pop(tag_ns, [])
+        acs = self._acs.pop(tag_ns, [])
+        self._n_acs -= len(acs)
+        due += acs
         return sorted(due, key=lambda c: c.seq)
 
     def pop_joints(self) -> list[JointCommandMsg]:
@@ -71,3 +86,22 @@ class CommandBuffer:
         self._joints.clear()
         self._joint_tags.clear()
         return flushed
+
+    def pop_where(self, keep_out: Callable[[Command], bool]) -> list[Command]:
+        """Every queued command for which ``keep_out`` is true, removed from the buffer, in
+        tag order (seq order within a tag)."""
+        removed: list[Command] = []
+        for tag in [t for t in self._joint_tags if keep_out(self._joints[t])]:
+            removed.append(self._joints.pop(tag))
+        self._joint_tags = [t for t in self._joint_tags if t in self._joints]
+        for tag in list(self._acs):
+            out = [c for c in self._acs[tag] if keep_out(c)]
+            if out:
+                rest = [c for c in self._acs[tag] if not keep_out(c)]
+                if rest:
+                    self._acs[tag] = rest
+                else:
+                    del self._acs[tag]
+                self._n_acs -= len(out)
+                removed += out
+        return sorted(removed, key=lambda c: (c.execute_time_ns, c.seq))

@@ -1,4 +1,5 @@
-"""Fly a plan through the vehicle with no link: every command reaches the buffer at once.
+"""Fly a plan through the vehicle with no link: every command reaches the buffer at once
+(the schedule's capacity is raised to the plan's command count if it is smaller).
 
 What the onboard computer would do with a perfect link, as fast as the simulation runs. For
 tests, benchmarks and tools that need a flown pass without a ground server; the vehicle,
@@ -8,7 +9,7 @@ its servos, attitude control, sensors and gravity gradient are exactly those of 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from planner.plan import Plan
 from spacecraft.vehicle import Vehicle, VehicleConfig
@@ -48,9 +49,12 @@ def fly_offline(
     config = config or VehicleConfig(
         initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad)
     )
-    vehicle = Vehicle(config, epoch_ns=start_ns, seed=seed)
     epoch_ns = start_ns + round(LEAD_S * 1e9)
     commands = plan_commands(plan, epoch_ns=epoch_ns, first_seq=0)
+    if len(commands) > config.schedule_capacity:
+        # every command is loaded at once: the schedule is made to hold the whole plan
+        config = replace(config, schedule_capacity=len(commands))
+    vehicle = Vehicle(config, epoch_ns=start_ns, seed=seed)
     acks = [vehicle.receive(cmd) for cmd in commands]
     frames: list[TelemetryFrame] = []
     end_ns = max(c.execute_time_ns for c in commands) + round(after_s * 1e9)

@@ -6,13 +6,18 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
 
 - **Uplink**: a message from the ground reaches the vehicle only after the uplink emulator's
   delay (it may be lost, or fall in an outage); the vehicle is advanced to the delivery
-  instant before it sees the message, so "late" means late in onboard time.
-- **Downlink**: acknowledgements, errors, pongs and telemetry leave through the downlink
-  emulator and are written to the socket at their delivery instant; telemetry stays in the
-  onboard store (:mod:`spacecraft.downlink`) until the ground acknowledges it.
-- **Connection**: reconnects after any drop with exponential backoff; a drop is a link loss for
-  the vehicle (queued joint commands are refused, the arm holds). ``hello`` is the session
-  handshake and goes straight to the ground.
+  instant before it sees the message, so "late" means late in onboard time. Every delivered
+  message, understood or not, tells the vehicle it has heard from the ground (its LOS
+  policy's clock). Commands go to :meth:`~spacecraft.vehicle.Vehicle.receive`,
+  ``schedule_delete`` to :meth:`~spacecraft.vehicle.Vehicle.delete_schedule`.
+- **Downlink**: acknowledgements, verifications, errors, pongs and telemetry leave through the
+  downlink emulator and are written to the socket at their delivery instant; telemetry stays
+  in the onboard store (:mod:`spacecraft.downlink`) until the ground acknowledges it.
+- **Connection**: reconnects after any drop with exponential backoff. A drop changes nothing
+  on board: the loaded schedule keeps executing, and only the vehicle's LOS policy (silence
+  for ``los_hold_after_s`` with ``hold``) refuses queued joint commands. ``hello`` is the
+  session handshake, announces the schedule's capacity and the LOS policy, and goes straight
+  to the ground.
 - **Stop** (SIGTERM): the vehicle stops, the link keeps running until every telemetry frame has
   been acknowledged or ``drain_timeout_s`` (wall) has passed, then the process exits.
 """
@@ -36,6 +41,7 @@ from spacecraft.downlink import Downlink, DownlinkConfig
 from spacecraft.link import LinkConfig, LinkEmulator
 from spacecraft.vehicle import Vehicle, VehicleConfig
 from telemetry.wire import (
+    PROTOCOL_VERSION,
     AcsCommandMsg,
     CommandAck,
     CommandQuery,
@@ -48,6 +54,7 @@ from telemetry.wire import (
     Pong,
     RejectReason,
     Retransmit,
+    ScheduleDelete,
     TelemetryAck,
     TelemetryMsg,
     WireError,
@@ -165,6 +172,8 @@ class SpacecraftProcess:
             return
         if isinstance(message, JointCommandMsg | AcsCommandMsg):
             self._send(encode(self.vehicle.receive(message)))
+        elif isinstance(message, ScheduleDelete):
+            self._send(encode(self.vehicle.delete_schedule(message)))
         elif isinstance(message, TelemetryAck):
             self.store.on_ack(message.through_seq, message.ranges)
         elif isinstance(message, Retransmit):
@@ -189,12 +198,17 @@ class SpacecraftProcess:
             self._send(encode(pong))
 
     def _error_reply(self, raw: str | bytes, reason: str) -> str:
-        """A command with a readable seq is refused as such; anything else gets ``error``."""
+        """A command of this protocol version with a readable seq is refused as such;
+        anything else (another version's messages included) gets ``error``."""
         doc: object = None
         with contextlib.suppress(ValueError, UnicodeDecodeError, RecursionError):
             if len(raw) <= 64 * 1024:
                 doc = json.loads(raw)
-        if isinstance(doc, dict) and doc.get("type") == "command":
+        if (
+            isinstance(doc, dict)
+            and doc.get("type") == "command"
+            and doc.get("v") == PROTOCOL_VERSION
+        ):
             seq = doc.get("seq")
             if isinstance(seq, int) and not isinstance(seq, bool) and 0 <= seq < 2**53:
                 return encode(
@@ -237,6 +251,7 @@ class SpacecraftProcess:
                 deliver, _, raw = heapq.heappop(self._incoming)
                 if not self._stopping:
                     self._advance(deliver)
+                self.vehicle.heard_from_ground()
                 self._handle(raw)
             if stop.is_set() and not self._stopping:
                 self._stopping = True
@@ -271,6 +286,9 @@ class SpacecraftProcess:
                         time_scale=self.config.time_scale,
                         next_telemetry_seq=self.vehicle.next_telemetry_seq,
                         last_command_seq=self.vehicle.last_command_seq,
+                        schedule_capacity=self.config.vehicle.schedule_capacity,
+                        los_policy=self.config.vehicle.los_policy,
+                        los_hold_after_s=self.config.vehicle.los_hold_after_s,
                     )
                     await ws.send(encode(hello))
                     self._connected.set()
@@ -286,9 +304,9 @@ class SpacecraftProcess:
                 self._connected.clear()
                 self._ws = None
                 if was_connected:
-                    self._outgoing.clear()  # in the relay when the link went: lost
-                    for ack in self.vehicle.link_lost():
-                        self._outbox.append(encode(ack))
+                    # In the relay when the link went: lost. The vehicle carries on with its
+                    # schedule; its LOS policy alone decides whether the arm holds.
+                    self._outgoing.clear()
             if stop.is_set() and not self._stopping:
                 return
             await asyncio.sleep(delay * (0.5 + rng.random()))

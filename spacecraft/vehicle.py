@@ -2,21 +2,30 @@
 
 Deterministic and free of I/O: the spacecraft process (``spacecraft.process``) owns the
 sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked command,
-:meth:`Vehicle.advance_to` with the onboard time it has reached, and
-:meth:`Vehicle.link_lost` when the relay link drops. Onboard rules (SPEC section 6,
-docs/spacecraft.md):
+:meth:`Vehicle.delete_schedule` with each ``schedule_delete``,
+:meth:`Vehicle.heard_from_ground` on every message the uplink delivers, and
+:meth:`Vehicle.advance_to` with the onboard time it has reached. Onboard rules (SPEC section
+6, docs/spacecraft.md):
 
 - **Time.** The onboard clock starts at ``epoch_ns`` and moves on the truth simulation's
   step grid (10 ms); :meth:`~Vehicle.advance_to` stops on the last grid point at or before the
   time it is given and never goes back.
-- **Acceptance** (:meth:`~Vehicle.receive`, in this order): a seq seen before, accepted or
-  not, is ``duplicate`` and has no effect; a tag off the step grid, an attitude target whose
+- **Retransmission.** The ground sends each command until it is acknowledged, so copies
+  arrive, also out of order. A seq received before *with identical content* is answered with
+  that command's latest acknowledgement (:meth:`~Vehicle.outcome`: received, executed or
+  rejected) and has no other effect; a different command under a seq already used is
+  ``duplicate`` and has no effect either.
+- **Acceptance** (:meth:`~Vehicle.receive`, in this order): a command that a
+  ``schedule_delete`` barrier covers (tag at or after its ``from_time_ns``, seq at most its
+  ``max_seq``) is ``cancelled``; a tag off the step grid, an attitude target whose
   norm is not 1 (within 1e-3), or a joint command for a tag that a queued joint command
   already holds is ``malformed`` (attitude commands may share a tag: they execute in seq
   order); a tag at or before the onboard time is ``late`` (never executed); a joint
   angle beyond +-170 deg, or a move faster than 3 deg/s from the queued joint command
   before it (or, with none, from the current servo target, starting now) or to the queued
-  one after it, is ``out_of_limits``.
+  one after it, is ``out_of_limits``; a command that passes all this while the schedule holds
+  ``schedule_capacity`` commands is ``schedule_full``. That refusal alone is transient: the
+  seq is not recorded, and a later copy is checked afresh.
 - **Execution.** The truth simulation is stepped exactly to each tag and the command executes
   there. A joint command sets the servo target to its joints; from there the target moves
   linearly to the next queued joint command, reaching it at that command's tag (rate =
@@ -27,20 +36,31 @@ docs/spacecraft.md):
   rate limit: across a gap left by a lost command it keeps moving toward the next one
   instead of holding and then jumping. An attitude-control command switches mode, target
   and feedforward at its tag.
+- **Schedule delete** (:meth:`~Vehicle.delete_schedule`, PUS 11): every queued command (joint
+  and attitude) tagged at or after ``from_time_ns`` with seq at most ``max_seq`` is deleted
+  (its outcome becomes ``cancelled``), and a barrier refuses such commands arriving later.
+  The target then ramps to the first joint command left, or holds where it stands. A
+  repeated ``request_id`` is answered with the first report and does nothing.
 - **Attitude control** runs every ``control_period_s`` on the *measured* (noisy) attitude and
   rate with :func:`planner.attitude_control.wheel_torque_nm`; its feedforward is eq. (9) of
   the commanded motion (the servo target and its ramp rate). Wheel torque and momentum are
   limited in the simulator.
-- **Telemetry**: a frame every ``telemetry_period_s`` on the epoch grid, seq from 0.
-- **Link lost**: queued joint commands are refused (``link_lost``) and the arm holds the
-  target it has reached; attitude control carries on in its mode (queued attitude commands
-  still execute at their tags).
+- **Telemetry**: a frame every ``telemetry_period_s`` on the epoch grid, seq from 0, with the
+  schedule's summary (queued count, first and last tag, capacity, last executed seq).
+- **Loss of signal** (``los_policy``): with ``continue`` (the default) silence from the
+  ground changes nothing: the loaded schedule executes. With ``hold``, once nothing has
+  arrived from the ground for ``los_hold_after_s`` (the first grid point at or after that),
+  every queued joint command is refused (``link_lost``, acks returned by ``advance_to``) and
+  the arm holds the target it has reached; attitude control carries on in its mode (queued
+  attitude commands still execute at their tags). :meth:`~Vehicle.link_lost` does the same
+  at once.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +81,7 @@ from planner.state import State
 from spacecraft._buffer import CommandBuffer
 from spacecraft._sensors import Measurement, SensorNoise, measure
 from telemetry.wire import (
+    DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
     AcsModeName,
     BufferState,
@@ -68,7 +89,9 @@ from telemetry.wire import (
     CommandStage,
     JointCommandMsg,
     RejectReason,
+    ScheduleDelete,
     TelemetryFrame,
+    Verification,
 )
 
 __all__ = ["SensorNoise", "Vehicle", "VehicleConfig", "VehicleError"]
@@ -83,6 +106,11 @@ QUAT_NORM_TOLERANCE = 1e-3
 # slack only absorbs rounding).
 _RATE_SLACK = 1e-9
 _IDENTITY = (0.0, 0.0, 0.0, 1.0)
+#: What ``hello`` can announce (telemetry.wire.Hello).
+MAX_SCHEDULE_CAPACITY = 1_000_000
+MAX_LOS_HOLD_AFTER_S = 86_400.0
+#: At most this many seq ranges in a ``verification`` (telemetry.wire.Verification).
+_MAX_RANGES = 1000
 
 
 class VehicleError(ValueError):
@@ -122,6 +150,12 @@ class VehicleConfig:
     initial_quat_orbit_from_base_xyzw: tuple[float, float, float, float] = _IDENTITY
     initial_acs_mode: AcsModeName = AcsModeName.FEEDBACK  # target identity, no feedforward
     vehicle_name: str = "ETS-VII"
+    #: Commands the onboard schedule holds (joint and attitude); more are ``schedule_full``.
+    schedule_capacity: int = DEFAULT_SCHEDULE_CAPACITY
+    #: Silence from the ground: ``continue`` the loaded schedule, or ``hold`` the arm (refuse
+    #: the queued joint commands) once nothing has arrived for ``los_hold_after_s``.
+    los_policy: Literal["continue", "hold"] = "continue"
+    los_hold_after_s: float | None = None
 
     def __post_init__(self) -> None:
         step_ns = self.step_ns
@@ -149,6 +183,30 @@ class VehicleConfig:
             raise VehicleError(f"initial attitude quaternion has norm {norm:.6g}, not 1")
         if not 0 < len(self.vehicle_name) <= 64:
             raise VehicleError(f"vehicle_name {self.vehicle_name!r} must have 1 to 64 characters")
+        capacity = self.schedule_capacity
+        if (
+            not isinstance(capacity, int)
+            or isinstance(capacity, bool)
+            or not 1 <= capacity <= MAX_SCHEDULE_CAPACITY
+        ):
+            raise VehicleError(
+                f"schedule_capacity = {capacity!r} must be a whole number of commands in "
+                f"[1, {MAX_SCHEDULE_CAPACITY}]"
+            )
+        if self.los_policy not in ("continue", "hold"):
+            raise VehicleError(f"los_policy = {self.los_policy!r} must be 'continue' or 'hold'")
+        hold_s = self.los_hold_after_s
+        if self.los_policy == "hold":
+            if hold_s is None or not (math.isfinite(hold_s) and 0 < hold_s <= MAX_LOS_HOLD_AFTER_S):
+                raise VehicleError(
+                    f"los_policy 'hold' needs los_hold_after_s > 0 (at most "
+                    f"{MAX_LOS_HOLD_AFTER_S:g} s), got {hold_s!r}"
+                )
+        elif hold_s is not None:
+            raise VehicleError(
+                f"los_hold_after_s = {hold_s!r} applies only with los_policy 'hold' "
+                f"(los_policy is {self.los_policy!r})"
+            )
 
     @property
     def step_ns(self) -> int:
@@ -192,10 +250,24 @@ class Vehicle:
         self._spin_inertia = np.array([w.spin_inertia_kgm2 for w in model.wheels])
 
         self._buffer = CommandBuffer()
-        self._seen: set[int] = set()
+        #: seq -> the command first received under it (any refusal but ``schedule_full``
+        #: records it): a copy is recognised by its content.
+        self._received: dict[int, JointCommandMsg | AcsCommandMsg] = {}
         #: seq -> the latest acknowledgement of every command received (a duplicate's
-        #: rejection never replaces its original's), for ``command_query``.
+        #: rejection never replaces its original's), for ``command_query`` and copies.
         self._outcomes: dict[int, CommandAck] = {}
+        #: request_id -> the report of every ``schedule_delete`` carried out, and the
+        #: barriers they left: (from_time_ns, max_seq, request_id).
+        self._deletions: dict[int, Verification] = {}
+        self._barriers: list[tuple[int, int, int]] = []
+        # LOS policy: the onboard time of the last message from the ground, and how long
+        # the silence may last before the arm holds (None: policy "continue").
+        self._last_heard_ns = epoch_ns
+        self._los_hold_ns = (
+            round(config.los_hold_after_s * 1e9)
+            if config.los_policy == "hold" and config.los_hold_after_s is not None
+            else None
+        )
         self._last_command_seq = -1
         self._last_executed_seq = -1
         self._next_frame_seq = 0
@@ -254,6 +326,11 @@ class Vehicle:
     def queued(self) -> int:
         return len(self._buffer)
 
+    @property
+    def last_heard_ns(self) -> int:
+        """The onboard time of the last message from the ground (the epoch before any)."""
+        return self._last_heard_ns
+
     def true_state(self) -> State:
         return self._sim.state()
 
@@ -272,17 +349,31 @@ class Vehicle:
 
     # -- uplink ---------------------------------------------------------------------------
 
+    def heard_from_ground(self) -> None:
+        """A message from the ground arrived now (any message: the LOS policy's clock)."""
+        self._last_heard_ns = max(self._last_heard_ns, self.onboard_time_ns)
+
     def receive(self, cmd: JointCommandMsg | AcsCommandMsg) -> CommandAck:
         """Check a command against the onboard rules and queue it: ``received``, or
-        ``rejected`` with the reason and a detail that names the value and the limit."""
+        ``rejected`` with the reason and a detail that names the value and the limit. A copy
+        of a command received before is answered with its latest acknowledgement."""
+        self.heard_from_ground()
         now = self.onboard_time_ns
-        if cmd.seq in self._seen:
+        first = self._received.get(cmd.seq)
+        if first is not None:
+            if first.model_dump() == cmd.model_dump():
+                return self._outcomes[cmd.seq]  # a retransmission: "you already have it"
             return self._reject(
-                cmd.seq, now, RejectReason.DUPLICATE, f"seq {cmd.seq} was received before"
+                cmd.seq,
+                now,
+                RejectReason.DUPLICATE,
+                f"seq {cmd.seq} was received before with other content; the first one stands",
             )
-        self._seen.add(cmd.seq)
+        self._last_command_seq = max(self._last_command_seq, cmd.seq)
         ack = self._accept(cmd, now)
-        self._outcomes[cmd.seq] = ack
+        if ack.reason is not RejectReason.SCHEDULE_FULL:  # transient: not recorded
+            self._received[cmd.seq] = cmd
+            self._outcomes[cmd.seq] = ack
         return ack
 
     def outcome(self, seq: int) -> CommandAck | None:
@@ -290,7 +381,15 @@ class Vehicle:
         return self._outcomes.get(seq)
 
     def _accept(self, cmd: JointCommandMsg | AcsCommandMsg, now: int) -> CommandAck:
-        self._last_command_seq = max(self._last_command_seq, cmd.seq)
+        for from_ns, max_seq, request_id in self._barriers:
+            if cmd.seq <= max_seq and cmd.execute_time_ns >= from_ns:
+                return self._reject(
+                    cmd.seq,
+                    now,
+                    RejectReason.CANCELLED,
+                    f"deleted by schedule_delete request {request_id} (tags from {from_ns}, "
+                    f"seqs up to {max_seq})",
+                )
         if isinstance(cmd, AcsCommandMsg):
             quat = np.array(cmd.target_quat_orbit_from_base_xyzw, dtype=np.float64)
             norm = float(np.linalg.norm(quat))
@@ -308,6 +407,15 @@ class Vehicle:
             rejection = self._check_joints(cmd, now)
         if rejection is not None:
             return self._reject(cmd.seq, now, *rejection)
+        capacity = self.config.schedule_capacity
+        if len(self._buffer) >= capacity:
+            return self._reject(
+                cmd.seq,
+                now,
+                RejectReason.SCHEDULE_FULL,
+                f"the schedule holds {len(self._buffer)} commands, its capacity {capacity}; "
+                "send it again when commands have executed",
+            )
         self._buffer.add(cmd)
         if isinstance(cmd, JointCommandMsg) and (
             self._ramp_to_ns is None or cmd.execute_time_ns < self._ramp_to_ns
@@ -382,18 +490,80 @@ class Vehicle:
         )
 
     def link_lost(self) -> list[CommandAck]:
-        """SPEC 6 safe state: refuse every queued joint command (``link_lost``) and hold the
-        servo target where it stands; attitude control carries on in its mode."""
-        now = self.onboard_time_ns
+        """SPEC 6 safe state now (what the ``hold`` LOS policy does after its silence):
+        refuse every queued joint command (``link_lost``) and hold the servo target where it
+        stands; attitude control carries on in its mode."""
+        return self._hold_arm(self.onboard_time_ns, "link lost: the arm holds its target")
+
+    def _hold_arm(self, now: int, detail: str) -> list[CommandAck]:
         acks = [
-            self._reject(
-                cmd.seq, now, RejectReason.LINK_LOST, "link lost: the arm holds its target"
-            )
+            self._reject(cmd.seq, now, RejectReason.LINK_LOST, detail)
             for cmd in self._buffer.pop_joints()
         ]
         self._outcomes.update((ack.seq, ack) for ack in acks)
         self._ramp_to_next(now)  # nothing queued: hold
         return acks
+
+    def _los_deadline_ns(self) -> int | None:
+        """When the ``hold`` LOS policy holds the arm (the first grid point at or after
+        the allowed silence), if it has joint commands to refuse."""
+        if self._los_hold_ns is None or not self._buffer.joints_queued:
+            return None
+        t = self._last_heard_ns + self._los_hold_ns
+        steps = -((self._epoch_ns - t) // self._step_ns)  # ceil
+        return self._epoch_ns + steps * self._step_ns
+
+    def delete_schedule(self, req: ScheduleDelete) -> Verification:
+        """PUS 11 delete by time range: every queued command tagged at or after
+        ``req.from_time_ns`` with seq at most ``req.max_seq`` is deleted (outcome
+        ``cancelled``), and such commands arriving later are refused ``cancelled``. The
+        report counts the deleted commands, lists their seqs and counts those of the range
+        that had executed already. Idempotent by ``request_id``."""
+        self.heard_from_ground()
+        done = self._deletions.get(req.request_id)
+        if done is not None:
+            return done
+        now = self.onboard_time_ns
+        from_ns, max_seq = req.from_time_ns, req.max_seq
+        executed = sum(
+            1
+            for ack in self._outcomes.values()
+            # an executed ack's time is the command's tag
+            if ack.stage is CommandStage.EXECUTED
+            and ack.seq <= max_seq
+            and ack.onboard_time_ns >= from_ns
+        )
+        deleted = self._buffer.pop_where(
+            lambda c: c.seq <= max_seq and c.execute_time_ns >= from_ns
+        )
+        why = f"deleted by schedule_delete request {req.request_id}"
+        for cmd in deleted:
+            self._outcomes[cmd.seq] = self._reject(cmd.seq, now, RejectReason.CANCELLED, why)
+        self._barriers.append((from_ns, max_seq, req.request_id))
+        nxt = self._buffer.first_joint()
+        if (nxt.execute_time_ns if nxt is not None else None) != self._ramp_to_ns:
+            self._ramp_to_next(now)  # the command ramped to is gone: the next one, or hold
+        ranges = _ranges(sorted(cmd.seq for cmd in deleted))
+        notes = []
+        if from_ns <= now:
+            notes.append(
+                f"from_time_ns {from_ns} is at or before onboard time {now}: every queued "
+                f"command up to seq {max_seq} deleted"
+            )
+        if len(ranges) > _MAX_RANGES:
+            notes.append(f"{len(ranges)} seq ranges, the first {_MAX_RANGES} listed")
+            ranges = ranges[:_MAX_RANGES]
+        report = Verification(
+            request_id=req.request_id,
+            stage="completed",
+            deleted=len(deleted),
+            deleted_ranges=ranges,
+            executed_after_from=executed,
+            detail="; ".join(notes)[:300] or None,
+            onboard_time_ns=now,
+        )
+        self._deletions[req.request_id] = report
+        return report
 
     # -- time ---------------------------------------------------------------------------
 
@@ -407,12 +577,22 @@ class Vehicle:
         end = self._epoch_ns + (time_ns - self._epoch_ns) // self._step_ns * self._step_ns
         while True:
             tag = self._buffer.next_tag_ns()
+            los = self._los_deadline_ns()
             t = min(self._next_control_ns, self._next_frame_ns)
             if tag is not None:
                 t = min(t, tag)
+            if los is not None:
+                t = min(t, los)
             if t > end:
                 break
             self._step_to(t)
+            if los == t:  # the silence lasted: no joint command executes from now on
+                silent_s = (t - self._last_heard_ns) / 1e9
+                acks += self._hold_arm(
+                    t,
+                    f"nothing from the ground for {silent_s:.3f} s (LOS policy hold after "
+                    f"{self.config.los_hold_after_s:g} s): the arm holds its target",
+                )
             if tag == t:  # commands first: control and telemetry at t see their effect
                 acks += self._execute(t)
             if t == self._next_control_ns:
@@ -505,7 +685,20 @@ class Vehicle:
                 queued=len(self._buffer),
                 next_execute_time_ns=self._buffer.next_tag_ns(),
                 last_executed_seq=self._last_executed_seq,
+                last_queued_time_ns=self._buffer.last_tag_ns(),
+                capacity=self.config.schedule_capacity,
             ),
         )
         self._next_frame_seq += 1
         return frame
+
+
+def _ranges(seqs: list[int]) -> list[tuple[int, int]]:
+    """Sorted seqs as inclusive ranges of consecutive seqs."""
+    out: list[tuple[int, int]] = []
+    for seq in seqs:
+        if out and seq == out[-1][1] + 1:
+            out[-1] = (out[-1][0], seq)
+        else:
+            out.append((seq, seq))
+    return out

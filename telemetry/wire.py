@@ -1,12 +1,19 @@
-"""The space-ground wire protocol, version 1: what crosses the relay link.
+"""The space-ground wire protocol, version 2: what crosses the relay link.
 
 Every message is one JSON object in one websocket text frame, with ``"v"`` (the protocol
 version) and ``"type"``. Times are integer nanoseconds of the **onboard clock**
 (``*_time_ns``); angles in radians, rates in rad/s, momentum in N m s. The full description,
 with the sequencing and acknowledgement rules, is ``docs/protocol.md``.
 
-Ground -> spacecraft: ``command`` (``joints`` or ``acs``), ``telemetry_ack``, ``retransmit``,
-``ping``. Spacecraft -> ground: ``hello``, ``command_ack``, ``telemetry``, ``pong``, ``error``.
+Ground -> spacecraft: ``command`` (``joints`` or ``acs``), ``schedule_delete``,
+``telemetry_ack``, ``retransmit``, ``ping``, ``command_query``. Spacecraft -> ground:
+``hello``, ``command_ack``, ``verification``, ``telemetry``, ``pong``, ``command_unknown``,
+``error``. The messages are shaped after the ECSS PUS services they mirror (11 time-based
+schedule: ``command``, ``schedule_delete`` and the schedule summary in every frame's
+``buffer``; 1 request verification: ``command_ack``, ``verification``; 3 housekeeping:
+``telemetry``; 17 test: ``ping``/``pong``), so that a binary CCSDS Space Packet encoding is
+only another codec. Version 1 (each command sent once, just in time) is not served: its
+messages get an ``error`` reply naming the version this end speaks.
 
 :func:`decode` accepts only well-formed messages of this version and raises
 :class:`WireError` (with a reason fit for an ``error`` reply) for anything else.
@@ -26,6 +33,9 @@ __all__ = [
     "AcsCommandMsg",
     "AcsModeName",
     "BufferState",
+    "DEFAULT_SCHEDULE_CAPACITY",
+    "ScheduleDelete",
+    "Verification",
     "CommandAck",
     "CommandQuery",
     "CommandStage",
@@ -48,7 +58,9 @@ __all__ = [
     "encode",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+#: Commands the onboard schedule holds unless ``hello`` announces otherwise.
+DEFAULT_SCHEDULE_CAPACITY = 1024
 #: Larger messages are refused unread (a backlog dump is split into smaller batches).
 MAX_MESSAGE_BYTES = 256 * 1024
 #: At most this many frames in one telemetry message.
@@ -64,7 +76,7 @@ class _Obj(BaseModel):
 
 
 class _Msg(_Obj):
-    v: Literal[1] = 1
+    v: Literal[2] = 2
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -120,6 +132,20 @@ class Retransmit(_Msg):
     ranges: Annotated[list[tuple[Seq, Seq]], Field(min_length=1, max_length=1000)]
 
 
+class ScheduleDelete(_Msg):
+    """Delete from the onboard schedule every command tagged at or after ``from_time_ns``
+    whose seq is at most ``max_seq`` (PUS 11, delete time-tagged activities by time range),
+    and refuse (``cancelled``) any such command that arrives later: copies still in the
+    relay must not refill what was deleted. Commands of a later plan (seq above
+    ``max_seq``) are not touched. Idempotent by ``request_id``: a repeat is answered with the
+    first report and changes nothing. The arm holds at the last joint target left."""
+
+    type: Literal["schedule_delete"] = "schedule_delete"
+    request_id: Seq
+    from_time_ns: TimeNs
+    max_seq: Seq
+
+
 class Ping(_Msg):
     type: Literal["ping"] = "ping"
     ping_id: Seq
@@ -147,6 +173,12 @@ class Hello(_Msg):
     time_scale: Annotated[float, Field(gt=0, le=1000)]
     next_telemetry_seq: Seq
     last_command_seq: Annotated[int, Field(ge=-1)] = -1
+    #: Commands the onboard schedule can hold; more are refused ``schedule_full``.
+    schedule_capacity: Annotated[int, Field(ge=1, le=1_000_000)] = DEFAULT_SCHEDULE_CAPACITY
+    #: What the vehicle does when it hears nothing from the ground: ``continue`` the
+    #: loaded schedule, or ``hold`` (delete the joint commands) after ``los_hold_after_s``.
+    los_policy: Literal["continue", "hold"] = "continue"
+    los_hold_after_s: Annotated[float, Field(gt=0, le=86_400)] | None = None
 
 
 class CommandStage(StrEnum):
@@ -160,7 +192,9 @@ class RejectReason(StrEnum):
     OUT_OF_LIMITS = "out_of_limits"  # joint angle or rate beyond its limit
     MALFORMED = "malformed"  # tag off the onboard grid, not a rotation, ...
     DUPLICATE = "duplicate"  # this seq was seen before; the first one stands
-    LINK_LOST = "link_lost"  # queued when the link dropped: the arm holds instead
+    LINK_LOST = "link_lost"  # deleted by the LOS policy (no word from the ground): arm holds
+    CANCELLED = "cancelled"  # deleted from the schedule by a ``schedule_delete`` (abort)
+    SCHEDULE_FULL = "schedule_full"  # the onboard schedule holds its capacity already
 
 
 class CommandAck(_Msg):
@@ -173,9 +207,15 @@ class CommandAck(_Msg):
 
 
 class BufferState(_Obj):
+    """The onboard schedule's summary (PUS 11): how many commands it holds, the first and
+    last tag, its capacity, and the last command executed."""
+
     queued: Annotated[int, Field(ge=0)]
     next_execute_time_ns: TimeNs | None = None
     last_executed_seq: Annotated[int, Field(ge=-1)] = -1
+    #: the last tag the schedule holds (``next_execute_time_ns`` is the first)
+    last_queued_time_ns: TimeNs | None = None
+    capacity: Annotated[int, Field(ge=1)] | None = None
 
 
 class TelemetryFrame(_Obj):
@@ -216,6 +256,25 @@ class CommandUnknown(_Msg):
     onboard_time_ns: TimeNs
 
 
+class Verification(_Msg):
+    """The report on a request that is not a command (PUS 1): ``completed`` with what it
+    did, or ``failed`` with the reason. For ``schedule_delete``: how many commands were
+    deleted, their seqs as inclusive ranges, and how many of the range had already executed
+    (the request arrived after their tag)."""
+
+    type: Literal["verification"] = "verification"
+    request_id: Seq
+    request_type: Literal["schedule_delete"] = "schedule_delete"
+    stage: Literal["completed", "failed"]
+    deleted: Annotated[int, Field(ge=0)] = 0
+    deleted_ranges: Annotated[list[tuple[Seq, Seq]], Field(max_length=1000)] = Field(
+        default_factory=list
+    )
+    executed_after_from: Annotated[int, Field(ge=0)] = 0
+    detail: str | None = Field(default=None, max_length=300)
+    onboard_time_ns: TimeNs
+
+
 class ErrorMsg(_Msg):
     """The reply to a message that could not be understood; the process carries on."""
 
@@ -225,17 +284,26 @@ class ErrorMsg(_Msg):
 
 
 GroundMessage = Annotated[
-    JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping | CommandQuery,
+    JointCommandMsg
+    | AcsCommandMsg
+    | ScheduleDelete
+    | TelemetryAck
+    | Retransmit
+    | Ping
+    | CommandQuery,
     Field(discriminator="type"),
 ]
 SpacecraftMessage = Annotated[
-    Hello | CommandAck | TelemetryMsg | Pong | CommandUnknown | ErrorMsg,
+    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg,
     Field(discriminator="type"),
 ]
 
 _COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
 _GROUND_OTHER = TypeAdapter(
-    Annotated[TelemetryAck | Retransmit | Ping | CommandQuery, Field(discriminator="type")]
+    Annotated[
+        ScheduleDelete | TelemetryAck | Retransmit | Ping | CommandQuery,
+        Field(discriminator="type"),
+    ]
 )
 _SPACECRAFT = TypeAdapter(SpacecraftMessage)
 
@@ -255,7 +323,9 @@ def _load(text: str | bytes) -> dict[str, object]:
         raise WireError("a message must be a JSON object")
     version = doc.get("v")
     if version != PROTOCOL_VERSION:
-        raise WireError(f"protocol version {version!r} is not {PROTOCOL_VERSION}")
+        raise WireError(
+            f"protocol version {version!r} is not served: this end speaks {PROTOCOL_VERSION}"
+        )
     if not isinstance(doc.get("type"), str):
         raise WireError("a message needs a string 'type'")
     return doc
@@ -269,13 +339,21 @@ def _reason(exc: ValidationError) -> str:
 
 def decode_ground(
     text: str | bytes,
-) -> JointCommandMsg | AcsCommandMsg | TelemetryAck | Retransmit | Ping | CommandQuery:
+) -> (
+    JointCommandMsg | AcsCommandMsg | ScheduleDelete | TelemetryAck | Retransmit | Ping | CommandQuery
+):
     """A ground -> spacecraft message, or :class:`WireError`."""
     doc = _load(text)
     try:
         if doc["type"] == "command":
             return _COMMAND.validate_python(doc)
-        if doc["type"] in ("telemetry_ack", "retransmit", "ping", "command_query"):
+        if doc["type"] in (
+            "schedule_delete",
+            "telemetry_ack",
+            "retransmit",
+            "ping",
+            "command_query",
+        ):
             return _GROUND_OTHER.validate_python(doc)
     except ValidationError as exc:
         raise WireError(f"invalid {doc['type']}: {_reason(exc)}") from None
@@ -284,7 +362,7 @@ def decode_ground(
 
 def decode_spacecraft(
     text: str | bytes,
-) -> Hello | CommandAck | TelemetryMsg | Pong | CommandUnknown | ErrorMsg:
+) -> Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg:
     """A spacecraft -> ground message, or :class:`WireError`."""
     doc = _load(text)
     try:

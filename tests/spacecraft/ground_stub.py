@@ -1,8 +1,10 @@
 """A minimal ground station for the spacecraft's tests: a real websocket server on loopback.
 
-It checks the token, learns the onboard clock from ``hello``, sends commands when told to,
-stores telemetry deduplicated by sequence number (counting duplicates), acknowledges
-cumulatively with the ranges it holds beyond, and asks for the gaps it sees.
+It checks the token, learns the onboard clock from ``hello``, sends commands (and any other
+message) when told to, stores telemetry deduplicated by sequence number (counting
+duplicates), acknowledges cumulatively with the ranges it holds beyond, and asks for the gaps
+it sees. It speaks the protocol version of :mod:`telemetry.wire` (2); it does not retransmit
+commands by itself (a test sends copies when it wants them).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from telemetry.wire import (
     TelemetryAck,
     TelemetryFrame,
     TelemetryMsg,
+    Verification,
     decode_spacecraft,
     encode,
 )
@@ -47,6 +50,7 @@ class GroundStub:
     duplicates: int = 0
     acks: list[CommandAck] = field(default_factory=list)
     errors: list[ErrorMsg] = field(default_factory=list)
+    verifications: list[Verification] = field(default_factory=list)
     hellos: list[Hello] = field(default_factory=list)
     other: list[Any] = field(default_factory=list)
     connection: ServerConnection | None = None
@@ -101,6 +105,8 @@ class GroundStub:
                     self.acks.append(msg)
                 elif isinstance(msg, ErrorMsg):
                     self.errors.append(msg)
+                elif isinstance(msg, Verification):
+                    self.verifications.append(msg)
                 else:
                     self.other.append(msg)
 

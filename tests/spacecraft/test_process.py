@@ -20,7 +20,13 @@ import pytest
 
 from spacecraft.link import LinkConfig, Outage
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from telemetry.wire import CommandStage, JointCommandMsg, RejectReason
+from telemetry.wire import (
+    DEFAULT_SCHEDULE_CAPACITY,
+    CommandStage,
+    JointCommandMsg,
+    RejectReason,
+    ScheduleDelete,
+)
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
 
 SCALE = 20.0
@@ -132,24 +138,28 @@ def test_hostile_messages_get_error_replies_and_the_vehicle_carries_on() -> None
     async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
         for text in (
             "{not json",
-            '{"v":1,"type":"self_destruct"}',
-            '{"v":1,"type":"ping","ping_id":"abc","ground_time_ns":0}',
+            '{"v":2,"type":"self_destruct"}',
+            '{"v":2,"type":"ping","ping_id":"abc","ground_time_ns":0}',
             '{"v":9,"type":"ping"}',
-            '{"v":1,"type":"ping","pad":"' + "x" * 300_000 + '"}',
+            '{"v":2,"type":"ping","pad":"' + "x" * 300_000 + '"}',
             b"\xff\xfe\x00binary",
+            # version 1 is not served, commands included: an error, not a command_ack
+            '{"v":1,"type":"ping","ping_id":1,"ground_time_ns":0}',
+            '{"v":1,"type":"command","kind":"joints","seq":56,"execute_time_ns":0,'
+            '"joints_rad":[0,0,0,0,0,0]}',
         ):
             await stub.send(text)
         bad_command = (
-            '{"v":1,"type":"command","kind":"joints","seq":55,"execute_time_ns":0,'
+            '{"v":2,"type":"command","kind":"joints","seq":55,"execute_time_ns":0,'
             '"joints_rad":[0,0,0,0,0,"oops"]}'
         )
         await stub.send(bad_command)
         await stub.wait_for(
-            lambda: len(stub.errors) >= 6 and any(a.seq == 55 for a in stub.acks), 10.0
+            lambda: len(stub.errors) >= 8 and any(a.seq == 55 for a in stub.acks), 10.0
         )
         seq_before = max(stub.frames)
         # Past the socket's own limit the connection closes; the spacecraft reconnects.
-        await stub.send('{"v":1,"type":"ping","pad":"' + "x" * (5 * 2**20) + '"}')
+        await stub.send('{"v":2,"type":"ping","pad":"' + "x" * (5 * 2**20) + '"}')
         await stub.wait_for(lambda: len(stub.hellos) >= 2, 10.0)
         await stub.wait_for(lambda: max(stub.frames) > seq_before + 30, 10.0)
 
@@ -157,33 +167,92 @@ def test_hostile_messages_get_error_replies_and_the_vehicle_carries_on() -> None
     reasons = " | ".join(e.reason for e in stub.errors)
     for expected in ("not JSON", "unknown message type", "ping_id", "version 9", "exceeds"):
         assert expected in reasons
+    v1 = [e for e in stub.errors if "protocol version 1 is not served" in e.reason]
+    assert [e.ref_type for e in v1] == ["ping", "command"]
+    assert "this end speaks 2" in v1[0].reason
+    assert not any(a.seq == 56 for a in stub.acks)
     malformed = next(a for a in stub.acks if a.seq == 55)
     assert malformed.stage is CommandStage.REJECTED and malformed.reason is RejectReason.MALFORMED
     assert process.connections == 2
     assert sorted(stub.frames) == list(range(process.vehicle.next_telemetry_seq))
 
 
-def test_a_dropped_link_refuses_queued_commands_and_holds_the_arm() -> None:
+def test_a_dropped_link_changes_nothing_the_schedule_executes_and_copies_get_their_acks() -> None:
+    """The websocket dropping is no LOS hold (the default policy is ``continue``): the loaded
+    commands execute at their tags, and copies sent after reconnecting are answered with the
+    stored acknowledgements."""
+    joints = [np.radians([0.5 * k, 0, 0, 0, 0, 0]) for k in range(4)]  # 2 deg/s
+    tags: list[int] = []
+
     async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
-        tag0 = _next_tag(stub, 20.0)
-        for k in range(4):
-            q = np.radians([0.5 * k, 0, 0, 0, 0, 0])  # 2 deg/s
-            await stub.send(
-                JointCommandMsg(seq=k, execute_time_ns=tag0 + k * PERIOD_NS, joints_rad=list(q))
-            )
+        hello = stub.hellos[0]
+        assert hello.schedule_capacity == DEFAULT_SCHEDULE_CAPACITY
+        assert (hello.los_policy, hello.los_hold_after_s) == ("continue", None)
+        tag0 = _next_tag(stub, 25.0)  # acks back, a reconnection and a copy before the tags
+        cmds = []
+        for k, q in enumerate(joints):
+            tags.append(tag0 + k * PERIOD_NS)
+            cmds.append(JointCommandMsg(seq=k, execute_time_ns=tags[-1], joints_rad=list(q)))
+            await stub.send(cmds[-1])
         await stub.wait_for(lambda: len(stub.acks) >= 4, 10.0)
         assert all(a.stage is CommandStage.RECEIVED for a in stub.acks)
         assert stub.connection is not None
         await stub.connection.close()
         await stub.wait_for(lambda: len(stub.hellos) >= 2, 10.0)
+        assert stub.hellos[1].last_command_seq == 3
+        await stub.send(cmds[3])  # a retransmission: "you already have it"
+        await stub.wait_for(lambda: len(stub.acks) >= 5, 10.0)
         await stub.wait_for(
-            lambda: sum(a.reason is RejectReason.LINK_LOST for a in stub.acks) >= 4, 10.0
+            lambda: sum(a.stage is CommandStage.EXECUTED for a in stub.acks) >= 4, 20.0
         )
-        await asyncio.sleep(25.0 / SCALE)  # past the tags
+        await stub.send(cmds[0])
+        await stub.wait_for(lambda: len(stub.acks) >= 10, 10.0)
 
     stub, _ = run_session(scenario)
-    assert not any(a.stage is CommandStage.EXECUTED for a in stub.acks)
-    assert all(max(np.abs(f.joint_targets_rad)) < 1e-12 for f in stub.frames.values())
+    assert not any(a.reason is RejectReason.LINK_LOST for a in stub.acks)
+    assert not any(a.reason is RejectReason.DUPLICATE for a in stub.acks)
+    executed = {a.seq: a for a in stub.acks if a.stage is CommandStage.EXECUTED}
+    assert [executed[k].onboard_time_ns for k in range(4)] == tags
+    # the copy of seq 3 got "received" (before its tag), the copy of seq 0 "executed"
+    received_3 = [a for a in stub.acks if a.seq == 3 and a.stage is CommandStage.RECEIVED]
+    assert len(received_3) == 2 and received_3[0] == received_3[1]
+    assert [a for a in stub.acks if a.seq == 0][-1] == executed[0]
+    assert len([a for a in stub.acks if a.stage is CommandStage.EXECUTED]) == 5
+    late = [f for f in stub.frames.values() if f.generation_time_ns >= tags[-1]]
+    assert late and all(
+        np.allclose(f.joint_targets_rad, joints[-1], rtol=0, atol=1e-12) for f in late
+    )
+
+
+def test_schedule_delete_goes_through_the_relay_and_is_verified() -> None:
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        tag0 = _next_tag(stub, 15.0)  # the delete (3 s up) well before the 5th tag
+        for k in range(8):
+            q = np.radians([0.5 * k, 0, 0, 0, 0, 0])
+            await stub.send(
+                JointCommandMsg(seq=k, execute_time_ns=tag0 + k * PERIOD_NS, joints_rad=list(q))
+            )
+        request = ScheduleDelete(request_id=1, from_time_ns=tag0 + 4 * PERIOD_NS, max_seq=7)
+        await stub.send(request)
+        await stub.send(request)  # a copy: the same report, nothing else
+        await stub.wait_for(lambda: len(stub.verifications) >= 2, 10.0)
+        await stub.wait_for(
+            lambda: sum(a.stage is CommandStage.EXECUTED for a in stub.acks) >= 4, 20.0
+        )
+        await asyncio.sleep(3.0 / SCALE)  # past the deleted tags
+
+    stub, process = run_session(scenario)
+    first, again = stub.verifications
+    assert first == again
+    assert first.stage == "completed" and first.deleted == 4
+    assert first.deleted_ranges == [(4, 7)] and first.executed_after_from == 0
+    executed = sorted(a.seq for a in stub.acks if a.stage is CommandStage.EXECUTED)
+    assert executed == [0, 1, 2, 3]
+    cancelled = process.vehicle.outcome(6)
+    assert cancelled is not None and cancelled.reason is RejectReason.CANCELLED
+    np.testing.assert_allclose(
+        process.vehicle.joint_target_rad(), np.radians([1.5, 0, 0, 0, 0, 0]), rtol=0, atol=1e-12
+    )
 
 
 @pytest.mark.slow

@@ -1,6 +1,7 @@
-"""The flight segment (spacecraft.vehicle): onboard command rules, execution on the time
-grid, safe state, truth-simulation invariants, attitude control, telemetry, and the
-calibration against the flight results (docs/spacecraft.md)."""
+"""The flight segment (spacecraft.vehicle): onboard command rules (retransmitted copies, the
+schedule's capacity, schedule_delete), execution on the time grid, the LOS policy and the
+safe state, truth-simulation invariants, attitude control, telemetry, and the calibration
+against the flight results (docs/spacecraft.md)."""
 
 from __future__ import annotations
 
@@ -16,12 +17,14 @@ from planner.simulation import SimConfig
 from spacecraft._calibration import coordination_metrics, fly_plan, plan_messages
 from spacecraft.vehicle import SensorNoise, Vehicle, VehicleConfig, VehicleError
 from telemetry.wire import (
+    DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
     AcsModeName,
     CommandAck,
     CommandStage,
     JointCommandMsg,
     RejectReason,
+    ScheduleDelete,
     TelemetryFrame,
 )
 
@@ -210,6 +213,203 @@ def test_outcome_is_the_latest_ack_of_each_command_received(config: VehicleConfi
     assert v.outcome(3) is None
 
 
+# -- retransmission, capacity and schedule_delete (the windowed uplink) ----------------------
+
+
+def test_an_identical_copy_gets_the_stored_ack_and_never_executes_twice(
+    config: VehicleConfig,
+) -> None:
+    """The ground sends each command until it is acknowledged: a copy is answered with the
+    command's latest acknowledgement ("you already have it") and changes nothing."""
+    v = _vehicle(config)
+    cmds = [_joints(k, T0 + k * PERIOD, _ramp_deg(k)) for k in range(3)]
+    first = v.receive(cmds[0])
+    _received(first)
+    v.advance_to(EPOCH + SECOND)
+    # a copy, re-decoded as it would be from the wire, in an arrival order of its own
+    copy = JointCommandMsg.model_validate_json(cmds[0].model_dump_json())
+    assert v.receive(copy) == first  # the same ack, with the time of receipt
+    _received(v.receive(cmds[2]))
+    _received(v.receive(cmds[1]))
+    assert v.queued == 3
+    acks, _ = v.advance_to(T0)
+    assert [a.seq for a in acks] == [0]
+    executed = acks[0]
+    assert v.receive(copy) == executed  # executed, at its tag
+    assert v.queued == 2
+    # a refused command's copy gets the refusal again
+    late = _joints(3, T0, _ramp_deg(0))
+    refused = v.receive(late)
+    _rejected(refused, RejectReason.LATE)
+    assert v.receive(late) == refused
+    # other content under a used seq is a duplicate and stands for nothing
+    _rejected(
+        v.receive(_joints(0, T0 + 5 * PERIOD, _ramp_deg(1))),
+        RejectReason.DUPLICATE,
+        "seq 0",
+        "other content",
+    )
+    assert v.outcome(0) == executed
+    acks, _ = v.advance_to(T0 + 3 * SECOND)
+    assert [a.seq for a in acks] == [1, 2]  # seq 0 executed once
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(2)))
+    assert v.receive(cmds[1]).stage is CommandStage.EXECUTED
+    assert v.last_command_seq == 3
+
+
+def test_a_full_schedule_refuses_for_now_and_takes_a_later_copy() -> None:
+    v = _vehicle(VehicleConfig(schedule_capacity=3))
+    _received(v.receive(_joints(0, T0, _ramp_deg(0))))
+    _received(v.receive(_joints(1, T0 + PERIOD, _ramp_deg(1))))
+    _received(v.receive(AcsCommandMsg(seq=2, execute_time_ns=T0 + PERIOD, mode="free_drift")))
+    late = _joints(3, T0 + 2 * PERIOD, _ramp_deg(2))
+    full = v.receive(late)
+    _rejected(full, RejectReason.SCHEDULE_FULL, "capacity 3")
+    # transient: nothing is recorded, a copy is checked afresh
+    assert v.outcome(3) is None and v.queued == 3 and v.last_command_seq == 3
+    _rejected(v.receive(late), RejectReason.SCHEDULE_FULL)
+    # a command that would be refused anyway is refused for its own reason
+    _rejected(v.receive(_joints(4, EPOCH, _ramp_deg(0))), RejectReason.LATE)
+    acks, frames = v.advance_to(T0)  # seq 0 executes: room for one
+    assert [a.seq for a in acks] == [0]
+    buffer = frames[-1].buffer
+    assert (buffer.queued, buffer.capacity, buffer.last_executed_seq) == (2, 3, 0)
+    assert buffer.next_execute_time_ns == buffer.last_queued_time_ns == T0 + PERIOD
+    _received(v.receive(late))
+    assert v.receive(late).stage is CommandStage.RECEIVED  # now it is recorded
+    _rejected(v.receive(_joints(5, T0 + 3 * PERIOD, _ramp_deg(3))), RejectReason.SCHEDULE_FULL)
+    acks, frames = v.advance_to(T0 + 2 * PERIOD)
+    assert [a.seq for a in acks] == [1, 2, 3]
+    assert frames[-1].buffer.queued == 0 and frames[-1].buffer.last_executed_seq == 3
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(2)))
+
+
+def test_schedule_delete_removes_the_range_refuses_late_copies_and_the_arm_holds(
+    config: VehicleConfig,
+) -> None:
+    v = _vehicle(config)
+    for k in range(12):
+        _received(v.receive(_joints(k, T0 + k * PERIOD, _ramp_deg(k))))
+    _received(v.receive(AcsCommandMsg(seq=20, execute_time_ns=T0 + 8 * PERIOD, mode="feedback")))
+    _received(v.receive(AcsCommandMsg(seq=21, execute_time_ns=T0 + PERIOD, mode="free_drift")))
+    # a later plan (seq above max_seq) already loaded: untouched
+    _received(v.receive(AcsCommandMsg(seq=100, execute_time_ns=T0 + 9 * PERIOD, mode="feedback")))
+    v.advance_to(T0 + 2 * PERIOD + 100_000_000)  # ramping from seq 2 to seq 3
+    cut = T0 + 5 * PERIOD
+    report = v.delete_schedule(ScheduleDelete(request_id=7, from_time_ns=cut, max_seq=50))
+    assert report.stage == "completed" and report.request_id == 7
+    assert report.deleted == 8 and report.deleted_ranges == [(5, 11), (20, 20)]
+    assert report.executed_after_from == 0 and report.detail is None
+    assert report.onboard_time_ns == v.onboard_time_ns
+    assert v.queued == 3  # seqs 3, 4 and 100
+    deleted = v.outcome(9)
+    assert deleted is not None
+    _rejected(deleted, RejectReason.CANCELLED, "request 7")
+    # copies still in the relay: one received before gets its (new) outcome, one never
+    # received is refused by the barrier; outside the range commands are taken as ever
+    assert v.receive(_joints(9, T0 + 9 * PERIOD, _ramp_deg(9))) == deleted
+    _rejected(v.receive(_joints(12, T0 + 12 * PERIOD, _ramp_deg(12))), RejectReason.CANCELLED, "7")
+    barred = v.outcome(12)
+    assert barred is not None and barred.reason is RejectReason.CANCELLED
+    _received(v.receive(AcsCommandMsg(seq=22, execute_time_ns=T0 + 4 * PERIOD, mode="feedback")))
+    # the same request again: the first report, nothing else
+    again = v.delete_schedule(ScheduleDelete(request_id=7, from_time_ns=EPOCH, max_seq=10**6))
+    assert again == report and v.queued == 4
+    # the arm goes on to seq 4 (the last target left) and holds there past the deleted tags
+    acks, frames = v.advance_to(T0 + 14 * PERIOD)
+    assert [a.seq for a in acks] == [3, 4, 22, 100]
+    assert all(a.stage is CommandStage.EXECUTED for a in acks)
+    held = np.radians(_ramp_deg(4))
+    np.testing.assert_array_equal(v.joint_target_rad(), held)
+    after = [f for f in frames if f.generation_time_ns >= T0 + 4 * PERIOD]
+    assert len(after) >= 25 and all(f.joint_targets_rad == list(held) for f in after)
+    # the later plan's joint commands are not barred
+    nxt = T0 + 16 * PERIOD
+    _received(v.receive(_joints(101, nxt, _ramp_deg(4) + np.array([0.5, 0, 0, 0, 0, 0]))))
+    v.advance_to(T0 + 15 * PERIOD)
+    moving = v.joint_target_rad()
+    assert moving[0] > held[0]
+    # a delete from the past: every queued command of the range, the arm holds mid-ramp
+    report = v.delete_schedule(ScheduleDelete(request_id=8, from_time_ns=EPOCH, max_seq=200))
+    assert report.deleted == 1 and report.deleted_ranges == [(101, 101)]
+    # seqs 0..4, 21, 22 and 100 had executed, all tagged after the epoch
+    assert report.executed_after_from == 8
+    assert report.detail is not None and "at or before onboard time" in report.detail
+    _, frames = v.advance_to(T0 + 20 * PERIOD)
+    assert all(f.joint_targets_rad == list(moving) for f in frames)
+
+
+# -- loss of signal ----------------------------------------------------------------------------
+
+
+def _sparse(v: Vehicle, n: int) -> list[int]:
+    """Joint commands 0..n-1 every 2 s from T0 (0.25 deg/s), all loaded now."""
+    tags = [T0 + k * 2 * SECOND for k in range(n)]
+    for k, tag in enumerate(tags):
+        _received(v.receive(_joints(k, tag, _ramp_deg(k))))
+    return tags
+
+
+def test_los_continue_executes_the_loaded_schedule_through_silence(
+    config: VehicleConfig,
+) -> None:
+    assert config.los_policy == "continue" and config.los_hold_after_s is None
+    v = _vehicle(config)
+    tags = _sparse(v, 15)  # 30 s of commands, and not a word from the ground after
+    acks, _ = v.advance_to(tags[-1] + SECOND)
+    assert [a.seq for a in acks] == list(range(15))
+    assert all(a.stage is CommandStage.EXECUTED for a in acks)
+    np.testing.assert_array_equal(v.joint_target_rad(), np.radians(_ramp_deg(14)))
+
+
+def test_los_hold_refuses_the_joint_commands_after_the_silence() -> None:
+    config = VehicleConfig(los_policy="hold", los_hold_after_s=4.5)
+    v = _vehicle(config)
+    tags = _sparse(v, 10)  # T0 = 2 s, then 4 s, 6 s, ... 20 s after the epoch
+    v.receive(AcsCommandMsg(seq=50, execute_time_ns=EPOCH + 10 * SECOND, mode="free_drift"))
+    acks, _ = v.advance_to(EPOCH + 3 * SECOND)
+    assert [a.seq for a in acks] == [0]
+    v.heard_from_ground()  # e.g. a telemetry_ack at 3 s
+    assert v.last_heard_ns == EPOCH + 3 * SECOND
+    deadline = EPOCH + 7_500_000_000  # 4.5 s later: between seq 2 (6 s) and seq 3 (8 s)
+    acks, frames = v.advance_to(tags[-1] + SECOND)
+    assert [(a.seq, a.stage) for a in acks] == [
+        (1, CommandStage.EXECUTED),
+        (2, CommandStage.EXECUTED),
+        *[(k, CommandStage.REJECTED) for k in range(3, 10)],
+        (50, CommandStage.EXECUTED),  # attitude commands stay
+    ]
+    for ack in acks[2:9]:
+        _rejected(ack, RejectReason.LINK_LOST, "LOS policy hold", "4.5 s")
+        assert ack.onboard_time_ns == deadline and v.outcome(ack.seq) == ack
+    assert v.acs_mode is AcsModeName.FREE_DRIFT
+    held = np.radians(_ramp_deg(2) + 0.75 * (_ramp_deg(3) - _ramp_deg(2)))
+    np.testing.assert_allclose(v.joint_target_rad(), held, rtol=0, atol=1e-12)
+    after = [f for f in frames if f.generation_time_ns >= deadline]
+    assert len(after) > 100
+    assert all(f.joint_targets_rad == after[0].joint_targets_rad for f in after)
+    # the ground is heard again: new commands are taken and ramped to from the held target
+    tag = v.onboard_time_ns + SECOND
+    _received(v.receive(_joints(60, tag, np.degrees(held) + np.array([1.0, 0, 0, 0, 0, 0]))))
+    v.advance_to(tag)
+    np.testing.assert_allclose(
+        v.joint_target_rad(), held + np.radians([1.0, 0, 0, 0, 0, 0]), rtol=0, atol=1e-12
+    )
+
+
+def test_los_hold_waits_while_the_ground_is_heard() -> None:
+    v = _vehicle(VehicleConfig(los_policy="hold", los_hold_after_s=2.0))
+    tags = _sparse(v, 8)
+    executed: list[CommandAck] = []
+    t = EPOCH
+    while t < tags[-1]:
+        t += 1_500_000_000
+        executed += v.advance_to(t)[0]
+        v.heard_from_ground()  # something from the ground every 1.5 s
+    assert [a.seq for a in executed] == list(range(8))
+    assert all(a.stage is CommandStage.EXECUTED for a in executed)
+
+
 def test_limits_and_malformed_commands_are_refused_with_reasons(config: VehicleConfig) -> None:
     v = _vehicle(config)
     _rejected(
@@ -301,6 +501,7 @@ def test_the_arm_holds_still_when_commands_stop(config: VehicleConfig) -> None:
 def test_link_loss_refuses_queued_joint_commands_and_holds_the_arm(
     config: VehicleConfig,
 ) -> None:
+    """The safe state the ``hold`` LOS policy enters, here at once (``link_lost``)."""
     v = _vehicle(config)
     for k in range(20):
         v.receive(_joints(k, T0 + k * PERIOD, _ramp_deg(k)))
@@ -410,7 +611,11 @@ def test_telemetry_every_period_with_consecutive_seqs_and_sample_times(
     assert [f.generation_time_ns for f in frames] == [EPOCH + k * 100_000_000 for k in range(n)]
     assert n == v.next_telemetry_seq and frames[-1].generation_time_ns <= t
     assert frames[0].buffer.queued == 1 and frames[0].buffer.next_execute_time_ns == T0
+    assert frames[0].buffer.last_queued_time_ns == T0
+    assert frames[0].buffer.capacity == DEFAULT_SCHEDULE_CAPACITY
+    assert frames[0].buffer.last_executed_seq == -1
     assert frames[-1].buffer.queued == 0 and frames[-1].buffer.next_execute_time_ns is None
+    assert frames[-1].buffer.last_queued_time_ns is None
     assert frames[-1].buffer.last_executed_seq == 0
     assert frames[-1].acs_mode is AcsModeName.FEEDBACK and frames[-1].acs_target_quat_xyzw == (
         IDENTITY
@@ -479,6 +684,16 @@ def test_configuration_is_checked() -> None:
         VehicleConfig(initial_joints_rad=(0, 0, 0, 3.1, 0, 0))
     with pytest.raises(ValueError, match="must be finite"):
         SensorNoise(joint_rad=-1.0)
+    with pytest.raises(VehicleError, match="schedule_capacity"):
+        VehicleConfig(schedule_capacity=0)
+    with pytest.raises(VehicleError, match="'continue' or 'hold'"):
+        VehicleConfig(los_policy="panic")  # type: ignore[arg-type]
+    with pytest.raises(VehicleError, match="needs los_hold_after_s > 0"):
+        VehicleConfig(los_policy="hold")
+    with pytest.raises(VehicleError, match="needs los_hold_after_s > 0"):
+        VehicleConfig(los_policy="hold", los_hold_after_s=0.0)
+    with pytest.raises(VehicleError, match="only with los_policy 'hold'"):
+        VehicleConfig(los_hold_after_s=30.0)
 
 
 # -- calibration against the flight (docs/spacecraft.md) -------------------------------------
