@@ -36,7 +36,9 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.settings = settings
         app.state.engine = engine
         app.state.sessions = session_factory(engine)
-        app.state.link = GroundLink(sessions=app.state.sessions)
+        app.state.link = GroundLink(
+            sessions=app.state.sessions, one_way_delay_s=settings.link_one_way_delay_s
+        )
         app.state.runner = PassRunner(link=app.state.link, settings=settings)
         await app.state.runner.recover()
         app.state.console = ConsoleHub(

@@ -54,7 +54,9 @@ LATEST = datetime(2200, 1, 1, tzinfo=UTC)
 MAX_NS = 2**63 - 1
 
 PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted"]
-CommandStage = Literal["queued", "released", "sent", "received", "executed", "rejected", "expired"]
+CommandStage = Literal[
+    "queued", "released", "sent", "received", "executed", "rejected", "expired", "cancelled"
+]
 
 
 def iso_from_ns(time_ns: int) -> datetime:
@@ -172,8 +174,9 @@ class PassesPublic(BaseModel):
 
 class CommandPublic(BaseModel):
     """A command and when it reached each stage: ground stages (``queued`` ... ``sent``,
-    ``expired``) as ISO-8601 UTC, onboard stages (``received``, ``executed``, ``rejected``)
-    as ns on the onboard clock."""
+    ``expired``, ``cancelled``) as ISO-8601 UTC, onboard stages (``received``,
+    ``executed``, ``rejected``) as ns on the onboard clock; ``transmissions``, how many
+    times it went up (the uplink retransmits until the vehicle acknowledges)."""
 
     seq: int
     kind: str
@@ -185,6 +188,8 @@ class CommandPublic(BaseModel):
     released_at: datetime | None
     sent_at: datetime | None
     expired_at: datetime | None
+    cancelled_at: datetime | None
+    transmissions: int
     received_at_ns: int | None
     executed_at_ns: int | None
     rejected_at_ns: int | None
@@ -307,6 +312,8 @@ class PassSummaryPublic(BaseModel):
     commands_executed: int
     commands_rejected: dict[str, int]
     commands_expired: int
+    commands_cancelled: int
+    commands_retransmitted: int
     commands_outstanding: int
 
 

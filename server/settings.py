@@ -38,6 +38,13 @@ class Settings(BaseModel):
     #: SPEC 6: the ground sends each command at least (one-way delay + margin) before its tag
     link_one_way_delay_s: float = 3.0
     uplink_margin_s: float = 2.0
+    #: The onboard schedule is kept loaded this far ahead of the onboard clock (onboard s,
+    #: issue 11): every command goes up this long before its tag, and is sent again until
+    #: the vehicle acknowledges it, within the vehicle's announced schedule capacity.
+    uplink_lead_window_s: float = Field(default=120.0, gt=0, le=3600)
+    #: A pass's first command is tagged this long (onboard s) after the start, so that it
+    #: too can be sent again before its tag if the relay loses it.
+    uplink_start_lead_s: float = Field(default=30.0, ge=0, le=600)
     command_period_s: float = 0.25
     #: The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
     #: pass is 14 MB).

@@ -69,7 +69,8 @@ from server.services._console_replay import (
     telemetry_rows,
 )
 from server.services._console_replay_sessions import Replays
-from server.services.link import LinkStatus, Publisher
+from server.services.dbworker import Publisher
+from server.services.link import LinkStatus
 from server.storage import repository as repo
 from server.storage.errors import NotFound
 from server.storage.models import TELEMETRY_FIELDS

@@ -1,8 +1,9 @@
 """Passes: schedule one against a stored plan, list and read them, list their commands.
 
-A window must hold the whole plan and the uplink lead before its first command: the
-ground sends each command at least (one-way delay + margin) before its time tag (SPEC 6),
-and nothing can be sent before AOS.
+A window must hold the whole plan and the start lead before its first command: the
+first command is tagged ``uplink_start_lead_s`` (at least one-way delay + margin, SPEC 6)
+after the start, so that it too can be sent again if the relay loses it, and nothing can be
+sent before AOS.
 """
 
 from __future__ import annotations
@@ -72,14 +73,17 @@ def schedule_pass(
         )
     try:
         plan = repo.get_plan(session=session, plan_id=request.plan_id)
-        lead_s = settings.link_one_way_delay_s + settings.uplink_margin_s
+        lead_s = max(
+            settings.uplink_start_lead_s,
+            settings.link_one_way_delay_s + settings.uplink_margin_s + 1.0,
+        )
         window_s = (los_ns - aos_ns) / 1e9
         if window_s < plan.duration_s + lead_s:
             raise ServiceError(
                 422,
                 "window_too_short",
                 f"window of {window_s:.3f} s is shorter than plan {plan.id}'s "
-                f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s uplink lead",
+                f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s start lead",
             )
         record = repo.add_pass(
             session=session,
@@ -138,6 +142,8 @@ def _command(record: CommandRecord) -> CommandPublic:
         released_at=_iso(record.released_at_ns),
         sent_at=_iso(record.sent_at_ns),
         expired_at=_iso(record.expired_at_ns),
+        cancelled_at=_iso(record.cancelled_at_ns),
+        transmissions=record.transmissions,
         received_at_ns=record.received_at_ns,
         executed_at_ns=record.executed_at_ns,
         rejected_at_ns=record.rejected_at_ns,

@@ -18,13 +18,12 @@ from sqlalchemy.orm import Session
 from planner.plan import Plan
 from server.errors import ServiceError
 from server.storage import repository as repo
-from server.storage.models import EventRecord, TelemetryFrameRecord
+from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
 from telemetry.mcap import write_mcap
 from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
 __all__ = ["NotFlown", "load_recording", "recording_mcap"]
 
-_STAGES = ("queued", "released", "sent", "received", "executed", "rejected", "expired")
 _F = TelemetryFrameRecord
 _COLUMNS = (
     _F.seq,
@@ -117,7 +116,7 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
             payload=dict(c.payload),
             stage=c.stage,
             reject_reason=c.reject_reason,
-            stage_times_ns={s: getattr(c, f"{s}_at_ns") for s in _STAGES},
+            stage_times_ns={s: getattr(c, f"{s}_at_ns") for s in COMMAND_STAGES},
         )
         for c in repo.list_commands(session=session, pass_id=record.id)
     )

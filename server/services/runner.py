@@ -1,28 +1,29 @@
-"""Passes: the state machine and the 4 Hz uplink emitter.
+"""Passes: the state machine and the windowed uplink of their commands.
 
     scheduled -> aos -> running -> los -> complete
     scheduled | aos | running | los -> aborted
 
 Every transition is a compare-and-set on the pass's version (``update_pass_state``) and an
-event ``pass_state`` (actor, from, to, reason) in the same transaction.
+event ``pass_state`` (actor, from, to, reason) in the same transaction. All timing reads
+the injected :class:`~server.services.clock.Clock` (``SystemClock`` in the service, a
+``ManualClock`` in the unit tests), so the rules below are tested in simulated time.
 
 **Start** (needs a connected spacecraft with a known clock): ``aos`` then ``running`` in one
-transaction. The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + (one-way delay +
-uplink margin + 1 s + the onboard time of 1 s wall for the start transaction), rounded up
-to the 0.25 s grid; the plan's joint and ACS commands are
-queued with ``seq`` from one past the highest the vehicle has seen (the stored commands and
-``hello.last_command_seq``), in tag order. The pass's telemetry window opens at onboard now.
+transaction. The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + the start lead
+(``uplink_start_lead_s``, at least one-way delay + margin) + the onboard time of 1 s wall
+for the start transaction, rounded up to the 0.25 s grid, so that even the first command
+can be sent again before its tag if the relay loses it. The plan's joint and ACS commands
+are queued with ``seq`` from one past the highest the vehicle or the archive has seen, in
+tag order. The pass's telemetry window opens at onboard now.
 
-**Emitter**: command ``k`` is released when the onboard clock reads ``tag - (delay +
-margin)``. The deadline is an absolute ``time.monotonic`` instant computed from the
-``hello`` clock mapping (onboard seconds divided by the time scale), never an accumulated
-sleep, so the cadence is isochronous and does not drift. Stages ``released`` then ``sent``
-(ground times) are written without the emitter waiting for the commit. With the link down
-the command waits; a command that could no longer be sent with (one-way delay + half the
-margin) before its tag is marked ``expired`` instead: SPEC 6 asks for delay + margin, and
-half the margin is kept as the release's own tolerance (an event loop a few ms late must
-not expire a command; a link back after an outage must not send one that jitter could
-make late). ``emission_lags_s`` keeps how late each release was after its deadline (wall s).
+**Uplink** (:mod:`server.services.uplink`): the onboard schedule is kept loaded
+``uplink_lead_window_s`` ahead of the onboard clock, within the vehicle's schedule
+capacity; every command is sent again on its retransmission timer until the vehicle
+acknowledges it, as long as it can still arrive (one-way delay + half the margin before its
+tag); a command never sent that can no longer arrive is ``expired``. Stages ``released``
+and ``sent`` (ground times) are written at the first transmission, the count of
+transmissions with them and after retransmissions. The runner wakes at the next timer,
+the next command entering the window, or any typed link event (acknowledgement, link up).
 
 **Completion**: at the last tag + :data:`SETTLE_S` onboard the pass goes ``los`` (the
 telemetry window closes there); commands whose tag has passed without a final
@@ -31,16 +32,23 @@ times: acks lost on the downlink come again, commands lost on the uplink come ba
 ``command_unknown`` and expire); once no command is left ``sent`` or ``received`` (or
 the queries are used up) it is ``complete``.
 
+**Abort**: the uplink stops. With something sent, a ``schedule_delete`` (PUS 11) from the
+next 0.25 s grid tag ``T`` at least (delay + margin) ahead, for the pass's seqs, goes up
+at once three times and then on the retransmission timer until the vehicle's
+``verification`` arrives; the arm holds at the last target before ``T`` (the vehicle
+ramps to it and stops). On the ground the pass's commands tagged at or after ``T`` and
+those never sent become ``cancelled`` with the reason, in one ``commands_cancelled``
+event; the vehicle's own word on a command (it executed after all, the delete arriving
+late) overrules that. The telemetry window closes :data:`SETTLE_S` after ``T``. The link
+down at the abort: ``T`` is chosen when it is back. Then ``aborted``; the stages of the
+commands before ``T`` are resolved in the background as their tags pass.
+
 **Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the
 passes and resumes a pass left ``running`` or ``los`` by a process that did not shut
-down (a graceful stop aborts the running pass instead, holding the arm).
-
-**Abort**: the emitter stops; commands not yet sent are ``expired``; a hold is sent: one
-joint command at the next 0.25 s grid tag at least (delay + margin) ahead, holding the
-**last joint target sent** (the commands already sent will still execute on board, and
-the hold keeps the arm where they leave it). Nothing was sent: no hold (the arm was never
-moved by this pass). The telemetry window closes :data:`SETTLE_S` after the hold's tag so
-the hold is seen in the pass's telemetry. Then ``aborted``.
+down (a graceful stop aborts the running pass instead). Its commands not final are loaded
+into a new uplink: those the earlier process sent and the vehicle did not acknowledge are
+sent again at once (the vehicle answers a copy of a command it holds with its stored
+acknowledgement), the rest as the window admits them.
 """
 
 from __future__ import annotations
@@ -49,29 +57,33 @@ import asyncio
 import contextlib
 import logging
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from planner.plan import Plan
+from server.services.clock import Clock
+from server.services.command_stages import cancel_commands, set_command_stage, write_event
 from server.services.link import (
+    CommandAcked,
     GroundLink,
+    LinkEvent,
     LinkUnavailable,
+    LinkUp,
+    RequestVerified,
     TelemetryWindow,
-    set_command_stage,
-    write_event,
 )
+from server.services.uplink import RttEstimator, Uplink, UplinkCommand
 from server.settings import Settings
 from server.storage import repository as repo
 from server.storage._common import canonical_id
 from server.storage.errors import Conflict
 from server.storage.models import CommandRecord, PassRecord
 from telemetry.uplink import GRID_NS, Command, plan_commands
-from telemetry.wire import AcsCommandMsg, JointCommandMsg, encode
+from telemetry.wire import AcsCommandMsg, JointCommandMsg, ScheduleDelete, Verification
 
 __all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
 
@@ -85,20 +97,26 @@ TRANSITIONS = {
     "complete": {"los"},
     "aborted": {"scheduled", "aos", "running", "los"},
 }
-START_SLACK_S = 1.0  # onboard s beyond delay + margin, for the first command
 #: Wall s allowed for the start transaction itself (its first use of a fresh PostgreSQL
 #: connection can take a few hundred ms: at 20x that is seconds onboard).
 START_SLACK_WALL_S = 1.0
 SETTLE_S = 2.0  # onboard s after the last tag before LOS
-UNSENT = ("queued", "released")
 #: Refusals that mean the arm no longer follows the plan, and how many in a row stop it
 #: (2 s of joint commands).
 REFUSALS = ("out_of_limits", "late")
 MAX_REFUSED_IN_A_ROW = 8
-#: After LOS, ask the vehicle about unacknowledged commands at most this many times.
-MAX_COMMAND_QUERIES = 5
+#: After LOS, ask the vehicle about unacknowledged commands at most this many times (under
+#: 20 % loss each way one round is lost with p = 0.36; twenty rounds all with p < 1e-8).
+MAX_COMMAND_QUERIES = 20
+#: A pass starts late enough for its first command to go up this many times (the first
+#: timeout, before any round-trip sample) before its last chance.
+START_TRANSMISSIONS = 3
 #: Telemetry windows of this many recent passes are reopened after a restart.
 RECOVERED_WINDOWS = 50
+#: Copies of a ``schedule_delete`` sent at once (then one per retransmission timeout).
+DELETE_COPIES = 3
+#: Ground s between looks while the link is down.
+LINK_DOWN_POLL_S = 0.5
 
 
 def _transition(
@@ -107,6 +125,7 @@ def _transition(
     to: str,
     actor: str,
     reason: str,
+    time_ns: int,
     epoch_ns: int | None = None,
     **window_ns: int | None,
 ) -> dict[str, Any]:
@@ -119,7 +138,7 @@ def _transition(
         pass_id=pass_id,
         expected_version=record.version,
         state=to,
-        updated_at_ns=time.time_ns(),
+        updated_at_ns=time_ns,
         reason=reason,
         epoch_ns=epoch_ns,
         telemetry_start_ns=window_ns.get("telemetry_start_ns"),
@@ -140,20 +159,6 @@ def command_from_record(record: CommandRecord) -> Command:
     return AcsCommandMsg.model_validate(fields)
 
 
-def _hold_job(
-    pass_id: str, hold: JointCommandMsg, actor: str
-) -> Callable[[Session], list[dict[str, Any]]]:
-    def job(session: Session) -> list[dict[str, Any]]:
-        key = repo.get_pass(session=session, pass_id=pass_id).id
-        repo.add_commands(
-            session=session, pass_id=key, commands=[hold], queued_at_ns=time.time_ns()
-        )
-        detail = {"seq": hold.seq, "execute_time_ns": hold.execute_time_ns}
-        return [write_event(session, "hold_queued", actor, detail, key)]
-
-    return job
-
-
 def _event_job(
     kind: str, detail: dict[str, Any], pass_id: str
 ) -> Callable[[Session], list[dict[str, Any]]]:
@@ -164,57 +169,90 @@ def _event_job(
 class _Active:
     pass_id: str
     name: str
-    #: The commands still to send, in tag order.
-    commands: list[Command]
+    uplink: Uplink
     window: TelemetryWindow
     last_tag_ns: int
-    #: The highest seq of the pass (a hold takes the next one).
+    #: The lowest and highest seq of the pass (a ``schedule_delete`` covers up to it).
+    min_seq: int
     max_seq: int
     stop: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
-    last_sent_joints: list[float] | None = None
-    last_sent_tag_ns: int = -1
-    #: Where to hold on abort instead of the last target sent (the vehicle's own target
-    #: when it stopped following the plan).
-    hold_joints: list[float] | None = None
+    refused_in_a_row: int = 0
+
+
+@dataclass
+class _Delete:
+    """A ``schedule_delete`` on its way: retransmitted until verified."""
+
+    pass_id: str
+    request: ScheduleDelete | None  # None: the link was down, T not chosen yet
+    min_seq: int
+    max_seq: int
+    reason: str
+    actor: str
+    rtt: RttEstimator
+    verified: asyncio.Event = field(default_factory=asyncio.Event)
+    report: Verification | None = None
+    sends: int = 0
 
 
 class PassRunner:
-    def __init__(self, *, link: GroundLink, settings: Settings) -> None:
+    def __init__(self, *, link: GroundLink, settings: Settings, clock: Clock | None = None):
         self._link = link
+        self._clock: Clock = clock or link.clock
+        self._settings = settings
         self._delay_s = settings.link_one_way_delay_s
         self._margin_s = settings.uplink_margin_s
         self._lead_ns = round((settings.link_one_way_delay_s + settings.uplink_margin_s) * 1e9)
         self._active: _Active | None = None
         self._lock = asyncio.Lock()
-        self.emission_lags_s: list[float] = []
-        self._refused_in_a_row = 0
+        self._wake = asyncio.Event()
         self._diverged: asyncio.Task[None] | None = None
-        self._background: set[asyncio.Task[int]] = set()
+        self._background: set[asyncio.Task[Any]] = set()
+        self._deletes: dict[int, _Delete] = {}  # request id -> delete
         self._closing = asyncio.Event()
-        link.publisher.subscribe(self._watch)
+        #: onboard s between each command's ``received`` and its tag, of the last pass
+        self.fill_margins_s: list[float] = []
+        link.add_listener(self._on_link_event)
+        link.set_uplink_status(self.uplink_status)
 
-    def _watch(self, event: dict[str, Any]) -> None:
-        """Stop a pass the vehicle no longer follows: :data:`MAX_REFUSED_IN_A_ROW` joint
-        commands refused in a row (``out_of_limits`` or ``late``: after lost commands each
-        next one is a jump from where the arm stopped, and every later one is too). The
-        plan cannot continue from there; the pass is aborted and the arm held where the
-        vehicle's own target is."""
+    # -- link events ---------------------------------------------------------------------
+
+    def _on_link_event(self, event: LinkEvent) -> None:
         active = self._active
-        if active is None or event.get("kind") != "command_stage":
+        if isinstance(event, CommandAcked):
+            if active is None:
+                return
+            first = active.uplink.on_ack(
+                event.seq, event.reason, event.onboard_time_ns, event.read_mono
+            )
+            if event.stage == "executed" or (event.stage == "rejected" and first):
+                self._watch(active, event)
+            if first or event.reason == "schedule_full":
+                self._wake.set()
+        elif isinstance(event, RequestVerified):
+            delete = self._deletes.get(event.report.request_id)
+            if delete is not None and delete.report is None:
+                delete.report = event.report
+                delete.verified.set()
+        elif isinstance(event, LinkUp):
+            self._wake.set()
+
+    def _watch(self, active: _Active, ack: CommandAcked) -> None:
+        """Stop a pass the vehicle no longer follows: :data:`MAX_REFUSED_IN_A_ROW` joint
+        commands refused in a row (``out_of_limits`` or ``late``). The plan cannot continue
+        from there; the pass is aborted (the schedule deleted, the arm held)."""
+        cmd = active.uplink.by_seq.get(ack.seq)
+        if cmd is None or not isinstance(cmd.command, JointCommandMsg):
             return
-        if event.get("pass_id") != active.pass_id:
-            return
-        detail = event.get("detail", {})
-        if detail.get("stage") == "executed":
-            self._refused_in_a_row = 0
-        elif detail.get("stage") == "rejected" and detail.get("reason") in REFUSALS:
-            self._refused_in_a_row += 1
-            if self._refused_in_a_row >= MAX_REFUSED_IN_A_ROW and self._diverged is None:
+        if ack.stage == "executed":
+            active.refused_in_a_row = 0
+        elif ack.stage == "rejected" and ack.reason in REFUSALS:
+            active.refused_in_a_row += 1
+            if active.refused_in_a_row >= MAX_REFUSED_IN_A_ROW and self._diverged is None:
                 reason = (
-                    f"the vehicle refused {self._refused_in_a_row} commands in a row "
-                    f"(last: {detail.get('reason')}, seq {detail.get('seq')}): the arm no "
-                    "longer follows the plan"
+                    f"the vehicle refused {active.refused_in_a_row} commands in a row "
+                    f"(last: {ack.reason}, seq {ack.seq}): the arm no longer follows the plan"
                 )
                 self._diverged = asyncio.get_running_loop().create_task(
                     self._abort_diverged(active, reason)
@@ -222,15 +260,11 @@ class PassRunner:
 
     async def _abort_diverged(self, active: _Active, reason: str) -> None:
         try:
-            frame = self._link.latest_frame
-            if frame is not None:
-                active.hold_joints = list(frame.joint_targets_rad)
             await self.abort(active.pass_id, "ground", reason)
         except Exception:
             log.exception("pass %s: abort after divergence failed", active.pass_id)
         finally:
             self._diverged = None
-            self._refused_in_a_row = 0
 
     @property
     def resolving(self) -> bool:
@@ -241,6 +275,24 @@ class PassRunner:
     def active_pass_id(self) -> str | None:
         return None if self._active is None else self._active.pass_id
 
+    def uplink_status(self) -> dict[str, Any] | None:
+        active = self._active
+        if active is None:
+            return None
+        onboard = self._link.onboard_now_ns() if self._link.connected else None
+        return {"pass_id": active.pass_id, **active.uplink.status(onboard)}
+
+    def _new_uplink(self, commands: list[Command]) -> Uplink:
+        link = self._link
+        return Uplink(
+            commands,
+            one_way_delay_s=self._delay_s,
+            margin_s=self._margin_s,
+            lead_window_s=self._settings.uplink_lead_window_s,
+            capacity=link.schedule_capacity,
+            time_scale=link.time_scale,
+        )
+
     # -- start ---------------------------------------------------------------------------
 
     async def start(self, pass_id: str, actor: str) -> None:
@@ -250,32 +302,36 @@ class PassRunner:
             link = self._link
             if not link.connected:
                 raise LinkUnavailable("no spacecraft is connected: a pass needs the link")
+            clock = self._clock
             # The window opens before the start transaction: storing thousands of commands
             # takes longer than the relay delay at high time scales, and the frames
             # generated meanwhile must already find their pass.
-            window = TelemetryWindow(
-                canonical_id(pass_id, what="pass"), start_ns=link.onboard_now_ns()
+            window = link.open_window(canonical_id(pass_id, what="pass"), link.onboard_now_ns())
+            # onboard s: the first command's last chance, then its first copies before it
+            first_rto_s = RttEstimator(2 * self._delay_s / link.time_scale).rto_s
+            lead_s = max(
+                self._settings.uplink_start_lead_s,
+                self._lead_ns / 1e9 + START_TRANSMISSIONS * first_rto_s * link.time_scale,
             )
 
-            def job(session: Session) -> tuple[list[dict[str, Any]], _Active]:
+            def job(session: Session) -> tuple[list[dict[str, Any]], list[Command], _Active]:
                 record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
                 plan = Plan.from_json(
                     repo.get_plan(session=session, plan_id=record.plan_id).document
                 )
                 vehicle = link.vehicle or "spacecraft"
-                events = [_transition(session, record.id, "aos", actor, f"{vehicle} connected")]
+                now_wall = clock.time_ns()
+                events = [
+                    _transition(session, record.id, "aos", actor, f"{vehicle} connected", now_wall)
+                ]
                 now_ns = link.onboard_now_ns()
-                slack_s = START_SLACK_S + START_SLACK_WALL_S * link.time_scale
-                earliest = now_ns + self._lead_ns + round(slack_s * 1e9)
-                epoch_ns = math.ceil(earliest / GRID_NS) * GRID_NS
+                slack_s = lead_s + START_SLACK_WALL_S * link.time_scale
+                epoch_ns = math.ceil((now_ns + round(slack_s * 1e9)) / GRID_NS) * GRID_NS
                 used = session.scalar(select(func.max(CommandRecord.seq)))
                 first_seq = max(-1 if used is None else used, link.last_command_seq) + 1
                 commands = plan_commands(plan, epoch_ns=epoch_ns, first_seq=first_seq)
                 repo.add_commands(
-                    session=session,
-                    pass_id=record.id,
-                    commands=commands,
-                    queued_at_ns=time.time_ns(),
+                    session=session, pass_id=record.id, commands=commands, queued_at_ns=now_wall
                 )
                 reason = f"started: {len(commands)} commands from seq {first_seq}"
                 events.append(
@@ -285,88 +341,52 @@ class PassRunner:
                         "running",
                         actor,
                         reason,
+                        now_wall,
                         epoch_ns,
                         telemetry_start_ns=window.start_ns,
                     )
                 )
-                last_tag = commands[-1].execute_time_ns
-                max_seq = max(c.seq for c in commands)
-                active = _Active(record.id, record.name, commands, window, last_tag, max_seq)
-                return events, active
+                seqs = [c.seq for c in commands]
+                active = _Active(
+                    record.id,
+                    record.name,
+                    self._new_uplink(commands),
+                    window,
+                    last_tag_ns=max(c.execute_time_ns for c in commands),
+                    min_seq=min(seqs),
+                    max_seq=max(seqs),
+                )
+                return events, commands, active
 
-            link.windows.append(window)
-            self._refused_in_a_row = 0
             try:
-                events, active = await link.db.run(job)
+                events, commands, active = await link.db.run(job)
             except BaseException:
-                link.windows.remove(window)
+                link.drop_window(window)
                 raise
             link.publisher.publish(events)
-            for command in active.commands:
-                link.command_pass[command.seq] = active.pass_id
-            self._active = active
-            active.task = asyncio.create_task(self._run(active), name=f"pass-{active.pass_id}")
+            link.expect_commands(active.pass_id, [c.seq for c in commands])
+            self._begin(active, self._run(active))
 
-    # -- the emitter ---------------------------------------------------------------------
+    def _begin(self, active: _Active, body: Any) -> None:
+        self._active = active
+        self.fill_margins_s = []
+        active.task = asyncio.create_task(body, name=f"pass-{active.pass_id}")
 
-    async def _wait(self, deadline_mono: float, stop: asyncio.Event) -> bool:
-        """Sleep until ``deadline_mono``; False if ``stop`` was set first."""
-        remaining = deadline_mono - time.monotonic()
-        if remaining > 0:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), remaining)
-        return not stop.is_set()
-
-    async def _emit(self, active: _Active, command: Command) -> bool:
-        """Release and send one command at its deadline; False if stopped."""
-        link = self._link
-        if not await self._wait(
-            link.mono_at_onboard(command.execute_time_ns - self._lead_ns), active.stop
-        ):
-            return False
-        self.emission_lags_s.append(
-            time.monotonic() - link.mono_at_onboard(command.execute_time_ns - self._lead_ns)
-        )
-        released_ns = time.time_ns()
-        while True:
-            left_s = (command.execute_time_ns - link.onboard_now_ns()) / 1e9
-            if left_s < self._delay_s + self._margin_s / 2:
-                self._record(active, command.seq, [("expired", time.time_ns())])
-                return True
-            if link.connected and await link.send(encode(command)):
-                stages = [("released", released_ns), ("sent", time.time_ns())]
-                self._record(active, command.seq, stages)
-                if isinstance(command, JointCommandMsg):
-                    active.last_sent_joints = list(command.joints_rad)
-                    active.last_sent_tag_ns = command.execute_time_ns
-                return True
-            if not await self._wait(time.monotonic() + 0.01, active.stop):
-                return False
-
-    def _record(self, active: _Active, seq: int, stages: list[tuple[str, int]]) -> None:
-        def job(session: Session) -> list[dict[str, Any]]:
-            events: list[dict[str, Any]] = []
-            for stage, time_ns in stages:
-                events += set_command_stage(
-                    session,
-                    pass_id=active.pass_id,
-                    seq=seq,
-                    stage=stage,
-                    time_ns=time_ns,
-                    actor="ground",
-                )
-            return events
-
-        self._link.db.submit(job)
+    # -- the uplink loop -----------------------------------------------------------------
 
     async def _run(self, active: _Active) -> None:
         link = self._link
         try:
-            for command in active.commands:
-                if not await self._emit(active, command):
-                    return  # aborted: abort() finishes the pass
             los_ns = active.last_tag_ns + round(SETTLE_S * 1e9)
-            if not await self._wait(link.mono_at_onboard(los_ns), active.stop):
+            while not active.stop.is_set():
+                self._wake.clear()
+                wake_at = await self._uplink_step(active)
+                if link.connected and link.onboard_now_ns() >= los_ns:
+                    break
+                if link.connected:
+                    wake_at = min(wake_at, link.mono_at_onboard(los_ns))
+                await self._clock.sleep_until(wake_at, self._wake)
+            if active.stop.is_set():
                 return
             await link.db.drain()
             # No lock from here: abort() holds it while it waits for this task. Between
@@ -374,12 +394,16 @@ class PassRunner:
             # only after this task has ended, from whatever state it left.
             if active.stop.is_set():
                 return
+            self.fill_margins_s = active.uplink.fill_margins_s()
             end = link.onboard_now_ns()
-            active.window.end_ns = end
+            link.close_window(active.window, end)
             reason = f"last command's tag + {SETTLE_S} s passed"
+            now_wall = self._clock.time_ns()
             await link.db.write(
                 lambda s: [
-                    _transition(s, active.pass_id, "los", "ground", reason, telemetry_end_ns=end)
+                    _transition(
+                        s, active.pass_id, "los", "ground", reason, now_wall, telemetry_end_ns=end
+                    )
                 ]
             )
             await self._finish(active)
@@ -389,6 +413,94 @@ class PassRunner:
                 await self._abort_locked(active.pass_id, "ground", "runner failure")
             raise
 
+    async def _uplink_step(self, active: _Active) -> float:
+        """Expire, send what is due; the ground monotonic instant to look again."""
+        link, clock, up = self._link, self._clock, active.uplink
+        if not link.connected:
+            # The onboard clock is still known from the last hello: what can no longer
+            # arrive expires; the rest waits for the link.
+            with contextlib.suppress(LinkUnavailable):
+                self._record_expired(active, up.expire(link.onboard_now_ns()))
+            return clock.monotonic() + LINK_DOWN_POLL_S
+        onboard = link.onboard_now_ns()
+        self._record_expired(active, up.expire(onboard))
+        batch = up.due(clock.monotonic(), onboard)
+        first: list[tuple[UplinkCommand, int]] = []
+        again: list[UplinkCommand] = []
+        released_ns = clock.time_ns()
+        for i, cmd in enumerate(batch):
+            if not await link.send_command(cmd.command):
+                for rest in reversed(batch[i:]):
+                    up.unsent(rest)
+                break
+            if up.sent(cmd, clock.monotonic(), link.onboard_now_ns()):
+                again.append(cmd)
+            else:
+                first.append((cmd, clock.time_ns()))
+        if first or again:
+            self._record_sent(active, released_ns, first, again)
+        return up.next_wake(link.mono_at_onboard)
+
+    def _record_sent(
+        self,
+        active: _Active,
+        released_ns: int,
+        first: list[tuple[UplinkCommand, int]],
+        again: list[UplinkCommand],
+    ) -> None:
+        pass_id = active.pass_id
+        counts = [(c.seq, c.transmissions) for c in again]
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            events: list[dict[str, Any]] = []
+            for cmd, sent_ns in first:
+                for stage, at_ns in (("released", released_ns), ("sent", sent_ns)):
+                    events += set_command_stage(
+                        session,
+                        pass_id=pass_id,
+                        seq=cmd.seq,
+                        stage=stage,
+                        time_ns=at_ns,
+                        actor="ground",
+                        transmissions=1,
+                    )
+            for seq, n in counts:
+                session.execute(
+                    update(CommandRecord)
+                    .where(
+                        CommandRecord.pass_id == pass_id,
+                        CommandRecord.seq == seq,
+                        CommandRecord.transmissions < n,
+                    )
+                    .values(transmissions=n)
+                )
+            return events
+
+        self._link.db.submit(job)
+
+    def _record_expired(self, active: _Active, expired: list[UplinkCommand]) -> None:
+        if not expired:
+            return
+        pass_id = active.pass_id
+        now_ns = self._clock.time_ns()
+        seqs = [c.seq for c in expired]
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            events: list[dict[str, Any]] = []
+            for seq in seqs:
+                events += set_command_stage(
+                    session,
+                    pass_id=pass_id,
+                    seq=seq,
+                    stage="expired",
+                    time_ns=now_ns,
+                    actor="ground",
+                    detail="could not be sent early enough to arrive before its tag",
+                )
+            return events
+
+        self._link.db.submit(job)
+
     async def _finish(self, active: _Active) -> None:
         """After LOS: wait for the last acknowledgements, asking the vehicle about commands
         whose tag has passed without one, then ``complete``."""
@@ -396,8 +508,9 @@ class PassRunner:
         if active.stop.is_set():
             return
         reason = "every command acknowledged" if not left else f"{left} unacknowledged"
+        now_wall = self._clock.time_ns()
         await self._link.db.write(
-            lambda s: [_transition(s, active.pass_id, "complete", "ground", reason)]
+            lambda s: [_transition(s, active.pass_id, "complete", "ground", reason, now_wall)]
         )
         if self._active is active:
             self._active = None
@@ -406,42 +519,42 @@ class PassRunner:
         """Ask the vehicle (``command_query``: acks lost on the downlink, commands lost on
         the uplink) about the pass's commands still ``sent`` or ``received`` once their tag
         has passed, up to :data:`MAX_COMMAND_QUERIES` times; how many are left unresolved."""
-        link = self._link
+        link, clock = self._link, self._clock
         # Onboard s between queries: a round trip and a second to answer.
-        period_s = 2 * self._delay_s + 1.0
+        period_ns = round((2 * self._delay_s + 1.0) * 1e9)
+        poll_s = 0.05
 
         def outstanding(session: Session) -> list[tuple[int, int]]:
-            rows = repo.list_commands(session=session, pass_id=pass_id, stages=("sent", "received"))
+            rows = repo.list_commands(
+                session=session, pass_id=pass_id, stages=("released", "sent", "received")
+            )
             return [(r.seq, r.execute_time_ns) for r in rows]
 
         left = await link.db.run(outstanding)
         queries = 0
-        next_query = time.monotonic()
+        next_query = clock.monotonic()
         while left and queries < MAX_COMMAND_QUERIES and not stop.is_set():
-            if time.monotonic() >= next_query:
+            if clock.monotonic() >= next_query:
                 if link.connected:
                     due = [seq for seq, tag in left if tag < link.onboard_now_ns()]
                     if due and await link.query_commands(due):
                         queries += 1
-                    next_query = link.mono_at_onboard(link.onboard_now_ns() + round(period_s * 1e9))
+                    next_query = link.mono_at_onboard(link.onboard_now_ns() + period_ns)
                 else:
-                    next_query = time.monotonic() + 0.05
-            await self._wait(time.monotonic() + 0.05, stop)
+                    next_query = clock.monotonic() + poll_s
+            await clock.sleep_until(clock.monotonic() + poll_s, stop)
             left = await link.db.run(outstanding)
         if left and not stop.is_set() and queries:
             # the last answers are a round trip away
-            await self._wait(
-                link.mono_at_onboard(link.onboard_now_ns() + round(period_s * 1e9)), stop
-            )
+            with contextlib.suppress(LinkUnavailable):
+                await clock.sleep_until(
+                    link.mono_at_onboard(link.onboard_now_ns() + period_ns), stop
+                )
             left = await link.db.run(outstanding)
         return len(left)
 
-    def _resolve_later(self, pass_id: str) -> None:
-        """After an abort: the commands already sent still run on board; resolve their
-        stages in the background as their tags pass."""
-        task = asyncio.get_running_loop().create_task(
-            self._resolve_outstanding(pass_id, self._closing)
-        )
+    def _background_task(self, coro: Any) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
 
@@ -450,9 +563,8 @@ class PassRunner:
     async def recover(self) -> None:
         """After the service (re)starts: reopen the telemetry windows of recent passes (late
         and resent frames still reach their pass), and resume a pass the previous process
-        left ``running`` or ``los`` (it stopped without shutting down: killed, crashed).
-        The emitter picks up at the first command never sent, once the spacecraft is back;
-        commands whose tag comes too close meanwhile expire. No spacecraft before the pass's
+        left ``running`` or ``los`` (it stopped without shutting down: killed, crashed), once
+        the spacecraft is back (see the module docstring). No spacecraft before the pass's
         scheduled LOS: the pass is aborted with that reason."""
         link = self._link
 
@@ -486,7 +598,7 @@ class PassRunner:
             return windows, found
 
         windows, unfinished = await link.db.run(job)
-        link.windows.extend(windows)
+        opened = {w.pass_id: link.open_window(w.pass_id, w.start_ns, w.end_ns) for w in windows}
         for info in unfinished:
             if self._active is not None or info["state"] == "aos" or not info["commands"]:
                 reason = "ground service restarted before the pass was running"
@@ -495,75 +607,62 @@ class PassRunner:
                 await self._abort_locked(info["id"], "ground", reason)
                 continue
             rows: list[CommandRecord] = info["commands"]
-            for row in rows:
-                link.command_pass[row.seq] = info["id"]
-            unsent = [command_from_record(r) for r in rows if r.stage in UNSENT]
-            unsent.sort(key=lambda c: (c.execute_time_ns, c.seq))
-            window = next((w for w in windows if w.pass_id == info["id"]), None)
+            link.expect_commands(info["id"], [r.seq for r in rows])
+            window = opened.get(info["id"])
             if window is None:
-                window = TelemetryWindow(info["id"], start_ns=info["start_ns"] or 0)
-                link.windows.append(window)
+                window = link.open_window(info["id"], info["start_ns"] or 0)
+            pending = [
+                r for r in rows if r.stage not in ("executed", "rejected", "expired", "cancelled")
+            ]
+            detail = {"state": info["state"], "pending": len(pending), "commands": len(rows)}
+            await link.db.write(_event_job("pass_resumed", detail, info["id"]))
+            self._background_task(self._resume(info, rows, pending, window))
+
+    async def _resume(
+        self,
+        info: dict[str, Any],
+        rows: list[CommandRecord],
+        pending: list[CommandRecord],
+        window: TelemetryWindow,
+    ) -> None:
+        link, clock = self._link, self._clock
+        pass_id = info["id"]
+        while not link.connected:
+            if self._closing.is_set():
+                return
+            if clock.time_ns() > info["los_time_ns"]:
+                reason = "ground service restarted mid-pass; no spacecraft before LOS"
+                await self.abort(pass_id, "ground", reason)
+                return
+            self._wake.clear()
+            await clock.sleep_until(clock.monotonic() + LINK_DOWN_POLL_S, self._wake)
+        async with self._lock:
+            if self._active is not None:
+                await self._abort_locked(pass_id, "ground", "another pass started first")
+                return
+            uplink = self._new_uplink([command_from_record(r) for r in pending])
+            uplink.restore(
+                {
+                    r.seq: (r.transmissions, r.stage == "received")
+                    for r in pending
+                    if r.stage in ("released", "sent", "received")
+                }
+            )
+            seqs = [r.seq for r in rows]
             active = _Active(
-                info["id"],
+                pass_id,
                 info["name"],
-                unsent,
+                uplink,
                 window,
                 last_tag_ns=max(r.execute_time_ns for r in rows),
-                max_seq=max(r.seq for r in rows),
+                min_seq=min(seqs),
+                max_seq=max(seqs),
             )
-            sent_joints = [r for r in rows if r.kind == "joints" and r.sent_at_ns is not None]
-            if sent_joints:
-                last = max(sent_joints, key=lambda r: r.seq)
-                active.last_sent_joints = list(last.payload["joints_rad"])
-                active.last_sent_tag_ns = last.execute_time_ns
-            detail = {"state": info["state"], "unsent": len(unsent), "commands": len(rows)}
-            await link.db.write(_event_job("pass_resumed", detail, info["id"]))
-            self._active = active
-            active.task = asyncio.create_task(
-                self._resume(active, info["state"], info["los_time_ns"]),
-                name=f"pass-{active.pass_id}",
-            )
-
-    async def _resume(self, active: _Active, state: str, los_time_ns: int) -> None:
-        while not self._link.connected:
-            if active.stop.is_set():
-                return
-            if time.time_ns() > los_time_ns:
-                reason = "ground service restarted mid-pass; no spacecraft before LOS"
-                await self.abort(active.pass_id, "ground", reason)
-                return
-            await asyncio.sleep(0.05)
-        # The stage writes are not awaited by the emitter, so the killed process may have
-        # sent commands whose ``sent`` never committed. The vehicle's hello names the
-        # highest seq it has received, and seqs go out in order: those are not sent again
-        # (the vehicle would refuse a duplicate), but asked about.
-        link = self._link
-        seen = link.last_command_seq
-        found = [c.seq for c in active.commands if c.seq <= seen]
-        if found:
-            active.commands = [c for c in active.commands if c.seq > seen]
-
-            def job(session: Session) -> list[dict[str, Any]]:
-                events: list[dict[str, Any]] = []
-                now = time.time_ns()
-                for seq in found:
-                    events += set_command_stage(
-                        session,
-                        pass_id=active.pass_id,
-                        seq=seq,
-                        stage="sent",
-                        time_ns=now,
-                        actor="ground",
-                        detail="sent before the ground restarted (the vehicle has seen it)",
-                    )
-                return events
-
-            await link.db.write(job)
-            await link.query_commands(found)
-        if state == "los":
-            await self._finish(active)
-        else:
-            await self._run(active)
+            if info["state"] == "los":
+                uplink.stop()
+                self._begin(active, self._finish(active))
+            else:
+                self._begin(active, self._run(active))
 
     # -- abort ---------------------------------------------------------------------------
 
@@ -571,58 +670,163 @@ class PassRunner:
         async with self._lock:
             await self._abort_locked(pass_id, actor, reason)
 
+    def _delete_from_ns(self) -> int:
+        earliest = self._link.onboard_now_ns() + self._lead_ns
+        return math.ceil(earliest / GRID_NS) * GRID_NS
+
     async def _abort_locked(self, pass_id: str, actor: str, reason: str) -> None:
-        link = self._link
+        link, clock = self._link, self._clock
         active = self._active if self._active and self._active.pass_id == pass_id else None
         if active is not None:
             active.stop.set()
+            active.uplink.stop()
+            self._wake.set()
             if active.task is not None and active.task is not asyncio.current_task():
                 with contextlib.suppress(Exception, asyncio.CancelledError):
                     await active.task
-        # The hold goes first, before any database work: its tag is (delay + margin) ahead
-        # of now, and a backlog of writes must not make it late.
-        hold: JointCommandMsg | None = None
-        hold_joints = None if active is None else active.hold_joints or active.last_sent_joints
-        if active is not None and hold_joints is not None and link.connected:
-            earliest = link.onboard_now_ns() + self._lead_ns
-            tag = max(math.ceil(earliest / GRID_NS) * GRID_NS, active.last_sent_tag_ns + GRID_NS)
-            seq = max(active.max_seq, link.last_command_seq) + 1
-            hold = JointCommandMsg(seq=seq, execute_time_ns=tag, joints_rad=hold_joints)
-            link.command_pass[seq] = pass_id
-            # Queued (not awaited) before it is sent: the writes run in order, so the row
-            # exists before the hold's acknowledgement is filed.
-            link.db.submit(_hold_job(pass_id, hold, actor))
-            released = time.time_ns()
-            if await link.send(encode(hold)):
-                self._record(active, seq, [("released", released), ("sent", time.time_ns())])
-        end: int | None = None  # the clock unknown: leave the window open
-        if hold is not None:
-            end = hold.execute_time_ns + round(SETTLE_S * 1e9)
-        elif link.connected:
+        delete: _Delete | None = None
+        from_ns: int | None = None
+        if active is not None and active.uplink.sent_commands():
+            # The delete goes first, before any database work: its tag is (delay + margin)
+            # ahead of now, and a backlog of writes must not make it late.
+            delete = _Delete(
+                pass_id,
+                None,
+                active.min_seq,
+                active.max_seq,
+                reason,
+                actor,
+                active.uplink.rtt,
+            )
+            if link.connected:
+                from_ns = self._delete_from_ns()
+                delete.request = ScheduleDelete(
+                    request_id=active.max_seq, from_time_ns=from_ns, max_seq=active.max_seq
+                )
+                self._deletes[active.max_seq] = delete
+                for _ in range(DELETE_COPIES):
+                    if await link.send_schedule_delete(delete.request):
+                        delete.sends += 1
+        end: int | None = None  # the onboard time unknown: leave the window open
+        if from_ns is not None:
+            end = from_ns + round(SETTLE_S * 1e9)
+        elif active is not None and delete is None and link.connected:
             end = link.onboard_now_ns()
         if active is not None:
-            active.window.end_ns = end
+            link.close_window(active.window, end)
         await link.db.drain()
+        # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
+        cancel: list[int] = []
+        if active is not None:
+            cancel = [c.seq for c in active.uplink.commands if c.transmissions == 0]
+            if from_ns is not None:
+                cancel += [
+                    c.seq for c in active.uplink.commands if c.transmissions and c.tag_ns >= from_ns
+                ]
+        why = reason if from_ns is None else f"{reason} (deleted from the schedule)"
 
         def job(session: Session) -> list[dict[str, Any]]:
             key = repo.get_pass(session=session, pass_id=pass_id, refresh=True).id
+            now = clock.time_ns()
             events: list[dict[str, Any]] = []
-            now = time.time_ns()
-            for record in repo.list_commands(session=session, pass_id=key, stages=UNSENT):
-                events += set_command_stage(
-                    session, pass_id=key, seq=record.seq, stage="expired", time_ns=now, actor=actor
+            if active is None:
+                # a pass not running here (restart): everything not final and not sent
+                rows = repo.list_commands(session=session, pass_id=key, stages=("queued",))
+                seqs = [r.seq for r in rows]
+            else:
+                seqs = cancel
+            if seqs:
+                events += cancel_commands(
+                    session,
+                    pass_id=key,
+                    seqs=seqs,
+                    time_ns=now,
+                    actor=actor,
+                    reason=why,
+                    from_time_ns=from_ns,
                 )
-            events.append(_transition(session, key, "aborted", actor, reason, telemetry_end_ns=end))
+            events.append(
+                _transition(session, key, "aborted", actor, reason, now, telemetry_end_ns=end)
+            )
             return events
 
         link.publisher.publish(await link.db.run(job))
         if active is not None and self._active is active:
             self._active = None
-        if active is not None and link.connected:
-            self._resolve_later(pass_id)
+        if delete is not None:
+            self._background_task(self._complete_delete(delete, active))
+        elif active is not None and link.connected:
+            self._background_task(self._resolve_outstanding(pass_id, self._closing))
+
+    async def _complete_delete(self, delete: _Delete, active: _Active | None) -> None:
+        """Retransmit the ``schedule_delete`` until its verification arrives (choosing ``T``
+        once the link is back, if it was down at the abort), then file the vehicle's report
+        and resolve the stages of the commands before ``T``."""
+        link, clock = self._link, self._clock
+        last_tag = None if active is None else active.last_tag_ns
+        while not self._closing.is_set() and not delete.verified.is_set():
+            if not link.connected:
+                self._wake.clear()
+                await clock.sleep_until(clock.monotonic() + LINK_DOWN_POLL_S, self._wake)
+                continue
+            if last_tag is not None and link.onboard_now_ns() > last_tag:
+                break  # every command's tag has passed: nothing left to delete
+            if delete.request is None:
+                from_ns = self._delete_from_ns()
+                delete.request = ScheduleDelete(
+                    request_id=delete.max_seq, from_time_ns=from_ns, max_seq=delete.max_seq
+                )
+                self._deletes[delete.max_seq] = delete
+                if active is not None:
+                    link.close_window(active.window, from_ns + round(SETTLE_S * 1e9))
+                copies = DELETE_COPIES
+            else:
+                copies = 1
+            for _ in range(copies):
+                if await link.send_schedule_delete(delete.request):
+                    delete.sends += 1
+            timeout = delete.rtt.rto_s * (1 if delete.sends <= DELETE_COPIES else 2)
+            await clock.sleep_until(clock.monotonic() + timeout, delete.verified)
+        report = delete.report
+        request = delete.request
+        if request is not None:
+            self._deletes.pop(request.request_id, None)
+        pass_id = delete.pass_id
+        if report is not None and request is not None:
+            seqs = [s for lo, hi in report.deleted_ranges for s in range(lo, hi + 1)]
+            if active is not None:
+                seqs += [c.seq for c in active.uplink.commands if c.tag_ns >= request.from_time_ns]
+            detail = {
+                "request_id": report.request_id,
+                "from_time_ns": request.from_time_ns,
+                "deleted": report.deleted,
+                "executed_after_from": report.executed_after_from,
+                "copies_sent": delete.sends,
+            }
+            now = clock.time_ns()
+
+            def job(session: Session) -> list[dict[str, Any]]:
+                events = [write_event(session, "schedule_deleted", "ground", detail, pass_id)]
+                if seqs:
+                    events += cancel_commands(
+                        session,
+                        pass_id=pass_id,
+                        seqs=seqs,
+                        time_ns=now,
+                        actor=delete.actor,
+                        reason=f"{delete.reason} (deleted from the schedule)",
+                        from_time_ns=request.from_time_ns,
+                    )
+                return events
+
+            await link.db.write(job)
+        elif not self._closing.is_set():
+            info = {"request_id": None if request is None else request.request_id}
+            await link.db.write(_event_job("schedule_delete_unverified", info, pass_id))
+        await self._resolve_outstanding(pass_id, self._closing)
 
     async def shutdown(self) -> None:
-        """The service stops: a running pass is aborted (its remaining commands expire)."""
+        """The service stops: a running pass is aborted (its schedule deleted)."""
         active = self._active
         if active is not None:
             with contextlib.suppress(Exception):

@@ -81,6 +81,9 @@ def pass_summary(
     sent = session.scalar(
         select(func.count()).where(cmd.pass_id == key, cmd.sent_at_ns.is_not(None))
     )
+    retransmitted = session.scalar(
+        select(func.count()).where(cmd.pass_id == key, cmd.transmissions > 1)
+    )
     return PassSummaryPublic(
         pass_id=key,
         name=record.name,
@@ -100,5 +103,7 @@ def pass_summary(
         commands_executed=stages.get("executed", 0),
         commands_rejected={str(k): int(v) for k, v in rejected.items()},
         commands_expired=stages.get("expired", 0),
+        commands_cancelled=stages.get("cancelled", 0),
+        commands_retransmitted=retransmitted or 0,
         commands_outstanding=sum(stages.get(s, 0) for s in ("sent", "received")),
     )

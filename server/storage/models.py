@@ -36,6 +36,7 @@ from sqlalchemy import (
     Double,
     ForeignKey,
     Index,
+    Integer,
     MetaData,
     PrimaryKeyConstraint,
     String,
@@ -71,8 +72,17 @@ NAMING_CONVENTION = {
 
 PASS_STATES = ("scheduled", "aos", "running", "los", "complete", "aborted")
 COMMAND_KINDS = ("joints", "acs")
-#: In the order a command normally goes through them; ``rejected`` and ``expired`` end it.
-COMMAND_STAGES = ("queued", "released", "sent", "received", "executed", "rejected", "expired")
+#: In the order a command normally goes through them; the last four end it.
+COMMAND_STAGES = (
+    "queued",
+    "released",
+    "sent",
+    "received",
+    "executed",
+    "rejected",
+    "expired",
+    "cancelled",
+)
 
 #: An int64 key that autoincrements: on SQLite only ``INTEGER PRIMARY KEY`` aliases the rowid.
 BigIntKey = BigInteger().with_variant(sqlite.INTEGER(), "sqlite")
@@ -174,6 +184,9 @@ class CommandRecord(Base):
     executed_at_ns: Mapped[int | None]
     rejected_at_ns: Mapped[int | None]
     expired_at_ns: Mapped[int | None]
+    cancelled_at_ns: Mapped[int | None]
+    #: How many times the command went up (the uplink retransmits until acknowledged).
+    transmissions: Mapped[int] = mapped_column(Integer, server_default="0", default=0)
 
     __table_args__ = (
         PrimaryKeyConstraint("pass_id", "seq"),

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import ColumnElement, func, insert, select
+from sqlalchemy import ColumnElement, func, insert, select, update
 from sqlalchemy.exc import IntegrityError, StatementError
 from sqlalchemy.orm import Session, defer
 from sqlalchemy.orm.exc import StaleDataError
@@ -348,6 +348,27 @@ def update_command_stage(
         record.reject_reason = reject_reason
     _flush(session, f"command {seq} of pass {pass_id}")
     return record
+
+
+def cancel_commands(*, session: Session, pass_id: str, seqs: Collection[int], time_ns: int) -> int:
+    """Set these commands of the pass ``cancelled`` at ``time_ns`` (ground clock), those not
+    already in a final stage, in one statement per thousand seqs; how many changed."""
+    key = canonical_id(pass_id, what="pass")
+    wanted = sorted(set(seqs))
+    changed = 0
+    for lo in range(0, len(wanted), 1000):
+        result = session.execute(
+            update(CommandRecord)
+            .where(
+                CommandRecord.pass_id == key,
+                CommandRecord.seq.in_(wanted[lo : lo + 1000]),
+                CommandRecord.stage.in_(("queued", "released", "sent", "received")),
+            )
+            .values(stage="cancelled", cancelled_at_ns=time_ns)
+            .execution_options(synchronize_session="fetch")
+        )
+        changed += int(result.rowcount or 0)  # type: ignore[attr-defined]
+    return changed
 
 
 def list_commands(

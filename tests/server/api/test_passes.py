@@ -15,8 +15,9 @@ from tests.server.api.conftest import OPERATOR, VIEWER, sessions
 from tests.server.storage.factories import T0_NS, make_commands
 
 AOS = datetime(2031, 3, 4, 5, 6, 7, 250000, tzinfo=UTC)
-#: The uplink lead of the default settings: one-way delay 3 s + margin 2 s.
-LEAD_S = 5.0
+#: The start lead of the default settings (``uplink_start_lead_s``): the first command is
+#: tagged this long after the start, so that it can be sent again if the relay loses it.
+LEAD_S = 20.0
 
 
 def _stored_plan(client: TestClient, plan: Plan) -> str:

@@ -13,8 +13,9 @@ from sqlalchemy.orm import Session
 from starlette.testclient import WebSocketTestSession
 
 from planner.plan import Plan
+from server.services.command_stages import write_event
 from server.services.console import ConsoleHub
-from server.services.link import Connection, GroundLink, TelemetryWindow, write_event
+from server.services.link import Connection, GroundLink
 from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight, fly_offline
 from telemetry.uplink import plan_commands
@@ -147,11 +148,14 @@ class FakeSpacecraft:
         )
         portal.call(ground.attach, self.conn)
         portal.call(ground.handle, self.conn, encode(hello))
-        ground.windows.append(TelemetryWindow(pass_id=pass_id, start_ns=0))
+        ground.open_window(pass_id, 0)
 
     def send(self, frames: list[TelemetryFrame]) -> None:
         message = encode(TelemetryMsg(frames=frames))
-        self.portal.call(link(self.client).handle, self.conn, message)
+        ground = link(self.client)
+        self.portal.call(ground.handle, self.conn, message)
+        # the link reads on while frames commit: wait until they are stored and published
+        self.portal.call(ground.downlink.settled)
 
 
 def drain(ws: WebSocketTestSession) -> list[dict[str, Any]]:

@@ -11,7 +11,8 @@ import json
 from typing import Any
 
 from server.services.console import ConsoleHub, ConsoleLimits
-from server.services.link import LinkStatus, Publisher
+from server.services.dbworker import Publisher
+from server.services.link import LinkStatus
 
 N_EVENTS = 50
 

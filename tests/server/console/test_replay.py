@@ -22,7 +22,8 @@ from starlette.testclient import WebSocketTestSession
 from planner.plan import Plan
 from server.services._console_replay import COLUMNS
 from server.services.console import ConsoleHub, ConsoleLimits
-from server.services.link import LinkStatus, Publisher
+from server.services.dbworker import Publisher
+from server.services.link import LinkStatus
 from server.storage import repository as repo
 from server.storage.models import TELEMETRY_FIELDS
 from spacecraft.offline import OfflineFlight

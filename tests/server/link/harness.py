@@ -64,12 +64,10 @@ def _free_port() -> int:
 
 @contextmanager
 def running_ground(database_url: str) -> Iterator[Ground]:
-    # An 8 s uplink margin (flight default 2 s): commands then tolerate 4 s onboard, 400 ms
-    # of wall at 10x, of release lateness before they expire. Here the ground and the
-    # spacecraft share one process and its GIL, and a CI run saw a 200 ms stall of the
-    # ground's event loop expire a command; these tests are about the stages, not about
-    # that (bench/bench_uplink.py measures lateness with the spacecraft in its own process).
-    settings = Settings(database_url=database_url, tokens=TOKENS, uplink_margin_s=8.0)
+    # The flight defaults: the ground and the spacecraft share one process and its GIL
+    # here, and the windowed uplink loads every command up to 120 s onboard ahead and sends
+    # it again until acknowledged, so a stalled ground event loop delays nothing.
+    settings = Settings(database_url=database_url, tokens=TOKENS)
     app = create_app(settings)
     port = _free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")

@@ -1,0 +1,222 @@
+"""The ground's database worker and its publish hook.
+
+Every database write of the live path (link, runner) goes through :class:`Database`: one
+worker thread, so writes keep their order and an SQLite commit never stalls the event loop
+(and with it the uplink). :class:`Publisher` hands committed events and newly archived
+telemetry frames to the consoles.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from telemetry.wire import TelemetryFrame
+
+__all__ = ["Database", "FrameCallback", "Publisher"]
+
+log = logging.getLogger("hikoboshi.ground.db")
+
+T = TypeVar("T")
+
+
+FrameCallback = Callable[[str, list[TelemetryFrame], int], None]
+
+
+class Publisher:
+    """An in-process publish hook for the consoles: subscribers get every event dict once it
+    is committed, and every newly archived telemetry frame (``pass_id, frames,
+    reception_time_ns``). A subscriber must not block; one that raises is logged and kept."""
+
+    def __init__(self) -> None:
+        self._subscribers: list[Callable[[dict[str, Any]], None]] = []
+        self._frame_subscribers: list[FrameCallback] = []
+
+    def subscribe(self, callback: Callable[[dict[str, Any]], None]) -> Callable[[], None]:
+        self._subscribers.append(callback)
+        return lambda: self._subscribers.remove(callback)
+
+    def subscribe_frames(self, callback: FrameCallback) -> Callable[[], None]:
+        self._frame_subscribers.append(callback)
+        return lambda: self._frame_subscribers.remove(callback)
+
+    def publish_frames(
+        self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
+    ) -> None:
+        for callback in list(self._frame_subscribers):
+            try:
+                callback(pass_id, frames, reception_time_ns)
+            except Exception:
+                log.exception("frame subscriber failed on pass %s", pass_id)
+
+    def publish(self, events: list[dict[str, Any]]) -> None:
+        for event in events:
+            for callback in list(self._subscribers):
+                try:
+                    callback(event)
+                except Exception:
+                    log.exception("event subscriber failed on %s", event.get("kind"))
+
+
+class Database:
+    """Transactions on one worker thread, in the order they were asked for (see the module
+    docstring), with group commit: the jobs waiting when the worker comes round run in one
+    transaction, so a burst of acknowledgements costs one commit, not hundreds. A job that
+    fails rolls its whole group back; the group is then run again one job per transaction,
+    so only the failing job fails.
+
+    A job returns the event dicts it wrote; they are published once it has committed.
+    """
+
+    MAX_GROUP = 256
+
+    def __init__(self, sessions: sessionmaker[Session], publisher: Publisher) -> None:
+        self._sessions = sessions
+        self._publisher = publisher
+        self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._worker, name="ground-db", daemon=True)
+        self._thread.start()
+        self._pending: set[asyncio.Future[Any]] = set()
+        self._closed = False
+        self.groups = 0
+        self.jobs = 0
+
+    def _transaction(self, job: Callable[[Session], T]) -> T:
+        with self._sessions() as session:
+            try:
+                result = job(session)
+                session.commit()
+            except BaseException:
+                session.rollback()
+                raise
+            return result
+
+    def _worker(self) -> None:
+        while True:
+            first = self._queue.get()
+            if first is None:
+                return
+            group = [first]
+            stop = False
+            while len(group) < self.MAX_GROUP:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if item is None:
+                    stop = True
+                    break
+                group.append(item)
+            self._run_group(group)
+            if stop:
+                return
+
+    def _run_group(self, group: list[_Job]) -> None:
+        self.groups += 1
+        self.jobs += len(group)
+        outcomes: list[tuple[bool, Any]]
+        try:
+            with self._sessions() as session:
+                try:
+                    results = [job.fn(session) for job in group]
+                    session.commit()
+                except BaseException:
+                    session.rollback()
+                    raise
+            outcomes = [(True, r) for r in results]
+        except Exception:
+            if len(group) == 1:
+                outcomes = [(False, sys.exc_info()[1])]
+            else:
+                outcomes = []
+                for job in group:  # isolate the failure: one transaction each
+                    try:
+                        outcomes.append((True, self._transaction(job.fn)))
+                    except Exception as exc:
+                        outcomes.append((False, exc))
+        for job, (ok, value) in zip(group, outcomes, strict=True):
+            job.loop.call_soon_threadsafe(_settle, job.future, ok, value)
+
+    def _enqueue(self, job: Callable[[Session], T]) -> asyncio.Future[T]:
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+        if self._closed:  # no worker will ever run it: fail now rather than hang
+            future.set_exception(RuntimeError("the database worker is closed"))
+            return future
+        self._queue.put(_Job(job, future, loop))
+        self._pending.add(future)
+        future.add_done_callback(self._pending.discard)
+        return future
+
+    async def run(self, job: Callable[[Session], T]) -> T:
+        return await self._enqueue(job)
+
+    async def write(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
+        """Run ``job`` (which returns the events it wrote) and publish its events."""
+        self._publisher.publish(await self.run(job))
+
+    def submit(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
+        """Queue ``job`` without waiting (the emitter must not wait for a commit); its
+        events are published when it commits, a failure is logged."""
+        future = self._enqueue(job)
+
+        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
+            if f.cancelled():
+                return
+            if (exc := f.exception()) is not None:
+                log.error("database write failed: %r", exc)
+                return
+            self._publisher.publish(f.result())
+
+        future.add_done_callback(done)
+
+    def submit_then(self, job: Callable[[Session], T], then: Callable[[T | None], None]) -> None:
+        """Queue ``job`` without waiting; ``then`` gets its result once it has committed, or
+        None if it failed (the failure is logged). The emitter goes on at once: the downlink
+        reads the next message while this one's frames are being stored."""
+        future = self._enqueue(job)
+
+        def done(f: asyncio.Future[T]) -> None:
+            if f.cancelled():
+                return
+            if (exc := f.exception()) is not None:
+                log.error("database write failed: %r", exc)
+                then(None)
+                return
+            then(f.result())
+
+        future.add_done_callback(done)
+
+    async def drain(self) -> None:
+        """Wait for every job queued so far (and those their completions queue)."""
+        while self._pending:
+            await asyncio.gather(*list(self._pending), return_exceptions=True)
+
+    def close(self) -> None:
+        self._closed = True
+        self._queue.put(None)
+        self._thread.join()
+
+
+@dataclass
+class _Job:
+    fn: Callable[[Session], Any]
+    future: asyncio.Future[Any]
+    loop: asyncio.AbstractEventLoop
+
+
+def _settle(future: asyncio.Future[Any], ok: bool, value: Any) -> None:
+    if future.cancelled():
+        return
+    if ok:
+        future.set_result(value)
+    else:
+        future.set_exception(value)
