@@ -92,7 +92,9 @@ log = logging.getLogger("hikoboshi.ground.console")
 
 #: Event topics and the event kinds each carries (``None``: every kind).
 EVENT_TOPICS: dict[str, tuple[str, ...] | None] = {
-    "commands": ("command_stage",),
+    # An abort cancels a pass's commands in one ``commands_cancelled`` event (count and seq
+    # range), not one ``command_stage`` each: a console following stages needs it too.
+    "commands": ("command_stage", "commands_cancelled"),
     "passes": ("pass_state",),
     "events": None,
 }

@@ -1,13 +1,15 @@
 """The live pass view and commanding, in the browser, while a pass flies at 20x.
 
 What a flight controller relies on: the link shows connected, the plots fill as telemetry
-streams (point counts grow), command stages appear, an operator starts and aborts with the
-pass name typed, and a viewer sees the same pages without the controls (the server refuses
-a forced request with 403 anyway).
+streams (point counts grow), command stages appear, the onboard schedule shows how far ahead
+the uplink has loaded it, an operator starts and aborts with the pass name typed (the
+commands the abort cancels show as such), and a viewer sees the same pages without the
+controls (the server refuses a forced request with 403 anyway).
 """
 
 from __future__ import annotations
 
+import re
 import time
 from typing import Any
 
@@ -28,6 +30,13 @@ def _wait_connected(ground: Ground) -> None:
 def _points(page: Any) -> list[int]:
     counts: list[int] = page.evaluate("() => window.hikoboshiLive.pointCounts()")
     return counts
+
+
+def _value(page: Any, test: str) -> float:
+    """The number a gauge or uplink row of the live view shows (its ``data-value``)."""
+    value = page.get_attribute(f"[data-test={test}]", "data-value")
+    assert value not in (None, ""), f"{test} shows no number"
+    return float(value)
 
 
 def _confirm(page: Any, name: str, button: str) -> None:
@@ -72,6 +81,26 @@ def test_operator_starts_watches_and_aborts_a_pass(
         "commands executed",
     )
     assert page.is_hidden("[data-test=stale]")
+    # The schedule gauge: the uplink keeps the vehicle's schedule loaded up to the lead
+    # window (120 s, 4 Hz: about 480 commands) ahead; numbers from the running pass.
+    console.wait(
+        "() => Number(document.querySelector('[data-test=schedule-lead]')?.dataset.value) > 60"
+        " && document.querySelector('[data-test=uplink-margin]')?.dataset.value",
+        "schedule loaded ahead",
+    )
+    queued_text = page.text_content("[data-test=schedule-queued]") or ""
+    match = re.fullmatch(r"schedule: (\d+)/(\d+) queued", queued_text)
+    assert match is not None, queued_text
+    assert int(match[2]) == 1024  # the vehicle's default capacity, from its frames
+    assert 200 < int(match[1]) <= 4 * 125, queued_text  # a lead window's worth, not the pass
+    lead_s = _value(page, "schedule-lead")
+    assert 60 < lead_s < 125, lead_s  # within the window (and the clock estimate's slack)
+    assert "(lead window 120 s)" in (page.text_content("[data-test=schedule-lead]") or "")
+    assert _value(page, "uplink-sent") >= int(match[1])
+    assert _value(page, "uplink-retx") >= 0
+    # Every command reached the vehicle ahead of its tag by more than the ground's bound
+    # (one-way delay + half the margin when sent, less the delay on the way: 1 s).
+    assert _value(page, "uplink-margin") > 1.0
     rtt = page.text_content("[data-test=link-rtt]")
     assert rtt is not None and rtt.endswith(" s")
     console.screenshot("live-operator-running")
@@ -100,6 +129,19 @@ def test_operator_starts_watches_and_aborts_a_pass(
         events = repo.list_events(session=session, pass_id=pass_id, kinds=["pass_state"]).items
     assert [(e.detail["to"], e.actor) for e in events][-1] == ("aborted", "otto")
     assert page.locator("[data-test=start], [data-test=abort]").count() == 0
+    # With the link down the delete waits for it, but the commands beyond the lead window,
+    # never sent, are cancelled at once: the timeline counts exactly the archive's.
+    with ground.sessions() as session:
+        commands = repo.list_commands(session=session, pass_id=pass_id)
+    cancelled = sum(1 for c in commands if c.stage == "cancelled")
+    assert cancelled > 0, "nothing cancelled: the pass should reach past the lead window"
+    console.wait(
+        "() => Number(document.querySelector('[data-stage=cancelled]')?.dataset.count)"
+        f" === {cancelled}",
+        "cancelled counted",
+    )
+    note = page.text_content("[data-test=cancel-note]") or ""
+    assert note.startswith(f"cancelled {cancelled} (seq ") and "operator abort" in note, note
     console.screenshot("live-operator-aborted")
 
 

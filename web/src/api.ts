@@ -25,6 +25,9 @@ export interface CommandPublic {
   payload: Record<string, unknown>;
   stage: string;
   reject_reason: string | null;
+  /** Copies sent: the uplink retransmits until the vehicle acknowledges. */
+  transmissions?: number;
+  cancelled_at?: string | null;
 }
 
 export interface Segment {
@@ -81,7 +84,39 @@ export interface LinkStatus {
   frames_behind: number | null;
   open_gaps: [number, number][];
   frames_missing: number;
+  /** The onboard schedule as the newest telemetry frame reports it (PUS 11 summary). */
+  schedule?: ScheduleStatus | null;
+  /** The running pass's uplink (server/services/uplink.py); null without one. */
+  uplink?: UplinkStatus | null;
   active_pass_id?: string | null;
+}
+
+export interface ScheduleStatus {
+  queued: number;
+  capacity: number;
+  free: number;
+  first_tag_ns: number | null;
+  last_tag_ns: number | null;
+  /** Onboard s from the frame's time to the last tag loaded. */
+  lead_s: number | null;
+  as_of_ns: number;
+}
+
+export interface UplinkStatus {
+  pass_id: string;
+  commands: number;
+  sent: number;
+  acknowledged: number;
+  in_flight: number;
+  expired: number;
+  retransmissions: number;
+  schedule_full_refusals: number;
+  onboard_load: number | null;
+  capacity: number;
+  lead_window_s: number;
+  rto_s: number;
+  srtt_s: number | null;
+  min_fill_margin_s: number | null;
 }
 
 export interface TelemetryPage {

@@ -1,6 +1,8 @@
 // The live pass view: what is happening now (pass state, link, latest values, plots, 3D),
 // what comes next (AOS/LOS countdown, the plan's next segment, queued commands), and
-// whether the spacecraft does what the plan predicted (the prediction under every plot).
+// whether the spacecraft does what the plan predicted (the prediction under every plot),
+// and how far ahead the uplink has loaded the onboard schedule (its fill, lead and
+// retransmissions, from the link status).
 // Stale data is shown as stale (no telemetry for 2 s: a STALE badge and greyed values; no
 // link status for two heartbeats: the link is stale); missing frames are gaps.
 
@@ -28,11 +30,14 @@ const STAGE_COLORS: Record<string, string> = {
   executed: "#81c784",
   rejected: "#e57373",
   expired: "#ffb74d",
+  cancelled: "#ba68c8",
 };
 const STAGES = Object.keys(STAGE_COLORS);
-/** Stages in the order a command reaches them (the three outcomes last). */
+/** The strip's mark under a command sent more than once. */
+const RESENT_COLOR = "#e6e9ef";
+/** Stages in the order a command reaches them (the four outcomes last). */
 const STAGE_RANK: Record<string, number> = {
-  queued: 0, released: 1, sent: 2, received: 3, executed: 4, rejected: 4, expired: 4,
+  queued: 0, released: 1, sent: 2, received: 3, executed: 4, rejected: 4, expired: 4, cancelled: 4,
 };
 
 async function choosePass(): Promise<PassPublic | null> {
@@ -82,6 +87,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   let linkAtMs = 0; // performance.now() of the last link status
   let acsMode = "—";
   let bufferQueued: number | null = null;
+  let lastCancel: Record<string, unknown> | null = null; // the latest commands_cancelled detail
   const commands = new Map<number, CommandPublic>();
   let commandsDirty = true;
   let windowS: number | null = null; // null: the whole pass
@@ -111,8 +117,12 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   const timelineCanvas = h("canvas.timeline", { "data-test": "timeline" });
   const stageCounts = h("div.stages", { "data-test": "stage-counts" });
   const nextList = h("ol.cmdlist", { "data-test": "next-commands" });
+  const cancelNote = h("p.small.cancel-note", { "data-test": "cancel-note", hidden: true });
+  const scheduleBox = h("div.sched", { "data-test": "schedule" });
   const timelinePanel = h("div.panel.commands", {},
-    h("h3", {}, "Commands"), stageCounts, timelineCanvas, h("h4", {}, "Next and latest"), nextList);
+    h("h3", {}, "Commands"), stageCounts, timelineCanvas, cancelNote,
+    h("h4", {}, "Onboard schedule and uplink"), scheduleBox,
+    h("h4", {}, "Next and latest"), nextList);
   const status = h("section.status", {}, linkPanel, valuesPanel, timelinePanel);
   root.append(top, status);
   const view = new PassView(root, ctx.paths);
@@ -194,22 +204,31 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
         void refreshPass();
         void loadCommands();
       }
+      if (event.kind === "commands_cancelled") {
+        // One event for a whole abort (count and seq range, not the seqs): reload.
+        lastCancel = event.detail;
+        reloadCommandsSoon();
+      }
       if (event.kind === "command_stage") {
         const c = commands.get(event.detail.seq as number);
         if (c) {
           c.stage = event.detail.stage as string;
           commandsDirty = true;
-        } else if (commandReload === undefined) {
-          // A command not loaded yet (made at start): reload once, however many stages
-          // stream in meanwhile (a debounce that restarts would starve while they do).
-          commandReload = window.setTimeout(() => {
-            commandReload = undefined;
-            void loadCommands();
-          }, 300);
+        } else {
+          reloadCommandsSoon(); // a command not loaded yet (made at start)
         }
       }
     }
   };
+  // Reload once, however many events stream in meanwhile (a debounce that restarts would
+  // starve while they do).
+  function reloadCommandsSoon(): void {
+    if (commandReload !== undefined) return;
+    commandReload = window.setTimeout(() => {
+      commandReload = undefined;
+      void loadCommands();
+    }, 300);
+  }
   const offMessage = ctx.on(onMessage);
   const offResync = ctx.onResync((topic, passId) => {
     if (topic === "telemetry" && passId === pass.id) void loadTelemetry();
@@ -247,6 +266,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
 
   function renderLink(): void {
     const s = link;
+    renderSchedule();
     clear(linkPanel);
     const stale = s !== null && (performance.now() - linkAtMs) / 1000 > LINK_STALE_S;
     linkPanel.classList.toggle("is-stale", stale || !ctx.socket.connected);
@@ -267,6 +287,52 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       row("time scale", s.time_scale === null ? "—" : `${s.time_scale}×`),
       row("console socket", ctx.socket.socketRttMs === null ? "—" : `${fmt(ctx.socket.socketRttMs, 0)} ms`),
     );
+  }
+
+  // The onboard schedule's fill and lead (from the newest frame's buffer, via the link
+  // status) and the running pass's uplink: is the arm's motion loaded far enough ahead?
+  function renderSchedule(): void {
+    const s = link;
+    clear(scheduleBox);
+    scheduleBox.classList.toggle("is-stale", !s?.connected);
+    const sched = s?.schedule ?? null;
+    const up = s?.uplink && s.uplink.pass_id === pass.id ? s.uplink : null;
+    if (!sched && !up) {
+      scheduleBox.append(h("p.muted", {}, "No schedule report yet."));
+      return;
+    }
+    const windowS = up?.lead_window_s ?? null;
+    const gauge = (text: string, pct: number, test: string, value: number | null) =>
+      h("div.gauge", {},
+        h("div.bar", { style: `width:${Math.max(0, Math.min(100, pct)).toFixed(1)}%` }),
+        h("span.gtext", { "data-test": test, "data-value": value ?? "" }, text));
+    if (sched) {
+      const through = sched.last_tag_ns !== null && pass.epoch_ns !== null
+        ? `t = ${fmt((sched.last_tag_ns - pass.epoch_ns) / 1e9, 1)} s` : null;
+      const lead = sched.lead_s;
+      scheduleBox.append(
+        gauge(`schedule: ${sched.queued}/${sched.capacity} queued`, (100 * sched.queued) / sched.capacity,
+          "schedule-queued", sched.queued),
+        gauge(lead === null || through === null
+          ? "nothing loaded ahead"
+          : `loaded through ${through}, ${fmt(lead, 1)} s ahead` + (windowS !== null ? ` (lead window ${fmt(windowS, 0)} s)` : ""),
+        windowS !== null && lead !== null ? (100 * lead) / windowS : 0, "schedule-lead", lead),
+      );
+      if (!s?.connected) scheduleBox.append(h("p.muted.small", {}, "last report before the link went down"));
+    }
+    if (up) {
+      const row = (k: string, v: string, test: string, value: number | null) =>
+        h("div.kv", {}, h("span.k", {}, k), h("span.v", { "data-test": test, "data-value": value ?? "" }, v));
+      scheduleBox.append(
+        row("uplink", `sent ${up.sent}/${up.commands} · acknowledged ${up.acknowledged} · in flight ${up.in_flight}`
+          + (up.expired ? ` · expired ${up.expired}` : ""), "uplink-sent", up.sent),
+        row("retransmissions", String(up.retransmissions)
+          + (up.schedule_full_refusals ? ` · schedule full ${up.schedule_full_refusals}` : ""), "uplink-retx", up.retransmissions),
+        row("timer (ground s)", `RTO ${fmt(up.rto_s, 2)} · SRTT ${up.srtt_s === null ? "—" : fmt(up.srtt_s, 2)}`, "uplink-rto", up.rto_s),
+        row("min fill margin", up.min_fill_margin_s === null ? "—" : `${fmt(up.min_fill_margin_s, 1)} s`,
+          "uplink-margin", up.min_fill_margin_s),
+      );
+    }
   }
 
   function renderValues(stale: boolean): void {
@@ -315,6 +381,15 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       const n = counts.get(stage) ?? 0;
       stageCounts.append(h("span.stage", { "data-stage": stage, "data-count": n, style: `--c:${STAGE_COLORS[stage]}` }, `${stage} ${n}`));
     }
+    // Commands sent more than once (as of the last REST load: copies raise no event; the
+    // uplink's live total is under "retransmissions").
+    const again = list.filter((x) => (x.transmissions ?? 0) > 1).length;
+    stageCounts.append(h("span.stage", { "data-test": "resent", "data-count": again, style: `--c:${RESENT_COLOR}`, title: "sent more than once (white tick under the strip)" }, `sent ×2+ ${again}`));
+    cancelNote.hidden = lastCancel === null;
+    if (lastCancel !== null) {
+      const d = lastCancel;
+      cancelNote.textContent = `cancelled ${String(d.count)} (seq ${String(d.first_seq)}–${String(d.last_seq)}): ${String(d.reason ?? "")}`;
+    }
     // The strip: one tick per command at its tag, coloured by stage; "now" in amber.
     const c = timelineCanvas;
     const w = c.clientWidth || 300;
@@ -331,7 +406,11 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       for (const cmd of list) {
         g.fillStyle = STAGE_COLORS[cmd.stage] ?? "#888";
         const x = px((cmd.execute_time_ns - pass.epoch_ns) / 1e9);
-        g.fillRect(x, cmd.kind === "acs" ? 2 : 10, 1.5, cmd.kind === "acs" ? 6 : 24);
+        g.fillRect(x, cmd.kind === "acs" ? 2 : 10, 1.5, cmd.kind === "acs" ? 6 : 22);
+        if ((cmd.transmissions ?? 0) > 1) {
+          g.fillStyle = RESENT_COLOR;
+          g.fillRect(x, 33, 1.5, 3);
+        }
       }
       if (plan) {
         g.fillStyle = "#aab";
@@ -351,7 +430,8 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     const item = (cmd: CommandPublic, when: string) =>
       h("li", { "data-stage": cmd.stage }, h("span.tag", {}, when), ` #${cmd.seq} ${cmd.kind} `,
         h("span.stage", { style: `--c:${STAGE_COLORS[cmd.stage] ?? "#888"}` }, cmd.stage),
-        cmd.reject_reason ? h("span.error", {}, ` ${cmd.reject_reason}`) : null);
+        cmd.reject_reason ? h("span.error", {}, ` ${cmd.reject_reason}`) : null,
+        (cmd.transmissions ?? 0) > 1 ? h("span.muted", { title: "copies sent" }, ` ×${cmd.transmissions}`) : null);
     const tagOf = (cmd: CommandPublic) =>
       pass.epoch_ns === null ? "" : `t=${fmt((cmd.execute_time_ns - pass.epoch_ns) / 1e9, 2)} s`;
     for (const cmd of past.slice(-3)) nextList.append(item(cmd, tagOf(cmd)));
