@@ -279,9 +279,13 @@ def _print_demo(summary: dict[str, Any]) -> None:
         "duplicates_stored",
         "commands_sent",
         "commands_executed",
+        "commands_executed_at_tag",
         "commands_rejected",
         "commands_expired",
+        "commands_cancelled",
+        "commands_retransmitted",
         "commands_outstanding",
+        "min_command_lead_s",
     )
     table = Table(title=f"{summary['name']}: {summary['final_state']}")
     table.add_column("")

@@ -173,11 +173,9 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     operator = _token_of(tokens, Role.OPERATOR)
     port = _port(options.port)
     base = f"http://127.0.0.1:{port}"
-    # The uplink margin grows with the time scale: at 20x the flight's 2 s onboard are
-    # 100 ms of wall time, and half of it is all a release may be late before it expires;
-    # 6 s (150 ms of slack) rides out the ground's occasional pauses (a full garbage
-    # collection, a large telemetry batch).
-    settings = Settings(data_dir=out, tokens=tokens, uplink_margin_s=max(2.0, 0.3 * options.speed))
+    # The flight's uplink settings at any speed: commands are loaded 120 s onboard ahead of
+    # their tags and sent again until acknowledged, so the ground's own pauses delay none.
+    settings = Settings(data_dir=out, tokens=tokens)
     started = time.monotonic()
     with _ground(settings, port):
         api = _Api(base, operator)

@@ -310,10 +310,16 @@ class PassSummaryPublic(BaseModel):
     commands_total: int
     commands_sent: int
     commands_executed: int
+    #: executed on board exactly at their time tag (all executed ones, when the vehicle
+    #: keeps its rule)
+    commands_executed_at_tag: int
     commands_rejected: dict[str, int]
     commands_expired: int
     commands_cancelled: int
     commands_retransmitted: int
+    #: the least time (onboard s) by which a command the vehicle received was ahead of its
+    #: tag: how full the windowed uplink kept the onboard schedule
+    min_command_lead_s: float | None
     commands_outstanding: int
 
 

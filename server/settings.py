@@ -38,12 +38,14 @@ class Settings(BaseModel):
     #: SPEC 6: the ground sends each command at least (one-way delay + margin) before its tag
     link_one_way_delay_s: float = 3.0
     uplink_margin_s: float = 2.0
-    #: The onboard schedule is kept loaded this far ahead of the onboard clock (onboard s,
-    #: issue 11): every command goes up this long before its tag, and is sent again until
+    #: The onboard schedule is kept loaded this far ahead of the onboard clock (onboard s):
+    #: every command goes up this long before its tag, and is sent again until
     #: the vehicle acknowledges it, within the vehicle's announced schedule capacity.
+    #: Longer than the outages a pass must ride through (SPEC 6).
     uplink_lead_window_s: float = Field(default=120.0, gt=0, le=3600)
     #: A pass's first command is tagged this long (onboard s) after the start, so that it
-    #: too can be sent again before its tag if the relay loses it.
+    #: too can be sent again before its tag if the relay loses it (the runner lengthens it
+    #: at high time scales, so that the first command can go up three times).
     uplink_start_lead_s: float = Field(default=30.0, ge=0, le=600)
     command_period_s: float = 0.25
     #: The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
@@ -57,15 +59,19 @@ class Settings(BaseModel):
 
     @classmethod
     def from_env(cls) -> Settings:
-        """``DATABASE_URL``, ``HIKOBOSHI_DATA_DIR`` and ``HIKOBOSHI_TOKENS``
-        (``token=name:role,...``)."""
+        """``DATABASE_URL``, ``HIKOBOSHI_DATA_DIR``, ``HIKOBOSHI_TOKENS``
+        (``token=name:role,...``) and ``HIKOBOSHI_UPLINK_LEAD_WINDOW_S`` (onboard s)."""
         tokens: dict[str, ApiToken] = {}
         for item in filter(None, os.environ.get("HIKOBOSHI_TOKENS", "").split(",")):
             token, _, holder = item.partition("=")
             name, _, role = holder.partition(":")
             tokens[token.strip()] = ApiToken(name=name.strip(), role=Role(role.strip()))
+        extra: dict[str, float] = {}
+        if lead := os.environ.get("HIKOBOSHI_UPLINK_LEAD_WINDOW_S"):
+            extra["uplink_lead_window_s"] = float(lead)
         return cls(
             data_dir=Path(os.environ.get("HIKOBOSHI_DATA_DIR", "data")),
             database_url=os.environ.get("DATABASE_URL") or None,
             tokens=tokens,
+            **extra,
         )

@@ -16,7 +16,7 @@ import pytest
 
 
 @pytest.mark.slow
-def test_demo_through_loss_and_an_outage_stores_every_frame_once(tmp_path: Path) -> None:
+def test_demo_through_loss_and_an_outage_loses_no_frame_and_no_command(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     result = subprocess.run(
         [
@@ -53,18 +53,17 @@ def test_demo_through_loss_and_an_outage_stores_every_frame_once(tmp_path: Path)
     assert summary["frames_missing"] == 0 and summary["gaps_open"] == 0
     assert summary["duplicates_stored"] == 0
     assert summary["duplicates_dropped"] > 0  # the spacecraft did resend
-    # every command ended somewhere, and the outage cost commands
-    ended = (
-        summary["commands_executed"]
-        + summary["commands_expired"]
-        + sum(summary["commands_rejected"].values())
-    )
-    assert summary["commands_outstanding"] == 0 and ended == summary["commands_total"]
-    # The pass starts about 32 s onboard; the PTP motion ends near 86 s, so the outage
-    # eats commands of the hold at B: lost (expired), and the next one after it is the
-    # same target, so the plan carries on.
-    assert summary["commands_expired"] > 20
-    assert summary["commands_executed"] > 400
+    # Every command executed at its tag although 10 % of the messages and 30 s of the link
+    # were lost: the windowed uplink had loaded the outage's commands ahead and sent the
+    # lost ones again (the bound on copies: 2 x loss x frames).
+    assert summary["commands_total"] > 400
+    assert summary["commands_executed"] == summary["commands_total"]
+    assert summary["commands_executed_at_tag"] == summary["commands_total"]
+    assert summary["commands_expired"] == 0 and summary["commands_rejected"] == {}
+    assert summary["commands_outstanding"] == 0 and summary["commands_cancelled"] == 0
+    assert summary["commands_retransmitted"] > 0
+    assert summary["min_command_lead_s"] > 5.0  # each was on board before its last chance
+    assert summary["duplicates_dropped"] <= 2 * 0.1 * summary["frames_expected"]
     # the main job leaves what it needs to be looked at again, tokens private
     assert Path(summary["database"]).exists()
     assert (out / "pass.mcap").read_bytes()[:8] == b"\x89MCAP0\r\n"

@@ -278,7 +278,8 @@ class GroundLink:
         return self.downlink.latest_frame
 
     @property
-    def _newest(self) -> tuple[int, int] | None:
+    def newest(self) -> tuple[int, int] | None:
+        """(seq, generation ns) of the newest frame received."""
         return self.downlink.newest
 
     @property

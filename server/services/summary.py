@@ -84,6 +84,17 @@ def pass_summary(
     retransmitted = session.scalar(
         select(func.count()).where(cmd.pass_id == key, cmd.transmissions > 1)
     )
+    at_tag = session.scalar(
+        select(func.count()).where(
+            cmd.pass_id == key, cmd.stage == "executed", cmd.executed_at_ns == cmd.execute_time_ns
+        )
+    )
+    # how far ahead of its tag the vehicle had each command (onboard ns): the uplink's margin
+    lead_ns = session.scalar(
+        select(func.min(cmd.execute_time_ns - cmd.received_at_ns)).where(
+            cmd.pass_id == key, cmd.received_at_ns.is_not(None)
+        )
+    )
     return PassSummaryPublic(
         pass_id=key,
         name=record.name,
@@ -101,9 +112,11 @@ def pass_summary(
         commands_total=sum(stages.values()),
         commands_sent=sent or 0,
         commands_executed=stages.get("executed", 0),
+        commands_executed_at_tag=at_tag or 0,
         commands_rejected={str(k): int(v) for k, v in rejected.items()},
         commands_expired=stages.get("expired", 0),
         commands_cancelled=stages.get("cancelled", 0),
         commands_retransmitted=retransmitted or 0,
+        min_command_lead_s=None if lead_ns is None else lead_ns / 1e9,
         commands_outstanding=sum(stages.get(s, 0) for s in ("sent", "received")),
     )

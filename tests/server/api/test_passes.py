@@ -10,6 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from planner.plan import Plan
+from server.settings import Settings
 from server.storage import repository as repo
 from tests.server.api.conftest import OPERATOR, VIEWER, sessions
 from tests.server.storage.factories import T0_NS, make_commands
@@ -17,7 +18,7 @@ from tests.server.storage.factories import T0_NS, make_commands
 AOS = datetime(2031, 3, 4, 5, 6, 7, 250000, tzinfo=UTC)
 #: The start lead of the default settings (``uplink_start_lead_s``): the first command is
 #: tagged this long after the start, so that it can be sent again if the relay loses it.
-LEAD_S = 20.0
+LEAD_S = Settings().uplink_start_lead_s
 
 
 def _stored_plan(client: TestClient, plan: Plan) -> str:

@@ -185,7 +185,7 @@ def settled(ground: Ground, pass_id: str) -> bool:
         outstanding = repo.list_commands(
             session=session, pass_id=pass_id, stages=("sent", "received")
         )
-    newest = ground.app.state.link._newest
+    newest = ground.app.state.link.newest
     runner = ground.app.state.runner
     resolved = not outstanding or (runner.active_pass_id is None and not runner.resolving)
     return (

@@ -86,10 +86,14 @@ def test_the_link_replies_error_to_a_malformed_frame_and_refuses_other_roles(
         replies: list[dict[str, object]] = []
         async with connect(url, additional_headers={"Authorization": "Bearer s-token"}) as ws:
             await ws.send(encode(hello))
-            for text in ("{not json", '{"v":1,"type":"telemetry","frames":[]}'):
+            for text in (
+                "{not json",
+                '{"v":2,"type":"telemetry","frames":[]}',
+                '{"v":1,"type":"telemetry","frames":[]}',  # version 1 is not served
+            ):
                 await ws.send(text)
             deadline = time.monotonic() + 5.0
-            while sum(r["type"] == "error" for r in replies) < 2 and time.monotonic() < deadline:
+            while sum(r["type"] == "error" for r in replies) < 3 and time.monotonic() < deadline:
                 replies.append(json.loads(await asyncio.wait_for(ws.recv(), 5.0)))
             await ws.send(encode(hello))  # the connection is still up
         closed: ConnectionClosed | None = None
@@ -107,5 +111,6 @@ def test_the_link_replies_error_to_a_malformed_frame_and_refuses_other_roles(
     errors = [r for r in replies if r["type"] == "error"]
     assert "not JSON" in str(errors[0]["reason"])
     assert errors[1]["ref_type"] == "telemetry" and "frames" in str(errors[1]["reason"])
-    assert status.errors_replied == 2
+    assert "version 1 is not served" in str(errors[2]["reason"])
+    assert status.errors_replied == 3
     assert code == 1008 and "viewer" in reason
