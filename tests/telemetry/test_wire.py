@@ -12,12 +12,15 @@ from telemetry.wire import (
     AcsModeName,
     BufferState,
     CommandAck,
+    CommandQuery,
     CommandStage,
     JointCommandMsg,
     RejectReason,
+    ScheduleDelete,
     TelemetryAck,
     TelemetryFrame,
     TelemetryMsg,
+    Verification,
     WireError,
     decode_ground,
     decode_spacecraft,
@@ -25,7 +28,7 @@ from telemetry.wire import (
 )
 
 GOLDEN_JOINT_COMMAND = (
-    '{"v":1,"type":"command","kind":"joints","seq":7,"execute_time_ns":1000250000000,'
+    '{"v":2,"type":"command","kind":"joints","seq":7,"execute_time_ns":1000250000000,'
     '"joints_rad":[0.1,-0.2,0.3,0.0,0.5,-0.6]}'
 )
 
@@ -59,11 +62,24 @@ def test_round_trips_of_every_message() -> None:
     for msg in (
         AcsCommandMsg(seq=1, execute_time_ns=5, mode=AcsModeName.FREE_DRIFT, feedforward=True),
         TelemetryAck(through_seq=10, ranges=[(12, 15)]),
+        ScheduleDelete(request_id=4, from_time_ns=10**12, max_seq=99),
+        CommandQuery(seqs=[3, 4]),
     ):
         assert decode_ground(encode(msg)) == msg
     for sc in (
         TelemetryMsg(frames=[_frame(0), _frame(1)]),
         CommandAck(seq=3, stage=CommandStage.REJECTED, reason=RejectReason.LATE, onboard_time_ns=9),
+        CommandAck(
+            seq=4, stage=CommandStage.REJECTED, reason=RejectReason.SCHEDULE_FULL, onboard_time_ns=9
+        ),
+        Verification(
+            request_id=4,
+            stage="completed",
+            deleted=3,
+            deleted_ranges=[(5, 7)],
+            executed_after_from=1,
+            onboard_time_ns=10**12,
+        ),
     ):
         assert decode_spacecraft(encode(sc)) == sc
 
@@ -73,15 +89,17 @@ def test_round_trips_of_every_message() -> None:
     [
         ("{", "not JSON"),
         ("[1, 2]", "must be a JSON object"),
-        ('{"v": 2, "type": "ping"}', "protocol version 2"),
-        ('{"v": 1}', "string 'type'"),
-        ('{"v": 1, "type": "self_destruct"}', "unknown message type"),
+        ('{"v": 1, "type": "ping"}', "protocol version 1 is not served: this end speaks 2"),
+        ('{"v": 3, "type": "ping"}', "protocol version 3 is not served"),
+        ('{"v": 2}', "string 'type'"),
+        ('{"v": 2, "type": "self_destruct"}', "unknown message type"),
         (GOLDEN_JOINT_COMMAND.replace('"seq":7', '"seq":-7'), "seq"),
         (GOLDEN_JOINT_COMMAND.replace("0.5", '"x"'), "joints_rad"),
         (GOLDEN_JOINT_COMMAND.replace("0.5", "NaN"), "finite"),
         (GOLDEN_JOINT_COMMAND.replace("-0.6]", "-0.6, 1.0]"), "joints_rad"),
         (GOLDEN_JOINT_COMMAND.replace('"seq":7', '"seq":7,"extra":1'), "extra"),
-        ('{"v":1,"type":"retransmit","ranges":[]}', "ranges"),
+        ('{"v":2,"type":"retransmit","ranges":[]}', "ranges"),
+        ('{"v":2,"type":"schedule_delete","request_id":1,"from_time_ns":-1,"max_seq":3}', "time"),
     ],
 )
 def test_bad_messages_are_refused_with_a_reason(text: str, reason: str) -> None:
@@ -91,6 +109,6 @@ def test_bad_messages_are_refused_with_a_reason(text: str, reason: str) -> None:
 
 
 def test_huge_messages_are_refused_unread() -> None:
-    huge = json.dumps({"v": 1, "type": "ping", "pad": "x" * MAX_MESSAGE_BYTES})
+    huge = json.dumps({"v": 2, "type": "ping", "pad": "x" * MAX_MESSAGE_BYTES})
     with pytest.raises(WireError, match="exceeds"):
         decode_ground(huge)
