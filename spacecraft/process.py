@@ -167,8 +167,10 @@ class SpacecraftProcess:
         try:
             message = decode_ground(raw)
         except WireError as exc:
-            self.errors_replied += 1
-            self._send(self._error_reply(raw, str(exc)))
+            reply = self._error_reply(raw, str(exc))
+            if reply is not None:
+                self.errors_replied += 1
+                self._send(reply)
             return
         if isinstance(message, JointCommandMsg | AcsCommandMsg):
             self._send(encode(self.vehicle.receive(message)))
@@ -197,9 +199,10 @@ class SpacecraftProcess:
             )
             self._send(encode(pong))
 
-    def _error_reply(self, raw: str | bytes, reason: str) -> str:
+    def _error_reply(self, raw: str | bytes, reason: str) -> str | None:
         """A command of this protocol version with a readable seq is refused as such;
-        anything else (another version's messages included) gets ``error``."""
+        anything else (another version's messages included) gets ``error``, but for the
+        ground's own ``error`` replies: an error is never answered with one (no ping-pong)."""
         doc: object = None
         with contextlib.suppress(ValueError, UnicodeDecodeError, RecursionError):
             if len(raw) <= 64 * 1024:
@@ -221,6 +224,9 @@ class SpacecraftProcess:
                     )
                 )
         ref = doc.get("type") if isinstance(doc, dict) else None
+        if ref == "error":
+            log.warning("the ground could not read a message of ours: %s", str(doc)[:300])
+            return None
         return encode(ErrorMsg(reason=reason[:500], ref_type=ref if isinstance(ref, str) else None))
 
     async def _receiver(self, ws: ClientConnection) -> None:

@@ -147,6 +147,8 @@ def test_hostile_messages_get_error_replies_and_the_vehicle_carries_on() -> None
             '{"v":1,"type":"ping","ping_id":1,"ground_time_ns":0}',
             '{"v":1,"type":"command","kind":"joints","seq":56,"execute_time_ns":0,'
             '"joints_rad":[0,0,0,0,0,0]}',
+            # the ground's own error reply is read, never answered (no ping-pong of errors)
+            '{"v":2,"type":"error","reason":"the spacecraft said something odd"}',
         ):
             await stub.send(text)
         bad_command = (
@@ -171,6 +173,7 @@ def test_hostile_messages_get_error_replies_and_the_vehicle_carries_on() -> None
     assert [e.ref_type for e in v1] == ["ping", "command"]
     assert "this end speaks 2" in v1[0].reason
     assert not any(a.seq == 56 for a in stub.acks)
+    assert not any(e.ref_type == "error" for e in stub.errors)
     malformed = next(a for a in stub.acks if a.seq == 55)
     assert malformed.stage is CommandStage.REJECTED and malformed.reason is RejectReason.MALFORMED
     assert process.connections == 2
