@@ -66,12 +66,12 @@ class Settings(BaseModel):
             token, _, holder = item.partition("=")
             name, _, role = holder.partition(":")
             tokens[token.strip()] = ApiToken(name=name.strip(), role=Role(role.strip()))
-        extra: dict[str, float] = {}
-        if lead := os.environ.get("HIKOBOSHI_UPLINK_LEAD_WINDOW_S"):
-            extra["uplink_lead_window_s"] = float(lead)
+        lead = os.environ.get("HIKOBOSHI_UPLINK_LEAD_WINDOW_S")
         return cls(
             data_dir=Path(os.environ.get("HIKOBOSHI_DATA_DIR", "data")),
             database_url=os.environ.get("DATABASE_URL") or None,
             tokens=tokens,
-            **extra,
+            uplink_lead_window_s=float(lead)
+            if lead
+            else cls.model_fields["uplink_lead_window_s"].default,
         )

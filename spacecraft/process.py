@@ -189,8 +189,10 @@ class SpacecraftProcess:
                 else:
                     self._send(encode(ack))
             if unknown:
-                reply = CommandUnknown(seqs=unknown, onboard_time_ns=self.vehicle.onboard_time_ns)
-                self._send(encode(reply))
+                unknown_msg = CommandUnknown(
+                    seqs=unknown, onboard_time_ns=self.vehicle.onboard_time_ns
+                )
+                self._send(encode(unknown_msg))
         elif isinstance(message, Ping):
             pong = Pong(
                 ping_id=message.ping_id,

@@ -24,7 +24,7 @@ import contextlib
 import heapq
 import itertools
 import time
-from typing import Protocol
+from typing import Any, Protocol
 
 __all__ = ["Clock", "ManualClock", "OnboardClock", "SystemClock"]
 
@@ -86,10 +86,8 @@ class ManualClock:
         heapq.heappush(self._sleepers, (deadline, next(self._ids), future))
         waiter = None if wake is None else asyncio.ensure_future(wake.wait())
         try:
-            await asyncio.wait(
-                [future] if waiter is None else [future, waiter],
-                return_when=asyncio.FIRST_COMPLETED,
-            )
+            waits: list[asyncio.Future[Any]] = [future] if waiter is None else [future, waiter]
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
         finally:
             if waiter is not None:
                 waiter.cancel()

@@ -250,7 +250,9 @@ class SimulatedSpacecraft:
     def _execute_until(self, now_ns: int) -> None:
         v = self.vehicle
         due = sorted(
-            (cmd.execute_time_ns, seq) for seq, cmd in v.schedule.items() if cmd.execute_time_ns <= now_ns
+            (cmd.execute_time_ns, seq)
+            for seq, cmd in v.schedule.items()
+            if cmd.execute_time_ns <= now_ns
         )
         for tag, seq in due:
             del v.schedule[seq]
@@ -308,7 +310,7 @@ class SimulatedSpacecraft:
                     self._execute_until(self.onboard_ns(now))
                     return
                 heapq.heapify(others)
-                at, order, to, payload = heapq.heappop(others)
+                at, _order, to, payload = heapq.heappop(others)
                 self._events = others + ground
                 heapq.heapify(self._events)
                 self._execute_until(self.onboard_ns(at))
@@ -342,13 +344,9 @@ def make_sessions(tmp_path: Path) -> sessionmaker[Session]:
     return session_factory(engine)
 
 
-def ground(
-    sessions: sessionmaker[Session], clock: ManualClock, **settings: Any
-) -> Ground:
+def ground(sessions: sessionmaker[Session], clock: ManualClock, **settings: Any) -> Ground:
     config = Settings(**settings)
-    link = GroundLink(
-        sessions=sessions, clock=clock, one_way_delay_s=config.link_one_way_delay_s
-    )
+    link = GroundLink(sessions=sessions, clock=clock, one_way_delay_s=config.link_one_way_delay_s)
     return Ground(link, PassRunner(link=link, settings=config), sessions)
 
 

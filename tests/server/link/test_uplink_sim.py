@@ -31,7 +31,6 @@ from tests.server.link.simulated import (
 )
 
 
-
 def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
     """Run an async test on a fresh event loop (its time is the ManualClock's)."""
 
@@ -269,9 +268,7 @@ async def test_the_schedule_never_exceeds_the_capacity_the_vehicle_announces(
 async def test_abort_deletes_the_schedule_from_the_next_grid_tag_and_cancels_the_rest(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(
-        tmp_path, 400, seconds=160, abort_at_s=50.0, loss=0.1, seed=2
-    )
+    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=160, abort_at_s=50.0, loss=0.1, seed=2)
     assert pass_state(g.sessions, pass_id) == "aborted"  # type: ignore[attr-defined]
     with g.sessions() as session:  # type: ignore[attr-defined]
         events = session.scalars(select(EventRecord).where(EventRecord.pass_id == pass_id)).all()

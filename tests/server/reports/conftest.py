@@ -47,6 +47,7 @@ def _commands(plan: Plan, epoch_ns: int) -> tuple[CommandRow, ...]:
                     "executed": None if rejected else tag,
                     "rejected": tag - 1_000_000_000 if rejected else None,
                     "expired": None,
+                    "cancelled": None,
                 },
             )
         )

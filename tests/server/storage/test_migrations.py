@@ -25,7 +25,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0002"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0003"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
@@ -110,4 +110,45 @@ def test_0002_keeps_the_passes_of_0001(empty_engine: Engine) -> None:
             text("SELECT name, state, telemetry_start_ns, telemetry_end_ns FROM passes")
         ).one()
     assert tuple(row) == ("p1", "complete", None, None)
+    assert schema_diff(empty_engine) == []
+
+
+def test_0003_counts_one_transmission_for_each_command_sent_before_it(
+    empty_engine: Engine,
+) -> None:
+    upgrade(empty_engine, "0002")
+    plan_id, pass_id = "0" * 31 + "1", "0" * 31 + "2"
+    with empty_engine.begin() as conn:
+        conn.execute(
+            text(
+                "INSERT INTO plans (id, experiment, parameters, document, duration_s, "
+                "n_commands, created_at_ns) VALUES (:id, 'ptp', '{}', '{}', 1.0, 2, 1)"
+            ),
+            {"id": plan_id},
+        )
+        conn.execute(
+            text(
+                "INSERT INTO passes (id, name, plan_id, aos_time_ns, los_time_ns, relay, state, "
+                "created_at_ns, updated_at_ns, version) VALUES "
+                "(:id, 'p1', :plan, 10, 20, 'TDRS', 'complete', 1, 1, 1)"
+            ),
+            {"id": pass_id, "plan": plan_id},
+        )
+        for seq, stage, sent in ((0, "executed", 5), (1, "expired", None)):
+            conn.execute(
+                text(
+                    "INSERT INTO commands (pass_id, seq, kind, execute_time_ns, payload, "
+                    "stage, queued_at_ns, sent_at_ns) VALUES "
+                    "(:pass, :seq, 'joints', 100, '{}', :stage, 1, :sent)"
+                ),
+                {"pass": pass_id, "seq": seq, "stage": stage, "sent": sent},
+            )
+    upgrade(empty_engine)
+    with empty_engine.begin() as conn:
+        rows = conn.execute(
+            text("SELECT seq, stage, transmissions, cancelled_at_ns FROM commands ORDER BY seq")
+        ).all()
+        assert [tuple(r) for r in rows] == [(0, "executed", 1, None), (1, "expired", 0, None)]
+        # the new stage is allowed
+        conn.execute(text("UPDATE commands SET stage = 'cancelled' WHERE seq = 1"))
     assert schema_diff(empty_engine) == []

@@ -6,7 +6,8 @@ Revises: 0002
 Create Date: 2026-11-24
 
 ``cancelled_at_ns`` (ground clock) is when the ground cancelled the command;
-``transmissions`` how many times it went up (0: never sent).
+``transmissions`` how many times it went up (0: never sent; a command sent before this
+revision went up once: the uplink sent each command once).
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ def upgrade() -> None:
         )
         batch.drop_constraint(op.f("ck_commands_stage"), type_="check")
         batch.create_check_constraint(op.f("ck_commands_stage"), f"stage IN {_NEW}")
+    # the uplink before this revision sent each command once
+    op.execute("UPDATE commands SET transmissions = 1 WHERE sent_at_ns IS NOT NULL")
 
 
 def downgrade() -> None:
