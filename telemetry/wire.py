@@ -28,14 +28,12 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 __all__ = [
+    "DEFAULT_SCHEDULE_CAPACITY",
     "MAX_MESSAGE_BYTES",
     "PROTOCOL_VERSION",
     "AcsCommandMsg",
     "AcsModeName",
     "BufferState",
-    "DEFAULT_SCHEDULE_CAPACITY",
-    "ScheduleDelete",
-    "Verification",
     "CommandAck",
     "CommandQuery",
     "CommandStage",
@@ -48,10 +46,12 @@ __all__ = [
     "Pong",
     "RejectReason",
     "Retransmit",
+    "ScheduleDelete",
     "SpacecraftMessage",
     "TelemetryAck",
     "TelemetryFrame",
     "TelemetryMsg",
+    "Verification",
     "WireError",
     "decode_ground",
     "decode_spacecraft",
@@ -340,7 +340,13 @@ def _reason(exc: ValidationError) -> str:
 def decode_ground(
     text: str | bytes,
 ) -> (
-    JointCommandMsg | AcsCommandMsg | ScheduleDelete | TelemetryAck | Retransmit | Ping | CommandQuery
+    JointCommandMsg
+    | AcsCommandMsg
+    | ScheduleDelete
+    | TelemetryAck
+    | Retransmit
+    | Ping
+    | CommandQuery
 ):
     """A ground -> spacecraft message, or :class:`WireError`."""
     doc = _load(text)
