@@ -21,8 +21,10 @@ estimate of the onboard clock):
   out, as long as it can still arrive. The timer is the round trip measured as RFC 6298
   does (smoothed RTT and variance, in ground seconds; Karn's rule: only acknowledgements of
   commands sent once are samples), starting from the relay's nominal round trip, never
-  below it; a command's own timer doubles after each retransmission, at most
-  :data:`MAX_BACKOFF` times the base, but never past its *last chance*: the last instant
+  below it. The timer does not back off: the relay's losses are random, not congestion,
+  and a command has only its lead window's worth of tries (COP-1's timer is fixed too);
+  at 40x a doubled timer left a command six copies over 120 s, all lost in one run under
+  20 % loss. It never runs past the command's *last chance*: the last instant
   a copy can still arrive in time (one-way delay + half the margin before its tag). A
   timer that would run out after it runs out at the last chance instead, so every
   command gets one more copy as late as it can still help.
@@ -41,12 +43,10 @@ from typing import Any
 
 from telemetry.uplink import Command
 
-__all__ = ["MAX_BACKOFF", "RttEstimator", "Uplink", "UplinkCommand"]
+__all__ = ["RttEstimator", "Uplink", "UplinkCommand"]
 
-#: A command's retransmission timer grows to at most this many times the base timeout.
-MAX_BACKOFF = 2.0
 #: Ground seconds the retransmission timeout allows beyond the nominal round trip.
-RTO_FLOOR_EXTRA_S = 0.25
+RTO_FLOOR_EXTRA_S = 0.1
 #: The longest retransmission timeout (ground s).
 RTO_MAX_S = 60.0
 #: Ground seconds the first timeout allows beyond the nominal round trip, before any sample.
@@ -143,10 +143,6 @@ class Uplink:
         at most."""
         return max(0, self._next - bisect.bisect_right(self._tags, onboard_ns))
 
-    def _timeout_s(self, cmd: UplinkCommand) -> float:
-        backoff = min(MAX_BACKOFF, 2.0 ** max(0, cmd.transmissions - 1))
-        return min(RTO_MAX_S, self.rtt.rto_s * backoff)
-
     # -- the runner's questions ----------------------------------------------------------
 
     def _arm(self, cmd: UplinkCommand, due: float) -> None:
@@ -225,7 +221,7 @@ class Uplink:
         if again:
             self.retransmissions += 1
         if not cmd.acked:
-            due = mono + self._timeout_s(cmd)
+            due = mono + self.rtt.rto_s
             last_chance_ns = cmd.tag_ns - self.arrival_ns - round(LAST_CHANCE_GUARD_S * 1e9)
             last_chance = mono + (last_chance_ns - onboard_ns) / 1e9 / self.time_scale
             if due > last_chance > mono:
