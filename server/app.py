@@ -23,7 +23,7 @@ from server.services.console import ConsoleHub
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
 from server.settings import Settings
-from server.storage.db import make_engine, session_factory, upgrade
+from server.storage.db import make_engine, read_session_factory, session_factory, upgrade
 
 __all__ = ["create_app"]
 
@@ -36,6 +36,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.settings = settings
         app.state.engine = engine
         app.state.sessions = session_factory(engine)
+        app.state.read_sessions = read_session_factory(engine)
         app.state.link = GroundLink(
             sessions=app.state.sessions, one_way_delay_s=settings.link_one_way_delay_s
         )

@@ -30,7 +30,11 @@ def get_settings(request: Request) -> Settings:
 
 
 def get_session(request: Request) -> Iterator[Session]:
-    factory: sessionmaker[Session] = request.app.state.sessions
+    """A session for the request: a read-only one for GET and HEAD (they never write, and on
+    SQLite a reader then never waits for the ground's writer)."""
+    state = request.app.state
+    read_only = request.method in ("GET", "HEAD")
+    factory: sessionmaker[Session] = state.read_sessions if read_only else state.sessions
     with factory() as session:
         yield session
 

@@ -6,7 +6,15 @@ from pathlib import Path
 
 import pytest
 
-from server.storage.db import SQLITE_FILENAME, make_engine, sqlite_url
+from sqlalchemy import text
+
+from server.storage.db import (
+    SQLITE_FILENAME,
+    make_engine,
+    read_session_factory,
+    session_factory,
+    sqlite_url,
+)
 from server.storage.errors import InvalidArgument
 
 
@@ -31,3 +39,23 @@ def test_postgresql_urls_use_psycopg_whatever_they_name() -> None:
         make_engine("postgresql+psycopg2://postgres@127.0.0.1/test")
     with pytest.raises(InvalidArgument, match="'mysql'"):
         make_engine("mysql://root@127.0.0.1/test")
+
+
+def test_a_read_session_reads_while_a_writer_holds_the_sqlite_write_lock(tmp_path: Path) -> None:
+    """The ground's database worker commits back to back at high time scales; a GET must not
+    wait for its lock (it did, and a 60x demo got a 500 after the 10 s busy timeout)."""
+    engine = make_engine(sqlite_url(tmp_path))
+    try:
+        with engine.begin() as conn:
+            conn.execute(text("CREATE TABLE t (x INTEGER)"))
+            conn.execute(text("INSERT INTO t VALUES (1)"))
+        with session_factory(engine)() as writer:
+            writer.execute(text("INSERT INTO t VALUES (2)"))  # BEGIN IMMEDIATE: lock held
+            with read_session_factory(engine)() as reader:
+                # the committed snapshot, at once (a locking BEGIN would wait 10 s and fail)
+                assert reader.scalars(text("SELECT x FROM t")).all() == [1]
+            writer.commit()
+        with read_session_factory(engine)() as reader:
+            assert reader.scalars(text("SELECT x FROM t ORDER BY x")).all() == [1, 2]
+    finally:
+        engine.dispose()
