@@ -27,6 +27,7 @@ from server.services.clock import Clock
 from server.services.command_stages import write_event
 from server.services.dbworker import Database, Publisher
 from server.storage import repository as repo
+from server.storage.models import PassRecord
 from telemetry.wire import Retransmit, TelemetryAck, TelemetryFrame, TelemetryMsg, encode
 
 __all__ = ["GroundDownlink", "SeqRanges", "TelemetryWindow"]
@@ -101,6 +102,15 @@ class TelemetryWindow:
         )
 
 
+@dataclass
+class _Batch:
+    """One telemetry message's new frames, waiting for the database."""
+
+    fresh: list[TelemetryFrame]
+    by_pass: dict[str, list[TelemetryFrame]]
+    reception_ns: int
+
+
 class GroundDownlink:
     """The telemetry half of the link (see the module docstring). ``send`` puts a message on
     the spacecraft's socket (False: no link); ``time_scale`` is the onboard clock's scale."""
@@ -122,6 +132,9 @@ class GroundDownlink:
         self.held = SeqRanges()
         #: seqs handed to the database and not yet committed
         self._storing: set[int] = set()
+        #: messages read while a frame job is in flight: (fresh, by pass, reception ns)
+        self._waiting: list[_Batch] = []
+        self._ingesting = False
         self._ack_wanted = False
         self._acker: asyncio.Task[None] | None = None
         self._requested_at: dict[int, float] = {}
@@ -198,22 +211,54 @@ class GroundDownlink:
         if not by_pass:
             self._committed(fresh, by_pass, reception_ns, {})
             return
+        self._waiting.append(_Batch(fresh, by_pass, reception_ns))
+        if not self._ingesting:
+            self._ingest()
 
-        def job(session: Session) -> dict[str, int]:
-            duplicates = {}
-            for pass_id, frames in by_pass.items():
-                result = repo.ingest_frames(
-                    session=session,
-                    pass_id=pass_id,
-                    frames=frames,
-                    reception_time_ns=reception_ns,
-                )
-                duplicates[pass_id] = result.duplicates
-            return duplicates
+    def _ingest(self) -> None:
+        """One database job for every message read since the last one was handed over: at
+        most one frame job is in flight, so under load the frames of many messages share
+        one transaction (and one look-up of their pass) instead of queueing a job each."""
+        batches, self._waiting = self._waiting, []
+        self._ingesting = True
 
-        self._db.submit_then(
-            job, lambda result: self._committed(fresh, by_pass, reception_ns, result)
-        )
+        def job(session: Session) -> list[dict[str, int] | None]:
+            # held, so that each ingest finds its pass in the session's identity map
+            passes = [
+                session.get(PassRecord, pass_id)
+                for pass_id in {p for b in batches for p in b.by_pass}
+            ]
+            out: list[dict[str, int] | None] = []
+            for batch in batches:
+                duplicates = {}
+                try:
+                    # a message that fails is rolled back alone, and not acknowledged
+                    with session.begin_nested():
+                        for pass_id, frames in batch.by_pass.items():
+                            result = repo.ingest_frames(
+                                session=session,
+                                pass_id=pass_id,
+                                frames=frames,
+                                reception_time_ns=batch.reception_ns,
+                            )
+                            duplicates[pass_id] = result.duplicates
+                except Exception:
+                    log.exception("telemetry message of %d frames not stored", len(batch.fresh))
+                    out.append(None)
+                    continue
+                out.append(duplicates)
+            del passes
+            return out
+
+        def done(results: list[dict[str, int] | None] | None) -> None:
+            for k, batch in enumerate(batches):
+                outcome = None if results is None else results[k]
+                self._committed(batch.fresh, batch.by_pass, batch.reception_ns, outcome)
+            self._ingesting = False
+            if self._waiting:
+                self._ingest()
+
+        self._db.submit_then(job, done)
 
     def _committed(
         self,
