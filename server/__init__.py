@@ -1,1 +1,1 @@
-"""The ground service (FastAPI + SQLAlchemy). Built by the ground-server issue."""
+"""The ground service (FastAPI + SQLAlchemy): REST, the link endpoint, the consoles."""

@@ -31,7 +31,7 @@ def test_demo_through_loss_and_an_outage_loses_no_frame_and_no_command(tmp_path:
             "--loss",
             "0.1",
             "--outage",
-            "100:130",  # onboard s from the spacecraft's start: in the 100 s settle at B
+            "100:130",  # onboard s from the spacecraft's start: during the PTP motion
             "--port",
             "0",
             "--json",
