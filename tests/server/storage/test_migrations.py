@@ -84,11 +84,11 @@ def test_sqlite_connections_get_wal_and_foreign_keys(engine: Engine) -> None:
         assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == 10000
 
 
-def test_0002_keeps_the_passes_of_0001(empty_engine: Engine) -> None:
-    upgrade(empty_engine, "0001")
+def _insert_plan_and_pass(engine: Engine) -> str:
+    """A plan and a complete pass 'p1' of it, in plain SQL (any revision); the pass id."""
     # 32 hex digits: SQLite's stored form of a UUID, and a valid uuid literal on PostgreSQL.
     plan_id, pass_id = "0" * 31 + "1", "0" * 31 + "2"
-    with empty_engine.begin() as conn:
+    with engine.begin() as conn:
         conn.execute(
             text(
                 "INSERT INTO plans (id, experiment, parameters, document, duration_s, "
@@ -104,6 +104,12 @@ def test_0002_keeps_the_passes_of_0001(empty_engine: Engine) -> None:
             ),
             {"id": pass_id, "plan": plan_id},
         )
+    return pass_id
+
+
+def test_0002_keeps_the_passes_of_0001(empty_engine: Engine) -> None:
+    upgrade(empty_engine, "0001")
+    _insert_plan_and_pass(empty_engine)
     upgrade(empty_engine)
     with empty_engine.connect() as conn:
         row = conn.execute(
@@ -117,23 +123,8 @@ def test_0003_counts_one_transmission_for_each_command_sent_before_it(
     empty_engine: Engine,
 ) -> None:
     upgrade(empty_engine, "0002")
-    plan_id, pass_id = "0" * 31 + "1", "0" * 31 + "2"
+    pass_id = _insert_plan_and_pass(empty_engine)
     with empty_engine.begin() as conn:
-        conn.execute(
-            text(
-                "INSERT INTO plans (id, experiment, parameters, document, duration_s, "
-                "n_commands, created_at_ns) VALUES (:id, 'ptp', '{}', '{}', 1.0, 2, 1)"
-            ),
-            {"id": plan_id},
-        )
-        conn.execute(
-            text(
-                "INSERT INTO passes (id, name, plan_id, aos_time_ns, los_time_ns, relay, state, "
-                "created_at_ns, updated_at_ns, version) VALUES "
-                "(:id, 'p1', :plan, 10, 20, 'TDRS', 'complete', 1, 1, 1)"
-            ),
-            {"id": pass_id, "plan": plan_id},
-        )
         for seq, stage, sent in ((0, "executed", 5), (1, "expired", None)):
             conn.execute(
                 text(
