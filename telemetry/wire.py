@@ -283,20 +283,21 @@ class ErrorMsg(_Msg):
     ref_type: str | None = Field(default=None, max_length=64)
 
 
-GroundMessage = Annotated[
+#: The messages each way, as plain unions (what the decoders return).
+GroundMessageT = (
     JointCommandMsg
     | AcsCommandMsg
     | ScheduleDelete
     | TelemetryAck
     | Retransmit
     | Ping
-    | CommandQuery,
-    Field(discriminator="type"),
-]
-SpacecraftMessage = Annotated[
-    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg,
-    Field(discriminator="type"),
-]
+    | CommandQuery
+)
+SpacecraftMessageT = (
+    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg
+)
+GroundMessage = Annotated[GroundMessageT, Field(discriminator="type")]
+SpacecraftMessage = Annotated[SpacecraftMessageT, Field(discriminator="type")]
 
 _COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
 _GROUND_OTHER = TypeAdapter(
@@ -337,17 +338,7 @@ def _reason(exc: ValidationError) -> str:
     return f"{where}: {first['msg']}"[:400]
 
 
-def decode_ground(
-    text: str | bytes,
-) -> (
-    JointCommandMsg
-    | AcsCommandMsg
-    | ScheduleDelete
-    | TelemetryAck
-    | Retransmit
-    | Ping
-    | CommandQuery
-):
+def decode_ground(text: str | bytes) -> GroundMessageT:
     """A ground -> spacecraft message, or :class:`WireError`."""
     doc = _load(text)
     try:
@@ -366,9 +357,7 @@ def decode_ground(
     raise WireError(f"unknown message type {str(doc['type'])[:64]!r}")
 
 
-def decode_spacecraft(
-    text: str | bytes,
-) -> Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg:
+def decode_spacecraft(text: str | bytes) -> SpacecraftMessageT:
     """A spacecraft -> ground message, or :class:`WireError`."""
     doc = _load(text)
     try:

@@ -785,7 +785,7 @@ class PassRunner:
             for _ in range(copies):
                 if await link.send_schedule_delete(delete.request):
                     delete.sends += 1
-            timeout = delete.rtt.rto_s * (1 if delete.sends <= DELETE_COPIES else 2)
+            timeout = delete.rtt.rto_s  # fixed, as the commands' own timer
             await clock.sleep_until(clock.monotonic() + timeout, delete.verified)
         report = delete.report
         request = delete.request

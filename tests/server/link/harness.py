@@ -101,20 +101,24 @@ def store_pass(
     )
     if edit is not None:
         plan = edit(plan)
-    now = time.time_ns()
+    return add_plan_and_pass(sessions, plan, name, now_ns=time.time_ns(), window_s=1200.0)
+
+
+def add_plan_and_pass(sessions: Any, plan: Plan, name: str, *, now_ns: int, window_s: float) -> str:
+    """Store ``plan`` and a pass of it scheduled from ``now_ns`` for ``window_s``; its id."""
     with sessions() as session:
-        plan_record = repo.add_plan(session=session, plan=plan, created_at_ns=now)
+        plan_record = repo.add_plan(session=session, plan=plan, created_at_ns=now_ns)
         record = repo.add_pass(
             session=session,
             name=name,
             plan_id=plan_record.id,
-            aos_time_ns=now,
-            los_time_ns=now + 1200 * 10**9,
+            aos_time_ns=now_ns,
+            los_time_ns=now_ns + round(window_s * 1e9),
             relay="TDRS-W",
-            created_at_ns=now,
+            created_at_ns=now_ns,
         )
         session.commit()
-        return record.id
+        return str(record.id)
 
 
 def spacecraft(ground: Ground, **link: Any) -> tuple[SpacecraftProcess, list[TelemetryFrame]]:

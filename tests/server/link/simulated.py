@@ -44,6 +44,7 @@ from telemetry.wire import (
     decode_ground,
     encode,
 )
+from tests.server.link.harness import add_plan_and_pass
 from tests.server.storage.factories import make_plan
 
 EPOCH_NS = 1_900_000_000 * 10**9  # the onboard clock at the simulation's start
@@ -351,20 +352,13 @@ def ground(sessions: sessionmaker[Session], clock: ManualClock, **settings: Any)
 
 
 def store_pass(sessions: sessionmaker[Session], n_commands: int, clock: ManualClock) -> str:
-    now = clock.time_ns()
-    with sessions() as session:
-        plan = repo.add_plan(session=session, plan=make_plan(n_commands), created_at_ns=now)
-        record = repo.add_pass(
-            session=session,
-            name=f"sim-{n_commands}",
-            plan_id=plan.id,
-            aos_time_ns=now,
-            los_time_ns=now + 3600 * 10**9,
-            relay="TDRS-W",
-            created_at_ns=now,
-        )
-        session.commit()
-        return record.id
+    return add_plan_and_pass(
+        sessions,
+        make_plan(n_commands),
+        f"sim-{n_commands}",
+        now_ns=clock.time_ns(),
+        window_s=3600.0,
+    )
 
 
 def commands(sessions: sessionmaker[Session], pass_id: str) -> list[Any]:
