@@ -23,7 +23,13 @@ from server.services.console import ConsoleHub
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
 from server.settings import Settings
-from server.storage.db import make_engine, read_session_factory, session_factory, upgrade
+from server.storage.db import (
+    PoolSizes,
+    make_engine,
+    read_session_factory,
+    session_factory,
+    upgrade,
+)
 
 __all__ = ["create_app"]
 
@@ -31,21 +37,36 @@ __all__ = ["create_app"]
 def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        engine = make_engine(settings.resolved_database_url())
-        upgrade(engine)
+        url = settings.resolved_database_url()
+        # Two pools on one database: the command path's own (link worker, runner, abort)
+        # and the readers' (routes, consoles), so no number of readers takes a connection
+        # the link needs (docs/security.md).
+        link_engine = make_engine(url, pool=PoolSizes(size=2, overflow=1, timeout_s=30.0))
+        upgrade(link_engine)
+        engine = make_engine(
+            url,
+            pool=PoolSizes(
+                size=settings.api_pool_size,
+                overflow=settings.api_pool_overflow,
+                timeout_s=settings.api_pool_timeout_s,
+                statement_timeout_s=settings.api_statement_timeout_s,
+            ),
+        )
         app.state.settings = settings
         app.state.engine = engine
+        app.state.link_engine = link_engine
         app.state.sessions = session_factory(engine)
         app.state.read_sessions = read_session_factory(engine)
         app.state.link = GroundLink(
-            sessions=app.state.sessions, one_way_delay_s=settings.link_one_way_delay_s
+            sessions=session_factory(link_engine),
+            one_way_delay_s=settings.link_one_way_delay_s,
         )
         app.state.runner = PassRunner(link=app.state.link, settings=settings)
         await app.state.runner.recover()
         app.state.console = ConsoleHub(
             publisher=app.state.link.publisher,
             link_status=app.state.link.status,
-            sessions=app.state.sessions,
+            sessions=app.state.read_sessions,
         )
         app.state.console.start()
         try:
@@ -55,6 +76,7 @@ def create_app(settings: Settings) -> FastAPI:
             await app.state.runner.shutdown()
             await app.state.link.close()
             engine.dispose()
+            link_engine.dispose()
 
     app = FastAPI(
         title="Hikoboshi ground service",

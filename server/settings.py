@@ -48,9 +48,33 @@ class Settings(BaseModel):
     #: at high time scales, so that the first command can go up three times).
     uplink_start_lead_s: float = Field(default=30.0, ge=0, le=600)
     command_period_s: float = 0.25
+    #: Connections of the readers' pool (REST routes, consoles): kept open, extra when busy,
+    #: and how long a request waits for one before 503 ``busy``. The command path (link,
+    #: runner, abort) has its own pool of two and never waits behind readers.
+    api_pool_size: int = Field(default=8, ge=1, le=100)
+    api_pool_overflow: int = Field(default=4, ge=0, le=100)
+    api_pool_timeout_s: float = Field(default=3.0, gt=0, le=60)
+    #: PostgreSQL: a reader's statement running longer than this is ended (503).
+    api_statement_timeout_s: float = Field(default=30.0, gt=0, le=3600)
     #: The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
     #: pass is 14 MB).
     max_import_bytes: int = 256 * 1024 * 1024
+    #: The HTTP edge (server/api/edge.py, docs/security.md). The largest request body any
+    #: other route accepts: a larger declared Content-Length is refused (413) unread.
+    max_request_bytes: int = Field(default=1024 * 1024, gt=0)
+    #: The deepest nesting of arrays and objects a JSON body may have.
+    max_json_depth: int = Field(default=32, ge=1, le=1000)
+    #: Failed authentications from one address within the window before that address is
+    #: answered 429 for the rest of the window; and how many addresses are tracked at most.
+    auth_failure_limit: int = Field(default=20, ge=1)
+    auth_failure_window_s: float = Field(default=60.0, gt=0)
+    auth_tracked_addresses: int = Field(default=10_000, ge=1)
+    #: ``hikoboshi serve``: a connection whose request head has not fully arrived this long
+    #: after its first byte (or after it opened) is closed; idle keep-alive connections are
+    #: closed after ``keep_alive_timeout_s``; a request head may be at most this large.
+    header_timeout_s: float = Field(default=10.0, gt=0)
+    keep_alive_timeout_s: float = Field(default=5.0, gt=0)
+    max_header_bytes: int = Field(default=16 * 1024, ge=1024)
 
     def resolved_database_url(self) -> str:
         from server.storage.db import sqlite_url

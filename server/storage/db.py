@@ -19,6 +19,12 @@ plain deferred ``BEGIN``: a WAL reader needs no lock, so a reader is never starv
 ground's database worker, which commits back to back at high time scales and won the
 write lock from a waiting GET for over 10 s in a 60x demo (a 500).
 
+Pools. The service opens two engines on one database (:func:`server.app.create_app`): the
+command path's (the link's database worker, the runner, abort; a pool of its own, small
+and never shared) and the readers' (REST routes and consoles; bounded, with a short
+``pool_timeout`` so a flood of readers gets 503 instead of a connection the link needs,
+and on PostgreSQL a ``statement_timeout``). :class:`PoolSizes` says how big each is.
+
 PostgreSQL URLs may name the driver or not: ``postgresql://`` is taken as
 ``postgresql+psycopg://`` (psycopg 3 is the only PostgreSQL driver installed).
 """
@@ -27,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +50,7 @@ from server.storage.models import Base
 __all__ = [
     "READ_ONLY_OPTION",
     "SQLITE_FILENAME",
+    "PoolSizes",
     "alembic_config",
     "make_engine",
     "read_session_factory",
@@ -79,16 +87,37 @@ def sqlite_url(data_dir: Path) -> str:
     return URL.create("sqlite", database=str(Path(data_dir) / SQLITE_FILENAME)).render_as_string()
 
 
-def make_engine(url: str | URL, *, echo: bool = False) -> Engine:
+@dataclass(frozen=True)
+class PoolSizes:
+    """A connection pool's bounds: ``size`` kept open, ``overflow`` more when busy, and how
+    long a checkout waits (``timeout_s``) before ``sqlalchemy.exc.TimeoutError``;
+    ``statement_timeout_s`` (PostgreSQL only) ends a statement that runs longer."""
+
+    size: int = 5
+    overflow: int = 10
+    timeout_s: float = 30.0
+    statement_timeout_s: float | None = None
+
+
+def make_engine(url: str | URL, *, echo: bool = False, pool: PoolSizes | None = None) -> Engine:
     """An engine for ``url``: ``sqlite:///PATH`` or ``postgresql[+psycopg]://...``.
 
     SQLite gets WAL, foreign keys, a busy timeout and ``BEGIN IMMEDIATE`` transactions (see
     the module docstring), and the file's directory is created. Anything else is refused.
+    ``pool`` bounds the connection pool (SQLAlchemy's defaults without it).
     """
     parsed = make_url(url)
     backend = parsed.get_backend_name()
+    pool = pool or PoolSizes()
+    pooling: dict[str, Any] = {
+        "pool_size": pool.size,
+        "max_overflow": pool.overflow,
+        "pool_timeout": pool.timeout_s,
+    }
     if backend == "sqlite":
-        return _sqlite_engine(parsed, echo=echo)
+        if parsed.database in (None, "", ":memory:") or str(parsed.database).startswith("file:"):
+            pooling = {}  # one in-memory database: SQLAlchemy's own pool for it
+        return _sqlite_engine(parsed, echo=echo, pooling=pooling)
     if backend == "postgresql":
         if parsed.drivername == "postgresql":
             parsed = parsed.set(drivername="postgresql+psycopg")
@@ -96,15 +125,26 @@ def make_engine(url: str | URL, *, echo: bool = False) -> Engine:
             raise InvalidArgument(
                 f"PostgreSQL driver {parsed.get_driver_name()!r} is not supported; use psycopg"
             )
-        return create_engine(parsed, echo=echo, pool_pre_ping=True, json_serializer=_json_dumps)
+        connect_args: dict[str, Any] = {}
+        if pool.statement_timeout_s is not None:
+            ms = max(1, round(pool.statement_timeout_s * 1000))
+            connect_args["options"] = f"-c statement_timeout={ms}"
+        return create_engine(
+            parsed,
+            echo=echo,
+            pool_pre_ping=True,
+            json_serializer=_json_dumps,
+            connect_args=connect_args,
+            **pooling,
+        )
     raise InvalidArgument(f"database {backend!r} is not supported; use sqlite or postgresql")
 
 
-def _sqlite_engine(url: URL, *, echo: bool) -> Engine:
+def _sqlite_engine(url: URL, *, echo: bool, pooling: dict[str, Any]) -> Engine:
     database = url.database or ""
     if database and database != ":memory:" and not database.startswith("file:"):
         Path(database).parent.mkdir(parents=True, exist_ok=True)
-    engine = create_engine(url, echo=echo, json_serializer=_json_dumps)
+    engine = create_engine(url, echo=echo, json_serializer=_json_dumps, **pooling)
 
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: Any, _record: Any) -> None:
