@@ -15,20 +15,31 @@ schedule: ``command``, ``schedule_delete`` and the schedule summary in every fra
 only another codec. Version 1 (each command sent once, just in time) is not served: its
 messages get an ``error`` reply naming the version this end speaks.
 
-:func:`decode` accepts only well-formed messages of this version and raises
-:class:`WireError` (with a reason fit for an ``error`` reply) for anything else.
+:func:`decode_ground` and :func:`decode_spacecraft` accept only well-formed messages of this
+version and raise :class:`WireError` (with a reason fit for an ``error`` reply) for anything
+else. Before any model sees it, a message is refused when it is larger than
+:data:`MAX_MESSAGE_BYTES`, nested deeper than :data:`MAX_DEPTH`, or holds a control
+character (C0 with tab, newline and carriage return, DEL, C1) or a lone surrogate in any
+string, keys included: no protocol message has a legitimate use for one, and the text a
+receiver stores must read the same on every database (PostgreSQL refuses NUL). An ``error``
+message alone is not refused for its text: it must never be answered with an ``error``, so
+the control characters of its string values are escaped instead (NUL becomes the four
+characters ``\x00``) and it is delivered.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
+import re
 from enum import StrEnum
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 __all__ = [
     "DEFAULT_SCHEDULE_CAPACITY",
+    "MAX_DEPTH",
     "MAX_MESSAGE_BYTES",
     "PROTOCOL_VERSION",
     "AcsCommandMsg",
@@ -56,6 +67,7 @@ __all__ = [
     "decode_ground",
     "decode_spacecraft",
     "encode",
+    "escape_controls",
 ]
 
 PROTOCOL_VERSION = 2
@@ -65,10 +77,37 @@ DEFAULT_SCHEDULE_CAPACITY = 1024
 MAX_MESSAGE_BYTES = 256 * 1024
 #: At most this many frames in one telemetry message.
 MAX_FRAMES_PER_MESSAGE = 200
+#: Deeper messages are refused before validation. The deepest real one is 4 levels
+#: (``telemetry`` > ``frames`` > a frame > ``joints_rad`` or ``buffer``); 16 leaves room for
+#: later versions and still keeps hostile nesting away from the recursive validators.
+MAX_DEPTH = 16
+
+#: What no string of a message may hold: C0 controls (tab, newline and carriage return
+#: included: no field of the protocol is multi-line text), DEL, C1 controls, and lone
+#: surrogates (``\ud800`` escapes; not Unicode, no database stores them).
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+#: What in a message's text may decode to such a character: an escape, raw DEL or C1
+#: (JSON itself refuses raw C0 characters in strings).
+_SUSPECT = re.compile(r"[\\\x7f-\x9f]")
+_SUSPECT_BYTES = re.compile(rb"[\\\x7f]|\xc2[\x80-\x9f]")
 
 
 class WireError(ValueError):
-    """A message that is not a valid protocol message; the text is the reason."""
+    """A message that is not a valid protocol message; the text is the reason (free of
+    control characters), ``ref_type`` the message's ``type`` when it could be read (its
+    control characters escaped, at most 64 characters)."""
+
+    def __init__(self, reason: str, ref_type: str | None = None) -> None:
+        super().__init__(escape_controls(reason))
+        self.ref_type = None if ref_type is None else escape_controls(ref_type)[:64]
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with every control character and lone surrogate written as a Python escape
+    (NUL as the four characters ``\x00``, a surrogate as ``\ud800``); other text as is."""
+    if _CONTROL.search(text) is None:
+        return text
+    return _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
 
 
 class _Obj(BaseModel):
@@ -313,21 +352,73 @@ def encode(message: _Obj) -> str:
     return message.model_dump_json()
 
 
+def _size(text: str | bytes) -> int:
+    if isinstance(text, bytes) or len(text) > MAX_MESSAGE_BYTES:
+        return len(text)
+    return len(text.encode("utf-8", "surrogatepass"))
+
+
+def _check_tree(doc: dict[str, object], strings: bool, ref_type: str | None) -> None:
+    """Refuse nesting deeper than :data:`MAX_DEPTH` and, when ``strings``, control
+    characters in any string (keys included); level by level, so depth costs no stack."""
+    level: list[Any] = [doc]
+    depth = 1
+    while level:
+        if depth > MAX_DEPTH:
+            raise WireError(f"message nested deeper than {MAX_DEPTH} levels", ref_type)
+        if strings:
+            for node in level:
+                values = node.values() if isinstance(node, dict) else node
+                for text in itertools.chain(node if isinstance(node, dict) else (), values):
+                    if isinstance(text, str) and _CONTROL.search(text) is not None:
+                        raise WireError(_control_reason(text), ref_type)
+        level = [
+            value
+            for node in level
+            for value in (node.values() if isinstance(node, dict) else node)
+            if isinstance(value, dict | list)
+        ]
+        depth += 1
+
+
+def _control_reason(text: str) -> str:
+    match = _CONTROL.search(text)
+    assert match is not None
+    shown = escape_controls(text[: max(0, match.start() - 24) + 48])
+    return f"control character U+{ord(match.group()):04X} in the string {shown!r}: not allowed"
+
+
 def _load(text: str | bytes) -> dict[str, object]:
-    if len(text) > MAX_MESSAGE_BYTES:
-        raise WireError(f"message of {len(text)} bytes exceeds {MAX_MESSAGE_BYTES} bytes")
+    size = _size(text)
+    if size > MAX_MESSAGE_BYTES:
+        raise WireError(f"message of {size} bytes exceeds {MAX_MESSAGE_BYTES} bytes")
     try:
         doc = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise WireError(f"not JSON: {exc}") from None
+    except RecursionError:
+        raise WireError(f"message nested deeper than {MAX_DEPTH} levels") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, int digits limit
+        raise WireError(f"not JSON: {exc}"[:400]) from None
     if not isinstance(doc, dict):
         raise WireError("a message must be a JSON object")
+    kind = doc.get("type")
+    ref_type = kind if isinstance(kind, str) else None
+    if kind == "error":
+        # Never answered with an error: its text is escaped, not refused.
+        for key, value in doc.items():
+            if isinstance(value, str):
+                doc[key] = escape_controls(value)
+    if isinstance(text, bytes):
+        strings = _SUSPECT_BYTES.search(text) is not None
+    else:
+        strings = _SUSPECT.search(text) is not None
+    _check_tree(doc, strings, ref_type)
     version = doc.get("v")
     if version != PROTOCOL_VERSION:
         raise WireError(
-            f"protocol version {version!r} is not served: this end speaks {PROTOCOL_VERSION}"
+            f"protocol version {version!r} is not served: this end speaks {PROTOCOL_VERSION}",
+            ref_type,
         )
-    if not isinstance(doc.get("type"), str):
+    if ref_type is None:
         raise WireError("a message needs a string 'type'")
     return doc
 
@@ -341,10 +432,11 @@ def _reason(exc: ValidationError) -> str:
 def decode_ground(text: str | bytes) -> GroundMessageT:
     """A ground -> spacecraft message, or :class:`WireError`."""
     doc = _load(text)
+    kind = str(doc["type"])
     try:
-        if doc["type"] == "command":
+        if kind == "command":
             return _COMMAND.validate_python(doc)
-        if doc["type"] in (
+        if kind in (
             "schedule_delete",
             "telemetry_ack",
             "retransmit",
@@ -353,14 +445,15 @@ def decode_ground(text: str | bytes) -> GroundMessageT:
         ):
             return _GROUND_OTHER.validate_python(doc)
     except ValidationError as exc:
-        raise WireError(f"invalid {doc['type']}: {_reason(exc)}") from None
-    raise WireError(f"unknown message type {str(doc['type'])[:64]!r}")
+        raise WireError(f"invalid {kind}: {_reason(exc)}", kind) from None
+    raise WireError(f"unknown message type {kind[:64]!r}", kind)
 
 
 def decode_spacecraft(text: str | bytes) -> SpacecraftMessageT:
     """A spacecraft -> ground message, or :class:`WireError`."""
     doc = _load(text)
+    kind = str(doc["type"])
     try:
         return _SPACECRAFT.validate_python(doc)
     except ValidationError as exc:
-        raise WireError(f"invalid {str(doc['type'])[:64]}: {_reason(exc)}") from None
+        raise WireError(f"invalid {kind[:64]}: {_reason(exc)}", kind) from None

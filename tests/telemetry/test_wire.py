@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import pytest
 
 from telemetry.wire import (
+    MAX_DEPTH,
     MAX_MESSAGE_BYTES,
     AcsCommandMsg,
     AcsModeName,
@@ -14,6 +16,8 @@ from telemetry.wire import (
     CommandAck,
     CommandQuery,
     CommandStage,
+    ErrorMsg,
+    Hello,
     JointCommandMsg,
     RejectReason,
     ScheduleDelete,
@@ -25,6 +29,7 @@ from telemetry.wire import (
     decode_ground,
     decode_spacecraft,
     encode,
+    escape_controls,
 )
 
 GOLDEN_JOINT_COMMAND = (
@@ -112,3 +117,129 @@ def test_huge_messages_are_refused_unread() -> None:
     huge = json.dumps({"v": 2, "type": "ping", "pad": "x" * MAX_MESSAGE_BYTES})
     with pytest.raises(WireError, match="exceeds"):
         decode_ground(huge)
+
+
+def test_a_multibyte_message_is_measured_in_bytes() -> None:
+    pad = "\u00e9" * (MAX_MESSAGE_BYTES // 2)
+    text = json.dumps({"v": 2, "type": "ping", "pad": pad}, ensure_ascii=False)
+    assert len(text) < MAX_MESSAGE_BYTES < len(text.encode())
+    with pytest.raises(WireError, match="exceeds"):
+        decode_ground(text)
+
+
+HELLO = {
+    "v": 2,
+    "type": "hello",
+    "vehicle": "ETS-VII",
+    "onboard_time_ns": 10**18,
+    "time_scale": 20.0,
+    "next_telemetry_seq": 0,
+}
+
+
+def _nested(depth: int) -> dict[str, object]:
+    """A hello ``depth`` levels deep (the message object is level 1)."""
+    value: object = 1
+    for _ in range(depth - 1):
+        value = [value]
+    return {**HELLO, "vehicle": "x", "deep": value}
+
+
+@pytest.mark.parametrize("text", ["[" * 10_000, '{"a":' * 10_000, '[{"a":' * 5_000, "[" * 200_000])
+@pytest.mark.parametrize("decode", [decode_ground, decode_spacecraft])
+def test_nesting_beyond_the_parser_is_a_wire_error(text: str, decode: Any) -> None:
+    """10 KB of brackets make json.loads raise RecursionError (a RuntimeError, which the
+    link once took for a closed socket): a WireError with the reason."""
+    for raw in (text, text.encode()):
+        with pytest.raises(WireError, match=f"nested deeper than {MAX_DEPTH} levels"):
+            decode(raw)
+
+
+def test_nesting_beyond_the_bound_is_refused_before_validation() -> None:
+    deepest = encode(TelemetryMsg(frames=[_frame(0)]))
+    assert _depth(json.loads(deepest)) == 4  # the deepest real message
+    assert decode_spacecraft(deepest).type == "telemetry"
+    # At the bound the message reaches validation (and fails there: unknown field)...
+    with pytest.raises(WireError, match="deep") as info:
+        decode_spacecraft(json.dumps(_nested(MAX_DEPTH)))
+    assert "nested" not in str(info.value)
+    # ... one level more and it does not.
+    with pytest.raises(WireError, match=f"nested deeper than {MAX_DEPTH}") as info:
+        decode_spacecraft(json.dumps(_nested(MAX_DEPTH + 1)))
+    assert info.value.ref_type == "hello"
+    with pytest.raises(WireError, match="nested deeper"):
+        decode_ground(json.dumps({"v": 2, "type": "ping", "x": [{"y": [[]]}] * 3 + _deep(20)}))
+
+
+def _deep(depth: int) -> list[object]:
+    value: list[object] = []
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
+def _depth(value: object) -> int:
+    if isinstance(value, dict):
+        return 1 + max((_depth(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return 1 + max((_depth(v) for v in value), default=0)
+    return 0
+
+
+@pytest.mark.parametrize(
+    "char", ["\x00", "\x01", "\t", "\n", "\r", "\x1b", "\x1f", "\x7f", "\x85", "\x9f", "\ud800"]
+)
+def test_control_characters_in_any_string_are_refused(char: str) -> None:
+    for doc in (
+        {**HELLO, "vehicle": f"ETS{char}VII"},
+        {**HELLO, f"vehi{char}cle": "ETS-VII"},  # in a key
+    ):
+        for raw in (json.dumps(doc), json.dumps(doc, ensure_ascii=False)):
+            if char == "\ud800" and "\\ud800" not in raw:
+                continue
+            with pytest.raises(WireError, match=f"control character U\\+{ord(char):04X}") as info:
+                decode_spacecraft(raw)
+            assert info.value.ref_type == "hello"
+            assert not _has_control(str(info.value))
+            if char != "\ud800":
+                with pytest.raises(WireError, match="control character"):
+                    decode_spacecraft(raw.encode())
+    command = json.loads(GOLDEN_JOINT_COMMAND)
+    with pytest.raises(WireError, match="control character"):
+        decode_ground(json.dumps({**command, "kind": f"joints{char}"}))
+    detail = {"v": 2, "type": "command_ack", "seq": 1, "stage": "received", "onboard_time_ns": 1}
+    with pytest.raises(WireError, match="control character"):
+        decode_spacecraft(json.dumps({**detail, "detail": f"a{char}b"}))
+
+
+def _has_control(text: str) -> bool:
+    return any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F or 0xD800 <= ord(c) <= 0xDFFF for c in text)
+
+
+def test_printable_unicode_is_not_a_control_character() -> None:
+    hello = decode_spacecraft(json.dumps({**HELLO, "vehicle": "\u304d\u304f \u00e9\u2028 \\"}))
+    assert isinstance(hello, Hello) and hello.vehicle == "\u304d\u304f \u00e9\u2028 \\"
+
+
+def test_an_error_message_is_delivered_with_its_control_characters_escaped() -> None:
+    raw = json.dumps(
+        {"v": 2, "type": "error", "reason": "bad\x00byte\n\ud800", "ref_type": "x\x07"}
+    )
+    message = decode_spacecraft(raw)
+    assert isinstance(message, ErrorMsg)
+    assert message.reason == "bad\\x00byte\\n\\ud800" and message.ref_type == "x\\x07"
+    assert escape_controls("plain \u00e9") == "plain \u00e9"
+    # Not its keys, nor nesting: those are refused (and, an error, never answered).
+    with pytest.raises(WireError, match="control character") as info:
+        decode_spacecraft(json.dumps({"v": 2, "type": "error", "reason": "r", "k\x00": 1}))
+    assert info.value.ref_type == "error"
+
+
+def test_a_wire_error_names_the_type_escaped() -> None:
+    with pytest.raises(WireError) as info:
+        decode_ground(json.dumps({"v": 2, "type": "boom\x00" + "x" * 100}))
+    assert info.value.ref_type == "boom\\x00" + "x" * 56
+    assert not _has_control(str(info.value))
+    with pytest.raises(WireError, match="not JSON") as info:
+        decode_ground('{"v":2,"type":"ping","ping_id":1' + "1" * 5000 + "}")  # int digits limit
+    assert info.value.ref_type is None
