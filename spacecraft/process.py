@@ -167,7 +167,7 @@ class SpacecraftProcess:
         try:
             message = decode_ground(raw)
         except WireError as exc:
-            reply = self._error_reply(raw, str(exc))
+            reply = self._error_reply(raw, exc)
             if reply is not None:
                 self.errors_replied += 1
                 self._send(reply)
@@ -201,21 +201,27 @@ class SpacecraftProcess:
             )
             self._send(encode(pong))
 
-    def _error_reply(self, raw: str | bytes, reason: str) -> str | None:
+    def _error_reply(self, raw: str | bytes, exc: WireError) -> str | None:
         """A command of this protocol version with a readable seq is refused as such;
         anything else (another version's messages included) gets ``error``, but for the
-        ground's own ``error`` replies: an error is never answered with one (no ping-pong)."""
-        doc: object = None
-        with contextlib.suppress(ValueError, UnicodeDecodeError, RecursionError):
-            if len(raw) <= 64 * 1024:
-                doc = json.loads(raw)
-        if (
-            isinstance(doc, dict)
-            and doc.get("type") == "command"
-            and doc.get("v") == PROTOCOL_VERSION
-        ):
-            seq = doc.get("seq")
-            if isinstance(seq, int) and not isinstance(seq, bool) and 0 <= seq < 2**53:
+        ground's own ``error`` replies: an error is never answered with one (no ping-pong).
+        The decoder's reasons and ``ref_type`` hold no control character."""
+        reason = str(exc)
+        if exc.ref_type == "error":
+            log.warning("the ground could not read a message of ours: %s", reason[:300])
+            return None
+        if exc.ref_type == "command":
+            doc: object = None
+            with contextlib.suppress(ValueError, RecursionError):
+                doc = json.loads(raw)  # it parsed once already: within size and depth
+            seq = doc.get("seq") if isinstance(doc, dict) else None
+            if (
+                isinstance(doc, dict)
+                and doc.get("v") == PROTOCOL_VERSION
+                and isinstance(seq, int)
+                and not isinstance(seq, bool)
+                and 0 <= seq < 2**53
+            ):
                 return encode(
                     CommandAck(
                         seq=seq,
@@ -225,11 +231,7 @@ class SpacecraftProcess:
                         onboard_time_ns=self.vehicle.onboard_time_ns,
                     )
                 )
-        ref = doc.get("type") if isinstance(doc, dict) else None
-        if ref == "error":
-            log.warning("the ground could not read a message of ours: %s", str(doc)[:300])
-            return None
-        return encode(ErrorMsg(reason=reason[:500], ref_type=ref if isinstance(ref, str) else None))
+        return encode(ErrorMsg(reason=reason[:500], ref_type=exc.ref_type))
 
     async def _receiver(self, ws: ClientConnection) -> None:
         async for raw in ws:
@@ -260,7 +262,10 @@ class SpacecraftProcess:
                 if not self._stopping:
                     self._advance(deliver)
                 self.vehicle.heard_from_ground()
-                self._handle(raw)
+                try:
+                    self._handle(raw)
+                except Exception:  # one message went wrong: the vehicle and link carry on
+                    log.exception("handling a message from the ground failed")
             if stop.is_set() and not self._stopping:
                 self._stopping = True
                 log.info("stopping: draining %d unacknowledged frames", self.store.unacked)

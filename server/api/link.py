@@ -3,11 +3,13 @@
 A bad token or role is accepted and then closed with 1008 and the reason (closing before
 the handshake would lose the reason to a bare HTTP 403). Every text (or binary) frame goes
 to :class:`server.services.link.GroundLink`, which answers a malformed one with ``error``
-and keeps the connection.
+and keeps the connection. Only the socket's own end closes the session: an exception while
+handling one message (a bug, a database failure) is logged and the next message is read.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -20,6 +22,7 @@ from server.settings import Role
 __all__ = ["router"]
 
 router = APIRouter(tags=["link"])
+log = logging.getLogger("hikoboshi.ground.link")
 
 
 @router.websocket("/api/link")
@@ -40,7 +43,11 @@ async def spacecraft_link(websocket: WebSocket) -> None:
     reason = "closed"
     try:
         while True:
-            message = await websocket.receive()
+            try:
+                message = await websocket.receive()
+            except RuntimeError as exc:  # the socket was closed under us (superseded)
+                reason = str(exc)[:200]
+                break
             received_mono = time.monotonic()
             if message["type"] == "websocket.disconnect":
                 reason = f"closed by the spacecraft ({message.get('code')})"
@@ -48,10 +55,13 @@ async def spacecraft_link(websocket: WebSocket) -> None:
             raw = message.get("text")
             if raw is None:
                 raw = message.get("bytes") or b""
-            await link.handle(conn, raw, received_mono)
+            try:
+                await link.handle(conn, raw, received_mono)
+            except Exception:
+                # Not a closed socket (a RecursionError is a RuntimeError too): one message
+                # went wrong; the link stays up for the next.
+                log.exception("handling a message from the spacecraft failed")
     except WebSocketDisconnect as exc:
         reason = f"closed by the spacecraft ({exc.code})"
-    except RuntimeError as exc:  # the socket was closed under us (superseded)
-        reason = str(exc)[:200]
     finally:
         await link.detach(conn, reason)

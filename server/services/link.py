@@ -27,7 +27,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
-import json
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -398,12 +397,7 @@ class GroundLink:
         try:
             message = decode_spacecraft(raw)
         except WireError as exc:
-            self.errors_replied += 1
-            await self.send(encode(ErrorMsg(reason=str(exc)[:500], ref_type=_ref_type(raw))))
-            detail = {"reason": str(exc)[:500]}
-            await self.db.write(
-                lambda s: [write_event(s, "link_error_replied", conn.actor, detail)]
-            )
+            await self._refuse(conn, exc)
             return
         if conn is not self._conn:
             return  # a superseded connection
@@ -433,6 +427,21 @@ class GroundLink:
             self.errors_received += 1
             info: dict[str, Any] = {"reason": message.reason, "ref_type": message.ref_type}
             await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+
+    async def _refuse(self, conn: Connection, exc: WireError) -> None:
+        """A message that did not decode: an ``error`` reply naming the reason (the wire's
+        reasons hold no control character), and a ``link_error_replied`` event; the session
+        carries on. A broken ``error`` from the vehicle is counted, never answered."""
+        reason = str(exc)[:500]
+        if exc.ref_type == "error":
+            self.errors_received += 1
+            info = {"reason": f"unreadable error message: {reason}"[:500], "ref_type": None}
+            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+            return
+        self.errors_replied += 1
+        await self.send(encode(ErrorMsg(reason=reason, ref_type=exc.ref_type)))
+        detail = {"reason": reason, "ref_type": exc.ref_type}
+        await self.db.write(lambda s: [write_event(s, "link_error_replied", conn.actor, detail)])
 
     async def _on_hello(self, conn: Connection, hello: Hello, received_mono: float) -> None:
         # Timed when read off the socket: at 20x, 50 ms of queueing would put the ground's
@@ -591,14 +600,3 @@ class GroundLink:
             uplink=uplink,
             clock_corrected_s=0.0 if self._onboard is None else self._onboard.corrected_ns / 1e9,
         )
-
-
-def _ref_type(raw: str | bytes) -> str | None:
-    """The ``type`` of a message that failed to decode, if it can be read cheaply."""
-    if len(raw) > 64 * 1024:
-        return None
-    with contextlib.suppress(ValueError, UnicodeDecodeError, RecursionError):
-        doc = json.loads(raw)
-        if isinstance(doc, dict) and isinstance(doc.get("type"), str):
-            return str(doc["type"])[:64]
-    return None
