@@ -22,6 +22,7 @@ from server.errors import install_error_handlers
 from server.services.console import ConsoleHub
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
+from server.services.workers import WorkerPool
 from server.settings import Settings
 from server.storage.db import (
     PoolSizes,
@@ -69,9 +70,16 @@ def create_app(settings: Settings) -> FastAPI:
             sessions=app.state.read_sessions,
         )
         app.state.console.start()
+        app.state.workers = WorkerPool(
+            workers=settings.worker_processes,
+            queue=settings.worker_queue,
+            memory_bytes=settings.worker_memory_bytes or None,
+        )
+        await app.state.workers.start()
         try:
             yield
         finally:
+            await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
             await app.state.runner.shutdown()
             await app.state.link.close()

@@ -59,6 +59,19 @@ class Settings(BaseModel):
     #: The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
     #: pass is 14 MB).
     max_import_bytes: int = 256 * 1024 * 1024
+    #: CPU-heavy requests (planning, recording downloads, reports, raw telemetry reads) run
+    #: in worker processes (server/services/workers.py, docs/console.md "Bounded work"):
+    #: this many at once, and this many more waiting; past that 503 ``busy`` at once.
+    worker_processes: int = Field(default=2, ge=1, le=64)
+    worker_queue: int = Field(default=8, ge=0, le=1000)
+    #: A planning job is killed past this (s): 504. The worst plan the parameter bounds
+    #: allow takes about 30 s on the 2-core reference machine.
+    plan_deadline_s: float = Field(default=60.0, gt=0, le=3600)
+    #: A heavy read (a recording, a report, raw telemetry) is killed past this (s): 504.
+    read_deadline_s: float = Field(default=120.0, gt=0, le=3600)
+    #: The address space one job may use (bytes, RLIMIT_AS; 0: no limit): past it 503
+    #: ``out_of_memory``.
+    worker_memory_bytes: int = Field(default=2 * 1024**3, ge=0)
     #: The HTTP edge (server/api/edge.py, docs/security.md). The largest request body any
     #: other route accepts: a larger declared Content-Length is refused (413) unread.
     max_request_bytes: int = Field(default=1024 * 1024, gt=0)
@@ -91,7 +104,21 @@ class Settings(BaseModel):
             name, _, role = holder.partition(":")
             tokens[token.strip()] = ApiToken(name=name.strip(), role=Role(role.strip()))
         lead = os.environ.get("HIKOBOSHI_UPLINK_LEAD_WINDOW_S")
+        #: The worker limits: HIKOBOSHI_WORKER_PROCESSES, HIKOBOSHI_WORKER_QUEUE,
+        #: HIKOBOSHI_PLAN_DEADLINE_S, HIKOBOSHI_READ_DEADLINE_S, HIKOBOSHI_WORKER_MEMORY_BYTES.
+        workers = {
+            name: os.environ[f"HIKOBOSHI_{name.upper()}"]
+            for name in (
+                "worker_processes",
+                "worker_queue",
+                "plan_deadline_s",
+                "read_deadline_s",
+                "worker_memory_bytes",
+            )
+            if os.environ.get(f"HIKOBOSHI_{name.upper()}")
+        }
         return cls(
+            **workers,  # type: ignore[arg-type]
             data_dir=Path(os.environ.get("HIKOBOSHI_DATA_DIR", "data")),
             database_url=os.environ.get("DATABASE_URL") or None,
             tokens=tokens,

@@ -1,14 +1,19 @@
 """``/api/passes/{id}/analyses`` and ``/report``: run the post-pass analyses (operator),
-read the newest results, the report as JSON or HTML and its figures (viewer)."""
+read the newest results, the report as JSON or HTML and its figures (viewer).
+
+The report routes (JSON, HTML, figures: they decode and re-encode every figure of the
+run) run in a worker process (:mod:`server.services.workers`) on its own database
+connection; the HTML page comes back as a temporary file that is streamed and deleted.
+A full pool answers 503 ``busy`` with ``Retry-After``; past ``read_deadline_s``, 504."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Path
-from fastapi.responses import HTMLResponse, Response
+from fastapi import APIRouter, Path, Request
+from fastapi.responses import HTMLResponse, Response, StreamingResponse
 
-from server.api.deps import OperatorDep, SessionDep, ViewerDep
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
 from server.schemas import (
     ERROR_RESPONSES,
     AnalysesPublic,
@@ -18,10 +23,21 @@ from server.schemas import (
 )
 from server.services import analyses as service
 from server.services import reports
+from server.services.workers import (
+    BoundedRoute,
+    WorkersDep,
+    jobs_dir,
+    read_session_file_job,
+    read_session_job,
+    stream_file,
+    temporary_path,
+)
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/passes", tags=["analyses"], responses=ERROR_RESPONSES)
+router = APIRouter(
+    prefix="/api/passes", tags=["analyses"], responses=ERROR_RESPONSES, route_class=BoundedRoute
+)
 
 #: The served page holds only inline style and data: images; nothing else may load.
 _HTML_POLICY = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
@@ -56,10 +72,20 @@ def get_analysis(
 
 
 @router.get("/{pass_id}/report", response_model=ReportPublic)
-def get_report(pass_id: str, session: SessionDep, _: ViewerDep) -> ReportPublic:
+async def get_report(
+    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
+) -> ReportPublic:
     """The newest analyses as tables: predicted against flown, the experiments, the
     identified inertia against the model's, gravity-gradient residuals with and without."""
-    return reports.pass_report(session=session, pass_id=pass_id)
+    return await workers.run(
+        read_session_job,
+        settings.resolved_database_url(),
+        reports.pass_report,
+        pass_id=pass_id,
+        deadline_s=settings.read_deadline_s,
+        what=f"the report of pass {pass_id}",
+        client=http,
+    )
 
 
 @router.get(
@@ -70,11 +96,29 @@ def get_report(pass_id: str, session: SessionDep, _: ViewerDep) -> ReportPublic:
         200: {"content": {"text/html": {}}, "description": "One self-contained page"},
     },
 )
-def get_report_html(pass_id: str, session: SessionDep, _: ViewerDep) -> HTMLResponse:
+async def get_report_html(
+    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
+) -> Response:
     """The report as one HTML page with its figures inline (data: URIs), so a page fetched
     with a token needs nothing else."""
-    page = reports.pass_report_html(session=session, pass_id=pass_id)
-    return HTMLResponse(page, headers={"Content-Security-Policy": _HTML_POLICY})
+    path = temporary_path(jobs_dir(settings.data_dir), ".html")
+    await workers.run(
+        read_session_file_job,
+        settings.resolved_database_url(),
+        str(path),
+        reports.pass_report_html,
+        pass_id=pass_id,
+        deadline_s=settings.read_deadline_s,
+        what=f"the report page of pass {pass_id}",
+        client=http,
+        cleanup=path,
+    )
+    chunks, size = stream_file(path)
+    return StreamingResponse(
+        chunks,
+        media_type="text/html; charset=utf-8",
+        headers={"Content-Security-Policy": _HTML_POLICY, "Content-Length": str(size)},
+    )
 
 
 @router.get(
@@ -82,12 +126,23 @@ def get_report_html(pass_id: str, session: SessionDep, _: ViewerDep) -> HTMLResp
     response_class=Response,
     responses={200: {"content": {"image/png": {}}, "description": "The figure"}},
 )
-def get_figure(
+async def get_figure(
     pass_id: str,
     name: Annotated[str, Path(max_length=64)],
-    session: SessionDep,
+    http: Request,
+    settings: SettingsDep,
     _: ViewerDep,
+    workers: WorkersDep,
 ) -> Response:
     """One figure of the newest run, PNG."""
-    png = service.figure_png(session=session, pass_id=pass_id, name=name)
+    png = await workers.run(
+        read_session_job,
+        settings.resolved_database_url(),
+        service.figure_png,
+        pass_id=pass_id,
+        name=name,
+        deadline_s=settings.read_deadline_s,
+        what=f"a figure of pass {pass_id}",
+        client=http,
+    )
     return Response(png, media_type="image/png")

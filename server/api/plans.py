@@ -1,7 +1,11 @@
 """``/api/plans``: plan an experiment (operator), validate a request, read plans (viewer).
 
-Routes are plain functions: FastAPI runs them in its threadpool, so seconds of planning
-never block the event loop (and the link's websocket with it).
+Planning (``POST /api/plans``, ``POST /api/plans/validate``) runs in a worker process
+(:mod:`server.services.workers`): never in the server's threads, where it would hold the
+GIL the link's event loop needs. At most ``worker_processes`` at once, each killed past
+``plan_deadline_s`` or when its client goes away; a full pool answers 503 ``busy`` at once.
+The parameters are checked first, in the server (milliseconds): a refused request never
+takes a worker. The reads are plain functions (FastAPI's threadpool).
 """
 
 from __future__ import annotations
@@ -9,30 +13,69 @@ from __future__ import annotations
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 
-from server.api.deps import OperatorDep, SessionDep, ViewerDep
+from planner.errors import PlannerError
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
+from server.services.workers import BoundedRoute, WorkersDep, session_job
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/plans", tags=["plans"], responses=ERROR_RESPONSES)
+router = APIRouter(
+    prefix="/api/plans", tags=["plans"], responses=ERROR_RESPONSES, route_class=BoundedRoute
+)
 
 
 @router.post("", status_code=201, response_model=PlanPublic)
-def create_plan(request: PlanCreate, session: SessionDep, who: OperatorDep) -> PlanPublic:
+async def create_plan(
+    request: PlanCreate,
+    http: Request,
+    settings: SettingsDep,
+    who: OperatorDep,
+    workers: WorkersDep,
+) -> PlanPublic:
     """Plan ``experiment`` with ``parameters`` and store the plan; 422 with the planner's
-    message when the experiment or a parameter is refused."""
-    return service.create_plan(
-        session=session, request=request, actor=who.name, now_ns=time.time_ns()
+    message when the experiment or a parameter is refused; 503 ``busy`` (``Retry-After``)
+    when every worker is taken; 504 past ``plan_deadline_s``."""
+    service.check_parameters(request)
+    return await workers.run(
+        session_job,
+        settings.resolved_database_url(),
+        service.create_plan,
+        request=request,
+        actor=who.name,
+        now_ns=time.time_ns(),
+        deadline_s=settings.plan_deadline_s,
+        what=f"planning {request.experiment}",
+        client=http,
     )
 
 
 @router.post("/validate", response_model=PlanValidation)
-def validate_plan(request: PlanCreate, _: OperatorDep) -> PlanValidation:
-    """Plan the request without storing it: ``valid`` with the summary, or the errors."""
-    return service.validate(request)
+async def validate_plan(
+    request: PlanCreate,
+    http: Request,
+    settings: SettingsDep,
+    _: OperatorDep,
+    workers: WorkersDep,
+) -> PlanValidation:
+    """Plan the request without storing it: ``valid`` with the summary, or the errors
+    (as ``POST /api/plans``: 503 ``busy`` when every worker is taken, 504 past the
+    deadline)."""
+    try:
+        service.check_parameters(request)
+    except (PlannerError, ServiceError) as exc:
+        return service.invalid(exc)
+    return await workers.run(
+        service.validate,
+        request,
+        deadline_s=settings.plan_deadline_s,
+        what=f"planning {request.experiment}",
+        client=http,
+    )
 
 
 @router.get("", response_model=PlansPublic)

@@ -1,12 +1,17 @@
 """``/api/passes/{id}/recording.mcap`` (viewer) and ``/api/passes/import`` (operator): a pass
-as one MCAP file, out and in (docs/mcap.md)."""
+as one MCAP file, out and in (docs/mcap.md).
+
+The download is written by a worker process (:mod:`server.services.workers`) on its own
+database connection, to a temporary file that the route streams and deletes: the server's
+memory, threads and connection pool stay the same whatever the pass's size or the number
+of viewers; a full pool answers 503 ``busy`` with ``Retry-After``."""
 
 from __future__ import annotations
 
 import re
 
 from fastapi import APIRouter, Request
-from fastapi.responses import Response
+from fastapi.responses import Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
@@ -14,10 +19,20 @@ from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
 from server.services import recordings as service
 from server.services.imports import import_mcap
+from server.services.workers import (
+    BoundedRoute,
+    WorkersDep,
+    jobs_dir,
+    read_session_job,
+    stream_file,
+    temporary_path,
+)
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES)
+router = APIRouter(
+    prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES, route_class=BoundedRoute
+)
 
 _BINARY = {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}
 
@@ -32,14 +47,33 @@ def _filename(name: str) -> str:
     response_class=Response,
     responses={200: {"content": _BINARY, "description": "The pass as one MCAP file"}},
 )
-def download_recording(pass_id: str, session: SessionDep, _: ViewerDep) -> Response:
+async def download_recording(
+    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
+) -> Response:
     """Everything stored of the flown pass as MCAP: telemetry, plan with prediction,
-    commands with their stages, audit events; plus Foxglove transforms and plot channels."""
-    name, data = service.recording_mcap(session=session, pass_id=pass_id)
-    return Response(
-        data,
+    commands with their stages, audit events; plus Foxglove transforms and plot channels.
+    Written by a worker process (503 ``busy`` when all are taken, 504 past
+    ``read_deadline_s``) and streamed from a temporary file."""
+    path = temporary_path(jobs_dir(settings.data_dir), ".mcap")
+    name = await workers.run(
+        read_session_job,
+        settings.resolved_database_url(),
+        service.write_recording,
+        pass_id=pass_id,
+        path=str(path),
+        deadline_s=settings.read_deadline_s,
+        what=f"the recording of pass {pass_id}",
+        client=http,
+        cleanup=path,
+    )
+    chunks, size = stream_file(path)
+    return StreamingResponse(
+        chunks,
         media_type="application/octet-stream",
-        headers={"Content-Disposition": f'attachment; filename="{_filename(name)}"'},
+        headers={
+            "Content-Disposition": f'attachment; filename="{_filename(name)}"',
+            "Content-Length": str(size),
+        },
     )
 
 

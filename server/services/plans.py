@@ -1,7 +1,9 @@
 """Plans: run the planner on a request, store the result, read plans back.
 
 Planning takes seconds of CPU and touches no database: it runs before the transaction
-opens, so no lock (SQLite takes the write lock at ``BEGIN``) is held while it runs.
+opens, so no lock (SQLite takes the write lock at ``BEGIN``) is held while it runs. The API
+runs :func:`create_plan` and :func:`validate` in a worker process
+(:mod:`server.services.workers`), never in the server's own threads.
 """
 
 from __future__ import annotations
@@ -30,7 +32,34 @@ from server.schemas import (
 from server.storage import repository as repo
 from server.storage.models import PlanRecord
 
-__all__ = ["create_plan", "get_plan", "get_plan_document", "list_plans", "plan", "validate"]
+__all__ = [
+    "check_parameters",
+    "create_plan",
+    "get_plan",
+    "get_plan_document",
+    "invalid",
+    "list_plans",
+    "plan",
+    "validate",
+]
+
+
+def check_parameters(request: PlanCreate) -> None:
+    """The experiment and its parameters checked, without planning (milliseconds): the
+    server refuses a bad request (422) before it takes a worker process."""
+    params_type, _ = resolve(request.experiment)
+    parameters_from_values(params_type, request.parameters)
+
+
+def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
+    """What ``POST /api/plans/validate`` answers for a refused request."""
+    if isinstance(exc, ServiceError):
+        return PlanValidation(
+            valid=False, errors=[ValidationIssue(code=exc.code, message=exc.message)]
+        )
+    return PlanValidation(
+        valid=False, errors=[ValidationIssue(code=type(exc).__name__, message=str(exc))]
+    )
 
 
 def plan(request: PlanCreate) -> tuple[Plan, str]:
@@ -71,14 +100,8 @@ def validate(request: PlanCreate) -> PlanValidation:
     """The checks of :func:`create_plan`, planning included, without storing anything."""
     try:
         result, _ = plan(request)
-    except PlannerError as exc:
-        return PlanValidation(
-            valid=False, errors=[ValidationIssue(code=type(exc).__name__, message=str(exc))]
-        )
-    except ServiceError as exc:
-        return PlanValidation(
-            valid=False, errors=[ValidationIssue(code=exc.code, message=exc.message)]
-        )
+    except (PlannerError, ServiceError) as exc:
+        return invalid(exc)
     return PlanValidation(valid=True, errors=[], summary=_summary(result))
 
 

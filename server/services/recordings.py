@@ -22,7 +22,7 @@ from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRec
 from telemetry.mcap import write_mcap
 from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
-__all__ = ["NotFlown", "load_recording", "recording_mcap"]
+__all__ = ["NotFlown", "load_recording", "recording_mcap", "write_recording"]
 
 _F = TelemetryFrameRecord
 _COLUMNS = (
@@ -160,3 +160,14 @@ def recording_mcap(*, session: Session, pass_id: str) -> tuple[str, bytes]:
     buffer = io.BytesIO()
     write_mcap(recording, buffer)
     return recording.name, buffer.getvalue()
+
+
+def write_recording(*, session: Session, pass_id: str, path: str) -> str:
+    """:func:`recording_mcap` written to the file ``path`` (the bytes are the same); the
+    pass's name. What a worker process runs for ``GET .../recording.mcap``: the file, not
+    the bytes, goes back to the server, which streams it."""
+    recording = load_recording(session=session, pass_id=pass_id)
+    session.rollback()
+    with open(path, "wb") as stream:
+        write_mcap(recording, stream)
+    return recording.name
