@@ -401,7 +401,12 @@ class GroundLink:
             return
         if conn is not self._conn:
             return  # a superseded connection
-        if isinstance(message, Hello):
+        if isinstance(message, ErrorMsg):
+            # Never answered (not even before the hello); its text arrives escaped.
+            self.errors_received += 1
+            info: dict[str, Any] = {"reason": message.reason, "ref_type": message.ref_type}
+            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+        elif isinstance(message, Hello):
             await self._on_hello(conn, message, received)
         elif not conn.greeted:
             await self.send(encode(ErrorMsg(reason="hello expected first", ref_type=message.type)))
@@ -423,10 +428,6 @@ class GroundLink:
             sent = self._pings.pop(message.ping_id, None)
             if sent is not None:
                 self.round_trip_s = (received - sent) * self.time_scale
-        elif isinstance(message, ErrorMsg):
-            self.errors_received += 1
-            info: dict[str, Any] = {"reason": message.reason, "ref_type": message.ref_type}
-            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
 
     async def _refuse(self, conn: Connection, exc: WireError) -> None:
         """A message that did not decode: an ``error`` reply naming the reason (the wire's
