@@ -18,6 +18,7 @@ from server.api import plans as plans_api
 from server.api import recordings as recordings_api
 from server.api import telemetry as telemetry_api
 from server.api import web as web_api
+from server.api.edge import install_edge
 from server.errors import install_error_handlers
 from server.services.console import ConsoleHub
 from server.services.link import GroundLink
@@ -93,6 +94,7 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     install_error_handlers(app)
+    install_edge(app, settings)  # auth, limits and text checks before any route
     app.include_router(link_api.router)
     app.include_router(console_api.router)
     app.include_router(control_api.router)

@@ -4,22 +4,28 @@
 
 Planner domain errors are 422 (the request was understood but cannot be planned), storage
 ``NotFound`` 404, ``Conflict`` 409, ``InvalidArgument`` 400, service errors their own 4xx,
-request validation 422. Nothing a client sends should produce a 500.
+request validation 422, a value the database refuses (``DataError``) 400. Nothing a client
+sends should produce a 500; anything unexpected still answers 500 ``internal_error`` in the
+shape, without the traceback (which goes to the log).
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from planner.errors import PlannerError
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 
 __all__ = ["ServiceError", "error_body", "install_error_handlers"]
+
+log = logging.getLogger("hikoboshi.ground.errors")
 
 
 class ServiceError(Exception):
@@ -78,3 +84,19 @@ def install_error_handlers(app: FastAPI) -> None:
             content=error_body(code.get(exc.status_code, "http_error"), str(exc.detail)),
             headers=getattr(exc, "headers", None),
         )
+
+    @app.exception_handler(DataError)
+    async def data_error(request: Request, exc: DataError) -> JSONResponse:
+        # A value the database refused (text it cannot store, a number out of range): the
+        # edge refuses most of these first (server/api/edge.py). Not the SQL in the answer.
+        log.warning(
+            "the database refused a value (%s %s): %s", request.method, request.url.path, exc.orig
+        )
+        return _json(400, "invalid_data", "the database refused a value in the request")
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        # Starlette calls this from its outermost middleware and then re-raises ``exc``, so
+        # the server logs it (with the traceback) as well.
+        log.error("unexpected error in %s %s", request.method, request.url.path, exc_info=exc)
+        return _json(500, "internal_error", "an unexpected error; it has been logged")

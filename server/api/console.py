@@ -1,10 +1,11 @@
 """``/api/console``: the consoles' websocket (docs/console.md), for viewers and operators.
 
-The token comes in the ``Authorization`` header, the ``token`` query parameter, or (when
-neither is given) a first message ``{"v": 1, "type": "auth", "token": ...}`` within the
-auth timeout: browsers cannot set headers on a websocket, and a token in the URL ends up in
-access logs. A missing or bad token or a role other than viewer or operator is accepted and
-then closed with 1008 and the reason (a close before the handshake would lose the reason).
+The token comes in the ``Authorization`` header or (without one) a first message
+``{"v": 1, "type": "auth", "token": ...}`` within the auth timeout: browsers cannot set
+headers on a websocket, and a token in the URL would end up in access logs, so there is no
+``?token=``. A missing or bad token or a role other than viewer or operator is accepted and
+then closed with 1008 and the reason (a close before the handshake would lose the reason);
+a bad token counts towards the address's failed-authentication limit (docs/security.md).
 Every later frame goes to :class:`server.services.console.ConsoleHub`, which answers a bad
 one with ``error`` and keeps the connection.
 """
@@ -15,7 +16,7 @@ import asyncio
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import Principal, authenticate, websocket_principal
+from server.api.deps import Principal, authenticate, record_auth_failure, websocket_principal
 from server.errors import ServiceError
 from server.services.console import AuthMsg, ConsoleHub, ProtocolError, decode_client
 from server.settings import Role, Settings
@@ -29,7 +30,7 @@ _WATCHERS = (Role.VIEWER, Role.OPERATOR)
 
 
 async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
-    if websocket.headers.get("authorization") or websocket.query_params.get("token"):
+    if websocket.headers.get("authorization"):
         return websocket_principal(websocket, Role.VIEWER)
     try:
         first = await asyncio.wait_for(websocket.receive(), hub.limits.auth_timeout_s)
@@ -47,7 +48,11 @@ async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
     if not isinstance(message, AuthMsg):
         raise ServiceError(401, "unauthorized", f"auth expected first, not {message.type}")
     settings: Settings = websocket.app.state.settings
-    principal = authenticate(settings, f"Bearer {message.token}")
+    try:
+        principal = authenticate(settings, f"Bearer {message.token}")
+    except ServiceError as exc:
+        record_auth_failure(websocket, exc.message)
+        raise
     if principal.role not in _WATCHERS:
         raise ServiceError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
     return principal

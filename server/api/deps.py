@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import hashlib
+import hmac
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -10,7 +12,7 @@ from fastapi import Depends, Header, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.errors import ServiceError
-from server.settings import Role, Settings
+from server.settings import ApiToken, Role, Settings
 
 __all__ = [
     "OperatorDep",
@@ -19,12 +21,14 @@ __all__ = [
     "SettingsDep",
     "ViewerDep",
     "authenticate",
+    "find_token",
+    "record_auth_failure",
     "require",
     "websocket_principal",
 ]
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
@@ -49,11 +53,27 @@ class Principal:
     role: Role
 
 
+def _digest(secret: str) -> bytes:
+    return hashlib.sha256(secret.encode("utf-8", "surrogateescape")).digest()
+
+
+def find_token(tokens: Mapping[str, ApiToken], presented: str) -> ApiToken | None:
+    """The token ``presented`` is, compared in constant time: against every configured
+    token (no early exit, no lookup by the secret), as SHA-256 digests so that neither a
+    token's content nor its length shows in the time taken."""
+    wanted = _digest(presented)
+    found: ApiToken | None = None
+    for secret, token in tokens.items():
+        if hmac.compare_digest(_digest(secret), wanted):
+            found = token
+    return found
+
+
 def authenticate(settings: Settings, authorization: str | None) -> Principal:
     """The caller behind ``Authorization: Bearer TOKEN``; 401 without a known token."""
     if not authorization or not authorization.startswith("Bearer "):
         raise ServiceError(401, "unauthorized", "an API token is required (Authorization: Bearer)")
-    token = settings.tokens.get(authorization.removeprefix("Bearer ").strip())
+    token = find_token(settings.tokens, authorization.removeprefix("Bearer ").strip())
     if token is None:
         raise ServiceError(401, "unauthorized", "unknown API token")
     return Principal(token.name, token.role)
@@ -67,12 +87,15 @@ _GRANTS = {
 }
 
 
-def require(role: Role) -> Callable[..., Principal]:
-    """A dependency that admits callers whose role grants ``role`` (else 403)."""
+def require(role: Role) -> Callable[..., Awaitable[Principal]]:
+    """A dependency that admits callers whose role grants ``role`` (else 403). Async, so
+    that FastAPI runs it on the event loop: the token check never waits for a worker
+    thread (the edge, server/api/edge.py, has already refused unknown tokens)."""
 
-    def dependency(
-        settings: SettingsDep, authorization: Annotated[str | None, Header()] = None
+    async def dependency(
+        request: Request, authorization: Annotated[str | None, Header()] = None
     ) -> Principal:
+        settings: Settings = request.app.state.settings
         principal = authenticate(settings, authorization)
         if principal.role not in _GRANTS[role]:
             raise ServiceError(
@@ -90,12 +113,25 @@ OperatorDep = Annotated[Principal, Depends(require(Role.OPERATOR))]
 
 
 def websocket_principal(websocket: WebSocket, role: Role) -> Principal:
-    """Authenticate a websocket by its Authorization header or ``?token=`` (browsers cannot
-    set headers on a websocket)."""
+    """Authenticate a websocket by its Authorization header. Never by a query parameter: a
+    token in a URL ends up in access logs (the console, whose browsers cannot set headers
+    on a websocket, sends its token in a first message instead: server/api/console.py).
+    A refused token counts towards the address's failed-authentication limit."""
     settings: Settings = websocket.app.state.settings
-    header = websocket.headers.get("authorization")
-    token = websocket.query_params.get("token")
-    principal = authenticate(settings, header or (f"Bearer {token}" if token else None))
+    try:
+        principal = authenticate(settings, websocket.headers.get("authorization"))
+    except ServiceError as exc:
+        record_auth_failure(websocket, exc.message)
+        raise
     if principal.role not in _GRANTS[role]:
         raise ServiceError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
     return principal
+
+
+def record_auth_failure(websocket: WebSocket, reason: str) -> None:
+    """Audit a websocket's failed authentication and count it against its address (the
+    edge's guard, when the application has one)."""
+    guard = getattr(websocket.app.state, "auth_guard", None)
+    if guard is not None:
+        client = websocket.client
+        guard.failed(client.host if client else "unknown", websocket.url.path, reason)

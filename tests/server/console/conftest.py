@@ -25,7 +25,9 @@ from tests.server.storage.factories import T0_NS, make_plan
 
 __all__ = ["client"]  # the fixture, shared with the API tests
 
-CONSOLE = "/api/console?token=v-token"
+CONSOLE = "/api/console"
+#: A viewer's token, in the header (there is no ?token=: a token in a URL ends up in logs).
+AS_VIEWER = {"Authorization": "Bearer v-token"}
 
 
 def hub(client: TestClient) -> ConsoleHub:

@@ -10,6 +10,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from server.services.link import LinkStatus
 from tests.server.console.conftest import (
+    AS_VIEWER,
     CONSOLE,
     add_pass,
     drain,
@@ -26,12 +27,11 @@ SUBSCRIBE: dict[str, Any] = {"v": 1, "type": "subscribe"}
 @pytest.mark.parametrize(
     ("path", "headers", "first", "actor"),
     [
-        ("/api/console?token=v-token", {}, None, "vera"),
         ("/api/console", {"Authorization": "Bearer v-token"}, None, "vera"),
         ("/api/console", {}, {"v": 1, "type": "auth", "token": "v-token"}, "vera"),
-        ("/api/console?token=o-token", {}, None, "otto"),
+        ("/api/console", {"Authorization": "Bearer o-token"}, None, "otto"),
     ],
-    ids=["query", "header", "auth-message", "operator"],
+    ids=["header", "auth-message", "operator"],
 )
 def test_viewers_and_operators_connect(
     client: TestClient,
@@ -50,21 +50,35 @@ def test_viewers_and_operators_connect(
 
 
 @pytest.mark.parametrize(
-    ("path", "first", "says"),
+    ("path", "headers", "first", "says"),
     [
-        ("/api/console", {**SUBSCRIBE, "topic": "commands"}, "auth expected first"),
-        ("/api/console", {"v": 1, "type": "auth", "token": "nope"}, "unknown API token"),
-        ("/api/console", {"v": 1, "type": "auth", "token": "s-token"}, "spacecraft"),
-        ("/api/console", "not json", "auth expected first"),
-        ("/api/console?token=nope", None, "unknown API token"),
-        ("/api/console?token=s-token", None, "spacecraft"),
+        ("/api/console", {}, {**SUBSCRIBE, "topic": "commands"}, "auth expected first"),
+        ("/api/console", {}, {"v": 1, "type": "auth", "token": "nope"}, "unknown API token"),
+        ("/api/console", {}, {"v": 1, "type": "auth", "token": "s-token"}, "spacecraft"),
+        ("/api/console", {}, "not json", "auth expected first"),
+        ("/api/console", {"Authorization": "Bearer nope"}, None, "unknown API token"),
+        ("/api/console", {"Authorization": "Bearer s-token"}, None, "spacecraft"),
+        # A token in the URL is not looked at (it would end up in access logs).
+        ("/api/console?token=v-token", {}, {**SUBSCRIBE, "topic": "commands"}, "auth expected"),
     ],
-    ids=["no-token", "bad-token", "spacecraft", "garbage", "bad-query-token", "spacecraft-query"],
+    ids=[
+        "no-token",
+        "bad-token",
+        "spacecraft",
+        "garbage",
+        "bad-header-token",
+        "spacecraft-header",
+        "query-token-ignored",
+    ],
 )
 def test_refused_without_a_viewer_token(
-    client: TestClient, path: str, first: dict[str, Any] | str | None, says: str
+    client: TestClient,
+    path: str,
+    headers: dict[str, str],
+    first: dict[str, Any] | str | None,
+    says: str,
 ) -> None:
-    with client.websocket_connect(path) as ws:
+    with client.websocket_connect(path, headers=headers) as ws:
         if isinstance(first, str):
             ws.send_text(first)
         elif first is not None:
@@ -107,7 +121,7 @@ BAD_REQUESTS: list[tuple[str, Any, str]] = [
 def test_a_bad_request_gets_an_error_and_the_socket_stays_usable(
     client: TestClient, request_: Any, says: str
 ) -> None:
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         if isinstance(request_, str):
             ws.send_text(request_)
@@ -123,7 +137,7 @@ def test_a_bad_request_gets_an_error_and_the_socket_stays_usable(
 
 
 def test_a_binary_frame_and_a_stream_ahead_of_the_server_get_errors(client: TestClient) -> None:
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         ws.send_bytes(b'{"v": 1, "type": "ping"}')
         assert "binary" in ws.receive_json()["reason"]
@@ -136,7 +150,7 @@ def test_a_binary_frame_and_a_stream_ahead_of_the_server_get_errors(client: Test
 
 def test_subscribe_delivers_and_unsubscribe_stops(client: TestClient) -> None:
     pass_id = add_pass(client)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         emit_events(client, ["command_stage"])  # before: not delivered (live from now)
         reply = subscribe(ws, topic="commands")
@@ -172,7 +186,7 @@ def test_subscribe_delivers_and_unsubscribe_stops(client: TestClient) -> None:
 
 def test_topics_route_events_and_number_each_stream_from_one(client: TestClient) -> None:
     kinds = ["command_stage", "pass_state", "link_hello", "commands_cancelled", "pass_state"] * 3
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         for topic in ("commands", "passes", "events"):
             subscribe(ws, topic=topic)
@@ -199,7 +213,7 @@ def test_topics_route_events_and_number_each_stream_from_one(client: TestClient)
 
 def test_link_status_comes_at_once_and_on_change(client: TestClient) -> None:
     console = hub(client)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         client.portal.call(console.push_link_status, link(client).status())  # type: ignore[union-attr]
         reply = subscribe(ws, topic="link")

@@ -29,6 +29,7 @@ from server.storage.models import TELEMETRY_FIELDS
 from spacecraft.offline import OfflineFlight
 from telemetry.uplink import plan_commands
 from tests.server.console.conftest import (
+    AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     add_flown_pass,
@@ -111,7 +112,7 @@ def test_replay_at_x10_delivers_every_frame_in_order_exactly_once(
     pass_id = add_flown_pass(client, flight)
     stored = stored_seqs(client, pass_id)
     assert len(stored) == len(flown.frames) == 61
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         opened = open_replay(ws, pass_id.upper(), speed=X10)  # any UUID spelling
         data, final = until_finished(ws)
@@ -164,7 +165,7 @@ def test_as_fast_as_possible_delivers_every_frame_in_batches(
     client: TestClient, flight: Flight
 ) -> None:
     pass_id = add_flown_pass(client, flight)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         open_replay(ws, pass_id, speed=fast(7), fields=["j1", "wz"])
         data, final = until_finished(ws)
@@ -182,7 +183,7 @@ def test_pause_stops_delivery_and_play_resumes_where_it_stopped(
     client: TestClient, flight: Flight
 ) -> None:
     pass_id = add_flown_pass(client, flight)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         replay_id = open_replay(ws, pass_id, speed={"mode": "real_time", "factor": 1.0})[
             "replay_id"
@@ -214,7 +215,7 @@ def test_seek_lands_on_the_first_frame_at_or_after_the_time(
     times = times_ns(flight)
     stored = stored_seqs(client, pass_id)
     k = 13
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         replay_id = open_replay(ws, pass_id, speed=STEP, paused=True)["replay_id"]
         # Between frames k and k + 1: frame k + 1 is next.
@@ -242,7 +243,7 @@ def test_step_delivers_exactly_one_frame(client: TestClient, flight: Flight) -> 
     pass_id = add_flown_pass(client, flight)
     stored = stored_seqs(client, pass_id)
     times = times_ns(flight)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         replay_id = open_replay(ws, pass_id, paused=True)["replay_id"]
         for i in range(3):
@@ -267,7 +268,10 @@ def test_step_delivers_exactly_one_frame(client: TestClient, flight: Flight) -> 
 def test_two_consoles_replay_independently(client: TestClient, flight: Flight) -> None:
     pass_id = add_flown_pass(client, flight)
     stored = stored_seqs(client, pass_id)
-    with client.websocket_connect(CONSOLE) as a, client.websocket_connect(CONSOLE) as b:
+    with (
+        client.websocket_connect(CONSOLE, headers=AS_VIEWER) as a,
+        client.websocket_connect(CONSOLE, headers=AS_VIEWER) as b,
+    ):
         welcome(a)
         welcome(b)
         a_id = open_replay(a, pass_id, speed=STEP, paused=True)["replay_id"]
@@ -291,7 +295,7 @@ def test_replay_never_mixes_with_live_telemetry(client: TestClient, flight: Flig
     flown_id = add_flown_pass(client, flight)
     live_id = add_pass(client, "live")
     spacecraft = FakeSpacecraft(client, live_id)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         subscribe(ws, topic="telemetry", pass_id=live_id)
         subscribe(ws, topic="telemetry", pass_id=flown_id)  # live data of the replayed pass
@@ -396,7 +400,7 @@ def test_a_bad_replay_request_gets_an_error_and_the_socket_stays_usable(
     pass_id = add_flown_pass(client, flight)
     unflown = add_pass(client, "unflown")
     stored = stored_seqs(client, pass_id)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         replay_id = open_replay(ws, pass_id, speed=STEP, paused=True)["replay_id"]
         context = {
@@ -421,7 +425,10 @@ def test_replay_limits_per_console_and_in_total(client: TestClient, flight: Flig
     pass_id = add_flown_pass(client, flight)
     limits = hub(client).limits
     limits.max_replays_per_console, limits.max_replays = 2, 3
-    with client.websocket_connect(CONSOLE) as a, client.websocket_connect(CONSOLE) as b:
+    with (
+        client.websocket_connect(CONSOLE, headers=AS_VIEWER) as a,
+        client.websocket_connect(CONSOLE, headers=AS_VIEWER) as b,
+    ):
         welcome(a)
         welcome(b)
         first = open_replay(a, pass_id, paused=True)["replay_id"]

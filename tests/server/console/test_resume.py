@@ -14,6 +14,7 @@ from fastapi.testclient import TestClient
 
 import server.services.console as console_service
 from tests.server.console.conftest import (
+    AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     add_pass,
@@ -55,14 +56,14 @@ def seqs(messages: list[dict[str, Any]], kind: str = "event") -> list[int]:
 
 def test_resume_from_memory_delivers_everything_exactly_once(client: TestClient) -> None:
     view = Console()
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         subscribe(ws, topic="commands")
         sent = emit_events(client, ["command_stage"] * 10)
         received = drain(ws)
         view.take(received[:6])  # the console saw six before the network dropped
     sent += emit_events(client, ["command_stage"] * 5)  # while it is away
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         # Resume from an older seq than the last seen: an overlap of two.
         reply = subscribe(
@@ -81,7 +82,7 @@ def test_telemetry_resume_from_memory(client: TestClient) -> None:
     pass_id = add_pass(client)
     spacecraft = FakeSpacecraft(client, pass_id)
     frames = make_frames(range(40))
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         subscribe(ws, topic="telemetry", pass_id=pass_id)
         for lo in range(0, 20, 5):
@@ -89,7 +90,7 @@ def test_telemetry_resume_from_memory(client: TestClient) -> None:
         first = drain(ws)
     for lo in range(20, 40, 5):
         spacecraft.send(frames[lo : lo + 5])
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         subscribe(ws, topic="telemetry", pass_id=pass_id, since_seq=first[-1]["seq"], epoch=epoch)
         second = drain(ws)
@@ -113,7 +114,7 @@ def test_resume_from_the_database_when_the_ring_has_rolled_over(
         monkeypatch.setattr(console_service, name, counted)
     pass_id = add_pass(client)
     spacecraft = FakeSpacecraft(client, pass_id)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         subscribe(ws, topic="commands")
         subscribe(ws, topic="events")
@@ -124,7 +125,7 @@ def test_resume_from_the_database_when_the_ring_has_rolled_over(
         live = drain(ws)
     assert sum(1 for m in live if m["topic"] == "commands") == 8
     first_event = min(m["seq"] for m in live if m["topic"] == "events")
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         for topic, since_seq, extra in [
             ("commands", 1, {}),  # the ring holds 5..8
@@ -160,7 +161,7 @@ def test_another_epoch_or_a_forgotten_seq_is_told_to_resync(client: TestClient) 
     console = hub(client)
     console.limits.ring_size = 2
     console.limits.index_size = 3
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         emit_events(client, ["pass_state"] * 6)
         # A restarted server: the seqs of the old epoch mean nothing here.
@@ -193,7 +194,7 @@ def test_live_messages_wait_for_a_database_replay_and_follow_it(
         return replay_events(*args)
 
     monkeypatch.setattr(console_service, "replay_events", replay_while_publishing)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         epoch = welcome(ws)["epoch"]
         sent = emit_events(client, ["command_stage"] * 5)
         reply = subscribe(ws, topic="commands", since_seq=0, epoch=epoch)

@@ -8,6 +8,7 @@ from fastapi.testclient import TestClient
 
 from server.storage.models import TELEMETRY_FIELDS
 from tests.server.console.conftest import (
+    AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     add_pass,
@@ -36,7 +37,7 @@ def test_frames_arrive_as_columns_equal_to_what_is_stored(client: TestClient) ->
     other = add_pass(client, "pass-2")
     spacecraft = FakeSpacecraft(client, pass_id)
     frames = make_frames(range(12))
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         reply = subscribe(ws, topic="telemetry", pass_id=pass_id.upper())  # any UUID spelling
         assert reply["pass_id"] == pass_id and reply["seq"] == 0
@@ -74,7 +75,7 @@ def test_frames_arrive_as_columns_equal_to_what_is_stored(client: TestClient) ->
 def test_max_rate_decimates_by_generation_time_and_fields_trim_columns(client: TestClient) -> None:
     pass_id = add_pass(client)
     spacecraft = FakeSpacecraft(client, pass_id)
-    with client.websocket_connect(CONSOLE) as ws:
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         subscribe(ws, topic="telemetry", pass_id=pass_id, max_rate_hz=2.5, fields=["j1", "wz"])
         for lo in range(0, 30, 3):  # 10 Hz frames, three a message
