@@ -438,15 +438,29 @@ def spacecraft(
     asyncio.run(main_async())
 
 
+def _is_loopback(host: str) -> bool:
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
 @app.command()
 def serve(
     host: Annotated[str, typer.Option(help="Address to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="Port to listen on")] = 8000,
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
-    under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...)."""
+    under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
+    unless listening on loopback only). The HTTP edge's limits and timeouts are in
+    docs/security.md."""
     import uvicorn
 
+    from server.api.edge import uvicorn_config
     from server.app import create_app
     from server.settings import Settings
 
@@ -455,8 +469,18 @@ def serve(
     except ValueError as exc:
         _fail(f"bad settings in the environment: {exc}")
     if not settings.tokens:
+        if not _is_loopback(host):
+            _fail(
+                f"HIKOBOSHI_TOKENS is empty and --host {host} is not loopback: refusing to "
+                "serve a network with no tokens. Set HIKOBOSHI_TOKENS=token=name:role,... "
+                '(strong tokens: python -c "import secrets; print(secrets.token_urlsafe(32))")'
+            )
         err_console.print("warning: HIKOBOSHI_TOKENS is empty: every API call will be refused")
-    uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
+    weak = sorted({t.name for secret, t in settings.tokens.items() if len(secret) < 16})
+    if weak:
+        err_console.print(f"warning: short (guessable) tokens for {', '.join(weak)}")
+    config = uvicorn_config(create_app(settings), settings, host=host, port=port)
+    uvicorn.Server(config).run()
 
 
 def main() -> None:
