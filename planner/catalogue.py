@@ -13,6 +13,14 @@ values), so both accept the same parameters and refuse the same mistakes with th
 Durations (parameters named ``*_s``) are limited to :data:`MAX_DURATION_S`: nothing longer
 fits one contact window (``PassParams.window_s`` <= 3600 s), and a larger value would only
 allocate a plan that can never fly.
+
+Work bounds: one plan must finish within a stated time (the ground service kills a plan
+past its deadline, 60 s by default). Planning time grows with the plan's length and with
+the solver's iteration counts, so a segment duration (every ``*_s`` but the pass's
+``window_s``) is at most :data:`MAX_SEGMENT_S`, a speed (``*_mps``) at least
+:data:`MIN_SPEED_MPS`, and the iteration counts at most :data:`WORK_LIMITS`. Within these,
+the slowest plan measured on the 2-core reference machine takes about
+:data:`WORST_PLAN_S` seconds (docs/planning.md, "Limits"); the defaults take 1-10 s.
 """
 
 from __future__ import annotations
@@ -36,6 +44,10 @@ from planner.schedule import PassParams, plan_pass
 __all__ = [
     "MAX_DURATION_S",
     "MAX_ITEMS",
+    "MAX_SEGMENT_S",
+    "MIN_SPEED_MPS",
+    "WORK_LIMITS",
+    "WORST_PLAN_S",
     "Entry",
     "experiments",
     "parameters_from_values",
@@ -51,6 +63,14 @@ Entry = tuple[type[Any], Callable[..., Plan]]
 MAX_DURATION_S = 3600.0
 #: The most items a tuple parameter may hold.
 MAX_ITEMS = 64
+#: The longest segment duration (s): a settle, a pause, a tail, a leg.
+MAX_SEGMENT_S = 300.0
+#: The slowest speed parameter (m/s) above zero: a hand line of 0.5 m takes 167 s.
+MIN_SPEED_MPS = 0.003
+#: Iteration counts (nonholonomic): their upper bounds.
+WORK_LIMITS = {"max_iterations": 200, "path_steps": 400, "max_corrections": 20}
+#: The slowest plan the bounds allow, measured (s, 2 cores; see the module doc).
+WORST_PLAN_S = 30.0
 
 
 def experiments() -> dict[str, Entry]:
@@ -163,7 +183,32 @@ def _build(params_type: type[Any], values: dict[str, Any]) -> Any:
     check = getattr(params, "check", None)
     if callable(check):
         check()
+    _check_work(params)
     return params
+
+
+def _check_work(params: Any) -> None:
+    """The work bounds of the module doc, on the parameters as built (defaults included)."""
+    for f in dataclasses.fields(params):
+        value = getattr(params, f.name)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            continue
+        if f.name.endswith("_s") and f.name != "window_s" and value > MAX_SEGMENT_S:
+            raise InvalidInput(
+                f"parameter {f.name} = {value} s exceeds the limit of {MAX_SEGMENT_S:g} s "
+                "(one plan must finish within the planning deadline)"
+            )
+        if f.name.endswith("_mps") and 0 < value < MIN_SPEED_MPS:
+            raise InvalidInput(
+                f"parameter {f.name} = {value} m/s is below the limit of {MIN_SPEED_MPS:g} m/s "
+                "(one plan must finish within the planning deadline)"
+            )
+        limit = WORK_LIMITS.get(f.name)
+        if limit is not None and value > limit:
+            raise InvalidInput(
+                f"parameter {f.name} = {value} exceeds the limit of {limit} "
+                "(one plan must finish within the planning deadline)"
+            )
 
 
 def _field_hints(params_type: type[Any]) -> dict[str, Any]:
