@@ -9,6 +9,9 @@ after its own recorded history. Its state is the recording's ``meta["state"]`` w
 A recording from a file is untrusted: every value that would reach a constrained column
 (lengths, command kinds and stages, int64 times) is checked first, and what the database
 still refuses is reported as 422 ``recording_not_storable``; either way nothing is kept.
+Before anything is decompressed, a file whose chunks declare more than 64 MiB each, or
+more than ``max_uncompressed_bytes`` together (the setting
+``max_import_uncompressed_bytes``), is refused as 422 ``invalid_recording`` (docs/mcap.md).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from sqlalchemy.orm import Session
 from server.errors import ServiceError
 from server.schemas import PassImportPublic
 from server.services.passes import public
+from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.errors import Conflict, InvalidArgument
 from server.storage.models import COMMAND_KINDS, COMMAND_STAGES
@@ -35,6 +39,7 @@ __all__ = ["InvalidRecording", "import_mcap", "store_recording"]
 
 _INT64 = 2**63
 _FINISHED = ("complete", "aborted")
+_MAX_UNCOMPRESSED: int = Settings.model_fields["max_import_uncompressed_bytes"].default
 
 
 class InvalidRecording(ServiceError):
@@ -174,11 +179,20 @@ def store_recording(
     return pass_id
 
 
-def import_mcap(session: Session, data: bytes, actor: str, *, source: str) -> PassImportPublic:
+def import_mcap(
+    session: Session,
+    data: bytes,
+    actor: str,
+    *,
+    source: str,
+    max_uncompressed_bytes: int = _MAX_UNCOMPRESSED,
+) -> PassImportPublic:
     """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it; 422
-    ``invalid_recording`` with the reader's reason for a bad file (nothing stored)."""
+    ``invalid_recording`` with the reader's reason for a bad file, or one whose chunks hold
+    more than 64 MiB each or ``max_uncompressed_bytes`` together (nothing decompressed,
+    nothing stored)."""
     try:
-        recording = read_mcap(io.BytesIO(data))
+        recording = read_mcap(io.BytesIO(data), max_uncompressed_bytes=max_uncompressed_bytes)
     except RecordingFileError as exc:
         raise InvalidRecording("invalid_recording", str(exc)) from exc
     detail = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}

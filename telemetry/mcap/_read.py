@@ -1,8 +1,12 @@
 """MCAP import: the exact :class:`~telemetry.recording.PassRecording` that was exported.
 
-Everything is checked before anything is built: the file is read whole, its summary, our
-metadata record, each required channel and its schema, then every message of our channels
-against its schema, then the counts and per-channel sequences. Any failure raises
+Everything is checked before anything is built: the file is read whole, then its record
+structure before anything is decompressed (every top-level record inside the file, each
+chunk's declared uncompressed size within :data:`MAX_CHUNK_BYTES` and all of them together
+within the caller's limit, a zstd frame's own content size equal to its chunk's, the
+summary and its indexes pointing at those records), its summary, our metadata record, each
+required channel and its schema, then every message of our channels against its schema,
+then the counts and per-channel sequences. Any failure raises
 :class:`~telemetry.mcap.RecordingFileError`; a partial recording is never returned.
 """
 
@@ -12,10 +16,14 @@ import io
 import json
 import os
 import re
+import struct
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import IO, Any
 
 import numpy as np
+import zstandard
+from mcap.opcode import Opcode
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Schema
 from mcap.summary import Summary
@@ -38,9 +46,15 @@ from telemetry.mcap._schemas import (
 )
 from telemetry.recording import FRAME_ARRAYS, CommandRow, EventRow, FrameArrays, PassRecording
 
-__all__ = ["read_mcap"]
+__all__ = ["MAX_CHUNK_BYTES", "MAX_UNCOMPRESSED_BYTES", "read_mcap"]
 
 _MAGIC = b"\x89MCAP0\r\n"
+#: The most one chunk may hold uncompressed. The writer's chunks are 1 MiB, or one message
+#: when a message is larger (the plan, a few MB).
+MAX_CHUNK_BYTES = 64 * 2**20
+#: The most all the chunks of a file may hold uncompressed, unless the caller says otherwise
+#: (8 x the ground's default upload limit; recordings compress about 10:1).
+MAX_UNCOMPRESSED_BYTES = 2 * 2**30
 _VALIDATORS = validators()
 _INT_COLUMNS = {"seq", "generation_time_ns", "reception_time_ns"} | {
     n for n in FRAME_ARRAYS if n.startswith("buffer_")
@@ -52,6 +66,109 @@ def _read_bytes(source: str | os.PathLike[str] | IO[bytes]) -> bytes:
         with open(source, "rb") as f:
             return f.read()
     return source.read()
+
+
+@dataclass
+class _Layout:
+    """Where the file's top-level records start, and which of them are chunks."""
+
+    records: set[int] = field(default_factory=set)
+    chunks: set[int] = field(default_factory=set)
+    uncompressed: int = 0
+
+
+def _damaged(detail: str) -> RecordingFileError:
+    return RecordingFileError(f"damaged or truncated MCAP file: {detail}")
+
+
+def _mib(n: int) -> str:
+    return f"{n / 2**20:.1f} MiB"
+
+
+def _check_chunk(body: memoryview, at: int, max_chunk: int) -> int:
+    """The chunk record's declared uncompressed size, once it is known that decompressing
+    it (as the mcap library does) cannot yield more: within ``max_chunk``, zstd or none,
+    the zstd frame's content size the declared one or unknown (the library then passes the
+    declared size as the most it may produce)."""
+    if len(body) < 32:
+        raise _damaged(f"chunk at byte {at} is truncated")
+    (declared,) = struct.unpack_from("<Q", body, 16)
+    (name_len,) = struct.unpack_from("<I", body, 28)
+    if 32 + name_len + 8 > len(body):
+        raise _damaged(f"chunk at byte {at} is truncated")
+    compression = bytes(body[32 : 32 + name_len]).decode("utf-8", "replace")
+    (data_len,) = struct.unpack_from("<Q", body, 32 + name_len)
+    start = 40 + name_len
+    if start + data_len > len(body):
+        raise _damaged(f"chunk at byte {at} is truncated")
+    if declared > max_chunk:
+        raise RecordingFileError(
+            f"chunk at byte {at} holds {_mib(declared)} uncompressed, over the limit of "
+            f"{_mib(max_chunk)} per chunk"
+        )
+    if compression == "zstd":
+        try:
+            size = zstandard.get_frame_parameters(body[start : start + data_len]).content_size
+        except zstandard.ZstdError as exc:
+            raise _damaged(f"chunk at byte {at}: zstd data: {exc}") from None
+        if size not in (declared, zstandard.CONTENTSIZE_UNKNOWN):
+            raise RecordingFileError(
+                f"chunk at byte {at} declares {declared} bytes uncompressed, its zstd data "
+                f"{size} bytes"
+            )
+    elif compression != "":
+        raise RecordingFileError(
+            f"chunk at byte {at} is compressed with {compression[:16]!r}: recordings use zstd"
+        )
+    return int(declared)
+
+
+def _layout(data: bytes, max_chunk: int, max_total: int) -> _Layout:
+    """Walk the top-level records (nothing decompressed) and bound what reading will
+    decompress; see :func:`_check_chunk`."""
+    if not data.endswith(_MAGIC) or len(data) < 2 * len(_MAGIC):
+        raise _damaged("it does not end with the MCAP magic")
+    view = memoryview(data)
+    end_of_records = len(data) - len(_MAGIC)
+    layout = _Layout()
+    pos = len(_MAGIC)
+    footer: int | None = None
+    while pos < end_of_records:
+        if pos + 9 > end_of_records:
+            raise _damaged(f"record at byte {pos} is cut short")
+        opcode = data[pos]
+        (length,) = struct.unpack_from("<Q", data, pos + 1)
+        end = pos + 9 + length
+        if end > end_of_records:
+            raise _damaged(f"record at byte {pos} runs past the end of the file")
+        layout.records.add(pos)
+        if opcode == Opcode.CHUNK:
+            layout.chunks.add(pos)
+            layout.uncompressed += _check_chunk(view[pos + 9 : end], pos, max_chunk)
+            if layout.uncompressed > max_total:
+                raise RecordingFileError(
+                    f"the chunks hold more than {_mib(max_total)} uncompressed, the limit per file"
+                )
+        elif opcode == Opcode.FOOTER:
+            footer = pos
+            break
+        pos = end
+    if footer is None or end != end_of_records or length < 8:
+        raise _damaged("no footer just before its end")
+    (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
+    if summary_start != 0 and summary_start not in layout.records:
+        raise _damaged(f"the footer's summary start {summary_start} is not a record")
+    return layout
+
+
+def _check_indexes(summary: Summary, layout: _Layout) -> None:
+    """The summary's indexes point at the records walked: no chunk is read (decompressed)
+    twice or from inside another record."""
+    starts = [index.chunk_start_offset for index in summary.chunk_indexes]
+    if not set(starts) <= layout.chunks or len(set(starts)) != len(starts):
+        raise _damaged("the chunk index points at no chunk, or at one chunk twice")
+    if not {index.offset for index in summary.metadata_indexes} <= layout.records - layout.chunks:
+        raise _damaged("the metadata index points at no metadata record")
 
 
 def _summary(reader: McapReader) -> Summary:
@@ -125,6 +242,8 @@ def _messages(reader: McapReader, channels: dict[str, Channel]) -> dict[str, lis
         where = f"{topic} message {message.sequence}"
         try:
             doc = json.loads(message.data)
+        except RecursionError:
+            raise RecordingFileError(f"{where} is not JSON: nested too deep") from None
         except ValueError as exc:
             raise RecordingFileError(f"{where} is not JSON: {exc}") from None
         try:
@@ -208,16 +327,25 @@ def _build(meta: Mapping[str, str], messages: dict[str, list[Any]]) -> PassRecor
     )
 
 
-def read_mcap(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> PassRecording:
+def read_mcap(
+    path_or_stream: str | os.PathLike[str] | IO[bytes],
+    *,
+    max_uncompressed_bytes: int = MAX_UNCOMPRESSED_BYTES,
+    max_chunk_bytes: int = MAX_CHUNK_BYTES,
+) -> PassRecording:
     """The recording that :func:`~telemetry.mcap.write_mcap` wrote (a stream is read from its
     current position to its end). Only our channels are read; the derived Foxglove and plot
-    channels are not needed. Raises :class:`~telemetry.mcap.RecordingFileError`."""
+    channels are not needed. A file whose chunks declare more than ``max_chunk_bytes`` each
+    or ``max_uncompressed_bytes`` together is refused before anything is decompressed.
+    Raises :class:`~telemetry.mcap.RecordingFileError`."""
     data = _read_bytes(path_or_stream)
     if not data.startswith(_MAGIC):
         raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
+    layout = _layout(data, max_chunk_bytes, max_uncompressed_bytes)
     try:
         reader = make_reader(io.BytesIO(data), validate_crcs=True)
         summary = _summary(reader)
+        _check_indexes(summary, layout)
         meta = _metadata(reader)
         _check_metadata(meta)
         channels = _channels(summary)
