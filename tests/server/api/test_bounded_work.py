@@ -247,3 +247,105 @@ def test_work_beyond_the_bounds_is_refused(
     assert response.json()["error"]["code"] == "InvalidInput"
     validation = client.post("/api/plans/validate", json=body, headers=OPERATOR).json()
     assert validation["valid"] is False and reason in validation["errors"][0]["message"]
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every process below ``pid`` (from /proc: psutil is not a dependency)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(entry))
+    found: set[int] = set()
+    todo = [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: Path) -> None:
+    """``hikoboshi serve`` with 40 of the longest plans the bounds allow in flight: health
+    answers within 1 s, the jobs go when their clients do, SIGTERM stops it within 5 s
+    after the lifespan's shutdown (the runner's) ran."""
+    import socket
+    import subprocess
+    import sys
+
+    import httpx
+
+    from tests.test_cli_serve import _free_port
+
+    port = _free_port()
+    env = {
+        **os.environ,
+        "HIKOBOSHI_DATA_DIR": str(tmp_path),
+        "HIKOBOSHI_TOKENS": "v-tok=vera:viewer,o-tok=otto:operator",
+    }
+    env.pop("DATABASE_URL", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    base = f"http://127.0.0.1:{port}"
+    sockets: list[socket.socket] = []
+    try:
+        deadline = time.monotonic() + PATIENCE_S
+        while True:
+            try:
+                httpx.get(f"{base}/api/health", timeout=1.0)
+                break
+            except httpx.TransportError:
+                assert time.monotonic() < deadline and proc.poll() is None, "no server"
+                time.sleep(0.2)
+        # The warm-up job has come and gone: what is left is the forkserver.
+        time.sleep(3.0)
+        baseline = len(_descendants(proc.pid))
+        body = (
+            b'{"experiment": "nonholonomic", "parameters": {"attitude_end_deg": [90, 90, 90],'
+            b' "max_iterations": 200, "path_steps": 400, "max_corrections": 20}}'
+        )
+        request = (
+            b"POST /api/plans/validate HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer o-tok\r\n"
+            b"Content-Type: application/json\r\nContent-Length: %d\r\n\r\n%s" % (len(body), body)
+        )
+        for _ in range(40):
+            s = socket.create_connection(("127.0.0.1", port), timeout=10)
+            s.sendall(request)
+            sockets.append(s)
+        _wait_for(lambda: len(_descendants(proc.pid)) > baseline, "jobs to start")
+        for _ in range(5):
+            t0 = time.monotonic()
+            health = httpx.get(f"{base}/api/health", timeout=5.0)
+            assert health.status_code == 200
+            assert time.monotonic() - t0 < 1.0
+            time.sleep(0.2)
+        for s in sockets:
+            s.close()
+        _wait_for(lambda: len(_descendants(proc.pid)) <= baseline, "the jobs to be killed")
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=30)
+        stopped_s = time.monotonic() - t0
+        _, stderr = proc.communicate(timeout=5)
+        # uvicorn re-raises the signal after its clean shutdown (exit status -15); the
+        # shutdown itself is what counts: the lifespan's finally (runner, link) completed.
+        assert code in (0, -signal.SIGTERM), stderr.decode(errors="replace")[-2000:]
+        assert stopped_s < 5.0
+        assert b"Application shutdown complete" in stderr
+    finally:
+        for s in sockets:
+            s.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        if proc.stderr is not None:
+            proc.stderr.close()
