@@ -88,7 +88,8 @@ async def _consoles(url: str, pass_id: str, n: int, last_seq: int, ready: Any) -
     async def one() -> list[tuple[int, int]]:
         nonlocal subscribed
         received: list[tuple[int, int]] = []
-        async with connect(url, max_size=2**24, open_timeout=30) as ws:
+        headers = {"Authorization": "Bearer v-token"}  # never ?token=: URLs end up in logs
+        async with connect(url, max_size=2**24, open_timeout=30, additional_headers=headers) as ws:
             await ws.recv()  # welcome
             subscribe = {"v": 1, "type": "subscribe", "topic": "telemetry", "pass_id": pass_id}
             await ws.send(json.dumps(subscribe | {"max_rate_hz": RATE_HZ}))
@@ -152,7 +153,9 @@ async def _spacecraft(
     ws_url: str, first_seq: int, n_frames: int, acked: dict[int, int], sent: dict[int, int]
 ) -> None:
     rng = np.random.default_rng(first_seq)
-    async with connect(f"{ws_url}/api/link?token=s-token", max_size=2**24) as ws:
+    async with connect(
+        f"{ws_url}/api/link", max_size=2**24, additional_headers={"Authorization": "Bearer s-token"}
+    ) as ws:
         hello = Hello(
             vehicle="bench",
             onboard_time_ns=T0_NS + first_seq * round(1e9 / RATE_HZ),
@@ -214,7 +217,7 @@ def run(app: Any, base_url: str, n_consoles: int, first_seq: int) -> dict[str, A
     ws_base = base_url.replace("http://", "ws://")
     consoles = ctx.Process(
         target=_console_process,
-        args=(f"{ws_base}/api/console?token=v-token", pass_id, n_consoles, last_seq, ready, send),
+        args=(f"{ws_base}/api/console", pass_id, n_consoles, last_seq, ready, send),
     )
     consoles.start()
     try:

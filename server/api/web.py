@@ -5,7 +5,8 @@ npm run build``, which ``scripts/setup.sh`` runs), served at ``/``.
 bundles (cached for good); ``/model/...`` the model files the setup script exports next to
 it. Without a build, ``/`` answers 503 with a page that says how to build it, so an
 operator never mistakes a missing console for a dead server. Nothing here is under
-``/api`` and nothing is in the OpenAPI document.
+``/api`` and nothing is in the OpenAPI document. The pages' Content-Security-Policy and the
+other security headers are the edge's (server/api/edge.py, docs/security.md).
 """
 
 from __future__ import annotations
@@ -45,7 +46,11 @@ _TYPES = {
 
 
 def _file(root: Path, name: str, cache: str) -> Response:
-    """``root/name`` if it is a file of a known type inside ``root``, else 404."""
+    """``root/name`` if it is a file of a known type inside ``root``, else 404 (a name with
+    a control character too: the edge refuses those first, and the file system would raise
+    on a NUL)."""
+    if not name.isprintable():
+        raise ServiceError(404, "not_found", f"no console file {name!r}")
     path = (root / name).resolve()
     if not path.is_relative_to(root.resolve()) or not path.is_file() or path.suffix not in _TYPES:
         raise ServiceError(404, "not_found", f"no console file {name!r}")
