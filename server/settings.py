@@ -60,7 +60,7 @@ class Settings(BaseModel):
     #: pass is 14 MB).
     max_import_bytes: int = 256 * 1024 * 1024
     #: The most an imported recording's chunks may hold uncompressed, together (8 x the
-    #: upload limit; recordings compress about 10:1), checked before anything is
+    #: upload limit; recordings compress about 4:1), checked before anything is
     #: decompressed; one chunk may hold at most 64 MiB (docs/mcap.md).
     max_import_uncompressed_bytes: int = Field(default=2 * 1024**3, ge=1)
     #: CPU-heavy requests (planning, recording downloads, reports, raw telemetry reads) run
