@@ -79,8 +79,11 @@ def _confirmation_job(
 
 
 async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, actor: str) -> str:
-    # Through the link's database worker: no blocking database call in the event loop.
-    key, expected = await link.db.run(_confirmation_job(pass_id, action, confirm, actor))
+    # Through the link's database worker (no blocking database call in the event loop, and
+    # the command path's own connections: readers cannot hold it up), ahead of its queue.
+    key, expected = await link.db.run(
+        _confirmation_job(pass_id, action, confirm, actor), control=True
+    )
     if expected is not None:
         raise ServiceError(
             422, "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -100,7 +103,7 @@ async def _public(link: GroundLink, pass_id: str) -> PassControlPublic:
             epoch_ns=record.epoch_ns,
         )
 
-    return await link.db.run(job)
+    return await link.db.run(job, control=True)
 
 
 @router.post("/api/passes/{pass_id}/start")

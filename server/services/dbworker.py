@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import itertools
 import logging
 import queue
 import sys
@@ -76,6 +77,10 @@ class Database:
 
     A job returns the event dicts it wrote; they are published once it has committed.
 
+    An operator's control requests (``run(..., control=True)``: confirm, abort, the state
+    after it) go before everything, in a transaction of their own; a group in progress
+    commits early when one arrives, so an abort waits for one job, not a group of them.
+
     Telemetry frames (:meth:`submit_then`) go ahead of the jobs already waiting: their
     acknowledgement waits on the commit, and a spacecraft that hears none sends them again.
     At 60x a pass changes some 700 command stages a second, and frames queued behind that
@@ -95,6 +100,8 @@ class Database:
         #: jobs to run before the queue's (thread-safe appends and pops); a queue entry of
         #: ``_URGENT`` wakes the worker for them
         self._urgent: collections.deque[_Job] = collections.deque()
+        #: control jobs (an operator waits): run before anything else, alone
+        self._control: collections.deque[_Job] = collections.deque()
         self._thread = threading.Thread(target=self._worker, name="ground-db", daemon=True)
         self._thread.start()
         self._pending: set[asyncio.Future[Any]] = set()
@@ -112,71 +119,93 @@ class Database:
                 raise
             return result
 
-    def _take_urgent(self) -> list[_Job]:
+    @staticmethod
+    def _take(jobs: collections.deque[_Job]) -> list[_Job]:
         out = []
-        while self._urgent:
-            out.append(self._urgent.popleft())
+        while jobs:
+            out.append(jobs.popleft())
         return out
 
     def _worker(self) -> None:
+        carry: collections.deque[_Job] = collections.deque()  # taken, not yet run
+        stop = False
         while True:
-            first = self._queue.get()
-            if first is None:
-                return
-            group = self._take_urgent()
-            if first is not _URGENT:
-                group.append(first)
-            stop = False
-            while len(group) < self.MAX_GROUP:
+            if not carry and not self._urgent and not self._control:
+                if stop:
+                    return
+                item = self._queue.get()
+                if item is None:
+                    return
+                if item is not _URGENT:
+                    carry.append(item)
+            control = self._take(self._control)
+            if control:  # alone: an operator waits for them
+                self._run_group(control)
+                continue
+            while len(carry) < self.MAX_GROUP and not stop:
                 try:
                     item = self._queue.get_nowait()
                 except queue.Empty:
                     break
                 if item is None:
                     stop = True
-                    break
-                if item is not _URGENT:
-                    group.append(item)
-            group[:0] = self._take_urgent()  # those that came meanwhile
-            if group:
-                self._run_group(group)
-            if stop:
-                return
+                elif item is not _URGENT:
+                    carry.append(item)
+            frames = self._take(self._urgent)
+            group = frames + list(itertools.islice(carry, self.MAX_GROUP))
+            if not group:
+                continue
+            ran = self._run_group(group, yield_to_control=True)
+            if ran < len(frames):  # cut short: the frames not run go first next time
+                self._urgent.extendleft(reversed(frames[ran:]))
+            for _ in range(max(0, ran - len(frames))):
+                carry.popleft()
 
-    def _run_group(self, group: list[_Job]) -> None:
+    def _run_group(self, group: list[_Job], *, yield_to_control: bool = False) -> int:
+        """Run ``group``'s jobs in one transaction and settle them; with
+        ``yield_to_control``, stop after the job during which a control job arrived and
+        commit what ran (the rest stays queued). How many jobs ran."""
         self.groups += 1
-        self.jobs += len(group)
-        outcomes: list[tuple[bool, Any]]
+        outcomes: list[tuple[bool, Any]] = []
+        ran = 0
         try:
             with self._sessions() as session:
                 try:
-                    results = [job.fn(session) for job in group]
+                    results = []
+                    for job in group:
+                        ran += 1
+                        results.append(job.fn(session))
+                        if yield_to_control and self._control:
+                            break
                     session.commit()
                 except BaseException:
                     session.rollback()
                     raise
             outcomes = [(True, r) for r in results]
         except Exception:
-            if len(group) == 1:
+            if ran == 1:
                 outcomes = [(False, sys.exc_info()[1])]
             else:
-                outcomes = []
-                for job in group:  # isolate the failure: one transaction each
+                for job in group[:ran]:  # isolate the failure: one transaction each
                     try:
                         outcomes.append((True, self._transaction(job.fn)))
                     except Exception as exc:
                         outcomes.append((False, exc))
-        for job, (ok, value) in zip(group, outcomes, strict=True):
+        self.jobs += ran
+        for job, (ok, value) in zip(group[:ran], outcomes, strict=True):
             job.loop.call_soon_threadsafe(_settle, job.future, ok, value)
+        return ran
 
-    def _enqueue(self, job: Callable[[Session], T], *, urgent: bool = False) -> asyncio.Future[T]:
+    def _enqueue(
+        self, job: Callable[[Session], T], *, urgent: bool = False, control: bool = False
+    ) -> asyncio.Future[T]:
         loop = asyncio.get_running_loop()
         future: asyncio.Future[T] = loop.create_future()
         if self._closed:  # no worker will ever run it: fail now rather than hang
             future.set_exception(RuntimeError("the database worker is closed"))
             return future
-        if urgent:
-            self._urgent.append(_Job(job, future, loop))
+        if urgent or control:
+            (self._control if control else self._urgent).append(_Job(job, future, loop))
             self._queue.put(_URGENT)
         else:
             self._queue.put(_Job(job, future, loop))
@@ -184,8 +213,10 @@ class Database:
         future.add_done_callback(self._pending.discard)
         return future
 
-    async def run(self, job: Callable[[Session], T]) -> T:
-        return await self._enqueue(job)
+    async def run(self, job: Callable[[Session], T], *, control: bool = False) -> T:
+        """Run ``job`` in its turn; a ``control`` job (an operator's request: a short read
+        or write that someone is waiting for) goes before everything else, alone."""
+        return await self._enqueue(job, control=control)
 
     async def write(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
         """Run ``job`` (which returns the events it wrote) and publish its events."""
@@ -224,8 +255,14 @@ class Database:
 
         future.add_done_callback(done)
 
+    async def barrier(self) -> None:
+        """Wait for the jobs queued so far, not for those queued meanwhile: with telemetry
+        arriving all the time, :meth:`drain` may not return while the link is up."""
+        await asyncio.gather(*list(self._pending), return_exceptions=True)
+
     async def drain(self) -> None:
-        """Wait for every job queued so far (and those their completions queue)."""
+        """Wait for every job queued so far (and those their completions queue): until the
+        worker is idle (shutdown, tests)."""
         while self._pending:
             await asyncio.gather(*list(self._pending), return_exceptions=True)
 

@@ -388,7 +388,7 @@ class PassRunner:
                 await self._clock.sleep_until(wake_at, self._wake)
             if active.stop.is_set():
                 return
-            await link.db.drain()
+            await link.db.barrier()
             # No lock from here: abort() holds it while it waits for this task. Between
             # the stop check and the write there is no await, and abort() transitions
             # only after this task has ended, from whatever state it left.
@@ -714,7 +714,6 @@ class PassRunner:
             end = link.onboard_now_ns()
         if active is not None:
             link.close_window(active.window, end)
-        await link.db.drain()
         # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
         cancel: list[int] = []
         if active is not None:
@@ -750,7 +749,10 @@ class PassRunner:
             )
             return events
 
-        link.publisher.publish(await link.db.run(job))
+        # Ahead of the stage writes still queued: the operator waits for this answer, and
+        # none of them can undo it (``cancelled`` is final; the vehicle's own ``executed``
+        # still overrules it, as it should).
+        link.publisher.publish(await link.db.run(job, control=True))
         if active is not None and self._active is active:
             self._active = None
         if delete is not None:

@@ -365,7 +365,9 @@ def cancel_commands(*, session: Session, pass_id: str, seqs: Collection[int], ti
                 CommandRecord.stage.in_(("queued", "released", "sent", "received")),
             )
             .values(stage="cancelled", cancelled_at_ns=time_ns)
-            .execution_options(synchronize_session="fetch")
+            # objects of these rows already in the session are updated by evaluating the
+            # criteria in Python: an abort of a long pass does not fetch thousands back
+            .execution_options(synchronize_session="evaluate")
         )
         changed += int(result.rowcount or 0)  # type: ignore[attr-defined]
     return changed
