@@ -17,10 +17,12 @@ from pathlib import Path
 
 import pytest
 import zstandard
+from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
 from server.services.imports import InvalidRecording, import_mcap
 from telemetry.mcap import RecordingFileError, read_mcap
+from tests.server.api.conftest import OPERATOR
 from tests.server.reports.test_imports import row_counts
 
 GIB = 2**30
@@ -101,6 +103,15 @@ def test_a_decompression_bomb_is_refused_and_nothing_is_stored(
     assert reason in info.value.message
     session.rollback()
     assert row_counts(session) == before
+
+
+def test_an_uploaded_bomb_gets_the_import_error_shape(
+    client: TestClient, bombs: dict[str, bytes]
+) -> None:
+    response = client.post("/api/passes/import", content=bombs["declared"], headers=OPERATOR)
+    assert response.status_code == 422, response.text
+    error = response.json()["error"]
+    assert error["code"] == "invalid_recording" and "per chunk" in error["message"]
 
 
 def test_chunks_over_the_per_file_limit_are_refused_before_decompression(
