@@ -128,7 +128,10 @@ def make_engine(url: str | URL, *, echo: bool = False, pool: PoolSizes | None = 
         connect_args: dict[str, Any] = {}
         if pool.statement_timeout_s is not None:
             ms = max(1, round(pool.statement_timeout_s * 1000))
-            connect_args["options"] = f"-c statement_timeout={ms}"
+            # beside any options the URL gives (a search_path, say), not instead of them
+            given = parsed.query.get("options", "")
+            given = given if isinstance(given, str) else " ".join(given)
+            connect_args["options"] = f"{given} -c statement_timeout={ms}".strip()
         return create_engine(
             parsed,
             echo=echo,

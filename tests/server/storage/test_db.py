@@ -5,10 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import sqlalchemy.exc
 from sqlalchemy import text
 
 from server.storage.db import (
     SQLITE_FILENAME,
+    PoolSizes,
     make_engine,
     read_session_factory,
     session_factory,
@@ -56,5 +58,34 @@ def test_a_read_session_reads_while_a_writer_holds_the_sqlite_write_lock(tmp_pat
             writer.commit()
         with read_session_factory(engine)() as reader:
             assert reader.scalars(text("SELECT x FROM t ORDER BY x")).all() == [1, 2]
+    finally:
+        engine.dispose()
+
+
+def test_a_readers_pool_on_postgresql_keeps_the_urls_options_and_ends_long_statements(
+    postgres_schema_url: str,
+) -> None:
+    """The readers' pool sets a statement timeout beside the URL's own options (the
+    schema's search_path here): a statement longer than it is ended by the server."""
+    engine = make_engine(
+        postgres_schema_url,
+        pool=PoolSizes(size=1, overflow=0, timeout_s=1.0, statement_timeout_s=0.5),
+    )
+    try:
+        with engine.connect() as connection:
+            assert connection.exec_driver_sql("SHOW statement_timeout").scalar() == "500ms"
+            search_path = str(connection.exec_driver_sql("SHOW search_path").scalar())
+            assert search_path.startswith("test_")
+            with pytest.raises(sqlalchemy.exc.OperationalError, match="statement timeout"):
+                connection.exec_driver_sql("SELECT pg_sleep(5)")
+    finally:
+        engine.dispose()
+
+
+def test_a_full_pool_refuses_a_checkout_after_its_timeout(tmp_path: Path) -> None:
+    engine = make_engine(sqlite_url(tmp_path), pool=PoolSizes(size=1, overflow=0, timeout_s=0.2))
+    try:
+        with engine.connect(), pytest.raises(sqlalchemy.exc.TimeoutError):
+            engine.connect()
     finally:
         engine.dispose()
