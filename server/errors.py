@@ -17,7 +17,8 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import DataError
+from sqlalchemy.exc import DataError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from planner.errors import PlannerError
@@ -93,6 +94,36 @@ def install_error_handlers(app: FastAPI) -> None:
             "the database refused a value (%s %s): %s", request.method, request.url.path, exc.orig
         )
         return _json(400, "invalid_data", "the database refused a value in the request")
+
+    @app.exception_handler(PoolTimeout)
+    async def pool_full(request: Request, exc: PoolTimeout) -> JSONResponse:
+        # Every connection of the readers' pool is in use (the command path has its own):
+        # come back shortly, rather than wait and hold a thread.
+        log.warning("readers' pool full: %s %s", request.method, request.url.path)
+        return JSONResponse(
+            status_code=503,
+            content=error_body("busy", "every database connection for requests is in use"),
+            headers={"Retry-After": "2"},
+        )
+
+    @app.exception_handler(OperationalError)
+    async def database_unavailable(request: Request, exc: OperationalError) -> JSONResponse:
+        # The database ended the statement (the readers' statement timeout) or cannot be
+        # reached: the request may succeed later.
+        cancelled = "statement timeout" in str(exc.orig)
+        log.warning(
+            "database operational error in %s %s: %s", request.method, request.url.path, exc.orig
+        )
+        message = (
+            "the read took longer than the database allows a request"
+            if cancelled
+            else "the database is not available"
+        )
+        return JSONResponse(
+            status_code=503,
+            content=error_body("busy" if cancelled else "database_unavailable", message),
+            headers={"Retry-After": "5"},
+        )
 
     @app.exception_handler(Exception)
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -280,7 +280,15 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         (403, "The token's role may not do this"),
         (404, "Not found"),
         (409, "Conflict"),
+        (413, "The request body exceeds the size limit"),
         (422, "Invalid request, or a plan that cannot be made"),
+        (429, "Too many failed authentications from this address (Retry-After)"),
+        (
+            503,
+            "Busy: the bounded work pool, the readers' database connections or a deadline"
+            " (Retry-After)",
+        ),
+        (504, "The work did not finish within its deadline"),
     )
 }
 
