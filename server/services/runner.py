@@ -108,6 +108,9 @@ MAX_REFUSED_IN_A_ROW = 8
 #: After LOS, ask the vehicle about unacknowledged commands at most this many times (under
 #: 20 % loss each way one round is lost with p = 0.36; twenty rounds all with p < 1e-8).
 MAX_COMMAND_QUERIES = 20
+#: Rounds of asking about a resumed pass's ``expired`` commands (answers to expired ones
+#: the vehicle never had change nothing, so there is no telling when all have come).
+EXPIRED_QUERIES = 2
 #: A pass starts late enough for its first command to go up this many times (the first
 #: timeout, before any round-trip sample) before its last chance.
 START_TRANSMISSIONS = 3
@@ -178,6 +181,9 @@ class _Active:
     stop: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
     refused_in_a_row: int = 0
+    #: Resumed after a restart: the previous process may have sent commands it had not yet
+    #: recorded as sent, which this one then took as never sent (and expired).
+    resumed: bool = False
 
 
 @dataclass
@@ -504,7 +510,9 @@ class PassRunner:
     async def _finish(self, active: _Active) -> None:
         """After LOS: wait for the last acknowledgements, asking the vehicle about commands
         whose tag has passed without one, then ``complete``."""
-        left = await self._resolve_outstanding(active.pass_id, active.stop)
+        left = await self._resolve_outstanding(
+            active.pass_id, active.stop, ask_expired=active.resumed
+        )
         if active.stop.is_set():
             return
         reason = "every command acknowledged" if not left else f"{left} unacknowledged"
@@ -515,11 +523,18 @@ class PassRunner:
         if self._active is active:
             self._active = None
 
-    async def _resolve_outstanding(self, pass_id: str, stop: asyncio.Event) -> int:
+    async def _resolve_outstanding(
+        self, pass_id: str, stop: asyncio.Event, *, ask_expired: bool = False
+    ) -> int:
         """Ask the vehicle (``command_query``: acks lost on the downlink, commands lost on
         the uplink) about the pass's commands still ``sent`` or ``received`` once their tag
-        has passed, up to :data:`MAX_COMMAND_QUERIES` times; how many are left unresolved."""
+        has passed, up to :data:`MAX_COMMAND_QUERIES` times; how many are left unresolved.
+
+        ``ask_expired`` (a pass resumed after a restart): also ask, once, about the commands
+        taken as ``expired``: the vehicle's own word (``executed``) replaces the guess."""
         link, clock = self._link, self._clock
+        if ask_expired:
+            await self._ask_about_expired(pass_id, stop)
         # Onboard s between queries: a round trip and a second to answer.
         period_ns = round((2 * self._delay_s + 1.0) * 1e9)
         poll_s = 0.05
@@ -552,6 +567,26 @@ class PassRunner:
                 )
             left = await link.db.run(outstanding)
         return len(left)
+
+    async def _ask_about_expired(self, pass_id: str, stop: asyncio.Event) -> None:
+        link, clock = self._link, self._clock
+
+        def expired(session: Session) -> list[int]:
+            rows = repo.list_commands(session=session, pass_id=pass_id, stages=("expired",))
+            return [r.seq for r in rows]
+
+        period_ns = round((2 * self._delay_s + 1.0) * 1e9)
+        for _ in range(EXPIRED_QUERIES):  # the relay may lose one
+            seqs = await link.db.run(expired)
+            if not seqs or stop.is_set() or not link.connected:
+                return
+            if await link.query_commands(seqs):
+                # the answers are a round trip away (acks replace the guess)
+                with contextlib.suppress(LinkUnavailable):
+                    await clock.sleep_until(
+                        link.mono_at_onboard(link.onboard_now_ns() + period_ns), stop
+                    )
+                await link.db.barrier()
 
     def _background_task(self, coro: Any) -> None:
         task = asyncio.get_running_loop().create_task(coro)
@@ -657,6 +692,7 @@ class PassRunner:
                 last_tag_ns=max(r.execute_time_ns for r in rows),
                 min_seq=min(seqs),
                 max_seq=max(seqs),
+                resumed=True,
             )
             if info["state"] == "los":
                 uplink.stop()

@@ -40,10 +40,11 @@ from tests.server.link.harness import (
 #: that would be a minute onboard. At 10x it is 20-40 s of a 130 s pass.
 SCALE = 10.0
 TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
-#: The uplink's lead window here (onboard s; 120 s in flight): at the kill the schedule
-#: holds a minute of the plan, so the resumed ground still has most of it to send, and the
-#: loaded minute (6 s of wall) rides out the restart.
-LEAD_WINDOW_S = 60.0
+#: The uplink's lead window here (onboard s; 120 s in flight): the schedule loaded at the
+#: kill (15 s of wall at 10x) must ride out the restart, which takes 5-12 s of wall on a
+#: loaded machine (a fresh interpreter's imports and the migrations); with 60 s the last
+#: commands loaded ran before the new ground was up, and the next ones expired.
+LEAD_WINDOW_S = 150.0
 
 
 @contextmanager
@@ -140,9 +141,10 @@ def test_a_killed_ground_resumes_the_pass_and_loses_no_row(
         task = asyncio.create_task(process.run(stop))
         try:
             with serve(database_url, port, log) as first:
-                # 10 s of motion, then 160 s holding: 17 s wall at 10x, so a kill that comes
-                # late on a loaded machine still finds the pass running
-                pass_id = store_pass(sessions, "restart", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 160.0)
+                # 10 s of motion, then 260 s holding: 27 s wall at 10x, so a kill that comes
+                # late on a loaded machine still finds the pass running, and the resumed
+                # ground has a good part of it (past the lead window) still to send
+                pass_id = store_pass(sessions, "restart", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 260.0)
                 async with httpx.AsyncClient(base_url=base) as client:
                     deadline = time.monotonic() + 20.0
                     while not await connected(client):
@@ -161,7 +163,7 @@ def test_a_killed_ground_resumes_the_pass_and_loses_no_row(
             assert before["pass"].state == "running"
             with serve(database_url, port, log):
                 await wait_for(
-                    lambda: state(pass_id) in ("complete", "aborted"), 60.0, "the pass ended"
+                    lambda: state(pass_id) in ("complete", "aborted"), 120.0, "the pass ended"
                 )
                 stop.set()  # drain the onboard store while the ground is still there
                 await asyncio.wait_for(task, 40.0)
