@@ -74,6 +74,9 @@ log = logging.getLogger("hikoboshi.ground.workers")
 
 T = TypeVar("T")
 
+#: How much lower a job's CPU priority is than the server's (``nice``).
+JOB_NICENESS = 10
+
 #: Modules the forkserver imports once, so that a job needs no imports of its own.
 PRELOAD = (
     "numpy",
@@ -166,8 +169,12 @@ def _child(
     args: tuple[Any, ...],
     kwargs: dict[str, Any],
 ) -> None:
-    """The job process: limit the address space, run ``fn``, send ``("ok", result)`` or
-    ``("error", (status, code, message, detail))``."""
+    """The job process: lower its CPU priority, limit the address space, run ``fn``, send
+    ``("ok", result)`` or ``("error", (status, code, message, detail))``."""
+    # Below the server and the link: on a machine with few cores a download or a plan must
+    # take the CPU the live pass leaves, not share it evenly (at equal priority two jobs
+    # made an operator's abort wait seconds for the link's database worker).
+    os.nice(JOB_NICENESS)
     if memory_bytes:
         resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
     try:
