@@ -7,12 +7,16 @@ assertions run in the test's loop. Both ends meet only on the wire, as in flight
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -85,6 +89,37 @@ def running_ground(database_url: str) -> Iterator[Ground]:
         server.should_exit = True
         thread.join(timeout=30.0)
         engine.dispose()
+
+
+@contextmanager
+def serve_process(
+    database_url: str, port: int, log: Path, env: Mapping[str, str]
+) -> Iterator[subprocess.Popen[bytes]]:
+    """``hikoboshi serve`` as a process of its own on ``port`` (output appended to
+    ``log``), once its health answers; terminated afterwards."""
+    environment = {**os.environ, "DATABASE_URL": database_url, **env}
+    with log.open("ab") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
+            env=environment,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=1.0)
+                break
+            except httpx.TransportError:
+                assert proc.poll() is None, log.read_text()[-3000:]
+                assert time.monotonic() < deadline, "the server did not come up"
+                time.sleep(0.1)
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(timeout=30)
 
 
 def store_pass(

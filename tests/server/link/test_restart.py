@@ -8,10 +8,8 @@ runs in the test's event loop and reconnects by itself, as in flight.
 from __future__ import annotations
 
 import asyncio
-import os
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -32,6 +30,7 @@ from tests.server.link.harness import (
     VIEWER,
     _free_port,
     generated_frames,
+    serve_process,
     store_pass,
     wait_for,
 )
@@ -49,34 +48,9 @@ LEAD_WINDOW_S = 150.0
 
 @contextmanager
 def serve(database_url: str, port: int, log: Path) -> Iterator[subprocess.Popen[bytes]]:
-    env = {
-        **os.environ,
-        "DATABASE_URL": database_url,
-        "HIKOBOSHI_TOKENS": TOKENS,
-        "HIKOBOSHI_UPLINK_LEAD_WINDOW_S": str(LEAD_WINDOW_S),
-    }
-    with log.open("ab") as out:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-            env=env,
-            stdout=out,
-            stderr=subprocess.STDOUT,
-        )
-    try:
-        deadline = time.monotonic() + 60.0
-        while True:
-            try:
-                httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=1.0)
-                break
-            except httpx.TransportError:
-                assert proc.poll() is None, log.read_text()[-3000:]
-                assert time.monotonic() < deadline, "the server did not come up"
-                time.sleep(0.1)
+    env = {"HIKOBOSHI_TOKENS": TOKENS, "HIKOBOSHI_UPLINK_LEAD_WINDOW_S": str(LEAD_WINDOW_S)}
+    with serve_process(database_url, port, log, env) as proc:
         yield proc
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            proc.wait(timeout=30)
 
 
 def _snapshot(sessions: Any, pass_id: str) -> dict[str, Any]:
