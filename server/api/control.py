@@ -25,13 +25,14 @@ from sqlalchemy.orm import Session
 
 from server.api.deps import OperatorDep, ViewerDep
 from server.errors import ServiceError
+from server.schemas import ERROR_RESPONSES
 from server.services.link import GroundLink, LinkUnavailable
 from server.services.runner import PassRunner
 from server.storage import repository as repo
 
 __all__ = ["router"]
 
-router = APIRouter(tags=["control"])
+router = APIRouter(tags=["control"], responses=ERROR_RESPONSES)
 
 
 class StartRequest(BaseModel):

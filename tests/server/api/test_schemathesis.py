@@ -24,6 +24,7 @@ from schemathesis.specs.openapi.checks import (
 )
 
 from server.api import analyses as analyses_api
+from server.api import control as control_api
 from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
@@ -38,8 +39,10 @@ CHECKS = [
     response_schema_conformance,
 ]
 EXAMPLES_PER_OPERATION = 25
-#: The operations of these routers (the link and control routes have their own tests).
+#: The operations of these routers (start, abort and the link's status included; the link's
+#: websocket has its own tests).
 ROUTERS = (
+    control_api.router,
     plans_api.router,
     passes_api.router,
     telemetry_api.router,
@@ -67,7 +70,7 @@ def test_every_operation_conforms_and_never_fails_on_the_server(client: TestClie
         for op in (result.ok() for result in schema.get_all_operations())
         if (op.method.upper(), op.path) in ours
     ]
-    assert len(operations) == len(ours) == 21
+    assert len(operations) == len(ours) == 24
     for operation in operations:
 
         @settings(
