@@ -14,6 +14,7 @@ import os
 import signal
 import time
 from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -306,6 +307,27 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
             except httpx.TransportError:
                 assert time.monotonic() < deadline and proc.poll() is None, "no server"
                 time.sleep(0.2)
+        # A scheduled pass to abort while the planning requests are in flight.
+        operator = {"Authorization": "Bearer o-tok"}
+        plan = httpx.post(
+            f"{base}/api/plans",
+            json={"experiment": "ptp", "parameters": {"settle_s": 0.25}},
+            headers=operator,
+            timeout=PATIENCE_S,
+        )
+        assert plan.status_code == 201, plan.text
+        now = time.time()
+        created = httpx.post(
+            f"{base}/api/passes",
+            json={
+                "plan_id": plan.json()["id"],
+                "name": "to-abort",
+                "aos_time": datetime.fromtimestamp(now + 3600, UTC).isoformat(),
+                "los_time": datetime.fromtimestamp(now + 7200, UTC).isoformat(),
+            },
+            headers=operator,
+        )
+        assert created.status_code == 201, created.text
         # The warm-up job has come and gone: what is left is the forkserver.
         time.sleep(3.0)
         baseline = len(_descendants(proc.pid))
@@ -328,6 +350,17 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
             assert health.status_code == 200
             assert time.monotonic() - t0 < 1.0
             time.sleep(0.2)
+        # the operator's abort is not held up by the planning either
+        t0 = time.monotonic()
+        aborted = httpx.post(
+            f"{base}/api/passes/{created.json()['id']}/abort",
+            json={"confirm": "ABORT to-abort", "reason": "planning load"},
+            headers=operator,
+            timeout=5.0,
+        )
+        assert aborted.status_code == 200, aborted.text
+        assert aborted.json()["state"] == "aborted"
+        assert time.monotonic() - t0 < 1.0
         for s in sockets:
             s.close()
         _wait_for(lambda: len(_descendants(proc.pid)) <= baseline, "the jobs to be killed")
