@@ -73,6 +73,10 @@ class Settings(BaseModel):
     plan_deadline_s: float = Field(default=120.0, gt=0, le=3600)
     #: A heavy read (a recording, a report, raw telemetry) is killed past this (s): 504.
     read_deadline_s: float = Field(default=120.0, gt=0, le=3600)
+    #: Post-pass work (running a pass's analyses, importing a recording) is killed past
+    #: this (s): 504. The 20-minute demo pass takes about 30 s of either on a loaded 2-core
+    #: machine.
+    post_pass_deadline_s: float = Field(default=600.0, gt=0, le=7200)
     #: The address space one job may use (bytes, RLIMIT_AS; 0: no limit): past it 503
     #: ``out_of_memory``.
     worker_memory_bytes: int = Field(default=2 * 1024**3, ge=0)
@@ -117,6 +121,7 @@ class Settings(BaseModel):
                 "worker_queue",
                 "plan_deadline_s",
                 "read_deadline_s",
+                "post_pass_deadline_s",
                 "worker_memory_bytes",
             )
             if os.environ.get(f"HIKOBOSHI_{name.upper()}")

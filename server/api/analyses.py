@@ -1,10 +1,11 @@
 """``/api/passes/{id}/analyses`` and ``/report``: run the post-pass analyses (operator),
 read the newest results, the report as JSON or HTML and its figures (viewer).
 
-The report routes (JSON, HTML, figures: they decode and re-encode every figure of the
-run) run in a worker process (:mod:`server.services.workers`) on its own database
-connection; the HTML page comes back as a temporary file that is streamed and deleted.
-A full pool answers 503 ``busy`` with ``Retry-After``; past ``read_deadline_s``, 504."""
+Running the analyses and the report routes (JSON, HTML, figures: they decode and
+re-encode every figure of the run) happen in a worker process
+(:mod:`server.services.workers`) on its own database connection; the HTML page comes back
+as a temporary file that is streamed and deleted. A full pool answers 503 ``busy`` with
+``Retry-After``; past ``read_deadline_s`` (the analyses: ``post_pass_deadline_s``), 504."""
 
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from server.services.workers import (
     jobs_dir,
     read_session_file_job,
     read_session_job,
+    session_job,
     stream_file,
     temporary_path,
 )
@@ -52,10 +54,22 @@ _JSON_ERRORS: dict[int | str, dict[str, Any]] = {
 
 
 @router.post("/{pass_id}/analyses", status_code=201, response_model=AnalysesPublic)
-def run_analyses(pass_id: str, session: SessionDep, who: OperatorDep) -> AnalysesPublic:
-    """Analyse the flown pass afresh (seconds for a whole pass) and store one result of each
+async def run_analyses(
+    pass_id: str, http: Request, settings: SettingsDep, who: OperatorDep, workers: WorkersDep
+) -> AnalysesPublic:
+    """Analyse the flown pass afresh (tens of seconds for a whole pass, in a worker process
+    on its own connection; past ``post_pass_deadline_s``, 504) and store one result of each
     kind; an analysis that cannot run on this pass is stored as failed, with the reason."""
-    return service.run_analyses(session=session, pass_id=pass_id, actor=who.name)
+    return await workers.run(
+        session_job,
+        settings.resolved_database_url(),
+        service.run_analyses,
+        pass_id=pass_id,
+        actor=who.name,
+        deadline_s=settings.post_pass_deadline_s,
+        what=f"the analyses of pass {pass_id}",
+        client=http,
+    )
 
 
 @router.get("/{pass_id}/analyses", response_model=AnalysesPublic)

@@ -12,13 +12,12 @@ import re
 
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
-from starlette.concurrency import run_in_threadpool
 
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.api.deps import OperatorDep, SettingsDep, ViewerDep
 from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
 from server.services import recordings as service
-from server.services.imports import import_mcap
+from server.services.imports import import_file_job
 from server.services.workers import (
     BoundedRoute,
     WorkersDep,
@@ -85,21 +84,40 @@ async def download_recording(
     responses={413: {"model": ErrorPublic, "description": "The upload exceeds the size limit"}},
 )
 async def import_recording(
-    request: Request, session: SessionDep, settings: SettingsDep, who: OperatorDep
+    request: Request, settings: SettingsDep, who: OperatorDep, workers: WorkersDep
 ) -> PassImportPublic:
     """Store an MCAP pass recording (the body, as ``hikoboshi mcap export`` or
     ``recording.mcap`` writes it) as a new, finished pass marked imported. A file that is
-    not a readable recording is refused with the reader's reason; nothing is stored."""
+    not a readable recording is refused with the reader's reason; nothing is stored.
+
+    The body is spooled to a file (never held in the server's memory) up to
+    ``max_import_bytes``, then read and stored by a worker process on its own connection
+    (503 ``busy`` when every worker is taken; past ``post_pass_deadline_s``, 504)."""
     limit = settings.max_import_bytes
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > limit:
         raise _too_large(int(declared), limit)
-    body = bytearray()
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > limit:
-            raise _too_large(len(body), limit)
-    return await run_in_threadpool(import_mcap, session, bytes(body), who.name, source="upload")
+    path = temporary_path(jobs_dir(settings.data_dir), ".mcap")
+    try:
+        size = 0
+        with path.open("wb") as spool:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > limit:
+                    raise _too_large(size, limit)
+                spool.write(chunk)
+        return await workers.run(
+            import_file_job,
+            settings.resolved_database_url(),
+            str(path),
+            who.name,
+            settings.max_import_uncompressed_bytes,
+            deadline_s=settings.post_pass_deadline_s,
+            what="the import",
+            client=request,
+        )
+    finally:
+        path.unlink(missing_ok=True)
 
 
 def _too_large(size: int, limit: int) -> ServiceError:

@@ -20,6 +20,7 @@ import hashlib
 import io
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy.exc import DataError, IntegrityError
@@ -35,7 +36,7 @@ from server.storage.models import COMMAND_KINDS, COMMAND_STAGES
 from telemetry.mcap import RecordingFileError, read_mcap
 from telemetry.recording import PassRecording
 
-__all__ = ["InvalidRecording", "import_mcap", "store_recording"]
+__all__ = ["InvalidRecording", "import_file_job", "import_mcap", "store_recording"]
 
 _INT64 = 2**63
 _FINISHED = ("complete", "aborted")
@@ -202,4 +203,22 @@ def import_mcap(
         frames=len(recording.frames),
         commands=len(recording.commands),
         events=len(recording.events),
+    )
+
+
+def import_file_job(
+    url: str, path: str, actor: str, max_uncompressed_bytes: int
+) -> PassImportPublic:
+    """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
+    route spooled to ``path``, on the job's own connection to ``url``."""
+    from server.services.workers import session_job
+
+    data = Path(path).read_bytes()
+    return session_job(
+        url,
+        import_mcap,
+        data=data,
+        actor=actor,
+        source="upload",
+        max_uncompressed_bytes=max_uncompressed_bytes,
     )
