@@ -59,8 +59,14 @@ def telemetry(
         raise ServiceError(422, "empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
     if buckets is None:
         names = parse_fields(fields, allowed=TELEMETRY_FIELDS, what="telemetry")
+        # one row past the page: whether there is more, without reading the rest
         rows = repo.telemetry_range(
-            session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names
+            session=session,
+            pass_id=pass_id,
+            t0_ns=t0_ns,
+            t1_ns=t1_ns,
+            fields=names,
+            limit=limit + 1,
         )
         kept = [tuple(row) for row in rows[:limit]]
         return TelemetryPublic(

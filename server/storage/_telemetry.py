@@ -236,10 +236,17 @@ def missing_seqs(*, session: Session, pass_id: str, up_to_seq: int) -> list[tupl
 
 
 def telemetry_range(
-    *, session: Session, pass_id: str, t0_ns: int, t1_ns: int, fields: Sequence[str]
+    *,
+    session: Session,
+    pass_id: str,
+    t0_ns: int,
+    t1_ns: int,
+    fields: Sequence[str],
+    limit: int | None = None,
 ) -> list[Row[Any]]:
     """Frames with ``t0_ns <= generation_time_ns < t1_ns`` in time order, as rows of
-    ``(seq, generation_time_ns, *fields)`` (each also by name)."""
+    ``(seq, generation_time_ns, *fields)`` (each also by name); the first ``limit`` only,
+    if given (the database stops there: a whole pass is not read for a page of it)."""
     names = check_fields(fields, TELEMETRY_FIELDS)
     check_time_range(t0_ns, t1_ns)
     key = require_pass(session, pass_id)
@@ -249,6 +256,8 @@ def telemetry_range(
         .where(_FRAME.pass_id == key, gen >= t0_ns, gen < t1_ns)
         .order_by(gen, _FRAME.seq)
     )
+    if limit is not None:
+        query = query.limit(limit)
     return list(session.execute(query))
 
 

@@ -206,6 +206,10 @@ def test_telemetry_range_gives_rows_in_time_order(session: Session) -> None:
     assert [r.wz for r in rows] == [f.omega_base_in_base_radps[2] for f in frames[10:20]]
     assert [r.acs_mode for r in rows] == [f.acs_mode.value for f in frames[10:20]]
     assert [r.generation_time_ns for r in rows] == [f.generation_time_ns for f in frames[10:20]]
+    page = repo.telemetry_range(
+        session=session, pass_id=pass_id, t0_ns=t0, t1_ns=t1, fields=["wz"], limit=4
+    )
+    assert [r.seq for r in page] == [10, 11, 12, 13]  # the first of the range, in order
 
 
 def _numpy_buckets(
