@@ -50,6 +50,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import authenticate
 from server.errors import ServiceError, error_body
+from server.services.command_stages import write_event
 from server.settings import Settings
 
 if TYPE_CHECKING:
@@ -126,8 +127,11 @@ class AuthGuard:
         window_s: float,
         max_addresses: int,
         clock: Callable[[], float] = time.monotonic,
+        on_blocked: Callable[[str, int, float], None] | None = None,
     ) -> None:
         self.limit = limit
+        #: called once per window an address is blocked: (address, failures, seconds left)
+        self.on_blocked = on_blocked
         self.window_s = window_s
         self.max_addresses = max_addresses
         self.clock = clock
@@ -164,12 +168,18 @@ class AuthGuard:
             window.failures,
         )
         if window.failures == self.limit:
+            left = window.start + self.window_s - now
             audit.warning(
                 "address %s refused for %.0f s: %d failed authentications",
                 address,
-                window.start + self.window_s - now,
+                left,
                 window.failures,
             )
+            if self.on_blocked is not None:
+                try:
+                    self.on_blocked(address, window.failures, left)
+                except Exception:
+                    log.exception("recording the block of %s failed", address)
 
     def _expire(self, now: float) -> None:
         # Windows are appended as they start, so the expired ones are at the front.
@@ -440,10 +450,38 @@ def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
         limit=settings.auth_failure_limit,
         window_s=settings.auth_failure_window_s,
         max_addresses=settings.auth_tracked_addresses,
+        on_blocked=lambda address, failures, left: _record_block(app, address, failures, left),
     )
     app.state.auth_guard = guard
     app.add_middleware(EdgeMiddleware, settings=settings, guard=guard, router=app.router)
     return guard
+
+
+def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> None:
+    """Write an ``auth_blocked`` event to the audit log (the events table) and show it to
+    the consoles: once per blocked window and address, so an attacker cannot make the
+    service write more than that. On the readers' connections, in a thread: never on the
+    command path's."""
+    sessions = getattr(app.state, "sessions", None)
+    link = getattr(app.state, "link", None)
+    if sessions is None:
+        return
+    loop = asyncio.get_running_loop()
+    detail = {"address": address, "failures": failures, "blocked_s": round(left_s, 1)}
+
+    def write() -> dict[str, Any]:
+        with sessions() as session:
+            event = write_event(session, "auth_blocked", "edge", detail)
+            session.commit()
+            return event
+
+    def done(future: asyncio.Future[dict[str, Any]]) -> None:
+        if future.cancelled() or future.exception() is not None:
+            log.error("auth_blocked event not written: %r", future.exception())
+        elif link is not None:
+            link.publisher.publish([future.result()])
+
+    loop.run_in_executor(None, write).add_done_callback(done)
 
 
 # --- serving: uvicorn's settings ---------------------------------------------------------

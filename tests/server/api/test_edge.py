@@ -376,6 +376,40 @@ def test_failed_authentication_is_audited_and_limited_per_address(
     assert client.get("/api/passes", headers={**attacker, **VIEWER}).status_code == 200
 
 
+def test_a_blocked_address_is_one_event_in_the_audit_log(
+    limited: tuple[TestClient, list[float]],
+) -> None:
+    """The events table (what consoles and ``GET /api/events`` show) gets one
+    ``auth_blocked`` per blocked window and address, however many failures follow."""
+    client, now = limited
+    attacker = {"x-test-client": "198.51.100.20", "Authorization": "Bearer nope"}
+    for _ in range(10):
+        client.get("/api/passes", headers=attacker)
+
+    factory = client.app.app.state.sessions  # type: ignore[attr-defined]  # inside _Address
+
+    def blocked() -> list[Any]:
+        with factory() as session:
+            return list(repo.list_events(session=session, kinds=["auth_blocked"]).items)
+
+    deadline = time.monotonic() + 30.0
+    while not blocked():  # written in a thread after the response
+        assert time.monotonic() < deadline, "no auth_blocked event"
+        time.sleep(0.05)
+    [event] = blocked()
+    assert event.actor == "edge" and event.pass_id is None
+    assert event.detail == {"address": "198.51.100.20", "failures": 3, "blocked_s": 60.0}
+    now[0] += 61.0  # a new window, blocked again: a second event
+    for _ in range(3):
+        client.get("/api/passes", headers=attacker)
+    deadline = time.monotonic() + 30.0
+    while len(blocked()) < 2:
+        assert time.monotonic() < deadline, "no second auth_blocked event"
+        time.sleep(0.05)
+    time.sleep(0.2)
+    assert len(blocked()) == 2
+
+
 def test_websocket_failures_count_too(limited: tuple[TestClient, list[float]]) -> None:
     client, _ = limited
     bad = {"x-test-client": "198.51.100.9", "Authorization": "Bearer nope"}
