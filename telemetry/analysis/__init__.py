@@ -9,7 +9,8 @@ One module per analysis:
 - :mod:`.phase_plane`: experiment 3, pitch phase plane per attitude-control variant (Fig. 9);
 - :mod:`.endpoint`: experiment 4, non-holonomic end-point errors (Fig. 11);
 - :mod:`.predicted_vs_flown`: the plan's prediction against the telemetry, per segment;
-- :mod:`.pass_analysis`: :func:`analyse_pass`, all that apply.
+- :mod:`.pass_analysis`: :func:`analyse_pass`, all that apply;
+- :mod:`.paper`: the paper's flight results, and the stored numbers held against them.
 
 Shared conventions (time base, attitude deviations, JSON numbers) are in ``_common``; joint
 rates (how they are obtained) in :mod:`.rates`; the arm's reaction momentum in :mod:`.momentum`.
@@ -24,6 +25,7 @@ from telemetry.analysis.hand_attitude import (
     hand_quats_orbit_xyzw,
 )
 from telemetry.analysis.momentum import ArmReaction, arm_reaction
+from telemetry.analysis.paper import PAPER_RESULTS, Comparison, Sources, compare_with_flight
 from telemetry.analysis.pass_analysis import ANALYSIS_FORMAT_VERSION, PassAnalysis, analyse_pass
 from telemetry.analysis.phase_plane import (
     PhasePlaneAnalysis,
@@ -45,8 +47,10 @@ from telemetry.analysis.tracking import (
 
 __all__ = [
     "ANALYSIS_FORMAT_VERSION",
+    "PAPER_RESULTS",
     "RATE_METHOD",
     "ArmReaction",
+    "Comparison",
     "Coverage",
     "EndpointAnalysis",
     "HandAttitudeAnalysis",
@@ -60,6 +64,7 @@ __all__ = [
     "SegmentCoverage",
     "SegmentDifference",
     "SegmentTracking",
+    "Sources",
     "VariantPhasePlane",
     "analyse_endpoint",
     "analyse_hand_attitude",
@@ -69,6 +74,7 @@ __all__ = [
     "analyse_predicted_vs_flown",
     "analyse_reaction",
     "arm_reaction",
+    "compare_with_flight",
     "coverage",
     "hand_quats_orbit_xyzw",
     "joint_rates_radps",

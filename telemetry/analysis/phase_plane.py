@@ -8,7 +8,10 @@ attitudes the pitch rate to within 1e-4 of its value). Both are smoothed by a ce
 ``smooth_s`` moving average (attitude-sensor noise, 0.005 deg, would otherwise widen the range
 by about three of its sigmas).
 
-``pitch_range_deg`` is max minus min pitch over the window; ``settling_time_s`` runs from the
+``pitch_range_deg`` is max minus min pitch over the window; ``first_dip_deg`` is the minimum
+pitch during the forward leg (the first response to the arm's start, Fig. 9's "within
+-0.3 deg" of (b)) and ``peak_deg`` the maximum over the whole window (the positive overshoot;
+equal to ``pitch_max_deg``), each with its time; ``settling_time_s`` runs from the
 end of the back leg until the pitch stays within ``settle_band_deg`` of its final value (the
 mean over the window's last ``final_s``), ``None`` when it has not by the window's end.
 """
@@ -55,6 +58,14 @@ class VariantPhasePlane:
     pitch_deg: Array
     pitch_rate_degps: Array
     note: str | None = None
+    forward_end_s: float | None = None
+    first_dip_deg: float | None = None
+    first_dip_t_s: float | None = None
+    peak_t_s: float | None = None
+
+    @property
+    def peak_deg(self) -> float | None:
+        return self.pitch_max_deg
 
     @property
     def pitch_range_deg(self) -> float | None:
@@ -73,6 +84,11 @@ class VariantPhasePlane:
             "pitch_min_deg": json_number(self.pitch_min_deg),
             "pitch_max_deg": json_number(self.pitch_max_deg),
             "pitch_range_deg": json_number(self.pitch_range_deg),
+            "forward_end_s": json_number(self.forward_end_s),
+            "first_dip_deg": json_number(self.first_dip_deg),
+            "first_dip_t_s": json_number(self.first_dip_t_s),
+            "peak_deg": json_number(self.peak_deg),
+            "peak_t_s": json_number(self.peak_t_s),
             "settling_time_s": json_number(self.settling_time_s),
             "settled": self.settling_time_s is not None,
             "note": self.note,
@@ -140,6 +156,8 @@ def analyse_phase_plane(
         t0 = starts[i]
         window_end = starts[i + 1] if i + 1 < len(groups) else exp_end
         motion_end = max(s.t_end_s for s in legs)
+        forward = [s for s in legs if s.name.endswith(": forward")]
+        forward_end = forward[0].t_end_s if forward else motion_end
         rows = window_mask(t_all, t0, window_end)
         t = t_all[rows]
         if t.size < 2:
@@ -172,6 +190,9 @@ def analyse_phase_plane(
             band_rad=math.radians(settle_band_deg),
             final_s=final_s,
         )
+        in_forward = t <= forward_end
+        dip = int(np.argmin(np.where(in_forward, pitch, np.inf))) if np.any(in_forward) else None
+        peak = int(np.argmax(pitch))
         note = None
         if t[0] > t0 + 1.0 or t[-1] < window_end - 1.0:
             note = f"telemetry covers only {t[0]:.1f} s to {t[-1]:.1f} s of the window"
@@ -191,6 +212,10 @@ def analyse_phase_plane(
                 pitch_deg=np.degrees(pitch),
                 pitch_rate_degps=np.degrees(rate),
                 note=note,
+                forward_end_s=forward_end,
+                first_dip_deg=None if dip is None else math.degrees(float(pitch[dip])),
+                first_dip_t_s=None if dip is None else float(t[dip]),
+                peak_t_s=float(t[peak]),
             )
         )
     return PhasePlaneAnalysis(
