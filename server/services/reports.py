@@ -31,6 +31,12 @@ from server.schemas import (
 )
 from server.services import analyses
 from server.storage import repository as repo
+from telemetry.analysis.paper import (
+    Sources,
+    compare_with_flight,
+    phase_plane_ordering,
+    reaction_ordering,
+)
 from telemetry.identification import INERTIA_PARAMETER_NAMES
 
 __all__ = [
@@ -44,10 +50,12 @@ __all__ = [
 
 FIGURE_CAPTIONS = {
     "predicted_vs_flown": "Predicted against flown: base attitude, attitude and joint differences.",
-    "reaction": "Experiment 1 (paper Fig. 5): PTP against reactionless motion.",
+    "reaction": "Experiment 1 (paper Fig. 5): hand speed, the reaction momentum |H~bm phi'| "
+    "and the base attitude, PTP against the fast and slow reactionless legs.",
     "joint_tracking": "Joint tracking (Fig. 6): commanded against measured joints.",
     "hand_attitude": "Experiment 2 (Fig. 8): hand attitude held while the base turns.",
-    "phase_plane": "Experiment 3 (Fig. 9): base pitch phase plane per attitude-control variant.",
+    "phase_plane": "Experiment 3 (paper Fig. 9): base pitch against pitch rate, side by side: "
+    "(a) feedback, (b) feedforward, (c) offset; first dip and peak marked.",
     "endpoint": "Experiment 4 (Fig. 11): non-holonomic motion and its end-point errors.",
 }
 _RPY = ("roll", "pitch", "yaw")
@@ -133,6 +141,17 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                 reaction.get("motions", []),
             )
         )
+        rows, notes = reaction_ordering(reaction)
+        out.append(
+            _table(
+                "reaction_ordering",
+                "Experiment 1 (Fig. 5): the reaction on the reaction momentum |H~bm phi'| "
+                "beside the attitude; flight: the faster leg, the larger reaction",
+                ["measure", "unit", "ptp", "fast_leg", "slow_leg", "fast_leg_larger"],
+                rows,
+                notes,
+            )
+        )
     tracking = doc.get("joint_tracking")
     if tracking:
         out.append(
@@ -185,11 +204,28 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                     "pitch_min_deg",
                     "pitch_max_deg",
                     "pitch_range_deg",
+                    "first_dip_deg",
+                    "first_dip_t_s",
+                    "peak_deg",
+                    "peak_t_s",
                     "settling_time_s",
                     "settled",
                     "note",
                 ],
                 plane.get("variants", []),
+            )
+        )
+        out.append(
+            _table(
+                "phase_plane_ordering",
+                "Experiment 3 (Fig. 9): the variants' ordering, ours against the flight's",
+                ["quantity", "ours", "flight", "same_as_flight"],
+                [r.row() for r in phase_plane_ordering(plane)],
+                [
+                    "first dip: the lowest pitch during the forward leg; peak: the highest "
+                    "over the variant's window; settling after the back leg, band "
+                    f"{plane.get('settle_band_deg')} deg"
+                ],
             )
         )
     end = doc.get("endpoint")
@@ -319,6 +355,34 @@ _TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
 }
 
 
+def _flight_table(
+    documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
+) -> ReportTablePublic:
+    """The paper's results against this pass's (:mod:`telemetry.analysis.paper`); an
+    analysis absent or failed gives "not measured" rows."""
+
+    def result(kind: str) -> Mapping[str, Any] | None:
+        doc = documents.get(kind, ({}, None))[0]
+        found = doc.get("result") if doc.get("status") == "ok" else None
+        return found if isinstance(found, Mapping) else None
+
+    rows = compare_with_flight(
+        Sources(
+            pass_analysis=result("pass_analysis"),
+            identification=result("inertia_identification"),
+            resim=result("gravity_gradient_resim"),
+        )
+    )
+    counts = {v: sum(r.verdict == v for r in rows) for v in dict.fromkeys(r.verdict for r in rows)}
+    return _table(
+        "flight_against_ours",
+        "Flight against ours: every result of the paper, measured on this pass",
+        ["result", "paper", "flight", "ours", "criterion", "verdict"],
+        [r.row() for r in rows],
+        [", ".join(f"{n} {v}" for v, n in counts.items())],
+    )
+
+
 def build_report(
     *,
     pass_id: str | None,
@@ -347,6 +411,7 @@ def build_report(
             statuses.append(
                 ReportAnalysisPublic(kind=kind, status="failed", created_at=created, error=reason)
             )
+    tables.insert(0, _flight_table(documents))
     order = list(FIGURE_CAPTIONS)
     names = sorted(figure_names, key=lambda n: (order.index(n) if n in order else len(order), n))
     return ReportPublic(
@@ -376,8 +441,12 @@ body { font-family: system-ui, sans-serif; margin: 2em; color: #222; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; }
 th { background: #f2f2f2; } td:first-child, th:first-child { text-align: left; }
-.failed { color: #a00; } figure { margin: 1em 0; } img { max-width: 100%; }
+.failed, .not-reproduced { color: #a00; } .not-measured { color: #777; }
+figure { margin: 1em 0; } img { max-width: 100%; }
 """
+
+
+_VERDICT_CLASS = {"not reproduced": "not-reproduced", "not measured": "not-measured"}
 
 
 def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
@@ -406,7 +475,9 @@ def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
         parts += [f"<th>{e(c)}</th>" for c in table.columns]
         parts.append("</tr></thead><tbody>")
         for row in table.rows:
-            parts.append("<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>")
+            verdict = str(row[-1]) if table.id == "flight_against_ours" and row else ""
+            attr = f' class="{_VERDICT_CLASS[verdict]}"' if verdict in _VERDICT_CLASS else ""
+            parts.append(f"<tr{attr}>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>")
         parts.append("</tbody></table>")
         parts += [f"<p>{e(note)}</p>" for note in table.notes]
     if report.figures:
