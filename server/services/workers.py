@@ -307,6 +307,12 @@ class WorkerPool:
     def running(self) -> int:
         return len(self._running)
 
+    @property
+    def admitted(self) -> int:
+        """Requests admitted: running, starting or waiting for a worker (a job's process
+        may be gone a moment before its request is done with)."""
+        return self._admitted
+
     async def start(self) -> None:
         """Start the forkserver and, in the background, one empty job: the forkserver
         imports :data:`PRELOAD` (about 2 s) before the first request needs it."""

@@ -120,7 +120,8 @@ def test_busy_over_http_has_retry_after(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, tokens=TOKENS, worker_processes=1, worker_queue=0)
     with TestClient(create_app(settings)) as client:
         pool: WorkerPool = client.app.state.workers  # type: ignore[attr-defined]
-        _wait_for(lambda: pool.running == 0 and pool.started >= 1, "the warm-up job")
+        # done with: its process gone and its request too (else the pool of one is full)
+        _wait_for(lambda: pool.admitted == 0 and pool.started >= 1, "the warm-up job")
         hold = functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
         client.portal.start_task_soon(hold)  # type: ignore[union-attr]
         _wait_for(lambda: pool.running == 1, "the held worker")
