@@ -29,6 +29,7 @@ from telemetry.analysis import (
     PredictedVsFlown,
     ReactionAnalysis,
 )
+from telemetry.analysis.paper import FLIGHT_FASTEST_SETTLING, FLIGHT_RANGE_ORDER, ordered
 
 __all__ = [
     "endpoint_figure",
@@ -60,7 +61,10 @@ def _shade(ax: Axes, spans: list[tuple[float, float]]) -> None:
 
 
 def reaction_figure(result: ReactionAnalysis) -> bytes:
-    """Fig. 5: hand speed, reaction momentum and base attitude against time."""
+    """Fig. 5: hand speed, reaction momentum and base attitude against time. The middle panel
+    is the magnitude ``|H~bm phi'|`` on a log scale, so the
+    reactionless legs' few 0.01 N m s show beside the PTP's few N m s, each motion labelled
+    with its RMS."""
 
     def draw(fig: Figure) -> None:
         axes = fig.subplots(3, 1, sharex=True)
@@ -69,10 +73,25 @@ def reaction_figure(result: ReactionAnalysis) -> bytes:
             _shade(ax, spans)
         axes[0].plot(result.t_s, result.hand_speed_mps)
         axes[0].set_ylabel("hand speed (m/s)")
-        for i, axis in enumerate("xyz"):
-            axes[1].plot(result.t_s, result.reaction_momentum_orbit_nms[:, i], label=axis)
-        axes[1].set_ylabel("H~bm phi' (N m s)")
-        axes[1].legend(loc="upper right", fontsize="small")
+        momentum = np.linalg.norm(result.reaction_momentum_orbit_nms, axis=1)
+        axes[1].plot(result.t_s, momentum, color="k", lw=0.8)
+        axes[1].set_yscale("log")
+        axes[1].set_ylim(1e-3, 30.0)
+        axes[1].set_ylabel("|H~bm phi'| (N m s, log)")
+        for m in result.motions:
+            if m.rms_reaction_momentum_nms is not None:
+                speed = (
+                    "" if m.peak_hand_speed_mps is None else f"{m.peak_hand_speed_mps:.4f} m/s\n"
+                )
+                axes[1].annotate(
+                    f"{speed}RMS {m.rms_reaction_momentum_nms:.3g} N m s",
+                    ((m.t_start_s + m.t_end_s) / 2, 0.97),
+                    xycoords=("data", "axes fraction"),
+                    ha="center",
+                    va="top",
+                    fontsize="x-small",
+                    bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8},
+                )
         for i, name in enumerate(_RPY):
             axes[2].plot(result.t_s, result.rpy_base_deg[:, i], label=name)
         axes[2].set_ylabel("base attitude (deg)")
@@ -81,7 +100,23 @@ def reaction_figure(result: ReactionAnalysis) -> bytes:
         for m in result.motions:
             if m.settling_time_s is not None and m.settling_time_s > 0:
                 axes[2].axvline(m.t_end_s + m.settling_time_s, color="k", ls=":", lw=0.8)
-        fig.suptitle(f"PTP and reactionless motion (settling band {result.settle_band_deg} deg)")
+        legs = sorted(
+            (m for m in result.motion("reactionless") if m.peak_hand_speed_mps is not None),
+            key=lambda m: -(m.peak_hand_speed_mps or 0.0),
+        )
+        order = ""
+        fast, slow = (legs[0], legs[-1]) if len(legs) > 1 else (None, None)
+        if fast and slow and fast.rms_reaction_momentum_nms and slow.rms_reaction_momentum_nms:
+            holds = fast.rms_reaction_momentum_nms > slow.rms_reaction_momentum_nms
+            order = (
+                f"\nthe faster leg, the larger reaction (flight): "
+                f"{'holds' if holds else 'does not hold'} on RMS |H~bm phi'| "
+                f"({fast.rms_reaction_momentum_nms:.3g} against "
+                f"{slow.rms_reaction_momentum_nms:.3g} N m s)"
+            )
+        fig.suptitle(
+            f"PTP and reactionless motion (settling band {result.settle_band_deg} deg){order}"
+        )
 
     return _png(draw, (8, 7))
 
@@ -142,7 +177,9 @@ def hand_attitude_figure(result: HandAttitudeAnalysis) -> bytes:
 
 
 def phase_plane_figure(result: PhasePlaneAnalysis) -> bytes:
-    """Fig. 9: pitch against pitch rate for each attitude-control variant."""
+    """Fig. 9: pitch against pitch rate for each attitude-control variant, side by side on
+    shared axes, the first dip (forward leg's lowest pitch) and the peak marked, and the
+    ordering of ranges and settling times against the flight's."""
 
     def draw(fig: Figure) -> None:
         axes = np.atleast_1d(fig.subplots(1, len(result.variants), sharex=True, sharey=True))
@@ -150,14 +187,36 @@ def phase_plane_figure(result: PhasePlaneAnalysis) -> bytes:
             ax.plot(v.pitch_deg, v.pitch_rate_degps, lw=0.8)
             ax.axhline(0.0, color="0.6", lw=0.5)
             ax.axvline(0.0, color="0.6", lw=0.5)
+            for t_mark, marker, name in (
+                (v.first_dip_t_s, "v", "first dip"),
+                (v.peak_t_s, "^", "peak"),
+            ):
+                if t_mark is not None and v.t_s.size:
+                    k = int(np.argmin(np.abs(v.t_s - t_mark)))
+                    ax.plot(
+                        v.pitch_deg[k],
+                        v.pitch_rate_degps[k],
+                        marker,
+                        color="C3",
+                        label=f"{name} {v.pitch_deg[k]:+.2f}",
+                    )
+            if v.first_dip_t_s is not None or v.peak_t_s is not None:
+                ax.legend(loc="lower right", fontsize="x-small")
             rng = "n/a" if v.pitch_range_deg is None else f"{v.pitch_range_deg:.2f} deg"
             settle = "n/a" if v.settling_time_s is None else f"{v.settling_time_s:.0f} s"
             ax.set_title(f"{v.label} {v.variant}\nrange {rng}, settles {settle}", fontsize=9)
             ax.set_xlabel("pitch (deg)")
         axes[0].set_ylabel("pitch rate (deg/s)")
-        fig.suptitle("Base pitch phase plane")
+        ranges = {v.label: v.pitch_range_deg for v in result.variants}
+        settles = {v.label: v.settling_time_s for v in result.variants}
+        fig.suptitle(
+            f"Base pitch phase plane. Range: {ordered(ranges, 'deg')} "
+            f"(flight: {' < '.join(FLIGHT_RANGE_ORDER)}); settling: "
+            f"{ordered(settles, 's', digits=0)} (flight: {FLIGHT_FASTEST_SETTLING} fastest)",
+            fontsize=9,
+        )
 
-    return _png(draw, (4 * max(1, len(result.variants)), 4))
+    return _png(draw, (4 * max(1, len(result.variants)), 4.3))
 
 
 def endpoint_figure(result: EndpointAnalysis) -> bytes:
