@@ -273,3 +273,42 @@ def test_predicted_vs_flown_per_segment(analysis: PassAnalysis) -> None:
             assert seg.joint_peak_max_deg < 0.05, seg  # servos caught up (measured 0.037)
     ptp = comparison.segment("ptp: A->B")
     assert ptp.joint_peak_max_deg is not None and ptp.joint_peak_max_deg > 0.3  # lag, 0.82
+
+
+# --- flight against ours (telemetry.analysis.paper) --------------------------------------
+
+
+def test_flight_against_ours_on_the_demo_pass(analysis: PassAnalysis) -> None:
+    """The verdicts on today's demo pass, from its numbers (the identification and resim
+    rows need their own analyses and are "not measured" here)."""
+    from server.services.analyses import numbers_only
+    from telemetry.analysis import Sources, compare_with_flight
+
+    rows = {c.id: c for c in compare_with_flight(Sources(numbers_only(analysis.to_dict())))}
+    verdicts = {k: c.verdict for k, c in rows.items()}
+    # Measured: PTP 80.2 s; legs 0.033 / 0.015 deg against 0.57; RMS 0.0095 against 0.0056
+    # N m s; GJM base pitch -0.545 deg, hand 0.093 deg; (b) dip -0.12, peak +0.48 deg;
+    # endpoint 0.088 deg.
+    for row in (
+        "ptp_settling",
+        "reactionless_little_disturbance",
+        "reactionless_grows_with_speed",
+        "gjm_base_pitch",
+        "gjm_hand_hold",
+        "coordination_feedforward",
+        "nonholonomic_endpoint",
+    ):
+        assert verdicts[row] == "reproduced", rows[row]
+    # Not yet: (a) -0.24..+0.31 deg (flight -0.5..+0.4); (c)'s range 0.84 deg is the largest
+    # and (a) settles first (23 s against (c) 58 s).
+    assert verdicts["coordination_feedback_range"] == "not reproduced"
+    assert verdicts["coordination_offset"] == "not reproduced"
+    assert (
+        verdicts["gravity_gradient_drift"] == verdicts["inertia_identification"] == ("not measured")
+    )
+    plane = analysis.phase_plane
+    assert plane is not None
+    ff = plane.variant("feedforward")
+    assert ff.first_dip_deg is not None and ff.first_dip_t_s is not None
+    assert ff.t_start_s <= ff.first_dip_t_s <= (ff.forward_end_s or 0.0)
+    assert ff.peak_deg == ff.pitch_max_deg

@@ -145,11 +145,36 @@ def test_demo_pass_report(
         # Measured 0.012 against 0.024 deg (GJM) and 0.014 against 0.043 deg (non-holonomic).
         assert without > 1.5 * with_gg, (t0, with_gg, without)
 
+    # Flight against ours, first: one row per paper result, each verdict computed.
+    assert report["tables"][0]["id"] == "flight_against_ours"
+    flight = tables["flight_against_ours"]
+    assert flight["columns"] == ["result", "paper", "flight", "ours", "criterion", "verdict"]
+    assert len(flight["rows"]) == 11
+    assert {r[-1] for r in flight["rows"]} <= {"reproduced", "not reproduced"}
+    by_result = {r[0]: r for r in flight["rows"]}
+    offset = next(r for k, r in by_result.items() if k.startswith("Exp. 3 (c)"))
+    assert offset[-1] == "not reproduced" and "(c) 0.84" in offset[3]  # largest range today
+    ptp = next(r for k, r in by_result.items() if k.startswith("Exp. 1: PTP"))
+    assert ptp[-1] == "reproduced" and ptp[3].startswith("80.")  # 80.2 s, flight 100 +- 30 %
+    assert all(r[-1] != "not measured" for r in flight["rows"])  # all three analyses ran
+
+    reaction = tables["reaction_ordering"]
+    rms = next(r for r in reaction["rows"] if r[0].startswith("RMS reaction momentum"))
+    assert rms[2] > 100 * rms[3] > 100 * rms[4] and rms[5] is True  # 3.06, 0.0095, 0.0056
+    phase = {r[0]: r for r in tables["phase_plane_ordering"]["rows"]}
+    assert phase["pitch range"][2:] == ["(c) < (a) < (b)", False]
+    assert phase["peak (positive overshoot)"][3] is True
+    cols = tables["phase_plane"]["columns"]
+    assert {"first_dip_deg", "peak_deg", "pitch_range_deg", "settling_time_s"} <= set(cols)
+
     names = report["figures"]
     assert names[0] == "predicted_vs_flown" and set(names) == set(demo_run.figures)
     page = client.get(f"/api/passes/{pass_id}/report.html", headers=VIEWER)
     assert page.headers["content-type"].startswith("text/html")
     assert "img-src data:" in page.headers["content-security-policy"]
+    assert '<h2 id="flight_against_ours">' in page.text
+    assert '<tr class="not-reproduced"><td>Exp. 3 (c) offset destination' in page.text
+    assert '<figure id="figure-phase_plane">' in page.text and "Fig. 9" in page.text
     sources = re.findall(r'<img src="data:image/png;base64,([^"]+)"', page.text)
     assert len(sources) == len(names)
     for name, encoded in zip(names, sources, strict=True):
