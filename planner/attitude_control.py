@@ -25,12 +25,45 @@ first response, then a strong overshoot the other way. (An *ideal* momentum feed
 wheels taking up ``H~_bm phi'`` exactly, would leave the base still and beat feedback, which
 the flight did not show; the paper calls the flight's method counter-productive for this
 motion.) In ``free_drift`` the feedforward does nothing: there is no rate loop to feed.
+
+**The law family** (:class:`AcsGains`; issue #13). Besides ``kp`` and ``kd`` the law has, each
+off by default (the defaults are the memoryless PD law above, bit for bit):
+
+- an **integral** term ``ki z`` with ``z' = e_db`` per axis (``ki = 0``: none). Anti-windup by
+  conditional integration: on an axis whose unsaturated torque exceeds the wheel torque
+  limit the integrator stops. ``z`` is reset to 0 whenever the law (re)starts: on entering
+  ``feedback`` (from free drift or at the start) and on a change of the attitude target. A
+  change of the feedforward flag alone resets nothing;
+- a **first-order filtered rate estimate** (time constant ``tau``; 0 = none: the rate loop
+  uses the measured rate as above). The filter acts on the whole rate error ``w - w_ref``,
+  i.e. on the measured rate and on the feedforward reference alike (one linear filter, so
+  the cancelling rate ``w = -w_ff`` still gives zero rate error, and switching the
+  feedforward on or off is smoothed instead of stepping the torque). It starts, when the law
+  (re)starts, from the rate error measured then (no start-up transient);
+- a **dead band** ``d`` on the attitude error (rad, per axis, ``0 <= d < 10 deg``): the P and I
+  terms see ``e_db = sign(e) max(|e| - d, 0)``, zero inside the band and growing from zero at
+  its edge, so crossing the edge makes no torque jump. The rate (D) term always acts;
+- the **wheel torque limit** (the output is clipped per axis) and the **momentum limit**
+  (a wheel at capacity takes no more torque in the same sense; applied where the wheels
+  are, in the prediction and the simulator).
+
+**One law, two clocks.** The law is defined in continuous time. :class:`AttitudeController`
+is its sampled form, used by the truth simulation (:func:`planner.closed_loop.fly`) and the
+vehicle at their control period: it advances its state by the time between calls, taking
+each sample to hold over the interval that ends at it, with the exact discretisation of the
+filter (``x <- a x + (1 - a) u``, ``a = exp(-dt/tau)``: a step of the rate reaches
+``1 - exp(-t/tau)`` at every sample time, whatever the period) and the rectangle rule for the
+integrator. The prediction (:func:`planner.prediction.predict`) integrates the same law in
+continuous time, its two states appended to its ODE (:func:`law_rates`) and reset at the
+same events; both share :func:`_torque` for the torque itself. This is how the PD law has
+always been shared (continuous in the prediction, sampled at 10 Hz on board); the laws'
+time scales (tens of seconds) are far above the 0.1 s sample period.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -42,8 +75,10 @@ from planner.errors import InvalidInput
 __all__ = [
     "AcsGains",
     "AcsMode",
+    "AttitudeController",
     "attitude_error_rad",
     "default_acs_gains",
+    "law_rates",
     "reaction_rate_radps",
     "wheel_torque_nm",
 ]
@@ -59,6 +94,9 @@ DEFAULT_ACS_BANDWIDTH_RADPS = 0.04
 DEFAULT_ACS_DAMPING_RATIO = 0.7
 DEFAULT_WHEEL_TORQUE_LIMIT_NM = 0.3
 DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS = 20.0
+#: Limits of the law's parameters (refused beyond them).
+MAX_DEAD_BAND_RAD = math.radians(10.0)
+MAX_RATE_FILTER_TAU_S = 1000.0
 
 
 class AcsMode(StrEnum):
@@ -66,12 +104,69 @@ class AcsMode(StrEnum):
     FREE_DRIFT = "free_drift"
 
 
+def _zeros3() -> Array:
+    return np.zeros(3)
+
+
 @dataclass(frozen=True, eq=False)
 class AcsGains:
+    """The attitude-control law's parameters (see the module docstring). The defaults of
+    the last three make the memoryless PD law."""
+
     kp_nm_per_rad: Array  # (3,), per base axis
     kd_nms_per_rad: Array  # (3,)
     torque_limit_nm: float
     momentum_limit_nms: float
+    ki_nm_per_rad_s: Array = field(default_factory=_zeros3)  # (3,); 0: no integral term
+    rate_filter_tau_s: float = 0.0  # first-order rate-estimate filter; 0: measured rate
+    dead_band_rad: float = 0.0  # on each axis's attitude error; 0: none
+    # Looked up in every evaluation of the law: set once by __post_init__.
+    _has_integral: bool = field(init=False, repr=False, default=False)
+    _stateful: bool = field(init=False, repr=False, default=False)
+
+    def __post_init__(self) -> None:
+        for name in ("kp_nm_per_rad", "kd_nms_per_rad", "ki_nm_per_rad_s"):
+            try:
+                value = np.array(getattr(self, name), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InvalidInput(
+                    f"{name} must be 3 numbers, got {getattr(self, name)!r}"
+                ) from None
+            if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise InvalidInput(
+                    f"{name} must be 3 finite numbers >= 0 (one per base axis), got "
+                    f"{getattr(self, name)!r}"
+                )
+            object.__setattr__(self, name, value)
+        for name in ("torque_limit_nm", "momentum_limit_nms"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise InvalidInput(f"{name} = {value!r} must be a finite number > 0")
+        tau = self.rate_filter_tau_s
+        if not (isinstance(tau, (int, float)) and 0 <= tau <= MAX_RATE_FILTER_TAU_S):
+            raise InvalidInput(
+                f"rate_filter_tau_s = {tau!r} s must be in [0, {MAX_RATE_FILTER_TAU_S:g}] "
+                "(0: no filter)"
+            )
+        band = self.dead_band_rad
+        if not (isinstance(band, (int, float)) and 0 <= band < MAX_DEAD_BAND_RAD):
+            raise InvalidInput(
+                f"dead_band_rad = {band!r} must be in [0, {MAX_DEAD_BAND_RAD:.6g}) "
+                "(below 10 deg; 0: no dead band)"
+            )
+
+        has_integral = bool(np.any(self.ki_nm_per_rad_s > 0.0))
+        object.__setattr__(self, "_has_integral", has_integral)
+        object.__setattr__(self, "_stateful", has_integral or self.rate_filter_tau_s > 0.0)
+
+    @property
+    def has_integral(self) -> bool:
+        return self._has_integral
+
+    @property
+    def stateful(self) -> bool:
+        """Whether the law has states (an integral term or a rate filter)."""
+        return self._stateful
 
 
 def default_acs_gains(
@@ -81,15 +176,29 @@ def default_acs_gains(
     damping_ratio: float = DEFAULT_ACS_DAMPING_RATIO,
     torque_limit_nm: float = DEFAULT_WHEEL_TORQUE_LIMIT_NM,
     momentum_limit_nms: float = DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS,
+    integral_time_s: float | None = None,
+    rate_filter_tau_s: float = 0.0,
+    dead_band_rad: float = 0.0,
 ) -> AcsGains:
     """``kp = I wn^2``, ``kd = 2 zeta I wn`` with ``I`` the system's principal-axis
-    inertia about its CoM (diagonal of H_c, base frame) at the reference pose."""
+    inertia about its CoM (diagonal of H_c, base frame) at the reference pose; with
+    ``integral_time_s`` ``Ti``, ``ki = kp / Ti`` (None: no integral term)."""
+    if not (math.isfinite(bandwidth_radps) and bandwidth_radps > 0):
+        raise InvalidInput(f"bandwidth_radps = {bandwidth_radps!r} must be > 0")
+    if not (math.isfinite(damping_ratio) and damping_ratio > 0):
+        raise InvalidInput(f"damping_ratio = {damping_ratio!r} must be > 0")
+    if integral_time_s is not None and not (math.isfinite(integral_time_s) and integral_time_s > 0):
+        raise InvalidInput(f"integral_time_s = {integral_time_s!r} s must be > 0 (or none)")
     inertia = np.diag(ws.momentum_blocks(np.zeros(ws.model.n_joints))[0])
+    kp = inertia * bandwidth_radps**2
     return AcsGains(
-        kp_nm_per_rad=inertia * bandwidth_radps**2,
+        kp_nm_per_rad=kp,
         kd_nms_per_rad=2.0 * damping_ratio * inertia * bandwidth_radps,
         torque_limit_nm=torque_limit_nm,
         momentum_limit_nms=momentum_limit_nms,
+        ki_nm_per_rad_s=np.zeros(3) if integral_time_s is None else kp / integral_time_s,
+        rate_filter_tau_s=rate_filter_tau_s,
+        dead_band_rad=dead_band_rad,
     )
 
 
@@ -114,6 +223,31 @@ def attitude_error_rad(quat_orbit_from_base_xyzw: Array, target_quat_xyzw: Array
     return np.array([ex, ey, ez]) * (angle / s)
 
 
+def _dead_band(gains: AcsGains, error: Array) -> Array:
+    band = gains.dead_band_rad
+    if band == 0.0:
+        return error
+    return np.asarray(np.sign(error) * np.maximum(np.abs(error) - band, 0.0), dtype=np.float64)
+
+
+def _torque(
+    gains: AcsGains, error_db: Array, rate_error: Array, integral: Array | None
+) -> tuple[Array, Array]:
+    """The law's torque before and after the torque limit: P on the dead-banded error, D on
+    the (estimated) rate error, I on the integral if any. Shared by every caller."""
+    raw = gains.kp_nm_per_rad * error_db + gains.kd_nms_per_rad * rate_error
+    if integral is not None:
+        raw = raw + gains.ki_nm_per_rad_s * integral
+    return raw, np.clip(raw, -gains.torque_limit_nm, gains.torque_limit_nm)
+
+
+def _rate_error(omega_base_radps: Array, reaction_rate_radps: Array | None) -> Array:
+    rate_error = np.asarray(omega_base_radps, dtype=np.float64)
+    if reaction_rate_radps is not None:
+        rate_error = rate_error + reaction_rate_radps  # w - w_ref with w_ref = -w_ff
+    return rate_error
+
+
 def wheel_torque_nm(
     gains: AcsGains,
     mode: AcsMode,
@@ -122,22 +256,150 @@ def wheel_torque_nm(
     omega_base_radps: Array,
     reaction_rate_radps: Array | None = None,
 ) -> Array:
-    """Wheel motor torques (base frame, N m), saturated at the torque limit.
+    """Wheel motor torques (base frame, N m) of a *memoryless* law (no integral term, no
+    rate filter; a dead band is allowed), saturated at the torque limit.
 
     ``omega_base_radps`` is the (measured) base rate in the base frame;
     ``reaction_rate_radps`` the eq. (9) reaction rate of the commanded arm motion
     (:func:`reaction_rate_radps`) when feedforward is on: the rate loop then tracks its
-    negative (see the module docstring). Free drift gives zero torque.
+    negative (see the module docstring). Free drift gives zero torque. A law with states
+    needs :class:`AttitudeController` (sampled) or :func:`law_rates` (continuous).
     """
     if mode is AcsMode.FREE_DRIFT:
         return np.zeros(3)
     if mode is not AcsMode.FEEDBACK:
         raise InvalidInput(f"unknown attitude-control mode {mode!r}")
-    rate_error = np.asarray(omega_base_radps, dtype=np.float64)
-    if reaction_rate_radps is not None:
-        rate_error = rate_error + reaction_rate_radps  # w - w_ref with w_ref = -w_ff
-    torque = gains.kp_nm_per_rad * attitude_error + gains.kd_nms_per_rad * rate_error
-    return np.clip(torque, -gains.torque_limit_nm, gains.torque_limit_nm)
+    if gains.stateful:
+        raise InvalidInput(
+            "a law with an integral term or a rate filter has states: use AttitudeController"
+        )
+    rate_error = _rate_error(omega_base_radps, reaction_rate_radps)
+    return _torque(gains, _dead_band(gains, attitude_error), rate_error, None)[1]
+
+
+def law_rates(
+    gains: AcsGains,
+    *,
+    attitude_error: Array,
+    rate_error: Array,
+    integral: Array,
+    rate_estimate: Array,
+) -> tuple[Array, Array, Array]:
+    """The law in continuous time (feedback mode), for an ODE integration: the wheel torque
+    and the time derivatives of the integral state and the rate estimate.
+
+    ``rate_error`` is the measured ``w - w_ref`` (:func:`_rate_error`); ``integral`` and
+    ``rate_estimate`` the states (start them at 0 and at the rate error when the law
+    (re)starts). Unused states have zero derivatives.
+    """
+    error = _dead_band(gains, attitude_error)
+    tau = gains.rate_filter_tau_s
+    if tau > 0.0:
+        rate_used = rate_estimate
+        d_rate = (rate_error - rate_estimate) / tau
+    else:
+        rate_used, d_rate = rate_error, np.zeros(3)
+    if gains.has_integral:
+        raw, torque = _torque(gains, error, rate_used, integral)
+        d_integral = np.where(np.abs(raw) > gains.torque_limit_nm, 0.0, error)
+    else:
+        torque = _torque(gains, error, rate_used, None)[1]
+        d_integral = np.zeros(3)
+    return torque, d_integral, d_rate
+
+
+class AttitudeController:
+    """The law sampled at the callers' control period (see the module docstring): state is
+    the integral, the rate estimate, the time of the last call and the target in force."""
+
+    def __init__(self, gains: AcsGains) -> None:
+        self.gains = gains
+        self._integral = np.zeros(3)
+        self._rate: Array | None = None
+        self._last_t_s: float | None = None
+        self._target: Array | None = None
+
+    def reset(self) -> None:
+        """Forget the state: the next call (re)starts the law (integral 0, rate estimate
+        primed with the rate error then)."""
+        self._integral = np.zeros(3)
+        self._rate = None
+        self._last_t_s = None
+        self._target = None
+
+    @property
+    def integral_rad_s(self) -> Array:
+        return self._integral.copy()
+
+    @property
+    def rate_estimate_radps(self) -> Array | None:
+        return None if self._rate is None else self._rate.copy()
+
+    def torque(
+        self,
+        t_s: float,
+        mode: AcsMode,
+        *,
+        target_quat_xyzw: Array | None = None,
+        quat_orbit_from_base_xyzw: Array | None = None,
+        omega_base_radps: Array | None = None,
+        reaction_rate_radps: Array | None = None,
+    ) -> Array:
+        """Wheel motor torques (base frame, N m) at ``t_s`` in ``mode``: free drift resets
+        the law and gives zero; in feedback a new target resets it first. The attitude and
+        rate are the measured ones (not needed in free drift)."""
+        if mode is AcsMode.FREE_DRIFT:
+            self.reset()
+            return np.zeros(3)
+        if mode is not AcsMode.FEEDBACK:
+            raise InvalidInput(f"unknown attitude-control mode {mode!r}")
+        if (
+            target_quat_xyzw is None
+            or quat_orbit_from_base_xyzw is None
+            or omega_base_radps is None
+        ):
+            raise InvalidInput("feedback needs the target, the attitude and the rate")
+        if self._target is None or not np.array_equal(self._target, target_quat_xyzw):
+            self.reset()
+            self._target = np.array(target_quat_xyzw, dtype=np.float64)
+        return self.feedback_torque(
+            t_s,
+            attitude_error_rad(quat_orbit_from_base_xyzw, self._target),
+            omega_base_radps,
+            reaction_rate_radps,
+        )
+
+    def feedback_torque(
+        self,
+        t_s: float,
+        attitude_error: Array,
+        omega_base_radps: Array,
+        reaction_rate_radps: Array | None = None,
+    ) -> Array:
+        """The feedback law at ``t_s`` on the attitude error and the measured rate (and the
+        feedforward's reaction rate, if on), advancing the state from the last call."""
+        gains = self.gains
+        dt = 0.0 if self._last_t_s is None else t_s - self._last_t_s
+        if not dt >= 0.0:
+            raise InvalidInput(
+                f"the controller cannot go back in time ({t_s!r} s after {self._last_t_s!r} s)"
+            )
+        self._last_t_s = t_s
+        rate_error = _rate_error(omega_base_radps, reaction_rate_radps)
+        error = _dead_band(gains, attitude_error)
+        if gains.rate_filter_tau_s > 0.0:
+            if self._rate is None:
+                self._rate = rate_error.copy()
+            else:
+                a = math.exp(-dt / gains.rate_filter_tau_s)
+                self._rate = a * self._rate + (1.0 - a) * rate_error
+            rate_error = self._rate
+        if not gains.has_integral:
+            return _torque(gains, error, rate_error, None)[1]
+        candidate = self._integral + error * dt
+        raw, _ = _torque(gains, error, rate_error, candidate)
+        self._integral = np.where(np.abs(raw) > gains.torque_limit_nm, self._integral, candidate)
+        return _torque(gains, error, rate_error, self._integral)[1]
 
 
 def reaction_rate_radps(

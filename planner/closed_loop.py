@@ -2,10 +2,11 @@
 
 The same ingredients the spacecraft uses on board: lagging joint servos that follow the
 4 Hz commands (linear between them), the wheel law of :mod:`planner.attitude_control` run at
-the sample rate with the active attitude-control command, the feedforward's eq. (9) reaction
-rate computed from the commanded motion, wheel torque and momentum limits (the spacecraft
-adds sensor noise and gravity gradient). Planners use it to evaluate and optimise
-against the closed loop.
+the sample rate with the active attitude-control command (one
+:class:`~planner.attitude_control.AttitudeController`, its state advancing sample to
+sample), the feedforward's eq. (9) reaction rate computed from the commanded motion, wheel
+torque and momentum limits (the spacecraft adds sensor noise and gravity gradient).
+Planners use it to evaluate and optimise against the closed loop.
 """
 
 from __future__ import annotations
@@ -19,9 +20,8 @@ from numpy.typing import NDArray
 from planner.attitude_control import (
     AcsGains,
     AcsMode,
-    attitude_error_rad,
+    AttitudeController,
     reaction_rate_radps,
-    wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.frames import IDENTITY_QUAT_XYZW
@@ -76,17 +76,18 @@ def fly(
         rate = (joints[i + 1] - joints[i]) / (times[i + 1] - times[i])
         return reaction_rate_radps(ws, joints[i] + rate * (t_s - times[i]), rate)
 
+    law = AttitudeController(acs_gains)
+
     def controller(t_s: float, state: State) -> Array:
         k = int(np.searchsorted(command_t, t_s + 1e-9, side="right")) - 1
         if k < 0 or ordered[k].mode is AcsMode.FREE_DRIFT:
-            return np.zeros(3)
+            return law.torque(t_s, AcsMode.FREE_DRIFT)
         acs = ordered[k]
-        return wheel_torque_nm(
-            acs_gains,
+        return law.torque(
+            t_s,
             acs.mode,
-            attitude_error=attitude_error_rad(
-                state.quat_orbit_from_base_xyzw, acs.target_quat_orbit_from_base_xyzw
-            ),
+            target_quat_xyzw=acs.target_quat_orbit_from_base_xyzw,
+            quat_orbit_from_base_xyzw=state.quat_orbit_from_base_xyzw,
             omega_base_radps=state.rot_orbit_from_base.T @ state.omega_base_orbit_radps,
             reaction_rate_radps=commanded_reaction_rate(t_s) if acs.feedforward else None,
         )

@@ -13,6 +13,11 @@ integrated with RK4, ``sub_steps`` per command interval. The base translates so 
 system centre of mass stays put (eq. 2 at zero linear momentum); positions are orbit-frame
 coordinates with the origin at the initial base CoM. (The rotors' own share of the base's
 angular acceleration, ``I_w a . w_b'``, is left out of dh_w/dt: 0.15 kg m^2 against thousands.)
+
+The attitude-control law runs in continuous time (:func:`planner.attitude_control.law_rates`):
+its integral and rate-estimate states are appended to the ODE and restart, as on board
+(:class:`planner.attitude_control.AttitudeController`), at the first command time at which
+the mode becomes ``feedback`` or the target changes.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from planner.attitude_control import (
     AcsGains,
     AcsMode,
     attitude_error_rad,
+    law_rates,
     wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
@@ -127,37 +133,58 @@ def predict(
         omega: Array = np.asarray(np.linalg.solve(h_b, rot.T @ l_now - reaction - h_now), float)
         return omega, rot, h_b, reaction
 
+    stateful = acs_gains is not None and acs_gains.stateful
+
+    def feedforward_rate(h_b: Array, reaction: Array, acs: _Acs) -> Array | None:
+        # eq. (9) of the commanded motion: the same as reaction_rate_radps()
+        if not acs.feedforward:
+            return None
+        return np.asarray(-np.linalg.solve(h_b, reaction), dtype=np.float64)
+
     def derivative(phi: Array, rate: Array, y: Array, acs: _Acs) -> Array:
         quat_now, h_now, l_now = y[:4] / np.linalg.norm(y[:4]), y[4:7], y[7:10]
         omega, rot, h_b, reaction = rates(phi, rate, quat_now, h_now, l_now)
         dquat = 0.5 * quat_multiply_xyzw(quat_now, np.array([*omega, 0.0]))
         torque = np.zeros(3)
+        d_law: Array | None = np.zeros(6) if stateful else None
         if acs.mode is AcsMode.FEEDBACK:
             assert acs_gains is not None
-            torque = wheel_torque_nm(
-                acs_gains,
-                acs.mode,
-                attitude_error=attitude_error_rad(quat_now, acs.target),
-                omega_base_radps=omega,
-                # eq. (9) of the commanded motion: the same as reaction_rate_radps()
-                reaction_rate_radps=(
-                    np.asarray(-np.linalg.solve(h_b, reaction), dtype=np.float64)
-                    if acs.feedforward
-                    else None
-                ),
-            )
+            error = attitude_error_rad(quat_now, acs.target)
+            ff = feedforward_rate(h_b, reaction, acs)
+            if stateful:
+                torque, d_int, d_rate = law_rates(
+                    acs_gains,
+                    attitude_error=error,
+                    rate_error=omega if ff is None else omega + ff,
+                    integral=y[10:13],
+                    rate_estimate=y[13:16],
+                )
+                d_law = np.concatenate([d_int, d_rate])
+            else:
+                torque = wheel_torque_nm(
+                    acs_gains,
+                    acs.mode,
+                    attitude_error=error,
+                    omega_base_radps=omega,
+                    reaction_rate_radps=ff,
+                )
             # A wheel at capacity takes no more torque in the same sense.
             full = (np.abs(h_now) >= acs_gains.momentum_limit_nms) & (torque * h_now > 0)
             torque = np.where(full, 0.0, torque)
         dl = np.zeros(3)
         if orbit is not None:
             dl = rot @ gravity_gradient_torque_base_nm(h_b, rot, orbit)  # H~_b is H_c
-        return np.concatenate([dquat, torque, dl])
+        if d_law is None:
+            return np.concatenate([dquat, torque, dl])
+        return np.concatenate([dquat, torque, dl, d_law])
 
-    y = np.concatenate([quat, h_w, momentum])
+    # State: attitude, wheel momentum, total momentum (and the law's integral and rate
+    # estimate if it has them).
+    y = np.concatenate([quat, h_w, momentum, np.zeros(6 if stateful else 0)])
     states = [y.copy()]
     omegas = []
     reactions = []
+    previous: _Acs = free
     for k in range(times.size):
         # Rates at command k: the interval that starts there (the last holds still).
         rate = (
@@ -165,12 +192,25 @@ def predict(
             if k + 1 < times.size
             else np.zeros(n)
         )
-        omega, rot, _, reaction = rates(joints[k], rate, y[:4], y[4:7], y[7:10])
+        omega, rot, h_b, reaction = rates(joints[k], rate, y[:4], y[4:7], y[7:10])
         omegas.append(rot @ omega)
         reactions.append(rot @ reaction)
         if k + 1 == times.size:
             break
         acs = _acs_at(ordered, float(times[k]), free)
+        if (
+            stateful
+            and acs.mode is AcsMode.FEEDBACK
+            and (
+                previous.mode is not AcsMode.FEEDBACK
+                or not np.array_equal(previous.target, acs.target)
+            )
+        ):
+            # The law (re)starts: integral 0, rate estimate the rate error now.
+            ff = feedforward_rate(h_b, reaction, acs)
+            y[10:13] = 0.0
+            y[13:16] = omega if ff is None else omega + ff
+        previous = acs
         dt = (times[k + 1] - times[k]) / sub_steps
         for j in range(sub_steps):
             tau = j * dt

@@ -41,10 +41,12 @@ sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked comma
   (its outcome becomes ``cancelled``), and a barrier refuses such commands arriving later.
   The target then ramps to the first joint command left, or holds where it stands. A
   repeated ``request_id`` is answered with the first report and does nothing.
-- **Attitude control** runs every ``control_period_s`` on the *measured* (noisy) attitude and
-  rate with :func:`planner.attitude_control.wheel_torque_nm`; its feedforward is eq. (9) of
-  the commanded motion (the servo target and its ramp rate). Wheel torque and momentum are
-  limited in the simulator.
+- **Attitude control** runs every ``control_period_s`` (and at each attitude command's tag) on
+  the *measured* (noisy) attitude and rate with the law of ``acs_gains``
+  (:class:`planner.attitude_control.AttitudeController`, the planner's prediction's law: its
+  integral and rate filter, if any, restart on entering feedback and on a new target); its
+  feedforward is eq. (9) of the commanded motion (the servo target and its ramp rate).
+  Wheel torque and momentum are limited in the simulator.
 - **Telemetry**: a frame every ``telemetry_period_s`` on the epoch grid, seq from 0, with the
   schedule's summary (queued count, first and last tag, capacity, last executed seq).
 - **Loss of signal** (``los_policy``): with ``continue`` (the default) silence from the
@@ -68,10 +70,9 @@ from numpy.typing import NDArray
 from planner.attitude_control import (
     AcsGains,
     AcsMode,
-    attitude_error_rad,
+    AttitudeController,
     default_acs_gains,
     reaction_rate_radps,
-    wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
@@ -282,6 +283,7 @@ class Vehicle:
         self._acs_target = np.array(_IDENTITY)
         self._acs_feedforward = False
         self._wheel_torque = np.zeros(3)
+        self._law = AttitudeController(self._gains)
         self._sample: tuple[int, State, Measurement] | None = None
 
     # -- clock and counters -------------------------------------------------------------
@@ -650,8 +652,9 @@ class Vehicle:
         return self._sample[1], self._sample[2]
 
     def _control(self, t: int) -> None:
+        t_s = (t - self._epoch_ns) / 1e9
         if self._acs_mode is AcsMode.FREE_DRIFT:
-            self._wheel_torque = np.zeros(3)
+            self._wheel_torque = self._law.torque(t_s, AcsMode.FREE_DRIFT)
             return
         _, m = self._measure(t)
         reaction = (
@@ -659,10 +662,11 @@ class Vehicle:
             if self._acs_feedforward
             else None
         )
-        self._wheel_torque = wheel_torque_nm(
-            self._gains,
+        self._wheel_torque = self._law.torque(
+            t_s,
             self._acs_mode,
-            attitude_error=attitude_error_rad(m.quat_orbit_from_base_xyzw, self._acs_target),
+            target_quat_xyzw=self._acs_target,
+            quat_orbit_from_base_xyzw=m.quat_orbit_from_base_xyzw,
             omega_base_radps=m.omega_base_in_base_radps,
             reaction_rate_radps=reaction,
         )
