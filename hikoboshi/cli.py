@@ -377,6 +377,14 @@ def spacecraft(
     los_hold_after: Annotated[
         float | None, typer.Option(help="Onboard seconds of silence before 'hold' holds the arm")
     ] = None,
+    acs_config: Annotated[
+        Path | None,
+        typer.Option(
+            help="TOML file with an [acs] table: the attitude-control law (bandwidth_radps, "
+            "damping_ratio, integral_time_s, rate_filter_tau_s, dead_band_deg, "
+            "torque_limit_nm, ...; docs/spacecraft.md); default the calibrated PD law"
+        ),
+    ] = None,
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link."""
     import asyncio
@@ -407,6 +415,13 @@ def spacecraft(
             changes["outages"] = tuple(parse_outage(o) for o in outage)
         up = dataclasses.replace(up, **changes)
         down = dataclasses.replace(down, **changes)
+        acs_gains = None
+        if acs_config is not None:
+            from planner.attitude_control import load_acs_config
+            from planner.dynamics import DynamicsWorkspace
+            from planner.model import default_model
+
+            acs_gains = load_acs_config(DynamicsWorkspace(default_model()), acs_config)
         config = ProcessConfig(
             ground_url=ground,
             token=token,
@@ -415,6 +430,7 @@ def spacecraft(
                 telemetry_period_s=1.0 / telemetry_rate_hz,
                 los_policy=los_policy,  # type: ignore[arg-type]  # VehicleConfig checks it
                 los_hold_after_s=los_hold_after,
+                acs_gains=acs_gains,
             ),
             uplink=up,
             downlink=down,

@@ -63,8 +63,11 @@ time scales (tens of seconds) are far above the 0.1 s sample period.
 from __future__ import annotations
 
 import math
+import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,9 +79,11 @@ __all__ = [
     "AcsGains",
     "AcsMode",
     "AttitudeController",
+    "acs_gains_from_config",
     "attitude_error_rad",
     "default_acs_gains",
     "law_rates",
+    "load_acs_config",
     "reaction_rate_radps",
     "wheel_torque_nm",
 ]
@@ -200,6 +205,110 @@ def default_acs_gains(
         rate_filter_tau_s=rate_filter_tau_s,
         dead_band_rad=dead_band_rad,
     )
+
+
+#: The keys of an attitude-control configuration (:func:`acs_gains_from_config`).
+_CONFIG_KEYS = frozenset(
+    {
+        "bandwidth_radps",
+        "damping_ratio",
+        "kp_nm_per_rad",
+        "kd_nms_per_rad",
+        "integral_time_s",
+        "ki_nm_per_rad_s",
+        "rate_filter_tau_s",
+        "dead_band_deg",
+        "torque_limit_nm",
+        "momentum_limit_nms",
+    }
+)
+
+
+def acs_gains_from_config(ws: DynamicsWorkspace, config: Mapping[str, object]) -> AcsGains:
+    """The law from a configuration mapping (e.g. a TOML ``[acs]`` table); every key is
+    optional, a missing one keeps the default law's value:
+
+    ``bandwidth_radps`` and ``damping_ratio`` (the PD design of :func:`default_acs_gains`) or
+    explicit per-axis ``kp_nm_per_rad`` and ``kd_nms_per_rad`` (3 numbers each, both or
+    neither); ``integral_time_s`` (``ki = kp / Ti``) or ``ki_nm_per_rad_s`` (3 numbers);
+    ``rate_filter_tau_s``; ``dead_band_deg``; ``torque_limit_nm``; ``momentum_limit_nms``.
+    """
+    unknown = sorted(set(config) - _CONFIG_KEYS)
+    if unknown:
+        raise InvalidInput(
+            f"unknown attitude-control setting(s) {', '.join(unknown)}; known: "
+            f"{', '.join(sorted(_CONFIG_KEYS))}"
+        )
+
+    def number(key: str, default: float) -> float:
+        value = config.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InvalidInput(f"{key} must be a number, got {value!r}")
+        return float(value)
+
+    def axes(key: str) -> Array:
+        value = config[key]
+        if not (isinstance(value, (list, tuple)) and len(value) == 3) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value
+        ):
+            raise InvalidInput(f"{key} must be 3 numbers (one per base axis), got {value!r}")
+        return np.array(value, dtype=np.float64)
+
+    explicit = {"kp_nm_per_rad", "kd_nms_per_rad"} & set(config)
+    design = {"bandwidth_radps", "damping_ratio"} & set(config)
+    if explicit and (design or len(explicit) == 1):
+        raise InvalidInput(
+            "give either bandwidth_radps/damping_ratio or both kp_nm_per_rad and kd_nms_per_rad"
+        )
+    if "integral_time_s" in config and "ki_nm_per_rad_s" in config:
+        raise InvalidInput("give integral_time_s or ki_nm_per_rad_s, not both")
+    integral_time = number("integral_time_s", math.nan) if "integral_time_s" in config else None
+    gains = default_acs_gains(
+        ws,
+        bandwidth_radps=number("bandwidth_radps", DEFAULT_ACS_BANDWIDTH_RADPS),
+        damping_ratio=number("damping_ratio", DEFAULT_ACS_DAMPING_RATIO),
+        torque_limit_nm=number("torque_limit_nm", DEFAULT_WHEEL_TORQUE_LIMIT_NM),
+        momentum_limit_nms=number("momentum_limit_nms", DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS),
+        rate_filter_tau_s=number("rate_filter_tau_s", 0.0),
+        dead_band_rad=math.radians(number("dead_band_deg", 0.0)),
+    )
+    kp = axes("kp_nm_per_rad") if explicit else gains.kp_nm_per_rad
+    kd = axes("kd_nms_per_rad") if explicit else gains.kd_nms_per_rad
+    if integral_time is not None:
+        if not (math.isfinite(integral_time) and integral_time > 0):
+            raise InvalidInput(f"integral_time_s = {integral_time!r} s must be > 0")
+        ki = kp / integral_time
+    else:
+        ki = axes("ki_nm_per_rad_s") if "ki_nm_per_rad_s" in config else np.zeros(3)
+    return AcsGains(
+        kp_nm_per_rad=kp,
+        kd_nms_per_rad=kd,
+        torque_limit_nm=gains.torque_limit_nm,
+        momentum_limit_nms=gains.momentum_limit_nms,
+        ki_nm_per_rad_s=ki,
+        rate_filter_tau_s=gains.rate_filter_tau_s,
+        dead_band_rad=gains.dead_band_rad,
+    )
+
+
+def load_acs_config(ws: DynamicsWorkspace, path: str | Path) -> AcsGains:
+    """The law from a TOML file: its ``[acs]`` table (:func:`acs_gains_from_config`)."""
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise InvalidInput(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise InvalidInput(
+            f"{path}: cannot read the attitude-control configuration: {exc}"
+        ) from None
+    unknown = sorted(set(doc) - {"acs"})
+    if unknown or not isinstance(doc.get("acs"), dict):
+        raise InvalidInput(f"{path}: expected one [acs] table (found {sorted(doc)})")
+    try:
+        return acs_gains_from_config(ws, doc["acs"])
+    except InvalidInput as exc:
+        raise InvalidInput(f"{path}: {exc}") from None
 
 
 def attitude_error_rad(quat_orbit_from_base_xyzw: Array, target_quat_xyzw: Array) -> Array:

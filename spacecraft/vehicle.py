@@ -136,9 +136,13 @@ def _grid_ns(name: str, value_s: float, step_ns: int) -> int:
 
 @dataclass(frozen=True, eq=False)
 class VehicleConfig:
-    """What the flight segment is. ``acs_gains=None`` means the calibrated defaults
-    (:func:`planner.attitude_control.default_acs_gains`); their torque and momentum limits are
-    the wheels' limits in the truth simulation."""
+    """What the flight segment is. ``acs_gains`` is the attitude-control law (PD gains, and
+    optionally an integral term, a rate-estimate filter and a dead band:
+    :class:`planner.attitude_control.AcsGains`; a TOML file gives one with
+    :func:`planner.attitude_control.load_acs_config`); ``None`` means the calibrated PD defaults
+    (:func:`planner.attitude_control.default_acs_gains`). Its torque and momentum limits are
+    the wheels' limits in the truth simulation. A plan predicted with the same law
+    (``gains=`` of the planners) predicts what this vehicle flies."""
 
     model: RobotModel = field(default_factory=default_model)
     sim: SimConfig = field(default_factory=_default_sim)

@@ -5,6 +5,7 @@ the prediction, the truth simulation and the vehicle."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +15,9 @@ from planner.attitude_control import (
     AcsGains,
     AcsMode,
     AttitudeController,
+    acs_gains_from_config,
     default_acs_gains,
+    load_acs_config,
     wheel_torque_nm,
 )
 from planner.closed_loop import fly
@@ -295,3 +298,39 @@ def test_prediction_and_truth_simulation_fly_the_same_non_default_law(
     # servo lag and the 10 Hz sampled law against the continuous one: measured 0.013 deg
     # (1.7 % of the 0.74 deg peak), as for the PD law (test_plan_and_prediction: 2 %)
     assert np.max(np.abs(predicted - flown)) < 0.025 * peak
+
+
+def test_the_law_reads_from_a_toml_acs_table(ws: DynamicsWorkspace, tmp_path: Path) -> None:
+    path = tmp_path / "acs.toml"
+    path.write_text(
+        "[acs]\nkp_nm_per_rad = [10.0, 20.0, 30.0]\nkd_nms_per_rad = [100, 200, 300]\n"
+        "ki_nm_per_rad_s = [0.01, 0.0, 0.0]\nrate_filter_tau_s = 5.0\ndead_band_deg = 0.01\n"
+        "torque_limit_nm = 0.2\n"
+    )
+    gains = load_acs_config(ws, path)
+    np.testing.assert_array_equal(gains.kp_nm_per_rad, [10.0, 20.0, 30.0])
+    np.testing.assert_array_equal(gains.kd_nms_per_rad, [100.0, 200.0, 300.0])
+    np.testing.assert_array_equal(gains.ki_nm_per_rad_s, [0.01, 0.0, 0.0])
+    assert gains.rate_filter_tau_s == 5.0 and gains.torque_limit_nm == 0.2
+    assert gains.dead_band_rad == pytest.approx(math.radians(0.01))
+    assert gains.momentum_limit_nms == 20.0  # not given: the default
+    # an empty table is the default law
+    default = default_acs_gains(ws)
+    empty = acs_gains_from_config(ws, {})
+    np.testing.assert_array_equal(empty.kp_nm_per_rad, default.kp_nm_per_rad)
+    assert not empty.stateful
+    for bad, match in (
+        ({"kp": 1.0}, "unknown attitude-control setting"),
+        ({"rate_filter_tau_s": -1.0}, "rate_filter_tau_s"),
+        ({"dead_band_deg": 10.0}, "dead_band_rad"),
+        ({"kp_nm_per_rad": [1.0, 2.0, 3.0]}, "both kp_nm_per_rad and kd_nms_per_rad"),
+        ({"integral_time_s": 100.0, "ki_nm_per_rad_s": [0, 0, 0]}, "not both"),
+        ({"integral_time_s": -5.0}, "integral_time_s"),
+        ({"ki_nm_per_rad_s": [1.0, -1.0, 0.0]}, "ki_nm_per_rad_s"),
+        ({"torque_limit_nm": "big"}, "torque_limit_nm must be a number"),
+    ):
+        with pytest.raises(InvalidInput, match=match):
+            acs_gains_from_config(ws, bad)
+    path.write_text("[link]\ndelay_s = 1\n")
+    with pytest.raises(InvalidInput, match=r"\[acs\] table"):
+        load_acs_config(ws, path)
