@@ -380,7 +380,7 @@ def spacecraft(
     acs_config: Annotated[
         Path | None,
         typer.Option(
-            help="TOML file with an [acs] table: the attitude-control law (bandwidth_radps, "
+            help="TOML file with an acs table: the attitude-control law (bandwidth_radps, "
             "damping_ratio, integral_time_s, rate_filter_tau_s, dead_band_deg, "
             "torque_limit_nm, ...; docs/spacecraft.md); default the calibrated PD law"
         ),
