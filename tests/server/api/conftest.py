@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,8 @@ from planner.experiments import PtpParams
 from planner.plan import Plan
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
+from server.storage import repository as repo
+from tests.server.storage.factories import make_plan
 
 TOKENS = {
     "v-token": ApiToken(name="vera", role=Role.VIEWER),
@@ -46,3 +49,20 @@ def ptp_plan() -> Plan:
     """A real planner output, planned once for the run."""
     params = parameters_from_values(PtpParams, CHEAP_PTP["parameters"])
     return plan_experiment("ptp", params)
+
+
+def add_pass(client: TestClient, name: str) -> str:
+    """A scheduled pass of a small plan (stored directly), from now for 1000 s; its id."""
+    with sessions(client)() as session:
+        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
+        record = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=plan.id,
+            aos_time_ns=time.time_ns(),
+            los_time_ns=time.time_ns() + 10**12,
+            relay="TDRS-W",
+            created_at_ns=0,
+        )
+        session.commit()
+        return str(record.id)

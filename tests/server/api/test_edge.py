@@ -30,7 +30,7 @@ from server.api.edge import AuthGuard, RedactSecretsFilter, check_json, uvicorn_
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
+from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass, sessions
 from tests.server.storage.factories import make_plan
 
 MIB = 1024 * 1024
@@ -47,22 +47,6 @@ def _nothing_stored(client: TestClient) -> None:
     with sessions(client)() as session:
         assert repo.list_passes(session=session).count == 0
         assert repo.list_events(session=session).count == 0
-
-
-def _add_pass(client: TestClient, name: str = "pass-7") -> str:
-    with sessions(client)() as session:
-        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
-        record = repo.add_pass(
-            session=session,
-            name=name,
-            plan_id=plan.id,
-            aos_time_ns=time.time_ns(),
-            los_time_ns=time.time_ns() + 10**12,
-            relay="TDRS-W",
-            created_at_ns=0,
-        )
-        session.commit()
-        return record.id
 
 
 # --- the ASGI application called directly: what it reads of a body -----------------------
@@ -239,7 +223,7 @@ def test_nul_in_a_pass_name_is_refused_and_nothing_stored(client: TestClient) ->
 def test_nul_in_a_confirmation_is_refused_and_nothing_stored(
     client: TestClient, action: str
 ) -> None:
-    pass_id = _add_pass(client)
+    pass_id = add_pass(client, "pass-7")
     body = {"confirm": f"{action.upper()} pass-7\x00", "reason": "r"}
     response = client.post(f"/api/passes/{pass_id}/{action}", json=body, headers=OPERATOR)
     assert (response.status_code, _error(response)) == (400, "invalid_text")

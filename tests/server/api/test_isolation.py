@@ -4,7 +4,6 @@ control request (which goes through the link's database worker) is answered as u
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from fastapi.testclient import TestClient
@@ -12,10 +11,8 @@ from sqlalchemy import Engine, text
 
 from server.app import create_app
 from server.settings import Settings
-from server.storage import repository as repo
 from server.storage.db import READ_ONLY_OPTION
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER
-from tests.server.storage.factories import make_plan
+from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass
 
 
 def test_a_full_readers_pool_answers_busy_and_control_goes_on(
@@ -31,19 +28,7 @@ def test_a_full_readers_pool_answers_busy_and_control_goes_on(
     )
     with TestClient(create_app(settings)) as client:
         app = client.app
-        with app.state.sessions() as session:  # type: ignore[attr-defined]
-            plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
-            record = repo.add_pass(
-                session=session,
-                name="held",
-                plan_id=plan.id,
-                aos_time_ns=time.time_ns(),
-                los_time_ns=time.time_ns() + 10**12,
-                relay="TDRS-W",
-                created_at_ns=0,
-            )
-            session.commit()
-            pass_id = record.id
+        pass_id = add_pass(client, "held")
         readers: Engine = app.state.engine  # type: ignore[attr-defined]
         # the readers' only connection, reading (on SQLite a plain BEGIN: no write lock)
         with readers.execution_options(**{READ_ONLY_OPTION: True}).connect() as held:
