@@ -26,7 +26,7 @@ wheels taking up ``H~_bm phi'`` exactly, would leave the base still and beat fee
 the flight did not show; the paper calls the flight's method counter-productive for this
 motion.) In ``free_drift`` the feedforward does nothing: there is no rate loop to feed.
 
-**The law family** (:class:`AcsGains`; issue #13). Besides ``kp`` and ``kd`` the law has, each
+**The law family** (:class:`AcsGains`). Besides ``kp`` and ``kd`` the law has, each
 off by default (the defaults are the memoryless PD law above, bit for bit):
 
 - an **integral** term ``ki z`` with ``z' = e_db`` per axis (``ki = 0``: none). Anti-windup by
