@@ -499,5 +499,135 @@ def serve(
     uvicorn.Server(config).run()
 
 
+@app.command()
+def calibrate(
+    out: Annotated[
+        Path, typer.Option(help="The [acs] TOML file to write (--acs-config reads it).")
+    ],
+    mcap: Annotated[
+        Path | None, typer.Option(help="Fit to this recorded pass (.mcap) instead of the paper.")
+    ] = None,
+    pass_id: Annotated[
+        str | None,
+        typer.Option(
+            "--pass",
+            help="Fit to this stored pass (DATABASE_URL, else SQLite under HIKOBOSHI_DATA_DIR).",
+        ),
+    ] = None,
+    parameters: Annotated[
+        str,
+        typer.Option(
+            help="Comma-separated law parameters to fit among bandwidth_radps, damping_ratio, "
+            "rate_filter_tau_s, integral_time_s"
+        ),
+    ] = "bandwidth_radps,damping_ratio",
+    max_evaluations: Annotated[
+        int, typer.Option(help="Budget of model evaluations (about 2 s each for the paper).")
+    ] = 40,
+    vehicle_check: Annotated[
+        bool,
+        typer.Option(
+            help="Paper fit: also fly the start and the fit through the vehicle (about 30 s)."
+        ),
+    ] = True,
+    report: Annotated[Path | None, typer.Option(help="Where to write the JSON report.")] = None,
+) -> None:
+    """Fit the attitude-control law's parameters (SciPy least squares) to the paper's targets
+    or to a recorded pass; write the [acs] configuration and a report of every target."""
+    from planner.errors import InvalidInput
+    from spacecraft.calibration import fit_to_paper, fit_to_recording, write_acs_config
+
+    if mcap is not None and pass_id is not None:
+        _fail("give --mcap or --pass, not both")
+    if max_evaluations < 1:
+        _fail(f"--max-evaluations {max_evaluations} must be >= 1")
+    names = tuple(p.strip() for p in parameters.split(",") if p.strip())
+    recording = None
+    if mcap is not None or pass_id is not None:
+        import io
+
+        from telemetry.mcap import RecordingFileError, read_mcap
+
+        try:
+            if mcap is not None:
+                recording = read_mcap(mcap)
+            elif pass_id is not None:
+                from hikoboshi.post_cli import _session
+                from server.services.recordings import recording_mcap
+
+                with _session() as session:
+                    _, data = recording_mcap(session=session, pass_id=pass_id)
+                recording = read_mcap(io.BytesIO(data))
+        except (RecordingFileError, OSError) as exc:
+            _fail(f"{mcap or pass_id}: {exc}")
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f}"),
+        TextColumn("cost {task.fields[cost]}"),
+        TimeRemainingColumn(),
+        console=err_console,
+    ) as progress:
+        task = progress.add_task("calibrating", total=max_evaluations, cost="-")
+
+        def on_progress(done: int, total: int, cost: float) -> None:
+            progress.update(task, completed=done, total=total, cost=f"{cost:.4g}")
+
+        try:
+            if recording is not None:
+                result = fit_to_recording(
+                    recording, names, max_evaluations=max_evaluations, progress=on_progress
+                )
+            else:
+                result = fit_to_paper(
+                    names,
+                    max_evaluations=max_evaluations,
+                    progress=on_progress,
+                    check_vehicle=vehicle_check,
+                )
+        except InvalidInput as exc:
+            _fail(str(exc))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_acs_config(out, result.parameters)
+        if report is not None:
+            report.parent.mkdir(parents=True, exist_ok=True)
+            report.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+    except OSError as exc:
+        _fail(str(exc))
+    _print_calibration(result)
+    console.print(f"wrote {out}" + ("" if report is None else f" and {report}"), highlight=False)
+
+
+def _print_calibration(result: Any) -> None:
+    def num(value: float | None) -> str:
+        return "-" if value is None else f"{value:.4g}"
+
+    def holds(value: bool | None) -> str:
+        return "not checked" if value is None else ("holds" if value else "does not hold")
+
+    params = Table(title=f"fit ({result.kind}): {result.message}")
+    for column in ("parameter", "start", "fit", "standard error"):
+        params.add_column(column)
+    for name, value in result.parameters.items():
+        se = None if result.standard_error is None else result.standard_error.get(name)
+        params.add_row(name, num(result.start[name]), num(value), num(se))
+    console.print(params)
+    table = Table(title=f"targets (cost {result.cost_start:.4g} -> {result.cost:.4g})")
+    for column in ("target", "tolerance", "source", "start", "fit", "at start", "at fit"):
+        table.add_column(column)
+    for row in result.targets:
+        table.add_row(
+            row.target + (f" ({row.note})" if row.note else ""),
+            row.tolerance,
+            row.source,
+            num(row.start),
+            num(row.fit),
+            holds(row.holds_start),
+            holds(row.holds),
+        )
+    console.print(table)
+
+
 def main() -> None:
     app()

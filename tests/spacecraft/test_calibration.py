@@ -1,0 +1,159 @@
+"""``hikoboshi calibrate`` (spacecraft.calibration): the attitude-control law recovered from a
+pass flown with known gains, the written [acs] file, the paper fit's report and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hikoboshi.cli import app
+from planner.attitude_control import load_acs_config
+from planner.dynamics import DynamicsWorkspace
+from planner.experiments import PtpParams, plan_ptp
+from planner.model import default_model
+from spacecraft.calibration import (
+    fit_to_paper,
+    fit_to_recording,
+    gains_from_parameters,
+    write_acs_config,
+)
+from spacecraft.offline import fly_offline
+from spacecraft.vehicle import VehicleConfig
+from telemetry.mcap import write_mcap
+from telemetry.recording import PassRecording
+
+#: The law the pass is flown with (the defaults are 0.04 rad/s and 0.7).
+TRUTH = {"bandwidth_radps": 0.03, "damping_ratio": 0.9}
+#: Measured: the fit from the defaults recovers 0.0302 rad/s and 0.882 (seed 3): within
+#: 0.7 % and 2 %; the vehicle's joint-servo lag and sensor noise make it inexact (the
+#: prediction tracks ideally). The tolerances leave room for other seeds.
+RELATIVE_TOLERANCE = {"bandwidth_radps": 0.03, "damping_ratio": 0.05}
+
+
+@pytest.fixture(scope="module")
+def flown() -> PassRecording:
+    """A PTP A -> B with 60 s of settling, flown through the vehicle with the TRUTH law."""
+    workspace = DynamicsWorkspace(default_model())
+    plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
+    config = VehicleConfig(
+        acs_gains=gains_from_parameters(workspace, TRUTH),
+        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
+    )
+    flight = fly_offline(plan, config, seed=3)
+    return PassRecording.from_frames("calibration", plan, flight.epoch_ns, flight.frames)
+
+
+def test_fit_recovers_the_law_a_pass_was_flown_with(
+    flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
+) -> None:
+    calls: list[tuple[int, int, float]] = []
+    result = fit_to_recording(
+        flown, ws=workspace, max_evaluations=40, progress=lambda *a: calls.append(a)
+    )
+    assert result.start == {"bandwidth_radps": 0.04, "damping_ratio": 0.7}
+    for name, truth in TRUTH.items():
+        assert result.parameters[name] == pytest.approx(truth, rel=RELATIVE_TOLERANCE[name])
+    assert result.cost < 0.05 * result.cost_start
+    assert result.standard_error is not None and set(result.standard_error) == set(TRUTH)
+    assert all(math.isfinite(v) and v > 0 for v in result.standard_error.values())
+    assert (
+        [c[0] for c in calls]
+        == list(range(1, len(calls) + 1))
+        == list(range(1, result.evaluations + 1))
+    )
+    assert all(row.holds for row in result.targets)
+
+    # the written [acs] file is the fit's law
+    path = tmp_path / "acs.toml"
+    write_acs_config(path, result.parameters)
+    loaded = load_acs_config(workspace, path)
+    fitted = gains_from_parameters(workspace, result.parameters)
+    np.testing.assert_array_equal(loaded.kp_nm_per_rad, fitted.kp_nm_per_rad)
+    np.testing.assert_array_equal(loaded.kd_nms_per_rad, fitted.kd_nms_per_rad)
+    assert not loaded.has_integral and loaded.rate_filter_tau_s == 0.0
+
+
+def test_written_config_with_filter_and_integral_loads(
+    workspace: DynamicsWorkspace, tmp_path: Path
+) -> None:
+    values = {
+        "bandwidth_radps": 0.05,
+        "damping_ratio": 0.8,
+        "rate_filter_tau_s": 2.5,
+        "integral_time_s": 300.0,
+    }
+    path = tmp_path / "acs.toml"
+    write_acs_config(path, values)
+    loaded = load_acs_config(workspace, path)
+    want = gains_from_parameters(workspace, values)
+    np.testing.assert_array_equal(loaded.ki_nm_per_rad_s, want.ki_nm_per_rad_s)
+    assert loaded.rate_filter_tau_s == 2.5
+
+
+def test_paper_fit_reports_every_target(workspace: DynamicsWorkspace) -> None:
+    result = fit_to_paper(ws=workspace, max_evaluations=3)
+    assert result.evaluations <= 3
+    ids = [row.id for row in result.targets]
+    assert ids == [
+        "ptp_settling",
+        "coordination_feedback_min",
+        "coordination_feedback_max",
+        "coordination_feedforward_dip",
+        "coordination_feedforward_overshoot",
+        "coordination_offset_range",
+        "coordination_offset_settling",
+        "gjm_base_pitch",
+        "reactionless_grows_with_speed",
+    ]
+    for row in result.targets[:7]:
+        assert row.source == "prediction"
+        assert isinstance(row.holds, bool) and isinstance(row.holds_start, bool)
+        assert row.start is not None and row.fit is not None
+    # the defaults settle the predicted PTP in about 100 s
+    assert result.targets[0].holds_start
+    assert result.targets[-1].holds is None  # not the law's: said so, never a pass
+    assert result.cost <= result.cost_start
+    json.dumps(result.to_dict())
+
+
+def test_cli_calibrates_to_a_recorded_pass(
+    flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
+) -> None:
+    mcap = tmp_path / "pass.mcap"
+    write_mcap(flown, mcap)
+    out, report = tmp_path / "acs.toml", tmp_path / "report.json"
+    result = CliRunner().invoke(
+        app,
+        [
+            "calibrate",
+            "--mcap",
+            str(mcap),
+            "--max-evaluations",
+            "4",
+            "--out",
+            str(out),
+            "--report",
+            str(report),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    doc = json.loads(report.read_text())
+    assert doc["kind"] == "recording" and doc["evaluations"] <= 4
+    loaded = load_acs_config(workspace, out)
+    fitted = gains_from_parameters(workspace, doc["parameters"])
+    np.testing.assert_array_equal(loaded.kp_nm_per_rad, fitted.kp_nm_per_rad)
+    assert "[acs]" in out.read_text() and "bandwidth_radps" in out.read_text()
+    assert "rms_residual_y_deg" in [row["id"] for row in doc["targets"]]
+
+
+def test_cli_refuses_unknown_parameters(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app, ["calibrate", "--parameters", "kp", "--out", str(tmp_path / "a.toml")]
+    )
+    assert result.exit_code == 2
+    assert "kp" in result.output
