@@ -372,6 +372,8 @@ class _PaperTarget:
 #: The hinges ask for the orderings to hold by this much (a tie does not hold).
 _MARGIN_DEG = 0.01
 _MARGIN_S = 2.0
+#: The PTP's settling wait in the paper fit (s).
+_PTP_SETTLE_S = 360.0
 
 
 def _paper_limits() -> dict[str, Mapping[str, float]]:
@@ -571,11 +573,14 @@ def fit_to_paper(
     vehicle (:func:`spacecraft._calibration.calibration_table`, 10 to 20 s each) and their
     rows added with source ``vehicle``."""
     from planner.coordination import plan_coordination
-    from planner.experiments import plan_ptp
+    from planner.experiments import PtpParams, plan_ptp
 
     names = _check_parameters(parameters)
     ws = ws or DynamicsWorkspace(default_model())
-    plans = {"ptp": plan_ptp(ws), "coordination": plan_coordination(ws)}
+    # a settling wait long enough to measure a slow law's settling (the default's 120 s
+    # would cap it at the window's end)
+    ptp = plan_ptp(ws, PtpParams(settle_s=_PTP_SETTLE_S))
+    plans = {"ptp": ptp, "coordination": plan_coordination(ws)}
     targets = _paper_targets()
     first = {n: PARAMETERS[n].default for n in names}
     first.update({k: float(v) for k, v in (start or {}).items() if k in names})
