@@ -67,6 +67,17 @@ Array = NDArray[np.float64]
 Progress = Callable[[int, int, float], None]
 
 
+#: A rate filter shorter than this is no filter in the fit (the prediction's fixed-step
+#: integrator cannot follow a much faster filter, and the law's time scales are tens of
+#: seconds).
+MIN_RATE_FILTER_TAU_S = 0.5
+
+
+def _tau_from_x(x: float) -> float:
+    tau = math.expm1(max(x, 0.0))
+    return tau if tau >= MIN_RATE_FILTER_TAU_S else 0.0
+
+
 @dataclass(frozen=True)
 class _Parameter:
     default: float
@@ -74,6 +85,9 @@ class _Parameter:
     upper: float
     to_x: Callable[[float], float]
     from_x: Callable[[float], float]
+    #: where the optimiser starts when the start is the parameter's "off" value (on the
+    #: bound, where a finite difference sees nothing): a small, active value
+    active_start: float | None = None
 
 
 #: The law's fittable parameters; ``integral_time_s`` = ``inf`` means no integral term.
@@ -85,7 +99,7 @@ PARAMETERS: Mapping[str, _Parameter] = {
         DEFAULT_ACS_DAMPING_RATIO, math.log(0.05), math.log(5.0), math.log, math.exp
     ),
     "rate_filter_tau_s": _Parameter(
-        0.0, 0.0, math.log1p(200.0), math.log1p, lambda x: math.expm1(max(x, 0.0))
+        0.0, 0.0, math.log1p(200.0), math.log1p, _tau_from_x, active_start=2.0
     ),
     "integral_time_s": _Parameter(
         math.inf,
@@ -93,6 +107,7 @@ PARAMETERS: Mapping[str, _Parameter] = {
         10.0,  # Ti >= 10 s
         lambda ti: 100.0 / ti,
         lambda x: math.inf if x <= 0.0 else 100.0 / x,
+        active_start=1000.0,
     ),
 }
 
@@ -228,6 +243,10 @@ def _solve(
     lower = np.array([PARAMETERS[n].lower for n in names])
     upper = np.array([PARAMETERS[n].upper for n in names])
     x0 = np.array([PARAMETERS[n].to_x(float(start[n])) for n in names])
+    for i, n in enumerate(names):
+        active = PARAMETERS[n].active_start
+        if active is not None and x0[i] <= lower[i]:
+            x0[i] = PARAMETERS[n].to_x(active)
     x0 = np.clip(x0, lower, upper)
     objective = _Objective(names, residuals, max_evaluations, progress)
     jac: Array | None = None
