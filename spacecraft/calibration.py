@@ -597,6 +597,20 @@ def _vehicle_metrics(
     return out
 
 
+def _faithful_note(
+    target: _PaperTarget,
+    predicted: Mapping[str, Mapping[str, float]],
+    flown: Mapping[str, Mapping[str, float]],
+) -> str:
+    """Where the prediction's verdict at the fit is not the vehicle's, say so."""
+    if target.holds(predicted) == target.holds(flown):
+        return ""
+    return (
+        f"the prediction gave {target.value(predicted):.4g} "
+        f"({'holds' if target.holds(predicted) else 'does not hold'}): not faithful here"
+    )
+
+
 def fit_to_paper(
     parameters: Sequence[str] = ("bandwidth_radps", "damping_ratio"),
     *,
@@ -658,6 +672,7 @@ def fit_to_paper(
                     bool(t.holds(v0)),
                     bool(t.holds(v1)),
                     "vehicle",
+                    _faithful_note(t, m1, v1),
                 )
             )
     return CalibrationResult(
