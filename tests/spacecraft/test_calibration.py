@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -193,3 +194,23 @@ def test_fit_recovers_a_filtered_pid_law() -> None:
     assert math.isinf(result.start["integral_time_s"])  # from the defaults: no filter, no I
     for name, truth in FAMILY_TRUTH.items():
         assert result.parameters[name] == pytest.approx(truth, rel=FAMILY_TOLERANCE[name])
+
+
+def test_cli_calibrates_to_a_stored_pass(
+    flown: PassRecording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("DATABASE_URL", raising=False)
+    monkeypatch.setenv("HIKOBOSHI_DATA_DIR", str(tmp_path / "data"))
+    mcap = tmp_path / "pass.mcap"
+    write_mcap(flown, mcap)
+    runner = CliRunner()
+    imported = runner.invoke(app, ["mcap", "import", str(mcap)])
+    assert imported.exit_code == 0, imported.output
+    pass_id = re.findall(r"[0-9a-f-]{36}", imported.output)[0]
+    out = tmp_path / "acs.toml"
+    args = ["calibrate", "--pass", pass_id, "--max-evaluations", "2", "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert out.read_text().startswith("[acs]\n")
+    missing = runner.invoke(app, [*args[:2], "00000000-0000-4000-8000-000000000000", *args[3:]])
+    assert missing.exit_code == 2 and "not found" in missing.output
