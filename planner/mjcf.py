@@ -34,6 +34,8 @@ __all__ = ["MjcfOptions", "ServoGains", "compile_model", "mjcf_xml"]
 
 Array = NDArray[np.float64]
 
+_MIN_SEGMENT_M = 1e-6  # MuJoCo refuses a capsule whose ends are closer
+
 
 @dataclass(frozen=True, eq=False)
 class ServoGains:
@@ -58,6 +60,13 @@ def _vec(a: Array) -> str:
 def _full_inertia(inertia: Array) -> str:
     i = inertia
     return _vec(np.array([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]))
+
+
+def _link_geom(indent: str, segment_m: Array) -> str:
+    """A capsule from the joint to the next joint; a sphere where they coincide (a wrist)."""
+    if float(np.linalg.norm(segment_m)) < _MIN_SEGMENT_M:
+        return f'{indent}<geom type="sphere" size="0.06"/>'
+    return f'{indent}<geom type="capsule" size="0.06" fromto="0 0 0 {_vec(segment_m)}"/>'
 
 
 def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
@@ -98,8 +107,7 @@ def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
             f'{indent}  <inertial pos="{_vec(link.com_robot_m - link.joint_pos_robot_m)}"'
             f' mass="{link.mass_kg!r}"'
             f' fullinertia="{_full_inertia(link.inertia_com_robot_kgm2)}"/>',
-            f'{indent}  <geom type="capsule" size="0.06"'
-            f' fromto="0 0 0 {_vec(end - link.joint_pos_robot_m)}"/>',
+            _link_geom(indent + "  ", end - link.joint_pos_robot_m),
         ]
         parent_pos = link.joint_pos_robot_m
         indent += "  "
