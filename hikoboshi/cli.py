@@ -17,7 +17,9 @@ from rich.table import Table
 from hikoboshi import post_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
-model_app = typer.Typer(no_args_is_help=True, help="The ETS-VII model: export and quantities.")
+model_app = typer.Typer(
+    no_args_is_help=True, help="The robot model (ETS-VII or --robot FILE): export and quantities."
+)
 app.add_typer(model_app, name="model")
 post_cli.register(app)  # report, mcap export|import
 
@@ -31,22 +33,47 @@ def _fail(reason: str) -> NoReturn:
     raise typer.Exit(code=2)
 
 
-@model_app.command("urdf")
-def model_urdf() -> None:
-    """Print the default model as URDF (base, arm and a hand link)."""
+RobotOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--robot",
+        help="Robot description (TOML, docs/robots.md); default: ETS-VII as built in.",
+    ),
+]
+
+
+def _robot(robot: Path | None) -> tuple[str, Any]:
+    """The robot's name and RobotModel: from ``robot``, or ETS-VII's built-in model."""
+    from planner.errors import PlannerError
     from planner.model import default_model
+
+    if robot is None:
+        return "ets7", default_model()
+    from planner.description import load_robot
+
+    try:
+        description = load_robot(robot)
+    except PlannerError as exc:
+        _fail(str(exc))
+    return description.name, description.model
+
+
+@model_app.command("urdf")
+def model_urdf(robot: RobotOption = None) -> None:
+    """Print the model as URDF (base, arm and a hand link); its root link is the base."""
     from planner.urdf import urdf_xml
 
-    sys.stdout.write(urdf_xml(default_model()))
+    name, model = _robot(robot)
+    sys.stdout.write(urdf_xml(model, name=name))
 
 
 @model_app.command("mjcf")
-def model_mjcf() -> None:
+def model_mjcf(robot: RobotOption = None) -> None:
     """Print the MuJoCo model (MJCF) the simulator steps."""
     from planner.mjcf import mjcf_xml
-    from planner.model import default_model
 
-    sys.stdout.write(mjcf_xml(default_model()))
+    name, model = _robot(robot)
+    sys.stdout.write(mjcf_xml(model, name=name))
 
 
 def _parse_joints_deg(text: str, n: int) -> np.ndarray:
@@ -65,16 +92,20 @@ def _parse_joints_deg(text: str, n: int) -> np.ndarray:
     return np.array(values)
 
 
-def quantities_document(joints_deg: np.ndarray) -> dict[str, Any]:
-    """The JSON object of ``hikoboshi model quantities`` (base at nominal, zero momentum)."""
+def quantities_document(joints_deg: np.ndarray, model: Any = None) -> dict[str, Any]:
+    """The JSON object of ``hikoboshi model quantities`` (base at nominal, zero momentum);
+    ``model`` is a RobotModel (default: ETS-VII)."""
     from planner.dynamics import DynamicsWorkspace
     from planner.frames import rpy_from_matrix
     from planner.model import default_model
     from planner.state import State
 
-    model = default_model()
+    model = default_model() if model is None else model
     joints_rad = model.check_joints(np.radians(joints_deg))
-    q = DynamicsWorkspace(model).evaluate(State(joints_rad=joints_rad))
+    zero_rates = np.zeros(model.n_joints)
+    q = DynamicsWorkspace(model).evaluate(
+        State(joints_rad=joints_rad, joint_rates_radps=zero_rates)
+    )
     return {
         "joints_deg": joints_deg.tolist(),
         "total_mass_kg": q.total_mass_kg,
@@ -90,22 +121,29 @@ def quantities_document(joints_deg: np.ndarray) -> dict[str, Any]:
 @model_app.command("quantities")
 def model_quantities(
     joints_deg: Annotated[
-        str, typer.Option("--joints-deg", help="Six joint angles in degrees: J1,J2,J3,J4,J5,J6")
+        str,
+        typer.Option(
+            "--joints-deg",
+            help="One angle per joint in degrees, comma-separated: J1,J2,...,Jn (six for ETS-VII)",
+        ),
     ],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    robot: RobotOption = None,
 ) -> None:
     """Planning quantities at one arm pose, base at the orbit frame's nominal attitude."""
     from planner.errors import PlannerError
 
-    values = _parse_joints_deg(joints_deg, 6)
+    name, model = _robot(robot)
+    values = _parse_joints_deg(joints_deg, model.n_joints)
     try:
-        doc = quantities_document(values)
+        doc = quantities_document(values, model)
     except PlannerError as exc:
         _fail(str(exc))
     if as_json:
         sys.stdout.write(json.dumps(doc) + "\n")
         return
-    table = Table(title=f"ETS-VII at joints {joints_deg} deg")
+    title = "ETS-VII" if robot is None else name
+    table = Table(title=f"{title} at joints {joints_deg} deg")
     table.add_column("quantity")
     table.add_column("value")
     for key, value in doc.items():

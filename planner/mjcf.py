@@ -69,12 +69,12 @@ def _link_geom(indent: str, segment_m: Array) -> str:
     return f'{indent}<geom type="capsule" size="0.06" fromto="0 0 0 {_vec(segment_m)}"/>'
 
 
-def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None) -> str:
-    """The MJCF document of ``model``."""
+def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None, *, name: str = "ets7") -> str:
+    """The MJCF document of ``model``, named ``name``."""
     opt = options or MjcfOptions()
     base_mass, base_inertia = base_body_inertial(model)
     lines = [
-        '<mujoco model="ets7">',
+        f"<mujoco model={quoteattr(name)}>",
         '  <compiler angle="radian" autolimits="true" balanceinertia="true"/>',
         f'  <option gravity="0 0 0" integrator={quoteattr(opt.integrator)}'
         f' timestep="{opt.timestep_s:.12g}">',
