@@ -25,17 +25,26 @@ Methods, deliberately unlike MuJoCo's recursive body tree:
 - the inertia matrix of eq. (1) twice: by the composite rigid body method (subtree
   composites) and as ``sum_i J_i^T M_i J_i`` over the bodies' CoM Jacobians;
 - momentum (eq. 2-3) directly from every body's velocity.
+
+Any robot: every function takes a :class:`RobotData` (default :data:`ETS7`, built from the
+tables re-typed below). :func:`robot_from_description` reads a robot description (the TOML
+and its URDF, ``docs/robots.md``) with its own small reader, homogeneous transforms and
+``tomllib``, not with ``planner.description``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import tomllib
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
     "BASE_MASS_KG",
+    "ETS7",
     "HAND_POS_ROBOT_M",
     "MU_M3PS2",
     "N_JOINTS",
@@ -43,6 +52,7 @@ __all__ = [
     "TOTAL_MASS_KG",
     "Kinematics",
     "Reference",
+    "RobotData",
     "evaluate",
     "forward_kinematics",
     "gravity_gradient_torque_base_nm",
@@ -52,6 +62,7 @@ __all__ = [
     "matrix_from_quat_xyzw",
     "quat_multiply_xyzw",
     "quat_xyzw_about_axis",
+    "robot_from_description",
     "vee",
 ]
 
@@ -191,6 +202,138 @@ LINK_INERTIA_ZERO_POSE_ROBOT_KGM2 = np.array(
     [_inertia_zero_pose_robot_kgm2(i) for i in range(N_JOINTS)]
 )
 
+
+@dataclass(frozen=True, eq=False)
+class RobotData:
+    """A serial arm on a free-floating base, at the all-zero pose (robot frame = base axes,
+    origin on joint 1; every link frame parallel to it at the all-zero pose)."""
+
+    base_mass_kg: float
+    base_inertia_kgm2: Array  # locked base (wheels included), about its CoM, base axes
+    pos_base_from_robot_m: Array
+    joint_pos_robot_m: Array  # (n, 3) a point on each joint axis
+    joint_axis_robot: Array  # (n, 3) unit
+    link_mass_kg: Array  # (n,)
+    link_com_robot_m: Array  # (n, 3)
+    link_inertia_zero_pose_robot_kgm2: Array  # (n, 3, 3) about each link's CoM
+    hand_pos_robot_m: Array
+    wheel_axes_base: Array = field(default_factory=lambda: np.eye(3))  # row k: rotor k's axis
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.link_mass_kg.shape[0])
+
+    @property
+    def total_mass_kg(self) -> float:
+        return self.base_mass_kg + float(self.link_mass_kg.sum())
+
+
+ETS7 = RobotData(
+    base_mass_kg=BASE_MASS_KG,
+    base_inertia_kgm2=BASE_INERTIA_KGM2,
+    pos_base_from_robot_m=POS_BASE_FROM_ROBOT_M,
+    joint_pos_robot_m=JOINT_POS_ROBOT_M,
+    joint_axis_robot=JOINT_AXIS_ROBOT,
+    link_mass_kg=LINK_MASS_KG,
+    link_com_robot_m=LINK_COM_ROBOT_M,
+    link_inertia_zero_pose_robot_kgm2=LINK_INERTIA_ZERO_POSE_ROBOT_KGM2,
+    hand_pos_robot_m=HAND_POS_ROBOT_M,
+)
+
+# --- a robot description, read independently ----------------------------------------------
+
+
+def _urdf_floats(elem: ET.Element | None, key: str, default: str) -> Array:
+    text = default if elem is None else elem.get(key, default)
+    return np.array([float(x) for x in text.split()])
+
+
+def _urdf_rpy(rpy: Array) -> Array:
+    """URDF's fixed-axis roll, pitch, yaw as a product of axis rotations."""
+    return np.asarray(
+        rot_about_axis(np.array([0.0, 0.0, 1.0]), rpy[2])
+        @ rot_about_axis(np.array([0.0, 1.0, 0.0]), rpy[1])
+        @ rot_about_axis(np.array([1.0, 0.0, 0.0]), rpy[0])
+    )
+
+
+def _urdf_origin(elem: ET.Element) -> Array:
+    """4x4 transform of ``elem``'s ``<origin>``."""
+    origin = elem.find("origin")
+    g = np.eye(4)
+    g[:3, :3] = _urdf_rpy(_urdf_floats(origin, "rpy", "0 0 0"))
+    g[:3, 3] = _urdf_floats(origin, "xyz", "0 0 0")
+    return g
+
+
+def robot_from_description(toml_path: Path | str) -> RobotData:
+    """The robot of a description file: its TOML's ``urdf``, ``base_link`` and ``[[wheels]]``
+    and the URDF's chain from the base link to the link ``hand``."""
+    toml_path = Path(toml_path)
+    doc = tomllib.loads(toml_path.read_text())
+    root = ET.fromstring((toml_path.parent / doc["urdf"]).read_text())
+    links = {e.get("name"): e for e in root.findall("link")}
+    joint_to = {}
+    for joint in root.findall("joint"):
+        child = joint.find("child")
+        assert child is not None
+        joint_to[child.get("link")] = joint
+    chain = []  # joints from the base link to the hand
+    link = "hand"
+    while link != doc["base_link"]:
+        chain.insert(0, joint_to[link])
+        parent = joint_to[link].find("parent")
+        assert parent is not None
+        link = parent.get("link")
+
+    def inertial(name: str) -> tuple[float, Array, Array]:
+        """Mass, CoM transform within the link, inertia in that CoM frame."""
+        elem = links[name].find("inertial")
+        assert elem is not None
+        i = {
+            k: float(_urdf_floats(elem.find("inertia"), k, "nan")[0])
+            for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+        }
+        tensor = _table_inertia(i["ixx"], i["iyy"], i["izz"], i["ixy"], i["ixz"], i["iyz"])
+        return float(_urdf_floats(elem.find("mass"), "value", "nan")[0]), _urdf_origin(elem), tensor
+
+    base_mass, base_com, base_tensor = inertial(doc["base_link"])
+    world = np.eye(4)  # base frame from base link frame: origin at the CoM, the link's axes
+    world[:3, 3] = -base_com[:3, 3]
+    base_inertia = base_com[:3, :3] @ base_tensor @ base_com[:3, :3].T
+    g = world  # base frame from the current link frame
+    joints, axes, masses, coms, inertias = [], [], [], [], []
+    for joint in chain:
+        g = g @ _urdf_origin(joint)
+        if joint.get("type") == "fixed":
+            continue
+        axis = _urdf_floats(joint.find("axis"), "xyz", "1 0 0")
+        joints.append(g[:3, 3].copy())
+        axes.append(g[:3, :3] @ axis / np.linalg.norm(axis))
+        child = joint.find("child")
+        assert child is not None
+        mass, com, tensor = inertial(child.get("link", ""))
+        g_com = g @ com
+        masses.append(mass)
+        coms.append(g_com[:3, 3].copy())
+        inertias.append(g_com[:3, :3] @ tensor @ g_com[:3, :3].T)
+    origin = joints[0]
+    return RobotData(
+        base_mass_kg=base_mass,
+        base_inertia_kgm2=base_inertia,
+        pos_base_from_robot_m=origin,
+        joint_pos_robot_m=np.array(joints) - origin,
+        joint_axis_robot=np.array(axes),
+        link_mass_kg=np.array(masses),
+        link_com_robot_m=np.array(coms) - origin,
+        link_inertia_zero_pose_robot_kgm2=np.array(inertias),
+        hand_pos_robot_m=g[:3, 3] - origin,
+        wheel_axes_base=np.array(
+            [np.array(w["axis"]) / np.linalg.norm(w["axis"]) for w in doc["wheels"]]
+        ),
+    )
+
+
 # --- kinematics ---------------------------------------------------------------------------
 
 
@@ -212,6 +355,10 @@ class Kinematics:
     hand_pos_orbit_m: Array
     rot_orbit_from_hand: Array
 
+    @property
+    def n_joints(self) -> int:
+        return int(self.body_mass_kg.shape[0]) - 1
+
 
 def _twist_exponential(axis: Array, point: Array, angle_rad: float) -> Array:
     """4x4 rigid motion: rotation by ``angle_rad`` about the line through ``point``."""
@@ -223,49 +370,56 @@ def _twist_exponential(axis: Array, point: Array, angle_rad: float) -> Array:
 
 
 def forward_kinematics(
-    joints_rad: Array, quat_orbit_from_base_xyzw: Array, pos_base_orbit_m: Array
+    joints_rad: Array,
+    quat_orbit_from_base_xyzw: Array,
+    pos_base_orbit_m: Array,
+    robot: RobotData = ETS7,
 ) -> Kinematics:
     """Every link frame and the hand by the product of exponentials (robot frame), then
     robot -> base (a translation, the frames are parallel) -> orbit."""
     joints = np.asarray(joints_rad, dtype=np.float64)
-    joint_pos_robot = np.zeros((N_JOINTS, 3))
-    joint_axis_robot = np.zeros((N_JOINTS, 3))
-    com_robot = np.zeros((N_JOINTS, 3))
-    rot_robot_from_link = np.zeros((N_JOINTS, 3, 3))
+    n = robot.n_joints
+    assert joints.shape == (n,), f"{n} joint angles expected, got shape {joints.shape}"
+    joint_pos_robot = np.zeros((n, 3))
+    joint_axis_robot = np.zeros((n, 3))
+    com_robot = np.zeros((n, 3))
+    rot_robot_from_link = np.zeros((n, 3, 3))
     g = np.eye(4)  # robot-frame motion of link i from its all-zero pose
-    for i in range(N_JOINTS):
+    for i in range(n):
         # Joint i's point and axis are carried by joints 1 .. i-1 only.
-        joint_pos_robot[i] = g[:3, :3] @ JOINT_POS_ROBOT_M[i] + g[:3, 3]
-        joint_axis_robot[i] = g[:3, :3] @ JOINT_AXIS_ROBOT[i]
-        g = g @ _twist_exponential(JOINT_AXIS_ROBOT[i], JOINT_POS_ROBOT_M[i], joints[i])
+        joint_pos_robot[i] = g[:3, :3] @ robot.joint_pos_robot_m[i] + g[:3, 3]
+        joint_axis_robot[i] = g[:3, :3] @ robot.joint_axis_robot[i]
+        g = g @ _twist_exponential(robot.joint_axis_robot[i], robot.joint_pos_robot_m[i], joints[i])
         rot_robot_from_link[i] = g[:3, :3]
-        com_robot[i] = g[:3, :3] @ LINK_COM_ROBOT_M[i] + g[:3, 3]
-    hand_pos_robot = g[:3, :3] @ HAND_POS_ROBOT_M + g[:3, 3]
+        com_robot[i] = g[:3, :3] @ robot.link_com_robot_m[i] + g[:3, 3]
+    hand_pos_robot = g[:3, :3] @ robot.hand_pos_robot_m + g[:3, 3]
     rot_robot_from_hand = g[:3, :3]  # the hand frame is parallel to the robot frame at zero
 
     rot_ob = matrix_from_quat_xyzw(quat_orbit_from_base_xyzw)
     pos_b = np.asarray(pos_base_orbit_m, dtype=np.float64)
 
     def robot_to_orbit(pos_robot_m: Array) -> Array:
-        return pos_b + rot_ob @ (POS_BASE_FROM_ROBOT_M + pos_robot_m)
+        return pos_b + rot_ob @ (robot.pos_base_from_robot_m + pos_robot_m)
 
     link_inertia_orbit = [
         rot_ob @ r @ inertia @ r.T @ rot_ob.T
-        for r, inertia in zip(rot_robot_from_link, LINK_INERTIA_ZERO_POSE_ROBOT_KGM2, strict=True)
+        for r, inertia in zip(
+            rot_robot_from_link, robot.link_inertia_zero_pose_robot_kgm2, strict=True
+        )
     ]
     return Kinematics(
         rot_orbit_from_base=rot_ob,
         pos_base_orbit_m=pos_b,
         joint_pos_orbit_m=np.array([robot_to_orbit(p) for p in joint_pos_robot]),
         joint_axis_orbit=joint_axis_robot @ rot_ob.T,
-        body_mass_kg=np.concatenate([[BASE_MASS_KG], LINK_MASS_KG]),
+        body_mass_kg=np.concatenate([[robot.base_mass_kg], robot.link_mass_kg]),
         body_com_orbit_m=np.vstack([pos_b, [robot_to_orbit(c) for c in com_robot]]),
         body_inertia_com_orbit_kgm2=np.array(
-            [rot_ob @ BASE_INERTIA_KGM2 @ rot_ob.T, *link_inertia_orbit]
+            [rot_ob @ robot.base_inertia_kgm2 @ rot_ob.T, *link_inertia_orbit]
         ),
         hand_pos_robot_m=hand_pos_robot,
         rot_robot_from_hand=rot_robot_from_hand,
-        hand_pos_base_m=POS_BASE_FROM_ROBOT_M + hand_pos_robot,
+        hand_pos_base_m=robot.pos_base_from_robot_m + hand_pos_robot,
         rot_base_from_hand=rot_robot_from_hand,
         hand_pos_orbit_m=robot_to_orbit(hand_pos_robot),
         rot_orbit_from_hand=rot_ob @ rot_robot_from_hand,
@@ -304,7 +458,7 @@ def subtree_composites(kin: Kinematics) -> tuple[Composite, list[Composite]]:
     built from the hand inwards."""
     subtrees: list[Composite] = []
     outer: Composite | None = None
-    for j in reversed(range(N_JOINTS)):
+    for j in reversed(range(kin.n_joints)):
         link = _body(kin, j + 1)
         outer = link if outer is None else _merge([link, outer])
         subtrees.insert(0, outer)
@@ -334,7 +488,7 @@ def inertia_matrix_crb(kin: Kinematics) -> Array:
     p_b = kin.pos_base_orbit_m
     r = system.com_orbit_m - p_b
     m = system.mass_kg
-    H = np.zeros((6 + N_JOINTS, 6 + N_JOINTS))
+    H = np.zeros((6 + kin.n_joints, 6 + kin.n_joints))
     H[:3, :3] = m * np.eye(3)
     H[:3, 3:6] = -m * skew(r)
     H[3:6, :3] = m * skew(r)
@@ -351,8 +505,8 @@ def inertia_matrix_crb(kin: Kinematics) -> Array:
 
 def _body_jacobians(kin: Kinematics, b: int) -> tuple[Array, Array]:
     """CoM linear (3, 12) and angular (3, 12) Jacobians of body ``b`` (0 = base)."""
-    jac_lin = np.zeros((3, 6 + N_JOINTS))
-    jac_ang = np.zeros((3, 6 + N_JOINTS))
+    jac_lin = np.zeros((3, 6 + kin.n_joints))
+    jac_ang = np.zeros((3, 6 + kin.n_joints))
     com = kin.body_com_orbit_m[b]
     jac_lin[:, :3] = np.eye(3)
     jac_lin[:, 3:6] = -skew(com - kin.pos_base_orbit_m)
@@ -365,8 +519,8 @@ def _body_jacobians(kin: Kinematics, b: int) -> tuple[Array, Array]:
 
 def inertia_matrix_jacobian_sum(kin: Kinematics) -> Array:
     """Eq. (1)'s inertia matrix (12, 12) as ``sum_i m_i J_Ti^T J_Ti + J_Ri^T I_i J_Ri``."""
-    H = np.zeros((6 + N_JOINTS, 6 + N_JOINTS))
-    for b in range(N_JOINTS + 1):
+    H = np.zeros((6 + kin.n_joints, 6 + kin.n_joints))
+    for b in range(kin.n_joints + 1):
         jac_lin, jac_ang = _body_jacobians(kin, b)
         H += kin.body_mass_kg[b] * jac_lin.T @ jac_lin
         H += jac_ang.T @ kin.body_inertia_com_orbit_kgm2[b] @ jac_ang
@@ -379,8 +533,8 @@ def hand_jacobians(kin: Kinematics) -> tuple[Array, Array]:
     d = kin.hand_pos_orbit_m - kin.pos_base_orbit_m
     J_b = np.eye(6)
     J_b[:3, 3:6] = -skew(d)
-    J_m = np.zeros((6, N_JOINTS))
-    for j in range(N_JOINTS):
+    J_m = np.zeros((6, kin.n_joints))
+    for j in range(kin.n_joints):
         k = kin.joint_axis_orbit[j]
         J_m[:3, j] = np.cross(k, kin.hand_pos_orbit_m - kin.joint_pos_orbit_m[j])
         J_m[3:, j] = k
@@ -397,13 +551,15 @@ def momenta(
     joint_rates_radps: Array,
     wheel_rates_radps: Array,
     wheel_spin_inertia_kgm2: Array,
+    wheel_axes_base: Array | None = None,
 ) -> tuple[Array, Array]:
     """Linear momentum and angular momentum about the system CoM (orbit frame), summed body
     by body from each body's own velocity, plus the rotors' spin relative to the base."""
     masses = kin.body_mass_kg
-    vel = np.zeros((N_JOINTS + 1, 3))
-    omega = np.zeros((N_JOINTS + 1, 3))
-    for b in range(N_JOINTS + 1):
+    n = kin.n_joints
+    vel = np.zeros((n + 1, 3))
+    omega = np.zeros((n + 1, 3))
+    for b in range(n + 1):
         com = kin.body_com_orbit_m[b]
         omega[b] = omega_base_orbit_radps
         vel[b] = vel_base_orbit_mps + np.cross(omega_base_orbit_radps, com - kin.pos_base_orbit_m)
@@ -415,11 +571,13 @@ def momenta(
     com_sys = masses @ kin.body_com_orbit_m / masses.sum()
     vel_sys = linear / masses.sum()
     angular = np.zeros(3)
-    for b in range(N_JOINTS + 1):
+    for b in range(n + 1):
         angular += kin.body_inertia_com_orbit_kgm2[b] @ omega[b]
         angular += masses[b] * np.cross(kin.body_com_orbit_m[b] - com_sys, vel[b] - vel_sys)
-    # Rotor k spins along base axis k; its locked (rigid) part is already in the base.
-    axes_orbit = kin.rot_orbit_from_base  # column k = base axis k in the orbit frame
+    # Rotor k spins along its axis (row k; default base axis k); its locked (rigid) part is
+    # already in the base.
+    axes_base = np.eye(3) if wheel_axes_base is None else np.asarray(wheel_axes_base)
+    axes_orbit = kin.rot_orbit_from_base @ axes_base.T  # column k = rotor k's axis, orbit
     angular += axes_orbit @ (np.asarray(wheel_spin_inertia_kgm2) * wheel_rates_radps)
     return linear, angular
 
@@ -475,9 +633,11 @@ def evaluate(
     joint_rates_radps: Array,
     wheel_rates_radps: Array,
     wheel_spin_inertia_kgm2: Array,
+    robot: RobotData = ETS7,
 ) -> Reference:
-    """All reference quantities at one state (SPEC eq. (1)-(3), (5), (8), (9), (11))."""
-    kin = forward_kinematics(joints_rad, quat_orbit_from_base_xyzw, pos_base_orbit_m)
+    """All reference quantities of ``robot`` at one state (SPEC eq. (1)-(3), (5), (8), (9),
+    (11))."""
+    kin = forward_kinematics(joints_rad, quat_orbit_from_base_xyzw, pos_base_orbit_m, robot)
     system, subtrees = subtree_composites(kin)
     H = inertia_matrix_crb(kin)
     H_b, H_bm, H_m = H[:6, :6], H[:6, 6:], H[6:, 6:]
@@ -489,6 +649,7 @@ def evaluate(
         np.asarray(joint_rates_radps),
         np.asarray(wheel_rates_radps),
         np.asarray(wheel_spin_inertia_kgm2),
+        robot.wheel_axes_base,
     )
     # Eq. (3): L about the system CoM. A base rotation turns the whole system rigidly
     # (H~_b = H_c); joint j turns its subtree about its axis.
@@ -501,7 +662,7 @@ def evaluate(
         ]
     )
     # Eq. (5): the projector onto the null space of H~_bm.
-    rns_projector = np.eye(N_JOINTS) - np.linalg.pinv(H_bm_tilde) @ H_bm_tilde
+    rns_projector = np.eye(kin.n_joints) - np.linalg.pinv(H_bm_tilde) @ H_bm_tilde
     rot = kin.rot_orbit_from_base
     inertia_com_base = rot.T @ H_b_tilde @ rot
     return Reference(
