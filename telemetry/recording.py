@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.plan import Plan
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import TelemetryFrame
 
 __all__ = [
@@ -35,29 +36,15 @@ __all__ = [
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-#: Column name -> row width (1 = one value per frame). Units as in telemetry.wire.
-FRAME_ARRAYS: dict[str, int] = {
-    "seq": 1,
-    "generation_time_ns": 1,
-    "reception_time_ns": 1,
-    "joints_rad": 6,
-    "joint_targets_rad": 6,
-    "quat_orbit_from_base_xyzw": 4,
-    "omega_base_in_base_radps": 3,
-    "wheel_speeds_radps": 3,
-    "wheel_momentum_nms": 3,
-    "acs_mode": 1,
-    "acs_target_quat_xyzw": 4,
-    "acs_feedforward": 1,
-    "buffer_queued": 1,
-    "buffer_next_execute_time_ns": 1,  # -1 where nothing was queued
-    "buffer_last_executed_seq": 1,
-}
+#: Column name -> row width (1 = one value per frame) of ETS-VII's frames; another robot's
+#: is its layout's (:attr:`telemetry.layout.FrameLayout.arrays`). Units as in telemetry.wire.
+FRAME_ARRAYS: dict[str, int] = DEFAULT_LAYOUT.arrays
 
 
 @dataclass(frozen=True, eq=False)
 class FrameArrays:
-    """Telemetry frames as columns, one row per frame, ascending ``seq``."""
+    """Telemetry frames as columns, one row per frame, ascending ``seq``; the widths are
+    those of one :class:`~telemetry.layout.FrameLayout` (:attr:`layout`)."""
 
     seq: IntArray
     generation_time_ns: IntArray
@@ -77,7 +64,7 @@ class FrameArrays:
 
     def __post_init__(self) -> None:
         n = len(self.seq)
-        for name, width in FRAME_ARRAYS.items():
+        for name, width in FrameLayout.of_arrays(self).arrays.items():
             shape = np.shape(getattr(self, name))
             want = (n,) if width == 1 else (n, width)
             if shape != want:
@@ -88,57 +75,35 @@ class FrameArrays:
     def __len__(self) -> int:
         return len(self.seq)
 
+    @property
+    def layout(self) -> FrameLayout:
+        """The layout of these columns (their joint and wheel counts)."""
+        return FrameLayout.of_arrays(self)
+
     def take(self, rows: IntArray | NDArray[np.bool_] | slice) -> FrameArrays:
         """A copy of the selected rows (an index array, a mask or a slice): never a view,
         so changing it leaves this one as it was."""
-        return FrameArrays(**{name: getattr(self, name)[rows].copy() for name in FRAME_ARRAYS})
+        return FrameArrays(
+            **{name: getattr(self, name)[rows].copy() for name in self.layout.arrays}
+        )
 
     @classmethod
-    def empty(cls) -> FrameArrays:
-        return frames_to_arrays([], [])
+    def empty(cls, layout: FrameLayout = DEFAULT_LAYOUT) -> FrameArrays:
+        return layout.rows_to_arrays([])
 
 
 def frames_to_arrays(
-    frames: Sequence[TelemetryFrame], reception_time_ns: Sequence[int] | None = None
+    frames: Sequence[TelemetryFrame],
+    reception_time_ns: Sequence[int] | None = None,
+    layout: FrameLayout | None = None,
 ) -> FrameArrays:
     """Column arrays of wire frames (sorted by seq; the first copy of a seq kept).
-    ``reception_time_ns`` defaults to each frame's generation time."""
-    if reception_time_ns is None:
-        reception_time_ns = [f.generation_time_ns for f in frames]
-    if len(reception_time_ns) != len(frames):
-        raise ValueError(f"{len(reception_time_ns)} reception times for {len(frames)} frames")
-    first: dict[int, tuple[TelemetryFrame, int]] = {}
-    for frame, rx in zip(frames, reception_time_ns, strict=True):
-        first.setdefault(frame.seq, (frame, rx))
-    rows = [first[s] for s in sorted(first)]
-
-    def col(get: Any, dtype: Any, width: int) -> Any:
-        data = np.array([get(f, rx) for f, rx in rows], dtype=dtype)
-        return data.reshape((len(rows),) if width == 1 else (len(rows), width))
-
-    return FrameArrays(
-        seq=col(lambda f, rx: f.seq, np.int64, 1),
-        generation_time_ns=col(lambda f, rx: f.generation_time_ns, np.int64, 1),
-        reception_time_ns=col(lambda f, rx: rx, np.int64, 1),
-        joints_rad=col(lambda f, rx: f.joints_rad, np.float64, 6),
-        joint_targets_rad=col(lambda f, rx: f.joint_targets_rad, np.float64, 6),
-        quat_orbit_from_base_xyzw=col(lambda f, rx: f.quat_orbit_from_base_xyzw, np.float64, 4),
-        omega_base_in_base_radps=col(lambda f, rx: f.omega_base_in_base_radps, np.float64, 3),
-        wheel_speeds_radps=col(lambda f, rx: f.wheel_speeds_radps, np.float64, 3),
-        wheel_momentum_nms=col(lambda f, rx: f.wheel_momentum_nms, np.float64, 3),
-        acs_mode=col(lambda f, rx: f.acs_mode.value, np.str_, 1),
-        acs_target_quat_xyzw=col(lambda f, rx: f.acs_target_quat_xyzw, np.float64, 4),
-        acs_feedforward=col(lambda f, rx: f.acs_feedforward, np.bool_, 1),
-        buffer_queued=col(lambda f, rx: f.buffer.queued, np.int64, 1),
-        buffer_next_execute_time_ns=col(
-            lambda f, rx: _or_minus_one(f.buffer.next_execute_time_ns), np.int64, 1
-        ),
-        buffer_last_executed_seq=col(lambda f, rx: f.buffer.last_executed_seq, np.int64, 1),
-    )
-
-
-def _or_minus_one(value: int | None) -> int:
-    return -1 if value is None else value
+    ``reception_time_ns`` defaults to each frame's generation time; ``layout`` to the first
+    frame's own (ETS-VII's for none). A frame of another shape raises
+    :class:`~telemetry.layout.FrameLayoutError`."""
+    if layout is None:
+        layout = FrameLayout.of_frame(frames[0]) if frames else DEFAULT_LAYOUT
+    return layout.frames_to_arrays(frames, reception_time_ns)
 
 
 @dataclass(frozen=True)

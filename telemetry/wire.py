@@ -33,14 +33,19 @@ import itertools
 import json
 import re
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+if TYPE_CHECKING:
+    from telemetry.layout import FrameLayout
 
 __all__ = [
     "DEFAULT_SCHEDULE_CAPACITY",
     "MAX_DEPTH",
+    "MAX_JOINTS",
     "MAX_MESSAGE_BYTES",
+    "MAX_WHEELS",
     "PROTOCOL_VERSION",
     "AcsCommandMsg",
     "AcsModeName",
@@ -81,6 +86,10 @@ MAX_FRAMES_PER_MESSAGE = 200
 #: (``telemetry`` > ``frames`` > a frame > ``joints_rad`` or ``buffer``); 16 leaves room for
 #: later versions and still keeps hostile nesting away from the recursive validators.
 MAX_DEPTH = 16
+#: The most joints (and reaction wheels) a robot may have on the wire; how many a session's
+#: robot has is its :class:`telemetry.layout.FrameLayout` (ETS-VII: 6 joints, 3 wheels).
+MAX_JOINTS = 32
+MAX_WHEELS = 16
 
 #: What no string of a message may hold: C0 controls (tab, newline and carriage return
 #: included: no field of the protocol is multi-line text), DEL, C1 controls, and lone
@@ -119,7 +128,10 @@ class _Msg(_Obj):
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Vec6 = Annotated[list[float], Field(min_length=6, max_length=6)]
+#: One value per joint (or wheel): the length is the robot's, checked against its layout
+#: where the receiver knows it (:func:`decode_ground`, :func:`decode_spacecraft`).
+JointVec = Annotated[list[float], Field(min_length=1, max_length=MAX_JOINTS)]
+WheelVec = Annotated[list[float], Field(min_length=1, max_length=MAX_WHEELS)]
 Quat = Annotated[list[float], Field(min_length=4, max_length=4)]
 Seq = Annotated[int, Field(ge=0, lt=2**53)]
 TimeNs = Annotated[int, Field(ge=0, lt=2**63)]
@@ -141,7 +153,7 @@ class JointCommandMsg(_Msg):
     kind: Literal["joints"] = "joints"
     seq: Seq
     execute_time_ns: TimeNs
-    joints_rad: Vec6
+    joints_rad: JointVec
 
 
 class AcsCommandMsg(_Msg):
@@ -218,6 +230,12 @@ class Hello(_Msg):
     #: loaded schedule, or ``hold`` (delete the joint commands) after ``los_hold_after_s``.
     los_policy: Literal["continue", "hold"] = "continue"
     los_hold_after_s: Annotated[float, Field(gt=0, le=86_400)] | None = None
+    #: The robot flown (its description's name), a hash of its description, and its joint
+    #: count: absent from a peer that predates them (ETS-VII, 6 joints, is then assumed).
+    #: Left out of the encoded message when None, so such a ``hello`` reads as before.
+    robot: str | None = Field(default=None, min_length=1, max_length=64)
+    robot_hash: str | None = Field(default=None, min_length=1, max_length=128)
+    n_joints: Annotated[int, Field(ge=1, le=MAX_JOINTS)] | None = None
 
 
 class CommandStage(StrEnum):
@@ -262,11 +280,11 @@ class TelemetryFrame(_Obj):
 
     seq: Seq
     generation_time_ns: TimeNs
-    joints_rad: Vec6
-    joint_targets_rad: Vec6
+    joints_rad: JointVec
+    joint_targets_rad: JointVec
     quat_orbit_from_base_xyzw: Quat
     omega_base_in_base_radps: Vec3  # gyro: base rate in the base frame
-    wheel_speeds_radps: Vec3  # relative to the base
+    wheel_speeds_radps: WheelVec  # relative to the base, one per wheel
     wheel_momentum_nms: Vec3  # I_w * speed, base frame
     acs_mode: AcsModeName
     acs_target_quat_xyzw: Quat
@@ -348,7 +366,14 @@ _GROUND_OTHER = TypeAdapter(
 _SPACECRAFT = TypeAdapter(SpacecraftMessage)
 
 
+#: ``hello`` fields left out of the encoding when None (added after version 2 was fixed).
+_HELLO_OPTIONAL = ("robot", "robot_hash", "n_joints")
+
+
 def encode(message: _Obj) -> str:
+    if isinstance(message, Hello):
+        absent = {name for name in _HELLO_OPTIONAL if getattr(message, name) is None}
+        return message.model_dump_json(exclude=absent)
     return message.model_dump_json()
 
 
@@ -429,13 +454,25 @@ def _reason(exc: ValidationError) -> str:
     return f"{where}: {first['msg']}"[:400]
 
 
-def decode_ground(text: str | bytes) -> GroundMessageT:
-    """A ground -> spacecraft message, or :class:`WireError`."""
+def decode_ground(text: str | bytes, layout: FrameLayout | None = None) -> GroundMessageT:
+    """A ground -> spacecraft message, or :class:`WireError`. With ``layout`` (the
+    receiver's robot), a joint command for another joint count is refused too."""
     doc = _load(text)
     kind = str(doc["type"])
     try:
         if kind == "command":
-            return _COMMAND.validate_python(doc)
+            command = _COMMAND.validate_python(doc)
+            if (
+                layout is not None
+                and isinstance(command, JointCommandMsg)
+                and len(command.joints_rad) != layout.n_joints
+            ):
+                raise WireError(
+                    f"invalid command: joints_rad has {len(command.joints_rad)} values, "
+                    f"this robot has {layout.n_joints} joints",
+                    kind,
+                )
+            return command
         if kind in (
             "schedule_delete",
             "telemetry_ack",
@@ -449,11 +486,31 @@ def decode_ground(text: str | bytes) -> GroundMessageT:
     raise WireError(f"unknown message type {kind[:64]!r}", kind)
 
 
-def decode_spacecraft(text: str | bytes) -> SpacecraftMessageT:
-    """A spacecraft -> ground message, or :class:`WireError`."""
+def decode_spacecraft(text: str | bytes, layout: FrameLayout | None = None) -> SpacecraftMessageT:
+    """A spacecraft -> ground message, or :class:`WireError`. With ``layout`` (the robot
+    of the session), a telemetry frame of another shape, or a ``hello`` announcing another
+    joint count, is refused too."""
     doc = _load(text)
     kind = str(doc["type"])
     try:
-        return _SPACECRAFT.validate_python(doc)
+        message = _SPACECRAFT.validate_python(doc)
     except ValidationError as exc:
         raise WireError(f"invalid {kind[:64]}: {_reason(exc)}", kind) from None
+    if layout is not None:
+        if isinstance(message, TelemetryMsg):
+            for frame in message.frames:
+                try:
+                    layout.check(frame)
+                except ValueError as exc:
+                    raise WireError(f"invalid telemetry: {exc}", kind) from None
+        elif (
+            isinstance(message, Hello)
+            and message.n_joints is not None
+            and message.n_joints != layout.n_joints
+        ):
+            raise WireError(
+                f"invalid hello: n_joints {message.n_joints}, this session's robot has "
+                f"{layout.n_joints} joints",
+                kind,
+            )
+    return message

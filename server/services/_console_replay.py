@@ -1,4 +1,5 @@
-"""Console streams in the database: the telemetry row layout, and finding a stream's
+"""Console streams in the database: the telemetry rows (a pass's robot's
+:class:`telemetry.layout.FrameLayout`), and finding a stream's
 messages again by the keys the hub indexed them under (:mod:`server.services.console`).
 
 A telemetry message is the frames of one archive batch of one pass: its key is
@@ -14,21 +15,22 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Collection
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.storage import repository as repo
-from server.storage.models import TELEMETRY_FIELDS
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import TelemetryFrame
 
-__all__ = ["COLUMNS", "Row", "replay_events", "replay_frames", "telemetry_rows"]
+__all__ = ["COLUMNS", "Row", "TelemetryRows", "replay_events", "replay_frames", "telemetry_rows"]
 
-#: One frame as the console sends it: the layout of ``repository.telemetry_range`` rows
-#: asked for every field, so live frames and frames read back are alike.
-COLUMNS = ("seq", "generation_time_ns", *TELEMETRY_FIELDS)
+#: One ETS-VII frame as the console sends it; another robot's is its layout's
+#: :attr:`~telemetry.layout.FrameLayout.columns` (the layout of ``repository.telemetry_range``
+#: rows asked for every field of the pass, so live frames and frames read back are alike).
+COLUMNS = DEFAULT_LAYOUT.columns
 Row = tuple[Any, ...]
-assert TELEMETRY_FIELDS[24] == "hw3" and TELEMETRY_FIELDS[28:30] == ("tqw", "acs_mode")
 assert COLUMNS[-1] == "reception_time_ns"
 
 #: Event rows read per query.
@@ -37,32 +39,21 @@ Entry = tuple[int, Any]  # (seq, key)
 Found = tuple[int, Any, Any]  # (seq, key, payload)
 
 
-def telemetry_rows(frames: list[TelemetryFrame], reception_time_ns: int) -> list[Row]:
-    """Frames as rows of :data:`COLUMNS`, in generation-time order (as read back)."""
-    rows = []
-    for frame in frames:
-        buffer = frame.buffer
-        rows.append(
-            (
-                frame.seq,
-                frame.generation_time_ns,
-                *frame.joints_rad,
-                *frame.joint_targets_rad,
-                *frame.quat_orbit_from_base_xyzw,
-                *frame.omega_base_in_base_radps,
-                *frame.wheel_speeds_radps,
-                *frame.wheel_momentum_nms,
-                *frame.acs_target_quat_xyzw,
-                frame.acs_mode.value,
-                frame.acs_feedforward,
-                buffer.queued,
-                buffer.next_execute_time_ns,
-                buffer.last_executed_seq,
-                reception_time_ns,
-            )
-        )
+@dataclass(frozen=True)
+class TelemetryRows:
+    """A telemetry message's frames: rows of ``columns`` (one robot's layout)."""
+
+    columns: tuple[str, ...]
+    rows: list[Row]
+
+
+def telemetry_rows(frames: list[TelemetryFrame], reception_time_ns: int) -> TelemetryRows:
+    """Frames (of one robot: the first frame's layout) as rows of that layout's columns,
+    in generation-time order (as read back)."""
+    layout = FrameLayout.of_frame(frames[0]) if frames else DEFAULT_LAYOUT
+    rows = layout.rows(frames, reception_time_ns)
     rows.sort(key=lambda row: (row[1], row[0]))
-    return rows
+    return TelemetryRows(layout.columns, rows)
 
 
 def replay_frames(
@@ -77,8 +68,9 @@ def replay_frames(
     t0_ns = min(key[1] for _, key in entries)
     t1_ns = max(key[2] for _, key in entries) + 1
     with sessions() as session:
+        layout = repo.get_pass_layout(session=session, pass_id=pass_id)
         found = repo.telemetry_range(
-            session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=TELEMETRY_FIELDS
+            session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=layout.fields
         )
     rows: dict[int, list[Row]] = {seq: [] for seq, _ in entries}
     for row in found:
@@ -89,7 +81,7 @@ def replay_frames(
     for seq, key in entries:
         if len(rows[seq]) != key[3]:
             return None
-        out.append((seq, key, rows[seq]))
+        out.append((seq, key, TelemetryRows(layout.columns, rows[seq])))
     return out
 
 

@@ -44,7 +44,6 @@ from server.services._console_protocol import (
     StepSpec,
     encode,
 )
-from server.services._console_replay import COLUMNS
 from server.services.recordings import load_recording
 from server.storage import repository as repo
 from server.storage.errors import InvalidArgument, NotFound
@@ -77,41 +76,14 @@ class ReplayClient(Protocol):
 
 # --- frames as the console's columns -------------------------------------------------------
 
-_VECTORS = {
-    "j": "joints_rad",
-    "t": "joint_targets_rad",
-    "ws": "wheel_speeds_radps",
-    "hw": "wheel_momentum_nms",
-}
-_AXES = {
-    ("q", "quat_orbit_from_base_xyzw"): "xyzw",
-    ("w", "omega_base_in_base_radps"): "xyz",
-    ("tq", "acs_target_quat_xyzw"): "xyzw",
-}
-
-
-def _array_of(name: str) -> tuple[str, int | None]:
-    """Which :class:`FrameArrays` column (and index in it) holds console column ``name``."""
-    for prefix, array in _VECTORS.items():
-        if name[: len(prefix)] == prefix and name[len(prefix) :].isdigit():
-            return array, int(name[len(prefix) :]) - 1
-    for (prefix, array), axes in _AXES.items():
-        if name[:-1] == prefix and name[-1] in axes:
-            return array, axes.index(name[-1])
-    return name, None
-
-
-_SOURCES = {name: _array_of(name) for name in COLUMNS}
-assert _SOURCES["qw"] == ("quat_orbit_from_base_xyzw", 3) and _SOURCES["t6"][1] == 5
-assert _SOURCES["ws3"] == ("wheel_speeds_radps", 2) and _SOURCES["acs_mode"][1] is None
-
 
 def frame_columns(frames: FrameArrays, names: Sequence[str]) -> dict[str, list[Any]]:
     """The frames as the console's telemetry ``columns`` (the live message's values: a
     buffer with nothing queued has ``buffer_next_execute_time_ns`` null, not -1)."""
+    sources = frames.layout.sources
     out: dict[str, list[Any]] = {}
     for name in names:
-        array, index = _SOURCES[name]
+        array, index = sources[name]
         values = getattr(frames, array)
         out[name] = (values if index is None else values[:, index]).tolist()
     if "buffer_next_execute_time_ns" in out:
@@ -154,9 +126,10 @@ def _speed(spec: RealTimeSpec | AsFastAsPossibleSpec | StepSpec, limits: Console
     return Step()
 
 
-def _columns(fields: list[str] | None) -> tuple[str, ...]:
+def _columns(fields: list[str] | None) -> tuple[str, ...] | None:
+    """The columns asked for (checked against every stored field), None for all."""
     if fields is None:
-        return COLUMNS
+        return None
     for name in fields:
         if name not in TELEMETRY_FIELDS:
             raise ProtocolError(f"field {name!r} is not one of {TELEMETRY_FIELDS}")
@@ -421,7 +394,7 @@ class Replays:
     async def _open(self, client: ReplayClient, message: ReplayOpenMsg) -> None:
         limits = self.limits
         speed = _speed(message.speed or RealTimeSpec(mode="real_time"), limits)
-        columns = _columns(message.fields)
+        asked = _columns(message.fields)
         if self._count(client) >= limits.max_replays_per_console:
             raise ProtocolError(
                 f"{limits.max_replays_per_console} replays per console at most: close one"
@@ -434,6 +407,15 @@ class Replays:
         finally:
             self._opening.remove(client)
         replay_id = f"r-{secrets.token_hex(6)}"
+        # The pass's robot's columns (a 6-joint pass has no j7).
+        layout = recording.frames.layout
+        for name in asked or ():
+            if name not in layout.columns:
+                raise ProtocolError(
+                    f"field {name!r} is not one of the fields of the pass's robot ({layout}): "
+                    f"{layout.fields}"
+                )
+        columns = layout.columns if asked is None else asked
         try:
             session = ReplaySession(
                 replay_id=replay_id,

@@ -62,8 +62,8 @@ from server.services._console_protocol import (
     encode,
 )
 from server.services._console_replay import (
-    COLUMNS,
     Row,
+    TelemetryRows,
     replay_events,
     replay_frames,
     telemetry_rows,
@@ -197,7 +197,9 @@ class _Stream:
 
 @dataclass
 class _TelemetryFilter:
-    columns: tuple[int, ...] | None  # indices into a row (None: every column)
+    #: The columns asked for (None: every column of the pass's layout); one a pass's robot
+    #: does not have (``j7`` of a 6-joint pass) is left out of its messages.
+    columns: tuple[str, ...] | None
     period_ns: int | None  # decimation: one frame per this much generation time
     next_generation_ns: int = -(2**63)
 
@@ -216,8 +218,9 @@ def _render(stream: _Stream, message: _Message, flt: _TelemetryFilter | None) ->
     """The message as sent; None when a filter leaves nothing of it."""
     doc: dict[str, Any] = {"v": PROTOCOL_VERSION, "topic": stream.topic}
     if stream.topic == "telemetry":
-        rows: list[Row] = message.payload
-        names: Iterable[str] = COLUMNS
+        batch: TelemetryRows = message.payload
+        rows: list[Row] = batch.rows
+        names: Iterable[str] = batch.columns
         if flt is not None:
             kept = flt.apply(rows)
             if not kept:
@@ -226,8 +229,9 @@ def _render(stream: _Stream, message: _Message, flt: _TelemetryFilter | None) ->
                 return message.text  # decimation kept it whole: the shared text will do
             rows = kept
             if flt.columns is not None:
-                names = [COLUMNS[i] for i in flt.columns]
-                rows = [tuple(row[i] for i in flt.columns) for row in rows]
+                index = {name: i for i, name in enumerate(batch.columns)}
+                names = [name for name in flt.columns if name in index]
+                rows = [tuple(row[index[name]] for name in names) for row in rows]
         doc |= {"type": "telemetry", "pass_id": stream.pass_id, "seq": message.seq}
         doc["count"] = len(rows)
         doc["columns"] = dict(zip(names, (list(c) for c in zip(*rows, strict=True)), strict=True))
@@ -507,9 +511,10 @@ class ConsoleHub:
     ) -> None:
         if not frames:
             return
-        rows = telemetry_rows(frames, reception_time_ns)
+        batch = telemetry_rows(frames, reception_time_ns)
+        rows = batch.rows
         key = (reception_time_ns, rows[0][1], max(r[1] for r in rows), len(rows))
-        self._push(self._stream("telemetry", _canonical_pass(pass_id)), key, rows)
+        self._push(self._stream("telemetry", _canonical_pass(pass_id)), key, batch)
 
     def push_link_status(self, status: LinkStatus) -> None:
         payload = {"ground_time_ns": time.time_ns(), "status": asdict(status)}
@@ -593,7 +598,7 @@ class ConsoleHub:
             if len(set(message.fields)) != len(message.fields):
                 raise ProtocolError(f"fields {message.fields} repeat a name")
             wanted = ["seq", "generation_time_ns", "reception_time_ns", *message.fields]
-            columns = tuple(COLUMNS.index(n) for n in dict.fromkeys(wanted))
+            columns = tuple(dict.fromkeys(wanted))
         return _TelemetryFilter(columns=columns, period_ns=period_ns)
 
     async def _subscribe(self, client: ConsoleClient, message: SubscribeMsg) -> None:

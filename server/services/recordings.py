@@ -1,9 +1,10 @@
 """A stored pass as a :class:`telemetry.recording.PassRecording`: what the analyses, the MCAP
 recorder, reports and replay work from.
 
-:func:`load_recording` reads the plan, the telemetry frames (one query, straight into
-column arrays), the commands with their stage times and the pass's audit events. A pass
-that has not started yet (no epoch) has nothing to analyse: :class:`NotFlown`.
+:func:`load_recording` reads the plan, the telemetry frames (one query, into the column
+arrays of the pass's robot's :class:`telemetry.layout.FrameLayout`), the commands with their
+stage times and the pass's audit events. A pass that has not started yet (no epoch) has
+nothing to analyse: :class:`NotFlown`.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from __future__ import annotations
 import io
 from typing import Any
 
-import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -24,36 +24,7 @@ from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
 __all__ = ["NotFlown", "load_recording", "recording_mcap", "write_recording"]
 
-_F = TelemetryFrameRecord
-_COLUMNS = (
-    _F.seq,
-    _F.generation_time_ns,
-    _F.reception_time_ns,
-    *(getattr(_F, f"j{i}") for i in range(1, 7)),
-    *(getattr(_F, f"t{i}") for i in range(1, 7)),
-    _F.qx,
-    _F.qy,
-    _F.qz,
-    _F.qw,
-    _F.wx,
-    _F.wy,
-    _F.wz,
-    _F.ws1,
-    _F.ws2,
-    _F.ws3,
-    _F.hw1,
-    _F.hw2,
-    _F.hw3,
-    _F.acs_mode,
-    _F.tqx,
-    _F.tqy,
-    _F.tqz,
-    _F.tqw,
-    _F.acs_feedforward,
-    _F.buffer_queued,
-    _F.buffer_next_execute_time_ns,
-    _F.buffer_last_executed_seq,
-)
+_TABLE = TelemetryFrameRecord.__table__
 
 
 class NotFlown(ServiceError):
@@ -64,8 +35,12 @@ class NotFlown(ServiceError):
 
 
 def _frames(session: Session, pass_id: str) -> FrameArrays:
+    """The pass's frames, in the columns of its robot's layout."""
+    layout = repo.get_pass_layout(session=session, pass_id=pass_id)
     rows = session.execute(
-        select(*_COLUMNS).where(_F.pass_id == pass_id).order_by(_F.seq, _F.generation_time_ns)
+        select(*(_TABLE.c[name] for name in layout.columns))
+        .where(_TABLE.c.pass_id == pass_id)
+        .order_by(_TABLE.c.seq, _TABLE.c.generation_time_ns)
     ).all()
     # Storage keeps the first copy of a seq; a seq reused with another time (an onboard
     # restart) is kept there too, but a recording holds one frame per seq: the first.
@@ -74,32 +49,8 @@ def _frames(session: Session, pass_id: str) -> FrameArrays:
     for row in rows:
         if row[0] not in seen:
             seen.add(row[0])
-            unique.append(row)
-    n = len(unique)
-    numbers = np.array(
-        [[r[k] for k in (*range(28), 29, 30, 31, 32)] for r in unique], dtype=np.float64
-    ).reshape(n, 32)
-    ints = np.array(
-        [(r[0], r[1], r[2], r[34], -1 if r[35] is None else r[35], r[36]) for r in unique],
-        dtype=np.int64,
-    ).reshape(n, 6)
-    return FrameArrays(
-        seq=ints[:, 0].copy(),
-        generation_time_ns=ints[:, 1].copy(),
-        reception_time_ns=ints[:, 2].copy(),
-        joints_rad=numbers[:, 3:9].copy(),
-        joint_targets_rad=numbers[:, 9:15].copy(),
-        quat_orbit_from_base_xyzw=numbers[:, 15:19].copy(),
-        omega_base_in_base_radps=numbers[:, 19:22].copy(),
-        wheel_speeds_radps=numbers[:, 22:25].copy(),
-        wheel_momentum_nms=numbers[:, 25:28].copy(),
-        acs_mode=np.array([r[28] for r in unique], dtype=np.str_).reshape(n),
-        acs_target_quat_xyzw=numbers[:, 28:32].copy(),
-        acs_feedforward=np.array([bool(r[33]) for r in unique], dtype=np.bool_).reshape(n),
-        buffer_queued=ints[:, 3].copy(),
-        buffer_next_execute_time_ns=ints[:, 4].copy(),
-        buffer_last_executed_seq=ints[:, 5].copy(),
-    )
+            unique.append(tuple(row))
+    return layout.rows_to_arrays(unique)
 
 
 def load_recording(*, session: Session, pass_id: str) -> PassRecording:

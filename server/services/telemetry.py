@@ -1,7 +1,8 @@
 """Telemetry of a pass, raw or decimated, and the audit log.
 
-Field names are checked here against the storage's whitelists so that an unknown one is
-a 422 naming it (the storage would refuse it too, as a 400).
+Field names are checked here against the storage's whitelists, then against the pass's
+robot's layout (a 6-joint pass has no ``j7``), so that an unknown one is a 422 naming it
+(the storage would refuse it too, as a 400).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from server.storage._telemetry import MAX_BUCKETS
 from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
 
 __all__ = ["MAX_BUCKETS", "list_events", "telemetry"]
+
+_WHAT = {False: "telemetry", True: "numeric (bucketable)"}
 
 
 def parse_fields(text: str | None, *, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -57,8 +60,13 @@ def telemetry(
     ``buckets`` equal spans with min / max / mean per field (empty spans left out)."""
     if t1_ns <= t0_ns:
         raise ServiceError(422, "empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
+    allowed = BUCKET_FIELDS if buckets is not None else TELEMETRY_FIELDS
+    parse_fields(fields, allowed=allowed, what=_WHAT[buckets is not None])
+    # The pass's robot's values only (ETS-VII: j1..j6, t1..t6): every one of them if none
+    # were asked for.
+    layout = repo.get_pass_layout(session=session, pass_id=pass_id)
     if buckets is None:
-        names = parse_fields(fields, allowed=TELEMETRY_FIELDS, what="telemetry")
+        names = parse_fields(fields, allowed=layout.fields, what=f"{layout} telemetry")
         # one row past the page: whether there is more, without reading the rest
         rows = repo.telemetry_range(
             session=session,
@@ -87,7 +95,9 @@ def telemetry(
                 for row in kept
             ],
         )
-    names = parse_fields(fields, allowed=BUCKET_FIELDS, what="numeric (bucketable)")
+    names = parse_fields(
+        fields, allowed=layout.bucket_fields, what=f"{layout} numeric (bucketable)"
+    )
     result = repo.telemetry_buckets(
         session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
     )

@@ -9,14 +9,17 @@ frames were new and how many were already stored:
   ON CONFLICT DO NOTHING``, which leaves the stage empty for the next call.
 
 Both run inside the caller's transaction: a batch that fails half way is undone by the
-rollback. The SQL text is built from the fixed column list below and never from arguments;
-field names asked for by callers are checked against :data:`models.TELEMETRY_FIELDS`.
+rollback. The SQL text is built from the layout's fixed column names
+(:class:`telemetry.layout.FrameLayout`, one per robot: its joints' columns only) and never
+from arguments; field names asked for by callers are checked against the pass's layout
+(a subset of :data:`models.TELEMETRY_FIELDS`).
 """
 
 from __future__ import annotations
 
+import functools
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,13 +28,17 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from server.storage._common import check_fields, check_time_range, require_pass
-from server.storage.errors import InvalidArgument
+from server.storage.errors import InvalidArgument, NotFound
 from server.storage.models import (
     BUCKET_FIELDS,
+    STORAGE_LAYOUT,
     TELEMETRY_FIELDS,
-    TELEMETRY_FLOAT_FIELDS,
+    PassRecord,
+    PlanRecord,
     TelemetryFrameRecord,
+    stored_layout,
 )
+from telemetry.layout import FrameLayout, FrameLayoutError
 from telemetry.wire import TelemetryFrame
 
 __all__ = [
@@ -42,6 +49,7 @@ __all__ = [
     "frame_seqs",
     "ingest_frames",
     "missing_seqs",
+    "pass_layout",
     "telemetry_buckets",
     "telemetry_range",
 ]
@@ -51,37 +59,14 @@ MAX_BUCKETS = 20_000
 
 _TABLE = TelemetryFrameRecord.__table__
 _FRAME = TelemetryFrameRecord
+FlatRow = tuple[Any, ...]
 
-#: Columns in the order :func:`_rows` builds them.
-_COLUMNS = (
-    "pass_id",
-    "seq",
-    "generation_time_ns",
-    "reception_time_ns",
-    *TELEMETRY_FLOAT_FIELDS[:25],  # j1..6, t1..6, qx..qw, wx..wz, ws1..3, hw1..3
-    "acs_mode",
-    *TELEMETRY_FLOAT_FIELDS[25:],  # tqx..tqw
-    "acs_feedforward",
-    "buffer_queued",
-    "buffer_next_execute_time_ns",
-    "buffer_last_executed_seq",
-)
-assert TELEMETRY_FLOAT_FIELDS[24] == "hw3" and len(TELEMETRY_FLOAT_FIELDS) == 29
-assert set(_COLUMNS) == set(_TABLE.columns.keys())
-
-_COLUMN_LIST = ", ".join(_COLUMNS)
-_SQLITE_INSERT = (
-    f"INSERT INTO telemetry_frames ({_COLUMN_LIST}) "
-    f"VALUES ({', '.join('?' * len(_COLUMNS))}) ON CONFLICT DO NOTHING"
-)
 _PG_STAGE = "hikoboshi_telemetry_stage"
 # Temporary: private to the connection, never WAL-logged; emptied at every commit.
 _PG_CREATE_STAGE = (
     f"CREATE TEMPORARY TABLE IF NOT EXISTS {_PG_STAGE} "
     f"(LIKE telemetry_frames INCLUDING DEFAULTS) ON COMMIT DELETE ROWS"
 )
-# Binary: ten times faster than text for doubles (no formatting and parsing of numbers).
-_PG_COPY = f"COPY {_PG_STAGE} ({_COLUMN_LIST}) FROM STDIN (FORMAT BINARY)"
 _PG_TYPE_NAMES = {
     Uuid: "uuid",
     BigInteger: "int8",
@@ -89,14 +74,87 @@ _PG_TYPE_NAMES = {
     String: "text",
     Boolean: "bool",
 }
-_PG_TYPES = [_PG_TYPE_NAMES[type(_TABLE.c[name].type)] for name in _COLUMNS]
-_PG_MOVE = (
-    f"WITH staged AS (DELETE FROM {_PG_STAGE} RETURNING {_COLUMN_LIST}) "
-    f"INSERT INTO telemetry_frames ({_COLUMN_LIST}) SELECT {_COLUMN_LIST} FROM staged "
-    f"ON CONFLICT DO NOTHING"
-)
+assert set(STORAGE_LAYOUT.columns) | {"pass_id"} == set(_TABLE.columns.keys())
 
-_PG_STATEMENTS = f"{_PG_CREATE_STAGE}; {_PG_COPY}; {_PG_MOVE}"
+
+@dataclass(frozen=True)
+class Statements:
+    """The insert statements of one layout: its columns only (a robot of fewer joints than
+    the table has leaves the others NULL). Built from the layout's fixed names, never from
+    arguments."""
+
+    columns: tuple[str, ...]
+    sqlite_insert: str
+    pg_copy: str
+    pg_types: list[str]
+    pg_move: str
+    pg_statements: str
+
+
+@functools.cache
+def statements(layout: FrameLayout) -> Statements:
+    columns = ("pass_id", *layout.columns)
+    listed = ", ".join(columns)
+    # Binary: ten times faster than text for doubles (no formatting and parsing of numbers).
+    pg_copy = f"COPY {_PG_STAGE} ({listed}) FROM STDIN (FORMAT BINARY)"
+    pg_move = (
+        f"WITH staged AS (DELETE FROM {_PG_STAGE} RETURNING {listed}) "
+        f"INSERT INTO telemetry_frames ({listed}) SELECT {listed} FROM staged "
+        f"ON CONFLICT DO NOTHING"
+    )
+    return Statements(
+        columns=columns,
+        sqlite_insert=(
+            f"INSERT INTO telemetry_frames ({listed}) "
+            f"VALUES ({', '.join('?' * len(columns))}) ON CONFLICT DO NOTHING"
+        ),
+        pg_copy=pg_copy,
+        pg_types=[_PG_TYPE_NAMES[type(_TABLE.c[name].type)] for name in columns],
+        pg_move=pg_move,
+        pg_statements=f"{_PG_CREATE_STAGE}; {pg_copy}; {pg_move}",
+    )
+
+
+def pass_layout(session: Session, pass_key: str) -> FrameLayout:
+    """The telemetry layout of a stored pass: its plan's robot (``plans.n_joints``)."""
+    n_joints = session.scalar(
+        select(PlanRecord.n_joints)
+        .join(PassRecord, PassRecord.plan_id == PlanRecord.id)
+        .where(PassRecord.id == pass_key)
+    )
+    if n_joints is None:
+        raise NotFound(f"pass {pass_key!r} not found")
+    try:
+        return stored_layout(n_joints)
+    except ValueError as exc:
+        raise InvalidArgument(f"pass {pass_key}: {exc}") from None
+
+
+def write_rows(session: Session, layout: FrameLayout, rows: Sequence[FlatRow]) -> int:
+    """Insert rows of ``layout.columns`` each led by the pass id as given (a ``uuid.UUID``);
+    ``ON CONFLICT DO NOTHING``; the number inserted."""
+    sql = statements(layout)
+    connection = session.connection()
+    dialect = connection.dialect
+    if dialect.name == "postgresql":
+        driver_connection: Any = connection.connection.driver_connection
+        try:
+            with driver_connection.cursor() as cursor:
+                cursor.execute(_PG_CREATE_STAGE)
+                with cursor.copy(sql.pg_copy) as copy:
+                    copy.set_types(sql.pg_types)
+                    for row in rows:
+                        copy.write_row(row)
+                cursor.execute(sql.pg_move)
+                return int(cursor.rowcount)
+        except dialect.loaded_dbapi.Error as exc:
+            # Raised by the driver directly: wrap it as SQLAlchemy would (IntegrityError, ...).
+            raise DBAPIError.instance(
+                sql.pg_statements, None, exc, dialect.loaded_dbapi.Error
+            ) from exc
+    # The id as SQLite stores a Uuid column: 32 hex digits.
+    hex_rows = [(row[0].hex, *row[1:]) for row in rows]
+    return int(connection.exec_driver_sql(sql.sqlite_insert, hex_rows).rowcount)
 
 
 @dataclass(frozen=True)
@@ -119,31 +177,6 @@ class Bucket:
     mean: dict[str, float]
 
 
-def _rows(
-    pass_key: object, frames: Sequence[TelemetryFrame], reception_time_ns: int
-) -> Iterator[tuple[Any, ...]]:
-    for frame in frames:
-        buffer = frame.buffer
-        yield (
-            pass_key,
-            frame.seq,
-            frame.generation_time_ns,
-            reception_time_ns,
-            *frame.joints_rad,
-            *frame.joint_targets_rad,
-            *frame.quat_orbit_from_base_xyzw,
-            *frame.omega_base_in_base_radps,
-            *frame.wheel_speeds_radps,
-            *frame.wheel_momentum_nms,
-            str(frame.acs_mode),
-            *frame.acs_target_quat_xyzw,
-            frame.acs_feedforward,
-            buffer.queued,
-            buffer.next_execute_time_ns,
-            buffer.last_executed_seq,
-        )
-
-
 def ingest_frames(
     *,
     session: Session,
@@ -154,47 +187,23 @@ def ingest_frames(
     """Store ``frames`` of the pass, received at ``reception_time_ns`` (ground clock).
 
     Idempotent: a frame whose ``seq`` the pass already has is counted as a duplicate and
-    left as first stored. Raises :class:`NotFound` for an unknown pass. A database error
-    part way (SQLAlchemy's ``IntegrityError`` and kin, on both backends) may leave part of
-    the batch in the open transaction: the caller rolls back, and nothing of it stays.
+    left as first stored. Raises :class:`NotFound` for an unknown pass and
+    :class:`InvalidArgument` (nothing stored) for a frame whose vectors do not fit the
+    pass's robot (its plan's joint count). A database error part way (SQLAlchemy's
+    ``IntegrityError`` and kin, on both backends) may leave part of the batch in the open
+    transaction: the caller rolls back, and nothing of it stays.
     """
     key = require_pass(session, pass_id)
     if not frames:
         return IngestResult(inserted=0, duplicates=0)
-    connection = session.connection()
-    dialect = connection.dialect
-    if dialect.name == "postgresql":
-        driver_connection = connection.connection.driver_connection
-        try:
-            inserted = _ingest_postgresql(
-                driver_connection, uuid.UUID(key), frames, reception_time_ns
-            )
-        except dialect.loaded_dbapi.Error as exc:
-            # Raised by the driver directly: wrap it as SQLAlchemy would (IntegrityError, ...).
-            raise DBAPIError.instance(
-                _PG_STATEMENTS, None, exc, dialect.loaded_dbapi.Error
-            ) from exc
-    else:
-        # The id as SQLite stores a Uuid column: 32 hex digits.
-        rows = _rows(uuid.UUID(key).hex, frames, reception_time_ns)
-        inserted = connection.exec_driver_sql(_SQLITE_INSERT, list(rows)).rowcount
+    layout = pass_layout(session, key)
+    pass_key = uuid.UUID(key)
+    try:
+        rows = [(pass_key, *layout.row(frame, reception_time_ns)) for frame in frames]
+    except FrameLayoutError as exc:
+        raise InvalidArgument(f"pass {key}: {exc}") from None
+    inserted = write_rows(session, layout, rows)
     return IngestResult(inserted=inserted, duplicates=len(frames) - inserted)
-
-
-def _ingest_postgresql(
-    driver_connection: Any,
-    pass_key: object,
-    frames: Sequence[TelemetryFrame],
-    reception_time_ns: int,
-) -> int:
-    with driver_connection.cursor() as cursor:
-        cursor.execute(_PG_CREATE_STAGE)
-        with cursor.copy(_PG_COPY) as copy:
-            copy.set_types(_PG_TYPES)
-            for row in _rows(pass_key, frames, reception_time_ns):
-                copy.write_row(row)
-        cursor.execute(_PG_MOVE)
-        return int(cursor.rowcount)
 
 
 def count_frames(*, session: Session, pass_id: str) -> int:
@@ -247,9 +256,10 @@ def telemetry_range(
     """Frames with ``t0_ns <= generation_time_ns < t1_ns`` in time order, as rows of
     ``(seq, generation_time_ns, *fields)`` (each also by name); the first ``limit`` only,
     if given (the database stops there: a whole pass is not read for a page of it)."""
-    names = check_fields(fields, TELEMETRY_FIELDS)
+    check_fields(fields, TELEMETRY_FIELDS)
     check_time_range(t0_ns, t1_ns)
     key = require_pass(session, pass_id)
+    names = check_fields(fields, pass_layout(session, key).fields)
     gen = _FRAME.generation_time_ns
     query = (
         select(_FRAME.seq, gen, *(_TABLE.c[name] for name in names))
@@ -276,11 +286,12 @@ def telemetry_buckets(
     Bucket ``k`` starts at ``t0_ns + k * width`` with ``width = ceil((t1_ns - t0_ns) /
     buckets)`` ns; empty buckets (a gap, LOS) are left out.
     """
-    names = check_fields(fields, BUCKET_FIELDS)
+    check_fields(fields, BUCKET_FIELDS)
     check_time_range(t0_ns, t1_ns)
     if not 1 <= buckets <= MAX_BUCKETS:
         raise InvalidArgument(f"{buckets} buckets is outside 1..{MAX_BUCKETS}")
     key = require_pass(session, pass_id)
+    names = check_fields(fields, pass_layout(session, key).bucket_fields)
     width = -(-(t1_ns - t0_ns) // buckets)
     gen = _FRAME.generation_time_ns
     # Integer division of int64 on both backends; grouped in an outer query so PostgreSQL's

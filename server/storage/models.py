@@ -46,12 +46,18 @@ from sqlalchemy import (
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from telemetry.layout import FrameLayout
+
 __all__ = [
     "BUCKET_FIELDS",
     "COMMAND_KINDS",
     "COMMAND_STAGES",
+    "MAX_STORED_JOINTS",
     "PASS_STATES",
+    "STORAGE_LAYOUT",
+    "STORED_WHEELS",
     "TELEMETRY_FIELDS",
+    "TELEMETRY_FLOAT_FIELDS",
     "AnalysisRecord",
     "Base",
     "CommandRecord",
@@ -59,6 +65,7 @@ __all__ = [
     "PassRecord",
     "PlanRecord",
     "TelemetryFrameRecord",
+    "stored_layout",
 ]
 
 #: Constraint names are deterministic, so later migrations can address them on every backend.
@@ -119,6 +126,9 @@ class PlanRecord(Base):
     #: Joint commands plus attitude-control commands.
     n_commands: Mapped[int]
     created_at_ns: Mapped[int]
+    #: The robot's joint count (``len(initial_joints_rad)``): the layout of the telemetry of
+    #: the plan's passes (revision 0004; plans stored before it are ETS-VII's, 6).
+    n_joints: Mapped[int] = mapped_column(Integer, server_default="6", default=6)
 
     __table_args__ = (Index("ix_plans_created_at_ns", "created_at_ns"),)
 
@@ -198,43 +208,35 @@ class CommandRecord(Base):
     )
 
 
-#: Telemetry columns, in the order of :class:`telemetry.wire.TelemetryFrame`'s fields. Units:
-#: ``j*``/``t*`` measured joints / servo targets (rad); ``qx..qw`` quat_orbit_from_base;
-#: ``wx..wz`` omega_base_in_base (rad/s); ``ws*`` wheel speeds relative to the base (rad/s);
-#: ``hw*`` wheel momentum, base frame (N m s); ``tqx..tqw`` the ACS target quaternion.
-TELEMETRY_FLOAT_FIELDS = (
-    *(f"j{i}" for i in range(1, 7)),
-    *(f"t{i}" for i in range(1, 7)),
-    "qx",
-    "qy",
-    "qz",
-    "qw",
-    "wx",
-    "wy",
-    "wz",
-    "ws1",
-    "ws2",
-    "ws3",
-    "hw1",
-    "hw2",
-    "hw3",
-    "tqx",
-    "tqy",
-    "tqz",
-    "tqw",
-)
+#: Joints the archive has columns for (j1..j12, t1..t12); a pass's robot may have fewer
+#: (ETS-VII: 6, its j7.. are NULL), not more. Wheel speeds: ws1..ws3, three wheels.
+MAX_STORED_JOINTS = 12
+STORED_WHEELS = 3
+#: Every telemetry column of the table, named by :class:`telemetry.layout.FrameLayout`; a
+#: pass uses those of its robot's layout (:func:`stored_layout`).
+STORAGE_LAYOUT = FrameLayout(MAX_STORED_JOINTS, STORED_WHEELS)
+#: Telemetry float columns. Units: ``j*``/``t*`` measured joints / servo targets (rad);
+#: ``qx..qw`` quat_orbit_from_base; ``wx..wz`` omega_base_in_base (rad/s); ``ws*`` wheel
+#: speeds relative to the base (rad/s); ``hw*`` wheel momentum, base frame (N m s);
+#: ``tqx..tqw`` the ACS target quaternion.
+TELEMETRY_FLOAT_FIELDS = STORAGE_LAYOUT.float_fields
 #: Fields that can be decimated (min / max / mean per bucket): the numbers.
-BUCKET_FIELDS = (*TELEMETRY_FLOAT_FIELDS, "buffer_queued")
+BUCKET_FIELDS = STORAGE_LAYOUT.bucket_fields
 #: Every per-frame value a query may ask for (the whitelist; nothing else reaches SQL).
-TELEMETRY_FIELDS = (
-    *TELEMETRY_FLOAT_FIELDS,
-    "acs_mode",
-    "acs_feedforward",
-    "buffer_queued",
-    "buffer_next_execute_time_ns",
-    "buffer_last_executed_seq",
-    "reception_time_ns",
-)
+TELEMETRY_FIELDS = STORAGE_LAYOUT.fields
+
+
+def stored_layout(n_joints: int, n_wheels: int = STORED_WHEELS) -> FrameLayout:
+    """The layout of a robot's frames in the archive; ValueError when the table has no
+    columns for it (more than :data:`MAX_STORED_JOINTS` joints, not three wheels)."""
+    if not 1 <= n_joints <= MAX_STORED_JOINTS:
+        raise ValueError(
+            f"the archive stores 1..{MAX_STORED_JOINTS} joints, not {n_joints} (a robot of "
+            f"more needs columns j{MAX_STORED_JOINTS + 1}.. added by a migration)"
+        )
+    if n_wheels != STORED_WHEELS:
+        raise ValueError(f"the archive stores {STORED_WHEELS} wheel speeds, not {n_wheels}")
+    return FrameLayout(n_joints, n_wheels)
 
 
 class TelemetryFrameRecord(Base):
@@ -296,6 +298,19 @@ class TelemetryFrameRecord(Base):
     buffer_queued: Mapped[int]
     buffer_next_execute_time_ns: Mapped[int | None]
     buffer_last_executed_seq: Mapped[int]
+    # Joints 7..MAX_STORED_JOINTS (revision 0004): NULL where the robot has fewer joints.
+    j7: Mapped[float | None]
+    j8: Mapped[float | None]
+    j9: Mapped[float | None]
+    j10: Mapped[float | None]
+    j11: Mapped[float | None]
+    j12: Mapped[float | None]
+    t7: Mapped[float | None]
+    t8: Mapped[float | None]
+    t9: Mapped[float | None]
+    t10: Mapped[float | None]
+    t11: Mapped[float | None]
+    t12: Mapped[float | None]
 
     __table_args__ = (
         PrimaryKeyConstraint("pass_id", "seq", "generation_time_ns"),

@@ -6,7 +6,8 @@ at the call, mapped to :mod:`server.storage.errors`; after one, roll the session
 Times are integer ns (see :mod:`server.storage.models` for which clock).
 
     plans      add_plan, get_plan, list_plans
-    passes     add_pass, get_pass, list_passes, update_pass_state (optimistic lock)
+    passes     add_pass, get_pass, list_passes, update_pass_state (optimistic lock),
+               get_pass_layout (its telemetry's layout: the plan's robot)
     commands   add_commands (bulk), get_command, update_command_stage, list_commands
     events     add_event, list_events
     analysis   add_analysis, get_analysis, list_analyses
@@ -44,6 +45,7 @@ from server.storage._telemetry import (
     frame_seqs,
     ingest_frames,
     missing_seqs,
+    pass_layout,
     telemetry_buckets,
     telemetry_range,
 )
@@ -56,7 +58,9 @@ from server.storage.models import (
     EventRecord,
     PassRecord,
     PlanRecord,
+    stored_layout,
 )
+from telemetry.layout import FrameLayout
 from telemetry.wire import AcsCommandMsg, JointCommandMsg
 
 __all__ = [
@@ -76,6 +80,7 @@ __all__ = [
     "get_analysis",
     "get_command",
     "get_pass",
+    "get_pass_layout",
     "get_plan",
     "ingest_frames",
     "list_analyses",
@@ -117,6 +122,11 @@ def add_plan(
     key = new_id() if plan_id is None else canonical_id(plan_id, what="plan")
     if plan_id is not None and session.get(PlanRecord, key) is not None:
         raise Conflict(f"plan {key} is already stored")
+    n_joints = len(plan.initial_joints_rad)
+    try:
+        stored_layout(n_joints)
+    except ValueError as exc:
+        raise InvalidArgument(f"plan {key}: {exc}") from None
     record = PlanRecord(
         id=key,
         experiment=plan.experiment,
@@ -125,6 +135,7 @@ def add_plan(
         duration_s=plan.duration_s,
         n_commands=len(plan.command_times_s) + len(plan.acs_commands),
         created_at_ns=created_at_ns,
+        n_joints=n_joints,
     )
     session.add(record)
     _flush(session, f"plan {record.id}")
@@ -204,6 +215,12 @@ def get_pass(*, session: Session, pass_id: str, refresh: bool = False) -> PassRe
     if record is None:
         raise NotFound(f"pass {pass_id!r} not found")
     return record
+
+
+def get_pass_layout(*, session: Session, pass_id: str) -> FrameLayout:
+    """The telemetry layout of the pass: its plan's joint count (and the three wheels the
+    archive stores)."""
+    return pass_layout(session, require_pass(session, pass_id))
 
 
 def list_passes(

@@ -30,8 +30,9 @@ from mcap.summary import Summary
 
 from planner.errors import InvalidInput
 from planner.plan import Plan
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.mcap._errors import RecordingFileError
-from telemetry.mcap._jsonschema import SchemaViolation
+from telemetry.mcap._jsonschema import SchemaViolation, Validator
 from telemetry.mcap._schemas import (
     FORMAT,
     FORMAT_VERSION,
@@ -42,9 +43,10 @@ from telemetry.mcap._schemas import (
     TOPIC_EVENTS,
     TOPIC_PLAN,
     TOPIC_TELEMETRY,
+    layout_of_telemetry_schema,
     validators,
 )
-from telemetry.recording import FRAME_ARRAYS, CommandRow, EventRow, FrameArrays, PassRecording
+from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
 __all__ = ["MAX_CHUNK_BYTES", "MAX_UNCOMPRESSED_BYTES", "read_mcap"]
 
@@ -56,10 +58,16 @@ MAX_CHUNK_BYTES = 64 * 2**20
 #: (8 x the ground's default upload limit; recordings compress about 4:1: the 20-minute
 #: demo pass is 14 MB, 59 MB uncompressed).
 MAX_UNCOMPRESSED_BYTES = 2 * 2**30
-_VALIDATORS = validators()
+_VALIDATORS = {DEFAULT_LAYOUT: validators()}
 _INT_COLUMNS = {"seq", "generation_time_ns", "reception_time_ns"} | {
-    n for n in FRAME_ARRAYS if n.startswith("buffer_")
+    n for n in DEFAULT_LAYOUT.arrays if n.startswith("buffer_")
 }
+
+
+def _validators(layout: FrameLayout) -> dict[str, Validator]:
+    if layout not in _VALIDATORS:
+        _VALIDATORS[layout] = validators(layout)
+    return _VALIDATORS[layout]
 
 
 def _read_bytes(source: str | os.PathLike[str] | IO[bytes]) -> bytes:
@@ -200,8 +208,10 @@ def _check_metadata(meta: Mapping[str, str]) -> None:
             raise RecordingFileError(f"metadata {METADATA_NAME!r} lacks {key!r}")
 
 
-def _channels(summary: Summary) -> dict[str, Channel]:
+def _channels(summary: Summary) -> tuple[dict[str, Channel], FrameLayout]:
+    """Our channels by topic, and the frames' layout (from the telemetry schema)."""
     by_topic: dict[str, Channel] = {}
+    layout = DEFAULT_LAYOUT
     for channel in summary.channels.values():
         if channel.topic in OWN_SCHEMAS:
             if channel.topic in by_topic:
@@ -222,18 +232,28 @@ def _channels(summary: Summary) -> dict[str, Channel]:
                 f"channel {topic} has schema {got}, expected {want['title']} ({SCHEMA_ENCODING})"
             )
         try:
-            same = json.loads(schema.data) == want
+            written = json.loads(schema.data)
         except ValueError:
-            same = False
+            written = None
+        if topic == TOPIC_TELEMETRY:
+            # Its vectors' lengths are the robot's: any layout's schema, written exactly.
+            found = layout_of_telemetry_schema(written)
+            same = found is not None
+            layout = found or layout
+        else:
+            same = written == want
         if not same:
             raise RecordingFileError(
                 f"channel {topic}: schema {schema.name} differs from this version's"
             )
-    return by_topic
+    return by_topic, layout
 
 
-def _messages(reader: McapReader, channels: dict[str, Channel]) -> dict[str, list[Any]]:
+def _messages(
+    reader: McapReader, channels: dict[str, Channel], layout: FrameLayout
+) -> dict[str, list[Any]]:
     """topic -> its decoded, validated messages in the writer's row order."""
+    checks = _validators(layout)
     rows: dict[str, dict[int, Any]] = {topic: {} for topic in channels}
     topic_of = {c.id: topic for topic, c in channels.items()}
     for _, channel, message in reader.iter_messages(topics=list(channels), log_time_order=False):
@@ -248,7 +268,7 @@ def _messages(reader: McapReader, channels: dict[str, Channel]) -> dict[str, lis
         except ValueError as exc:
             raise RecordingFileError(f"{where} is not JSON: {exc}") from None
         try:
-            _VALIDATORS[topic](doc)
+            checks[topic](doc)
         except SchemaViolation as exc:
             raise RecordingFileError(f"{where} breaks its schema: {exc}") from None
         if message.sequence in rows[topic]:
@@ -275,10 +295,12 @@ def _string_dtype(meta: Mapping[str, str]) -> np.dtype[np.str_]:
     return np.dtype(text)
 
 
-def _frames(docs: list[dict[str, Any]], mode_dtype: np.dtype[np.str_]) -> FrameArrays:
+def _frames(
+    docs: list[dict[str, Any]], mode_dtype: np.dtype[np.str_], layout: FrameLayout
+) -> FrameArrays:
     n = len(docs)
     columns: dict[str, Any] = {}
-    for name, width in FRAME_ARRAYS.items():
+    for name, width in layout.arrays.items():
         values = [d[name] for d in docs]
         if width > 1:
             columns[name] = np.array(values, dtype=np.float64).reshape(n, width)
@@ -296,7 +318,9 @@ def _frames(docs: list[dict[str, Any]], mode_dtype: np.dtype[np.str_]) -> FrameA
     return FrameArrays(**columns)
 
 
-def _build(meta: Mapping[str, str], messages: dict[str, list[Any]]) -> PassRecording:
+def _build(
+    meta: Mapping[str, str], messages: dict[str, list[Any]], layout: FrameLayout
+) -> PassRecording:
     _count(meta, "frames", len(messages[TOPIC_TELEMETRY]), TOPIC_TELEMETRY)
     _count(meta, "commands", len(messages[TOPIC_COMMANDS]), TOPIC_COMMANDS)
     _count(meta, "events", len(messages[TOPIC_EVENTS]), TOPIC_EVENTS)
@@ -314,7 +338,7 @@ def _build(meta: Mapping[str, str], messages: dict[str, list[Any]]) -> PassRecor
     if not isinstance(extra, dict):
         raise RecordingFileError(f"metadata {METADATA_NAME!r}: meta_json is not an object")
     try:
-        frames = _frames(messages[TOPIC_TELEMETRY], _string_dtype(meta))
+        frames = _frames(messages[TOPIC_TELEMETRY], _string_dtype(meta), layout)
     except (ValueError, OverflowError) as exc:
         raise RecordingFileError(f"{TOPIC_TELEMETRY}: {exc}") from None
     return PassRecording(
@@ -349,8 +373,8 @@ def read_mcap(
         _check_indexes(summary, layout)
         meta = _metadata(reader)
         _check_metadata(meta)
-        channels = _channels(summary)
-        messages = _messages(reader, channels)
+        channels, frame_layout = _channels(summary)
+        messages = _messages(reader, channels, frame_layout)
     except RecordingFileError:
         raise
     except Exception as exc:
@@ -360,4 +384,4 @@ def read_mcap(
         raise RecordingFileError(
             f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
         ) from exc
-    return _build(meta, messages)
+    return _build(meta, messages, frame_layout)

@@ -10,8 +10,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.mcap._jsonschema import Validator, compile_schema
-from telemetry.recording import FRAME_ARRAYS
 
 __all__ = [
     "FORMAT",
@@ -24,7 +24,9 @@ __all__ = [
     "TOPIC_PLAN",
     "TOPIC_TELEMETRY",
     "URDF_ATTACHMENT",
+    "layout_of_telemetry_schema",
     "schema_bytes",
+    "telemetry_schema",
     "validators",
 ]
 
@@ -69,16 +71,36 @@ _FRAME_SCALARS: dict[str, dict[str, Any]] = {
     "seq": {"type": "integer", "minimum": 0},
 }
 
-TELEMETRY_SCHEMA = _object(
-    "hikoboshi.TelemetryFrame",
-    "One telemetry frame as archived (telemetry.recording.FRAME_ARRAYS). Onboard clock "
-    "except reception_time_ns (ground). rad, rad/s, N m s; quaternions x, y, z, w. "
-    "buffer_next_execute_time_ns is -1 where nothing was queued.",
-    **{
-        name: (_numbers(width) if width > 1 else _FRAME_SCALARS.get(name, _INT))
-        for name, width in FRAME_ARRAYS.items()
-    },
-)
+
+def telemetry_schema(layout: FrameLayout = DEFAULT_LAYOUT) -> dict[str, Any]:
+    """The telemetry channel's schema for a robot's frames: each vector's length is the
+    layout's (ETS-VII's schema is the same as before layouts existed)."""
+    return _object(
+        "hikoboshi.TelemetryFrame",
+        "One telemetry frame as archived (telemetry.recording.FRAME_ARRAYS). Onboard clock "
+        "except reception_time_ns (ground). rad, rad/s, N m s; quaternions x, y, z, w. "
+        "buffer_next_execute_time_ns is -1 where nothing was queued.",
+        **{
+            name: (_numbers(width) if width > 1 else _FRAME_SCALARS.get(name, _INT))
+            for name, width in layout.arrays.items()
+        },
+    )
+
+
+def layout_of_telemetry_schema(schema: Any) -> FrameLayout | None:
+    """The layout a telemetry schema was written for (from its joint and wheel-speed
+    lengths), or None when it is not one :func:`telemetry_schema` writes."""
+    try:
+        properties = schema["properties"]
+        layout = FrameLayout(
+            properties["joints_rad"]["minItems"], properties["wheel_speeds_radps"]["minItems"]
+        )
+    except (TypeError, KeyError, ValueError):
+        return None
+    return layout if telemetry_schema(layout) == schema else None
+
+
+TELEMETRY_SCHEMA = telemetry_schema(DEFAULT_LAYOUT)
 
 COMMAND_SCHEMA = _object(
     "hikoboshi.Command",
@@ -166,7 +188,8 @@ PLAN_SCHEMA = {
     "additionalProperties": False,
 }
 
-#: topic -> schema of the channels :func:`read_mcap` needs.
+#: topic -> schema of the channels :func:`read_mcap` needs (the telemetry's: ETS-VII's; another
+#: robot's is :func:`telemetry_schema` of its layout).
 OWN_SCHEMAS: dict[str, dict[str, Any]] = {
     TOPIC_TELEMETRY: TELEMETRY_SCHEMA,
     TOPIC_COMMANDS: COMMAND_SCHEMA,
@@ -179,8 +202,7 @@ def schema_bytes(schema: dict[str, Any]) -> bytes:
     return json.dumps(schema, separators=(",", ":")).encode()
 
 
-def validators() -> dict[str, Validator]:
-    """topic -> compiled validator of its messages."""
-    return {
-        topic: compile_schema(schema, name=schema["title"]) for topic, schema in OWN_SCHEMAS.items()
-    }
+def validators(layout: FrameLayout = DEFAULT_LAYOUT) -> dict[str, Validator]:
+    """topic -> compiled validator of its messages (the telemetry's for ``layout``)."""
+    schemas = {**OWN_SCHEMAS, TOPIC_TELEMETRY: telemetry_schema(layout)}
+    return {topic: compile_schema(s, name=s["title"]) for topic, s in schemas.items()}

@@ -31,15 +31,15 @@ from telemetry.mcap._schemas import (
     METADATA_NAME,
     PLAN_SCHEMA,
     SCHEMA_ENCODING,
-    TELEMETRY_SCHEMA,
     TOPIC_COMMANDS,
     TOPIC_EVENTS,
     TOPIC_PLAN,
     TOPIC_TELEMETRY,
     URDF_ATTACHMENT,
     schema_bytes,
+    telemetry_schema,
 )
-from telemetry.recording import FRAME_ARRAYS, CommandRow, EventRow, PassRecording
+from telemetry.recording import CommandRow, EventRow, PassRecording
 
 __all__ = ["TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
 
@@ -59,7 +59,7 @@ def _dumps(doc: Any) -> bytes:
 
 def _check_recording(recording: PassRecording) -> None:
     frames = recording.frames
-    for name, width in FRAME_ARRAYS.items():
+    for name, width in frames.layout.arrays.items():
         column = getattr(frames, name)
         if width > 1 and not bool(np.all(np.isfinite(column))):
             row = int(np.argwhere(~np.isfinite(column))[0][0])
@@ -78,7 +78,7 @@ def _check_recording(recording: PassRecording) -> None:
 
 def _telemetry(recording: PassRecording) -> list[bytes]:
     frames = recording.frames
-    columns = {name: getattr(frames, name).tolist() for name in FRAME_ARRAYS}
+    columns = {name: getattr(frames, name).tolist() for name in frames.layout.arrays}
     names = list(columns)
     rows = zip(*columns.values(), strict=True)
     return [_dumps(dict(zip(names, row, strict=True))) for row in rows]
@@ -133,18 +133,30 @@ def write_mcap(
     """Write ``recording`` as one MCAP file (zstd chunks, chunk and message indexes).
 
     ``model`` (default: :func:`planner.model.default_model`) gives the URDF attachment and
-    the link poses of ``/tf``. A stream is written from its current position and left open.
+    the link poses of ``/tf``; its joint count must be the frames' (their
+    :class:`~telemetry.layout.FrameLayout`, which also gives the telemetry channel's
+    schema). A stream is written from its current position and left open.
     Raises :class:`RecordingFileError` for a recording that JSON cannot carry exactly
     (a non-finite number, a negative time, a payload that is not JSON).
     """
     _check_recording(recording)
     model = model or default_model()
+    layout = recording.frames.layout
+    if layout.n_joints != model.n_joints:
+        raise RecordingFileError(
+            f"the recording's frames have {layout.n_joints} joints, the robot model "
+            f"{model.n_joints}: write it with its own robot's model"
+        )
     urdf = urdf_xml(model)
     frames = recording.frames
     gen_ns = frames.generation_time_ns
     try:
         own: dict[str, tuple[dict[str, Any], str, _Messages]] = {
-            TOPIC_TELEMETRY: (TELEMETRY_SCHEMA, "onboard", (gen_ns, _telemetry(recording))),
+            TOPIC_TELEMETRY: (
+                telemetry_schema(layout),
+                "onboard",
+                (gen_ns, _telemetry(recording)),
+            ),
             TOPIC_COMMANDS: (
                 COMMAND_SCHEMA,
                 "onboard",

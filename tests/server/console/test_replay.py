@@ -25,8 +25,8 @@ from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
 from server.storage import repository as repo
-from server.storage.models import TELEMETRY_FIELDS
 from spacecraft.offline import OfflineFlight
+from telemetry.layout import DEFAULT_LAYOUT
 from telemetry.uplink import plan_commands
 from tests.server.console.conftest import (
     AS_VIEWER,
@@ -41,6 +41,9 @@ from tests.server.console.conftest import (
 )
 from tests.server.console.test_telemetry import frames_of
 from tests.server.storage.factories import make_frames
+
+#: ETS-VII's telemetry fields: the frames these tests fly.
+TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
 
 Flight = tuple[Plan, OfflineFlight]
 VIEWER = {"Authorization": "Bearer v-token"}

@@ -6,7 +6,7 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from server.storage.models import TELEMETRY_FIELDS
+from telemetry.layout import DEFAULT_LAYOUT
 from tests.server.console.conftest import (
     AS_VIEWER,
     CONSOLE,
@@ -17,6 +17,9 @@ from tests.server.console.conftest import (
     welcome,
 )
 from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+
+#: ETS-VII's telemetry fields: the frames these tests fly.
+TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
 
 VIEWER = {"Authorization": "Bearer v-token"}
 

@@ -6,10 +6,10 @@ import numpy as np
 
 from planner.attitude_control import AcsMode
 from planner.plan import AcsCommand, Plan, Prediction, Segment
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import (
     AcsCommandMsg,
     AcsModeName,
-    BufferState,
     JointCommandMsg,
     TelemetryFrame,
 )
@@ -19,14 +19,15 @@ T0_NS = 5_000_000_000_000
 FRAME_PERIOD_NS = 100_000_000
 
 
-def make_plan(n_commands: int = 9, experiment: str = "ptp") -> Plan:
-    """A small plan: joint commands 0.25 s apart, one ACS command, a short prediction."""
+def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -> Plan:
+    """A small plan of a robot of ``n_joints`` (ETS-VII: 6): joint commands 0.25 s apart,
+    one ACS command, a short prediction."""
     times_s = np.arange(n_commands, dtype=np.float64) * 0.25
-    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(6)
+    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(n_joints)
     k = 5
     prediction = Prediction(
         t_s=np.linspace(0.0, float(times_s[-1]), k),
-        joints_rad=np.zeros((k, 6)),
+        joints_rad=np.zeros((k, n_joints)),
         quat_orbit_from_base_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
         rpy_base_rad=np.zeros((k, 3)),
         omega_base_orbit_radps=np.zeros((k, 3)),
@@ -38,7 +39,7 @@ def make_plan(n_commands: int = 9, experiment: str = "ptp") -> Plan:
     return Plan(
         experiment=experiment,
         parameters={"out_speed_mps": 0.01, "label": "A->B"},
-        initial_joints_rad=np.zeros(6),
+        initial_joints_rad=np.zeros(n_joints),
         command_times_s=times_s,
         command_joints_rad=joints_rad,
         segments=(Segment("move", "ptp", 0.0, float(times_s[-1])),),
@@ -70,30 +71,29 @@ def make_commands(n: int, *, first_seq: int = 0) -> list[JointCommandMsg | AcsCo
     return out
 
 
-def make_frame(seq: int, rng: np.random.Generator | None = None) -> TelemetryFrame:
-    """Frame ``seq`` at 10 Hz; random values when ``rng`` is given, else values from seq."""
+def make_frame(
+    seq: int, rng: np.random.Generator | None = None, layout: FrameLayout = DEFAULT_LAYOUT
+) -> TelemetryFrame:
+    """Frame ``seq`` at 10 Hz of a robot of ``layout`` (ETS-VII's by default); random values
+    when ``rng`` is given, else values from seq."""
     rng = rng if rng is not None else np.random.default_rng(seq)
-    v = rng.normal(size=29).tolist()
-    return TelemetryFrame(
-        seq=seq,
-        generation_time_ns=T0_NS + seq * FRAME_PERIOD_NS,
-        joints_rad=v[0:6],
-        joint_targets_rad=v[6:12],
-        quat_orbit_from_base_xyzw=v[12:16],
-        omega_base_in_base_radps=v[16:19],
-        wheel_speeds_radps=v[19:22],
-        wheel_momentum_nms=v[22:25],
-        acs_mode=AcsModeName.FEEDBACK if seq % 2 else AcsModeName.FREE_DRIFT,
-        acs_target_quat_xyzw=v[25:29],
-        acs_feedforward=bool(seq % 3),
-        buffer=BufferState(
-            queued=seq % 7,
-            next_execute_time_ns=None if seq % 5 == 0 else T0_NS + seq * 1000,
-            last_executed_seq=seq // 4 - 1,
-        ),
+    v = rng.normal(size=len(layout.float_fields)).tolist()
+    row = (
+        seq,
+        T0_NS + seq * FRAME_PERIOD_NS,
+        *v,
+        "feedback" if seq % 2 else "free_drift",
+        bool(seq % 3),
+        seq % 7,
+        None if seq % 5 == 0 else T0_NS + seq * 1000,
+        seq // 4 - 1,
+        0,  # reception time: not part of the wire frame
     )
+    return layout.frame(row)
 
 
-def make_frames(seqs: range | list[int], seed: int = 0) -> list[TelemetryFrame]:
+def make_frames(
+    seqs: range | list[int], seed: int = 0, layout: FrameLayout = DEFAULT_LAYOUT
+) -> list[TelemetryFrame]:
     rng = np.random.default_rng(seed)
-    return [make_frame(s, rng) for s in seqs]
+    return [make_frame(s, rng, layout) for s in seqs]

@@ -25,7 +25,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0003"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0004"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
@@ -143,3 +143,23 @@ def test_0003_counts_one_transmission_for_each_command_sent_before_it(
         # the new stage is allowed
         conn.execute(text("UPDATE commands SET stage = 'cancelled' WHERE seq = 1"))
     assert schema_diff(empty_engine) == []
+
+
+def test_0004_adds_joints_7_to_12_and_counts_six_joints_for_older_plans(
+    empty_engine: Engine,
+) -> None:
+    upgrade(empty_engine, "0003")
+    _insert_plan_and_pass(empty_engine)
+    upgrade(empty_engine)
+    with empty_engine.connect() as conn:
+        assert conn.execute(text("SELECT n_joints FROM plans")).scalar_one() == 6
+    columns = {c["name"]: c for c in inspect(empty_engine).get_columns("telemetry_frames")}
+    for i in range(7, 13):
+        assert columns[f"j{i}"]["nullable"] and columns[f"t{i}"]["nullable"]
+    assert not columns["j6"]["nullable"]
+    assert "j13" not in columns
+    assert schema_diff(empty_engine) == []
+    with empty_engine.begin() as conn:
+        command.downgrade(alembic_config(conn), "0003")
+    assert "j7" not in {c["name"] for c in inspect(empty_engine).get_columns("telemetry_frames")}
+    assert "n_joints" not in {c["name"] for c in inspect(empty_engine).get_columns("plans")}
