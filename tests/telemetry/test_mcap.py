@@ -16,11 +16,13 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from planner.description import load_robot
 from planner.dynamics import DynamicsWorkspace
 from planner.frames import matrix_from_quat_xyzw
 from planner.model import RobotModel
 from planner.state import State
 from planner.urdf import urdf_xml
+from telemetry.layout import FrameLayout
 from telemetry.mcap import (
     METADATA_NAME,
     PLOT_TOPICS,
@@ -35,7 +37,9 @@ from telemetry.mcap import (
     read_mcap,
     write_mcap,
 )
-from telemetry.recording import FRAME_ARRAYS, CommandRow, EventRow, PassRecording
+from telemetry.mcap._schemas import TELEMETRY_SCHEMA, telemetry_schema
+from telemetry.recording import CommandRow, EventRow, PassRecording
+from tests.server.storage.factories import make_frames, make_plan
 
 # Foxglove's published foxglove.FrameTransforms, restated field by field (and closed with
 # additionalProperties: false so a misspelt or extra field fails here even where Foxglove's
@@ -108,7 +112,8 @@ def pose_in_orbit(transforms: list[dict[str, Any]], name: str) -> tuple[np.ndarr
 def assert_same_recording(got: PassRecording, want: PassRecording) -> None:
     assert got.name == want.name
     assert got.epoch_ns == want.epoch_ns
-    for name in FRAME_ARRAYS:
+    assert got.frames.layout == want.frames.layout
+    for name in want.frames.layout.arrays:
         a, b = getattr(got.frames, name), getattr(want.frames, name)
         assert a.dtype == b.dtype, name
         assert a.shape == b.shape, name
@@ -438,3 +443,40 @@ def test_bad_files_raise_the_domain_error(small_bytes: bytes, case: str, match: 
     }[case]()
     with pytest.raises(RecordingFileError, match=match):
         read_mcap(io.BytesIO(data))
+
+
+ORIHIME = Path(__file__).resolve().parents[2] / "examples" / "robots" / "orihime" / "orihime.toml"
+
+
+def test_a_seven_joint_recording_round_trips_with_its_robots_schema_and_urdf() -> None:
+    model = load_robot(ORIHIME).model
+    assert model.n_joints == 7
+    layout = FrameLayout(7, 3)
+    frames = make_frames(range(30), seed=5, layout=layout)
+    recording = PassRecording.from_frames(
+        "seven", make_plan(n_joints=7), frames[0].generation_time_ns, frames
+    )
+    buf = io.BytesIO()
+    write_mcap(recording, buf, model=model)
+    buf.seek(0)
+    got = read_mcap(buf)
+    assert_same_recording(got, recording)
+    assert got.frames.joints_rad.shape == (30, 7)
+    buf.seek(0)
+    reader = make_reader(buf)
+    summary = reader.get_summary()
+    assert summary is not None
+    written = {
+        c.topic: json.loads(summary.schemas[c.schema_id].data) for c in summary.channels.values()
+    }
+    schema = written[TOPIC_TELEMETRY]
+    assert schema == telemetry_schema(layout) and schema != TELEMETRY_SCHEMA
+    assert schema["properties"]["joints_rad"]["minItems"] == 7
+    assert schema["properties"]["joint_targets_rad"]["maxItems"] == 7
+
+
+def test_a_seven_joint_recording_is_not_written_with_ets7s_model() -> None:
+    frames = make_frames(range(3), layout=FrameLayout(7, 3))
+    recording = PassRecording.from_frames("seven", make_plan(n_joints=7), 0, frames)
+    with pytest.raises(RecordingFileError, match="7 joints, the robot model 6"):
+        write_mcap(recording, io.BytesIO())

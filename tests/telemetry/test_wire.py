@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import (
     MAX_DEPTH,
     MAX_MESSAGE_BYTES,
@@ -244,3 +245,57 @@ def test_a_wire_error_names_the_type_escaped() -> None:
     with pytest.raises(WireError, match="not JSON") as info:
         decode_ground('{"v":2,"type":"ping","ping_id":1' + "1" * 5000 + "}")  # int digits limit
     assert info.value.ref_type is None
+
+
+# --- n joints: lengths checked against the receiver's robot ---------------------------------
+
+
+def _seven_joint_frame(seq: int) -> TelemetryFrame:
+    return _frame(seq).model_copy(update={"joints_rad": [0.1] * 7, "joint_targets_rad": [0.2] * 7})
+
+
+def test_a_joint_command_of_any_bounded_length_decodes_and_is_checked_against_the_robot() -> None:
+    seven = GOLDEN_JOINT_COMMAND.replace("-0.6]", "-0.6,0.7]")
+    decoded = decode_ground(seven)
+    assert isinstance(decoded, JointCommandMsg) and len(decoded.joints_rad) == 7
+    assert decode_ground(seven, FrameLayout(7, 3)) == decoded
+    with pytest.raises(WireError, match="joints_rad has 7 values, this robot has 6 joints"):
+        decode_ground(seven, DEFAULT_LAYOUT)
+    # ETS-VII's own command passes its layout, and an ACS command has no joints to check
+    assert isinstance(decode_ground(GOLDEN_JOINT_COMMAND, DEFAULT_LAYOUT), JointCommandMsg)
+    acs = encode(AcsCommandMsg(seq=1, execute_time_ns=0, mode=AcsModeName.FREE_DRIFT))
+    assert isinstance(decode_ground(acs, FrameLayout(7, 3)), AcsCommandMsg)
+
+
+def test_telemetry_of_another_robot_is_refused_with_the_reason() -> None:
+    text = encode(TelemetryMsg(frames=[_seven_joint_frame(0), _seven_joint_frame(1)]))
+    message = decode_spacecraft(text)
+    assert isinstance(message, TelemetryMsg) and len(message.frames[1].joint_targets_rad) == 7
+    assert decode_spacecraft(text, FrameLayout(7, 3)) == message
+    with pytest.raises(WireError, match=r"frame 0: joints_rad has 7 values.*\(6 joints") as info:
+        decode_spacecraft(text, DEFAULT_LAYOUT)
+    assert info.value.ref_type == "telemetry"
+    ets7 = encode(TelemetryMsg(frames=[_frame(0)]))
+    with pytest.raises(WireError, match="joints_rad has 6 values"):
+        decode_spacecraft(ets7, FrameLayout(7, 3))
+
+
+def test_hello_names_the_robot_optionally_and_ets7s_hello_is_unchanged() -> None:
+    plain = decode_spacecraft(json.dumps(HELLO))
+    assert isinstance(plain, Hello) and plain.robot is None and plain.n_joints is None
+    # absent fields stay absent: the bytes of a hello without them are as before
+    assert json.loads(encode(plain)).keys() == Hello.model_fields.keys() - {
+        "robot",
+        "robot_hash",
+        "n_joints",
+    }
+    named = {**HELLO, "robot": "orihime", "robot_hash": "sha256:ab12", "n_joints": 7}
+    hello = decode_spacecraft(json.dumps(named), FrameLayout(7, 3))
+    assert isinstance(hello, Hello)
+    assert (hello.robot, hello.robot_hash, hello.n_joints) == ("orihime", "sha256:ab12", 7)
+    assert decode_spacecraft(encode(hello)) == hello
+    with pytest.raises(WireError, match="n_joints 7, this session's robot has 6 joints"):
+        decode_spacecraft(json.dumps(named), DEFAULT_LAYOUT)
+    for bad in ({"n_joints": 0}, {"n_joints": 33}, {"robot": ""}, {"robot_hash": "x" * 129}):
+        with pytest.raises(WireError, match="invalid hello"):
+            decode_spacecraft(json.dumps({**HELLO, **bad}))
