@@ -40,7 +40,8 @@ from server.services.link import GroundLink, TelemetryWindow
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
 from server.storage.models import PlanRecord
-from telemetry.wire import AcsModeName, BufferState, Hello, TelemetryFrame, TelemetryMsg, encode
+from telemetry.layout import DEFAULT_LAYOUT
+from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
 
 TOKENS = {
     "v-token": ApiToken(name="bench-console", role=Role.VIEWER),
@@ -61,21 +62,10 @@ def _free_port() -> int:
 
 
 def _frame(seq: int, rng: np.random.Generator) -> TelemetryFrame:
-    v = rng.normal(size=29).tolist()
-    return TelemetryFrame(
-        seq=seq,
-        generation_time_ns=T0_NS + seq * round(1e9 / RATE_HZ),
-        joints_rad=v[0:6],
-        joint_targets_rad=v[6:12],
-        quat_orbit_from_base_xyzw=v[12:16],
-        omega_base_in_base_radps=v[16:19],
-        wheel_speeds_radps=v[19:22],
-        wheel_momentum_nms=v[22:25],
-        acs_mode=AcsModeName.FEEDBACK,
-        acs_target_quat_xyzw=v[25:29],
-        acs_feedforward=False,
-        buffer=BufferState(queued=0),
-    )
+    """An ETS-VII frame of random values (a row of its layout read as a wire frame)."""
+    v = rng.normal(size=len(DEFAULT_LAYOUT.float_fields)).tolist()
+    gen_ns = T0_NS + seq * round(1e9 / RATE_HZ)
+    return DEFAULT_LAYOUT.frame((seq, gen_ns, *v, "feedback", False, 0, None, -1, 0))
 
 
 # --- the consoles (child process) ------------------------------------------------------------

@@ -39,13 +39,18 @@ from sqlalchemy import URL, Engine, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.storage import repository as repo
-from server.storage._telemetry import _COLUMNS, _PG_TYPES, _rows
+from server.storage._telemetry import statements
 from server.storage.db import make_engine, session_factory, sqlite_url, upgrade
 from server.storage.models import PlanRecord
-from telemetry.wire import AcsModeName, BufferState, TelemetryFrame
+from telemetry.layout import DEFAULT_LAYOUT
+from telemetry.wire import TelemetryFrame
 
 N_FRAMES = 12_000  # 20 min at 10 Hz
 LIVE_BATCH = 50
+#: ETS-VII's frames, as the storage inserts them (its layout's columns, after the pass id).
+_SQL = statements(DEFAULT_LAYOUT)
+_COLUMNS = _SQL.columns
+_PG_TYPES = _SQL.pg_types
 VALUES_PER_FRAME = len(_COLUMNS)
 T0_NS = 1_000_000_000_000
 PERIOD_NS = 100_000_000
@@ -55,25 +60,19 @@ DEFAULT_POSTGRES_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 
 
 def make_frames(n: int) -> list[TelemetryFrame]:
+    """ETS-VII frames of random values (rows of its layout read as wire frames)."""
     rng = np.random.default_rng(0)
-    values = rng.normal(size=(n, 29)).tolist()
+    values = rng.normal(size=(n, len(DEFAULT_LAYOUT.float_fields))).tolist()
     return [
-        TelemetryFrame(
-            seq=i,
-            generation_time_ns=T0_NS + i * PERIOD_NS,
-            joints_rad=v[0:6],
-            joint_targets_rad=v[6:12],
-            quat_orbit_from_base_xyzw=v[12:16],
-            omega_base_in_base_radps=v[16:19],
-            wheel_speeds_radps=v[19:22],
-            wheel_momentum_nms=v[22:25],
-            acs_mode=AcsModeName.FEEDBACK,
-            acs_target_quat_xyzw=v[25:29],
-            acs_feedforward=False,
-            buffer=BufferState(queued=i % 9, next_execute_time_ns=T0_NS + i, last_executed_seq=i),
+        DEFAULT_LAYOUT.frame(
+            (i, T0_NS + i * PERIOD_NS, *v, "feedback", False, i % 9, T0_NS + i, i, 0)
         )
         for i, v in enumerate(values)
     ]
+
+
+def _rows(pass_key: object, frames: list[TelemetryFrame], rx: int) -> list[tuple[Any, ...]]:
+    return [(pass_key, *DEFAULT_LAYOUT.row(frame, rx)) for frame in frames]
 
 
 def best_with_setup(setup: Callable[[], None], run: Callable[[], None]) -> float:
