@@ -83,7 +83,7 @@ MIN_ARM_JOINTS = 4
 EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples" / "robots"
 ETS7_DESCRIPTION = EXAMPLES_DIR / "ets7" / "ets7.toml"
 
-#: Continuous joints get these limits (rad): two turns, so that check_joints has a range.
+#: Continuous joints get these limits (rad): a turn each way, so that check_joints has a range.
 CONTINUOUS_LIMIT_RAD = 2.0 * math.pi
 #: Defaults where a description leaves a value out (the values ETS-VII uses).
 DEFAULT_ROTOR_MASS_KG = 1e-3
