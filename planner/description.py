@@ -465,15 +465,19 @@ class _Urdf:
         return None if joint is None else self.link_ref(joint, "parent")
 
     def check_tree(self, base_link: str) -> None:
+        rooted: set[str] = set()  # links whose parent chain is known to end at a root
         for start in self.links:
             seen = [start]
+            on_path = {start}
             link: str | None = self.parent_of(start)
-            while link is not None:
-                if link in seen:
+            while link is not None and link not in rooted:
+                if link in on_path:
                     cycle = " -> ".join([*seen[seen.index(link) :], link])
                     raise self.c.fail(f"link {link!r}", f"is in a loop of joints: {cycle}")
                 seen.append(link)
+                on_path.add(link)
                 link = self.parent_of(link)
+            rooted.update(seen)
         if base_link not in self.links:
             raise self.c.fail(
                 f"link {base_link!r}",
@@ -670,6 +674,10 @@ def _model_from_urdf(urdf: _Urdf, base_link: str, wheels: tuple[WheelSpec, ...])
                     f"[{lo!r}, {hi!r}] must contain 0 (the all-zero pose is the model's reference)",
                 )
         child = urdf.link_ref(joint, "child")
+        if not _NAME.match(child):
+            raise c.fail(
+                f"link {child!r}", "an arm link's name is letters, digits, '_', '-' or '.'"
+            )
         inertial = urdf.inertial(child)
         if inertial is None:
             raise c.fail(
@@ -700,8 +708,12 @@ def _model_from_urdf(urdf: _Urdf, base_link: str, wheels: tuple[WheelSpec, ...])
             "(the planners take it so); move the rotation into a frame beyond the hand",
         )
     names = [spec.name for spec in links]
-    if len(set(names) | set(_WHEEL_NAMES)) != len(names) + len(_WHEEL_NAMES):
-        raise c.fail("links", f"arm link names must differ from {_WHEEL_NAMES}")
+    reserved = {*_WHEEL_NAMES, "base"}  # the MuJoCo model's own bodies
+    if reserved & set(names):
+        raise c.fail(
+            f"link {sorted(reserved & set(names))[0]!r}",
+            f"arm links may not be called {sorted(reserved)} (the MuJoCo model's own bodies)",
+        )
     return RobotModel(
         base_mass_kg=base.mass_kg,
         base_inertia_kgm2=_frozen(base_inertia),

@@ -335,6 +335,8 @@ URDF_FAULTS = {
         'velocity="0.0"',
         ["joint 'joint1' <limit>", "velocity must be > 0"],
     ),
+    "link_name_not_a_word": ('"link2"', '"link 2"', ["link 'link 2'", "letters, digits"]),
+    "link_name_reserved": ('"link2"', '"wheel_x"', ["link 'wheel_x'", "may not be called"]),
     "bad_number": ('xyz="-0.785 -0.295 1.0"', 'xyz="-0.785 abc 1.0"', ["<origin xyz>"]),
     "entity": (
         '<?xml version="1.0"?>',
