@@ -42,7 +42,7 @@ import math
 import re
 import tomllib
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -287,6 +287,29 @@ def _read_limited(path: Path, what: str) -> bytes:
     if len(data) > MAX_FILE_BYTES:
         raise InvalidRobotDescription(path, what, f"over the {MAX_FILE_BYTES} byte limit")
     return data
+
+
+def _canonical_xml(root: ET.Element) -> bytes:
+    """The parsed document (comments already dropped) as JSON events: each element's tag,
+    sorted attributes and stripped text, its children, then its stripped tail. Iterative, so
+    a deeply nested file cannot exhaust the stack, and linear (C14N in Python is not)."""
+    out: list[object] = []
+    stack: list[tuple[ET.Element, Iterator[ET.Element]]] = []
+
+    def start(elem: ET.Element) -> None:
+        out.append([elem.tag, sorted(elem.attrib.items()), (elem.text or "").strip()])
+        stack.append((elem, iter(elem)))
+
+    start(root)
+    while stack:
+        elem, children = stack[-1]
+        child = next(children, None)
+        if child is None:
+            stack.pop()
+            out.append(["/", (elem.tail or "").strip() if stack else ""])
+        else:
+            start(child)
+    return json.dumps(out, separators=(",", ":"), ensure_ascii=False).encode()
 
 
 def _canonical_toml(doc: Mapping[str, Any]) -> bytes:
@@ -569,8 +592,9 @@ def _arm_chain(urdf: _Urdf, base_link: str) -> list[ET.Element]:
     link = _HAND
     while link != base_link:
         joint = urdf.parent_joint[link]  # check_tree: every link but the base has one
-        chain.insert(0, joint)
+        chain.append(joint)
         link = urdf.link_ref(joint, "parent")
+    chain.reverse()
     on_chain = {base_link, *(urdf.link_ref(j, "child") for j in chain)}
     for name in urdf.links:
         if name in on_chain:
@@ -973,10 +997,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         path=toml_path,
         urdf_path=urdf_path,
         content_sha256=hashlib.sha256(
-            b"hikoboshi-robot/1\0"
-            + _canonical_toml(doc)
-            + b"\0"
-            + ET.canonicalize(urdf.text, strip_text=True).encode()
+            b"hikoboshi-robot/1\0" + _canonical_toml(doc) + b"\0" + _canonical_xml(urdf.root)
         ).hexdigest(),
         base_link=base_link,
         model=model,
