@@ -966,6 +966,12 @@ def load_robot(path: str | Path) -> RobotDescription:
     if not urdf_name or Path(urdf_name).is_absolute():
         raise c.fail("urdf", f"{urdf_name!r} must be a path relative to the description")
     urdf_path = toml_path.parent / urdf_name
+    try:
+        inside = urdf_path.resolve().is_relative_to(toml_path.parent.resolve())
+    except (OSError, RuntimeError):  # a symlink loop
+        inside = False
+    if not inside:
+        raise c.fail("urdf", f"{urdf_name!r} must stay inside the description's folder")
     base_link = c.text("base_link", doc["base_link"])
     wheels, wheel_limits = _wheels(c, doc["wheels"])
 

@@ -433,6 +433,7 @@ TOML_FAULTS = {
         ["must be the URDF's root"],
     ),
     "absolute_urdf": ('urdf = "ets7.urdf"', 'urdf = "/etc/ets7.urdf"', ["urdf", "relative"]),
+    "urdf_outside": ('urdf = "ets7.urdf"', 'urdf = "../ets7.urdf"', ["urdf", "must stay inside"]),
     "missing_urdf": ('urdf = "ets7.urdf"', 'urdf = "none.urdf"', ["none.urdf", "no such file"]),
     "bad_name": ('name = "ets7"', 'name = "ets 7!"', ["name"]),
     "two_wheels": (
@@ -553,3 +554,15 @@ def test_a_failing_load_changes_nothing(tmp_path: Path, ets7: RobotDescription) 
 def test_errors_are_invalid_input() -> None:
     assert issubclass(InvalidRobotDescription, InvalidInput)
     assert math.isfinite(MAX_FILE_BYTES) and MAX_FILE_BYTES == 16 * 1024 * 1024
+
+
+def test_continuous_joints_get_a_turn_each_way(tmp_path: Path) -> None:
+    target = _copy_robot(tmp_path, "ets7")
+    _edit(
+        target / "ets7.urdf",
+        '<joint name="joint6" type="revolute">',
+        '<joint name="joint6" type="continuous">',
+    )
+    model = load_robot(target / "ets7.toml").model
+    np.testing.assert_array_equal(model.joint_limit_rad[5], [-2 * np.pi, 2 * np.pi])
+    np.testing.assert_array_equal(model.joint_limit_rad[:5], default_model().joint_limit_rad[:5])
