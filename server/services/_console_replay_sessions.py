@@ -407,15 +407,10 @@ class Replays:
         finally:
             self._opening.remove(client)
         replay_id = f"r-{secrets.token_hex(6)}"
-        # The pass's robot's columns (a 6-joint pass has no j7).
-        layout = recording.frames.layout
-        for name in asked or ():
-            if name not in layout.columns:
-                raise ProtocolError(
-                    f"field {name!r} is not one of the fields of the pass's robot ({layout}): "
-                    f"{layout.fields}"
-                )
-        columns = layout.columns if asked is None else asked
+        # The pass's robot's columns: a field it does not have (j7 of a 6-joint pass) is
+        # left out, so a console may ask for the joints up to the archive's most.
+        own = recording.frames.layout.columns
+        columns = own if asked is None else tuple(name for name in asked if name in own)
         try:
             session = ReplaySession(
                 replay_id=replay_id,

@@ -40,10 +40,10 @@ def link(client: TestClient) -> GroundLink:
     return ground_link
 
 
-def add_pass(client: TestClient, name: str = "pass-1") -> str:
+def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str:
     now = time.time_ns()
     with client.app.state.sessions() as session:  # type: ignore[attr-defined]
-        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=now)
+        plan = repo.add_plan(session=session, plan=make_plan(n_joints=n_joints), created_at_ns=now)
         record = repo.add_pass(
             session=session,
             name=name,

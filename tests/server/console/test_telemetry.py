@@ -6,7 +6,7 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from telemetry.layout import DEFAULT_LAYOUT
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from tests.server.console.conftest import (
     AS_VIEWER,
     CONSOLE,
@@ -80,7 +80,10 @@ def test_max_rate_decimates_by_generation_time_and_fields_trim_columns(client: T
     spacecraft = FakeSpacecraft(client, pass_id)
     with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
-        subscribe(ws, topic="telemetry", pass_id=pass_id, max_rate_hz=2.5, fields=["j1", "wz"])
+        # j7: the archive has the column, this 6-joint pass does not: left out
+        subscribe(
+            ws, topic="telemetry", pass_id=pass_id, max_rate_hz=2.5, fields=["j1", "j7", "wz"]
+        )
         for lo in range(0, 30, 3):  # 10 Hz frames, three a message
             spacecraft.send(make_frames(range(lo, lo + 3)))
         messages = drain(ws)
@@ -95,3 +98,36 @@ def test_max_rate_decimates_by_generation_time_and_fields_trim_columns(client: T
     # Messages all of whose frames are decimated away are not sent; seqs still increase.
     seqs = [m["seq"] for m in messages]
     assert seqs == sorted(set(seqs)) and len(seqs) < 10
+
+
+def test_a_seven_joint_pass_streams_its_own_columns(client: TestClient) -> None:
+    seven = FrameLayout(7, 3)
+    pass_id = add_pass(client, "seven", n_joints=7)
+    ets7 = add_pass(client, "ets7")
+    spacecraft = FakeSpacecraft(client, pass_id)
+    frames = make_frames(range(6), seed=9, layout=seven)
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
+        welcome(ws)
+        subscribe(ws, topic="telemetry", pass_id=pass_id)
+        subscribe(ws, topic="telemetry", pass_id=ets7, fields=["j1", "j7"])
+        spacecraft.send(frames[:3])
+        spacecraft.send(frames[3:])
+        messages = drain(ws)
+    assert messages and all(m["pass_id"] == pass_id for m in messages)
+    assert all(list(m["columns"]) == list(seven.columns) for m in messages)
+    got = frames_of(messages)
+    assert [got[f.seq]["j7"] for f in frames] == [f.joints_rad[6] for f in frames]
+    assert [got[f.seq]["t7"] for f in frames] == [f.joint_targets_rad[6] for f in frames]
+    # The archive answers the same values, and its default fields are the pass's robot's.
+    response = client.get(f"/api/passes/{pass_id}/telemetry", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    body = response.json()
+    assert body["fields"] == list(seven.fields)
+    stored = {row["seq"]: row["values"] for row in body["rows"]}
+    for seq, values in got.items():
+        assert {k: v for k, v in values.items() if k in stored[seq]} == stored[seq]
+    # ETS-VII's pass answers as before: no j7 in its fields, and asking for it is a 422.
+    response = client.get(f"/api/passes/{ets7}/telemetry", headers=VIEWER)
+    assert response.json()["fields"] == list(TELEMETRY_FIELDS)
+    response = client.get(f"/api/passes/{ets7}/telemetry?fields=j1,j7", headers=VIEWER)
+    assert response.status_code == 422 and "'j7'" in response.text
