@@ -42,29 +42,40 @@ RobotOption = Annotated[
 ]
 
 
+def _load(robot: Path) -> Any:
+    """The robot description at ``robot``, or one error line and exit status 2."""
+    from planner.description import load_robot
+    from planner.errors import PlannerError
+
+    try:
+        return load_robot(robot)
+    except PlannerError as exc:
+        _fail(str(exc))
+
+
 def _robot(robot: Path | None) -> tuple[str, Any]:
     """The robot's name and RobotModel: from ``robot``, or ETS-VII's built-in model."""
-    from planner.errors import PlannerError
     from planner.model import default_model
 
     if robot is None:
         return "ets7", default_model()
-    from planner.description import load_robot
-
-    try:
-        description = load_robot(robot)
-    except PlannerError as exc:
-        _fail(str(exc))
+    description = _load(robot)
     return description.name, description.model
 
 
 @model_app.command("urdf")
 def model_urdf(robot: RobotOption = None) -> None:
     """Print the model as URDF (base, arm and a hand link); its root link is the base."""
+    from planner.model import default_model
     from planner.urdf import urdf_xml
 
-    name, model = _robot(robot)
-    sys.stdout.write(urdf_xml(model, name=name))
+    if robot is None:
+        sys.stdout.write(urdf_xml(default_model()))
+        return
+    description = _load(robot)
+    box = description.base_box_size_m
+    extra = {} if box is None else {"base_box_size_m": box}
+    sys.stdout.write(urdf_xml(description.model, name=description.name, **extra))
 
 
 @model_app.command("mjcf")

@@ -199,6 +199,8 @@ class RobotDescription:
     experiments: Mapping[str, Mapping[str, object]] = field(
         default_factory=lambda: MappingProxyType({})
     )
+    #: the base link's first box visual (display only; planner.urdf.urdf_xml draws it)
+    base_box_size_m: tuple[float, float, float] | None = None
 
     @property
     def n_joints(self) -> int:
@@ -543,6 +545,17 @@ class _Urdf:
         if text is None:
             raise self.c.fail(where, f"missing attribute {key!r}")
         return float(self.floats(f"{where} {key}", text, 1, "")[0])
+
+    def box_size(self, link: str) -> tuple[float, float, float] | None:
+        """The size of the link's first box visual, if it has one."""
+        box = self.links[link].find("visual/geometry/box")
+        if box is None:
+            return None
+        where = f"link {link!r} <visual> <box size>"
+        size = self.floats(where, box.get("size"), 3, "")
+        if np.any(size <= 0.0):
+            raise self.c.fail(where, f"must be 3 positive numbers, got {box.get('size')!r}")
+        return (float(size[0]), float(size[1]), float(size[2]))
 
     def inertial(self, link: str) -> _Inertial | None:
         """The link's inertial, or None for a massless frame (no inertial, or mass 0)."""
@@ -1013,6 +1026,7 @@ def load_robot(path: str | Path) -> RobotDescription:
         sensor_noise=_sensor_noise(c, doc.get("sensor_noise", {})),
         poses=MappingProxyType(_poses(c, doc.get("poses", {}), ws)),
         experiments=MappingProxyType(_experiments(c, doc.get("experiments", {}), model.n_joints)),
+        base_box_size_m=urdf.box_size(base_link),
     )
     try:
         description.acs_gains(ws)

@@ -28,9 +28,9 @@ Joint limits and rates come from the model; the effort limit, which no source pu
 not something the simulation enforces. Numbers are written with ``repr`` (shortest string that
 round-trips), so a parser gets back exactly the model's floats.
 
-Visuals are for display only: a 2.4 x 2.0 x 2.0 m box for the base, a cylinder along each
-link's segment from its joint to the next joint (the hand point for link 6), a sphere at the
-hand.
+Visuals are for display only: a box for the base (2.4 x 2.0 x 2.0 m unless told), a
+cylinder along each link's segment from its joint to the next joint (the hand point for the
+last link), a sphere at the hand.
 """
 
 from __future__ import annotations
@@ -126,8 +126,14 @@ def _joint(
     return joint
 
 
-def urdf_xml(model: RobotModel, *, name: str = "ets7") -> str:
-    """The URDF document of ``model`` (frames as in the module docstring), as a string."""
+def urdf_xml(
+    model: RobotModel,
+    *,
+    name: str = "ets7",
+    base_box_size_m: tuple[float, float, float] = _BASE_BOX_SIZE_M,
+) -> str:
+    """The URDF document of ``model`` (frames as in the module docstring), as a string.
+    ``base_box_size_m``: the base's display box (ETS-VII's by default)."""
     robot = ET.Element("robot", name=name)
 
     base = ET.SubElement(robot, "link", name="base_link")
@@ -139,7 +145,7 @@ def urdf_xml(model: RobotModel, *, name: str = "ets7") -> str:
         np.zeros(3),
         "box",
         _BASE_RGBA,
-        size=_vec(_BASE_BOX_SIZE_M),
+        size=_vec(base_box_size_m),
     )
     ET.SubElement(robot, "link", name="robot_base")
     _joint(

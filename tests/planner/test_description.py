@@ -566,3 +566,16 @@ def test_continuous_joints_get_a_turn_each_way(tmp_path: Path) -> None:
     model = load_robot(target / "ets7.toml").model
     np.testing.assert_array_equal(model.joint_limit_rad[5], [-2 * np.pi, 2 * np.pi])
     np.testing.assert_array_equal(model.joint_limit_rad[:5], default_model().joint_limit_rad[:5])
+
+
+def test_base_box_comes_from_the_base_link_visual(
+    ets7: RobotDescription, orihime: RobotDescription
+) -> None:
+    assert ets7.base_box_size_m == (2.4, 2.0, 2.0)
+    assert orihime.base_box_size_m == (1.2, 1.0, 1.0)
+    import xml.etree.ElementTree as ET
+
+    assert orihime.base_box_size_m is not None
+    text = urdf_xml(orihime.model, name="orihime", base_box_size_m=orihime.base_box_size_m)
+    box = ET.fromstring(text).find("link/visual/geometry/box")
+    assert box is not None and box.get("size") == "1.2 1.0 1.0"
