@@ -31,7 +31,7 @@ from planner.plan import Plan
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
-from server.storage.db import make_engine, session_factory
+from server.storage.db import make_engine, read_session_factory, session_factory
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
 from telemetry.wire import TelemetryFrame
@@ -53,6 +53,9 @@ class Ground:
     app: FastAPI
     url: str
     sessions: sessionmaker[Session]
+    #: for the tests' polling: a read takes no write lock on SQLite, so it never waits
+    #: behind (or starves against) the ground's writer on a busy machine
+    readers: sessionmaker[Session]
 
     @property
     def ws_url(self) -> str:
@@ -84,7 +87,12 @@ def running_ground(database_url: str) -> Iterator[Ground]:
         time.sleep(0.01)
     engine = make_engine(database_url)
     try:
-        yield Ground(app, f"http://127.0.0.1:{port}", session_factory(engine))
+        yield Ground(
+            app,
+            f"http://127.0.0.1:{port}",
+            session_factory(engine),
+            read_session_factory(engine),
+        )
     finally:
         server.should_exit = True
         thread.join(timeout=30.0)
@@ -200,7 +208,7 @@ async def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str) ->
 
 
 def pass_state(ground: Ground, pass_id: str) -> str:
-    with ground.sessions() as session:
+    with ground.readers() as session:
         return repo.get_pass(session=session, pass_id=pass_id).state
 
 
@@ -219,7 +227,7 @@ def settled(ground: Ground, pass_id: str) -> bool:
     """The pass has ended, the spacecraft's frames reach past its telemetry window, and the
     ground is done asking about commands in flight (all answered, or the queries used up):
     stopping the spacecraft now loses nothing of the pass."""
-    with ground.sessions() as session:
+    with ground.readers() as session:
         record = repo.get_pass(session=session, pass_id=pass_id)
         outstanding = repo.list_commands(
             session=session, pass_id=pass_id, stages=("sent", "received")

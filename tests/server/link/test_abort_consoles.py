@@ -78,7 +78,7 @@ class Console:
 
 
 def _stages(ground: Ground, pass_id: str) -> dict[str, int]:
-    with ground.sessions() as session:
+    with ground.readers() as session:
         rows = repo.list_commands(session=session, pass_id=pass_id)
     counts: dict[str, int] = {}
     for row in rows:

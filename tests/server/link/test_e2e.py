@@ -42,7 +42,7 @@ def _window_frames(ground: Ground, generated: list[TelemetryFrame]) -> list[int]
 
 
 def _pass_events(ground: Ground, pass_id: str) -> list[tuple[str, str, str]]:
-    with ground.sessions() as session:
+    with ground.readers() as session:
         page = repo.list_events(session=session, pass_id=pass_id, kinds=["pass_state"])
         return [(e.detail["from"], e.detail["to"], e.actor) for e in page.items]
 
@@ -81,7 +81,7 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
         pass_id = store_pass(ground.sessions, "nominal-1", (6.0, -3.0, 0.0, 6.0, 0.0, 0.0), 4.0)
         generated, _ = asyncio.run(_fly(ground, pass_id, "nominal-1", 30.0))
         expected = _window_frames(ground, generated)
-        with ground.sessions() as session:
+        with ground.readers() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             stored = repo.frame_seqs(session=session, pass_id=pass_id)
             summary = pass_summary(session=session, pass_id=pass_id)
@@ -120,7 +120,7 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
 
 def _deleted_from_ns(ground: Ground, pass_id: str) -> int:
     """The tag from which the abort's ``schedule_delete`` deleted the schedule."""
-    with ground.sessions() as session:
+    with ground.readers() as session:
         page = repo.list_events(session=session, pass_id=pass_id, kinds=["schedule_deleted"])
     [event] = page.items
     return int(event.detail["from_time_ns"])
@@ -136,7 +136,7 @@ def test_loss_and_a_30_s_outage_lose_no_frame_and_no_command_of_the_pass(tmp_pat
             _fly(ground, pass_id, "lossy", 60.0, loss=0.1, outages=(Outage(15.0, 45.0),))
         )
         expected = _window_frames(ground, generated)
-        with ground.sessions() as session:
+        with ground.readers() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             stored = repo.frame_seqs(session=session, pass_id=pass_id)
             summary = pass_summary(session=session, pass_id=pass_id)
@@ -177,7 +177,7 @@ def test_a_plan_the_vehicle_refuses_is_stopped_and_the_arm_held(tmp_path: Path) 
             ground.sessions, "refused", (4.0, 0.0, 0.0, 4.0, 0.0, 0.0), 30.0, edit=too_fast
         )
         generated, process = asyncio.run(_fly(ground, pass_id, "refused", 60.0))
-        with ground.sessions() as session:
+        with ground.readers() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             record = repo.get_pass(session=session, pass_id=pass_id)
     refused = [c for c in commands if c.reject_reason == "out_of_limits"]
@@ -214,7 +214,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
                 assert response.status_code == 200, response.text
 
                 def executed() -> int:
-                    with ground.sessions() as session:
+                    with ground.readers() as session:
                         rows = repo.list_commands(
                             session=session, pass_id=pass_id, stages=["executed"]
                         )
@@ -230,7 +230,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
                 assert response.json()["state"] == "aborted"
 
                 def verified() -> bool:
-                    with ground.sessions() as session:
+                    with ground.readers() as session:
                         page = repo.list_events(
                             session=session, pass_id=pass_id, kinds=["schedule_deleted"]
                         )
@@ -255,7 +255,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
         pass_id = store_pass(ground.sessions, "abortive", (20.0, 0.0, 0.0, 20.0, 0.0, 0.0), 60.0)
         process = asyncio.run(scenario(ground, pass_id))
         from_ns = _deleted_from_ns(ground, pass_id)
-        with ground.sessions() as session:
+        with ground.readers() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             after = repo.telemetry_range(
                 session=session,

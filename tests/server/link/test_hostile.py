@@ -73,7 +73,7 @@ def _deep(depth: int) -> list[Any]:
 def test_hostile_frames_get_error_replies_and_the_link_stays_up(database_url: str) -> None:
     with running_ground(database_url) as ground:
         got = asyncio.run(_session(ground))
-        with ground.sessions() as session:
+        with ground.readers() as session:
             events = repo.list_events(
                 session=session,
                 kinds=["link_error_replied", "link_error_received", "link_hello"],

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import io
+import json
 import subprocess
 import sys
 import time
@@ -34,7 +35,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from server.services.summary import pass_summary
 from server.storage import repository as repo
-from server.storage.db import make_engine, session_factory
+from server.storage.db import make_engine, read_session_factory, session_factory
 from telemetry.mcap import write_mcap
 from telemetry.recording import PassRecording
 from tests.server.link.harness import _free_port, serve_process, store_pass
@@ -75,14 +76,19 @@ async def _viewer(base: str, pass_id: str, size: int, load: Load) -> None:
             k += 1
             async with client.stream("GET", path) as response:
                 n = 0
+                body = bytearray()
                 async for chunk in response.aiter_bytes():
                     n += len(chunk)
+                    if response.status_code != 200:
+                        body += chunk
                 load.viewer_status[response.status_code] += 1
                 load.downloaded_bytes += n
                 if response.status_code == 200:
                     assert n == int(response.headers["Content-Length"])
                     assert n > (size // 2 if path.endswith(".mcap") else 100_000)
                     load.complete_downloads += 1
+                elif response.status_code == 504:
+                    assert json.loads(body)["error"]["code"] == "deadline_exceeded", body
                 elif response.status_code == 503:
                     wait = min(float(response.headers["Retry-After"]), 2.0)
                     with contextlib.suppress(TimeoutError):
@@ -164,6 +170,7 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
     base = f"http://127.0.0.1:{port}"
     engine = make_engine(database_url)
     sessions = session_factory(engine)
+    readers = read_session_factory(engine)  # polling takes no write lock on SQLite
     env = {"HIKOBOSHI_TOKENS": TOKENS, "HIKOBOSHI_DATA_DIR": str(tmp_path / "data")}
     spacecraft_log = tmp_path / "spacecraft.log"
 
@@ -211,14 +218,14 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
                         f"/api/passes/{flown}/start", json={"confirm": "START loaded"}
                     )
                     assert response.status_code == 200, response.text
-                    await _until(lambda: _state(sessions, flown) == "complete", 240.0, "complete")
+                    await _until(lambda: _state(readers, flown) == "complete", 240.0, "complete")
                     # and an abort under the same load
                     aborted = store_pass(sessions, "cut", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 60.0)
                     response = await op.post(
                         f"/api/passes/{aborted}/start", json={"confirm": "START cut"}
                     )
                     assert response.status_code == 200, response.text
-                    await _until(lambda: _executed(sessions, aborted) >= 12, 120.0, "12 executed")
+                    await _until(lambda: _executed(readers, aborted) >= 12, 120.0, "12 executed")
                     t0 = time.monotonic()
                     response = await op.post(
                         f"/api/passes/{aborted}/abort",
@@ -227,7 +234,7 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
                     abort_s = time.monotonic() - t0
                     assert response.status_code == 200, response.text
                     assert response.json()["state"] == "aborted"
-                    await _until(lambda: _open(sessions, aborted) == 0, 120.0, "cut resolved")
+                    await _until(lambda: _open(readers, aborted) == 0, 120.0, "cut resolved")
                 finally:
                     load.stop.set()
                     done = await asyncio.gather(*tasks, return_exceptions=True)
@@ -249,19 +256,21 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
     finally:
         engine.dispose()
 
-    # the load was real: downloads completed, others were told to come back, and every
-    # anonymous body was refused unread: 401, then 429 once the address is blocked (a
-    # reset when the refusal and close overtook the body still being sent)
-    assert load.complete_downloads >= 4, load
-    assert set(load.viewer_status) <= {200, 503}, load.viewer_status
-    assert load.anonymous_status["401"] >= 1, load
-    assert set(load.anonymous_status) <= {"401", "429", "reset"}, load
     # the pass flew untouched: every command executed at its tag, no frame missing
     assert len(commands) > 900
     assert {c.stage for c in commands} == {"executed"}
     assert all(c.executed_at_ns == c.execute_time_ns for c in commands)
     assert summary.frames_missing == 0 and summary.gaps_open == 0
     assert summary.commands_expired == 0
+    # the load was real: downloads completed, others were told to come back, and every
+    # anonymous body was refused unread: 401, then 429 once the address is blocked (a
+    # reset when the refusal and close overtook the body still being sent). On a machine
+    # busy with other work a download can outlive its read deadline: it is stopped and
+    # answered 504 deadline_exceeded (checked in _viewer), bounded work doing its job.
+    assert load.complete_downloads >= 4, load
+    assert set(load.viewer_status) <= {200, 503, 504}, load.viewer_status
+    assert load.anonymous_status["401"] >= 1, load
+    assert set(load.anonymous_status) <= {"401", "429", "reset"}, load
     # the abort answered at once; nothing of the cut pass was lost or left open
     assert abort_s < ABORT_ANSWER_S, f"abort answered in {abort_s:.2f} s"
     assert {c.stage for c in cut} <= {"executed", "cancelled"}

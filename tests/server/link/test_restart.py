@@ -21,7 +21,7 @@ import pytest
 from sqlalchemy import select
 
 from server.storage import repository as repo
-from server.storage.db import make_engine, session_factory
+from server.storage.db import make_engine, read_session_factory, session_factory
 from server.storage.models import EventRecord
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
@@ -83,6 +83,7 @@ def test_a_killed_ground_resumes_the_pass_and_loses_no_row(
     base = f"http://127.0.0.1:{port}"
     engine = make_engine(database_url)
     sessions = session_factory(engine)
+    readers = read_session_factory(engine)  # polling takes no write lock on SQLite
     process = SpacecraftProcess(
         ProcessConfig(
             ground_url=f"ws://127.0.0.1:{port}/api/link",
@@ -99,11 +100,11 @@ def test_a_killed_ground_resumes_the_pass_and_loses_no_row(
     generated = generated_frames(process)
 
     def executed(pass_id: str) -> int:
-        with sessions() as session:
+        with readers() as session:
             return len(repo.list_commands(session=session, pass_id=pass_id, stages=["executed"]))
 
     def state(pass_id: str) -> str:
-        with sessions() as session:
+        with readers() as session:
             return repo.get_pass(session=session, pass_id=pass_id).state
 
     async def connected(client: httpx.AsyncClient) -> bool:
