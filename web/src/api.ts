@@ -1,6 +1,8 @@
 // REST client: the token from the sign-in, the server's one error shape, and the
 // feature probe (which optional endpoints this server offers, from its OpenAPI document).
 
+import { DEFAULT_JOINTS, jointCount, rawFields } from "./store";
+
 export type Role = "viewer" | "operator";
 
 export interface PassPublic {
@@ -121,6 +123,7 @@ export interface UplinkStatus {
 
 export interface TelemetryPage {
   count: number;
+  fields?: string[];
   truncated: boolean;
   rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[] | null;
 }
@@ -203,4 +206,12 @@ export function apiPaths(): Promise<Set<string>> {
       .catch(() => new Set<string>());
   }
   return features;
+}
+
+/** The telemetry fields a store plots of a pass, for its robot's joints: the archive answers
+ * a request without ``fields`` with the pass's own (``j1..jn``: its robot's), so an empty
+ * range tells them without reading a frame. */
+export async function passRawFields(passId: string): Promise<string[]> {
+  const page = await get<TelemetryPage>(`/api/passes/${passId}/telemetry?t0=0&t1=1&limit=1`);
+  return rawFields(jointCount(page.fields ?? []) || DEFAULT_JOINTS);
 }

@@ -3,13 +3,36 @@
 // seq (live and REST reloads merge without duplicates); a hole in the frames (more than
 // GAP_S between two) gets a row of nulls, so the plots draw it as a gap, not a line.
 
-export const RAW_FIELDS = [
-  "j1", "j2", "j3", "j4", "j5", "j6",
-  "t1", "t2", "t3", "t4", "t5", "t6",
-  "qx", "qy", "qz", "qw",
-  "wx", "wy", "wz",
-  "hw1", "hw2", "hw3",
-] as const;
+//
+// The joint count comes from the data (the ``j1..jn`` a message or a page names: the pass's
+// robot's, telemetry/layout.py), not from a constant: ETS-VII has 6 until data says otherwise.
+
+/** The most joints the archive stores (server/storage/models.py MAX_STORED_JOINTS). */
+export const MAX_JOINTS = 12;
+/** ETS-VII's joint count: a store's until its data names another. */
+export const DEFAULT_JOINTS = 6;
+
+/** The values a store keeps of a robot of ``n`` joints, in the order of a frame's ``v``:
+ * measured joints, servo targets, base quaternion, base rates, wheel momentum. */
+export function rawFields(n: number): string[] {
+  const joints = Array.from({ length: n }, (_, i) => `j${i + 1}`);
+  const targets = Array.from({ length: n }, (_, i) => `t${i + 1}`);
+  return [...joints, ...targets, "qx", "qy", "qz", "qw", "wx", "wy", "wz", "hw1", "hw2", "hw3"];
+}
+
+/** Every joint up to the archive's most: what the console may ask of any pass (a pass's
+ * robot's missing joints are left out of its messages). */
+export const RAW_FIELDS: readonly string[] = rawFields(MAX_JOINTS);
+
+/** The joint count of data that names ``j1..jn`` (0 when it names none). */
+export function jointCount(names: Iterable<string>): number {
+  let n = 0;
+  for (const name of names) {
+    const m = /^j([0-9]+)$/.exec(name);
+    if (m) n = Math.max(n, Number(m[1]));
+  }
+  return n;
+}
 
 /** A frame farther than this (onboard s) from the previous one starts a new line. */
 export const GAP_S = 1.0;
@@ -32,8 +55,20 @@ export function rpyFromQuat(x: number, y: number, z: number, w: number): [number
 interface Frame {
   seq: number;
   genNs: number;
-  v: Float64Array; // RAW_FIELDS
+  n: number; // joints
+  v: Float64Array; // rawFields(n)
 }
+
+/** A frame's measured joints (rad). */
+export const frameJoints = (f: Frame): Float64Array => f.v.subarray(0, f.n);
+/** A frame's servo targets (rad). */
+export const frameTargets = (f: Frame): Float64Array => f.v.subarray(f.n, 2 * f.n);
+/** A frame's quat_orbit_from_base (x, y, z, w). */
+export const frameQuat = (f: Frame): Float64Array => f.v.subarray(2 * f.n, 2 * f.n + 4);
+/** A frame's base rates, base frame (rad/s). */
+export const frameRates = (f: Frame): Float64Array => f.v.subarray(2 * f.n + 4, 2 * f.n + 7);
+/** A frame's wheel momentum, base frame (N m s). */
+export const frameMomentum = (f: Frame): Float64Array => f.v.subarray(2 * f.n + 7, 2 * f.n + 10);
 
 export class TelemetryStore {
   x: Column = [];
@@ -49,6 +84,8 @@ export class TelemetryStore {
   /** ``performance.now()`` when the last new frame came. */
   lastFrameMs: number | null = null;
   latest: Frame | null = null;
+  /** The robot's joints: the data's (``j1..jn``), ETS-VII's until some came. */
+  nJoints = DEFAULT_JOINTS;
   private frames: Frame[] = [];
   private seqs = new Set<number>();
 
@@ -58,8 +95,8 @@ export class TelemetryStore {
 
   private reset(): void {
     this.x = [];
-    this.joints = Array.from({ length: 6 }, () => []);
-    this.targets = Array.from({ length: 6 }, () => []);
+    this.joints = Array.from({ length: this.nJoints }, () => []);
+    this.targets = Array.from({ length: this.nJoints }, () => []);
     this.rpy = Array.from({ length: 3 }, () => []);
     this.rates = Array.from({ length: 3 }, () => []);
     this.momentum = Array.from({ length: 3 }, () => []);
@@ -73,16 +110,18 @@ export class TelemetryStore {
   private pushRow(f: Frame | null, x: number): void {
     this.x.push(x);
     const v = f?.v;
-    for (let i = 0; i < 6; i++) {
+    const n = this.nJoints;
+    for (let i = 0; i < n; i++) {
       this.joints[i].push(v ? v[i] * DEG : null);
-      this.targets[i].push(v ? v[6 + i] * DEG : null);
+      this.targets[i].push(v ? v[n + i] * DEG : null);
     }
     if (v) {
-      const rpy = rpyFromQuat(v[12], v[13], v[14], v[15]);
+      const q = 2 * n;
+      const rpy = rpyFromQuat(v[q], v[q + 1], v[q + 2], v[q + 3]);
       for (let i = 0; i < 3; i++) {
         this.rpy[i].push(rpy[i] * DEG);
-        this.rates[i].push(v[16 + i] * DEG);
-        this.momentum[i].push(v[19 + i]);
+        this.rates[i].push(v[q + 4 + i] * DEG);
+        this.momentum[i].push(v[q + 7 + i]);
       }
     } else {
       for (let i = 0; i < 3; i++) {
@@ -109,11 +148,26 @@ export class TelemetryStore {
     for (const f of this.frames) this.append(f);
   }
 
+  /** Take the joint count of incoming frames; frames held of another count (another
+   * robot's: not expected within one pass) are dropped. True when it changed. */
+  private takeJoints(n: number): boolean {
+    if (n === this.nJoints) return false;
+    this.nJoints = n;
+    this.frames = this.frames.filter((f) => f.n === n);
+    this.seqs = new Set(this.frames.map((f) => f.seq));
+    return true;
+  }
+
   private add(incoming: Frame[], live: boolean): void {
     let outOfOrder = false;
     let added = 0;
+    if (incoming.length && this.takeJoints(incoming[0].n)) {
+      this.count = this.frames.length;
+      this.rebuild();
+      this.version++;
+    }
     for (const f of incoming) {
-      if (this.seqs.has(f.seq)) continue;
+      if (this.seqs.has(f.seq) || f.n !== this.nJoints) continue;
       this.seqs.add(f.seq);
       this.frames.push(f);
       added++;
@@ -127,26 +181,30 @@ export class TelemetryStore {
     this.version++;
   }
 
-  /** A console ``telemetry`` message's columns. */
+  /** A console ``telemetry`` message's columns (its ``j1..jn`` give the joint count). */
   addColumns(columns: Record<string, unknown[]>, live = true): void {
     const seq = columns.seq as number[];
     const gen = columns.generation_time_ns as number[];
-    const fields = RAW_FIELDS.map((name) => columns[name] as number[] | undefined);
+    const n = jointCount(Object.keys(columns)) || this.nJoints;
+    const names = rawFields(n);
+    const fields = names.map((name) => columns[name] as number[] | undefined);
     const frames: Frame[] = [];
     for (let k = 0; k < seq.length; k++) {
-      const v = new Float64Array(RAW_FIELDS.length);
+      const v = new Float64Array(names.length);
       for (let i = 0; i < fields.length; i++) v[i] = Number(fields[i]?.[k] ?? NaN);
-      frames.push({ seq: seq[k], genNs: gen[k], v });
+      frames.push({ seq: seq[k], genNs: gen[k], n, v });
     }
     this.add(frames, live);
   }
 
-  /** Raw rows of ``GET /api/passes/{id}/telemetry``. */
+  /** Raw rows of ``GET /api/passes/{id}/telemetry`` (their ``j1..jn`` give the joint count). */
   addRows(rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[]): void {
+    const n = (rows.length ? jointCount(Object.keys(rows[0].values)) : 0) || this.nJoints;
+    const names = rawFields(n);
     const frames = rows.map((r) => {
-      const v = new Float64Array(RAW_FIELDS.length);
-      RAW_FIELDS.forEach((name, i) => (v[i] = Number(r.values[name] ?? NaN)));
-      return { seq: r.seq, genNs: r.generation_time_ns, v };
+      const v = new Float64Array(names.length);
+      names.forEach((name, i) => (v[i] = Number(r.values[name] ?? NaN)));
+      return { seq: r.seq, genNs: r.generation_time_ns, n, v };
     });
     this.add(frames, false);
   }

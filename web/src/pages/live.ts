@@ -7,12 +7,12 @@
 // link status for two heartbeats: the link is stale); missing frames are gaps.
 
 import {
-  ApiError, get, getAll,
+  ApiError, get, getAll, passRawFields,
   type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
 } from "../api";
 import type { Ctx } from "../main";
 import type { Message } from "../socket";
-import { RAW_FIELDS, TelemetryStore } from "../store";
+import { frameJoints, frameMomentum, frameTargets, TelemetryStore } from "../store";
 import { clear, clock, fmt, h, utc } from "../ui";
 import { passControls } from "./control";
 import { PassView, predictionColumns } from "./passview";
@@ -145,10 +145,11 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     telemetryLoading = true;
     try {
       const target = store;
+      const fields = (await passRawFields(pass.id)).join(",");
       let t0 = 0;
       for (;;) {
         const page = await get<{ rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[]; truncated: boolean }>(
-          `/api/passes/${pass.id}/telemetry?t0=${t0}&limit=10000&fields=${RAW_FIELDS.join(",")}`,
+          `/api/passes/${pass.id}/telemetry?t0=${t0}&limit=10000&fields=${fields}`,
         );
         if (target !== store) return;
         const rows = page.rows ?? [];
@@ -346,16 +347,18 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       return;
     }
     const D = 180 / Math.PI;
+    const joints = [...frameJoints(f)];
+    const targets = [...frameTargets(f)];
     const table = h("table.vals", {},
-      h("tr", {}, h("th", {}, ""), ...[1, 2, 3, 4, 5, 6].map((i) => h("th", {}, `J${i}`))),
-      h("tr", {}, h("th", {}, "meas °"), ...[0, 1, 2, 3, 4, 5].map((i) => h("td", {}, fmt(f.v[i] * D, 2)))),
-      h("tr", {}, h("th", {}, "cmd °"), ...[0, 1, 2, 3, 4, 5].map((i) => h("td", {}, fmt(f.v[6 + i] * D, 2)))));
+      h("tr", {}, h("th", {}, ""), ...joints.map((_, i) => h("th", {}, `J${i + 1}`))),
+      h("tr", {}, h("th", {}, "meas °"), ...joints.map((q) => h("td", {}, fmt(q * D, 2)))),
+      h("tr", {}, h("th", {}, "cmd °"), ...targets.map((q) => h("td", {}, fmt(q * D, 2)))));
     const n = store.rpy[0].length - 1;
     const body = h("table.vals", {},
       h("tr", {}, h("th", {}, ""), h("th", {}, "x / roll"), h("th", {}, "y / pitch"), h("th", {}, "z / yaw")),
       h("tr", {}, h("th", {}, "attitude °"), ...[0, 1, 2].map((i) => h("td", {}, fmt(store.rpy[i][n], 3)))),
       h("tr", {}, h("th", {}, "rate °/s"), ...[0, 1, 2].map((i) => h("td", {}, fmt(store.rates[i][n], 4)))),
-      h("tr", {}, h("th", {}, "wheel N m s"), ...[0, 1, 2].map((i) => h("td", {}, fmt(f.v[19 + i], 3)))));
+      h("tr", {}, h("th", {}, "wheel N m s"), ...[...frameMomentum(f)].map((m) => h("td", {}, fmt(m, 3)))));
     valuesPanel.append(table, body,
       h("div.kv", {}, h("span.k", {}, "ACS"), h("span.v", {}, acsMode)),
       h("div.kv", {}, h("span.k", {}, "onboard queue"), h("span.v", {}, bufferQueued === null ? "—" : String(bufferQueued))),

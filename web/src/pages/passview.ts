@@ -6,8 +6,11 @@
 import type { PlanDocument } from "../api";
 import { fetchUrdf, SatelliteView } from "../model3d";
 import { COLORS, PhasePlane, timePlot, type PredLine, type TimePlot } from "../plots";
-import { rpyFromQuat, type Column, type Frame, type TelemetryStore } from "../store";
-import { h } from "../ui";
+import {
+  DEFAULT_JOINTS, frameJoints, frameQuat, frameRates, frameTargets, rpyFromQuat,
+  type Column, type Frame, type TelemetryStore,
+} from "../store";
+import { clear, h } from "../ui";
 
 const DEG = 180 / Math.PI;
 const AXES = ["x", "y", "z"];
@@ -27,9 +30,10 @@ export interface PredictionColumns {
 export function predictionColumns(doc: PlanDocument): PredictionColumns {
   const p = doc.prediction;
   const n = p.t_s.length;
+  const nJoints = p.joints_rad[0]?.length ?? DEFAULT_JOINTS; // the robot's
   const out: PredictionColumns = {
     t: p.t_s,
-    joints: Array.from({ length: 6 }, (_, i) => p.joints_rad.map((r) => r[i] * DEG)),
+    joints: Array.from({ length: nJoints }, (_, i) => p.joints_rad.map((r) => r[i] * DEG)),
     rpy: [[], [], []],
     rates: [[], [], []],
     momentum: Array.from({ length: 3 }, (_, i) => p.wheel_momentum_nms.map((r) => r[i])),
@@ -62,25 +66,20 @@ export class PassView {
   readonly phase: PhasePlane;
   view3d: SatelliteView | null = null;
   private pred: PredictionColumns | null = null;
-  private plots: TimePlot[];
+  private readonly jointGrid: HTMLElement;
+  private readonly bodyPlots: TimePlot[];
 
   constructor(parent: HTMLElement, paths: Set<string>) {
     this.el = h("section.passview");
     parent.appendChild(this.el);
     const jointGrid = h("div.grid.joints", { "data-test": "joint-plots" });
+    this.jointGrid = jointGrid;
     const bodyGrid = h("div.grid.body");
     const side = h("div.side");
     const caption = h("p.caption.muted.small", {},
       "Solid: flown (telemetry). Thin dashed: commanded servo target. Grey dashed: the plan's prediction. Amber line: now / replay time. Breaks in a line: missing frames.");
     this.el.append(h("div.plots", {}, caption, jointGrid, bodyGrid), side);
-    for (let i = 0; i < 6; i++) {
-      this.joints.push(
-        timePlot(jointGrid, `Joint ${i + 1}`, "deg", [
-          { label: "measured", color: COLORS[i] },
-          { label: "commanded", color: COLORS[i], dash: [4, 3], width: 1 },
-        ], 150, 1.0),
-      );
-    }
+    this.setJointCount(DEFAULT_JOINTS);
     const three = (color: string[]) => AXES.map((a, i) => ({ label: a, color: color[i] }));
     this.attitude = timePlot(bodyGrid, "Base attitude roll / pitch / yaw", "deg", [
       { label: "roll", color: COLORS[0] },
@@ -89,7 +88,7 @@ export class PassView {
     ], 170, 0.05);
     this.rates = timePlot(bodyGrid, "Base rates (base frame)", "deg/s", three(COLORS.slice(3)), 170, 0.01);
     this.momentum = timePlot(bodyGrid, "Wheel momentum", "N m s", three([COLORS[0], COLORS[1], COLORS[2]]), 170, 0.1);
-    this.plots = [...this.joints, this.attitude, this.rates, this.momentum];
+    this.bodyPlots = [this.attitude, this.rates, this.momentum];
     this.attitude.el.dataset.test = "plot-attitude";
     this.rates.el.dataset.test = "plot-rates";
     this.momentum.el.dataset.test = "plot-momentum";
@@ -111,10 +110,33 @@ export class PassView {
     });
   }
 
+  private get plots(): TimePlot[] {
+    return [...this.joints, ...this.bodyPlots];
+  }
+
+  /** One plot per joint of the robot (its data's count; ETS-VII's 6 until data came). */
+  setJointCount(n: number): void {
+    if (n === this.joints.length) return;
+    for (const p of this.joints.splice(0)) p.plot.destroy();
+    clear(this.jointGrid);
+    for (let i = 0; i < n; i++) {
+      const color = COLORS[i % COLORS.length];
+      this.joints.push(
+        timePlot(this.jointGrid, `Joint ${i + 1}`, "deg", [
+          { label: "measured", color },
+          { label: "commanded", color, dash: [4, 3], width: 1 },
+        ], 150, 1.0),
+      );
+    }
+    const pred = this.pred;
+    this.joints.forEach((p, i) => p.setPrediction(pred?.joints[i] ? [{ x: pred.t, y: pred.joints[i] }] : []));
+  }
+
   setPrediction(pred: PredictionColumns | null): void {
     this.pred = pred;
+    if (pred) this.setJointCount(pred.joints.length);
     const lines = (cols: number[][]): PredLine[] => (pred ? cols.map((y) => ({ x: pred.t, y })) : []);
-    this.joints.forEach((p, i) => p.setPrediction(pred ? [{ x: pred.t, y: pred.joints[i] }] : []));
+    this.joints.forEach((p, i) => p.setPrediction(pred?.joints[i] ? [{ x: pred.t, y: pred.joints[i] }] : []));
     this.attitude.setPrediction(lines(pred?.rpy ?? []));
     this.rates.setPrediction(lines(pred?.rates ?? []));
     this.momentum.setPrediction(lines(pred?.momentum ?? []));
@@ -123,6 +145,7 @@ export class PassView {
 
   /** Plot what ``store`` holds. */
   showStore(store: TelemetryStore): void {
+    this.setJointCount(store.nJoints);
     this.joints.forEach((p, i) => p.update(store.x, [store.joints[i], store.targets[i]]));
     this.attitude.update(store.x, store.rpy);
     this.rates.update(store.x, store.rates);
@@ -135,6 +158,7 @@ export class PassView {
   /** Plot the prediction as the data (the plan preview, before anything flies). */
   showPredictionAsData(pred: PredictionColumns): void {
     const none: Column = pred.t.map(() => null);
+    this.setJointCount(pred.joints.length);
     this.joints.forEach((p, i) => p.update(pred.t, [pred.joints[i], none]));
     this.attitude.update(pred.t, pred.rpy);
     this.rates.update(pred.t, pred.rates);
@@ -142,13 +166,14 @@ export class PassView {
   }
 
   private pitchPoint(f: Frame): [number, number] {
-    const rpy = rpyFromQuat(f.v[12], f.v[13], f.v[14], f.v[15]);
-    return [rpy[1] * DEG, f.v[17] * DEG];
+    const [x, y, z, w] = frameQuat(f);
+    const rpy = rpyFromQuat(x, y, z, w);
+    return [rpy[1] * DEG, frameRates(f)[1] * DEG];
   }
 
   /** The 3D pose and phase-plane point of one frame. */
   showFrame(f: Frame): void {
-    this.view3d?.setPose(f.v.subarray(0, 6), f.v.subarray(6, 12), f.v.subarray(12, 16));
+    this.view3d?.setPose(frameJoints(f), frameTargets(f), frameQuat(f));
   }
 
   /** The predicted pose at plan time ``t`` (preview). */

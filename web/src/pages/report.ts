@@ -5,7 +5,7 @@
 // speed, step and seek; docs/console.md), its telemetry drawn on the same plots.
 
 import {
-  get, getAll, post, storedToken,
+  get, getAll, passRawFields, post, storedToken,
   type CommandPublic, type PassPublic, type PlanDocument,
 } from "../api";
 import type { Ctx } from "../main";
@@ -228,10 +228,11 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
     // The whole archive, page by page.
     const s = new TelemetryStore(pass.epoch_ns ?? 0);
     const rows: unknown[] = [];
+    const fields = (await passRawFields(passId)).join(",");
     let t0 = 0;
     for (;;) {
       const page = await get<{ rows: { seq: number; generation_time_ns: number; values: Record<string, unknown> }[]; truncated: boolean }>(
-        `/api/passes/${passId}/telemetry?t0=${t0}&limit=10000&fields=${RAW_FIELDS.join(",")}`);
+        `/api/passes/${passId}/telemetry?t0=${t0}&limit=10000&fields=${fields}`);
       const got = page.rows ?? [];
       s.addRows(got);
       rows.push(...got);
