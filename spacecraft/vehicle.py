@@ -453,6 +453,12 @@ class Vehicle:
 
     def _check_joints(self, cmd: JointCommandMsg, now: int) -> tuple[RejectReason, str] | None:
         model = self.config.model
+        if len(cmd.joints_rad) != model.n_joints:
+            # The wire takes any joint count (1..MAX_JOINTS): this robot's is checked here.
+            return RejectReason.MALFORMED, (
+                f"joints_rad has {len(cmd.joints_rad)} values, this robot has "
+                f"{model.n_joints} joints"
+            )
         q = np.array(cmd.joints_rad, dtype=np.float64)
         for i, (angle, (lo, hi)) in enumerate(zip(q, model.joint_limit_rad, strict=True)):
             if angle < lo or angle > hi:
