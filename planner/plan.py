@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,16 +25,24 @@ from planner.errors import InvalidInput, JointLimitExceeded
 from planner.model import RobotModel
 from planner.ptp import COMMAND_PERIOD_S
 
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
+
 __all__ = [
+    "ETS7_ROBOT_HASH",
+    "ETS7_ROBOT_NAME",
     "SEGMENT_KINDS",
     "AcsCommand",
     "Plan",
     "Prediction",
     "Segment",
     "check_plan_limits",
+    "plan_for_robot",
 ]
 
 Array = NDArray[np.float64]
+
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 SEGMENT_KINDS = (
     "ptp",
@@ -46,6 +55,12 @@ SEGMENT_KINDS = (
 )
 
 PLAN_FORMAT_VERSION = 1
+
+#: The robot a plan is for when a document does not say (plans written before issue 12):
+#: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name and ``content_sha256`` (a test checks
+#: these against the file).
+ETS7_ROBOT_NAME = "ets7"
+ETS7_ROBOT_HASH = "84a360791750dff2dd73ab7f5b9bd77ae89a2e1526c18b1ff9af27fbaf95f032"
 
 
 @dataclass(frozen=True)
@@ -139,6 +154,10 @@ class Prediction:
 
 @dataclass(frozen=True, eq=False)
 class Plan:
+    """A plan for one robot: ``robot`` is its description's name and ``robot_hash`` the
+    description's ``content_sha256`` (planner.description), ETS-VII's unless a planner was
+    given another description; the ground refuses to fly a plan on another robot."""
+
     experiment: str
     parameters: Mapping[str, Any]
     initial_joints_rad: Array
@@ -151,8 +170,17 @@ class Plan:
     initial_quat_orbit_from_base_xyzw: Array = field(
         default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
     )
+    robot: str = ETS7_ROBOT_NAME
+    robot_hash: str = ETS7_ROBOT_HASH
 
     def __post_init__(self) -> None:
+        if not isinstance(self.robot, str) or not self.robot:
+            raise InvalidInput(f"plan robot must be a non-empty name, got {self.robot!r}")
+        if not isinstance(self.robot_hash, str) or not _SHA256.match(self.robot_hash):
+            raise InvalidInput(
+                f"plan robot_hash must be 64 lowercase hex digits (SHA-256), got "
+                f"{self.robot_hash!r}"
+            )
         times = np.asarray(self.command_times_s, dtype=np.float64)
         joints = np.asarray(self.command_joints_rad, dtype=np.float64)
         if times.ndim != 1 or times.size == 0 or joints.shape[:1] != times.shape:
@@ -179,6 +207,8 @@ class Plan:
         return {
             "format_version": PLAN_FORMAT_VERSION,
             "experiment": self.experiment,
+            "robot": self.robot,
+            "robot_hash": self.robot_hash,
             "parameters": dict(self.parameters),
             "initial_joints_rad": [float(v) for v in self.initial_joints_rad],
             "initial_quat_orbit_from_base_xyzw": [
@@ -222,6 +252,9 @@ class Plan:
                 segments=tuple(Segment(**s) for s in doc["segments"]),
                 prediction=Prediction.from_dict(doc["prediction"]),
                 metrics={str(k): float(v) for k, v in doc["metrics"].items()},
+                # absent in documents written before issue 12: those plans are ETS-VII's
+                robot=doc.get("robot", ETS7_ROBOT_NAME),
+                robot_hash=doc.get("robot_hash", ETS7_ROBOT_HASH),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InvalidInput):
@@ -255,3 +288,10 @@ def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 
             raise JointLimitExceeded(
                 i + 1, math.degrees(rate), math.degrees(limit), "deg/s", what="moves at"
             )
+
+
+def plan_for_robot(plan: Plan, robot: RobotDescription | None) -> Plan:
+    """``plan`` stamped with the robot it was made for (``None``: ETS-VII, the default)."""
+    if robot is None:
+        return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ETS7_ROBOT_HASH)
+    return replace(plan, robot=robot.name, robot_hash=robot.content_sha256)
