@@ -431,11 +431,15 @@ def spacecraft(
         typer.Option(
             help="TOML file with an acs table: the attitude-control law (bandwidth_radps, "
             "damping_ratio, integral_time_s, rate_filter_tau_s, dead_band_deg, "
-            "torque_limit_nm, ...; docs/spacecraft.md); default the calibrated PD law"
+            "torque_limit_nm, ...; docs/spacecraft.md); default the calibrated PD law (with "
+            "--robot: the description's, whose keys the file's replace)"
         ),
     ] = None,
+    robot: RobotOption = None,
 ) -> None:
-    """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link."""
+    """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link. With
+    --robot it flies that robot description (model, servos, attitude control, wheel limits,
+    sensor noise) and names it, with its hash and joint count, in hello."""
     import asyncio
     import dataclasses
     import logging
@@ -443,7 +447,7 @@ def spacecraft(
 
     from spacecraft.link import LinkConfig, load_link_config, parse_outage
     from spacecraft.process import ProcessConfig, SpacecraftProcess
-    from spacecraft.vehicle import VehicleConfig
+    from spacecraft.vehicle import VehicleConfig, vehicle_config_for
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     try:
@@ -464,23 +468,32 @@ def spacecraft(
             changes["outages"] = tuple(parse_outage(o) for o in outage)
         up = dataclasses.replace(up, **changes)
         down = dataclasses.replace(down, **changes)
-        acs_gains = None
-        if acs_config is not None:
-            from planner.attitude_control import load_acs_config
-            from planner.dynamics import DynamicsWorkspace
-            from planner.model import default_model
+        vehicle_fields: dict[str, Any] = {
+            "telemetry_period_s": 1.0 / telemetry_rate_hz,
+            "los_policy": los_policy,  # VehicleConfig checks it
+            "los_hold_after_s": los_hold_after,
+        }
+        if robot is not None:
+            vehicle = vehicle_config_for(
+                _load(robot),
+                acs_overrides=None if acs_config is None else _acs_table(acs_config),
+                **vehicle_fields,
+            )
+        else:
+            if acs_config is not None:
+                from planner.attitude_control import load_acs_config
+                from planner.dynamics import DynamicsWorkspace
+                from planner.model import default_model
 
-            acs_gains = load_acs_config(DynamicsWorkspace(default_model()), acs_config)
+                vehicle_fields["acs_gains"] = load_acs_config(
+                    DynamicsWorkspace(default_model()), acs_config
+                )
+            vehicle = VehicleConfig(**vehicle_fields)
         config = ProcessConfig(
             ground_url=ground,
             token=token,
             time_scale=time_scale,
-            vehicle=VehicleConfig(
-                telemetry_period_s=1.0 / telemetry_rate_hz,
-                los_policy=los_policy,  # type: ignore[arg-type]  # VehicleConfig checks it
-                los_hold_after_s=los_hold_after,
-                acs_gains=acs_gains,
-            ),
+            vehicle=vehicle,
             uplink=up,
             downlink=down,
             seed=seed,
@@ -501,6 +514,20 @@ def spacecraft(
         )
 
     asyncio.run(main_async())
+
+
+def _acs_table(path: Path) -> dict[str, object]:
+    """The ``[acs]`` table of an attitude-control TOML file (``--acs-config``)."""
+    import tomllib
+
+    try:
+        with path.open("rb") as f:
+            doc = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read the attitude-control configuration: {exc}") from None
+    if set(doc) != {"acs"} or not isinstance(doc["acs"], dict):
+        raise ValueError(f"{path}: expected one [acs] table (found {sorted(doc)})")
+    return dict(doc["acs"])
 
 
 def _is_loopback(host: str) -> bool:

@@ -10,11 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
+from planner.model import default_model
 from planner.plan import Plan
-from spacecraft.vehicle import Vehicle, VehicleConfig
+from spacecraft.vehicle import Vehicle, VehicleConfig, VehicleError, vehicle_config_for
 from telemetry.uplink import plan_commands
 from telemetry.wire import CommandAck, CommandStage, TelemetryFrame
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = ["OfflineFlight", "fly_offline"]
 
@@ -37,6 +42,7 @@ def fly_offline(
     plan: Plan,
     config: VehicleConfig | None = None,
     *,
+    robot: RobotDescription | None = None,
     seed: int = 0,
     start_ns: int = 0,
     after_s: float = 2.0,
@@ -45,10 +51,24 @@ def fly_offline(
 ) -> OfflineFlight:
     """Start the vehicle at ``start_ns`` in the plan's initial pose, queue every command of
     ``plan`` (t = 0 at ``start_ns`` + 1 s), and run until ``after_s`` past the last tag.
+    The vehicle is ``config``, or that of ``robot`` (a loaded robot description:
+    :func:`spacecraft.vehicle.vehicle_config_for`), or ETS-VII's; a plan for another joint
+    count is refused (:class:`~spacecraft.vehicle.VehicleError`).
     ``progress`` is called with the fraction done after each ``chunk_s`` of onboard time."""
-    config = config or VehicleConfig(
-        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad)
-    )
+    initial = tuple(float(v) for v in plan.initial_joints_rad)
+    if config is not None and robot is not None:
+        raise VehicleError("give fly_offline a vehicle config or a robot description, not both")
+    model = config.model if config is not None else robot.model if robot is not None else None
+    n_joints = model.n_joints if model is not None else default_model().n_joints
+    if len(initial) != n_joints:
+        raise VehicleError(
+            f"the plan is for {len(initial)} joints, the vehicle's robot has {n_joints}"
+        )
+    if config is None:
+        if robot is not None:
+            config = vehicle_config_for(robot, initial_joints_rad=initial)
+        else:
+            config = VehicleConfig(initial_joints_rad=initial)
     epoch_ns = start_ns + round(LEAD_S * 1e9)
     commands = plan_commands(plan, epoch_ns=epoch_ns, first_seq=0)
     if len(commands) > config.schedule_capacity:

@@ -16,8 +16,9 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
 - **Connection**: reconnects after any drop with exponential backoff. A drop changes nothing
   on board: the loaded schedule keeps executing, and only the vehicle's LOS policy (silence
   for ``los_hold_after_s`` with ``hold``) refuses queued joint commands. ``hello`` is the
-  session handshake, announces the schedule's capacity and the LOS policy, and goes straight
-  to the ground.
+  session handshake, announces the schedule's capacity, the LOS policy and (when the vehicle
+  flies a robot description, ``hikoboshi spacecraft --robot``) the robot's name, the hash of
+  its description and its joint count, and goes straight to the ground.
 - **Stop** (SIGTERM): the vehicle stops, the link keeps running until every telemetry frame has
   been acknowledged or ``drain_timeout_s`` (wall) has passed, then the process exits.
 """
@@ -302,6 +303,9 @@ class SpacecraftProcess:
                         schedule_capacity=self.config.vehicle.schedule_capacity,
                         los_policy=self.config.vehicle.los_policy,
                         los_hold_after_s=self.config.vehicle.los_hold_after_s,
+                        robot=self.config.vehicle.robot,
+                        robot_hash=self.config.vehicle.robot_hash,
+                        n_joints=self._announced_joints(),
                     )
                     await ws.send(encode(hello))
                     self._connected.set()
@@ -324,6 +328,12 @@ class SpacecraftProcess:
                 return
             await asyncio.sleep(delay * (0.5 + rng.random()))
             delay = min(delay * 2.0, self.config.backoff_max_s)
+
+    def _announced_joints(self) -> int | None:
+        """``hello``'s joint count: with the robot of a description only (a ``hello`` without
+        robot fields means ETS-VII, 6 joints, to the ground)."""
+        vehicle = self.config.vehicle
+        return None if vehicle.robot is None else vehicle.model.n_joints
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set and the telemetry is drained (or the drain times out)."""

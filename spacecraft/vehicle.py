@@ -61,8 +61,9 @@ sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked comma
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import Literal
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +72,7 @@ from planner.attitude_control import (
     AcsGains,
     AcsMode,
     AttitudeController,
+    acs_gains_from_config,
     default_acs_gains,
     reaction_rate_radps,
 )
@@ -95,7 +97,10 @@ from telemetry.wire import (
     Verification,
 )
 
-__all__ = ["SensorNoise", "Vehicle", "VehicleConfig", "VehicleError"]
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
+
+__all__ = ["SensorNoise", "Vehicle", "VehicleConfig", "VehicleError", "vehicle_config_for"]
 
 Array = NDArray[np.float64]
 
@@ -161,6 +166,11 @@ class VehicleConfig:
     #: the queued joint commands) once nothing has arrived for ``los_hold_after_s``.
     los_policy: Literal["continue", "hold"] = "continue"
     los_hold_after_s: float | None = None
+    #: The robot description flown (:func:`vehicle_config_for`): its name and content hash,
+    #: announced in ``hello`` with the joint count. None: the built-in ETS-VII, and ``hello``
+    #: says nothing of the robot (the ground takes that for ETS-VII).
+    robot: str | None = None
+    robot_hash: str | None = None
 
     def __post_init__(self) -> None:
         step_ns = self.step_ns
@@ -186,6 +196,12 @@ class VehicleConfig:
         norm = float(np.linalg.norm(self.initial_quat_orbit_from_base_xyzw))
         if not abs(norm - 1.0) <= QUAT_NORM_TOLERANCE:
             raise VehicleError(f"initial attitude quaternion has norm {norm:.6g}, not 1")
+        if (self.robot is None) != (self.robot_hash is None):
+            raise VehicleError("robot and robot_hash are given together or not at all")
+        if self.robot is not None and not 0 < len(self.robot) <= 64:
+            raise VehicleError(f"robot {self.robot!r} must have 1 to 64 characters")
+        if self.robot_hash is not None and not 0 < len(self.robot_hash) <= 128:
+            raise VehicleError(f"robot_hash {self.robot_hash!r} must have 1 to 128 characters")
         if not 0 < len(self.vehicle_name) <= 64:
             raise VehicleError(f"vehicle_name {self.vehicle_name!r} must have 1 to 64 characters")
         capacity = self.schedule_capacity
@@ -223,6 +239,45 @@ class VehicleConfig:
         return step_ns
 
 
+def vehicle_config_for(
+    description: RobotDescription,
+    *,
+    acs_overrides: Mapping[str, object] | None = None,
+    **fields: Any,
+) -> VehicleConfig:
+    """The vehicle of a robot description (``planner.description.load_robot``): its model,
+    joint servos, attitude-control law (the ``[acs]`` table with the wheels' torque and
+    momentum limits, which the truth simulation enforces), sensor noise, the all-zero initial
+    pose and its name, hash and joint count for ``hello``. ``acs_overrides`` (an ``[acs]``
+    table, e.g. of ``--acs-config``) replaces keys of the description's law; ``fields`` set
+    any other :class:`VehicleConfig` field (telemetry period, LOS policy, ...)."""
+    sim = fields.pop("sim", None) or _default_sim()
+    sim = replace(sim, servo=description.servo_gains())
+    model = description.model
+    table: dict[str, object] = {
+        **description.acs_config,
+        "torque_limit_nm": description.wheel_torque_limit_nm,
+        "momentum_limit_nms": description.wheel_momentum_limit_nms,
+        **(acs_overrides or {}),
+    }
+    try:
+        gains = acs_gains_from_config(DynamicsWorkspace(model, sim.orbit), table)
+    except PlannerError as exc:
+        raise VehicleError(f"{description.path}: attitude control: {exc}") from None
+    values: dict[str, Any] = {
+        "model": model,
+        "sim": sim,
+        "acs_gains": gains,
+        "noise": SensorNoise(**asdict(description.sensor_noise)),
+        "initial_joints_rad": (0.0,) * model.n_joints,
+        "vehicle_name": description.name,
+        "robot": description.name,
+        "robot_hash": description.content_sha256,
+    }
+    values.update(fields)
+    return VehicleConfig(**values)
+
+
 class Vehicle:
     """The spacecraft's onboard computer around its truth simulation (see the module doc)."""
 
@@ -239,6 +294,7 @@ class Vehicle:
             State(
                 joints_rad=q0,
                 quat_orbit_from_base_xyzw=np.array(config.initial_quat_orbit_from_base_xyzw),
+                joint_rates_radps=np.zeros_like(q0),
             ),
             replace(
                 config.sim,
