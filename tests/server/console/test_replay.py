@@ -13,6 +13,7 @@ import json
 import time
 import uuid
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -26,7 +27,7 @@ from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
 from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight
-from telemetry.layout import DEFAULT_LAYOUT
+from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.uplink import plan_commands
 from tests.server.console.conftest import (
     AS_VIEWER,
@@ -40,7 +41,7 @@ from tests.server.console.conftest import (
     welcome,
 )
 from tests.server.console.test_telemetry import frames_of
-from tests.server.storage.factories import make_frames
+from tests.server.storage.factories import make_frames, make_plan
 
 #: ETS-VII's telemetry fields: the frames these tests fly.
 TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
@@ -526,3 +527,26 @@ def test_a_slow_console_holds_only_its_own_replay(client: TestClient, flight: Fl
     # Held at the window (give or take the batch that crossed it), part way through.
     assert limits.replay_window_bytes < held_bytes <= limits.replay_window_bytes + slow.largest
     assert 0 < held_at < len(stored)
+
+
+def test_a_seven_joint_pass_replays_with_its_own_columns(client: TestClient) -> None:
+    seven = FrameLayout(7, 3)
+    plan = make_plan(17, n_joints=7)
+    frames = make_frames(range(30), seed=11, layout=seven)
+    flight = SimpleNamespace(frames=frames, epoch_ns=frames[0].generation_time_ns)
+    pass_id = add_flown_pass(client, (plan, flight), name="seven")  # type: ignore[arg-type]
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
+        welcome(ws)
+        opened = open_replay(ws, pass_id, speed=fast(8))
+        assert opened["columns"] == list(seven.columns)
+        data, final = until_finished(ws)
+    assert final["finished"] is True
+    telemetry = [m for m in data if m["type"] == "telemetry"]
+    assert frame_seqs(data) == list(range(30))
+    assert all(list(m["columns"]) == list(seven.columns) for m in telemetry)
+    got = {
+        s: v
+        for m in telemetry
+        for s, v in zip(m["columns"]["seq"], m["columns"]["j7"], strict=True)
+    }
+    assert got == {f.seq: f.joints_rad[6] for f in frames}
