@@ -9,9 +9,10 @@ from fastapi.testclient import TestClient
 
 from planner.plan import Plan
 from server.storage import repository as repo
+from telemetry.layout import FrameLayout
 from telemetry.wire import TelemetryFrame
 from tests.server.api.conftest import VIEWER, sessions
-from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames
+from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
 
 N_FRAMES = 95
 RECEIVED_NS = 1_790_000_000_000_000_000
@@ -103,7 +104,8 @@ def test_buckets_match_numpy(
 @pytest.mark.parametrize(
     ("query", "needle"),
     [
-        ("fields=j1,j9", "'j9'"),
+        ("fields=j1,j9", "'j9'"),  # stored for robots of 9+ joints: not this pass's
+        ("fields=j1,j13", "'j13'"),  # no robot's
         ("fields=acs_mode&buckets=3", "'acs_mode'"),
         ("fields=j1,j1", "repeat"),
         ("t0=5&t1=5", "empty"),
@@ -131,3 +133,35 @@ def test_unknown_pass_and_missing_token(client: TestClient) -> None:
         ).status_code
         == 404
     )
+
+
+def test_a_seven_joint_pass_answers_its_own_fields_raw_and_decimated(client: TestClient) -> None:
+    seven = FrameLayout(7, 3)
+    frames = make_frames(range(40), seed=2, layout=seven)
+    with sessions(client)() as session:
+        plan_id = repo.add_plan(session=session, plan=make_plan(n_joints=7), created_at_ns=0).id
+        pass_id = repo.add_pass(
+            session=session,
+            name="seven",
+            plan_id=plan_id,
+            aos_time_ns=0,
+            los_time_ns=10**12,
+            relay="TDRS",
+            created_at_ns=0,
+        ).id
+        repo.ingest_frames(
+            session=session, pass_id=pass_id, frames=frames, reception_time_ns=RECEIVED_NS
+        )
+        session.commit()
+    body = client.get(f"/api/passes/{pass_id}/telemetry", headers=VIEWER).json()
+    assert body["fields"] == list(seven.fields) and body["count"] == 40
+    assert [r["values"]["t7"] for r in body["rows"]] == [f.joint_targets_rad[6] for f in frames]
+    t0, t1 = T0_NS, T0_NS + 40 * FRAME_PERIOD_NS
+    body = client.get(
+        f"/api/passes/{pass_id}/telemetry?t0={t0}&t1={t1}&fields=j7&buckets=4", headers=VIEWER
+    ).json()
+    j7 = np.array([f.joints_rad[6] for f in frames]).reshape(4, 10)
+    assert [b["min"]["j7"] for b in body["buckets"]] == j7.min(axis=1).tolist()
+    assert [b["max"]["j7"] for b in body["buckets"]] == j7.max(axis=1).tolist()
+    response = client.get(f"/api/passes/{pass_id}/telemetry?fields=j8", headers=VIEWER)
+    assert response.status_code == 422 and "'j8'" in response.json()["error"]["message"]
