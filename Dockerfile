@@ -14,6 +14,8 @@ COPY spacecraft spacecraft
 COPY telemetry telemetry
 COPY server server
 COPY hikoboshi hikoboshi
+# The robot descriptions (ETS-VII and Orihime): planner.description finds them here.
+COPY examples examples
 # Editable, as scripts/setup.sh does: the server finds the console at /app/web/dist.
 RUN pip install --no-cache-dir -r requirements.lock && pip install --no-cache-dir --no-deps -e .
 COPY --from=web /web/dist web/dist
