@@ -10,6 +10,11 @@ values), so both accept the same parameters and refuse the same mistakes with th
     parameters_from_values   {NAME: JSON value} -> parameters (a string is read as text)
     plan_experiment(...)     the plan (seconds of CPU: callers off the event loop run it)
 
+A robot (``planner.description.RobotDescription``; ``None``: ETS-VII) supplies each
+experiment's default parameters (its ``[experiments.NAME]`` table, under what a caller sets:
+``defaults=robot.experiment_defaults(name)``) and its poses; ``plan_experiment(...,
+robot=robot)`` plans on its model and stamps the plan with its name and hash.
+
 Durations (parameters named ``*_s``) are limited to :data:`MAX_DURATION_S`: nothing longer
 fits one contact window (``PassParams.window_s`` <= 3600 s), and a larger value would only
 allocate a plan that can never fly.
@@ -30,17 +35,21 @@ import dataclasses
 import math
 import typing
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from planner.coordination import CoordinationParams, optimise_offset, plan_coordination
+from planner.attitude_control import AcsGains
+from planner.coordination import CoordinationParams, optimise_offset
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.experiments import PtpParams, ReactionlessParams, plan_ptp, plan_reactionless
 from planner.gjm import GjmParams, plan_gjm
 from planner.model import default_model
 from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
-from planner.plan import Plan
-from planner.schedule import PassParams, plan_pass
+from planner.plan import Plan, plan_for_robot
+from planner.schedule import PassParams, plan_coordination_for, plan_pass
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = [
     "MAX_DURATION_S",
@@ -80,7 +89,7 @@ def experiments() -> dict[str, Entry]:
         "ptp": (PtpParams, plan_ptp),
         "reactionless": (ReactionlessParams, plan_reactionless),
         "gjm": (GjmParams, plan_gjm),
-        "coordination": (CoordinationParams, plan_coordination),
+        "coordination": (CoordinationParams, plan_coordination_for),
         "nonholonomic": (NonholonomicParams, plan_nonholonomic),
         "pass": (PassParams, plan_pass),
     }
@@ -223,10 +232,27 @@ def _unknown(params_type: type[Any], key: str, known: Sequence[str]) -> InvalidI
     )
 
 
-def parse_assignments(params_type: type[Any], assignments: Sequence[str]) -> Any:
-    """Parameters from ``NAME=VALUE`` strings; unset fields keep their defaults."""
+def _defaults(params_type: type[Any], defaults: Mapping[str, Any] | None) -> dict[str, Any]:
+    """A robot's default values (JSON-like, as its description holds them), converted."""
     hints = _field_hints(params_type)
-    values: dict[str, Any] = {}
+    converted: dict[str, Any] = {}
+    for key, value in (defaults or {}).items():
+        if key not in hints:
+            raise _unknown(params_type, key, list(hints))
+        converted[key] = _from_value(key, value, hints[key])
+    return converted
+
+
+def parse_assignments(
+    params_type: type[Any],
+    assignments: Sequence[str],
+    *,
+    defaults: Mapping[str, Any] | None = None,
+) -> Any:
+    """Parameters from ``NAME=VALUE`` strings; unset fields keep ``defaults`` (a robot's
+    ``[experiments.NAME]`` table) or else the dataclass's own defaults."""
+    hints = _field_hints(params_type)
+    values: dict[str, Any] = _defaults(params_type, defaults)
     for assignment in assignments:
         if "=" not in assignment:
             raise InvalidInput(f"--set needs NAME=VALUE, got {_show(assignment)}")
@@ -238,11 +264,17 @@ def parse_assignments(params_type: type[Any], assignments: Sequence[str]) -> Any
     return _build(params_type, values)
 
 
-def parameters_from_values(params_type: type[Any], values: Mapping[str, Any]) -> Any:
+def parameters_from_values(
+    params_type: type[Any],
+    values: Mapping[str, Any],
+    *,
+    defaults: Mapping[str, Any] | None = None,
+) -> Any:
     """Parameters from ``{NAME: value}`` as JSON carries them (numbers, booleans, strings,
-    lists for tuples, ``null`` for an Optional); unset fields keep their defaults."""
+    lists for tuples, ``null`` for an Optional); unset fields keep ``defaults`` (a robot's
+    ``[experiments.NAME]`` table) or else the dataclass's own defaults."""
     hints = _field_hints(params_type)
-    converted: dict[str, Any] = {}
+    converted: dict[str, Any] = _defaults(params_type, defaults)
     for key, value in values.items():
         if key not in hints:
             raise _unknown(params_type, key, list(hints))
@@ -250,8 +282,15 @@ def parameters_from_values(params_type: type[Any], values: Mapping[str, Any]) ->
     return _build(params_type, converted)
 
 
-def plan_experiment(experiment: str, params: Any, *, optimise_offset_flag: bool = False) -> Plan:
-    """Plan ``experiment`` with ``params`` (of its dataclass) on the default model.
+def plan_experiment(
+    experiment: str,
+    params: Any,
+    *,
+    optimise_offset_flag: bool = False,
+    robot: RobotDescription | None = None,
+) -> Plan:
+    """Plan ``experiment`` with ``params`` (of its dataclass) for ``robot`` (``None``: the
+    built-in ETS-VII model, as before descriptions existed).
 
     ``optimise_offset_flag`` (coordination only) first optimises the offset size and switch
     times in the closed loop and records the optimum in the metrics.
@@ -259,17 +298,18 @@ def plan_experiment(experiment: str, params: Any, *, optimise_offset_flag: bool 
     _, planner_fn = resolve(experiment)
     if optimise_offset_flag and experiment != "coordination":
         raise InvalidInput("--optimise-offset applies to the coordination experiment only")
-    ws = DynamicsWorkspace(default_model())
+    ws = DynamicsWorkspace(default_model() if robot is None else robot.model)
     if optimise_offset_flag:
-        optimum = optimise_offset(ws, params)
+        gains: AcsGains | None = None if robot is None else robot.acs_gains(ws)
+        optimum = optimise_offset(ws, params, gains=gains)
         params = dataclasses.replace(
             params,
             offset_scale=optimum.offset_scale,
             offset_on_delay_s=optimum.on_delay_s,
             offset_off_delay_s=optimum.off_delay_s,
         )
-        optimised: Plan = planner_fn(ws, params)
+        optimised: Plan = planner_fn(ws, params, robot=robot)
         extra = {f"optimum.{k}": float(v) for k, v in dataclasses.asdict(optimum).items()}
         return dataclasses.replace(optimised, metrics={**optimised.metrics, **extra})
-    plan: Plan = planner_fn(ws, params)
-    return plan
+    plan: Plan = planner_fn(ws, params, robot=robot)
+    return plan_for_robot(plan, robot)

@@ -36,6 +36,7 @@ a single rounding: sums of the origins' offsets only, so the model loaded from
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -70,6 +71,7 @@ __all__ = [
     "SensorNoiseSpec",
     "ServoSpec",
     "WheelLimits",
+    "default_robot",
     "load_robot",
 ]
 
@@ -262,6 +264,53 @@ class RobotDescription:
         assert pose.hand_pos_robot_m is not None and pose.rot_robot_from_hand is not None
         workspace = ws if ws is not None else DynamicsWorkspace(self.model)
         return solve_ik(workspace, pose.hand_pos_robot_m, pose.rot_robot_from_hand)[0].joints_rad
+
+    def target_joints_rad(self, name: str, ws: DynamicsWorkspace, *, experiment: str) -> Array:
+        """Joint angles for the named pose as an experiment's start or goal.
+
+        A pose with a hand pose is that hand pose exactly: the IK solution nearest the pose's
+        written joints (nearest the all-zero pose when none are written), so ETS-VII's B is
+        the grapple approach of SPEC 1.2, not the paper's joints rounded to 0.1 deg, and a
+        redundant arm keeps the configuration its joints name. A pose of joints alone is
+        those joints. Refused (:class:`~planner.errors.InvalidInput`) with the reason when
+        the robot has no such pose, or its hand pose cannot be reached within the limits.
+        """
+        from planner.errors import PlannerError
+        from planner.ik import solve_ik
+
+        if name not in self.poses:
+            raise InvalidInput(
+                f"{experiment}: robot {self.name!r} has no pose {name!r}, which the experiment "
+                f"needs (its poses: {sorted(self.poses) or 'none'}); add [poses.{name}] to its "
+                "description or give the joints as parameters"
+            )
+        pose = self.poses[name]
+        if pose.hand_pos_robot_m is None or pose.rot_robot_from_hand is None:
+            assert pose.joints_rad is not None
+            return self.model.check_joints(pose.joints_rad).copy()
+        try:
+            solutions = solve_ik(
+                ws,
+                pose.hand_pos_robot_m,
+                pose.rot_robot_from_hand,
+                reference_joints_rad=pose.joints_rad,
+            )
+        except PlannerError as exc:
+            raise InvalidInput(
+                f"{experiment}: robot {self.name!r}'s pose {name!r} cannot be reached: {exc}"
+            ) from exc
+        return solutions[0].joints_rad
+
+    def experiment_defaults(self, experiment: str) -> Mapping[str, object]:
+        """The ``[experiments.NAME]`` table (raw values), empty when the file has none."""
+        return self.experiments.get(experiment, MappingProxyType({}))
+
+
+@functools.cache
+def default_robot() -> RobotDescription:
+    """ETS-VII's description (``ETS7_DESCRIPTION``), loaded once: the robot every planner
+    plans for when it is given none."""
+    return load_robot(ETS7_DESCRIPTION)
 
 
 # --- reading files ------------------------------------------------------------------------

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,12 +21,15 @@ from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
-from planner.plan import AcsCommand, Plan
+from planner.plan import AcsCommand, Plan, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, ptp_commands
 from planner.reactionless import reactionless_line, retime_path
 from planner.servo_compensation import compensate_servo_lag
 from planner.simulation import default_servo_gains
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = [
     "POSE_B_POS_ROBOT_M",
@@ -33,6 +37,7 @@ __all__ = [
     "PtpParams",
     "ReactionlessParams",
     "attitude_metrics",
+    "check_robot",
     "joints_at_pose_b",
     "plan_ptp",
     "plan_reactionless",
@@ -52,9 +57,37 @@ def _check_period(name: str, value: float) -> None:
 
 
 def joints_at_pose_b(ws: DynamicsWorkspace) -> Array:
-    """IK solution for pose B nearest the all-zero pose."""
+    """IK solution for ETS-VII's pose B nearest the all-zero pose."""
     rot = matrix_from_rpy(np.radians(POSE_B_RPY_DEG))
     return solve_ik(ws, np.array(POSE_B_POS_ROBOT_M), rot)[0].joints_rad
+
+
+def check_robot(ws: DynamicsWorkspace, robot: RobotDescription | None) -> None:
+    """The workspace must be the robot's model (the joint count at least)."""
+    if robot is not None and ws.model.n_joints != robot.model.n_joints:
+        raise InvalidInput(
+            f"the workspace's model has {ws.model.n_joints} joints, robot {robot.name!r} "
+            f"{robot.model.n_joints}"
+        )
+
+
+def _pose(
+    ws: DynamicsWorkspace, robot: RobotDescription | None, name: str, experiment: str
+) -> Array:
+    """A named pose's joints: the robot's, or ETS-VII's built-in A (all zero) and B (IK)."""
+    if robot is not None:
+        return robot.target_joints_rad(name, ws, experiment=experiment)
+    if name == "A":
+        return np.zeros(ws.model.n_joints)
+    return joints_at_pose_b(ws)
+
+
+def _joints_param(ws: DynamicsWorkspace, name: str, values: tuple[float, ...]) -> Array:
+    if len(values) != ws.model.n_joints:
+        raise InvalidInput(
+            f"parameter {name} has {len(values)} angles; the robot has {ws.model.n_joints} joints"
+        )
+    return ws.model.check_joints(np.radians(values))
 
 
 def attitude_metrics(plan_t_s: Array, quats_xyzw: Array, *, band_deg: float) -> dict[str, float]:
@@ -73,8 +106,10 @@ def attitude_metrics(plan_t_s: Array, quats_xyzw: Array, *, band_deg: float) -> 
 
 @dataclass(frozen=True)
 class PtpParams:
-    start_joints_deg: tuple[float, ...] = (0.0,) * 6
-    goal_joints_deg: tuple[float, ...] | None = None  # None: pose B by IK
+    #: ETS-VII's pose A; a robot of another joint count sets its own (its description's
+    #: [experiments.ptp] table), or the plan is refused. None: the robot's pose A.
+    start_joints_deg: tuple[float, ...] | None = (0.0,) * 6
+    goal_joints_deg: tuple[float, ...] | None = None  # None: pose B (ETS-VII: by IK)
     rate_fraction: float = 0.9
     settle_s: float = 120.0
     acs_feedback: bool = True
@@ -82,23 +117,33 @@ class PtpParams:
 
 
 def plan_ptp(
-    ws: DynamicsWorkspace, params: PtpParams = PtpParams(), gains: AcsGains | None = None
+    ws: DynamicsWorkspace,
+    params: PtpParams = PtpParams(),
+    gains: AcsGains | None = None,
+    *,
+    robot: RobotDescription | None = None,
 ) -> Plan:
-    """Experiment 1's baseline: PTP A -> B, then a settling wait."""
+    """Experiment 1's baseline: PTP A -> B, then a settling wait. The poses are ``robot``'s
+    (``None``: ETS-VII's built-in A and B) unless the parameters give joints."""
     model = ws.model
+    check_robot(ws, robot)
     _check_period("settle_s", params.settle_s)
-    start = model.check_joints(np.radians(params.start_joints_deg))
+    start = (
+        _pose(ws, robot, "A", "ptp")
+        if params.start_joints_deg is None
+        else _joints_param(ws, "start_joints_deg", params.start_joints_deg)
+    )
     goal = (
-        joints_at_pose_b(ws)
+        _pose(ws, robot, "B", "ptp")
         if params.goal_joints_deg is None
-        else model.check_joints(np.radians(params.goal_joints_deg))
+        else _joints_param(ws, "goal_joints_deg", params.goal_joints_deg)
     )
     _, move = ptp_commands(model, start, goal, rate_fraction=params.rate_fraction)
     builder = CommandBuilder(start)
     t0, t1 = builder.block(move, "A->B", "ptp")
     builder.hold(params.settle_s, "settle", "settle")
     times, joints = builder.arrays()
-    gains = gains or default_acs_gains(ws)
+    gains = gains or (robot.acs_gains(ws) if robot is not None else default_acs_gains(ws))
     mode = AcsMode.FEEDBACK if params.acs_feedback else AcsMode.FREE_DRIFT
     acs = (AcsCommand(0.0, mode),)
     prediction = predict(ws, times, joints, acs_commands=acs, acs_gains=gains)
@@ -107,14 +152,19 @@ def plan_ptp(
     )
     metrics["settling_time_after_motion_s"] = max(0.0, metrics["last_outside_band_s"] - t1)
     metrics["motion_duration_s"] = t1 - t0
-    return builder.plan(
+    plan = builder.plan(
         model,
         experiment="ptp",
-        parameters={**asdict(params), "goal_joints_deg": np.degrees(goal).tolist()},
+        parameters={
+            **asdict(params),
+            "start_joints_deg": np.degrees(start).tolist(),
+            "goal_joints_deg": np.degrees(goal).tolist(),
+        },
         prediction=prediction,
         metrics=metrics,
         acs_commands=acs,
     )
+    return plan_for_robot(plan, robot)
 
 
 @dataclass(frozen=True)
@@ -136,9 +186,19 @@ def plan_reactionless(
     ws: DynamicsWorkspace,
     params: ReactionlessParams = ReactionlessParams(),
     gains: AcsGains | None = None,
+    *,
+    robot: RobotDescription | None = None,
 ) -> Plan:
-    """Experiment 1: B -> C reactionless at the outbound speed, pause, C -> B retraced."""
+    """Experiment 1: B -> C reactionless at the outbound speed, pause, C -> B retraced.
+    Pose B is ``robot``'s (``None``: ETS-VII's) unless ``start_joints_deg`` is given; the
+    reaction null space has n - 3 dimensions (at least one: 4 joints)."""
     model = ws.model
+    check_robot(ws, robot)
+    if model.n_joints < 4:
+        raise InvalidInput(
+            f"reactionless: a {model.n_joints}-joint arm has no reaction null space "
+            "(n - 3 dimensions; at least 4 joints needed)"
+        )
     for name in ("pause_s", "tail_s"):
         _check_period(name, getattr(params, name))
     if not (params.out_speed_mps > 0 and params.back_speed_mps > 0):
@@ -146,9 +206,9 @@ def plan_reactionless(
             f"speeds must be positive, got {params.out_speed_mps} and {params.back_speed_mps} m/s"
         )
     start = (
-        joints_at_pose_b(ws)
+        _pose(ws, robot, "B", "reactionless")
         if params.start_joints_deg is None
-        else model.check_joints(np.radians(params.start_joints_deg))
+        else _joints_param(ws, "start_joints_deg", params.start_joints_deg)
     )
     path = reactionless_line(
         ws,
@@ -169,8 +229,9 @@ def plan_reactionless(
     times, desired = builder.arrays()
     joints = desired
     if params.compensate_servo_lag:
-        joints = compensate_servo_lag(ws, default_servo_gains(model), times, desired)
-    gains = gains or default_acs_gains(ws)
+        servo = robot.servo_gains() if robot is not None else default_servo_gains(model)
+        joints = compensate_servo_lag(ws, servo, times, desired)
+    gains = gains or (robot.acs_gains(ws) if robot is not None else default_acs_gains(ws))
     acs = (AcsCommand(0.0, AcsMode.FEEDBACK),)
     prediction = predict(ws, times, desired, acs_commands=acs, acs_gains=gains)
     hand = path.hand_pos_robot_m - path.hand_pos_robot_m[0]
@@ -194,7 +255,7 @@ def plan_reactionless(
             ),
         }
     )
-    return builder.plan(
+    plan = builder.plan(
         model,
         experiment="reactionless",
         parameters={**asdict(params), "start_joints_deg": np.degrees(start).tolist()},
@@ -203,3 +264,4 @@ def plan_reactionless(
         acs_commands=acs,
         joints_rad=joints,
     )
+    return plan_for_robot(plan, robot)

@@ -9,7 +9,8 @@ linear rows first, hand point velocity in m/s, angular velocity in rad/s) is
     x_b' = -H_b^-1 H_bm phi'                         eq. (7), from eq. (2) with zero momentum
     x_h' = J_g phi',  J_g = J_m - J_b H_b^-1 H_bm    eq. (8)
 
-and resolving the hand's motion through ``J_g`` (6x6) moves the hand along a line fixed in
+and resolving the hand's motion through ``J_g`` (6 x n; its pseudo-inverse, damped near a
+singularity, for a redundant arm) moves the hand along a line fixed in
 the orbit frame while its orientation stays fixed there, whatever the base does.
 
 The motion (our layout of the flight's): from pose A's hand point with the hand pitched
@@ -41,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,10 +54,13 @@ from planner.errors import DidNotConverge, InfeasibleGoal, InvalidInput, JointLi
 from planner.frames import IDENTITY_QUAT_XYZW, matrix_from_rpy
 from planner.gravity_gradient import Orbit
 from planner.ik import solve_ik
-from planner.plan import AcsCommand, Plan, Prediction, Segment, check_plan_limits
+from planner.plan import AcsCommand, Plan, Prediction, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, quintic
 from planner.state import State
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = ["MAX_APPROACH_DISTANCE_M", "GjmParams", "hand_positions_orbit_m", "plan_gjm"]
 
@@ -152,7 +156,9 @@ def _dls_step(J: Array, e: Array) -> tuple[Array, float]:
     sigma = float(sing[-1])
     ratio = min(sigma / _SINGULAR_THRESHOLD, 1.0)
     damping2 = _MAX_DAMPING**2 * (1.0 - ratio**2)
-    return vt.T @ (sing / (sing**2 + damping2) * (u.T @ e)), sigma
+    # J is 6 x n: for a redundant arm (n > 6) the minimum-norm step, rows of vt past the
+    # sixth (J's null space) do not take part.
+    return vt[: sing.size].T @ (sing / (sing**2 + damping2) * (u.T @ e)), sigma
 
 
 def _rate_exceeded(ws: DynamicsWorkspace, step: Array, where: str) -> JointLimitExceeded | None:
@@ -238,16 +244,18 @@ def hand_positions_orbit_m(ws: DynamicsWorkspace, prediction: Prediction) -> Arr
     return np.array(rows)
 
 
-def _start_joints(ws: DynamicsWorkspace, params: GjmParams) -> Array:
+def _start_joints(
+    ws: DynamicsWorkspace, params: GjmParams, robot: RobotDescription | None = None
+) -> Array:
+    """Pose A's hand point with the hand pitched: ETS-VII's all-zero pose, or ``robot``'s A."""
     rot = matrix_from_rpy(np.radians([0.0, params.hand_pitch_deg, 0.0]))
+    if robot is None:
+        hand_pos, reference = ws.model.hand_pos_robot_m, np.zeros(ws.model.n_joints)
+    else:
+        reference = robot.target_joints_rad("A", ws, experiment="gjm")
+        hand_pos = ws.hand_pose(State(joints_rad=reference)).pos_robot_m
     try:
-        solutions = solve_ik(
-            ws,
-            ws.model.hand_pos_robot_m,
-            rot,
-            reference_joints_rad=np.zeros(ws.model.n_joints),
-            n_starts=4,
-        )
+        solutions = solve_ik(ws, hand_pos, rot, reference_joints_rad=reference, n_starts=4)
     except DidNotConverge as exc:
         raise InfeasibleGoal(
             f"no joint angles within limits put the hand at pose A pitched "
@@ -282,15 +290,26 @@ def _metrics(
     }
 
 
-def plan_gjm(ws: DynamicsWorkspace, params: GjmParams = GjmParams()) -> Plan:
+def plan_gjm(
+    ws: DynamicsWorkspace,
+    params: GjmParams = GjmParams(),
+    *,
+    robot: RobotDescription | None = None,
+) -> Plan:
     """Experiment 2's plan (see the module docstring): 4 Hz commands from t = 0, segments
     ``lead``, ``approach``, ``pause``, ``retreat``, ``tail``, the free-drift prediction and
     metrics (degrees and metres at this edge).
 
     Raises :class:`JointLimitExceeded` when a joint would leave its angle or rate limit and
     :class:`InfeasibleGoal` when the hand cannot follow its line (out of reach, singular).
+    The start is pose A of ``robot`` (``None``: ETS-VII's) with the hand pitched.
     """
-    q0 = _start_joints(ws, params)
+    if robot is not None and robot.model.n_joints != ws.model.n_joints:
+        raise InvalidInput(
+            f"the workspace's model has {ws.model.n_joints} joints, robot {robot.name!r} "
+            f"{robot.model.n_joints}"
+        )
+    q0 = _start_joints(ws, params, robot)
     start = ws.evaluate(State(joints_rad=q0))
     rot_goal = start.hand.rot_orbit_from_hand
     pos0, axis = start.hand.pos_orbit_m, rot_goal[:, 0]
@@ -343,4 +362,4 @@ def plan_gjm(ws: DynamicsWorkspace, params: GjmParams = GjmParams()) -> Plan:
         acs_commands=acs,
     )
     check_plan_limits(ws.model, plan)
-    return plan
+    return plan_for_robot(plan, robot)

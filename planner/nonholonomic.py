@@ -3,7 +3,7 @@ Nakamura and Mukherjee 1991).
 
 **Problem.** In free drift at zero angular momentum the base turns at eq. (9),
 ``w_b = -H~_b^-1 H~_bm phi' = A(phi) phi'`` (base frame, rad/s; in the base frame ``A``, the
-3 x 6 reaction map, depends on the joints only), and ``R' = R [w_b]x`` with
+3 x n reaction map, depends on the joints only), and ``R' = R [w_b]x`` with
 ``R = rot_orbit_from_base``. Eq. (10) does not integrate: the attitude a joint path leaves
 depends on the path. Wanted: a path from ``(phi_init, R_init)`` to ``(phi_end, R_end)``, i.e. the
 joints go where they must *and* the attitude is steered to its target with no wheel.
@@ -22,7 +22,8 @@ turn the base. Along each path eq. (9) is integrated in ``lam`` (RK4): ``R_f(1) 
 ``phi_end``, ends at ``R_end``: eq. (9) is driftless, so reversing a path reverses its rotation.
 
 **Meeting.** The paths meet when their attitudes agree too: ``e(x) = log(R_b(1)^T R_f(1)) = 0``
-(rotation vector, base frame, rad), with ``x = (p, a_1, a_2, b_1, b_2)`` (30 numbers).
+(rotation vector, base frame, rad), with ``x = (p, a_1, a_2, b_1, b_2)`` (5 n numbers: 30 for
+ETS-VII's 6 joints).
 ``V(x) = |e|^2 / 2`` is the Lyapunov function: every iteration moves *both* paths at once by the
 damped minimum-norm Gauss-Newton step ``dx = -J^T (J J^T + mu I)^-1 e`` (``J = de/dx``, finite
 differences) and is kept only if ``V`` decreases (``mu`` grows otherwise), until
@@ -56,6 +57,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,9 +73,12 @@ from planner.frames import (
     skew,
 )
 from planner.model import RobotModel
-from planner.plan import AcsCommand, Plan, Segment, check_plan_limits
+from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, QUINTIC_PEAK_RATE_FACTOR, quintic
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = [
     "PAPER_PHI_MID_DEG",
@@ -88,10 +93,6 @@ Array = NDArray[np.float64]
 #: The flight plan's intermediate turning point (paper section 3.6), deg. For comparison only.
 PAPER_PHI_MID_DEG = (-36.4, 28.5, -20.3, -19.8, 54.3, 7.2)
 
-_N = 6  # joints
-_P = slice(0, 6)  # x layout: p, then forward a_1, a_2, then backward b_1, b_2
-_FWD = slice(6, 18)
-_BWD = slice(18, 30)
 _FD_STEP = 1e-7  # rad, forward-difference step of J
 _RETIME_SAMPLES = 2001
 _PATH_SAMPLES = 401
@@ -104,7 +105,7 @@ class NonholonomicParams:
 
     phi_init_deg: tuple[float, ...] = (9.6, -2.0, 2.0, 0.0, -13.6, 0.0)
     attitude_init_deg: tuple[float, ...] = (0.0, 0.0, 0.0)
-    phi_end_deg: tuple[float, ...] = (0.0,) * 6
+    phi_end_deg: tuple[float, ...] = (0.0,) * 6  # ETS-VII's; a robot's own in its description
     attitude_end_deg: tuple[float, ...] = (0.0, 0.0, 0.0)
     #: paths meet when their attitudes agree within this (rad); also the 4 Hz end target.
     attitude_tolerance_rad: float = 1e-7
@@ -118,14 +119,22 @@ class NonholonomicParams:
     tail_s: float = 10.0
 
     def __post_init__(self) -> None:
-        sizes = {"phi_init_deg": _N, "attitude_init_deg": 3, "phi_end_deg": _N}
+        # The joint count is the robot's (the planner checks it against the model); here both
+        # joint lists must have phi_end_deg's length.
+        n = len(self.phi_end_deg) if isinstance(self.phi_end_deg, tuple | list) else 0
+        if n < 1:
+            raise InvalidInput(
+                f"phi_end_deg must be one number per joint, got {self.phi_end_deg!r}"
+            )
+        sizes = {"phi_init_deg": n, "attitude_init_deg": 3, "phi_end_deg": n}
         for name, size in {**sizes, "attitude_end_deg": 3}.items():
             try:
                 value = np.asarray(getattr(self, name), dtype=np.float64)
             except (TypeError, ValueError) as exc:
                 raise InvalidInput(f"{name} must be {size} numbers: {exc}") from exc
             if value.shape != (size,):
-                raise InvalidInput(f"{name} needs {size} values, got shape {value.shape}")
+                what = "values (as many as phi_end_deg)" if name == "phi_init_deg" else "values"
+                raise InvalidInput(f"{name} needs {size} {what}, got shape {value.shape}")
             if not np.all(np.isfinite(value)):
                 raise InvalidInput(f"{name} must be finite, got {value.tolist()}")
             if size == 3 and np.max(np.abs(value)) > 180.0:
@@ -154,28 +163,36 @@ def _check_range(name: str, value: float, lo: float, hi: float) -> None:
 class Meeting:
     """Where the forward and backward paths met (rad, base frame)."""
 
-    joints_rad: Array  # p, (6,)
+    joints_rad: Array  # p, (n,)
     quat_orbit_from_base_xyzw: Array  # attitude of both paths at p
-    forward_joints_rad: Array  # (401, 6), phi_init -> p, uniform in lam
-    backward_joints_rad: Array  # (401, 6), phi_end -> p
+    forward_joints_rad: Array  # (401, n), phi_init -> p, uniform in lam
+    backward_joints_rad: Array  # (401, n), phi_end -> p
     joint_gap_rad: float  # |phi_f(1) - phi_b(1)|
     attitude_gap_rad: float  # |e|
     iterations: int
     straight_path_error_rad: float  # |e| of straight paths (no loops): what is steered away
-    path_parameters: Array  # x, (30,)
+    path_parameters: Array  # x, (5 n,)
 
     @property
     def paper_distance_deg(self) -> float:
-        """Euclidean distance over the joints to the paper's ``phi_mid`` (deg)."""
+        """Euclidean distance over the joints to the paper's ``phi_mid`` (deg); NaN for a
+        robot of another joint count (the paper's is ETS-VII's)."""
+        if self.joints_rad.shape != (len(PAPER_PHI_MID_DEG),):
+            return math.nan
         return float(np.linalg.norm(np.degrees(self.joints_rad) - PAPER_PHI_MID_DEG))
+
+
+def _layout(n: int) -> tuple[slice, slice, slice]:
+    """``x``'s layout for n joints: p, then forward a_1, a_2, then backward b_1, b_2."""
+    return slice(0, n), slice(n, 3 * n), slice(3 * n, 5 * n)
 
 
 # --- paths and their rotation -------------------------------------------------------------
 
 
 def _curve(start: Array, p: Array, coeffs: Array, lam: Array) -> tuple[Array, Array]:
-    """Joints (m, 6) and d phi / d lam (m, 6) of a path at ``lam`` (m,); ``coeffs`` (12,)."""
-    c = coeffs.reshape(2, _N)
+    """Joints (m, n) and d phi / d lam (m, n) of a path at ``lam`` (m,); ``coeffs`` (2 n,)."""
+    c = coeffs.reshape(2, start.size)
     k_pi = np.pi * np.arange(1, 3)[:, None]
     shape = np.sin(k_pi * lam)  # (2, m)
     joints = start + lam[:, None] * (p - start) + shape.T @ c
@@ -226,13 +243,14 @@ def _path_rotation(ws: DynamicsWorkspace, start: Array, p: Array, coeffs: Array,
 
 
 def _grid_rotation(ws: DynamicsWorkspace, joints: Array) -> Array:
-    """Rotation of linearly interpolated 4 Hz commands (k, 6), as predict integrates it."""
+    """Rotation of linearly interpolated 4 Hz commands (k, n), as predict integrates it."""
+    n = joints.shape[1]
     step = np.diff(joints, axis=0)
     moving = np.flatnonzero(np.any(step != 0.0, axis=1))
     tau = np.linspace(0.0, 1.0, 2 * _SUB_STEPS + 1)
     pts = joints[moving][:, None, :] + tau[None, :, None] * step[moving][:, None, :]
     rates = np.broadcast_to(step[moving][:, None, :] / COMMAND_PERIOD_S, pts.shape)
-    w = _base_rates(ws, pts.reshape(-1, _N), rates.reshape(-1, _N)).reshape((*pts.shape[:2], 3))
+    w = _base_rates(ws, pts.reshape(-1, n), rates.reshape(-1, n)).reshape((*pts.shape[:2], 3))
     h = COMMAND_PERIOD_S / _SUB_STEPS
     return _rk4_rotation(
         w[:, 0:-1:2].reshape(-1, 3), w[:, 1::2].reshape(-1, 3), w[:, 2::2].reshape(-1, 3), h
@@ -251,9 +269,14 @@ class _Problem:
     rot_end: Array
     steps: int
 
+    @property
+    def slices(self) -> tuple[slice, slice, slice]:
+        return _layout(self.start.size)
+
     def rotations(self, x: Array) -> tuple[Array, Array]:
-        g_f = _path_rotation(self.ws, self.start, x[_P], x[_FWD], self.steps)
-        g_b = _path_rotation(self.ws, self.goal, x[_P], x[_BWD], self.steps)
+        p, fwd, bwd = self.slices
+        g_f = _path_rotation(self.ws, self.start, x[p], x[fwd], self.steps)
+        g_b = _path_rotation(self.ws, self.goal, x[p], x[bwd], self.steps)
         return g_f, g_b
 
     def gap(self, g_f: Array, g_b: Array) -> Array:
@@ -262,31 +285,33 @@ class _Problem:
         return np.asarray(Rotation.from_matrix(rot).as_rotvec(), dtype=np.float64)
 
     def jacobian(self, x: Array, g_f: Array, g_b: Array, e: Array) -> Array:
+        p, fwd, bwd = self.slices
         jac = np.empty((3, x.size))
         for i in range(x.size):
             xi = x.copy()
             xi[i] += _FD_STEP
-            if i < _FWD.start:  # p moves both paths' ends
+            if i < fwd.start:  # p moves both paths' ends
                 gf, gb = self.rotations(xi)
-            elif i < _FWD.stop:
-                gf, gb = _path_rotation(self.ws, self.start, xi[_P], xi[_FWD], self.steps), g_b
+            elif i < fwd.stop:
+                gf, gb = _path_rotation(self.ws, self.start, xi[p], xi[fwd], self.steps), g_b
             else:
-                gf, gb = g_f, _path_rotation(self.ws, self.goal, xi[_P], xi[_BWD], self.steps)
+                gf, gb = g_f, _path_rotation(self.ws, self.goal, xi[p], xi[bwd], self.steps)
             jac[:, i] = (self.gap(gf, gb) - e) / _FD_STEP
         return jac
 
     def seed(self, mid: Array, e0: Array) -> Array:
         """One loop per path in the plane of largest curvature about ``e0``'s axis."""
-        x = np.concatenate([mid, np.zeros(24)])
+        n = mid.size
+        x = np.concatenate([mid, np.zeros(4 * n)])
         norm = float(np.linalg.norm(e0))
         if norm == 0.0:
             return x
         eps = 1e-5
         reaction = _reaction(self.ws, mid)
-        d_reaction = np.array(  # [i] = dA / dphi_i, (6, 3, 6)
+        d_reaction = np.array(  # [i] = dA / dphi_i, (n, 3, n)
             [
                 _reaction(self.ws, mid + eps * d) - _reaction(self.ws, mid - eps * d)
-                for d in np.eye(_N)
+                for d in np.eye(n)
             ]
         ) / (2.0 * eps)
         # Curvature of w = A dphi, F_ij = d_i A_j - d_j A_i + A_i x A_j, along e0's axis.
@@ -328,6 +353,9 @@ def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> _Problem:
     model = ws.model
     joints = {}
     for name in ("phi_init_deg", "phi_end_deg"):
+        given = len(getattr(params, name))
+        if given != model.n_joints:
+            raise InvalidInput(f"{name} has {given} angles; this robot has {model.n_joints} joints")
         try:
             joints[name] = model.check_joints(np.radians(getattr(params, name)))
         except JointLimitExceeded as exc:
@@ -346,7 +374,8 @@ def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> _Problem:
 
 def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting, Array]:
     mid = 0.5 * (prob.start + prob.goal)
-    straight = prob.gap(*prob.rotations(np.concatenate([mid, np.zeros(24)])))
+    p_slice, fwd, bwd = prob.slices
+    straight = prob.gap(*prob.rotations(np.concatenate([mid, np.zeros(4 * mid.size)])))
     x = prob.seed(mid, straight)
     g_f, g_b = prob.rotations(x)
     e = prob.gap(g_f, g_b)
@@ -379,11 +408,11 @@ def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting,
     if not jac.any():
         jac = prob.jacobian(x, g_f, g_b, e)
     lam = np.linspace(0.0, 1.0, _PATH_SAMPLES)
-    forward = _curve(prob.start, x[_P], x[_FWD], lam)[0]
-    backward = _curve(prob.goal, x[_P], x[_BWD], lam)[0]
+    forward = _curve(prob.start, x[p_slice], x[fwd], lam)[0]
+    backward = _curve(prob.goal, x[p_slice], x[bwd], lam)[0]
     _check_path_limits(prob.ws.model, np.vstack([forward, backward]))
     meeting = Meeting(
-        joints_rad=x[_P].copy(),
+        joints_rad=x[p_slice].copy(),
         quat_orbit_from_base_xyzw=quat_xyzw_from_matrix(prob.rot_init @ g_f),
         forward_joints_rad=forward,
         backward_joints_rad=backward,
@@ -420,7 +449,7 @@ def find_meeting(ws: DynamicsWorkspace, params: NonholonomicParams | None = None
 def _path_commands(
     model: RobotModel, start: Array, p: Array, coeffs: Array, rate_fraction: float, n: int | None
 ) -> Array:
-    """Commands (n + 1, 6) along a path, 0.25 s apart, on the quintic in ``sigma``."""
+    """Commands (n + 1, joints) along a path, 0.25 s apart, on the quintic in ``sigma``."""
     lam = np.linspace(0.0, 1.0, _RETIME_SAMPLES)
     rates = _curve(start, p, coeffs, lam)[1]
     speed = np.max(np.abs(rates) / model.joint_rate_limit_radps, axis=1)  # s per unit lam
@@ -442,9 +471,10 @@ def _commands(
     model = prob.ws.model
     counts: list[int | None] = [None, None] if n is None else list(n)
     legs = []
-    for leg, (start, coeffs) in enumerate(((prob.start, x[_FWD]), (prob.goal, x[_BWD]))):
+    p, fwd, bwd = prob.slices
+    for leg, (start, coeffs) in enumerate(((prob.start, x[fwd]), (prob.goal, x[bwd]))):
         for _ in range(4):
-            joints = _path_commands(model, start, x[_P], coeffs, params.rate_fraction, counts[leg])
+            joints = _path_commands(model, start, x[p], coeffs, params.rate_fraction, counts[leg])
             worst = np.max(
                 np.abs(np.diff(joints, axis=0))
                 / COMMAND_PERIOD_S
@@ -460,7 +490,7 @@ def _commands(
 def _correct_on_grid(
     prob: _Problem, params: NonholonomicParams, x: Array, jac: Array
 ) -> tuple[Array, Array, tuple[int, int], int]:
-    """Commands from ``phi_init`` to ``phi_end`` (k, 6) whose 4 Hz linear interpolation ends
+    """Commands from ``phi_init`` to ``phi_end`` (k, n) whose 4 Hz linear interpolation ends
     at ``R_end``, the corrected ``x``, the period count of each path and the corrections."""
     forward, backward = _commands(prob, x, params, None)
     counts = (forward.shape[0] - 1, backward.shape[0] - 1)
@@ -483,13 +513,26 @@ def _correct_on_grid(
     )
 
 
-def plan_nonholonomic(ws: DynamicsWorkspace, params: NonholonomicParams | None = None) -> Plan:
+def plan_nonholonomic(
+    ws: DynamicsWorkspace,
+    params: NonholonomicParams | None = None,
+    *,
+    robot: RobotDescription | None = None,
+) -> Plan:
     """The experiment-4 plan: free drift, forward path to the meeting, backward path reversed.
 
-    Raises :class:`DidNotConverge` when no meeting (or no corrected 4 Hz plan) is found and
-    :class:`JointLimitExceeded` for start or goal joints outside their limits.
+    Raises :class:`DidNotConverge` when no meeting (or no corrected 4 Hz plan) is found,
+    :class:`JointLimitExceeded` for start or goal joints outside their limits and
+    :class:`InvalidInput` for joint lists of another length than the robot's joints (the
+    joints are the parameters': a robot's own are its description's ``[experiments.
+    nonholonomic]`` table, which :mod:`planner.catalogue` reads).
     """
     params = params or NonholonomicParams()
+    if robot is not None and robot.model.n_joints != ws.model.n_joints:
+        raise InvalidInput(
+            f"the workspace's model has {ws.model.n_joints} joints, robot {robot.name!r} "
+            f"{robot.model.n_joints}"
+        )
     prob = _problem(ws, params)
     meeting, jac = _solve_meeting(prob, params)
     motion, x, counts, corrections = _correct_on_grid(prob, params, meeting.path_parameters, jac)
@@ -508,7 +551,12 @@ def plan_nonholonomic(ws: DynamicsWorkspace, params: NonholonomicParams | None =
     meeting_deg = np.degrees(meeting.joints_rad)
     metrics = {
         **{f"meeting_joint{i + 1}_deg": float(v) for i, v in enumerate(meeting_deg)},
-        "paper_meeting_distance_deg": meeting.paper_distance_deg,
+        # the flight's meeting point is ETS-VII's: no distance for another joint count
+        **(
+            {"paper_meeting_distance_deg": meeting.paper_distance_deg}
+            if math.isfinite(meeting.paper_distance_deg)
+            else {}
+        ),
         "meeting_joint_gap_rad": meeting.joint_gap_rad,
         "meeting_attitude_gap_rad": meeting.attitude_gap_rad,
         "straight_path_attitude_error_deg": math.degrees(meeting.straight_path_error_rad),
@@ -542,7 +590,7 @@ def plan_nonholonomic(ws: DynamicsWorkspace, params: NonholonomicParams | None =
         initial_quat_orbit_from_base_xyzw=quat_init,
     )
     check_plan_limits(ws.model, plan)
-    return plan
+    return plan_for_robot(plan, robot)
 
 
 def _angle_deg(rot: Array) -> float:

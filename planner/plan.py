@@ -29,7 +29,6 @@ if TYPE_CHECKING:
     from planner.description import RobotDescription
 
 __all__ = [
-    "ETS7_ROBOT_HASH",
     "ETS7_ROBOT_NAME",
     "SEGMENT_KINDS",
     "AcsCommand",
@@ -37,6 +36,7 @@ __all__ = [
     "Prediction",
     "Segment",
     "check_plan_limits",
+    "ets7_robot_hash",
     "plan_for_robot",
 ]
 
@@ -57,10 +57,23 @@ SEGMENT_KINDS = (
 PLAN_FORMAT_VERSION = 1
 
 #: The robot a plan is for when a document does not say (plans written before issue 12):
-#: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name and ``content_sha256`` (a test checks
-#: these against the file).
+#: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name; its hash is the file's
+#: ``content_sha256`` (:func:`ets7_robot_hash`, also ``planner.plan.ETS7_ROBOT_HASH``), read
+#: from the file when first needed, so that it follows the file (its [acs] calibration, say).
 ETS7_ROBOT_NAME = "ets7"
-ETS7_ROBOT_HASH = "84a360791750dff2dd73ab7f5b9bd77ae89a2e1526c18b1ff9af27fbaf95f032"
+
+
+def ets7_robot_hash() -> str:
+    """ETS-VII's description's ``content_sha256`` (the file is loaded once per process)."""
+    from planner.description import default_robot
+
+    return default_robot().content_sha256
+
+
+def __getattr__(name: str) -> str:
+    if name == "ETS7_ROBOT_HASH":
+        return ets7_robot_hash()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -171,7 +184,7 @@ class Plan:
         default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
     )
     robot: str = ETS7_ROBOT_NAME
-    robot_hash: str = ETS7_ROBOT_HASH
+    robot_hash: str = field(default_factory=ets7_robot_hash)
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -254,7 +267,7 @@ class Plan:
                 metrics={str(k): float(v) for k, v in doc["metrics"].items()},
                 # absent in documents written before issue 12: those plans are ETS-VII's
                 robot=doc.get("robot", ETS7_ROBOT_NAME),
-                robot_hash=doc.get("robot_hash", ETS7_ROBOT_HASH),
+                robot_hash=doc["robot_hash"] if "robot_hash" in doc else ets7_robot_hash(),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InvalidInput):
@@ -293,5 +306,5 @@ def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 
 def plan_for_robot(plan: Plan, robot: RobotDescription | None) -> Plan:
     """``plan`` stamped with the robot it was made for (``None``: ETS-VII, the default)."""
     if robot is None:
-        return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ETS7_ROBOT_HASH)
+        return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ets7_robot_hash())
     return replace(plan, robot=robot.name, robot_hash=robot.content_sha256)

@@ -1,7 +1,8 @@
 """Reactionless manipulation in the reaction null space (RNS), SPEC experiment 1, eq. (4)-(5).
 
 Zero reaction is the hard constraint: every joint rate is ``phi' = N zeta`` with ``N`` an
-orthonormal basis of the null space of ``H~_bm`` (3-D for ETS-VII), so the arm's motion
+orthonormal basis of the null space of ``H~_bm`` (n - 3 dimensions: 3 for ETS-VII's 6
+joints, 4 for Orihime's 7), so the arm's motion
 carries no angular momentum and the base does not turn. Inside those three freedoms the hand
 tasks are met by priority (damped least squares at each level, so a task that becomes
 singular degrades smoothly instead of demanding huge rates):
@@ -10,7 +11,7 @@ singular degrades smoothly instead of demanding huge rates):
 2. the hand's lateral position on the line and its orientation (weighted, with a
    proportional correction of the errors so that nothing accumulates).
 
-Three freedoms cannot hold six task coordinates, so the orientation drifts where the
+Three freedoms (ETS-VII) cannot hold six task coordinates, so the orientation drifts where the
 constraint leaves no room; the plan reports by how much. The return leg is the outbound
 joint path retraced at its own speed: retracing a reactionless path is reactionless, and
 it returns the arm to exactly the joints it started from (a reactionless path that only aimed
@@ -130,7 +131,7 @@ def reactionless_line(
         a_v, a_w = J_m[:3] @ basis, J_m[3:] @ basis
         a1 = (direction @ a_v)[None, :]
         zeta = _dls(a1, np.array([speed]))
-        p1 = np.eye(3) - np.linalg.pinv(a1) @ a1
+        p1 = np.eye(basis.shape[1]) - np.linalg.pinv(a1) @ a1  # the RNS's n - 3 dimensions
         pos_err = lateral @ (start_pos - hand.pos_robot_m)
         rot_err = Rotation.from_matrix(rot0 @ hand.rot_robot_from_hand.T).as_rotvec()
         a2 = np.vstack([lateral @ a_v, orientation_weight_m * a_w])
@@ -289,8 +290,8 @@ class GlobalReactionlessSearch:
     """
 
     start_joints_rad: Array
-    controls: Array  # (pieces, 6): u_k of the best path
-    joints_rad: Array  # (pieces * steps_per_piece + 1, 6)
+    controls: Array  # (pieces, n): u_k of the best path
+    joints_rad: Array  # (pieces * steps_per_piece + 1, n)
     reached: bool
     position_error_m: float  # of the best path's end
     orientation_error_rad: float
@@ -308,7 +309,7 @@ def _rns_rate(ws: DynamicsWorkspace, phi: Array, u: Array) -> Array:
 
 
 def _flow(ws: DynamicsWorkspace, start: Array, controls: Array, steps: int) -> Array:
-    """RK4 nodes (pieces * steps + 1, 6) of ``phi' = P(phi) u_k``, one unit per piece."""
+    """RK4 nodes (pieces * steps + 1, n) of ``phi' = P(phi) u_k``, one unit per piece."""
     h = 1.0 / steps
     q = np.asarray(start, dtype=np.float64).copy()
     nodes = [q.copy()]
@@ -363,13 +364,13 @@ def search_reactionless_global(
 ) -> GlobalReactionlessSearch:
     """Search for a reactionless joint path whose hand ends at the goal pose (global).
 
-    The reaction constraint is non-holonomic: the RNS has 3 of the 6 joint dimensions, but
+    The reaction constraint is non-holonomic: the RNS has n - 3 of the n joint dimensions, but
     its Lie brackets (the net motion of small cycles in the null space) supply the others, so
     a goal the null-space descent of :func:`search_reactionless_path` cannot approach may
     still be reachable by a longer, looping route. This is a shooting method on the endpoint
     map: the path is ``pieces`` constant controls ``u_k`` of the flow ``phi' = P(phi) u``
     (exactly reactionless at every point, up to the RK4 error), and Levenberg-Marquardt moves
-    all ``6 * pieces`` controls at once to drive the hand-pose error at the end to zero (the
+    all ``n * pieces`` controls at once to drive the hand-pose error at the end to zero (the
     endpoint map of a bracket-generating system has full rank at generic, non-zero controls,
     so cycles are part of every step; at zero controls it has rank 3 only, hence random
     starts). Joints are kept ``_LIMIT_HARD_MARGIN_RAD`` inside their limits (a trial that

@@ -10,6 +10,7 @@ the wheel momentum carry over from one experiment to the next.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,13 +20,22 @@ from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
 from planner.coordination import CoordinationParams, plan_coordination
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InfeasibleGoal, InvalidInput
-from planner.experiments import PtpParams, ReactionlessParams, plan_ptp, plan_reactionless
+from planner.experiments import (
+    PtpParams,
+    ReactionlessParams,
+    check_robot,
+    plan_ptp,
+    plan_reactionless,
+)
 from planner.gjm import GjmParams, plan_gjm
-from planner.plan import AcsCommand, Plan, Segment, check_plan_limits
+from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import ptp_commands
 
-__all__ = ["EXPERIMENTS", "PassParams", "plan_pass"]
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
+
+__all__ = ["EXPERIMENTS", "PassParams", "plan_coordination_for", "plan_pass"]
 
 Array = NDArray[np.float64]
 
@@ -49,41 +59,96 @@ class PassParams:
             raise InvalidInput(f"window_s = {self.window_s} must lie in (0, 3600] s")
 
 
-def _experiment_plans(ws: DynamicsWorkspace, params: PassParams, gains: AcsGains) -> list[Plan]:
+def plan_coordination_for(
+    ws: DynamicsWorkspace,
+    params: CoordinationParams | None = None,
+    gains: AcsGains | None = None,
+    *,
+    robot: RobotDescription | None = None,
+) -> Plan:
+    """:func:`planner.coordination.plan_coordination` for ``robot`` (``None``: ETS-VII): its
+    wheel law, and the plan stamped with it. The experiment flies from the all-zero pose,
+    which must be the robot's pose A."""
+    check_robot(ws, robot)
+    if robot is not None:
+        if "A" in robot.poses:
+            pose_a = robot.target_joints_rad("A", ws, experiment="coordination")
+            if np.any(pose_a != 0.0):
+                raise InvalidInput(
+                    f"coordination: flies from the all-zero pose, and robot {robot.name!r}'s "
+                    f"pose A is not all zero ({np.round(np.degrees(pose_a), 3).tolist()} deg)"
+                )
+        gains = gains or robot.acs_gains(ws)
+    return plan_for_robot(plan_coordination(ws, params or CoordinationParams(), gains), robot)
+
+
+def _robot_params(
+    robot: RobotDescription | None, experiment: str, params_type: type[Any], **overrides: Any
+) -> Any:
+    """The experiment's parameters: the robot's defaults (its ``[experiments.NAME]`` table)
+    under ``overrides``; ETS-VII's built-in defaults without a robot."""
+    if robot is None:
+        return params_type(**overrides)
+    from planner.catalogue import parameters_from_values
+
+    return parameters_from_values(
+        params_type, overrides, defaults=robot.experiment_defaults(experiment)
+    )
+
+
+def _experiment_plans(
+    ws: DynamicsWorkspace,
+    params: PassParams,
+    gains: AcsGains,
+    robot: RobotDescription | None = None,
+) -> list[Plan]:
     plans = []
     for name in params.experiments:
         if name == "ptp":
-            plans.append(plan_ptp(ws, PtpParams(settle_s=params.ptp_settle_s), gains))
+            ptp = _robot_params(robot, name, PtpParams, settle_s=params.ptp_settle_s)
+            plans.append(plan_ptp(ws, ptp, gains, robot=robot))
         elif name == "reactionless":
-            plans.append(plan_reactionless(ws, ReactionlessParams(), gains))
+            reactionless = _robot_params(robot, name, ReactionlessParams)
+            plans.append(plan_reactionless(ws, reactionless, gains, robot=robot))
         elif name == "gjm":
-            plans.append(plan_gjm(ws, GjmParams()))
+            plans.append(plan_gjm(ws, _robot_params(robot, name, GjmParams), robot=robot))
         elif name == "coordination":
-            plans.append(
-                plan_coordination(
-                    ws,
-                    CoordinationParams(
-                        settle_s=params.coordination_settle_s, pause_s=params.coordination_pause_s
-                    ),
-                    gains,
-                )
+            coordination = _robot_params(
+                robot,
+                name,
+                CoordinationParams,
+                settle_s=params.coordination_settle_s,
+                pause_s=params.coordination_pause_s,
             )
+            plans.append(plan_coordination_for(ws, coordination, gains, robot=robot))
         else:
             from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
 
-            plans.append(plan_nonholonomic(ws, NonholonomicParams()))
+            nonholonomic = _robot_params(robot, name, NonholonomicParams)
+            plans.append(plan_nonholonomic(ws, nonholonomic, robot=robot))
     return plans
 
 
 def plan_pass(
-    ws: DynamicsWorkspace, params: PassParams = PassParams(), gains: AcsGains | None = None
+    ws: DynamicsWorkspace,
+    params: PassParams = PassParams(),
+    gains: AcsGains | None = None,
+    *,
+    robot: RobotDescription | None = None,
 ) -> Plan:
-    """The experiments of ``params`` in order, from pose A, as one plan."""
+    """The experiments of ``params`` in order, from pose A, as one plan: ``robot``'s
+    experiments with its poses and default parameters (``None``: ETS-VII's built-in ones)."""
     params.check()
+    check_robot(ws, robot)
     model = ws.model
-    gains = gains or default_acs_gains(ws)
-    pieces = _experiment_plans(ws, params, gains)
-    builder = CommandBuilder(np.zeros(model.n_joints))
+    if robot is None:
+        gains = gains or default_acs_gains(ws)
+        start = np.zeros(model.n_joints)
+    else:
+        gains = gains or robot.acs_gains(ws)
+        start = robot.target_joints_rad("A", ws, experiment="pass")
+    pieces = _experiment_plans(ws, params, gains, robot)
+    builder = CommandBuilder(start)
     acs: list[AcsCommand] = [AcsCommand(0.0, AcsMode.FEEDBACK)]
     segments: list[Segment] = []
     metrics: dict[str, float] = {}
@@ -136,7 +201,7 @@ def plan_pass(
     plan = Plan(
         experiment="pass",
         parameters={**asdict(params), "experiments": list(params.experiments)},
-        initial_joints_rad=np.zeros(model.n_joints),
+        initial_joints_rad=start,
         command_times_s=times,
         command_joints_rad=joints,
         segments=tuple(segments),
@@ -145,4 +210,4 @@ def plan_pass(
         acs_commands=tuple(sorted(acs, key=lambda c: c.t_s)),
     )
     check_plan_limits(model, plan)
-    return plan
+    return plan_for_robot(plan, robot)

@@ -26,6 +26,10 @@ def _zeros(n: int) -> Array:
     return np.zeros(n)
 
 
+#: The default of ``State.joint_rates_radps``: replaced by zeros of the joints' shape.
+_UNSET_RATES: Array = np.zeros(0)
+
+
 @dataclass(frozen=True, eq=False)
 class State:
     """Positions and velocities of base, joints and wheels (SI units)."""
@@ -35,7 +39,8 @@ class State:
     pos_base_orbit_m: Array = field(default_factory=lambda: _zeros(3))
     vel_base_orbit_mps: Array = field(default_factory=lambda: _zeros(3))
     omega_base_orbit_radps: Array = field(default_factory=lambda: _zeros(3))
-    joint_rates_radps: Array = field(default_factory=lambda: _zeros(6))
+    #: defaults to zeros of ``joints_rad``'s shape (any joint count)
+    joint_rates_radps: Array = field(default_factory=lambda: _UNSET_RATES)
     wheel_rates_radps: Array = field(default_factory=lambda: _zeros(3))
 
     def __post_init__(self) -> None:
@@ -55,6 +60,8 @@ class State:
                 raise InvalidInput(f"{name} must be finite, got {value.tolist()}")
             object.__setattr__(self, name, value)
         rates = np.asarray(self.joint_rates_radps, dtype=np.float64)
+        if self.joint_rates_radps is _UNSET_RATES:
+            rates = np.zeros_like(self.joints_rad)
         if rates.shape != self.joints_rad.shape:
             raise InvalidInput(
                 f"joint_rates_radps has shape {rates.shape}, joints_rad {self.joints_rad.shape}"
