@@ -169,7 +169,8 @@ def _plan_help() -> str:
         "Plan an experiment (ptp, reactionless, gjm, coordination, nonholonomic, pass) as a "
         "4 Hz time-tagged command plan with its prediction, and write it as JSON. Parameters "
         "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
-        "paper's experiment.\n\nParameters:\n\n" + parameters_help()
+        "paper's experiment. With --robot FILE the plan is for that robot: its poses, and "
+        "its [experiments.NAME] tables as the defaults.\n\nParameters:\n\n" + parameters_help()
     )
 
 
@@ -190,10 +191,12 @@ def plan_command(
         ),
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    robot: RobotOption = None,
 ) -> None:
     from hikoboshi.planning_cli import make_plan, write_atomically
     from planner.errors import PlannerError
 
+    description = None if robot is None else _load(robot)
     try:
         status = (
             contextlib.nullcontext()
@@ -202,7 +205,10 @@ def plan_command(
         )
         with status:
             plan = make_plan(
-                experiment, assignments or [], optimise_offset_flag=optimise_offset_flag
+                experiment,
+                assignments or [],
+                optimise_offset_flag=optimise_offset_flag,
+                robot=description,
             )
     except PlannerError as exc:
         _fail(str(exc))

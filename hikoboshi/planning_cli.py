@@ -7,10 +7,13 @@ import os
 import tempfile
 import typing
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from planner.catalogue import experiments, parse_assignments, plan_experiment, resolve, type_name
 from planner.plan import Plan
+
+if TYPE_CHECKING:
+    from planner.description import RobotDescription
 
 __all__ = ["make_plan", "parameters_help", "parse_parameters", "write_atomically"]
 
@@ -38,10 +41,21 @@ def parse_parameters(params_type: type, assignments: list[str]) -> Any:
     return parse_assignments(params_type, assignments)
 
 
-def make_plan(experiment: str, assignments: list[str], *, optimise_offset_flag: bool) -> Plan:
+def make_plan(
+    experiment: str,
+    assignments: list[str],
+    *,
+    optimise_offset_flag: bool,
+    robot: RobotDescription | None = None,
+) -> Plan:
+    """The plan for ``robot`` (``None``: ETS-VII as built in): its ``[experiments.NAME]``
+    table under the ``--set`` assignments, its poses."""
     params_type, _ = resolve(experiment)
-    params = parse_assignments(params_type, assignments)
-    return plan_experiment(experiment, params, optimise_offset_flag=optimise_offset_flag)
+    defaults = None if robot is None else robot.experiment_defaults(experiment)
+    params = parse_assignments(params_type, assignments, defaults=defaults)
+    return plan_experiment(
+        experiment, params, optimise_offset_flag=optimise_offset_flag, robot=robot
+    )
 
 
 def write_atomically(path: Path, text: str) -> None:

@@ -72,3 +72,40 @@ def test_bad_parameters_exit_with_one_line_and_write_nothing(
     assert len(lines) == 1 and reason in lines[0], result.stderr
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []  # no temporary file left behind either
+
+
+ORIHIME = Path(__file__).resolve().parents[1] / "examples" / "robots" / "orihime" / "orihime.toml"
+
+
+def test_plan_for_another_robot_takes_its_description(tmp_path: Path) -> None:
+    out = tmp_path / "reactionless.json"
+    result = run("plan", "--robot", str(ORIHIME), "reactionless", "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    doc = json.loads(out.read_text())
+    assert doc["robot"] == "orihime" and len(doc["robot_hash"]) == 64
+    assert len(doc["initial_joints_rad"]) == 7
+    assert all(len(c["joints_rad"]) == 7 for c in doc["commands"])
+    assert doc["parameters"]["distance_m"] == 0.2  # Orihime's [experiments.reactionless]
+    assert json.loads(result.stdout)["metrics"]["peak_attitude_deg"] < 0.01
+    # without --robot: ETS-VII, as before
+    ets7 = tmp_path / "ptp.json"
+    assert run("plan", "ptp", "--out", str(ets7)).returncode == 0
+    assert json.loads(ets7.read_text())["robot"] == "ets7"
+
+
+def test_plan_refuses_an_experiment_the_robot_cannot_give(tmp_path: Path) -> None:
+    import shutil
+
+    folder = tmp_path / "robot"
+    shutil.copytree(ORIHIME.parent, folder)
+    toml = folder / "orihime.toml"
+    lines = toml.read_text().splitlines()
+    start = lines.index("[poses.B]")
+    end = next(i for i in range(start + 1, len(lines)) if lines[i].startswith("["))
+    toml.write_text("\n".join(lines[:start] + lines[end:]) + "\n")
+    out = tmp_path / "plan.json"
+    result = run("plan", "--robot", str(toml), "reactionless", "--out", str(out))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "has no pose 'B'" in lines[0], result.stderr
+    assert not out.exists()
