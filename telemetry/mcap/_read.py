@@ -38,6 +38,7 @@ from telemetry.mcap._schemas import (
     FORMAT_VERSION,
     METADATA_NAME,
     OWN_SCHEMAS,
+    PLAN_SCHEMA_BEFORE_ROBOTS,
     SCHEMA_ENCODING,
     TOPIC_COMMANDS,
     TOPIC_EVENTS,
@@ -240,6 +241,8 @@ def _channels(summary: Summary) -> tuple[dict[str, Channel], FrameLayout]:
             found = layout_of_telemetry_schema(written)
             same = found is not None
             layout = found or layout
+        elif topic == TOPIC_PLAN:
+            same = written in (want, PLAN_SCHEMA_BEFORE_ROBOTS)
         else:
             same = written == want
         if not same:

@@ -18,6 +18,7 @@ __all__ = [
     "FORMAT_VERSION",
     "METADATA_NAME",
     "OWN_SCHEMAS",
+    "PLAN_SCHEMA_BEFORE_ROBOTS",
     "SCHEMA_ENCODING",
     "TOPIC_COMMANDS",
     "TOPIC_EVENTS",
@@ -147,7 +148,7 @@ _PREDICTION = {
     "required": list(_PREDICTION_COLUMNS),
 }
 
-PLAN_SCHEMA = {
+PLAN_SCHEMA: dict[str, Any] = {
     "title": "hikoboshi.Plan",
     "description": "The uplinked plan, exactly planner.plan.Plan.to_json(): joint commands "
     "(t_s from the plan's t = 0), ACS commands, segments, the prediction under ideal "
@@ -172,6 +173,10 @@ PLAN_SCHEMA = {
         "segments": {"type": "array", "items": {"type": "object"}},
         "prediction": _PREDICTION,
         "metrics": {"type": "object", "additionalProperties": {"type": "number"}},
+        # the robot the plan is for (its description's name and content hash); absent in
+        # plans written before robots were described: ETS-VII's
+        "robot": _STR,
+        "robot_hash": _STR,
     },
     "required": [
         "format_version",
@@ -186,6 +191,15 @@ PLAN_SCHEMA = {
         "metrics",
     ],
     "additionalProperties": False,
+}
+
+#: The plan schema before plans named their robot: a file written with it is read too (its
+#: plans are ETS-VII's).
+PLAN_SCHEMA_BEFORE_ROBOTS: dict[str, Any] = {
+    **PLAN_SCHEMA,
+    "properties": {
+        k: v for k, v in PLAN_SCHEMA["properties"].items() if k not in ("robot", "robot_hash")
+    },
 }
 
 #: topic -> schema of the channels :func:`read_mcap` needs (the telemetry's: ETS-VII's; another

@@ -480,3 +480,30 @@ def test_a_seven_joint_recording_is_not_written_with_ets7s_model() -> None:
     recording = PassRecording.from_frames("seven", make_plan(n_joints=7), 0, frames)
     with pytest.raises(RecordingFileError, match="7 joints, the robot model 6"):
         write_mcap(recording, io.BytesIO())
+
+
+def test_a_file_written_before_plans_named_their_robot_is_read_as_ets7s(
+    demo_recording: PassRecording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from planner.plan import Plan
+    from telemetry.mcap import _write
+    from telemetry.mcap._schemas import PLAN_SCHEMA, PLAN_SCHEMA_BEFORE_ROBOTS
+
+    assert "robot" in PLAN_SCHEMA["properties"]
+    assert "robot" not in PLAN_SCHEMA_BEFORE_ROBOTS["properties"]
+    recording = small_recording(demo_recording)
+    document = json.loads(recording.plan.to_json())
+    assert document["robot"] == "ets7"
+    old_document = json.dumps(
+        {k: v for k, v in document.items() if k not in ("robot", "robot_hash")}
+    )
+    # Written as before: the plan without its robot, under the schema of then.
+    monkeypatch.setattr(Plan, "to_json", lambda self: old_document)
+    monkeypatch.setattr(_write, "PLAN_SCHEMA", PLAN_SCHEMA_BEFORE_ROBOTS)
+    buf = io.BytesIO()
+    write_mcap(recording, buf)
+    monkeypatch.undo()
+    buf.seek(0)
+    back = read_mcap(buf)
+    assert back.plan.robot == "ets7"
+    assert back.plan.to_json() == recording.plan.to_json()
