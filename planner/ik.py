@@ -110,7 +110,12 @@ def solve_ik(
     joints = [link.joint_pos_robot_m for link in model.links] + [model.hand_pos_robot_m]
     reach_m = sum(float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(joints[1:]))
     shoulder_distance_m = float(np.linalg.norm(pos - joints[1]))
-    if shoulder_distance_m > reach_m + 0.35:  # joint 1 swings joint 2 by at most 0.275 m
+    # Joint 1 swings joint 2 on a circle about its axis (radius 0.275 m for ETS-VII, 0.15 m
+    # for Orihime); 0.075 m more of margin.
+    axis1 = model.links[0].joint_axis_robot
+    offset = joints[1] - joints[0]
+    swing_m = float(np.linalg.norm(offset - (offset @ axis1) * axis1))
+    if shoulder_distance_m > reach_m + swing_m + 0.075:
         raise InfeasibleGoal(
             f"hand target {np.round(pos, 3).tolist()} m is {shoulder_distance_m:.3f} m from the "
             f"shoulder, beyond the arm's reach of {reach_m:.3f} m"

@@ -19,7 +19,7 @@ Tree and frames (the same frame choices as :mod:`planner.mjcf`, SPEC section 7):
   The link's ``<inertial>`` sits at its CoM, ``link.com_robot_m - link.joint_pos_robot_m``,
   with rpy 0 and the full tensor ``link.inertia_com_robot_kgm2`` (robot-frame axes at the
   all-zero pose, so link-frame axes at any pose).
-- ``hand``: a massless frame at the hand point, on link 6, parallel to link 6.
+- ``hand``: a massless frame at the hand point, on link n (ETS-VII: 6), parallel to it.
 
 Inertia entries are written as the matrix entries themselves (URDF's ``ixy`` is ``I[0, 1]``),
 so the sign convention is the one chosen once in :data:`planner.model.INERTIA_PRODUCT_SIGN`.
