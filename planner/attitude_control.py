@@ -26,8 +26,10 @@ wheels taking up ``H~_bm phi'`` exactly, would leave the base still and beat fee
 the flight did not show; the paper calls the flight's method counter-productive for this
 motion.) In ``free_drift`` the feedforward does nothing: there is no rate loop to feed.
 
-**The law family** (:class:`AcsGains`). Besides ``kp`` and ``kd`` the law has, each
-off by default (the defaults are the memoryless PD law above, bit for bit):
+**The law family** (:class:`AcsGains`). Besides ``kp`` and ``kd`` the law has the terms
+below, each off in an :class:`AcsGains` built without them (that is the memoryless PD law
+above, bit for bit). The calibrated defaults of :func:`default_acs_gains` switch the rate
+filter on (``DEFAULT_RATE_FILTER_TAU_S``, issue #13); the others stay off:
 
 - an **integral** term ``ki z`` with ``z' = e_db`` per axis (``ki = 0``: none). Anti-windup by
   conditional integration: on an axis whose unsaturated torque exceeds the wheel torque
@@ -90,13 +92,19 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-#: Our choice (SPEC 6), calibrated against the flight by the spacecraft's truth simulation
-#: (docs/spacecraft.md): feedback bandwidth 0.04 rad/s with damping ratio 0.7, so that the
-#: PTP A -> B disturbance settles (0.02 deg band) about 100 s after the motion; 0.3 N m and
-#: 20 N m s per wheel (the PTP needs at most 0.16 N m and 3 N m s, so neither limit shapes
-#: the calibrated responses).
-DEFAULT_ACS_BANDWIDTH_RADPS = 0.04
-DEFAULT_ACS_DAMPING_RATIO = 0.7
+#: Our choice (SPEC 6), calibrated against the flight (issue #13, docs/spacecraft.md
+#: "Attitude control and its calibration"): a PD law on a first-order filtered rate estimate,
+#: bandwidth 0.0225 rad/s, damping ratio 0.9, rate-filter time constant 13 s, no integral term,
+#: no dead band. Flown through the vehicle on the demo pass it gives experiment 3's (a)
+#: -0.39/+0.52 deg, (b) a first dip of -0.25 deg and the largest overshoot, (c) the smallest
+#: range and the fastest settling, and the PTP back within 0.05 deg in 70 to 130 s. A
+#: memoryless PD law cannot: its slowest pole decays at most at kd/(2 I), so a loop soft
+#: enough for (a)'s -0.5 deg dip settles the PTP in 200 s or more; the filter's third pole
+#: lifts that bound (the poles' decay rates sum to 1/tau). 0.3 N m and 20 N m s per wheel
+#: (neither limit binds in the calibration flights).
+DEFAULT_ACS_BANDWIDTH_RADPS = 0.0225
+DEFAULT_ACS_DAMPING_RATIO = 0.9
+DEFAULT_RATE_FILTER_TAU_S = 13.0
 DEFAULT_WHEEL_TORQUE_LIMIT_NM = 0.3
 DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS = 20.0
 #: Limits of the law's parameters (refused beyond them).
@@ -182,12 +190,13 @@ def default_acs_gains(
     torque_limit_nm: float = DEFAULT_WHEEL_TORQUE_LIMIT_NM,
     momentum_limit_nms: float = DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS,
     integral_time_s: float | None = None,
-    rate_filter_tau_s: float = 0.0,
+    rate_filter_tau_s: float = DEFAULT_RATE_FILTER_TAU_S,
     dead_band_rad: float = 0.0,
 ) -> AcsGains:
     """``kp = I wn^2``, ``kd = 2 zeta I wn`` with ``I`` the system's principal-axis
     inertia about its CoM (diagonal of H_c, base frame) at the reference pose; with
-    ``integral_time_s`` ``Ti``, ``ki = kp / Ti`` (None: no integral term)."""
+    ``integral_time_s`` ``Ti``, ``ki = kp / Ti`` (None: no integral term). The defaults are
+    the calibrated law (``DEFAULT_*``); ``rate_filter_tau_s=0`` gives the memoryless PD law."""
     if not (math.isfinite(bandwidth_radps) and bandwidth_radps > 0):
         raise InvalidInput(f"bandwidth_radps = {bandwidth_radps!r} must be > 0")
     if not (math.isfinite(damping_ratio) and damping_ratio > 0):
@@ -269,7 +278,7 @@ def acs_gains_from_config(ws: DynamicsWorkspace, config: Mapping[str, object]) -
         damping_ratio=number("damping_ratio", DEFAULT_ACS_DAMPING_RATIO),
         torque_limit_nm=number("torque_limit_nm", DEFAULT_WHEEL_TORQUE_LIMIT_NM),
         momentum_limit_nms=number("momentum_limit_nms", DEFAULT_WHEEL_MOMENTUM_LIMIT_NMS),
-        rate_filter_tau_s=number("rate_filter_tau_s", 0.0),
+        rate_filter_tau_s=number("rate_filter_tau_s", DEFAULT_RATE_FILTER_TAU_S),
         dead_band_rad=math.radians(number("dead_band_deg", 0.0)),
     )
     kp = axes("kp_nm_per_rad") if explicit else gains.kp_nm_per_rad

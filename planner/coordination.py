@@ -6,9 +6,10 @@ under three attitude-control variants flown one after the other:
 
 (a) ``feedback``: wheel feedback to the nominal attitude only;
 (b) ``feedforward``: feedback plus momentum feedforward of eq. (9);
-(c) ``offset``: feedback whose target is set to the eq. (10) prediction ``Omega_b`` of the
-    leg's free-drift attitude change right after the arm starts, and back to nominal right
-    after it stops (paper: -0.35 deg in flight).
+(c) ``offset``: feedback whose target is set to a multiple of the eq. (10) prediction
+    ``Omega_b`` of the leg's free-drift attitude change right after the arm starts, and back to
+    nominal right after it stops; by default the flight's size, -0.35 deg for the forward
+    leg (``FLIGHT_OFFSET_SCALE`` of ``Omega_b``, -0.57 deg).
 
 Beyond the paper (its future work): :func:`optimise_offset` tunes the offset size and the two
 switch delays against the closed loop (lagging servos, wheel torque and momentum limits,
@@ -37,6 +38,7 @@ from planner.simulation import SimConfig
 from planner.state import State
 
 __all__ = [
+    "FLIGHT_OFFSET_SCALE",
     "VARIANTS",
     "CoordinationParams",
     "OffsetOptimum",
@@ -49,6 +51,11 @@ __all__ = [
 Array = NDArray[np.float64]
 
 VARIANTS = ("feedback", "feedforward", "offset")
+#: The offset destination's default size, as a multiple of eq. (10)'s ``Omega_b``: the
+#: flight's -0.35 deg (paper 3.5) over the forward leg's ``Omega_b`` on the default model,
+#: -0.569 deg (issue #13: at scale 1, -0.57 deg, (c) had the largest range of the three
+#: variants; the flight's size, with the calibrated law, gives it the smallest).
+FLIGHT_OFFSET_SCALE = 0.615
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 
@@ -60,7 +67,7 @@ class CoordinationParams:
     pause_s: float = 20.0  # between the forward and the backward leg
     settle_s: float = 120.0  # after each variant
     variants: tuple[str, ...] = VARIANTS
-    offset_scale: float = 1.0  # (c): target = scale * Omega_b
+    offset_scale: float = FLIGHT_OFFSET_SCALE  # (c): target = scale * Omega_b
     offset_on_delay_s: float = 0.5  # (c): after the leg starts
     offset_off_delay_s: float = 0.5  # (c): after the leg stops
     settle_band_deg: float = 0.02

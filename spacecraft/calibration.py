@@ -13,7 +13,10 @@ space (logarithms of the bandwidth and damping ratio, ``log(1 + tau)``, the inte
 - :func:`fit_to_paper`: the law against the paper's targets of experiments 1 and 3 that the
   law shapes (PTP settling, the feedback-only pitch range, the feedforward's shape, the
   offset destination's smallest range and fastest settling), each residual scaled by its
-  tolerance, the orderings as hinges (zero when they hold). Evaluated on the prediction;
+  tolerance, the orderings as hinges (zero when they hold), measured as the report measures
+  them (the 0.05 deg band around the window's final value; experiment 3 as the demo pass
+  schedules it; the PTP with a 360 s wait, so that its final value is the attitude the loop
+  holds). Evaluated on the prediction;
   optionally the start and the fit are flown through the vehicle
   (:func:`spacecraft._calibration.fly_plan`, the same plans) and reported beside it. The targets
   the law does not shape (GJM flies in free drift; the reactionless reaction comes from
@@ -39,6 +42,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from planner.attitude_control import (
     DEFAULT_ACS_BANDWIDTH_RADPS,
     DEFAULT_ACS_DAMPING_RATIO,
+    DEFAULT_RATE_FILTER_TAU_S,
     AcsGains,
     AcsMode,
     default_acs_gains,
@@ -48,7 +52,13 @@ from planner.errors import InvalidInput
 from planner.model import default_model
 from planner.plan import Plan
 from planner.prediction import predict
-from spacecraft._calibration import Flight, coordination_metrics
+from spacecraft._calibration import (
+    SETTLE_BAND_DEG,
+    Flight,
+    calibration_plans,
+    coordination_metrics,
+    ptp_settling_s,
+)
 
 __all__ = [
     "PARAMETERS",
@@ -99,7 +109,12 @@ PARAMETERS: Mapping[str, _Parameter] = {
         DEFAULT_ACS_DAMPING_RATIO, math.log(0.05), math.log(5.0), math.log, math.exp
     ),
     "rate_filter_tau_s": _Parameter(
-        0.0, 0.0, math.log1p(200.0), math.log1p, _tau_from_x, active_start=2.0
+        DEFAULT_RATE_FILTER_TAU_S,
+        0.0,
+        math.log1p(200.0),
+        math.log1p,
+        _tau_from_x,
+        active_start=2.0,
     ),
     "integral_time_s": _Parameter(
         math.inf,
@@ -129,7 +144,7 @@ def gains_from_parameters(ws: DynamicsWorkspace, values: Mapping[str, float]) ->
         ws,
         bandwidth_radps=float(values.get("bandwidth_radps", DEFAULT_ACS_BANDWIDTH_RADPS)),
         damping_ratio=float(values.get("damping_ratio", DEFAULT_ACS_DAMPING_RATIO)),
-        rate_filter_tau_s=float(values.get("rate_filter_tau_s", 0.0)),
+        rate_filter_tau_s=float(values.get("rate_filter_tau_s", DEFAULT_RATE_FILTER_TAU_S)),
         integral_time_s=None if math.isinf(ti) else ti,
     )
 
@@ -391,8 +406,6 @@ class _PaperTarget:
 #: The hinges ask for the orderings to hold by this much (a tie does not hold).
 _MARGIN_DEG = 0.01
 _MARGIN_S = 2.0
-#: The PTP's settling wait in the paper fit (s).
-_PTP_SETTLE_S = 360.0
 
 
 def _paper_limits() -> dict[str, Mapping[str, float]]:
@@ -422,7 +435,8 @@ def _paper_targets() -> list[_PaperTarget]:
     return [
         _PaperTarget(
             "ptp_settling",
-            f"PTP A->B settles (0.02 deg) about {ptp['flight_s']:.0f} s after the motion",
+            f"PTP A->B back within {SETTLE_BAND_DEG} deg of the attitude the loop holds "
+            f"about {ptp['flight_s']:.0f} s after the motion",
             f"{lo_s:.0f} to {hi_s:.0f} s",
             lambda m: m["ptp"]["settling_time_s"],
             lambda m: lo_s <= m["ptp"]["settling_time_s"] <= hi_s,
@@ -519,16 +533,12 @@ def _flight_of(plan: Plan, gains: AcsGains, ws: DynamicsWorkspace) -> Flight:
 def _predicted_metrics(
     ws: DynamicsWorkspace, plans: Mapping[str, Plan], gains: AcsGains
 ) -> dict[str, dict[str, float]]:
-    from spacecraft._calibration import _settling_s
-
     ptp = plans["ptp"]
     flight = _flight_of(ptp, gains, ws)
     out = {
         "ptp": {
             "peak_attitude_deg": float(np.max(flight.attitude_deg)),
-            "settling_time_s": _settling_s(
-                flight.t_s, flight.attitude_deg, ptp.segment("A->B").t_end_s, 0.02
-            ),
+            "settling_time_s": ptp_settling_s(flight, ptp),
         }
     }
     coordination = plans["coordination"]
@@ -576,7 +586,7 @@ def _vehicle_metrics(
 ) -> dict[str, dict[str, float]]:
     """The fit's metrics flown through the vehicle (truth simulation), on the same plans as
     the prediction's (the PTP with its long settling wait)."""
-    from spacecraft._calibration import _settling_s, fly_plan
+    from spacecraft._calibration import fly_plan
     from spacecraft.vehicle import VehicleConfig
 
     config = VehicleConfig(acs_gains=gains_from_parameters(ws, values))
@@ -585,9 +595,7 @@ def _vehicle_metrics(
     out = {
         "ptp": {
             "peak_attitude_deg": float(np.max(flight.attitude_deg)),
-            "settling_time_s": _settling_s(
-                flight.t_s, flight.attitude_deg, ptp.segment("A->B").t_end_s, 0.02
-            ),
+            "settling_time_s": ptp_settling_s(flight, ptp),
         }
     }
     coordination = plans["coordination"]
@@ -624,15 +632,11 @@ def fit_to_paper(
     evaluation); with ``check_vehicle`` the start and the fit are also flown through the
     vehicle (:func:`spacecraft._calibration.fly_plan`, the same plans, about 5 s each) and their
     rows added with source ``vehicle``."""
-    from planner.coordination import plan_coordination
-    from planner.experiments import PtpParams, plan_ptp
-
     names = _check_parameters(parameters)
     ws = ws or DynamicsWorkspace(default_model())
-    # a settling wait long enough to measure a slow law's settling (the default's 120 s
-    # would cap it at the window's end)
-    ptp = plan_ptp(ws, PtpParams(settle_s=_PTP_SETTLE_S))
-    plans = {"ptp": ptp, "coordination": plan_coordination(ws)}
+    # the PTP with a settling wait long enough to measure a slow law's settling, experiment
+    # 3 as the demo pass flies it (spacecraft._calibration.calibration_plans)
+    plans = calibration_plans(ws)
     targets = _paper_targets()
     first = {n: PARAMETERS[n].default for n in names}
     first.update({k: float(v) for k, v in (start or {}).items() if k in names})

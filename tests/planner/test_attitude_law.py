@@ -12,6 +12,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from planner.attitude_control import (
+    DEFAULT_ACS_BANDWIDTH_RADPS,
+    DEFAULT_ACS_DAMPING_RATIO,
+    DEFAULT_RATE_FILTER_TAU_S,
     AcsGains,
     AcsMode,
     AttitudeController,
@@ -54,8 +57,23 @@ def ws(model: RobotModel) -> DynamicsWorkspace:
     return DynamicsWorkspace(model)
 
 
-def test_the_defaults_are_the_memoryless_pd_law_bit_for_bit(ws: DynamicsWorkspace) -> None:
+def test_the_defaults_are_the_calibrated_filtered_pd_law(ws: DynamicsWorkspace) -> None:
+    """Issue #13: the defaults are the law calibrated against the flight (docs/spacecraft.md):
+    PD on a 13 s first-order rate estimate, wn 0.0225 rad/s, zeta 0.9, no integral term, no
+    dead band."""
     gains = default_acs_gains(ws)
+    assert gains.stateful and not gains.has_integral and gains.dead_band_rad == 0.0
+    assert gains.rate_filter_tau_s == DEFAULT_RATE_FILTER_TAU_S == 13.0
+    assert (DEFAULT_ACS_BANDWIDTH_RADPS, DEFAULT_ACS_DAMPING_RATIO) == (0.0225, 0.9)
+    inertia = np.diag(ws.momentum_blocks(np.zeros(ws.model.n_joints))[0])
+    np.testing.assert_allclose(gains.kp_nm_per_rad, inertia * 0.0225**2, rtol=1e-12)
+    np.testing.assert_allclose(gains.kd_nms_per_rad, 2 * 0.9 * inertia * 0.0225, rtol=1e-12)
+
+
+def test_without_the_filter_the_defaults_are_the_memoryless_pd_law_bit_for_bit(
+    ws: DynamicsWorkspace,
+) -> None:
+    gains = default_acs_gains(ws, rate_filter_tau_s=0.0)
     assert not gains.stateful and gains.dead_band_rad == 0.0
     np.testing.assert_array_equal(gains.ki_nm_per_rad_s, 0.0)
     law = AttitudeController(gains)
@@ -318,7 +336,9 @@ def test_the_law_reads_from_a_toml_acs_table(ws: DynamicsWorkspace, tmp_path: Pa
     default = default_acs_gains(ws)
     empty = acs_gains_from_config(ws, {})
     np.testing.assert_array_equal(empty.kp_nm_per_rad, default.kp_nm_per_rad)
-    assert not empty.stateful
+    np.testing.assert_array_equal(empty.kd_nms_per_rad, default.kd_nms_per_rad)
+    assert empty.rate_filter_tau_s == default.rate_filter_tau_s == DEFAULT_RATE_FILTER_TAU_S
+    assert not empty.has_integral and empty.dead_band_rad == 0.0
     for bad, match in (
         ({"kp": 1.0}, "unknown attitude-control setting"),
         ({"rate_filter_tau_s": -1.0}, "rate_filter_tau_s"),

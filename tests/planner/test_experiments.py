@@ -61,7 +61,10 @@ def test_ptp_baseline_turns_the_base_by_degrees(ws: DynamicsWorkspace) -> None:
     # with feedback on, the base comes back, but only after a settling wait
     assert plan.metrics["peak_attitude_deg"] > 0.2
     assert plan.metrics["settling_time_after_motion_s"] > 30.0
-    assert plan.metrics["final_attitude_deg"] < 0.02
+    # The calibrated law (issue #13, docs/spacecraft.md) brings it back within 0.05 deg
+    # about 120 s after the motion, not within the planner's 0.02 deg band by the end of the
+    # 120 s wait: measured 0.052 deg then (the memoryless PD law it replaced: under 0.02).
+    assert plan.metrics["final_attitude_deg"] < 0.1
 
 
 def test_reactionless_plan_leaves_the_base_still(ws: DynamicsWorkspace, reactionless: Plan) -> None:
@@ -221,10 +224,12 @@ def test_feedforward_answers_the_start_fast_then_overshoots_as_in_flight(
 
     fb_dip, fb_peak = dip_and_peak("(a)", "feedback")
     ff_dip, ff_peak = dip_and_peak("(b)", "feedforward")
-    # measured: dips -0.20 (a) and -0.09 (b) deg; peaks +0.06 and +0.39 deg
-    assert fb_dip < -0.1
-    assert ff_dip > 0.6 * fb_dip  # the feedforward answers the start reaction faster ...
-    assert ff_peak > 0.3 and ff_peak > 3.0 * fb_peak  # ... and then overshoots strongly
+    # measured with the calibrated law (issue #13): dips -0.35 (a) and -0.25 (b) deg (flight:
+    # -0.5 and "within -0.3"); peaks before the back leg 0.00 and +0.34 deg
+    assert fb_dip < -0.3
+    # the feedforward answers the start reaction faster, within the flight's -0.3 deg ...
+    assert ff_dip > -0.3 and ff_dip > fb_dip + 0.05
+    assert ff_peak > 0.3 and ff_peak > fb_peak + 0.2  # ... and then overshoots strongly
     m = coordination.metrics
     assert m["predicted_feedforward_pitch_range_deg"] > m["predicted_feedback_pitch_range_deg"]
 

@@ -582,11 +582,13 @@ def test_feedback_returns_a_disturbed_attitude_to_its_target() -> None:
         errors.append(Rotation.from_quat(v.true_state().quat_orbit_from_base_xyzw).magnitude())
     errors_deg = np.degrees(errors)
     assert errors_deg[0] > 0.5
-    # bandwidth 0.04 rad/s, damping 0.7: measured 0.032 deg at 100 s, 0.016 deg from 160 s
-    # and 0.010 deg from 180 s on (gravity gradient holds the base 0.007 deg off its target;
-    # sensor noise moves it a few 1e-4 deg)
-    assert 0.02 < errors_deg[99] < 0.05
-    assert np.all(errors_deg[179:] < 0.015)
+    # the calibrated law (issue #13: wn 0.0225 rad/s, zeta 0.9, a 13 s rate filter; softer
+    # than the 0.04 rad/s PD law it replaced, which was at 0.032 deg by 100 s): measured
+    # 0.143 deg at 100 s, 0.051 deg at 160 s, under 0.034 deg from 180 s on (gravity
+    # gradient holds the base up to 0.02 deg off its target with the softer proportional
+    # term; sensor noise moves it a few 1e-4 deg)
+    assert 0.1 < errors_deg[99] < 0.2
+    assert np.all(errors_deg[179:] < 0.04)
     assert np.max(np.abs(v.wheel_momentum_nms())) > 0.1  # the wheels did the work
     # a new target (the offset destination of experiment 3c) is followed just as well
     v.advance_to(EPOCH + 400 * SECOND)
@@ -723,18 +725,19 @@ def test_plans_become_uplink_messages_in_tag_order(ws: DynamicsWorkspace) -> Non
 def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
     ws: DynamicsWorkspace, config: VehicleConfig
 ) -> None:
-    from planner.experiments import plan_ptp
     from planner.gjm import plan_gjm
+    from spacecraft._calibration import calibration_plans, ptp_settling_s
 
-    ptp = plan_ptp(ws)
+    ptp = calibration_plans(ws)["ptp"]  # a 360 s wait: the final value is the one held
     flight = fly_plan(ptp, config)
     assert flight.rejected == 0
-    motion_end = ptp.segment("A->B").t_end_s
-    outside = flight.t_s[flight.attitude_deg > 0.02]
-    # flight: about 100 s to settle; ours 100.4 s in the truth simulation
-    assert 85.0 < outside[-1] - motion_end < 115.0
-    # the feedback pulled the base back: far below the 1.3 deg free drift would leave
-    assert 0.3 < np.max(flight.attitude_deg) < 0.8
+    # flight: about 100 s to settle (70 to 130 s, the report's criterion: within 0.05 deg of
+    # the attitude the loop holds); ours 126.7 s with the calibrated law (issue #13). The
+    # absolute return within 0.05 deg of nominal takes longer (about 165 s): gravity
+    # gradient holds the base 0.015 deg off in pitch at pose B (docs/spacecraft.md).
+    assert 70.0 < ptp_settling_s(flight, ptp) < 130.0
+    # the feedback pulled the base back: below the 1.3 deg free drift would leave (0.94)
+    assert 0.6 < np.max(flight.attitude_deg) < 1.1
 
     gjm = plan_gjm(ws)
     flight = fly_plan(gjm, config)
@@ -748,27 +751,28 @@ def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
 def test_the_attitude_modes_differ_on_the_coordination_motion_as_in_flight(
     ws: DynamicsWorkspace, config: VehicleConfig
 ) -> None:
-    """Experiment 3 (paper 3.5, Fig. 9) flown through the vehicle, all three variants."""
-    from planner.coordination import plan_coordination
+    """Experiment 3 (paper 3.5, Fig. 9) flown through the vehicle, all three variants, as the
+    demo pass schedules them (10 s pause, 80 s settle) and measured as the report does
+    (spacecraft._calibration.coordination_metrics)."""
+    from spacecraft._calibration import calibration_plans
 
-    plan = plan_coordination(ws)
+    plan = calibration_plans(ws)["coordination"]
     flight = fly_plan(plan, config)
     assert flight.rejected == 0
     a, b, c = (coordination_metrics(flight, plan, label) for label in ("(a)", "(b)", "(c)"))
-    # (a) feedback: a dip, a positive swing, then back to 0 (flight -0.5 to +0.4 deg; ours
-    # -0.19 to +0.31: our loop is stiffer, see docs/spacecraft.md)
-    assert -0.3 < a["pitch_min_deg"] < -0.1 and 0.2 < a["pitch_max_deg"] < 0.45
-    # (b) feedforward: a faster first response (flight: within -0.3 deg) ...
-    assert b["first_dip_deg"] > 0.6 * a["first_dip_deg"]
-    assert b["first_dip_deg"] > -0.3
-    # ... then the recovery adds to the deceleration reaction: a strong positive overshoot
-    assert b["peak_before_back_leg_deg"] > max(0.3, 3.0 * a["peak_before_back_leg_deg"])
-    assert b["pitch_range_deg"] > a["pitch_range_deg"]
-    # (c) offset destination: the fastest to settle after the motion, as in flight ...
-    assert c["settling_time_s"] < 0.8 * min(a["settling_time_s"], b["settling_time_s"])
-    # ... but NOT the smallest range, unlike the flight: holding a tilt of Omega_b costs more
-    # than our stiffer feedback lets the base dip (a known difference, docs/spacecraft.md)
-    assert c["pitch_range_deg"] > a["pitch_range_deg"]
+    # (a) feedback: a dip, a positive swing, then back (flight -0.5 to +0.4 deg, +-0.15;
+    # ours -0.352 to +0.521 from rest, -0.40 to +0.51 in the demo pass)
+    assert -0.65 < a["pitch_min_deg"] < -0.35 and 0.25 < a["pitch_max_deg"] < 0.55
+    # (b) feedforward: a faster first response, within -0.3 deg as in flight (ours -0.256) ...
+    assert b["first_dip_deg"] > -0.3 and b["first_dip_deg"] > a["first_dip_deg"] + 0.05
+    # ... then the recovery adds to the deceleration reaction: the strongest positive
+    # overshoot (ours 0.285 deg above the next)
+    assert b["pitch_max_deg"] > max(a["pitch_max_deg"], c["pitch_max_deg"]) + 0.05
+    # (c) offset destination (the flight's -0.35 deg): the smallest range (ours 0.074 deg
+    # below (a)'s) and the fastest settling (13 s before (a)), as in flight
+    assert c["pitch_range_deg"] < a["pitch_range_deg"] < b["pitch_range_deg"]
+    assert all(m["settled"] for m in (a, b, c))
+    assert c["settling_time_s"] < min(a["settling_time_s"], b["settling_time_s"])
 
 
 def test_default_vehicle_uses_gravity_gradient_and_the_calibrated_wheels(
@@ -777,9 +781,11 @@ def test_default_vehicle_uses_gravity_gradient_and_the_calibrated_wheels(
     assert config.sim.gravity_gradient
     v = _vehicle(config)
     inertia = np.diag(DynamicsWorkspace(config.model).momentum_blocks(np.zeros(6))[0])
-    np.testing.assert_allclose(v.gains.kp_nm_per_rad, inertia * 0.04**2, rtol=1e-12)
-    np.testing.assert_allclose(v.gains.kd_nms_per_rad, 2 * 0.7 * inertia * 0.04, rtol=1e-12)
-    assert not v.gains.stateful and v.gains.dead_band_rad == 0.0  # the memoryless PD law
+    # the calibrated law (issue #13): PD on a 13 s filtered rate, wn 0.0225 rad/s, zeta 0.9
+    np.testing.assert_allclose(v.gains.kp_nm_per_rad, inertia * 0.0225**2, rtol=1e-12)
+    np.testing.assert_allclose(v.gains.kd_nms_per_rad, 2 * 0.9 * inertia * 0.0225, rtol=1e-12)
+    assert v.gains.rate_filter_tau_s == 13.0 and not v.gains.has_integral
+    assert v.gains.dead_band_rad == 0.0
 
 
 @pytest.mark.slow
