@@ -20,6 +20,11 @@ removed it) with the onboard time, never backwards; a ``schedule_full`` refusal 
 transient (the vehicle did not keep the command; the runner sends it again) and leaves the
 stage alone. ``command_unknown`` expires the commands the vehicle never received whose tag
 has passed. ``verification`` answers a ``schedule_delete``.
+
+``hello`` names the robot the vehicle flies (its description's name, ``content_sha256`` and
+joint count; a ``hello`` without them is ETS-VII's, 6 joints): :attr:`GroundLink.robot`,
+which the runner compares with a plan's robot (:func:`robot_mismatch`) before it starts a
+pass and whenever the vehicle greets again.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
+from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME
 from server.services.clock import Clock, OnboardClock, SystemClock
 from server.services.command_stages import set_command_stage, write_event
 from server.services.dbworker import Database, Publisher
@@ -73,8 +79,10 @@ __all__ = [
     "LinkUp",
     "Publisher",
     "RequestVerified",
+    "RobotIdentity",
     "ScheduleStatus",
     "TelemetryWindow",
+    "robot_mismatch",
 ]
 
 log = logging.getLogger("hikoboshi.ground.link")
@@ -185,6 +193,51 @@ class LinkStatus:
     uplink: dict[str, Any] | None = None
     #: onboard s the clock mapping was moved forward by later stamps since the hello
     clock_corrected_s: float = 0.0
+    #: the robot the vehicle announced in its hello (ETS-VII's when it named none)
+    robot: str | None = None
+    robot_hash: str | None = None
+    n_joints: int | None = None
+
+
+@dataclass(frozen=True)
+class RobotIdentity:
+    """Which robot: its description's name, ``content_sha256`` and joint count (None: not
+    announced)."""
+
+    name: str | None
+    hash: str | None
+    n_joints: int | None
+
+    @classmethod
+    def of_hello(cls, hello: Hello) -> RobotIdentity:
+        """The robot a ``hello`` announces: ETS-VII when it names none (a vehicle that
+        predates robot descriptions, or the built-in ETS-VII)."""
+        if hello.robot is None and hello.robot_hash is None and hello.n_joints is None:
+            return ETS7_ROBOT
+        return cls(hello.robot, hello.robot_hash, hello.n_joints)
+
+    def __str__(self) -> str:
+        joints = "? joints" if self.n_joints is None else f"{self.n_joints} joints"
+        digest = "no description hash" if self.hash is None else f"description {self.hash[:12]}"
+        return f"{self.name or 'unnamed'!r} ({joints}, {digest})"
+
+
+ETS7_ROBOT = RobotIdentity(ETS7_ROBOT_NAME, ETS7_ROBOT_HASH, 6)
+
+
+def robot_mismatch(plan: RobotIdentity, vehicle: RobotIdentity) -> str | None:
+    """Why a plan made for ``plan`` must not be flown by ``vehicle``, or None when it is the
+    same robot: the same description hash, and the same joint count where announced."""
+    if (
+        vehicle.hash is not None
+        and vehicle.hash == plan.hash
+        and vehicle.n_joints in (None, plan.n_joints)
+    ):
+        return None
+    return (
+        f"the plan was made for robot {plan} but the connected vehicle flies {vehicle}: "
+        "plan the pass for the vehicle's robot, or connect the vehicle of the plan's robot"
+    )
 
 
 # --- the link ------------------------------------------------------------------------------
@@ -207,6 +260,8 @@ class GroundLink:
         self._pinger: asyncio.Task[None] | None = None
         self._onboard: OnboardClock | None = None
         self.vehicle: str | None = None
+        #: the robot of the latest hello (None before the first)
+        self.robot: RobotIdentity | None = None
         self.last_command_seq = -1
         self.schedule_capacity = DEFAULT_SCHEDULE_CAPACITY
         self.los_policy = "continue"
@@ -456,6 +511,7 @@ class GroundLink:
         )
         conn.greeted = True
         self.vehicle = hello.vehicle
+        self.robot = RobotIdentity.of_hello(hello)
         self.last_command_seq = hello.last_command_seq
         self.schedule_capacity = hello.schedule_capacity
         self.los_policy = hello.los_policy
@@ -600,4 +656,7 @@ class GroundLink:
             schedule=self.schedule_status(),
             uplink=uplink,
             clock_corrected_s=0.0 if self._onboard is None else self._onboard.corrected_ns / 1e9,
+            robot=None if self.robot is None else self.robot.name,
+            robot_hash=None if self.robot is None else self.robot.hash,
+            n_joints=None if self.robot is None else self.robot.n_joints,
         )

@@ -8,8 +8,12 @@ event ``pass_state`` (actor, from, to, reason) in the same transaction. All timi
 the injected :class:`~server.services.clock.Clock` (``SystemClock`` in the service, a
 ``ManualClock`` in the unit tests), so the rules below are tested in simulated time.
 
-**Start** (needs a connected spacecraft with a known clock): ``aos`` then ``running`` in one
-transaction. The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + the start lead
+**Start** (needs a connected spacecraft with a known clock, flying the robot the plan was
+made for): ``aos`` then ``running`` in one transaction. A plan made for another robot (its
+description's hash, or its joint count, differs from what the vehicle's ``hello`` announced;
+a ``hello`` naming no robot is ETS-VII's) is refused 409 ``robot_mismatch`` with both robots
+named, and the refusal is audited (``pass_start_refused``); the pass stays ``scheduled``.
+The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + the start lead
 (``uplink_start_lead_s``, at least one-way delay + margin) + the onboard time of 1 s wall
 for the start transaction, rounded up to the 0.25 s grid, so that even the first command
 can be sent again before its tag if the relay loses it. The plan's joint and ACS commands
@@ -43,6 +47,11 @@ late) overrules that. The telemetry window closes :data:`SETTLE_S` after ``T``. 
 down at the abort: ``T`` is chosen when it is back. Then ``aborted``; the stages of the
 commands before ``T`` are resolved in the background as their tags pass.
 
+**Another robot mid-pass**: when the vehicle greets again (a new ``hello``) naming another
+robot than the running pass's plan, the uplink stops at once (no command of the plan goes to
+it) and the pass is aborted with that reason. A pass resumed after a restart is checked the
+same way before its uplink starts.
+
 **Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the
 passes and resumes a pass left ``running`` or ``los`` by a process that did not shut
 down (a graceful stop aborts the running pass instead). Its commands not final are loaded
@@ -55,6 +64,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import math
 from collections.abc import Callable
@@ -64,7 +74,8 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
-from planner.plan import Plan
+from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME, Plan
+from server.errors import ServiceError
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands, set_command_stage, write_event
 from server.services.link import (
@@ -74,7 +85,9 @@ from server.services.link import (
     LinkUnavailable,
     LinkUp,
     RequestVerified,
+    RobotIdentity,
     TelemetryWindow,
+    robot_mismatch,
 )
 from server.services.uplink import RttEstimator, Uplink, UplinkCommand
 from server.settings import Settings
@@ -154,6 +167,22 @@ def _transition(
     return write_event(session, "pass_state", actor, detail, record.id)
 
 
+def plan_robot(plan: Plan) -> RobotIdentity:
+    """The robot ``plan`` was made for."""
+    return RobotIdentity(plan.robot, plan.robot_hash, len(plan.initial_joints_rad))
+
+
+def _document_robot(document: str) -> RobotIdentity:
+    """The robot of a stored plan document, without building the plan (a document without
+    robot fields predates them: ETS-VII's)."""
+    doc = json.loads(document)
+    return RobotIdentity(
+        str(doc.get("robot", ETS7_ROBOT_NAME)),
+        str(doc.get("robot_hash", ETS7_ROBOT_HASH)),
+        len(doc["initial_joints_rad"]),
+    )
+
+
 def command_from_record(record: CommandRecord) -> Command:
     """The wire message a stored command was (or will be) sent as."""
     fields = {"seq": record.seq, "execute_time_ns": record.execute_time_ns, **record.payload}
@@ -178,6 +207,8 @@ class _Active:
     #: The lowest and highest seq of the pass (a ``schedule_delete`` covers up to it).
     min_seq: int
     max_seq: int
+    #: The robot the pass's plan was made for.
+    robot: RobotIdentity
     stop: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
     refused_in_a_row: int = 0
@@ -242,6 +273,10 @@ class PassRunner:
                 delete.report = event.report
                 delete.verified.set()
         elif isinstance(event, LinkUp):
+            if active is not None and not active.stop.is_set():
+                refusal = robot_mismatch(active.robot, RobotIdentity.of_hello(event.hello))
+                if refusal is not None:
+                    self._foreign_vehicle(active, refusal)
             self._wake.set()
 
     def _watch(self, active: _Active, ack: CommandAcked) -> None:
@@ -263,6 +298,16 @@ class PassRunner:
                 self._diverged = asyncio.get_running_loop().create_task(
                     self._abort_diverged(active, reason)
                 )
+
+    def _foreign_vehicle(self, active: _Active, refusal: str) -> None:
+        """The vehicle now connected flies another robot: nothing more of the plan goes up
+        (the uplink stops before the runner can wake), and the pass is aborted."""
+        active.uplink.stop()
+        log.warning("pass %s: %s", active.pass_id, refusal)
+        if self._diverged is None:
+            self._diverged = asyncio.get_running_loop().create_task(
+                self._abort_diverged(active, f"another robot connected mid-pass: {refusal}")
+            )
 
     async def _abort_diverged(self, active: _Active, reason: str) -> None:
         try:
@@ -320,11 +365,36 @@ class PassRunner:
                 self._lead_ns / 1e9 + START_TRANSMISSIONS * first_rto_s * link.time_scale,
             )
 
-            def job(session: Session) -> tuple[list[dict[str, Any]], list[Command], _Active]:
+            def job(
+                session: Session,
+            ) -> tuple[list[dict[str, Any]], list[Command], _Active | None, str | None]:
                 record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
                 plan = Plan.from_json(
                     repo.get_plan(session=session, plan_id=record.plan_id).document
                 )
+                robot = plan_robot(plan)
+                vehicle_robot = link.robot
+                refusal = (
+                    "no hello from the spacecraft yet"
+                    if vehicle_robot is None
+                    else robot_mismatch(robot, vehicle_robot)
+                )
+                if refusal is not None:
+                    detail = {
+                        "reason": "robot_mismatch",
+                        "message": refusal,
+                        "plan_id": record.plan_id,
+                        "plan_robot": robot.name,
+                        "plan_robot_hash": robot.hash,
+                        "plan_n_joints": robot.n_joints,
+                        "vehicle_robot": None if vehicle_robot is None else vehicle_robot.name,
+                        "vehicle_robot_hash": None if vehicle_robot is None else vehicle_robot.hash,
+                        "vehicle_n_joints": (
+                            None if vehicle_robot is None else vehicle_robot.n_joints
+                        ),
+                    }
+                    event = write_event(session, "pass_start_refused", actor, detail, record.id)
+                    return [event], [], None, refusal
                 vehicle = link.vehicle or "spacecraft"
                 now_wall = clock.time_ns()
                 events = [
@@ -361,15 +431,22 @@ class PassRunner:
                     last_tag_ns=max(c.execute_time_ns for c in commands),
                     min_seq=min(seqs),
                     max_seq=max(seqs),
+                    robot=robot,
                 )
-                return events, commands, active
+                return events, commands, active, None
 
             try:
-                events, commands, active = await link.db.run(job)
+                events, commands, started, refusal = await link.db.run(job)
             except BaseException:
                 link.drop_window(window)
                 raise
             link.publisher.publish(events)
+            if started is None:
+                link.drop_window(window)
+                raise ServiceError(
+                    409, "robot_mismatch", refusal or "robot mismatch", events[0].get("detail")
+                )
+            active = started
             link.expect_commands(active.pass_id, [c.seq for c in commands])
             self._begin(active, self._run(active))
 
@@ -620,6 +697,7 @@ class PassRunner:
             found = []
             for record in unfinished:
                 rows = repo.list_commands(session=session, pass_id=record.id)
+                document = repo.get_plan(session=session, plan_id=record.plan_id).document
                 found.append(
                     {
                         "id": record.id,
@@ -628,6 +706,7 @@ class PassRunner:
                         "los_time_ns": record.los_time_ns,
                         "start_ns": record.telemetry_start_ns,
                         "commands": rows,
+                        "robot": _document_robot(document),
                     }
                 )
             return windows, found
@@ -675,6 +754,11 @@ class PassRunner:
             if self._active is not None:
                 await self._abort_locked(pass_id, "ground", "another pass started first")
                 return
+            refusal = None if link.robot is None else robot_mismatch(info["robot"], link.robot)
+            if refusal is not None:
+                reason = f"ground service restarted mid-pass; {refusal}"
+                await self._abort_locked(pass_id, "ground", reason)
+                return
             uplink = self._new_uplink([command_from_record(r) for r in pending])
             uplink.restore(
                 {
@@ -692,6 +776,7 @@ class PassRunner:
                 last_tag_ns=max(r.execute_time_ns for r in rows),
                 min_seq=min(seqs),
                 max_seq=max(seqs),
+                robot=info["robot"],
                 resumed=True,
             )
             if info["state"] == "los":

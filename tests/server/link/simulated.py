@@ -116,9 +116,12 @@ class SimulatedSpacecraft:
 
     # -- the ground's socket ---------------------------------------------------------------
 
-    async def connect(self, link: GroundLink, *, hello_read_late_s: float = 0.0) -> None:
+    async def connect(
+        self, link: GroundLink, *, hello_read_late_s: float = 0.0, **robot: Any
+    ) -> None:
         """Open a session with ``link``: its hello is stamped now and read
-        ``hello_read_late_s`` later (a ground busy starting up)."""
+        ``hello_read_late_s`` later (a ground busy starting up); ``robot`` adds hello's
+        ``robot``, ``robot_hash`` and ``n_joints`` (none: ETS-VII as the ground takes it)."""
         self.link = link
 
         async def send_text(text: str) -> None:
@@ -136,6 +139,7 @@ class SimulatedSpacecraft:
             next_telemetry_seq=0,
             last_command_seq=max(self.vehicle.contents, default=-1),
             schedule_capacity=self.vehicle.capacity,
+            **robot,
         )
         await link.handle(
             self.conn, encode(hello), received_mono=self.clock.monotonic() + hello_read_late_s
