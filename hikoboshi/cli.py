@@ -261,9 +261,11 @@ def demo(
         bool, typer.Option("--serve-after", help="Keep the service up afterwards (Ctrl-C).")
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
+    robot: RobotOption = None,
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
-    process, and the whole ETS-VII pass (all four experiments) at --speed times real time."""
+    process, and the whole ETS-VII pass (all four experiments) at --speed times real time.
+    With --robot FILE: that robot's whole pass, planned, flown and checked for it."""
     from hikoboshi.demo import DemoError, DemoOptions, run_demo
     from spacecraft.link import parse_outage
 
@@ -277,7 +279,10 @@ def demo(
         except ValueError as exc:
             _fail(f"--outage {window}: {exc}")
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
+    if robot is not None:
+        _load(robot)  # a bad description: one error line before anything starts
     options = DemoOptions(
+        robot=robot,
         out=out,
         speed=speed,
         loss=loss,
@@ -551,11 +556,19 @@ def _is_loopback(host: str) -> bool:
 def serve(
     host: Annotated[str, typer.Option(help="Address to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="Port to listen on")] = 8000,
+    robot: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--robot",
+            help="A robot description (TOML) the server may plan for, besides those shipped "
+            "under examples/robots/; plan requests name it by its name. Repeatable.",
+        ),
+    ] = None,
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
     under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
-    unless listening on loopback only). The HTTP edge's limits and timeouts are in
-    docs/security.md."""
+    unless listening on loopback only), HIKOBOSHI_ROBOTS (description files, as --robot).
+    The HTTP edge's limits and timeouts are in docs/security.md."""
     import uvicorn
 
     from server.api.edge import uvicorn_config
@@ -566,6 +579,12 @@ def serve(
         settings = Settings.from_env()
     except ValueError as exc:
         _fail(f"bad settings in the environment: {exc}")
+    if robot:
+        settings = settings.model_copy(
+            update={"robot_files": (*settings.robot_files, *(p.resolve() for p in robot))}
+        )
+    for path in settings.robot_files:
+        _load(path)  # one clear error line for a bad description, before serving
     if not settings.tokens:
         if not _is_loopback(host):
             _fail(

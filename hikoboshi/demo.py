@@ -1,4 +1,5 @@
-"""The main job: the ground service, the simulated spacecraft and a whole ETS-VII pass.
+"""The main job: the ground service, the simulated spacecraft and a whole ETS-VII pass
+(or, with ``--robot FILE``, the whole pass of that robot description).
 
 1. The ground service starts on embedded SQLite under ``OUT`` (uvicorn, loopback), with
    fresh API tokens for an operator, a viewer and the spacecraft.
@@ -12,6 +13,11 @@
    (``GET /api/passes/{id}/summary``) is printed and written to ``OUT/summary.json``.
 6. The post-pass analyses run on the server; the report (``report.html``, ``report.json``)
    and the MCAP recording (``pass.mcap``) are written to ``OUT``.
+
+With a robot description the ground is given the file (``Settings.robot_files``, as
+``hikoboshi serve --robot``), the plan request names the robot, and the spacecraft flies
+the same file (``hikoboshi spacecraft --robot``): the ground checks that the vehicle's
+``hello`` names the robot the plan was made for before it starts the pass.
 
 Only public interfaces are used: REST, the link websocket, process signals.
 """
@@ -70,6 +76,8 @@ class DemoOptions:
     #: Called once the service is up: (console URL, viewer token, operator token).
     on_ready: Callable[[str, str, str], None] | None = None
     extra_spacecraft_args: tuple[str, ...] = field(default=())
+    #: A robot description (TOML) to fly instead of the built-in ETS-VII.
+    robot: Path | None = None
 
 
 class _Api:
@@ -175,7 +183,17 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     base = f"http://127.0.0.1:{port}"
     # The flight's uplink settings at any speed: commands are loaded 120 s onboard ahead of
     # their tags and sent again until acknowledged, so the ground's own pauses delay none.
-    settings = Settings(data_dir=out, tokens=tokens)
+    robot = None if options.robot is None else options.robot.resolve()
+    robot_name, robot_label = None, "ETS-VII"
+    if robot is not None:
+        from planner.description import load_robot
+        from planner.errors import PlannerError
+
+        try:
+            robot_name = robot_label = load_robot(robot).name
+        except PlannerError as exc:
+            raise DemoError(str(exc)) from None
+    settings = Settings(data_dir=out, tokens=tokens, robot_files=() if robot is None else (robot,))
     started = time.monotonic()
     with _ground(settings, port):
         api = _Api(base, operator)
@@ -183,10 +201,13 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             options.on_ready(f"{base}/", _token_of(tokens, Role.VIEWER), operator)
         report("planning the pass (all four experiments)", 0, 1)
         parameters = {"experiments": list(options.experiments)} if options.experiments else {}
-        plan = api.call("POST", "/api/plans", {"experiment": "pass", "parameters": parameters})
+        request: dict[str, Any] = {"experiment": "pass", "parameters": parameters}
+        if robot_name is not None:
+            request["robot"] = robot_name
+        plan = api.call("POST", "/api/plans", request)
         report("planning the pass (all four experiments)", 1, 1)
         duration_s = float(plan["duration_s"])
-        name = f"ETS-VII demo {datetime.now(UTC):%Y-%m-%d %H:%M:%S}"
+        name = f"{robot_label} demo {datetime.now(UTC):%Y-%m-%d %H:%M:%S}"
         now = datetime.now(UTC)
         # The contact window as flight would schedule it (real time): the accelerated pass
         # ends well inside it.
@@ -219,6 +240,7 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             "--seed",
             str(options.seed),
             *(a for o in options.outages for a in ("--outage", o)),
+            *(() if robot is None else ("--robot", str(robot))),
             *options.extra_spacecraft_args,
         ]
         with _spacecraft(args, out / "spacecraft.log") as proc:
@@ -257,6 +279,8 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     result = {
         **summary,
         "final_state": state,
+        "robot": robot_name or "ets7",
+        "vehicle_robot": link.get("robot"),
         "plan_duration_s": duration_s,
         "speed": options.speed,
         "loss": options.loss,

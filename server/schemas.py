@@ -84,6 +84,9 @@ class PlanCreate(BaseModel):
     experiment: str = Field(max_length=64, description="ptp, reactionless, gjm, ...")
     #: As JSON carries them: numbers, booleans, strings, lists for tuples, null for None.
     parameters: dict[str, Any] = Field(default_factory=dict)
+    #: The robot's name (its description's ``name``): one shipped under ``examples/robots/``
+    #: or given to the server at start; null: ETS-VII as built in.
+    robot: str | None = Field(default=None, min_length=1, max_length=64)
 
 
 class SegmentPublic(_Out):

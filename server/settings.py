@@ -96,6 +96,10 @@ class Settings(BaseModel):
     header_timeout_s: float = Field(default=10.0, gt=0)
     keep_alive_timeout_s: float = Field(default=5.0, gt=0)
     max_header_bytes: int = Field(default=16 * 1024, ge=1024)
+    #: Robot descriptions the server plans for besides those shipped under
+    #: ``examples/robots/`` (``hikoboshi serve --robot FILE``, ``HIKOBOSHI_ROBOTS``): a plan
+    #: request names a robot, never a file (server/services/robots.py).
+    robot_files: tuple[Path, ...] = ()
 
     def resolved_database_url(self) -> str:
         from server.storage.db import sqlite_url
@@ -105,7 +109,8 @@ class Settings(BaseModel):
     @classmethod
     def from_env(cls) -> Settings:
         """``DATABASE_URL``, ``HIKOBOSHI_DATA_DIR``, ``HIKOBOSHI_TOKENS``
-        (``token=name:role,...``) and ``HIKOBOSHI_UPLINK_LEAD_WINDOW_S`` (onboard s)."""
+        (``token=name:role,...``), ``HIKOBOSHI_UPLINK_LEAD_WINDOW_S`` (onboard s) and
+        ``HIKOBOSHI_ROBOTS`` (robot description files, separated by ``os.pathsep``)."""
         tokens: dict[str, ApiToken] = {}
         for item in filter(None, os.environ.get("HIKOBOSHI_TOKENS", "").split(",")):
             token, _, holder = item.partition("=")
@@ -131,6 +136,9 @@ class Settings(BaseModel):
             data_dir=Path(os.environ.get("HIKOBOSHI_DATA_DIR", "data")),
             database_url=os.environ.get("DATABASE_URL") or None,
             tokens=tokens,
+            robot_files=tuple(
+                Path(p) for p in os.environ.get("HIKOBOSHI_ROBOTS", "").split(os.pathsep) if p
+            ),
             uplink_lead_window_s=float(lead)
             if lead
             else cls.model_fields["uplink_lead_window_s"].default,

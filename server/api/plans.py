@@ -20,6 +20,7 @@ from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
 from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
+from server.services.robots import resolve_robot
 from server.services.workers import BoundedRoute, WorkersDep, session_job
 
 __all__ = ["router"]
@@ -37,10 +38,13 @@ async def create_plan(
     who: OperatorDep,
     workers: WorkersDep,
 ) -> PlanPublic:
-    """Plan ``experiment`` with ``parameters`` and store the plan; 422 with the planner's
-    message when the experiment or a parameter is refused; 503 ``busy`` (``Retry-After``)
-    when every worker is taken; 504 past ``plan_deadline_s``."""
+    """Plan ``experiment`` with ``parameters`` for ``robot`` (a robot's name the server
+    knows: shipped under ``examples/robots/`` or given at its start; none: ETS-VII) and store
+    the plan; 422 with the planner's message when the experiment or a parameter is refused,
+    422 ``unknown_robot`` for a robot the server does not know; 503 ``busy``
+    (``Retry-After``) when every worker is taken; 504 past ``plan_deadline_s``."""
     service.check_parameters(request)
+    robot_path = resolve_robot(settings, request.robot)
     return await workers.run(
         session_job,
         settings.resolved_database_url(),
@@ -48,6 +52,7 @@ async def create_plan(
         request=request,
         actor=who.name,
         now_ns=time.time_ns(),
+        robot_path=None if robot_path is None else str(robot_path),
         deadline_s=settings.plan_deadline_s,
         what=f"planning {request.experiment}",
         client=http,
@@ -67,11 +72,13 @@ async def validate_plan(
     deadline)."""
     try:
         service.check_parameters(request)
+        robot_path = resolve_robot(settings, request.robot)
     except (PlannerError, ServiceError) as exc:
         return service.invalid(exc)
     return await workers.run(
         service.validate,
         request,
+        None if robot_path is None else str(robot_path),
         deadline_s=settings.plan_deadline_s,
         what=f"planning {request.experiment}",
         client=http,

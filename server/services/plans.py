@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy.orm import Session
 
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
+from planner.description import load_robot
 from planner.errors import PlannerError
 from planner.plan import Plan
 from server.errors import ServiceError
@@ -46,9 +48,12 @@ __all__ = [
 
 def check_parameters(request: PlanCreate) -> None:
     """The experiment and its parameters checked, without planning (milliseconds): the
-    server refuses a bad request (422) before it takes a worker process."""
+    server refuses a bad request (422) before it takes a worker process. A request for a
+    robot (whose description supplies the defaults) has its names checked only: the
+    worker loads the description and checks the rest."""
     params_type, _ = resolve(request.experiment)
-    parameters_from_values(params_type, request.parameters)
+    if request.robot is None:
+        parameters_from_values(params_type, request.parameters)
 
 
 def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
@@ -62,16 +67,21 @@ def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
     )
 
 
-def plan(request: PlanCreate) -> tuple[Plan, str]:
+def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]:
     """The plan for ``request`` and its JSON document; planner errors propagate (422).
+    ``robot_path`` is the description of the robot the request names, as the server
+    resolved it (:func:`server.services.robots.resolve_robot`; None: ETS-VII): its model,
+    poses and ``[experiments.*]`` defaults, and the plan records its name and hash.
 
     A numerical failure other than the planner's own errors (a singular matrix, an
     overflow) is still caused by the parameters sent: 422 ``planning_failed``, not a 500.
     """
     params_type, _ = resolve(request.experiment)
-    params = parameters_from_values(params_type, request.parameters)
+    robot = None if robot_path is None else load_robot(Path(robot_path))
+    defaults = None if robot is None else robot.experiment_defaults(request.experiment)
+    params = parameters_from_values(params_type, request.parameters, defaults=defaults)
     try:
-        result = plan_experiment(request.experiment, params)
+        result = plan_experiment(request.experiment, params, robot=robot)
         document = result.to_json()  # refuses NaN and infinity
     except PlannerError:
         raise
@@ -96,10 +106,10 @@ def _summary(result: Plan) -> PlanSummary:
     )
 
 
-def validate(request: PlanCreate) -> PlanValidation:
+def validate(request: PlanCreate, robot_path: str | None = None) -> PlanValidation:
     """The checks of :func:`create_plan`, planning included, without storing anything."""
     try:
-        result, _ = plan(request)
+        result, _ = plan(request, robot_path)
     except (PlannerError, ServiceError) as exc:
         return invalid(exc)
     return PlanValidation(valid=True, errors=[], summary=_summary(result))
@@ -124,9 +134,16 @@ def _public(record: PlanRecord, document: Mapping[str, Any]) -> PlanPublic:
     )
 
 
-def create_plan(*, session: Session, request: PlanCreate, actor: str, now_ns: int) -> PlanPublic:
+def create_plan(
+    *,
+    session: Session,
+    request: PlanCreate,
+    actor: str,
+    now_ns: int,
+    robot_path: str | None = None,
+) -> PlanPublic:
     """Plan, then store the plan and an audit event ``plan_created`` in one transaction."""
-    result, document = plan(request)
+    result, document = plan(request, robot_path)
     try:
         record = repo.add_plan(session=session, plan=result, created_at_ns=now_ns)
         repo.add_event(
@@ -134,7 +151,12 @@ def create_plan(*, session: Session, request: PlanCreate, actor: str, now_ns: in
             time_ns=now_ns,
             kind="plan_created",
             actor=actor,
-            detail={"plan_id": record.id, "experiment": record.experiment},
+            detail={
+                "plan_id": record.id,
+                "experiment": record.experiment,
+                "robot": result.robot,
+                "robot_hash": result.robot_hash,
+            },
         )
         session.commit()
     except BaseException:
