@@ -37,7 +37,6 @@ import typing
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from planner.attitude_control import AcsGains
 from planner.coordination import CoordinationParams, optimise_offset
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
@@ -300,8 +299,12 @@ def plan_experiment(
         raise InvalidInput("--optimise-offset applies to the coordination experiment only")
     ws = DynamicsWorkspace(default_model() if robot is None else robot.model)
     if optimise_offset_flag:
-        gains: AcsGains | None = None if robot is None else robot.acs_gains(ws)
-        optimum = optimise_offset(ws, params, gains=gains)
+        if robot is None:
+            optimum = optimise_offset(ws, params)
+        else:
+            optimum = optimise_offset(
+                ws, params, gains=robot.acs_gains(ws), servo=robot.servo_gains()
+            )
         params = dataclasses.replace(
             params,
             offset_scale=optimum.offset_scale,

@@ -31,6 +31,7 @@ from planner.closed_loop import fly
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InfeasibleGoal, InvalidInput
 from planner.free_drift import predict_base_attitude
+from planner.mjcf import ServoGains
 from planner.plan import AcsCommand, Plan
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S
@@ -349,6 +350,7 @@ def optimise_offset(
     gains: AcsGains | None = None,
     settle_weight_deg_per_s: float = 0.006,
     max_evaluations: int = 40,
+    servo: ServoGains | None = None,
 ) -> OffsetOptimum:
     """Offset size (as a multiple of eq. (10)'s Omega_b) and switch delays that minimise
     ``pitch range + settle_weight * settling time`` in the closed loop (20 ms steps).
@@ -357,10 +359,11 @@ def optimise_offset(
     feedback already has the smallest range (docs/spacecraft.md), so a lighter weight makes
     "no offset" the optimum and says nothing about the rule. Each trial is flown with at
     least 150 s after the motion, so that a settling time near feedback's 100 s is measured
-    rather than cut off at the window's end.
+    rather than cut off at the window's end. ``servo``: the joint servos flown (a robot's
+    ``servo_gains()``; ``None``: the built-in design).
     """
     gains = gains or default_acs_gains(ws)
-    config = SimConfig(timestep_s=0.02)
+    config = SimConfig(timestep_s=0.02, servo=servo)
     params = params_for(params, "offset", settle_s=max(params.settle_s, _OPTIMISATION_WINDOW_S))
     block = _block(ws, params)
     count = 0
