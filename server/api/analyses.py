@@ -66,6 +66,7 @@ async def run_analyses(
         service.run_analyses,
         pass_id=pass_id,
         actor=who.name,
+        robot_files=tuple(str(p) for p in settings.robot_files),
         deadline_s=settings.post_pass_deadline_s,
         what=f"the analyses of pass {pass_id}",
         client=http,

@@ -60,6 +60,7 @@ async def download_recording(
         service.write_recording,
         pass_id=pass_id,
         path=str(path),
+        robot_files=tuple(str(p) for p in settings.robot_files),
         deadline_s=settings.read_deadline_s,
         what=f"the recording of pass {pass_id}",
         client=http,

@@ -44,6 +44,7 @@ from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
 from server.errors import ServiceError
 from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
 from server.services.recordings import load_recording
+from server.services.robots import model_for_plan
 from server.storage import repository as repo
 from server.storage.errors import NotFound
 from server.storage.models import AnalysisRecord
@@ -183,13 +184,16 @@ def run_analyses(
     actor: str,
     model: RobotModel | None = None,
     now_ns: int | None = None,
+    robot_files: tuple[str, ...] = (),
 ) -> AnalysesPublic:
     """Analyse the pass afresh and store the results (see the module doc); 404 unknown
-    pass, 409 not flown. The audit event ``analyses_run`` names who asked."""
+    pass, 409 not flown. The audit event ``analyses_run`` names who asked. Without
+    ``model``, the model of the plan's robot (:func:`server.services.robots.model_for_plan`,
+    among the shipped descriptions and ``robot_files``)."""
     recording = load_recording(session=session, pass_id=pass_id)
     key = str(recording.meta["pass_id"])
     session.rollback()  # end the read: no transaction (no SQLite write lock) while computing
-    run = compute_analyses(recording, model)
+    run = compute_analyses(recording, model or model_for_plan(recording.plan, robot_files))
     now_ns = time.time_ns() if now_ns is None else now_ns
     try:
         records = [

@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from planner.plan import Plan
 from server.errors import ServiceError
+from server.services.robots import model_for_plan
 from server.storage import repository as repo
 from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
 from telemetry.mcap import write_mcap
@@ -101,24 +102,31 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
     )
 
 
-def recording_mcap(*, session: Session, pass_id: str) -> tuple[str, bytes]:
-    """The pass's name and its recording as MCAP bytes (404 unknown, 409 never started).
+def recording_mcap(
+    *, session: Session, pass_id: str, robot_files: tuple[str, ...] = ()
+) -> tuple[str, bytes]:
+    """The pass's name and its recording as MCAP bytes (404 unknown, 409 never started),
+    with its robot's URDF and transforms (the plan's robot: ETS-VII, a shipped description
+    or one of ``robot_files``, :func:`server.services.robots.model_for_plan`).
 
     The read transaction ends before the file is written (seconds for a whole pass): on
     SQLite a transaction holds the write lock the link needs."""
     recording = load_recording(session=session, pass_id=pass_id)
     session.rollback()
     buffer = io.BytesIO()
-    write_mcap(recording, buffer)
+    write_mcap(recording, buffer, model=model_for_plan(recording.plan, robot_files))
     return recording.name, buffer.getvalue()
 
 
-def write_recording(*, session: Session, pass_id: str, path: str) -> str:
+def write_recording(
+    *, session: Session, pass_id: str, path: str, robot_files: tuple[str, ...] = ()
+) -> str:
     """:func:`recording_mcap` written to the file ``path`` (the bytes are the same); the
     pass's name. What a worker process runs for ``GET .../recording.mcap``: the file, not
     the bytes, goes back to the server, which streams it."""
     recording = load_recording(session=session, pass_id=pass_id)
     session.rollback()
+    model = model_for_plan(recording.plan, robot_files)
     with open(path, "wb") as stream:
-        write_mcap(recording, stream)
+        write_mcap(recording, stream, model=model)
     return recording.name

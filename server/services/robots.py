@@ -10,14 +10,19 @@ planning worker loads and validates the description it is handed.
 
 from __future__ import annotations
 
+import functools
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 
-from planner.description import EXAMPLES_DIR, MAX_FILE_BYTES
+from planner.description import EXAMPLES_DIR, MAX_FILE_BYTES, load_robot
+from planner.errors import PlannerError
+from planner.model import RobotModel
+from planner.plan import ETS7_ROBOT_HASH, Plan
 from server.errors import ServiceError
 from server.settings import Settings
 
-__all__ = ["known_robots", "resolve_robot"]
+__all__ = ["known_robots", "model_for_plan", "resolve_robot"]
 
 
 def _name_of(path: Path) -> str | None:
@@ -31,11 +36,15 @@ def _name_of(path: Path) -> str | None:
     return name if isinstance(name, str) and name else None
 
 
+def _files(robot_files: Sequence[Path | str]) -> list[Path]:
+    shipped = sorted(EXAMPLES_DIR.glob("*/*.toml")) if EXAMPLES_DIR.is_dir() else []
+    return [*shipped, *(Path(p) for p in robot_files)]
+
+
 def known_robots(settings: Settings) -> dict[str, Path]:
     """Robot name -> its description file: the shipped ones, then the server's own."""
     found: dict[str, Path] = {}
-    shipped = sorted(EXAMPLES_DIR.glob("*/*.toml")) if EXAMPLES_DIR.is_dir() else []
-    for path in [*shipped, *settings.robot_files]:
+    for path in _files(settings.robot_files):
         name = _name_of(path)
         if name is not None:
             found[name] = path.resolve()
@@ -56,3 +65,35 @@ def resolve_robot(settings: Settings, name: str | None) -> Path | None:
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
         )
     return robots[name]
+
+
+@functools.lru_cache(maxsize=16)
+def _hash_and_model(path: str, mtime_ns: int) -> tuple[str, RobotModel] | None:
+    try:
+        description = load_robot(path)
+    except PlannerError:
+        return None
+    return description.content_sha256, description.model
+
+
+def model_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotModel | None:
+    """The model of the robot ``plan`` was made for (None: ETS-VII's built-in model), found
+    by its description hash among the descriptions the server knows (shipped, and
+    ``robot_files``); 409 ``robot_unknown`` when none has it (the post-pass work needs the
+    robot's own model: its URDF, its joints)."""
+    if plan.robot_hash == ETS7_ROBOT_HASH:
+        return None
+    for path in _files(robot_files):
+        try:
+            mtime_ns = path.stat().st_mtime_ns
+        except OSError:
+            continue
+        found = _hash_and_model(str(path.resolve()), mtime_ns)
+        if found is not None and found[0] == plan.robot_hash:
+            return found[1]
+    raise ServiceError(
+        409,
+        "robot_unknown",
+        f"the pass's plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
+        "which this server has no description of: start it with hikoboshi serve --robot FILE",
+    )
