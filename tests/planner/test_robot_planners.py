@@ -26,6 +26,7 @@ from planner.ik import solve_ik
 from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
 from planner.plan import ETS7_ROBOT_HASH, Plan, check_plan_limits
 from planner.prediction import predict
+from planner.reactionless import search_reactionless_global, search_reactionless_path
 from planner.schedule import EXPERIMENTS, PassParams, plan_coordination_for, plan_pass
 from planner.simulation import FreeFloatingSimulator, SimConfig, follow_commands
 from planner.state import State
@@ -258,3 +259,31 @@ def test_state_and_ik_take_any_joint_count(
     )[0]
     assert best.joints_rad.shape == (7,)
     assert best.position_error_m < 1e-9
+
+
+def test_the_a_to_b_reactionless_searches_stay_in_the_null_space_on_orihime(
+    orihime: tuple[RobotDescription, DynamicsWorkspace],
+) -> None:
+    robot, ws = orihime
+    b = robot.poses["B"]
+    assert b.hand_pos_robot_m is not None and b.rot_robot_from_hand is not None
+    start_distance = np.linalg.norm(b.hand_pos_robot_m - robot.poses["A"].hand_pos_robot_m)
+    local = search_reactionless_path(
+        ws, np.zeros(7), b.hand_pos_robot_m, b.rot_robot_from_hand, max_steps=600
+    )
+    assert local.reason and local.best_position_error_m < start_distance
+    coarse = search_reactionless_global(
+        ws,
+        np.zeros(7),
+        b.hand_pos_robot_m,
+        b.rot_robot_from_hand,
+        pieces=4,
+        steps_per_piece=4,
+        max_restarts=1,
+        max_iterations=3,
+    )
+    assert coarse.controls.shape == (4, 7) and coarse.reason
+    for joints in (local.joints_rad, coarse.joints_rad):
+        assert joints.shape[1] == 7
+        free = predict(ws, np.arange(joints.shape[0]) * 0.25, joints)
+        assert np.max(_attitude_deg(free.quat_orbit_from_base_xyzw)) < 0.01
