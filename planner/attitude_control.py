@@ -41,7 +41,9 @@ filter on (``DEFAULT_RATE_FILTER_TAU_S``, issue #13); the others stay off:
   i.e. on the measured rate and on the feedforward reference alike (one linear filter, so
   the cancelling rate ``w = -w_ff`` still gives zero rate error, and switching the
   feedforward on or off is smoothed instead of stepping the torque). It starts, when the law
-  (re)starts, from the rate error measured then (no start-up transient);
+  starts (on entering ``feedback``), from the rate error measured then (no start-up
+  transient), and carries on through a change of target (issue #13: re-primed there, every
+  target switch of the offset destination kicked the loop whatever the offset's size);
 - a **dead band** ``d`` on the attitude error (rad, per axis, ``0 <= d < 10 deg``): the P and I
   terms see ``e_db = sign(e) max(|e| - d, 0)``, zero inside the band and growing from zero at
   its edge, so crossing the edge makes no torque jump. The rate (D) term always acts;
@@ -436,6 +438,7 @@ class AttitudeController:
         self._rate: Array | None = None
         self._last_t_s: float | None = None
         self._target: Array | None = None
+        self._integral_restarts = False
 
     def reset(self) -> None:
         """Forget the state: the next call (re)starts the law (integral 0, rate estimate
@@ -444,6 +447,7 @@ class AttitudeController:
         self._rate = None
         self._last_t_s = None
         self._target = None
+        self._integral_restarts = False
 
     @property
     def integral_rad_s(self) -> Array:
@@ -464,8 +468,9 @@ class AttitudeController:
         reaction_rate_radps: Array | None = None,
     ) -> Array:
         """Wheel motor torques (base frame, N m) at ``t_s`` in ``mode``: free drift resets
-        the law and gives zero; in feedback a new target resets it first. The attitude and
-        rate are the measured ones (not needed in free drift)."""
+        the law and gives zero; in feedback a new target restarts the integral (the rate
+        estimate carries on). The attitude and rate are the measured ones (not needed in
+        free drift)."""
         if mode is AcsMode.FREE_DRIFT:
             self.reset()
             return np.zeros(3)
@@ -477,8 +482,15 @@ class AttitudeController:
             or omega_base_radps is None
         ):
             raise InvalidInput("feedback needs the target, the attitude and the rate")
-        if self._target is None or not np.array_equal(self._target, target_quat_xyzw):
-            self.reset()
+        if self._target is None:
+            self.reset()  # the law starts: integral 0, the rate estimate primed below
+            self._target = np.array(target_quat_xyzw, dtype=np.float64)
+        elif not np.array_equal(self._target, target_quat_xyzw):
+            # A new target restarts the integral only: the rate estimate is a measurement
+            # and does not depend on the target (re-priming it with the raw rate would make
+            # every target switch a kick of its own, whatever the offset's size).
+            self._integral = np.zeros(3)
+            self._integral_restarts = True
             self._target = np.array(target_quat_xyzw, dtype=np.float64)
         return self.feedback_torque(
             t_s,
@@ -512,6 +524,8 @@ class AttitudeController:
                 a = math.exp(-dt / gains.rate_filter_tau_s)
                 self._rate = a * self._rate + (1.0 - a) * rate_error
             rate_error = self._rate
+        if self._integral_restarts:  # a new target: the integral starts now, at 0
+            self._integral_restarts, dt = False, 0.0
         if not gains.has_integral:
             return _torque(gains, error, rate_error, None)[1]
         candidate = self._integral + error * dt

@@ -17,7 +17,7 @@ angular acceleration, ``I_w a . w_b'``, is left out of dh_w/dt: 0.15 kg m^2 agai
 The attitude-control law runs in continuous time (:func:`planner.attitude_control.law_rates`):
 its integral and rate-estimate states are appended to the ODE and restart, as on board
 (:class:`planner.attitude_control.AttitudeController`), at the first command time at which
-the mode becomes ``feedback`` or the target changes.
+the mode becomes ``feedback``; a change of target restarts the integral only.
 """
 
 from __future__ import annotations
@@ -198,18 +198,14 @@ def predict(
         if k + 1 == times.size:
             break
         acs = _acs_at(ordered, float(times[k]), free)
-        if (
-            stateful
-            and acs.mode is AcsMode.FEEDBACK
-            and (
-                previous.mode is not AcsMode.FEEDBACK
-                or not np.array_equal(previous.target, acs.target)
-            )
-        ):
-            # The law (re)starts: integral 0, rate estimate the rate error now.
-            ff = feedforward_rate(h_b, reaction, acs)
-            y[10:13] = 0.0
-            y[13:16] = omega if ff is None else omega + ff
+        if stateful and acs.mode is AcsMode.FEEDBACK:
+            if previous.mode is not AcsMode.FEEDBACK:
+                # The law starts: integral 0, rate estimate the rate error now.
+                ff = feedforward_rate(h_b, reaction, acs)
+                y[10:13] = 0.0
+                y[13:16] = omega if ff is None else omega + ff
+            elif not np.array_equal(previous.target, acs.target):
+                y[10:13] = 0.0  # a new target restarts the integral; the estimate carries on
         previous = acs
         dt = (times[k + 1] - times[k]) / sub_steps
         for j in range(sub_steps):

@@ -221,6 +221,34 @@ def test_reset_and_mode_or_target_changes_restart_the_law() -> None:
         law.feedback_torque(1.0, error, np.zeros(3))
 
 
+def test_a_new_target_restarts_the_integral_but_not_the_rate_estimate() -> None:
+    """Issue #13: the rate estimate is a measurement, not tied to the target. Re-primed with
+    the raw rate at every target switch (as it was), the offset destination's switches
+    kicked the loop whatever the offset's size: a -0.012 deg offset switched 1.9 s into the
+    leg cut the closed loop's pitch range from 0.88 to 0.58 deg."""
+    tau = 5.0
+    law = AttitudeController(_gains(ki_nm_per_rad_s=np.full(3, 0.01), rate_filter_tau_s=tau))
+    quat = _quat_of(np.array([0.01, 0.0, 0.0]))
+    w = np.array([0.0, 1e-3, 0.0])
+    law.torque(
+        0.0, AcsMode.FEEDBACK, target_quat_xyzw=IDENTITY, quat_orbit_from_base_xyzw=quat,
+        omega_base_radps=np.zeros(3),
+    )  # fmt: skip
+    law.torque(
+        5.0, AcsMode.FEEDBACK, target_quat_xyzw=IDENTITY, quat_orbit_from_base_xyzw=quat,
+        omega_base_radps=w,
+    )  # fmt: skip
+    before = law.rate_estimate_radps
+    assert before is not None and law.integral_rad_s[0] > 0
+    law.torque(
+        6.0, AcsMode.FEEDBACK, target_quat_xyzw=_quat_of(np.array([0.0, 0.01, 0.0])),
+        quat_orbit_from_base_xyzw=quat, omega_base_radps=w,
+    )  # fmt: skip
+    np.testing.assert_array_equal(law.integral_rad_s, 0.0)
+    a = math.exp(-1.0 / tau)
+    np.testing.assert_allclose(law.rate_estimate_radps, a * before + (1 - a) * w, rtol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("change", "match"),
     [

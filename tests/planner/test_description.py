@@ -465,11 +465,11 @@ TOML_FAULTS = {
         ["[[wheels]]", "must fit inside the base"],
     ),
     "acs_limit": (
-        "damping_ratio = 0.7",
-        "damping_ratio = 0.7\ntorque_limit_nm = 1.0",
+        "damping_ratio = 0.9",
+        "damping_ratio = 0.9\ntorque_limit_nm = 1.0",
         ["[acs] torque_limit_nm", "[[wheels]]"],
     ),
-    "acs_unknown": ("damping_ratio = 0.7", "damping = 0.7", ["[acs]", "unknown attitude-control"]),
+    "acs_unknown": ("damping_ratio = 0.9", "damping = 0.9", ["[acs]", "unknown attitude-control"]),
     "servo_negative": ("lag_s = 0.3", "lag_s = -0.3", ["[servo] lag_s", ">= 0"]),
     "noise_negative": ("joint_deg = 0.005", "joint_deg = -1.0", ["[sensor_noise] joint_deg"]),
     "pose_count": (

@@ -8,9 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from planner.attitude_control import (
     AcsMode,
+    AttitudeController,
     attitude_error_rad,
     default_acs_gains,
-    wheel_torque_nm,
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput, JointLimitExceeded
@@ -130,14 +130,13 @@ def test_feedback_prediction_matches_the_truth_simulation(model: RobotModel) -> 
         ),
     )
 
-    def controller(_t: float, s: State) -> np.ndarray:
-        return wheel_torque_nm(
-            gains,
-            AcsMode.FEEDBACK,
-            attitude_error=attitude_error_rad(
-                s.quat_orbit_from_base_xyzw, np.array([0, 0, 0, 1.0])
-            ),
-            omega_base_radps=s.rot_orbit_from_base.T @ s.omega_base_orbit_radps,
+    law = AttitudeController(gains)  # the calibrated law has a rate filter: a state
+
+    def controller(t: float, s: State) -> np.ndarray:
+        return law.feedback_torque(
+            t,
+            attitude_error_rad(s.quat_orbit_from_base_xyzw, np.array([0, 0, 0, 1.0])),
+            s.rot_orbit_from_base.T @ s.omega_base_orbit_radps,
         )
 
     truth = follow_commands(
@@ -155,4 +154,6 @@ def test_feedback_prediction_matches_the_truth_simulation(model: RobotModel) -> 
     assert np.min(pitch_pred) < -0.2  # the controller holds a PTP disturbance, not nothing
     # Servo lag (0.3 s) and the 10 Hz controller vs the continuous one: 2 % of the peak.
     assert np.max(np.abs(pitch_pred - pitch_sim)) < 0.02 * np.max(np.abs(pitch_pred))
-    assert abs(pitch_pred[-1]) < 0.01  # settled by the end of the hold
+    # back by the end of the 120 s hold: 0.01 deg with the PD law before issue #13; the
+    # calibrated law's slower tail leaves a few hundredths (within 0.05 deg at about 126 s)
+    assert abs(pitch_pred[-1]) < 0.06

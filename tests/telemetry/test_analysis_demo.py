@@ -201,7 +201,7 @@ def test_phase_plane_variants(analysis: PassAnalysis) -> None:
     fb, ff, off = plane.variants
     # Measured pitch ranges (calibrated law, issue #13): feedback -0.40..+0.51, feedforward
     # -0.31..+0.81 (the recovery adds to the deceleration reaction: strongest positive
-    # overshoot, as in flight), offset -0.52..+0.28 deg.
+    # overshoot, as in flight), offset -0.50..+0.46 deg.
     assert ff.pitch_max_deg is not None and fb.pitch_max_deg is not None
     assert off.pitch_max_deg is not None
     assert ff.pitch_max_deg > max(fb.pitch_max_deg, off.pitch_max_deg) + 0.05
@@ -212,24 +212,42 @@ def test_phase_plane_variants(analysis: PassAnalysis) -> None:
     assert ff.first_dip_deg > fb.first_dip_deg + 0.05
     for v in plane.variants:
         assert v.settling_time_s is not None  # all settle within their 80 s wait
-    # Measured settling: offset 26.0 s, feedback 38.6 s, feedforward 67.0 s: the offset
-    # destination settles fastest, as in flight.
+    # Measured settling: feedback 38.6 s, offset 43.0 s, feedforward 67.0 s.
     assert off.settling_time_s is not None and ff.settling_time_s is not None
-    assert fb.settling_time_s is not None
-    assert off.settling_time_s < min(fb.settling_time_s, ff.settling_time_s)
+    assert off.settling_time_s < ff.settling_time_s
 
 
 def test_offset_destination_beats_momentum_feedforward_on_range(analysis: PassAnalysis) -> None:
-    """Flight: range (c) < (a) < (b). Was a strict xfail until issue #13 (offset 0.84 deg, the
-    largest, with the memoryless PD law and the full eq. (10) offset of -0.57 deg); now the
-    calibrated law and the flight's -0.35 deg offset."""
+    """Flight: range (c) < (a) < (b). A strict xfail until issue #13 (offset 0.84 deg against
+    feedforward 0.76 with the memoryless PD law and the full eq. (10) offset of -0.57 deg);
+    with the calibrated law and the flight's -0.35 deg offset it holds."""
+    plane = analysis.phase_plane
+    assert plane is not None
+    ff, off = plane.variant("feedforward"), plane.variant("offset")
+    assert off.pitch_range_deg is not None and ff.pitch_range_deg is not None
+    # Measured: offset 0.97 (-0.50..+0.46), feedforward 1.11 deg (-0.31..+0.81).
+    assert off.pitch_range_deg < ff.pitch_range_deg
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="does not hold on our data: range (a) 0.91 < (c) 0.97 < (b) 1.11 deg, settling (a) "
+    "38.6 < (c) 43.0 < (b) 67.0 s. With a linear law the offset's response adds to feedback's: "
+    "the -0.35 deg target deepens the forward leg's dip (-0.50 against -0.40 deg) and the back "
+    "leg's +0.35 deg raises the peak (docs/spacecraft.md 'What we could not match')",
+)
+def test_offset_destination_has_the_smallest_range_and_settles_fastest(
+    analysis: PassAnalysis,
+) -> None:
     plane = analysis.phase_plane
     assert plane is not None
     fb, ff, off = (plane.variant(v) for v in ("feedback", "feedforward", "offset"))
-    assert off.pitch_range_deg is not None and ff.pitch_range_deg is not None
-    assert fb.pitch_range_deg is not None
-    # Measured: offset 0.80, feedback 0.91, feedforward 1.11 deg.
+    assert off.pitch_range_deg is not None and fb.pitch_range_deg is not None
+    assert ff.pitch_range_deg is not None
     assert off.pitch_range_deg < fb.pitch_range_deg < ff.pitch_range_deg
+    assert off.settling_time_s is not None and fb.settling_time_s is not None
+    assert ff.settling_time_s is not None
+    assert off.settling_time_s < min(fb.settling_time_s, ff.settling_time_s)
 
 
 def test_gyro_pitch_rate_integrates_to_the_pitch(analysis: PassAnalysis) -> None:
@@ -296,8 +314,8 @@ def test_flight_against_ours_on_the_demo_pass(analysis: PassAnalysis) -> None:
     verdicts = {k: c.verdict for k, c in rows.items()}
     # Measured: PTP 85.8 s, peak 0.94 deg; legs 0.050 / 0.027 deg against 0.94; RMS 0.0095
     # against 0.0056 N m s; GJM base pitch -0.567 deg, hand 0.081 deg; (a) -0.40..+0.51 deg;
-    # (b) dip -0.26, peak +0.81 deg; (c) range 0.80 < (a) 0.91 < (b) 1.11 deg, settling
-    # (c) 26.0 < (a) 38.6 < (b) 67.0 s; endpoint 0.10 deg. Every row the pass measures.
+    # (b) dip -0.26, peak +0.81 deg; endpoint 0.105 deg. Not (c): range (a) 0.91 < (c) 0.97
+    # < (b) 1.11 deg, settling (a) 38.6 < (c) 43.0 < (b) 67.0 s.
     for row in (
         "ptp_settling",
         "reactionless_little_disturbance",
@@ -306,16 +324,16 @@ def test_flight_against_ours_on_the_demo_pass(analysis: PassAnalysis) -> None:
         "gjm_hand_hold",
         "coordination_feedback_range",
         "coordination_feedforward",
-        "coordination_offset",
         "nonholonomic_endpoint",
     ):
         assert verdicts[row] == "reproduced", rows[row]
-    # Experiment 3's three orderings as the flight's: range (c) < (a) < (b), (c) settles
-    # fastest, (b) overshoots most.
+    assert verdicts["coordination_offset"] == "not reproduced"
+    # Experiment 3's orderings against the flight's: (b) overshoots most, as in flight; the
+    # range (c) < (a) < (b) and (c) settling fastest do not hold (see above).
     from telemetry.analysis.paper import phase_plane_ordering
 
     ordering = phase_plane_ordering(analysis.to_dict()["phase_plane"])
-    assert [r.holds for r in ordering] == [True, True, True], ordering
+    assert [r.holds for r in ordering] == [False, False, True], ordering
     assert (
         verdicts["gravity_gradient_drift"] == verdicts["inertia_identification"] == ("not measured")
     )
