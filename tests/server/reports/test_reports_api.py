@@ -153,9 +153,12 @@ def test_demo_pass_report(
     assert {r[-1] for r in flight["rows"]} <= {"reproduced", "not reproduced"}
     by_result = {r[0]: r for r in flight["rows"]}
     offset = next(r for k, r in by_result.items() if k.startswith("Exp. 3 (c)"))
-    assert offset[-1] == "not reproduced" and "(c) 0.84" in offset[3]  # largest range today
+    # issue #13's calibrated law: (c) between (a) and (b), neither smallest nor fastest
+    assert offset[-1] == "not reproduced" and "(a) 0.91 < (c) 0.97 < (b) 1.11" in offset[3]
     ptp = next(r for k, r in by_result.items() if k.startswith("Exp. 1: PTP"))
-    assert ptp[-1] == "reproduced" and ptp[3].startswith("80.")  # 80.2 s, flight 100 +- 30 %
+    assert ptp[-1] == "reproduced" and ptp[3].startswith("85.")  # 85.8 s, flight 100 +- 30 %
+    feedback = next(r for k, r in by_result.items() if k.startswith("Exp. 3 (a)"))
+    assert feedback[-1] == "reproduced"  # -0.40 to +0.51 deg, flight -0.5 to +0.4
     assert all(r[-1] != "not measured" for r in flight["rows"])  # all three analyses ran
 
     reaction = tables["reaction_ordering"]
