@@ -29,7 +29,7 @@ motion.) In ``free_drift`` the feedforward does nothing: there is no rate loop t
 **The law family** (:class:`AcsGains`). Besides ``kp`` and ``kd`` the law has the terms
 below, each off in an :class:`AcsGains` built without them (that is the memoryless PD law
 above, bit for bit). The calibrated defaults of :func:`default_acs_gains` switch the rate
-filter on (``DEFAULT_RATE_FILTER_TAU_S``, issue #13); the others stay off:
+filter on (``DEFAULT_RATE_FILTER_TAU_S``); the others stay off:
 
 - an **integral** term ``ki z`` with ``z' = e_db`` per axis (``ki = 0``: none). Anti-windup by
   conditional integration: on an axis whose unsaturated torque exceeds the wheel torque
@@ -42,8 +42,8 @@ filter on (``DEFAULT_RATE_FILTER_TAU_S``, issue #13); the others stay off:
   the cancelling rate ``w = -w_ff`` still gives zero rate error, and switching the
   feedforward on or off is smoothed instead of stepping the torque). It starts, when the law
   starts (on entering ``feedback``), from the rate error measured then (no start-up
-  transient), and carries on through a change of target (issue #13: re-primed there, every
-  target switch of the offset destination kicked the loop whatever the offset's size);
+  transient), and carries on through a change of target (re-primed there, every target
+  switch of the offset destination would kick the loop whatever the offset's size);
 - a **dead band** ``d`` on the attitude error (rad, per axis, ``0 <= d < 10 deg``): the P and I
   terms see ``e_db = sign(e) max(|e| - d, 0)``, zero inside the band and growing from zero at
   its edge, so crossing the edge makes no torque jump. The rate (D) term always acts;
@@ -94,7 +94,7 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-#: Our choice (SPEC 6), calibrated against the flight (issue #13, docs/spacecraft.md
+#: Our choice (SPEC 6), calibrated against the flight (docs/spacecraft.md
 #: "Attitude control and its calibration"): a PD law on a first-order filtered rate estimate,
 #: bandwidth 0.0225 rad/s, damping ratio 0.9, rate-filter time constant 13 s, no integral term,
 #: no dead band. Flown through the vehicle on the demo pass it gives experiment 3's (a)

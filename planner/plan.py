@@ -56,7 +56,7 @@ SEGMENT_KINDS = (
 
 PLAN_FORMAT_VERSION = 1
 
-#: The robot a plan is for when a document does not say (plans written before issue 12):
+#: The robot a plan is for when a document does not say (documents without a robot field):
 #: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name; its hash is the file's
 #: ``content_sha256`` (:func:`ets7_robot_hash`, also ``planner.plan.ETS7_ROBOT_HASH``), read
 #: from the file when first needed, so that it follows the file (its [acs] calibration, say).
@@ -265,7 +265,7 @@ class Plan:
                 segments=tuple(Segment(**s) for s in doc["segments"]),
                 prediction=Prediction.from_dict(doc["prediction"]),
                 metrics={str(k): float(v) for k, v in doc["metrics"].items()},
-                # absent in documents written before issue 12: those plans are ETS-VII's
+                # a document without a robot field is an ETS-VII plan
                 robot=doc.get("robot", ETS7_ROBOT_NAME),
                 robot_hash=doc["robot_hash"] if "robot_hash" in doc else ets7_robot_hash(),
             )
