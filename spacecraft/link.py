@@ -162,6 +162,23 @@ class LinkEmulator:
         """A snapshot of the counters."""
         return self._stats
 
+    def add_outage(self, outage: Outage) -> None:
+        """Add a loss-of-signal window from now on (an unplanned LOS, or one placed relative
+        to something only known at run time, such as a pass's epoch).
+
+        It must start no earlier than the last message handed over: the fate of a message is
+        drawn when it is sent, so a window reaching back before it would be applied to some
+        messages and not to others. Messages already in flight keep the fate they were given.
+        """
+        if not isinstance(outage, Outage):
+            raise ValueError(f"outage = {outage!r} must be an Outage")
+        if outage.start_s < self._last_send_s:
+            raise ValueError(
+                f"outage start_s = {outage.start_s!r} s is before the last message sent at "
+                f"{self._last_send_s!r} s; an outage can only be added from now on"
+            )
+        self._config = replace(self._config, outages=(*self._config.outages, outage))
+
     def is_up(self, t_s: float) -> bool:
         """Whether the link is up at onboard time ``t_s`` (down on each ``[start_s, end_s)``)."""
         return not any(o.contains(t_s) for o in self._config.outages)

@@ -39,7 +39,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
 from spacecraft.downlink import Downlink, DownlinkConfig
-from spacecraft.link import LinkConfig, LinkEmulator
+from spacecraft.link import LinkConfig, LinkEmulator, Outage
 from spacecraft.vehicle import Vehicle, VehicleConfig
 from telemetry.wire import (
     PROTOCOL_VERSION,
@@ -135,6 +135,17 @@ class SpacecraftProcess:
 
     def onboard_ns(self, onboard_s: float) -> int:
         return self.epoch_ns + round(onboard_s * 1e9)
+
+    def add_outage(self, outage: Outage) -> None:
+        """Take the relay down in both directions on ``outage`` (onboard s of this process),
+        which must start no earlier than now (:meth:`LinkEmulator.add_outage`)."""
+        now_s = self.onboard_s()
+        if outage.start_s < now_s:
+            raise ValueError(
+                f"outage start_s = {outage.start_s!r} s is in the past (onboard now {now_s:.3f} s)"
+            )
+        self.uplink.add_outage(outage)
+        self.downlink_link.add_outage(outage)
 
     # -- downlink ------------------------------------------------------------------------
 

@@ -166,6 +166,30 @@ def test_a_short_outage_during_the_flight_loses_the_message() -> None:
     assert link.send(12.0, 100) == pytest.approx(15.0, abs=EXACT)
 
 
+def test_an_outage_added_at_run_time_acts_as_one_configured_from_the_start() -> None:
+    cfg = LinkConfig(delay_s=3.0, jitter_s=0.05, loss=0.2, seed=5)
+    configured = LinkEmulator(replace(cfg, outages=(Outage(40.0, 70.0),)))
+    added = LinkEmulator(cfg)
+    times_s = np.arange(0.0, 120.0, 0.25)
+    early = times_s[times_s < 20.0]
+    assert _send_all(added, early) == _send_all(configured, early)
+    added.add_outage(Outage(40.0, 70.0))
+    assert not added.is_up(50.0) and added.is_up(70.0)
+    late = times_s[times_s >= 20.0]
+    got = _send_all(added, late)
+    assert got == _send_all(configured, late)
+    assert any(a is None for a in got) and any(a is not None for a in got)
+
+
+def test_an_outage_cannot_be_added_before_the_last_message_sent() -> None:
+    link = LinkEmulator(LinkConfig())
+    link.send(10.0, 100)
+    with pytest.raises(ValueError, match="before the last message sent at 10.0 s"):
+        link.add_outage(Outage(9.0, 30.0))
+    link.add_outage(Outage(10.0, 30.0))  # from now on is fine
+    assert not link.is_up(10.0)
+
+
 def test_outages_drop_exactly_the_messages_that_touch_them() -> None:
     outages = (Outage(100.0, 130.0), Outage(200.5, 201.0), Outage(400.0, 460.0))
     clear_cfg = LinkConfig(delay_s=3.0, jitter_s=0.05, preserve_order=False, seed=21)

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -52,9 +54,11 @@ async def _fly(
     pass_id: str,
     name: str,
     timeout_s: float,
+    started: Callable[[SpacecraftProcess, dict[str, Any]], None] | None = None,
     **link: object,
 ) -> tuple[list[TelemetryFrame], SpacecraftProcess]:
-    """Start the pass over REST, wait for it to complete, stop the spacecraft (drain)."""
+    """Start the pass over REST (``started`` is given the process and the started pass),
+    wait for it to complete, stop the spacecraft (drain)."""
     process, generated = spacecraft(ground, **link)
     stop = asyncio.Event()
     task = asyncio.create_task(process.run(stop))
@@ -66,6 +70,8 @@ async def _fly(
             )
             assert response.status_code == 200, response.text
             assert response.json()["state"] == "running"
+            if started is not None:
+                started(process, response.json())
             await wait_for(lambda: settled(ground, pass_id), timeout_s, "the pass settled")
     finally:
         stop.set()
@@ -126,14 +132,30 @@ def _deleted_from_ns(ground: Ground, pass_id: str) -> int:
     return int(event.detail["from_time_ns"])
 
 
+#: LOS from 10 s to 40 s of the plan (onboard): the arm is moving, its commands up to 44 s
+#: must already be on board, the ones after it go again once the relay is back.
+OUTAGE_IN_PLAN_S = (10.0, 40.0)
+
+
 @pytest.mark.slow
 def test_loss_and_a_30_s_outage_lose_no_frame_and_no_command_of_the_pass(tmp_path: Path) -> None:
+    outages: list[Outage] = []
+
+    def los_mid_pass(process: SpacecraftProcess, started: dict[str, Any]) -> None:
+        # Placed on the pass's epoch, known only once it started, so that the scenario is the
+        # same however long the ground took to get there: the schedule was loaded from the
+        # start (the 52 s plan is within the 120 s lead window), 40 s before the first tag,
+        # and the outage comes in the middle of the motion, as the flight's did.
+        epoch_s = (started["epoch_ns"] - process.epoch_ns) / 1e9
+        outage = Outage(epoch_s + OUTAGE_IN_PLAN_S[0], epoch_s + OUTAGE_IN_PLAN_S[1])
+        process.add_outage(outage)
+        outages.append(outage)
+
     with running_ground(sqlite_url(tmp_path)) as ground:
-        # 52 s of plan at 10x; LOS 15-45 s onboard after the spacecraft starts, while the
-        # first commands are being loaded
+        # 52 s of plan at 10x under 10 % loss each way
         pass_id = store_pass(ground.sessions, "lossy", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 45.0)
         generated, process = asyncio.run(
-            _fly(ground, pass_id, "lossy", 60.0, loss=0.1, outages=(Outage(15.0, 45.0),))
+            _fly(ground, pass_id, "lossy", 60.0, started=los_mid_pass, loss=0.1)
         )
         expected = _window_frames(ground, generated)
         with ground.readers() as session:
@@ -157,6 +179,12 @@ def test_loss_and_a_30_s_outage_lose_no_frame_and_no_command_of_the_pass(tmp_pat
     assert summary.commands_executed == summary.commands_total == len(commands) > 50
     assert summary.commands_retransmitted > 0
     assert sum(c.transmissions for c in commands) > len(commands)
+    # the outage happened, in the motion, and cost messages both ways
+    [outage] = outages
+    assert process.uplink.stats.dropped_outage > 0
+    assert process.downlink_link.stats.dropped_outage > 0
+    tags_s = [(c.execute_time_ns - process.epoch_ns) / 1e9 for c in commands]
+    assert min(tags_s) < outage.start_s and max(tags_s) > outage.end_s
     # every command's stage on the ground is what became of it on board
     for c in commands:
         ack = process.vehicle.outcome(c.seq)
