@@ -16,6 +16,7 @@ from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
 from server.api import recordings as recordings_api
+from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
 from server.api import web as web_api
 from server.api.edge import install_edge
@@ -104,6 +105,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(analyses_api.router)
     app.include_router(telemetry_api.router)
     app.include_router(model_api.router)
+    app.include_router(robots_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])

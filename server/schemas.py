@@ -37,6 +37,9 @@ __all__ = [
     "ReportAnalysisPublic",
     "ReportPublic",
     "ReportTablePublic",
+    "RobotPosePublic",
+    "RobotPublic",
+    "RobotsPublic",
     "SegmentPublic",
     "TelemetryBucketPublic",
     "TelemetryPublic",
@@ -137,6 +140,47 @@ class PlanValidation(BaseModel):
     valid: bool
     errors: list[ValidationIssue]
     summary: PlanSummary | None = None
+
+
+# --- robots --------------------------------------------------------------------------------
+
+
+class RobotPosePublic(BaseModel):
+    """A named pose of a robot (``[poses.NAME]``): ``joints_deg`` are the joints the
+    experiments take for it (the IK solution of its hand pose nearest its written joints when
+    it has a hand pose); its written joints when the hand pose cannot be reached, null when
+    it has none either."""
+
+    name: str
+    description: str
+    joints_deg: list[float] | None
+    hand_pos_robot_m: list[float] | None
+    hand_rpy_deg: list[float] | None
+
+
+class RobotPublic(BaseModel):
+    """A robot the server plans for: a plan request names it (``"robot": name``)."""
+
+    name: str
+    description: str
+    n_joints: int
+    #: The description's ``content_sha256``: the ``robot_hash`` of the plans made for it.
+    robot_hash: str
+    #: True for ETS-VII, the robot a plan request without ``robot`` is for.
+    default: bool
+    #: Per joint: lower, upper (deg).
+    joint_limits_deg: list[list[float]]
+    poses: list[RobotPosePublic]
+    #: The experiments' default parameters from the description (``[experiments.NAME]``,
+    #: raw values), under which the catalogue's own defaults apply.
+    experiments: dict[str, dict[str, Any]]
+    #: ``GET`` this for the robot's URDF.
+    urdf_url: str
+
+
+class RobotsPublic(BaseModel):
+    data: list[RobotPublic]
+    count: int
 
 
 # --- passes --------------------------------------------------------------------------------

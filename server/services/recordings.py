@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from planner.plan import Plan
 from server.errors import ServiceError
-from server.services.robots import model_for_plan
+from server.services.robots import model_for_plan, urdf_for_plan
 from server.storage import repository as repo
 from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
 from telemetry.mcap import write_mcap
@@ -114,7 +114,9 @@ def recording_mcap(
     recording = load_recording(session=session, pass_id=pass_id)
     session.rollback()
     buffer = io.BytesIO()
-    write_mcap(recording, buffer, model=model_for_plan(recording.plan, robot_files))
+    model = model_for_plan(recording.plan, robot_files)
+    urdf = urdf_for_plan(recording.plan, robot_files)
+    write_mcap(recording, buffer, model=model, urdf=urdf)
     return recording.name, buffer.getvalue()
 
 
@@ -127,6 +129,7 @@ def write_recording(
     recording = load_recording(session=session, pass_id=pass_id)
     session.rollback()
     model = model_for_plan(recording.plan, robot_files)
+    urdf = urdf_for_plan(recording.plan, robot_files)
     with open(path, "wb") as stream:
-        write_mcap(recording, stream, model=model)
+        write_mcap(recording, stream, model=model, urdf=urdf)
     return recording.name

@@ -15,14 +15,24 @@ import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 
-from planner.description import EXAMPLES_DIR, MAX_FILE_BYTES, load_robot
+from planner.description import EXAMPLES_DIR, MAX_FILE_BYTES, RobotDescription, load_robot
 from planner.errors import PlannerError
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
+from planner.urdf import urdf_xml
 from server.errors import ServiceError
 from server.settings import Settings
 
-__all__ = ["known_robots", "model_for_plan", "resolve_robot"]
+__all__ = [
+    "description_by_hash",
+    "description_named",
+    "known_robots",
+    "model_for_plan",
+    "resolve_robot",
+    "robot_descriptions",
+    "robot_urdf",
+    "urdf_for_plan",
+]
 
 
 def _name_of(path: Path) -> str | None:
@@ -65,6 +75,93 @@ def resolve_robot(settings: Settings, name: str | None) -> Path | None:
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
         )
     return robots[name]
+
+
+@functools.lru_cache(maxsize=16)
+def _description(path: str, mtime_ns: int) -> RobotDescription | None:
+    try:
+        return load_robot(path)
+    except PlannerError:
+        return None
+
+
+def _loaded(path: Path) -> RobotDescription | None:
+    """The description in ``path``, loaded once per modification (None: it does not load)."""
+    try:
+        mtime_ns = path.stat().st_mtime_ns
+    except OSError:
+        return None
+    return _description(str(path.resolve()), mtime_ns)
+
+
+def robot_descriptions(settings: Settings) -> dict[str, RobotDescription]:
+    """The known robots (:func:`known_robots`) whose descriptions load, by name; a file that
+    no longer loads is left out (planning with it answers the loader's message)."""
+    found: dict[str, RobotDescription] = {}
+    for name, path in known_robots(settings).items():
+        description = _loaded(path)
+        if description is not None and description.name == name:
+            found[name] = description
+    return found
+
+
+def description_named(settings: Settings, name: str) -> RobotDescription:
+    """The known robot ``name``; 404 ``unknown_robot`` naming the known ones."""
+    robots = robot_descriptions(settings)
+    if name not in robots:
+        raise ServiceError(
+            404,
+            "unknown_robot",
+            f"no robot named {name!r} on this server; it knows {sorted(robots)} (a server "
+            "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
+        )
+    return robots[name]
+
+
+def _by_hash(robot_files: Sequence[Path | str], robot_hash: str) -> RobotDescription | None:
+    for path in _files(robot_files):
+        description = _loaded(path)
+        if description is not None and description.content_sha256 == robot_hash:
+            return description
+    return None
+
+
+def description_by_hash(settings: Settings, robot_hash: str) -> RobotDescription:
+    """The description whose ``content_sha256`` is ``robot_hash`` (a plan's ``robot_hash``:
+    a shipped robot or one the server was given, whatever its name now); 404
+    ``unknown_robot`` when the server has none."""
+    found = _by_hash(settings.robot_files, robot_hash)
+    if found is None:
+        raise ServiceError(
+            404,
+            "unknown_robot",
+            f"no robot description with hash {robot_hash} on this server (it knows "
+            f"{sorted(robot_descriptions(settings))}; a plan made for a robot given by file "
+            "needs that file: hikoboshi serve --robot FILE)",
+        )
+    return found
+
+
+def robot_urdf(description: RobotDescription) -> str:
+    """The robot's URDF as ``hikoboshi model urdf --robot FILE`` prints it: the export of its
+    model under its name, with its base's display box (ETS-VII: exactly ``GET
+    /api/model/urdf``)."""
+    box = description.base_box_size_m
+    extra = {} if box is None else {"base_box_size_m": box}
+    return urdf_xml(description.model, name=description.name, **extra)
+
+
+def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:
+    """The URDF of the robot ``plan`` was made for (:func:`robot_urdf`; None: ETS-VII's
+    built-in model), found by hash as :func:`model_for_plan` finds its model (409
+    ``robot_unknown`` when the server has no description of it)."""
+    if plan.robot_hash == ETS7_ROBOT_HASH:
+        return None
+    found = _by_hash(robot_files, plan.robot_hash)
+    if found is None:
+        model_for_plan(plan, robot_files)  # raises 409 robot_unknown
+        return None
+    return robot_urdf(found)
 
 
 @functools.lru_cache(maxsize=16)

@@ -31,7 +31,9 @@ Derived channels (for viewing; not read back)::
 
 The metadata record ``hikoboshi.recording`` marks the file as ours and holds the name,
 ``epoch_ns``, ``meta`` (as JSON) and the message counts; the URDF of the model is also the
-attachment ``ets7.urdf``. Chunks are zstd-compressed, with chunk and message indexes.
+attachment ``<robot>.urdf``, named after the plan's robot (``ets7.urdf``, ``orihime.urdf``;
+:func:`read_urdf` finds it, and ``ets7.urdf`` in recordings written before). Chunks are
+zstd-compressed, with chunk and message indexes.
 
 Errors: one class, :class:`RecordingFileError` (a ``ValueError``), for a file that is not
 MCAP, not ours, damaged or truncated, lacks a required channel, holds a message that breaks
@@ -42,7 +44,7 @@ from __future__ import annotations
 
 from telemetry.mcap._errors import RecordingFileError
 from telemetry.mcap._plots import PLOT_TOPICS
-from telemetry.mcap._read import read_mcap
+from telemetry.mcap._read import read_mcap, read_urdf
 from telemetry.mcap._schemas import (
     METADATA_NAME,
     OWN_SCHEMAS,
@@ -51,6 +53,7 @@ from telemetry.mcap._schemas import (
     TOPIC_PLAN,
     TOPIC_TELEMETRY,
     URDF_ATTACHMENT,
+    urdf_attachment_name,
 )
 from telemetry.mcap._write import TOPIC_ROBOT_DESCRIPTION, TOPIC_TF, write_mcap
 
@@ -67,5 +70,7 @@ __all__ = [
     "URDF_ATTACHMENT",
     "RecordingFileError",
     "read_mcap",
+    "read_urdf",
+    "urdf_attachment_name",
     "write_mcap",
 ]

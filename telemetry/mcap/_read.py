@@ -44,12 +44,13 @@ from telemetry.mcap._schemas import (
     TOPIC_EVENTS,
     TOPIC_PLAN,
     TOPIC_TELEMETRY,
+    URDF_ATTACHMENT,
     layout_of_telemetry_schema,
     validators,
 )
 from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
-__all__ = ["MAX_CHUNK_BYTES", "MAX_UNCOMPRESSED_BYTES", "read_mcap"]
+__all__ = ["MAX_CHUNK_BYTES", "MAX_UNCOMPRESSED_BYTES", "read_mcap", "read_urdf"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 #: The most one chunk may hold uncompressed. The writer's chunks are 1 MiB, or one message
@@ -388,3 +389,37 @@ def read_mcap(
             f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
         ) from exc
     return _build(meta, messages, frame_layout)
+
+
+def read_urdf(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> tuple[str, str]:
+    """The robot's URDF attached to a recording: ``(attachment name, document)``. The
+    attachment the metadata names (``urdf_attachment``: ``<robot>.urdf``, the recording's
+    robot), else ``ets7.urdf`` (recordings written before attachments took their robot's
+    name), else the file's only ``.urdf`` attachment. Raises
+    :class:`~telemetry.mcap.RecordingFileError` for a file that is not ours or has none."""
+    data = _read_bytes(path_or_stream)
+    if not data.startswith(_MAGIC):
+        raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
+    try:
+        reader = make_reader(io.BytesIO(data), validate_crcs=True)
+        meta = _metadata(reader)
+        _check_metadata(meta)
+        attachments = {a.name: a.data for a in reader.iter_attachments()}
+    except RecordingFileError:
+        raise
+    except Exception as exc:
+        raise RecordingFileError(
+            f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
+        ) from exc
+    urdfs = [name for name in attachments if name.endswith(".urdf")]
+    only = urdfs if len(urdfs) == 1 else []
+    for name in (meta.get("urdf_attachment"), URDF_ATTACHMENT, *only):
+        if name is not None and name in attachments:
+            try:
+                return name, bytes(attachments[name]).decode()
+            except UnicodeDecodeError:
+                raise RecordingFileError(f"attachment {name!r} is not UTF-8") from None
+    raise RecordingFileError(
+        f"the recording has no URDF attachment (metadata names "
+        f"{meta.get('urdf_attachment')!r}; attachments: {sorted(attachments)})"
+    )

@@ -8,6 +8,7 @@ construction.
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
@@ -28,6 +29,7 @@ __all__ = [
     "layout_of_telemetry_schema",
     "schema_bytes",
     "telemetry_schema",
+    "urdf_attachment_name",
     "validators",
 ]
 
@@ -35,7 +37,20 @@ FORMAT = "hikoboshi.pass-recording"
 FORMAT_VERSION = 1
 #: The MCAP metadata record that marks a file as ours and holds the recording's scalars.
 METADATA_NAME = "hikoboshi.recording"
+#: The URDF attachment of ETS-VII's recordings, and of every recording written before the
+#: attachment took its robot's name (:func:`urdf_attachment_name`); readers still accept it.
 URDF_ATTACHMENT = "ets7.urdf"
+_UNSAFE_IN_NAME = re.compile(r"[^A-Za-z0-9_.-]")
+
+
+def urdf_attachment_name(robot: str) -> str:
+    """The URDF attachment's name for a recording of ``robot`` (its plan's robot, a
+    description's ``name``: ``orihime`` -> ``orihime.urdf``; ETS-VII's is
+    :data:`URDF_ATTACHMENT`). Characters a description's name cannot hold become ``_``."""
+    safe = _UNSAFE_IN_NAME.sub("_", robot)[:64].lstrip(".") or "robot"
+    return f"{safe}.urdf"
+
+
 SCHEMA_ENCODING = "jsonschema"
 
 TOPIC_TELEMETRY = "/hikoboshi/telemetry"

@@ -35,9 +35,9 @@ from telemetry.mcap._schemas import (
     TOPIC_EVENTS,
     TOPIC_PLAN,
     TOPIC_TELEMETRY,
-    URDF_ATTACHMENT,
     schema_bytes,
     telemetry_schema,
+    urdf_attachment_name,
 )
 from telemetry.recording import CommandRow, EventRow, PassRecording
 
@@ -123,19 +123,26 @@ def _metadata(recording: PassRecording) -> dict[str, str]:
         "acs_mode_dtype": recording.frames.acs_mode.dtype.str,
         "commands": str(len(recording.commands)),
         "events": str(len(recording.events)),
-        "urdf_attachment": URDF_ATTACHMENT,
+        "urdf_attachment": urdf_attachment_name(recording.plan.robot),
     }
 
 
 def write_mcap(
-    recording: PassRecording, path_or_stream: PathOrStream, *, model: RobotModel | None = None
+    recording: PassRecording,
+    path_or_stream: PathOrStream,
+    *,
+    model: RobotModel | None = None,
+    urdf: str | None = None,
 ) -> None:
     """Write ``recording`` as one MCAP file (zstd chunks, chunk and message indexes).
 
-    ``model`` (default: :func:`planner.model.default_model`) gives the URDF attachment and
-    the link poses of ``/tf``; its joint count must be the frames' (their
+    ``model`` (default: :func:`planner.model.default_model`) gives the URDF and the link
+    poses of ``/tf``; its joint count must be the frames' (their
     :class:`~telemetry.layout.FrameLayout`, which also gives the telemetry channel's
-    schema). A stream is written from its current position and left open.
+    schema). ``urdf``: the robot's URDF document, the export of ``model`` (default:
+    :func:`planner.urdf.urdf_xml` of ``model`` under the plan's robot's name); attached as
+    ``<robot>.urdf``, the recording's plan's robot (:func:`urdf_attachment_name`: ETS-VII's
+    ``ets7.urdf``). A stream is written from its current position and left open.
     Raises :class:`RecordingFileError` for a recording that JSON cannot carry exactly
     (a non-finite number, a negative time, a payload that is not JSON).
     """
@@ -147,7 +154,8 @@ def write_mcap(
             f"the recording's frames have {layout.n_joints} joints, the robot model "
             f"{model.n_joints}: write it with its own robot's model"
         )
-    urdf = urdf_xml(model)
+    if urdf is None:
+        urdf = urdf_xml(model, name=recording.plan.robot)
     frames = recording.frames
     gen_ns = frames.generation_time_ns
     try:
@@ -253,7 +261,7 @@ def write_mcap(
         writer.add_attachment(
             create_time=0,
             log_time=start_ns,
-            name=URDF_ATTACHMENT,
+            name=urdf_attachment_name(recording.plan.robot),
             media_type="application/xml",
             data=urdf.encode(),
         )

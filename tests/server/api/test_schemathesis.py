@@ -29,6 +29,7 @@ from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
 from server.api import recordings as recordings_api
+from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
 from tests.server.api.conftest import OPERATOR
 
@@ -49,6 +50,7 @@ ROUTERS = (
     analyses_api.router,
     recordings_api.router,
     model_api.router,
+    robots_api.router,
 )
 
 
@@ -70,7 +72,7 @@ def test_every_operation_conforms_and_never_fails_on_the_server(client: TestClie
         for op in (result.ok() for result in schema.get_all_operations())
         if (op.method.upper(), op.path) in ours
     ]
-    assert len(operations) == len(ours) == 24
+    assert len(operations) == len(ours) == 27
     for operation in operations:
 
         @settings(

@@ -1,0 +1,206 @@
+"""``/api/robots``: the robots the server plans for, each one's URDF by name, and the URDF of
+a plan's robot by its description hash (a robot given by file included); 404 with the reason
+for an unknown robot, 422 for a malformed name or hash, a viewer's token required."""
+
+from __future__ import annotations
+
+import shutil
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from planner.description import EXAMPLES_DIR, default_robot, load_robot
+from planner.model import default_model
+from planner.plan import plan_for_robot
+from planner.urdf import urdf_xml
+from server.app import create_app
+from server.errors import ServiceError
+from server.services.robots import robot_urdf, urdf_for_plan
+from server.settings import Settings
+from server.storage import repository as repo
+from tests.server.api.conftest import TOKENS, VIEWER, sessions
+from tests.server.storage.factories import make_plan
+
+ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
+SPACECRAFT = {"Authorization": "Bearer s-token"}
+
+
+def _revolute(urdf: str) -> list[str]:
+    root = ET.fromstring(urdf)
+    return [j.get("name", "") for j in root.iter("joint") if j.get("type") == "revolute"]
+
+
+def _error(response: object, status: int, code: str) -> str:
+    assert response.status_code == status, response.text  # type: ignore[attr-defined]
+    body = response.json()  # type: ignore[attr-defined]
+    assert body["error"]["code"] == code
+    message: str = body["error"]["message"]
+    return message
+
+
+def test_the_robots_list_their_joints_poses_hash_and_defaults(client: TestClient) -> None:
+    response = client.get("/api/robots", headers=VIEWER)
+    assert response.status_code == 200
+    body = response.json()
+    robots = {r["name"]: r for r in body["data"]}
+    assert body["count"] == len(body["data"])
+    assert {"ets7", "orihime"} <= set(robots)
+    orihime, ets7 = robots["orihime"], robots["ets7"]
+    assert orihime["n_joints"] == 7 and ets7["n_joints"] == 6
+    assert orihime["robot_hash"] == load_robot(ORIHIME).content_sha256
+    assert ets7["robot_hash"] == default_robot().content_sha256
+    assert ets7["default"] is True and orihime["default"] is False
+    assert [p["name"] for p in orihime["poses"]] == ["A", "B", "C"]
+    assert all(len(p["joints_deg"]) == 7 for p in orihime["poses"])
+    # B as the experiments take it: the IK of its hand pose near its written joints
+    b = next(p for p in orihime["poses"] if p["name"] == "B")
+    assert b["joints_deg"] == pytest.approx([25.0, -20.0, -10.0, 30.0, 20.0, -40.0, 15.0], abs=0.01)
+    assert b["hand_pos_robot_m"] == pytest.approx([0.8908, 0.6018, 1.321])
+    assert orihime["experiments"]["ptp"]["settle_s"] == 120.0
+    assert len(orihime["experiments"]["nonholonomic"]["phi_init_deg"]) == 7
+    assert len(orihime["joint_limits_deg"]) == 7
+    assert orihime["urdf_url"] == "/api/robots/orihime/urdf"
+
+
+def test_a_robots_urdf_by_name_is_its_own(client: TestClient) -> None:
+    response = client.get("/api/robots/orihime/urdf", headers=VIEWER)
+    assert response.status_code == 200
+    assert response.headers["content-type"].startswith("application/xml")
+    assert response.text == robot_urdf(load_robot(ORIHIME))
+    assert ET.fromstring(response.text).get("name") == "orihime"
+    assert len(_revolute(response.text)) == 7
+    ets7 = client.get("/api/robots/ets7/urdf", headers=VIEWER)
+    assert ets7.status_code == 200
+    assert len(_revolute(ets7.text)) == 6
+    # ETS-VII's by name is the document /api/model/urdf has always served
+    assert ets7.text == client.get("/api/model/urdf", headers=VIEWER).text
+    assert ets7.text == urdf_xml(default_model())
+
+
+def test_an_unknown_or_malformed_robot_is_refused_with_the_reason(client: TestClient) -> None:
+    message = _error(client.get("/api/robots/hikari/urdf", headers=VIEWER), 404, "unknown_robot")
+    assert "hikari" in message and "orihime" in message and "ets7" in message
+    _error(client.get("/api/robots/bad%20name/urdf", headers=VIEWER), 422, "invalid_request")
+    unknown = "0" * 64
+    message = _error(
+        client.get(f"/api/robots/by-hash/{unknown}/urdf", headers=VIEWER), 404, "unknown_robot"
+    )
+    assert unknown in message and "hikoboshi serve --robot FILE" in message
+    _error(client.get("/api/robots/by-hash/ABC/urdf", headers=VIEWER), 422, "invalid_request")
+
+
+@pytest.mark.parametrize(
+    "path", ["/api/robots", "/api/robots/orihime/urdf", "/api/robots/by-hash/{hash}/urdf"]
+)
+def test_the_robots_need_a_viewers_token(client: TestClient, path: str) -> None:
+    path = path.format(hash=load_robot(ORIHIME).content_sha256)
+    _error(client.get(path), 401, "unauthorized")
+    _error(client.get(path, headers={"Authorization": "Bearer nope"}), 401, "unauthorized")
+    _error(client.get(path, headers=SPACECRAFT), 403, "forbidden")
+    assert client.get(path, headers={"Authorization": "Bearer o-token"}).status_code == 200
+
+
+def test_a_plans_robot_urdf_by_the_hash_its_document_records(client: TestClient) -> None:
+    orihime = load_robot(ORIHIME)
+    with sessions(client)() as session:
+        record = repo.add_plan(
+            session=session, plan=plan_for_robot(make_plan(n_joints=7), orihime), created_at_ns=0
+        )
+        session.commit()
+        plan_id = record.id
+    document = client.get(f"/api/plans/{plan_id}/document", headers=VIEWER).json()
+    assert document["robot"] == "orihime"
+    response = client.get(f"/api/robots/by-hash/{document['robot_hash']}/urdf", headers=VIEWER)
+    assert response.status_code == 200
+    assert response.text == robot_urdf(orihime)
+    assert len(_revolute(response.text)) == 7
+
+
+@pytest.fixture()
+def renamed(tmp_path: Path) -> Path:
+    """Orihime's description under another name, in a folder of its own (not shipped)."""
+    folder = tmp_path / "hikari"
+    folder.mkdir()
+    shutil.copy(ORIHIME.parent / "orihime.urdf", folder / "orihime.urdf")
+    text = ORIHIME.read_text().replace('name = "orihime"', 'name = "hikari"', 1)
+    (folder / "hikari.toml").write_text(text)
+    return folder / "hikari.toml"
+
+
+@pytest.fixture()
+def client_with_file(database_url: str, tmp_path: Path, renamed: Path) -> Iterator[TestClient]:
+    settings = Settings(
+        data_dir=tmp_path, database_url=database_url, tokens=TOKENS, robot_files=(renamed,)
+    )
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def test_a_robot_given_by_file_is_listed_and_served_by_name_and_hash(
+    client_with_file: TestClient, client: TestClient, renamed: Path
+) -> None:
+    hikari = load_robot(renamed)
+    names = [r["name"] for r in client_with_file.get("/api/robots", headers=VIEWER).json()["data"]]
+    assert "hikari" in names
+    by_name = client_with_file.get("/api/robots/hikari/urdf", headers=VIEWER)
+    by_hash = client_with_file.get(
+        f"/api/robots/by-hash/{hikari.content_sha256}/urdf", headers=VIEWER
+    )
+    assert by_name.status_code == by_hash.status_code == 200
+    assert by_name.text == by_hash.text == robot_urdf(hikari)
+    assert ET.fromstring(by_name.text).get("name") == "hikari"
+    # a server not given the file does not know it
+    _error(client.get("/api/robots/hikari/urdf", headers=VIEWER), 404, "unknown_robot")
+    _error(
+        client.get(f"/api/robots/by-hash/{hikari.content_sha256}/urdf", headers=VIEWER),
+        404,
+        "unknown_robot",
+    )
+
+
+def test_the_recordings_urdf_is_the_plans_robots(renamed: Path) -> None:
+    orihime = load_robot(ORIHIME)
+    assert urdf_for_plan(make_plan()) is None  # ETS-VII: the built-in model's
+    assert urdf_for_plan(plan_for_robot(make_plan(n_joints=7), orihime)) == robot_urdf(orihime)
+    hikari_plan = plan_for_robot(make_plan(n_joints=7), load_robot(renamed))
+    assert urdf_for_plan(hikari_plan, [renamed]) == robot_urdf(load_robot(renamed))
+    with pytest.raises(ServiceError) as refused:
+        urdf_for_plan(hikari_plan)
+    assert refused.value.status == 409 and refused.value.code == "robot_unknown"
+
+
+def test_the_grounds_recording_of_an_orihime_pass_attaches_orihime_urdf(
+    client: TestClient,
+) -> None:
+    import io
+
+    from telemetry.layout import FrameLayout
+    from telemetry.mcap import read_mcap, read_urdf
+    from tests.server.storage.factories import make_frames
+
+    orihime = load_robot(ORIHIME)
+    frames = make_frames(range(12), layout=FrameLayout(7, 3))
+    with sessions(client)() as session:
+        plan = repo.add_plan(
+            session=session, plan=plan_for_robot(make_plan(n_joints=7), orihime), created_at_ns=0
+        )
+        record = repo.add_pass(
+            session=session,
+            name="orihime-flown",
+            plan_id=plan.id,
+            aos_time_ns=0,
+            los_time_ns=10**12,
+            relay="TDRS-W",
+            created_at_ns=0,
+        )
+        record.epoch_ns = int(frames[0].generation_time_ns)  # flown
+        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
+        session.commit()
+        pass_id = record.id
+    response = client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    assert read_urdf(io.BytesIO(response.content)) == ("orihime.urdf", robot_urdf(orihime))
+    assert read_mcap(io.BytesIO(response.content)).plan.robot == "orihime"
