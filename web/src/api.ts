@@ -64,10 +64,39 @@ export interface Prediction {
 
 export interface PlanDocument {
   experiment: string;
+  /** The robot the plan is for (its description's name and hash); absent: ETS-VII. */
+  robot?: string;
+  robot_hash?: string;
   parameters: Record<string, unknown>;
   segments: Segment[];
   prediction: Prediction;
   metrics: Record<string, number>;
+}
+
+/** A robot the server plans for (``GET /api/robots``). */
+export interface RobotPose {
+  name: string;
+  description: string;
+  joints_deg: number[] | null;
+  hand_pos_robot_m: number[] | null;
+  hand_rpy_deg: number[] | null;
+}
+
+export interface RobotPublic {
+  name: string;
+  description: string;
+  n_joints: number;
+  robot_hash: string;
+  default: boolean;
+  joint_limits_deg: number[][];
+  poses: RobotPose[];
+  experiments: Record<string, Record<string, unknown>>;
+  urdf_url: string;
+}
+
+/** The robot of a plan document, for the 3D view (absent fields: ETS-VII). */
+export function planRobot(doc: PlanDocument): { name: string; hash: string | null } {
+  return { name: doc.robot ?? "ets7", hash: doc.robot_hash ?? null };
 }
 
 export interface PlanValidation {

@@ -141,6 +141,7 @@ export class SatelliteView {
   constructor(parent: HTMLElement) {
     this.el = document.createElement("div");
     this.el.className = "view3d";
+    this.el.dataset.test = "view3d";
     parent.appendChild(this.el);
     this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(devicePixelRatio);
@@ -171,6 +172,9 @@ export class SatelliteView {
     this.robot = new Robot(doc, 1, true);
     this.ghost = new Robot(doc, 0.3, false);
     this.body.add(this.robot.root, this.ghost.root);
+    // What is drawn, for the tests: the URDF's robot and its moving joints.
+    this.el.dataset.robot = doc.querySelector("robot")?.getAttribute("name") ?? "";
+    this.el.dataset.joints = String(this.robot.joints.length);
     this.request();
     return true;
   }
@@ -212,19 +216,63 @@ export class SatelliteView {
   }
 }
 
-let urdfText: Promise<string | null> | null = null;
+/** The robot a pass or plan is for, as its plan document names it. */
+export interface RobotRef {
+  name: string | null;
+  hash: string | null;
+}
 
-/** The model's URDF: ``GET /api/model/urdf`` when the server offers it, else the copy the
- * setup script exports next to the console (``/model/ets7.urdf``); null if neither. */
-export function fetchUrdf(paths: Set<string>): Promise<string | null> {
-  if (urdfText === null) {
-    const url = paths.has("/api/model/urdf") ? "/api/model/urdf" : "/model/ets7.urdf";
+export interface UrdfResult {
+  urdf: string | null;
+  /** Why there is none, for the operator. */
+  reason: string;
+  /** Where it came from. */
+  url: string | null;
+}
+
+const ETS7 = "ets7";
+const urdfTexts = new Map<string, Promise<UrdfResult>>();
+
+function fetchText(url: string, what: string): Promise<UrdfResult> {
+  let cached = urdfTexts.get(url);
+  if (!cached) {
     const headers: Record<string, string> = {};
     const token = storedToken();
     if (token) headers.Authorization = `Bearer ${token}`;
-    urdfText = fetch(url, { headers })
-      .then((r) => (r.ok ? r.text() : null))
-      .catch(() => null);
+    cached = fetch(url, { headers })
+      .then(async (r): Promise<UrdfResult> => {
+        if (r.ok) return { urdf: await r.text(), reason: "", url };
+        let message = `HTTP ${r.status}`;
+        try {
+          message = ((await r.json()) as { error?: { message?: string } }).error?.message ?? message;
+        } catch {
+          // not the server's error shape
+        }
+        return { urdf: null, reason: `${what}: ${message}`, url };
+      })
+      .catch((e: Error): UrdfResult => ({ urdf: null, reason: `${what}: ${e.message}`, url }));
+    urdfTexts.set(url, cached);
   }
-  return urdfText;
+  return cached;
+}
+
+/** The URDF of ``robot`` (the robot of a pass's plan): ``GET /api/robots/by-hash/{hash}/urdf``
+ * when the server offers it. ETS-VII's (no robot named, or the server lists no robots):
+ * ``GET /api/model/urdf``, else the copy the setup script exports next to the console
+ * (``/model/ets7.urdf``). Another robot on a server without robots: none, with the reason
+ * (never ETS-VII drawn for another robot). */
+export function fetchUrdf(paths: Set<string>, robot: RobotRef | null = null): Promise<UrdfResult> {
+  const name = robot?.name ?? ETS7;
+  if (robot?.hash && paths.has("/api/robots/by-hash/{robot_hash}/urdf")) {
+    return fetchText(`/api/robots/by-hash/${encodeURIComponent(robot.hash)}/urdf`, `robot ${name}`);
+  }
+  if (name !== ETS7) {
+    return Promise.resolve({
+      urdf: null,
+      reason: `this server does not serve robot ${name}'s URDF`,
+      url: null,
+    });
+  }
+  const url = paths.has("/api/model/urdf") ? "/api/model/urdf" : "/model/ets7.urdf";
+  return fetchText(url, "ETS-VII's model");
 }

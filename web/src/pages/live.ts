@@ -7,7 +7,7 @@
 // link status for two heartbeats: the link is stale); missing frames are gaps.
 
 import {
-  ApiError, get, getAll, passRawFields,
+  ApiError, get, getAll, passRawFields, planRobot,
   type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
 } from "../api";
 import type { Ctx } from "../main";
@@ -134,9 +134,13 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       .then((doc) => {
         plan = doc;
         view.setPrediction(predictionColumns(doc));
+        view.setRobot(planRobot(doc));
         renderedVersion = -1;
       })
-      .catch(() => view.setPrediction(null));
+      .catch(() => {
+        view.setPrediction(null);
+        view.setRobot(null);
+      });
   };
 
   let telemetryLoading = false;

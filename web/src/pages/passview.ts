@@ -4,7 +4,7 @@
 // (prediction, drawn dashed underneath).
 
 import type { PlanDocument } from "../api";
-import { fetchUrdf, SatelliteView } from "../model3d";
+import { fetchUrdf, SatelliteView, type RobotRef } from "../model3d";
 import { COLORS, PhasePlane, timePlot, type PredLine, type TimePlot } from "../plots";
 import {
   DEFAULT_JOINTS, frameJoints, frameQuat, frameRates, frameTargets, rpyFromQuat,
@@ -68,7 +68,12 @@ export class PassView {
   private pred: PredictionColumns | null = null;
   private readonly jointGrid: HTMLElement;
   private readonly bodyPlots: TimePlot[];
+  private readonly holder: HTMLElement;
+  private readonly paths: Set<string>;
+  private robotKey: string | null = null;
+  private disposed = false;
 
+  /** The 3D view waits for :meth:`setRobot` (the plan's robot). */
   constructor(parent: HTMLElement, paths: Set<string>) {
     this.el = h("section.passview");
     parent.appendChild(this.el);
@@ -93,15 +98,36 @@ export class PassView {
     this.rates.el.dataset.test = "plot-rates";
     this.momentum.el.dataset.test = "plot-momentum";
     this.phase = new PhasePlane(side);
-    const holder = h("div.view3d-holder", {}, h("div.phase-title", {}, "Satellite and arm (solid: measured, ghost: commanded)"));
-    side.appendChild(holder);
-    void fetchUrdf(paths).then((urdf) => {
-      if (!this.el.isConnected && !holder.isConnected) return;
+    this.holder = h("div.view3d-holder", { "data-test": "view3d-holder" },
+      h("div.phase-title", {}, "Satellite and arm (solid: measured, ghost: commanded)"));
+    side.appendChild(this.holder);
+    this.paths = paths;
+  }
+
+  /** Draw ``robot`` in 3D: the robot of the plan (its document's ``robot`` and
+   * ``robot_hash``), from its own URDF; null when the plan is unknown (nothing is drawn:
+   * never another robot's model). Again with the same robot: nothing to do. */
+  setRobot(robot: RobotRef | null): void {
+    const key = robot ? `${robot.name ?? ""}/${robot.hash ?? ""}` : "";
+    if (this.robotKey === key) return;
+    this.robotKey = key;
+    const holder = this.holder;
+    this.view3d?.dispose();
+    this.view3d = null;
+    for (const el of [...holder.querySelectorAll(".view3d, p.unavailable")]) el.remove();
+    if (robot === null) {
+      holder.append(h("p.unavailable", {}, "3D model not available: the pass's plan did not load."));
+      return;
+    }
+    holder.dataset.robot = robot.name ?? "";
+    void fetchUrdf(this.paths, robot).then(({ urdf, reason }) => {
+      if (this.robotKey !== key || this.disposed) return;
       const view = new SatelliteView(holder);
       if (urdf === null || !view.load(urdf)) {
         view.dispose();
         view.el.remove();
-        holder.append(h("p.unavailable", {}, "3D model not available: the console was built without the model (run scripts/setup.sh)."));
+        holder.append(h("p.unavailable", { "data-test": "view3d-unavailable" },
+          `3D model not available: ${urdf === null ? reason : "its URDF does not parse"}.`));
         return;
       }
       this.view3d = view;
@@ -200,6 +226,7 @@ export class PassView {
   }
 
   dispose(): void {
+    this.disposed = true;
     this.view3d?.dispose();
     for (const p of this.plots) p.plot.destroy();
   }

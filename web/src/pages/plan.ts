@@ -4,8 +4,9 @@
 // can preview stored plans.
 
 import {
-  ApiError, get, getAll, post,
+  ApiError, get, getAll, planRobot, post,
   type PassPublic, type PlanBrief, type PlanDocument, type PlanPublic, type PlanValidation,
+  type RobotPublic,
 } from "../api";
 import type { Ctx } from "../main";
 import { clear, fmt, h } from "../ui";
@@ -14,48 +15,110 @@ import { PassView, predictionColumns } from "./passview";
 
 const norm = (s: string): string => s.replace(/\s+/g, "").toLowerCase();
 
+/** Parameters that hold one angle per joint: the robot's joint count, its poses offered. */
+const isJointList = (spec: ParamSpec): boolean =>
+  spec.type === "floats" && (/joints_deg$/.test(spec.name) || /^phi_.*_deg$/.test(spec.name));
+
+/** A description's raw experiment value as the form's text (the server reads it back). */
+function asText(value: unknown): string {
+  if (Array.isArray(value)) return value.map((v) => asText(v)).join(", ");
+  if (typeof value === "boolean") return value ? "true" : "false";
+  return String(value);
+}
+
+/** ETS-VII as the form offered it before the server listed robots: the catalogue's defaults. */
+const BUILT_IN: RobotPublic = {
+  name: "ets7", description: "ETS-VII", n_joints: 6, robot_hash: "", default: true,
+  joint_limits_deg: [], poses: [], experiments: {}, urdf_url: "/api/model/urdf",
+};
+
+/** The parameter's default for ``robot``: its description's ``[experiments]`` value, else the
+ * catalogue's; a per-joint list of the catalogue (ETS-VII's six) is blank for a robot of
+ * another joint count (the server then takes the robot's own, or says what it needs). */
+function defaultFor(spec: ParamSpec, experiment: string, robot: RobotPublic): string {
+  const own = robot.experiments[experiment]?.[spec.name];
+  if (own !== undefined) return asText(own);
+  if (isJointList(spec) && spec.default !== "" && spec.default.split(",").length !== robot.n_joints) return "";
+  return spec.default;
+}
+
 export function planPage(root: HTMLElement, ctx: Ctx, params: string[]): () => void {
   const cleanups: (() => void)[] = [];
   if (params[0]) {
     cleanups.push(previewPlan(root, ctx, params[0]));
   } else {
-    if (ctx.canCommand) planForm(root);
+    if (ctx.canCommand) planForm(root, ctx);
     else root.append(h("p.note", { "data-test": "viewer-note" }, "Planning and scheduling need the operator role; you can preview the stored plans."));
     storedPlans(root);
   }
   return () => cleanups.forEach((f) => f());
 }
 
-function planForm(root: HTMLElement): void {
+function planForm(root: HTMLElement, ctx: Ctx): void {
   const select = h("select", { "data-test": "experiment" },
     ...Object.entries(EXPERIMENTS).map(([name, e]) => h("option", { value: name }, `${name}: ${e.title}`)));
+  const robotSelect = h("select", { "data-test": "robot" }, h("option", { value: BUILT_IN.name }, "ets7 (ETS-VII)"));
+  const robotInfo = h("p.muted.small", { "data-test": "robot-info" });
   const fields = h("div.fields");
   const result = h("div.result", { "data-test": "validation" });
   const validate = h("button", { type: "button", "data-test": "validate" }, "Validate");
   const create = h("button.primary", { type: "submit", "data-test": "create-plan" }, "Plan it");
   const form = h("form.planform", {},
     h("h1", {}, "Plan an experiment"),
+    h("label", {}, "Robot", robotSelect),
+    robotInfo,
     h("label", {}, "Experiment", select),
     fields,
     h("div.actions", {}, validate, create),
     result);
   root.append(form);
-  let inputs = new Map<string, { spec: ParamSpec; input: HTMLInputElement | HTMLSelectElement; error: HTMLElement }>();
+  let inputs = new Map<string, { spec: ParamSpec; input: HTMLInputElement | HTMLSelectElement; error: HTMLElement; dflt: string }>();
+  let robots: RobotPublic[] = [BUILT_IN];
+  const robot = (): RobotPublic => robots.find((r) => r.name === robotSelect.value) ?? BUILT_IN;
+  let listError = "";
 
   const build = (): void => {
     clear(fields);
     clear(result);
     inputs = new Map();
+    const r = robot();
+    const poses = r.poses.filter((p) => p.joints_deg !== null && p.joints_deg.length === r.n_joints);
+    clear(robotInfo);
+    if (listError) robotInfo.append(h("span.error", {}, listError));
+    robotInfo.append(`${r.name}: ${r.n_joints} joints` +
+      (r.poses.length ? `, poses ${r.poses.map((p) => p.name).join(", ")}` : "") +
+      (r.description ? ` · ${r.description}` : ""));
+    robotInfo.dataset.joints = String(r.n_joints);
     for (const spec of EXPERIMENTS[select.value].params) {
+      const dflt = defaultFor(spec, select.value, r);
+      const jointList = isJointList(spec);
+      const hint = jointList ? `${r.n_joints} values, or default (the robot's)` : spec.optional ? "default (derived)" : "";
       const input =
         spec.type === "bool"
           ? h("select", { name: spec.name }, h("option", { value: "true" }, "true"), h("option", { value: "false" }, "false"))
-          : h("input", { type: "text", name: spec.name, value: spec.default, spellcheck: "false", placeholder: spec.optional ? "default (derived)" : "" });
-      if (spec.type === "bool") input.value = spec.default;
+          : h("input", { type: "text", name: spec.name, value: dflt, spellcheck: "false", placeholder: hint });
+      if (spec.type === "bool") input.value = dflt;
       const error = h("span.field-error", { "data-test": `error-${spec.name}`, role: "alert" });
-      const unit = spec.type === "floats" || spec.type === "strings" ? " (comma-separated)" : "";
-      fields.append(h("label.field", { "data-field": spec.name }, h("span.name", {}, spec.name, h("span.muted.small", {}, unit)), input, error));
-      inputs.set(spec.name, { spec, input, error });
+      const unit = jointList
+        ? ` (deg, ${r.n_joints} comma-separated)`
+        : spec.type === "floats" || spec.type === "strings" ? " (comma-separated)" : "";
+      const parts: (HTMLElement | string)[] = [h("span.name", {}, spec.name, h("span.muted.small", {}, unit)), input];
+      if (jointList && poses.length) {
+        // The robot's named poses: choosing one writes its joints into the field.
+        const pick = h("select.pose", { "data-test": `pose-${spec.name}`, title: "A named pose of the robot" },
+          h("option", { value: "" }, "pose…"),
+          ...poses.map((p) => h("option", { value: p.name, title: p.description }, `${p.name}${p.description ? `: ${p.description}` : ""}`)));
+        pick.addEventListener("change", () => {
+          const pose = poses.find((p) => p.name === pick.value);
+          if (!pose?.joints_deg) return;
+          input.value = pose.joints_deg.map((v) => String(Number(v.toFixed(4)))).join(", ");
+          input.dispatchEvent(new Event("input"));
+        });
+        parts.push(pick);
+      }
+      parts.push(error);
+      fields.append(h("label.field", { "data-field": spec.name }, ...parts));
+      inputs.set(spec.name, { spec, input, error, dflt });
       input.addEventListener("input", () => {
         error.textContent = "";
         input.classList.remove("invalid");
@@ -63,14 +126,56 @@ function planForm(root: HTMLElement): void {
     }
   };
 
-  const body = (): { experiment: string; parameters: Record<string, string> } => {
+  // The robots this server plans for (older servers: ETS-VII only, as before). The fields
+  // are built once the robot is known, so that nothing typed is replaced.
+  const listed = ctx.paths.has("/api/robots")
+    ? get<{ data: RobotPublic[]; count: number }>("/api/robots").then((page) => page.data)
+    : Promise.resolve([] as RobotPublic[]);
+  fields.append(h("p.muted", {}, "Loading the robots…"));
+  void listed
+    .catch((e: Error) => {
+      listError = `The server did not list its robots (${e.message}): ETS-VII only. `;
+      return [] as RobotPublic[];
+    })
+    .then((list) => {
+      if (list.length) {
+        robots = list;
+        clear(robotSelect);
+        for (const r of list) {
+          robotSelect.append(h("option", { value: r.name }, `${r.name} (${r.n_joints} joints)${r.default ? " · default" : ""}`));
+        }
+        robotSelect.value = (list.find((r) => r.default) ?? list[0]).name;
+      }
+      robotSelect.addEventListener("change", build);
+      select.addEventListener("change", build);
+      build();
+    });
+
+  const body = (): { experiment: string; parameters: Record<string, string>; robot?: string } => {
     const parameters: Record<string, string> = {};
-    for (const [name, { spec, input }] of inputs) {
+    for (const [name, { input, dflt }] of inputs) {
       const text = input.value.trim();
-      if (text === "" || norm(text) === norm(spec.default)) continue;
+      if (text === "" || norm(text) === norm(dflt)) continue;
       parameters[name] = text;
     }
-    return { experiment: select.value, parameters };
+    const r = robot();
+    // No robot named: ETS-VII, as a server without robots plans.
+    return r.default ? { experiment: select.value, parameters } : { experiment: select.value, parameters, robot: r.name };
+  };
+
+  /** Per-joint fields hold the robot's joint count (else the field says so, nothing sent). */
+  const jointCountErrors = (): { code: string; message: string }[] => {
+    const n = robot().n_joints;
+    const out: { code: string; message: string }[] = [];
+    for (const [name, { spec, input }] of inputs) {
+      const text = input.value.trim();
+      if (!isJointList(spec) || text === "") continue;
+      const count = text.split(",").filter((v) => v.trim() !== "").length;
+      if (count !== n) {
+        out.push({ code: "joint_count", message: `parameter ${name}: ${robot().name} has ${n} joints, ${count} value${count === 1 ? "" : "s"} given` });
+      }
+    }
+    return out;
   };
 
   const showErrors = (errors: { code: string; message: string }[]): void => {
@@ -111,6 +216,8 @@ function planForm(root: HTMLElement): void {
   };
 
   validate.addEventListener("click", () => {
+    const counts = jointCountErrors();
+    if (counts.length) return showErrors(counts);
     busy(true, "Validating (planning without storing)…");
     post<PlanValidation>("/api/plans/validate", body())
       .then((v) => (v.valid ? showSummary(v) : showErrors(v.errors)))
@@ -119,6 +226,8 @@ function planForm(root: HTMLElement): void {
   });
   form.addEventListener("submit", (ev) => {
     ev.preventDefault();
+    const counts = jointCountErrors();
+    if (counts.length) return showErrors(counts);
     busy(true, "Planning…");
     // Validate first: a refused plan is shown inline rather than as a failed request.
     post<PlanValidation>("/api/plans/validate", body())
@@ -130,8 +239,7 @@ function planForm(root: HTMLElement): void {
       .catch((e: Error) => showErrors([{ code: (e as ApiError).code ?? "error", message: e.message }]))
       .finally(() => busy(false, ""));
   });
-  select.addEventListener("change", build);
-  build();
+
 }
 
 function storedPlans(root: HTMLElement): void {
@@ -190,11 +298,13 @@ function previewPlan(root: HTMLElement, ctx: Ctx, planId: string): () => void {
       const pred = predictionColumns(doc);
       duration = pred.t[pred.t.length - 1] ?? plan.duration_s;
       view.setPrediction(pred);
+      view.setRobot(planRobot(doc));
       view.showPredictionAsData(pred);
       show(0);
       clear(info);
       info.append(
         h("h3", {}, `${plan.experiment} · ${fmt(plan.duration_s, 1)} s · ${plan.n_commands} commands`),
+        h("p", { "data-test": "plan-robot" }, `robot ${planRobot(doc).name} · ${pred.joints.length} joints`),
         h("p.muted.small", {}, `plan ${plan.id} · parameters ${JSON.stringify(plan.parameters)}`),
         h("table.list", {}, ...plan.segments.map((s) => h("tr", {}, h("td", {}, s.name), h("td", {}, s.kind), h("td", {}, `${fmt(s.t_start_s, 1)}–${fmt(s.t_end_s, 1)} s`)))),
         h("table.list", {}, ...Object.entries(plan.metrics).map(([k, v]) => h("tr", {}, h("th", {}, k), h("td", {}, fmt(v, 6))))));
@@ -203,6 +313,7 @@ function previewPlan(root: HTMLElement, ctx: Ctx, planId: string): () => void {
     .catch((e: Error) => {
       clear(info);
       info.append(h("p.error", {}, e.message));
+      view.setRobot(null);
     });
   return () => {
     window.clearInterval(timer);

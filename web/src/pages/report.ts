@@ -5,7 +5,7 @@
 // speed, step and seek; docs/console.md), its telemetry drawn on the same plots.
 
 import {
-  get, getAll, passRawFields, post, storedToken,
+  get, getAll, passRawFields, planRobot, post, storedToken,
   type CommandPublic, type PassPublic, type PlanDocument,
 } from "../api";
 import type { Ctx } from "../main";
@@ -225,6 +225,7 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
       h("table.list", {}, ...Object.entries(sum).filter(([k]) => !["pass_id", "name"].includes(k)).map(([k, v]) =>
         h("tr", {}, h("th", {}, k), h("td", {}, typeof v === "object" && v !== null ? JSON.stringify(v) : String(v ?? "—"))))));
     if (doc) view.setPrediction(predictionColumns(doc));
+    view.setRobot(doc ? planRobot(doc) : null);
     // The whole archive, page by page.
     const s = new TelemetryStore(pass.epoch_ns ?? 0);
     const rows: unknown[] = [];

@@ -1,0 +1,175 @@
+"""The console shows the robot of the pass: an Orihime (7-joint) pass draws Orihime from its
+own URDF (fetched by its plan's robot hash) with seven joints in 3D and seven joint plots,
+ETS-VII's pass draws ETS-VII; the planning page offers the server's robots, their named
+poses and their joint counts, and plans for the robot chosen."""
+
+from __future__ import annotations
+
+import json
+import time
+import urllib.request
+from typing import Any
+
+from planner.description import EXAMPLES_DIR, default_robot, load_robot
+from planner.plan import plan_for_robot
+from server.storage import repository as repo
+from telemetry.layout import FrameLayout
+from tests.server.link.harness import Ground
+from tests.server.storage.factories import make_frames, make_plan
+from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+
+ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
+
+
+def _stored_pass(ground: Ground, name: str, robot: Any, n_frames: int = 30) -> str:
+    now = time.time_ns()
+    n = robot.n_joints
+    with ground.sessions() as session:
+        plan = repo.add_plan(
+            session=session, plan=plan_for_robot(make_plan(n_joints=n), robot), created_at_ns=now
+        )
+        record = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=plan.id,
+            aos_time_ns=now,
+            los_time_ns=now + 10**12,
+            relay="TDRS-W",
+            created_at_ns=now,
+        )
+        repo.ingest_frames(
+            session=session,
+            pass_id=record.id,
+            frames=make_frames(range(n_frames), layout=FrameLayout(n, 3)),
+            reception_time_ns=now,
+        )
+        session.commit()
+        return record.id
+
+
+def _urdf_requests(console: Console) -> list[str]:
+    urls: list[str] = []
+    console.page.on("request", lambda r: urls.append(r.url) if "urdf" in r.url else None)
+    return urls
+
+
+def _view3d(console: Console, pass_id: str, frames: int) -> dict[str, Any]:
+    console.sign_in(VIEWER_TOKEN, f"#/live/{pass_id}")
+    console.wait(f"() => window.hikoboshiLive?.frames() === {frames}", "the archive loaded")
+    console.wait(
+        f"() => Math.min(...window.hikoboshiLive.pointCounts()) >= {frames}", "plots drawn"
+    )
+    console.wait(
+        "() => document.querySelector('[data-test=view3d]')?.dataset.joints !== undefined",
+        "the 3D view built",
+    )
+    result: dict[str, Any] = console.page.evaluate(
+        "() => { const v = document.querySelector('[data-test=view3d]');"
+        " return {robot: v.dataset.robot, joints: Number(v.dataset.joints),"
+        " views: document.querySelectorAll('[data-test=view3d]').length,"
+        " plots: document.querySelectorAll('[data-test=joint-plots] > *').length}; }"
+    )
+    return result
+
+
+def test_an_orihime_pass_draws_orihime_with_seven_joints(console: Console, ground: Ground) -> None:
+    orihime = load_robot(ORIHIME)
+    urls = _urdf_requests(console)
+    pass_id = _stored_pass(ground, "orihime-pass", orihime)
+    shown = _view3d(console, pass_id, 30)
+    assert shown == {"robot": "orihime", "joints": 7, "views": 1, "plots": 7}
+    assert [u.split(ground.url, 1)[1] for u in urls] == [
+        f"/api/robots/by-hash/{orihime.content_sha256}/urdf"
+    ]
+    console.screenshot("orihime-pass-3d")
+
+
+def test_ets7s_pass_still_draws_ets7(console: Console, ground: Ground) -> None:
+    ets7 = default_robot()
+    urls = _urdf_requests(console)
+    pass_id = _stored_pass(ground, "ets7-pass", ets7)
+    shown = _view3d(console, pass_id, 30)
+    assert shown == {"robot": "ets7", "joints": 6, "views": 1, "plots": 6}
+    assert [u.split(ground.url, 1)[1] for u in urls] == [
+        f"/api/robots/by-hash/{ets7.content_sha256}/urdf"
+    ]
+
+
+def _fields(page: Any) -> dict[str, str]:
+    values: dict[str, str] = page.evaluate(
+        "() => Object.fromEntries([...document.querySelectorAll('[data-field]')]"
+        ".map((f) => [f.dataset.field, f.querySelector('input, select').value]))"
+    )
+    return values
+
+
+def test_the_planning_page_plans_for_orihime_from_its_poses(
+    console: Console, ground: Ground
+) -> None:
+    page = console.page
+    console.sign_in(OPERATOR_TOKEN, "#/plan")
+    page.wait_for_selector("[data-test=robot] option[value=orihime]", state="attached")
+    options = page.eval_on_selector_all("[data-test=robot] option", "os => os.map(o => o.value)")
+    assert "orihime" in options and "ets7" in options
+    assert page.input_value("[data-test=robot]") == "ets7"  # the default, as before
+    page.select_option("[data-test=experiment]", "ptp")
+    page.wait_for_selector("[data-field=goal_joints_deg] input")
+    assert _fields(page)["start_joints_deg"] == "0, 0, 0, 0, 0, 0"
+
+    page.select_option("[data-test=robot]", "orihime")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=robot-info]').dataset.joints === '7'"
+    )
+    fields = _fields(page)
+    # Orihime's own defaults ([experiments.ptp]), its seven joints
+    assert fields["start_joints_deg"] == "0, 0, 0, 0, 0, 0, 0"
+    assert fields["settle_s"] == "120"
+    poses = page.eval_on_selector_all(
+        "[data-test=pose-goal_joints_deg] option", "os => os.map(o => o.value)"
+    )
+    assert poses == ["", "A", "B", "C"]
+
+    # Six values for a seven-joint robot: refused at the field, nothing planned.
+    page.fill("[data-field=goal_joints_deg] input", "5, 0, 0, 0, 0, 0")
+    page.click("[data-test=validate]")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=error-goal_joints_deg]').textContent !== ''"
+    )
+    assert "7 joints" in page.text_content("[data-test=error-goal_joints_deg]")
+
+    page.select_option("[data-test=pose-goal_joints_deg]", "B")
+    goal = [float(v) for v in page.input_value("[data-field=goal_joints_deg] input").split(",")]
+    assert goal == [round(v, 4) for v in _pose_b_deg()]
+    assert len(goal) == 7
+    page.fill("[data-field=settle_s] input", "1")
+    page.click("[data-test=create-plan]")
+    page.wait_for_selector("[data-test=plan-robot]", timeout=120_000)
+    assert page.text_content("[data-test=plan-robot]") == "robot orihime · 7 joints"
+    console.wait(
+        "() => document.querySelector('[data-test=view3d]')?.dataset.joints === '7'",
+        "Orihime in 3D",
+    )
+    assert page.locator("[data-test=joint-plots] > *").count() == 7
+
+    plan_id = page.url.rsplit("/", 1)[1]
+    request = urllib.request.Request(
+        f"{ground.url}/api/plans/{plan_id}/document",
+        headers={"Authorization": f"Bearer {VIEWER_TOKEN}"},
+    )
+    with urllib.request.urlopen(request) as response:
+        document = json.loads(response.read())
+    assert document["robot"] == "orihime"
+    assert document["robot_hash"] == load_robot(ORIHIME).content_sha256
+    assert len(document["initial_joints_rad"]) == 7
+    assert document["parameters"]["settle_s"] == 1.0
+    console.screenshot("orihime-plan-preview")
+
+
+def _pose_b_deg() -> list[float]:
+    import numpy as np
+
+    from planner.dynamics import DynamicsWorkspace
+
+    orihime = load_robot(ORIHIME)
+    joints = orihime.target_joints_rad("B", DynamicsWorkspace(orihime.model), experiment="t")
+    return [float(v) for v in np.degrees(joints)]
