@@ -255,10 +255,24 @@ class Database:
 
         future.add_done_callback(done)
 
-    async def barrier(self) -> None:
+    async def barrier(self, until: asyncio.Event | None = None) -> None:
         """Wait for the jobs queued so far, not for those queued meanwhile: with telemetry
-        arriving all the time, :meth:`drain` may not return while the link is up."""
-        await asyncio.gather(*list(self._pending), return_exceptions=True)
+        arriving all the time, :meth:`drain` may not return while the link is up. With
+        ``until``, stop waiting as soon as it is set (the jobs go on)."""
+        pending = list(self._pending)
+        if not pending:
+            return
+        # asyncio.wait, not gather: giving up the wait must not cancel the jobs' futures
+        everything = asyncio.ensure_future(asyncio.wait(pending))
+        if until is None:
+            await everything
+            return
+        interrupt = asyncio.ensure_future(until.wait())
+        try:
+            await asyncio.wait((everything, interrupt), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            everything.cancel()
+            interrupt.cancel()
 
     async def drain(self) -> None:
         """Wait for every job queued so far (and those their completions queue): until the

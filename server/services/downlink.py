@@ -102,6 +102,11 @@ class TelemetryWindow:
         )
 
 
+#: The most frames one database job stores (more only if a single message holds more): the
+#: rest of a backlog goes in the next job, so that a control job slips in between.
+MAX_INGEST_FRAMES = 400
+
+
 @dataclass
 class _Batch:
     """One telemetry message's new frames, waiting for the database."""
@@ -219,7 +224,14 @@ class GroundDownlink:
         """One database job for every message read since the last one was handed over: at
         most one frame job is in flight, so under load the frames of many messages share
         one transaction (and one look-up of their pass) instead of queueing a job each."""
-        batches, self._waiting = self._waiting, []
+        # At most MAX_INGEST_FRAMES frames (whole messages) per job: an operator's control
+        # job waits for the job in progress, and on a loaded PostgreSQL a backlog of several
+        # thousand frames in one job took seconds (an abort answered 1.5 s late).
+        take, n = 0, 0
+        while take < len(self._waiting) and (take == 0 or n < MAX_INGEST_FRAMES):
+            n += len(self._waiting[take].fresh)
+            take += 1
+        batches, self._waiting = self._waiting[:take], self._waiting[take:]
         self._ingesting = True
 
         def job(session: Session) -> list[dict[str, int] | None]:

@@ -69,7 +69,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
@@ -99,6 +99,8 @@ from telemetry.uplink import GRID_NS, Command, plan_commands
 from telemetry.wire import AcsCommandMsg, JointCommandMsg, ScheduleDelete, Verification
 
 __all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
+
+T = TypeVar("T")
 
 log = logging.getLogger("hikoboshi.ground.runner")
 
@@ -471,7 +473,9 @@ class PassRunner:
                 await self._clock.sleep_until(wake_at, self._wake)
             if active.stop.is_set():
                 return
-            await link.db.barrier()
+            # The stage writes queued so far, unless an abort comes meanwhile: on a loaded
+            # database they take seconds, and the abort waits for this task.
+            await link.db.barrier(until=active.stop)
             # No lock from here: abort() holds it while it waits for this task. Between
             # the stop check and the write there is no await, and abort() transitions
             # only after this task has ended, from whatever state it left.
@@ -512,7 +516,8 @@ class PassRunner:
         again: list[UplinkCommand] = []
         released_ns = clock.time_ns()
         for i, cmd in enumerate(batch):
-            if not await link.send_command(cmd.command):
+            # an abort stops a long batch (retransmissions after a stall) between sends
+            if active.stop.is_set() or not await link.send_command(cmd.command):
                 for rest in reversed(batch[i:]):
                     up.unsent(rest)
                 break
@@ -600,6 +605,23 @@ class PassRunner:
         if self._active is active:
             self._active = None
 
+    async def _read_unless(self, job: Callable[[Session], T], stop: asyncio.Event) -> T | None:
+        """Run the read-only ``job`` on the link's database worker, unless ``stop`` is set
+        first (None): behind a backlog of stage writes it can wait seconds, and an abort
+        waits for the pass's task. The job itself may still run; it writes nothing."""
+        if stop.is_set():
+            return None
+        read = asyncio.ensure_future(self._link.db.run(job))
+        interrupt = asyncio.ensure_future(stop.wait())
+        try:
+            await asyncio.wait((read, interrupt), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            interrupt.cancel()
+        if read.done():
+            return read.result()
+        read.cancel()
+        return None
+
     async def _resolve_outstanding(
         self, pass_id: str, stop: asyncio.Event, *, ask_expired: bool = False
     ) -> int:
@@ -622,7 +644,7 @@ class PassRunner:
             )
             return [(r.seq, r.execute_time_ns) for r in rows]
 
-        left = await link.db.run(outstanding)
+        left = await self._read_unless(outstanding, stop) or []
         queries = 0
         next_query = clock.monotonic()
         while left and queries < MAX_COMMAND_QUERIES and not stop.is_set():
@@ -635,14 +657,14 @@ class PassRunner:
                 else:
                     next_query = clock.monotonic() + poll_s
             await clock.sleep_until(clock.monotonic() + poll_s, stop)
-            left = await link.db.run(outstanding)
+            left = await self._read_unless(outstanding, stop) or []
         if left and not stop.is_set() and queries:
             # the last answers are a round trip away
             with contextlib.suppress(LinkUnavailable):
                 await clock.sleep_until(
                     link.mono_at_onboard(link.onboard_now_ns() + period_ns), stop
                 )
-            left = await link.db.run(outstanding)
+            left = await self._read_unless(outstanding, stop) or []
         return len(left)
 
     async def _ask_about_expired(self, pass_id: str, stop: asyncio.Event) -> None:
@@ -663,7 +685,7 @@ class PassRunner:
                     await clock.sleep_until(
                         link.mono_at_onboard(link.onboard_now_ns() + period_ns), stop
                     )
-                await link.db.barrier()
+                await link.db.barrier(until=stop)
 
     def _background_task(self, coro: Any) -> None:
         task = asyncio.get_running_loop().create_task(coro)

@@ -280,9 +280,10 @@ class SimulatedSpacecraft:
         if self.link is not None and self.conn is not None:
             await self.link.handle(self.conn, payload, received_mono=at)
 
-    async def run(self, seconds: float, *, step_s: float = 0.25) -> None:
+    async def run(self, seconds: float, *, step_s: float = 0.25, drain: bool = True) -> None:
         """Let ``seconds`` pass: the vehicle's events and the ground's sleepers in time
-        order, the ground's database writes finished at every step."""
+        order, the ground's database writes finished at every step (unless not ``drain``:
+        a database held up)."""
         end = self.clock.monotonic() + seconds
         while self.clock.monotonic() < end:
             nxt = min(
@@ -293,7 +294,7 @@ class SimulatedSpacecraft:
             )
             await self.clock.advance(max(0.0, nxt - self.clock.monotonic()))
             await self._process(ground_reads=True)
-            if self.link is not None:
+            if self.link is not None and drain:
                 await self.link.db.drain()
             await self.clock.settle()
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import threading
+import time
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
@@ -358,3 +360,52 @@ async def test_after_a_restart_the_pass_resumes_and_a_late_hello_is_corrected(
     assert pass_state(sessions, pass_id) == "complete"
     assert _stages(sessions, pass_id) == {"executed": len(rows)}
     _every_command_executed_once_at_its_tag(sc, rows)
+
+
+@simulated
+async def test_an_abort_at_los_does_not_wait_for_the_database_backlog(tmp_path: Path) -> None:
+    """The pass's task waits at LOS for the stage writes queued so far; an abort then stops
+    that wait instead of waiting for the backlog (on a loaded PostgreSQL it took seconds).
+    The database worker is held by two jobs: the first until the abort's own transaction is
+    queued, the second until the abort has answered, which it could not do if it waited."""
+    clock = ManualClock()
+    sessions = make_sessions(tmp_path)
+    g = ground(sessions, clock)
+    sc = SimulatedSpacecraft(clock)
+    await sc.connect(g.link)
+    pass_id = store_pass(sessions, 40, clock)
+    await g.runner.start(pass_id, "otto")
+    db = g.link.db
+    first, second = threading.Event(), threading.Event()
+    ran: list[str] = []
+
+    def held(gate: threading.Event, name: str) -> Callable[[Any], list[dict[str, Any]]]:
+        def job(session: Any) -> list[dict[str, Any]]:
+            assert gate.wait(60.0), f"{name} was never released"
+            ran.append(name)
+            return []
+
+        return job
+
+    db.submit(held(first, "first"))
+    db.submit(held(second, "second"))
+    try:
+        await sc.run(80.0, drain=False)  # the last tag (about 41 s) + the settling: the pass is at LOS
+        task = g.runner._active.task
+        assert task is not None and not task.done()
+        assert pass_state(sessions, pass_id) == "running"  # its LOS write is queued too
+        abort = asyncio.ensure_future(g.runner.abort(pass_id, "otto", "operator abort"))
+        deadline = time.monotonic() + 30.0
+        while not db._control:  # the abort's transaction, queued ahead of the backlog
+            assert not abort.done() and time.monotonic() < deadline, "the abort waited"
+            await asyncio.sleep(0.01)
+        first.set()
+        await asyncio.wait_for(abort, 30.0)
+        assert ran == ["first"]  # answered with the backlog still held
+        assert pass_state(sessions, pass_id) == "aborted"
+        assert task.done()
+    finally:
+        first.set()
+        second.set()
+    await db.drain()
+    assert ran == ["first", "second"]
