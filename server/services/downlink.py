@@ -240,6 +240,27 @@ class GroundDownlink:
                 session.get(PassRecord, pass_id)
                 for pass_id in {p for b in batches for p in b.by_pass}
             ]
+            if len(batches) > 1:
+                # All the messages in one write per pass; if one of them is refused, each
+                # is stored (or refused) alone below.
+                merged: dict[str, list[tuple[list[TelemetryFrame], int]]] = {}
+                for batch in batches:
+                    for pass_id, frames in batch.by_pass.items():
+                        merged.setdefault(pass_id, []).append((frames, batch.reception_ns))
+                try:
+                    with session.begin_nested():
+                        together = {
+                            pass_id: repo.ingest_messages(
+                                session=session, pass_id=pass_id, messages=messages
+                            ).duplicates
+                            for pass_id, messages in merged.items()
+                        }
+                except Exception:
+                    log.debug("telemetry of %d messages: storing them one by one", len(batches))
+                else:
+                    del passes
+                    # the copies the archive held, counted once (with the first message)
+                    return [together, *({} for _ in batches[1:])]
             out: list[dict[str, int] | None] = []
             for batch in batches:
                 duplicates = {}

@@ -48,6 +48,7 @@ __all__ = [
     "count_frames",
     "frame_seqs",
     "ingest_frames",
+    "ingest_messages",
     "missing_seqs",
     "pass_layout",
     "telemetry_buckets",
@@ -193,17 +194,34 @@ def ingest_frames(
     ``IntegrityError`` and kin, on both backends) may leave part of the batch in the open
     transaction: the caller rolls back, and nothing of it stays.
     """
+    return ingest_messages(session=session, pass_id=pass_id, messages=[(frames, reception_time_ns)])
+
+
+def ingest_messages(
+    *,
+    session: Session,
+    pass_id: str,
+    messages: Sequence[tuple[Sequence[TelemetryFrame], int]],
+) -> IngestResult:
+    """:func:`ingest_frames` for several messages of the pass at once, each ``(frames,
+    reception_time_ns)``: one write for all of them (the live link stores a backlog of
+    messages so; one write each cost milliseconds apiece on a loaded PostgreSQL)."""
     key = require_pass(session, pass_id)
-    if not frames:
+    total = sum(len(frames) for frames, _ in messages)
+    if not total:
         return IngestResult(inserted=0, duplicates=0)
     layout = pass_layout(session, key)
     pass_key = uuid.UUID(key)
     try:
-        rows = [(pass_key, *layout.row(frame, reception_time_ns)) for frame in frames]
+        rows = [
+            (pass_key, *layout.row(frame, reception_ns))
+            for frames, reception_ns in messages
+            for frame in frames
+        ]
     except FrameLayoutError as exc:
         raise InvalidArgument(f"pass {key}: {exc}") from None
     inserted = write_rows(session, layout, rows)
-    return IngestResult(inserted=inserted, duplicates=len(frames) - inserted)
+    return IngestResult(inserted=inserted, duplicates=total - inserted)
 
 
 def count_frames(*, session: Session, pass_id: str) -> int:

@@ -13,8 +13,8 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
     analysis   add_analysis, get_analysis, list_analyses
     import     add_frame_arrays, add_command_rows, add_event_rows: a whole recorded pass
                (from ``_import``)
-    telemetry  ingest_frames, frame_seqs, missing_seqs, count_frames, telemetry_range,
-               telemetry_buckets (from ``_telemetry``)
+    telemetry  ingest_frames, ingest_messages, frame_seqs, missing_seqs, count_frames,
+               telemetry_range, telemetry_buckets (from ``_telemetry``)
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ from server.storage._telemetry import (
     count_frames,
     frame_seqs,
     ingest_frames,
+    ingest_messages,
     missing_seqs,
     pass_layout,
     telemetry_buckets,
@@ -83,6 +84,7 @@ __all__ = [
     "get_pass_layout",
     "get_plan",
     "ingest_frames",
+    "ingest_messages",
     "list_analyses",
     "list_commands",
     "list_events",

@@ -114,6 +114,27 @@ def test_overlapping_batches_keep_the_first_copy(session: Session) -> None:
     assert j1_of_45 == make_frames(range(0, 60))[45].joints_rad[0]
 
 
+def test_several_messages_in_one_write_keep_each_its_reception_time(engine: Engine) -> None:
+    frames = make_frames(range(30))
+    with session_factory(engine)() as session:
+        pass_id = _new_pass(session)
+        assert repo.ingest_frames(
+            session=session, pass_id=pass_id, frames=frames[5:10], reception_time_ns=7
+        ) == repo.IngestResult(inserted=5, duplicates=0)
+        messages = [(frames[:10], RECEIVED_NS), (frames[10:30], RECEIVED_NS + 1)]
+        result = repo.ingest_messages(session=session, pass_id=pass_id, messages=messages)
+        assert result == repo.IngestResult(inserted=25, duplicates=5)
+        session.commit()
+    with session_factory(engine)() as session:
+        rows = session.execute(
+            select(TelemetryFrameRecord.seq, TelemetryFrameRecord.reception_time_ns).order_by(
+                TelemetryFrameRecord.seq
+            )
+        ).all()
+    expected = [(s, 7 if 5 <= s < 10 else RECEIVED_NS + (s >= 10)) for s in range(30)]
+    assert [tuple(r) for r in rows] == expected
+
+
 def test_frames_of_different_passes_do_not_collide(session: Session) -> None:
     a, b = _new_pass(session), _new_pass(session)
     frames = make_frames(range(10))

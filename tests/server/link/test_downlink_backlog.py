@@ -1,0 +1,72 @@
+"""The live downlink stores a backlog of telemetry messages in one write, and one message
+that cannot be stored costs only itself (simulated time, the real link and SQLite)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from server.services.clock import ManualClock
+from server.storage import repository as repo
+from telemetry.layout import FrameLayout
+from telemetry.wire import TelemetryMsg, encode
+from tests.server.link.simulated import SimulatedSpacecraft, ground, make_sessions, store_pass
+from tests.server.storage.factories import make_frames
+
+SEVEN = FrameLayout(7, 3)
+
+
+def test_a_backlog_is_stored_together_and_a_bad_message_alone_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    writes: list[int] = []  # messages per write of several
+    ingest_messages = repo.ingest_messages
+
+    def counted(**kw: Any) -> repo.IngestResult:
+        writes.append(len(kw["messages"]))
+        return ingest_messages(**kw)
+
+    monkeypatch.setattr(repo, "ingest_messages", counted)
+
+    async def scenario() -> tuple[list[int], Any]:
+        clock = ManualClock()
+        sessions = make_sessions(tmp_path)
+        g = ground(sessions, clock)
+        sc = SimulatedSpacecraft(clock)
+        await sc.connect(g.link)
+        pass_id = store_pass(sessions, 40, clock)  # a six-joint plan
+        g.link.open_window(pass_id, 0)
+        gate = threading.Event()
+
+        def held(session: Any) -> list[dict[str, Any]]:
+            assert gate.wait(60.0)
+            return []
+
+        g.link.db.submit(held)  # the database is busy: messages pile up behind it
+        messages = [
+            make_frames(range(0, 10)),
+            make_frames(range(10, 20)),
+            make_frames(range(20, 30), layout=SEVEN),  # frames another robot would send
+            make_frames(range(30, 40)),
+        ]
+        for frames in messages:
+            await g.link.handle(sc.conn, encode(TelemetryMsg(frames=frames)))
+        gate.set()
+        await g.link.downlink.settled()
+        await g.link.db.drain()
+        with sessions() as session:
+            stored = repo.frame_seqs(session=session, pass_id=pass_id)
+        return stored, g.link.downlink.held
+
+    stored, held = asyncio.run(scenario())
+    good = [*range(0, 20), *range(30, 40)]
+    assert stored == good
+    # acknowledged (held) exactly what was stored: the bad message goes unacknowledged
+    assert [s for s in range(40) if s in held] == good
+    # the first message went alone (the database was busy); the three that piled up behind
+    # it were tried in one write, which the bad one failed (then each was stored alone)
+    assert writes == [3]
