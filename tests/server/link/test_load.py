@@ -55,12 +55,11 @@ ANONYMOUS_BODY = 30 * 1024 * 1024
 #: The server process's peak resident set (VmHWM): its own, the work runs in worker
 #: processes. Measured about 330 MB under this load.
 SERVER_RSS_BOUND = 768 * 1024 * 1024
-#: The issue's target for the abort's answer under this load is 1 s (#14). It does NOT hold
-#: yet: measured 2.8 s (SQLite) and 5.6 s (PostgreSQL) with one core busy, and once 23.5 s
-#: on PostgreSQL on a quiet machine, while the pass itself flew untouched. Until it holds,
-#: this test guards the order of magnitude (before #14: 207 s, and a pass knocked off) and
-#: prints the latency; #14 stays open on it.
-ABORT_ANSWER_S = 60.0
+#: The abort's answer under this load (#14). It took 2.5-23.5 s while the pass's task waited
+#: at LOS for the database backlog and a backlog of telemetry (one write per message) held
+#: the operator's control job for seconds on PostgreSQL; measured 0.2-0.4 s with one core
+#: busy since those were fixed.
+ABORT_ANSWER_S = 1.0
 
 
 @dataclass
@@ -69,6 +68,8 @@ class Load:
     viewer_status: Counter[int] = field(default_factory=Counter)
     downloaded_bytes: int = 0
     complete_downloads: int = 0
+    #: requests on a kept-alive connection the server had closed as idle meanwhile
+    stale_connections: int = 0
     anonymous_status: Counter[str] = field(default_factory=Counter)
 
 
@@ -79,25 +80,38 @@ async def _viewer(base: str, pass_id: str, size: int, load: Load) -> None:
         while not load.stop.is_set():
             path = paths[k % 2]
             k += 1
-            async with client.stream("GET", path) as response:
-                n = 0
-                body = bytearray()
-                async for chunk in response.aiter_bytes():
-                    n += len(chunk)
-                    if response.status_code != 200:
-                        body += chunk
-                load.viewer_status[response.status_code] += 1
-                load.downloaded_bytes += n
-                if response.status_code == 200:
-                    assert n == int(response.headers["Content-Length"])
-                    assert n > (size // 2 if path.endswith(".mcap") else 100_000)
-                    load.complete_downloads += 1
-                elif response.status_code == 504:
-                    assert json.loads(body)["error"]["code"] == "deadline_exceeded", body
-                elif response.status_code == 503:
-                    wait = min(float(response.headers["Retry-After"]), 2.0)
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(load.stop.wait(), wait)
+            try:
+                await _download(client, path, size, load)
+            except httpx.RemoteProtocolError as exc:
+                # The server closes a connection idle for its keep-alive timeout (5 s); a
+                # viewer starved of CPU for that long sends its next request as it closes.
+                # A GET on a reused connection is sent again (RFC 9112, 9.3.1), as browsers
+                # do; that it stays rare is asserted.
+                if "without sending a response" not in str(exc):
+                    raise
+                load.stale_connections += 1
+
+
+async def _download(client: httpx.AsyncClient, path: str, size: int, load: Load) -> None:
+    async with client.stream("GET", path) as response:
+        n = 0
+        body = bytearray()
+        async for chunk in response.aiter_bytes():
+            n += len(chunk)
+            if response.status_code != 200:
+                body += chunk
+        load.viewer_status[response.status_code] += 1
+        load.downloaded_bytes += n
+        if response.status_code == 200:
+            assert n == int(response.headers["Content-Length"])
+            assert n > (size // 2 if path.endswith(".mcap") else 100_000)
+            load.complete_downloads += 1
+        elif response.status_code == 504:
+            assert json.loads(body)["error"]["code"] == "deadline_exceeded", body
+        elif response.status_code == 503:
+            wait = min(float(response.headers["Retry-After"]), 2.0)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(load.stop.wait(), wait)
 
 
 async def _anonymous(port: int, load: Load) -> None:
@@ -225,12 +239,15 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
                     assert response.status_code == 200, response.text
                     await _until(lambda: _state(readers, flown) == "complete", 240.0, "complete")
                     # and an abort under the same load
-                    aborted = store_pass(sessions, "cut", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 60.0)
+                    # 10 s of motion and 600 s of holding (30 s of wall): the abort comes
+                    # while the pass runs however slowly its first stages are stored
+                    aborted = store_pass(sessions, "cut", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 600.0)
                     response = await op.post(
                         f"/api/passes/{aborted}/start", json={"confirm": "START cut"}
                     )
                     assert response.status_code == 200, response.text
                     await _until(lambda: _executed(readers, aborted) >= 12, 120.0, "12 executed")
+                    assert _state(readers, aborted) == "running"
                     t0 = time.monotonic()
                     response = await op.post(
                         f"/api/passes/{aborted}/abort",
@@ -274,6 +291,7 @@ def test_a_pass_flies_untouched_while_viewers_download_and_anonymous_clients_flo
     # answered 504 deadline_exceeded (checked in _viewer), bounded work doing its job.
     assert load.complete_downloads >= 4, load
     assert set(load.viewer_status) <= {200, 503, 504}, load.viewer_status
+    assert load.stale_connections <= max(3, sum(load.viewer_status.values()) // 20), load
     assert load.anonymous_status["401"] >= 1, load
     assert set(load.anonymous_status) <= {"401", "429", "reset"}, load
     # the abort answered at once; nothing of the cut pass was lost or left open

@@ -390,7 +390,8 @@ async def test_an_abort_at_los_does_not_wait_for_the_database_backlog(tmp_path: 
     db.submit(held(first, "first"))
     db.submit(held(second, "second"))
     try:
-        await sc.run(80.0, drain=False)  # the last tag (about 41 s) + the settling: the pass is at LOS
+        # the last tag (about 41 s) and the settling: the pass is at LOS
+        await sc.run(80.0, drain=False)
         task = g.runner._active.task
         assert task is not None and not task.done()
         assert pass_state(sessions, pass_id) == "running"  # its LOS write is queued too
