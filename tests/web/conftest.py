@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,8 +20,12 @@ from typing import Any
 
 import pytest
 
+from planner.plan import Plan
+from server.storage import repository as repo
 from server.storage.db import sqlite_url
+from telemetry.layout import FrameLayout
 from tests.server.link.harness import Ground, running_ground, spacecraft
+from tests.server.storage.factories import make_frames
 
 CHROMIUM = Path("/usr/bin/chromium")
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,6 +34,30 @@ SCREENSHOTS = ROOT / "artifacts" / "screenshots"
 
 OPERATOR_TOKEN = "o-token"
 VIEWER_TOKEN = "v-token"
+
+
+def stored_pass(ground: Ground, name: str, plan: Plan, n_frames: int) -> str:
+    """A pass of ``plan`` in the ground's archive with ``n_frames`` frames of its robot."""
+    now = time.time_ns()
+    layout = FrameLayout(len(plan.initial_joints_rad), 3)
+    with ground.sessions() as session:
+        record = repo.add_pass(
+            session=session,
+            name=name,
+            plan_id=repo.add_plan(session=session, plan=plan, created_at_ns=now).id,
+            aos_time_ns=now,
+            los_time_ns=now + 10**12,
+            relay="TDRS-W",
+            created_at_ns=now,
+        )
+        repo.ingest_frames(
+            session=session,
+            pass_id=record.id,
+            frames=make_frames(range(n_frames), layout=layout),
+            reception_time_ns=now,
+        )
+        session.commit()
+        return record.id
 
 
 def _skip_reason() -> str | None:

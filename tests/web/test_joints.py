@@ -3,36 +3,13 @@ plots and a J7 column; ETS-VII's shows six (the store takes n from the data, not
 
 from __future__ import annotations
 
-import time
-
-from server.storage import repository as repo
-from telemetry.layout import FrameLayout
 from tests.server.link.harness import Ground
-from tests.server.storage.factories import make_frames, make_plan
-from tests.web.conftest import VIEWER_TOKEN, Console
+from tests.server.storage.factories import make_plan
+from tests.web.conftest import VIEWER_TOKEN, Console, stored_pass
 
 
 def _stored_pass(ground: Ground, name: str, n_joints: int, n_frames: int) -> str:
-    now = time.time_ns()
-    with ground.sessions() as session:
-        plan = repo.add_plan(session=session, plan=make_plan(n_joints=n_joints), created_at_ns=now)
-        record = repo.add_pass(
-            session=session,
-            name=name,
-            plan_id=plan.id,
-            aos_time_ns=now,
-            los_time_ns=now + 10**12,
-            relay="TDRS-W",
-            created_at_ns=now,
-        )
-        repo.ingest_frames(
-            session=session,
-            pass_id=record.id,
-            frames=make_frames(range(n_frames), layout=FrameLayout(n_joints, 3)),
-            reception_time_ns=now,
-        )
-        session.commit()
-        return record.id
+    return stored_pass(ground, name, make_plan(n_joints=n_joints), n_frames)
 
 
 def _joint_plots(console: Console, pass_id: str, frames: int) -> tuple[list[int], list[str]]:

@@ -6,45 +6,21 @@ poses and their joint counts, and plans for the robot chosen."""
 from __future__ import annotations
 
 import json
-import time
 import urllib.request
 from typing import Any
 
 from planner.description import EXAMPLES_DIR, default_robot, load_robot
 from planner.plan import plan_for_robot
-from server.storage import repository as repo
-from telemetry.layout import FrameLayout
 from tests.server.link.harness import Ground
-from tests.server.storage.factories import make_frames, make_plan
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+from tests.server.storage.factories import make_plan
+from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, stored_pass
 
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
 
 
 def _stored_pass(ground: Ground, name: str, robot: Any, n_frames: int = 30) -> str:
-    now = time.time_ns()
-    n = robot.n_joints
-    with ground.sessions() as session:
-        plan = repo.add_plan(
-            session=session, plan=plan_for_robot(make_plan(n_joints=n), robot), created_at_ns=now
-        )
-        record = repo.add_pass(
-            session=session,
-            name=name,
-            plan_id=plan.id,
-            aos_time_ns=now,
-            los_time_ns=now + 10**12,
-            relay="TDRS-W",
-            created_at_ns=now,
-        )
-        repo.ingest_frames(
-            session=session,
-            pass_id=record.id,
-            frames=make_frames(range(n_frames), layout=FrameLayout(n, 3)),
-            reception_time_ns=now,
-        )
-        session.commit()
-        return record.id
+    plan = plan_for_robot(make_plan(n_joints=robot.n_joints), robot)
+    return stored_pass(ground, name, plan, n_frames)
 
 
 def _urdf_requests(console: Console) -> list[str]:
