@@ -12,12 +12,13 @@ then the counts and per-channel sequences. Any failure raises
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import re
 import struct
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any
 
@@ -367,11 +368,9 @@ def read_mcap(
     channels are not needed. A file whose chunks declare more than ``max_chunk_bytes`` each
     or ``max_uncompressed_bytes`` together is refused before anything is decompressed.
     Raises :class:`~telemetry.mcap.RecordingFileError`."""
-    data = _read_bytes(path_or_stream)
-    if not data.startswith(_MAGIC):
-        raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
+    data = _mcap_bytes(path_or_stream)
     layout = _layout(data, max_chunk_bytes, max_uncompressed_bytes)
-    try:
+    with _damage_is_a_recording_error():
         reader = make_reader(io.BytesIO(data), validate_crcs=True)
         summary = _summary(reader)
         _check_indexes(summary, layout)
@@ -379,16 +378,29 @@ def read_mcap(
         _check_metadata(meta)
         channels, frame_layout = _channels(summary)
         messages = _messages(reader, channels, frame_layout)
+    return _build(meta, messages, frame_layout)
+
+
+def _mcap_bytes(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> bytes:
+    data = _read_bytes(path_or_stream)
+    if not data.startswith(_MAGIC):
+        raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
+    return data
+
+
+@contextlib.contextmanager
+def _damage_is_a_recording_error() -> Iterator[None]:
+    """The mcap library signals damaged input with many types (McapError, struct.error,
+    zstd errors, EndOfFile, KeyError, ...), none of them documented as its contract.
+    Whatever it raises while parsing, the file is not a readable recording."""
+    try:
+        yield
     except RecordingFileError:
         raise
     except Exception as exc:
-        # The mcap library signals damaged input with many types (McapError, struct.error,
-        # zstd errors, EndOfFile, KeyError, ...), none of them documented as its contract.
-        # Whatever it raises while parsing, the file is not a readable recording.
         raise RecordingFileError(
             f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
         ) from exc
-    return _build(meta, messages, frame_layout)
 
 
 def read_urdf(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> tuple[str, str]:
@@ -397,20 +409,12 @@ def read_urdf(path_or_stream: str | os.PathLike[str] | IO[bytes]) -> tuple[str, 
     robot), else ``ets7.urdf`` (recordings written before attachments took their robot's
     name), else the file's only ``.urdf`` attachment. Raises
     :class:`~telemetry.mcap.RecordingFileError` for a file that is not ours or has none."""
-    data = _read_bytes(path_or_stream)
-    if not data.startswith(_MAGIC):
-        raise RecordingFileError(f"not an MCAP file: starts with {data[:8]!r}")
-    try:
+    data = _mcap_bytes(path_or_stream)
+    with _damage_is_a_recording_error():
         reader = make_reader(io.BytesIO(data), validate_crcs=True)
         meta = _metadata(reader)
         _check_metadata(meta)
         attachments = {a.name: a.data for a in reader.iter_attachments()}
-    except RecordingFileError:
-        raise
-    except Exception as exc:
-        raise RecordingFileError(
-            f"damaged or truncated MCAP file: {type(exc).__name__}: {exc}"
-        ) from exc
     urdfs = [name for name in attachments if name.endswith(".urdf")]
     only = urdfs if len(urdfs) == 1 else []
     for name in (meta.get("urdf_attachment"), URDF_ATTACHMENT, *only):
