@@ -184,7 +184,7 @@ def test_an_outage_added_at_run_time_acts_as_one_configured_from_the_start() -> 
 def test_an_outage_cannot_be_added_before_the_last_message_sent() -> None:
     link = LinkEmulator(LinkConfig())
     link.send(10.0, 100)
-    with pytest.raises(ValueError, match="before the last message sent at 10.0 s"):
+    with pytest.raises(ValueError, match=r"before the last message sent at 10\.0 s"):
         link.add_outage(Outage(9.0, 30.0))
     link.add_outage(Outage(10.0, 30.0))  # from now on is fine
     assert not link.is_up(10.0)

@@ -223,6 +223,14 @@ async def connected(client: httpx.AsyncClient) -> None:
         await asyncio.sleep(0.05)
 
 
+def deleted_from_ns(ground: Ground, pass_id: str) -> int:
+    """The tag from which the abort's ``schedule_delete`` deleted the schedule."""
+    with ground.readers() as session:
+        page = repo.list_events(session=session, pass_id=pass_id, kinds=["schedule_deleted"])
+    [event] = page.items
+    return int(event.detail["from_time_ns"])
+
+
 def settled(ground: Ground, pass_id: str) -> bool:
     """The pass has ended, the spacecraft's frames reach past its telemetry window, and the
     ground is done asking about commands in flight (all answered, or the queries used up):

@@ -26,6 +26,7 @@ from tests.server.link.harness import (
     Ground,
     add_plan_and_pass,
     connected,
+    deleted_from_ns,
     running_ground,
     spacecraft,
     wait_for,
@@ -134,12 +135,19 @@ def test_abort_of_a_long_pass_is_one_event_and_keeps_every_console(tmp_path: Pat
         )
         answered_s, consoles = asyncio.run(scenario(ground, pass_id))
         stages = _stages(ground, pass_id)
+        from_ns = deleted_from_ns(ground, pass_id)
+        with ground.readers() as session:
+            rows = repo.list_commands(session=session, pass_id=pass_id)
 
     assert answered_s < ABORT_ANSWER_S, f"abort answered in {answered_s:.2f} s"
     total = N_COMMANDS + 1  # and the plan's ACS command
     assert sum(stages.values()) == total
-    assert stages["cancelled"] > 13_000, stages
     assert set(stages) <= {"executed", "cancelled"}, stages  # nothing left open or lost
+    # what was due before the abort's tag executed, everything from it on was cancelled
+    # (when the abort comes depends on how fast a loaded machine stores the first stages)
+    assert all(r.stage == "executed" for r in rows if r.execute_time_ns < from_ns)
+    assert all(r.stage == "cancelled" for r in rows if r.execute_time_ns >= from_ns)
+    assert stages["cancelled"] > N_COMMANDS // 2, stages  # most of the hour was cut
     for console in consoles:
         [cancelled] = console.events("commands_cancelled")  # one event, on every console
         detail = cancelled["detail"]

@@ -27,6 +27,7 @@ from tests.server.link.harness import (
     OPERATOR,
     Ground,
     connected,
+    deleted_from_ns,
     running_ground,
     settled,
     spacecraft,
@@ -122,14 +123,6 @@ def test_a_pass_executes_every_command_at_its_tag_and_stores_every_frame_once(
     # 2 x 3 s of relay (onboard s), plus however long the pong queued behind telemetry writes
     assert status.round_trip_s > 5.5
     # (how late each release was after its deadline is measured in bench/bench_uplink.py)
-
-
-def _deleted_from_ns(ground: Ground, pass_id: str) -> int:
-    """The tag from which the abort's ``schedule_delete`` deleted the schedule."""
-    with ground.readers() as session:
-        page = repo.list_events(session=session, pass_id=pass_id, kinds=["schedule_deleted"])
-    [event] = page.items
-    return int(event.detail["from_time_ns"])
 
 
 #: LOS from 10 s to 40 s of the plan (onboard): the arm is moving, its commands up to 44 s
@@ -265,7 +258,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
                     return page.count > 0
 
                 await wait_for(verified, 30.0, "the schedule_delete verified")
-                from_ns = _deleted_from_ns(ground, pass_id)
+                from_ns = deleted_from_ns(ground, pass_id)
 
                 def seen_past_the_delete() -> bool:
                     newest = ground.app.state.link.newest
@@ -282,7 +275,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
         # 80 s of motion: the abort comes with most of the plan loaded on board
         pass_id = store_pass(ground.sessions, "abortive", (20.0, 0.0, 0.0, 20.0, 0.0, 0.0), 60.0)
         process = asyncio.run(scenario(ground, pass_id))
-        from_ns = _deleted_from_ns(ground, pass_id)
+        from_ns = deleted_from_ns(ground, pass_id)
         with ground.readers() as session:
             commands = repo.list_commands(session=session, pass_id=pass_id)
             after = repo.telemetry_range(
