@@ -18,7 +18,10 @@ median and 95th percentile latency in each phase and their ratios under load to 
 baseline. Target: the control probe's 95th percentile under load stays under 1 s (the
 issue's bound for an abort) and within 10x its baseline.
 
-    .venv/bin/python bench/bench_isolation.py [--viewers 30] [--seconds 20]
+``--busy-cores N`` adds N processes spinning on a core each during the loaded phase (as a
+shared CI machine has): the viewers and the server then also compete for the CPU.
+
+    .venv/bin/python bench/bench_isolation.py [--viewers 30] [--seconds 20] [--busy-cores 1]
 """
 
 from __future__ import annotations
@@ -112,7 +115,21 @@ async def _viewer(base: str, pass_id: str, stop: asyncio.Event, counts: dict[str
                     await asyncio.wait_for(stop.wait(), wait)
 
 
-async def _run(base: str, recording: bytes, viewers: int, seconds: float) -> dict[str, Any]:
+@contextlib.contextmanager
+def _busy(cores: int) -> Any:
+    """``cores`` processes, each keeping a core busy, for the duration."""
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(cores)]
+    try:
+        yield
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+
+
+async def _run(
+    base: str, recording: bytes, viewers: int, seconds: float, busy_cores: int
+) -> dict[str, Any]:
     async with httpx.AsyncClient(base_url=base, timeout=300.0) as client:
         response = await client.post("/api/passes/import", content=recording, headers=OPERATOR)
         assert response.status_code == 201, response.text
@@ -127,11 +144,15 @@ async def _run(base: str, recording: bytes, viewers: int, seconds: float) -> dic
             asyncio.create_task(_viewer(base, imported["id"], stop, counts)) for _ in range(viewers)
         ]
         await asyncio.sleep(2.0)
-        print(f"under load: {viewers} viewers, {seconds:.0f} s of probes", file=sys.stderr)
-        loaded = await _probe(client, imported["id"], seconds)
+        print(
+            f"under load: {viewers} viewers, {busy_cores} busy cores, {seconds:.0f} s of probes",
+            file=sys.stderr,
+        )
+        with _busy(busy_cores):
+            loaded = await _probe(client, imported["id"], seconds)
         stop.set()
         await asyncio.gather(*tasks)
-    return {"idle": idle, "loaded": loaded, "viewer_answers": counts}
+    return {"idle": idle, "loaded": loaded, "viewer_answers": counts, "busy_cores": busy_cores}
 
 
 def main() -> None:
@@ -139,6 +160,9 @@ def main() -> None:
     parser.add_argument("--viewers", type=int, default=30)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--database-url", default=None, help="default: SQLite in a temp dir")
+    parser.add_argument(
+        "--busy-cores", type=int, default=0, help="processes spinning during the loaded phase"
+    )
     args = parser.parse_args()
     print("flying the demo pass offline for a recording to serve", file=sys.stderr)
     recording = _demo_mcap()
@@ -170,7 +194,7 @@ def main() -> None:
                 except httpx.TransportError:
                     assert time.monotonic() < deadline and server.poll() is None, "no server"
                     time.sleep(0.2)
-            result = asyncio.run(_run(base, recording, args.viewers, args.seconds))
+            result = asyncio.run(_run(base, recording, args.viewers, args.seconds, args.busy_cores))
         finally:
             server.terminate()
             server.wait(timeout=30)
