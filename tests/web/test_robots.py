@@ -9,6 +9,8 @@ import json
 import urllib.request
 from typing import Any
 
+import pytest
+
 from planner.description import EXAMPLES_DIR, default_robot, load_robot
 from planner.plan import plan_for_robot
 from tests.server.link.harness import Ground
@@ -48,27 +50,23 @@ def _view3d(console: Console, pass_id: str, frames: int) -> dict[str, Any]:
     return result
 
 
-def test_an_orihime_pass_draws_orihime_with_seven_joints(console: Console, ground: Ground) -> None:
-    orihime = load_robot(ORIHIME)
+@pytest.mark.parametrize(
+    ("robot", "joints"),
+    [(lambda: load_robot(ORIHIME), 7), (default_robot, 6)],
+    ids=["orihime", "ets7"],
+)
+def test_a_pass_draws_its_own_robot_with_its_joints(
+    console: Console, ground: Ground, robot: Any, joints: int
+) -> None:
+    description = robot()
     urls = _urdf_requests(console)
-    pass_id = _stored_pass(ground, "orihime-pass", orihime)
+    pass_id = _stored_pass(ground, f"{description.name}-pass", description)
     shown = _view3d(console, pass_id, 30)
-    assert shown == {"robot": "orihime", "joints": 7, "views": 1, "plots": 7}
+    assert shown == {"robot": description.name, "joints": joints, "views": 1, "plots": joints}
     assert [u.split(ground.url, 1)[1] for u in urls] == [
-        f"/api/robots/by-hash/{orihime.content_sha256}/urdf"
+        f"/api/robots/by-hash/{description.content_sha256}/urdf"
     ]
-    console.screenshot("orihime-pass-3d")
-
-
-def test_ets7s_pass_still_draws_ets7(console: Console, ground: Ground) -> None:
-    ets7 = default_robot()
-    urls = _urdf_requests(console)
-    pass_id = _stored_pass(ground, "ets7-pass", ets7)
-    shown = _view3d(console, pass_id, 30)
-    assert shown == {"robot": "ets7", "joints": 6, "views": 1, "plots": 6}
-    assert [u.split(ground.url, 1)[1] for u in urls] == [
-        f"/api/robots/by-hash/{ets7.content_sha256}/urdf"
-    ]
+    console.screenshot(f"{description.name}-pass-3d")
 
 
 def _fields(page: Any) -> dict[str, str]:
