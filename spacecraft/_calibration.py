@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.plan import Plan
 from spacecraft.vehicle import Vehicle, VehicleConfig
 from telemetry.wire import AcsCommandMsg, AcsModeName, CommandStage, JointCommandMsg
@@ -133,10 +134,8 @@ def fly_plan(
     )
 
 
-#: The settling band of the calibration, the report's (``telemetry.analysis.analyse_pass``):
-#: 0.05 deg, about 5 % of the PTP's peak, the paper's "almost back to zero" (issue #13; the
-#: planners' 0.02 deg band hangs on the last slow ripple of a calibrated law's tail).
-SETTLE_BAND_DEG = 0.05
+#: The settling band of the calibration: the pass report's.
+SETTLE_BAND_DEG = REPORT_SETTLE_BAND_DEG
 #: The report's final value: the mean over the window's last 5 s.
 FINAL_S = 5.0
 

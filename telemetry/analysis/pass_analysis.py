@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.dynamics import DynamicsWorkspace
 from planner.model import default_model
 from telemetry.analysis._common import MOTION_KINDS, experiment_segments
@@ -77,7 +78,7 @@ def analyse_pass(
     recording: PassRecording,
     workspace: DynamicsWorkspace | None = None,
     *,
-    settle_band_deg: float = 0.05,
+    settle_band_deg: float = REPORT_SETTLE_BAND_DEG,
 ) -> PassAnalysis:
     """All analyses that apply to ``recording`` (see the module docstring).
 

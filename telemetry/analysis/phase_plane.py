@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.plan import Segment
 from telemetry.analysis._common import (
     Array,
@@ -137,7 +138,7 @@ def _groups(segments: tuple[Segment, ...]) -> list[tuple[str, str, list[Segment]
 def analyse_phase_plane(
     recording: PassRecording,
     *,
-    settle_band_deg: float = 0.05,
+    settle_band_deg: float = REPORT_SETTLE_BAND_DEG,
     smooth_s: float = 1.0,
     final_s: float = 5.0,
 ) -> PhasePlaneAnalysis | None:

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.dynamics import DynamicsWorkspace
 from planner.plan import Segment
 from telemetry.analysis._common import (
@@ -152,7 +153,7 @@ def analyse_reaction(
     recording: PassRecording,
     workspace: DynamicsWorkspace,
     *,
-    settle_band_deg: float = 0.05,
+    settle_band_deg: float = REPORT_SETTLE_BAND_DEG,
     smooth_s: float = 2.0,
     final_s: float = 5.0,
     rate_window_s: float = 3.0,
