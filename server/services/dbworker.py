@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from telemetry.wire import TelemetryFrame
 
-__all__ = ["Database", "FrameCallback", "Publisher"]
+__all__ = ["Database", "FrameCallback", "Publisher", "done_unless"]
 
 log = logging.getLogger("hikoboshi.ground.db")
 
@@ -267,12 +267,8 @@ class Database:
         if until is None:
             await everything
             return
-        interrupt = asyncio.ensure_future(until.wait())
-        try:
-            await asyncio.wait((everything, interrupt), return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            everything.cancel()
-            interrupt.cancel()
+        await done_unless(everything, until)
+        everything.cancel()
 
     async def drain(self) -> None:
         """Wait for every job queued so far (and those their completions queue): until the
@@ -291,6 +287,18 @@ class _Job:
     fn: Callable[[Session], Any]
     future: asyncio.Future[Any]
     loop: asyncio.AbstractEventLoop
+
+
+async def done_unless(future: asyncio.Future[Any], until: asyncio.Event) -> bool:
+    """Wait for ``future`` unless ``until`` is set first; whether ``future`` is done (it is
+    left as it is either way)."""
+    if not until.is_set():
+        interrupt = asyncio.ensure_future(until.wait())
+        try:
+            await asyncio.wait((future, interrupt), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            interrupt.cancel()
+    return future.done()
 
 
 def _settle(future: asyncio.Future[Any], ok: bool, value: Any) -> None:

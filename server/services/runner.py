@@ -78,6 +78,7 @@ from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME, Plan
 from server.errors import ServiceError
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands, set_command_stage, write_event
+from server.services.dbworker import done_unless
 from server.services.link import (
     CommandAcked,
     GroundLink,
@@ -633,12 +634,7 @@ class PassRunner:
         if stop.is_set():
             return None
         read = asyncio.ensure_future(self._link.db.run(job))
-        interrupt = asyncio.ensure_future(stop.wait())
-        try:
-            await asyncio.wait((read, interrupt), return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            interrupt.cancel()
-        if read.done():
+        if await done_unless(read, stop):
             return read.result()
         read.cancel()
         return None
