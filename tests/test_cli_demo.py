@@ -54,7 +54,12 @@ def test_demo_through_loss_and_an_outage_loses_no_frame_and_no_command(tmp_path:
     assert summary["frames_stored"] == summary["frames_expected"]
     assert summary["frames_missing"] == 0 and summary["gaps_open"] == 0
     assert summary["duplicates_stored"] == 0
-    assert summary["duplicates_dropped"] > 0  # the spacecraft did resend
+    # the losses were real and the ground asked for what it missed. Copies of frames it
+    # already held (duplicates_dropped, bounded below) may be none: the ground asks for gaps
+    # within a second and its cumulative acks cover lost ones, all before the spacecraft's
+    # resend timer (10 s onboard + 3 s of wall per unit of scale); 0 was seen once in a run
+    # with one core busy
+    assert summary["retransmit_requests"] > 0
     # Every command executed at its tag although 10 % of the messages and 30 s of the link
     # were lost: the windowed uplink had loaded the outage's commands ahead and sent the
     # lost ones again (the bound on copies: 2 x loss x frames).
