@@ -87,7 +87,8 @@ ETS7_DESCRIPTION = EXAMPLES_DIR / "ets7" / "ets7.toml"
 
 #: Continuous joints get these limits (rad): a turn each way, so that check_joints has a range.
 CONTINUOUS_LIMIT_RAD = 2.0 * math.pi
-#: Defaults where a description leaves a value out (the values ETS-VII uses).
+#: Defaults where a description leaves a value out (the values ETS-VII uses, except the
+#: servos': one lag and bandwidth for every joint, where ETS-VII's file gives one per joint).
 DEFAULT_ROTOR_MASS_KG = 1e-3
 DEFAULT_SERVO_BANDWIDTH_RADPS = 6.0
 DEFAULT_SERVO_LAG_S = 0.3
@@ -147,10 +148,11 @@ class WheelLimits:
 @dataclass(frozen=True, eq=False)
 class ServoSpec:
     """The joint servos: either the PD design of :func:`planner.simulation.default_servo_gains`
-    (``bandwidth_radps``, ``lag_s``) or explicit per-joint gains (both arrays, shape (n,))."""
+    (``bandwidth_radps``, ``lag_s``: one number for every joint, or an array of one per joint)
+    or explicit per-joint gains (both arrays, shape (n,))."""
 
-    bandwidth_radps: float = DEFAULT_SERVO_BANDWIDTH_RADPS
-    lag_s: float = DEFAULT_SERVO_LAG_S
+    bandwidth_radps: float | Array = DEFAULT_SERVO_BANDWIDTH_RADPS
+    lag_s: float | Array = DEFAULT_SERVO_LAG_S
     kp_nm_per_rad: Array | None = None
     kd_nms_per_rad: Array | None = None
 
@@ -234,19 +236,14 @@ class RobotDescription:
 
     def servo_gains(self) -> ServoGains:
         """The joint servos' PD gains (``planner.mjcf.ServoGains``)."""
-        from planner.dynamics import DynamicsWorkspace
         from planner.mjcf import ServoGains
-        from planner.state import State
+        from planner.simulation import default_servo_gains
 
         s = self.servo
         if s.kp_nm_per_rad is not None and s.kd_nms_per_rad is not None:
             return ServoGains(kp_nm_per_rad=s.kp_nm_per_rad, kd_nms_per_rad=s.kd_nms_per_rad)
-        # planner.simulation.default_servo_gains's design (kp = H_m[i, i] wn^2 at the all-zero
-        # pose, kd = lag kp), for any joint count.
-        zeros = np.zeros(self.n_joints)
-        h_m = DynamicsWorkspace(self.model).evaluate(State(zeros, joint_rates_radps=zeros)).H_m
-        kp = np.diag(h_m) * s.bandwidth_radps**2
-        return ServoGains(kp_nm_per_rad=kp, kd_nms_per_rad=s.lag_s * kp)
+        # The design (kp = H_m[i, i] wn^2 at the all-zero pose, kd = lag kp), per joint.
+        return default_servo_gains(self.model, bandwidth_radps=s.bandwidth_radps, lag_s=s.lag_s)
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose
@@ -880,13 +877,33 @@ def _servo(c: _Checker, value: object, n: int) -> ServoSpec:
             raise c.fail("[servo]", "kp must be > 0 and kd >= 0 on every joint")
         return ServoSpec(kp_nm_per_rad=_frozen(kp), kd_nms_per_rad=_frozen(kd))
     return ServoSpec(
-        bandwidth_radps=c.number(
+        bandwidth_radps=_per_joint(
+            c,
             "[servo] bandwidth_radps",
             table.get("bandwidth_radps", DEFAULT_SERVO_BANDWIDTH_RADPS),
+            n,
             positive=True,
         ),
-        lag_s=c.non_negative("[servo] lag_s", table.get("lag_s", DEFAULT_SERVO_LAG_S)),
+        lag_s=_per_joint(c, "[servo] lag_s", table.get("lag_s", DEFAULT_SERVO_LAG_S), n),
     )
+
+
+def _per_joint(
+    c: _Checker, element: str, value: object, n: int, *, positive: bool = False
+) -> float | Array:
+    """One number for every joint, or a list of one per joint (``> 0`` if ``positive``,
+    else ``>= 0``)."""
+
+    def check(where: str, v: object) -> float:
+        return c.number(where, v, positive=True) if positive else c.non_negative(where, v)
+
+    if isinstance(value, list):
+        if len(value) != n:
+            raise c.fail(
+                element, f"needs one number or a list of {n} (one per joint), got {len(value)}"
+            )
+        return _frozen(np.array([check(f"{element}[{i}]", v) for i, v in enumerate(value)]))
+    return check(element, value)
 
 
 def _sensor_noise(c: _Checker, value: object) -> SensorNoiseSpec:

@@ -10,7 +10,7 @@ Time comes from the simulator's own step counter, never from a clock.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import mujoco
@@ -26,35 +26,89 @@ from planner.mujoco_conventions import MjLayout, read_state, write_state
 from planner.state import State
 
 __all__ = [
+    "DEFAULT_SERVO_BANDWIDTH_RADPS",
+    "DEFAULT_SERVO_LAG_S",
+    "ETS7_SERVO_BANDWIDTH_RADPS",
+    "ETS7_SERVO_LAG_S",
     "FreeFloatingSimulator",
     "SimConfig",
     "Trajectory",
     "default_servo_gains",
     "follow_commands",
+    "per_joint",
 ]
 
 Array = NDArray[np.float64]
 
-#: Our choice (SPEC 6): servo bandwidth and ramp lag. ``kd / kp`` is the lag behind a ramp
-#: (0.3 s: 0.3 deg at 1 deg/s, "a few tenths of a degree at the RNS speeds"); with a 6 rad/s
-#: bandwidth the damping ratio is ``lag * bandwidth / 2 = 0.9``.
+#: Our choice (SPEC 6, paper Fig. 6): ETS-VII's servos, one bandwidth and a lag per joint.
+#: ``kd / kp`` is the lag behind a ramp. A reactionless path lies in the reaction null space,
+#: and a lag common to every joint only re-times it: it stays reactionless. The flight's
+#: residual, growing with the hand's speed, needs joints that lag by different times, and
+#: what the base feels is the difference among the three pitch joints (2, 3, 4), the arm's
+#: plane. Experiment 2 bounds it from the other side: in the GJM legs the same joints move in
+#: much the same proportions, and a lag difference among them turns the hand that the flight
+#: held within 0.1 deg. A stiff shoulder (joint 2, 0.1 s) against a softer elbow (0.35 s) and
+#: wrist (0.55 s) leaves the fast reactionless leg 0.007 deg and the slow one 0.003 deg
+#: (noise-free; docs/spacecraft.md), holds the GJM hand within 0.085 deg (0.075 with one
+#: lag), and the wrist pitch (joint 4), the joint that moves most in those legs, lags its
+#: command most, as in Fig. 6: 0.86 deg RMS on the fast leg, 0.43 on the slow. More residual
+#: costs more joint error, about 1 deg of the wrist's per 0.008 deg. Damping ratios
+#: ``lag wn / 2``: 0.3 (shoulder), 0.9, 1.05 (elbow), 1.65 (wrist). The servos' fastest mode
+#: (``M^-1 Kd``, docs/robots.md) stays at most 288 1/s at random poses, 137 1/s along the
+#: demo pass (one 0.3 s lag: 344 and 138).
+ETS7_SERVO_LAG_S = (0.3, 0.1, 0.35, 0.55, 0.3, 0.3)
+ETS7_SERVO_BANDWIDTH_RADPS = (6.0, 6.0, 6.0, 6.0, 6.0, 6.0)
+#: One lag and bandwidth for every joint of an arm that brings no gains of its own (0.3 s:
+#: 0.3 deg at 1 deg/s, "a few tenths of a degree at the RNS speeds"; damping ratio 0.9).
 DEFAULT_SERVO_BANDWIDTH_RADPS = 6.0
 DEFAULT_SERVO_LAG_S = 0.3
+
+#: A bandwidth or lag: one value for every joint, or one per joint.
+PerJoint = float | Sequence[float] | Array
+
+
+def per_joint(name: str, value: PerJoint, n_joints: int) -> Array:
+    """``value`` as (n_joints,) floats: a single number repeated, or n numbers as given.
+    Raises :class:`~planner.errors.InvalidInput` naming ``name`` for any other shape."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(n_joints, float(arr))
+    if arr.shape != (n_joints,):
+        raise InvalidInput(
+            f"{name} needs one number or {n_joints} (one per joint), got shape {arr.shape}"
+        )
+    return arr.copy()
 
 
 def default_servo_gains(
     model: RobotModel,
     *,
-    bandwidth_radps: float = DEFAULT_SERVO_BANDWIDTH_RADPS,
-    lag_s: float = DEFAULT_SERVO_LAG_S,
+    bandwidth_radps: PerJoint | None = None,
+    lag_s: PerJoint | None = None,
 ) -> ServoGains:
     """PD gains ``kp = I wn^2`` and ``kd = lag kp`` per joint, ``I`` the joint's own inertia
-    ``H_m[i, i]`` at the all-zero pose."""
+    ``H_m[i, i]`` at the all-zero pose. ``bandwidth_radps`` and ``lag_s``: one value for
+    every joint or one per joint; ``None``: ETS-VII's per-joint values for a 6-joint arm (the
+    built-in robot, :data:`ETS7_SERVO_LAG_S`), else :data:`DEFAULT_SERVO_LAG_S` and
+    :data:`DEFAULT_SERVO_BANDWIDTH_RADPS` on every joint."""
     from planner.dynamics import DynamicsWorkspace
 
-    inertia = np.diag(DynamicsWorkspace(model).evaluate(State(np.zeros(model.n_joints))).H_m)
-    kp = inertia * bandwidth_radps**2
-    return ServoGains(kp_nm_per_rad=kp, kd_nms_per_rad=lag_s * kp)
+    n = model.n_joints
+    ets7 = n == len(ETS7_SERVO_LAG_S)
+    if bandwidth_radps is None:
+        bandwidth_radps = ETS7_SERVO_BANDWIDTH_RADPS if ets7 else DEFAULT_SERVO_BANDWIDTH_RADPS
+    if lag_s is None:
+        lag_s = ETS7_SERVO_LAG_S if ets7 else DEFAULT_SERVO_LAG_S
+    bandwidth = per_joint("servo bandwidth_radps", bandwidth_radps, n)
+    lag = per_joint("servo lag_s", lag_s, n)
+    if not (np.all(np.isfinite(bandwidth)) and np.all(bandwidth > 0.0)):
+        raise InvalidInput(f"servo bandwidth_radps must be > 0 on every joint, got {bandwidth}")
+    if not (np.all(np.isfinite(lag)) and np.all(lag >= 0.0)):
+        raise InvalidInput(f"servo lag_s must be >= 0 on every joint, got {lag}")
+    zeros = np.zeros(n)
+    inertia = np.diag(DynamicsWorkspace(model).evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+    kp = inertia * bandwidth**2
+    return ServoGains(kp_nm_per_rad=kp, kd_nms_per_rad=lag * kp)
 
 
 @dataclass(frozen=True, eq=False)

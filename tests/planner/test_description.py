@@ -198,6 +198,34 @@ def test_orihime_acs_and_servos(orihime: RobotDescription) -> None:
     np.testing.assert_allclose(servo.kd_nms_per_rad, 0.3 * servo.kp_nm_per_rad, rtol=1e-15)
 
 
+def test_servo_lag_and_bandwidth_are_one_number_or_one_per_joint(
+    tmp_path: Path, ets7: RobotDescription
+) -> None:
+    """ETS-VII's file gives a lag per joint (kd / kp is the lag); a bandwidth may be per joint
+    too; one number applies to every joint, and a missing key is the one-for-all default
+    (0.3 s, 6 rad/s)."""
+    from planner.simulation import ETS7_SERVO_BANDWIDTH_RADPS, ETS7_SERVO_LAG_S
+
+    servo = ets7.servo_gains()
+    np.testing.assert_allclose(
+        servo.kd_nms_per_rad / servo.kp_nm_per_rad, ETS7_SERVO_LAG_S, rtol=1e-15
+    )
+    inertia = servo.kp_nm_per_rad / np.square(ETS7_SERVO_BANDWIDTH_RADPS)
+    target = _copy_robot(tmp_path, "ets7")
+    toml = target / "ets7.toml"
+    _edit(toml, "bandwidth_radps = 6.0", "bandwidth_radps = [5.0, 5.0, 5.0, 5.0, 5.0, 4.0]")
+    _edit(toml, "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]", "lag_s = 0.25")
+    mixed = load_robot(toml).servo_gains()
+    np.testing.assert_allclose(
+        mixed.kp_nm_per_rad, np.array([25.0, 25.0, 25.0, 25.0, 25.0, 16.0]) * inertia, rtol=1e-12
+    )
+    np.testing.assert_allclose(mixed.kd_nms_per_rad, 0.25 * mixed.kp_nm_per_rad, rtol=1e-15)
+    _edit(toml, "bandwidth_radps = [5.0, 5.0, 5.0, 5.0, 5.0, 4.0]\nlag_s = 0.25\n", "")
+    default = load_robot(toml).servo_gains()
+    np.testing.assert_allclose(default.kp_nm_per_rad, 36.0 * inertia, rtol=1e-12)
+    np.testing.assert_allclose(default.kd_nms_per_rad, 0.3 * default.kp_nm_per_rad, rtol=1e-15)
+
+
 # --- 3. frames with rotations -------------------------------------------------------------
 
 
@@ -470,7 +498,37 @@ TOML_FAULTS = {
         ["[acs] torque_limit_nm", "[[wheels]]"],
     ),
     "acs_unknown": ("damping_ratio = 0.9", "damping = 0.9", ["[acs]", "unknown attitude-control"]),
-    "servo_negative": ("lag_s = 0.3", "lag_s = -0.3", ["[servo] lag_s", ">= 0"]),
+    "servo_negative": ("lag_s = [0.3, 0.1,", "lag_s = [0.3, -0.1,", ["[servo] lag_s[1]", ">= 0"]),
+    "servo_negative_scalar": (
+        "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]",
+        "lag_s = -0.3",
+        ["[servo] lag_s", ">= 0"],
+    ),
+    "servo_lag_count": (
+        "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]",
+        "lag_s = [0.3, 0.1, 0.35]",
+        ["[servo] lag_s", "one number or a list of 6 (one per joint), got 3"],
+    ),
+    "servo_lag_text": (
+        "lag_s = [0.3, 0.1,",
+        'lag_s = [0.3, "slow",',
+        ["[servo] lag_s[1]", "number"],
+    ),
+    "servo_bandwidth_zero": (
+        "bandwidth_radps = 6.0",
+        "bandwidth_radps = [6.0, 0.0, 6.0, 6.0, 6.0, 6.0]",
+        ["[servo] bandwidth_radps[1]", "must be > 0"],
+    ),
+    "servo_bandwidth_count": (
+        "bandwidth_radps = 6.0",
+        "bandwidth_radps = [6.0, 6.0, 6.0, 6.0, 6.0, 6.0, 6.0]",
+        ["[servo] bandwidth_radps", "list of 6 (one per joint), got 7"],
+    ),
+    "servo_both_forms": (
+        "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]",
+        "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]\nkp_nm_per_rad = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0]",
+        ["[servo]", "give either bandwidth_radps/lag_s or both"],
+    ),
     "noise_negative": ("joint_deg = 0.005", "joint_deg = -1.0", ["[sensor_noise] joint_deg"]),
     "pose_count": (
         "joints_deg = [31.6, 21.4, -8.8, 77.4, 0.0, 68.6]",

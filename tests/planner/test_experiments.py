@@ -97,6 +97,11 @@ def test_reactionless_plan_leaves_the_base_still(ws: DynamicsWorkspace, reaction
 def test_reactionless_faster_leg_leaves_the_larger_residual_in_flight(
     ws: DynamicsWorkspace, reactionless: Plan
 ) -> None:
+    """The joints' different lags (planner.simulation.ETS7_SERVO_LAG_S) bend the path off
+    the null space by an amount proportional to the speed: the base steps by it within a few
+    seconds as a leg starts or stops. Measured as the largest attitude change within 5 s (as
+    telemetry.analysis.reaction does): the wheels' correction, which builds over tens of
+    seconds and is the same for both speeds, is left out."""
     gains = default_acs_gains(ws)
     flown = fly(
         ws,
@@ -105,12 +110,19 @@ def test_reactionless_faster_leg_leaves_the_larger_residual_in_flight(
         acs_commands=reactionless.acs_commands,
         acs_gains=gains,
     )
-    angle = _attitude_change_deg(flown.quat_orbit_from_base_xyzw)
-    out, back = reactionless.segment("B->C"), reactionless.segment("C->B")
-    peak_out = np.max(angle[(flown.t_s >= out.t_start_s) & (flown.t_s <= out.t_end_s + 5)])
-    peak_back = np.max(angle[(flown.t_s >= back.t_start_s) & (flown.t_s <= back.t_end_s + 5)])
-    assert peak_out < 0.01  # the lagging servos leave a small residual ...
-    assert peak_out > 2 * peak_back  # ... that grows with speed (SPEC 3.1)
+    rotvec = Rotation.from_quat(flown.quat_orbit_from_base_xyzw).as_rotvec()
+    span = round(5.0 / 0.1)  # samples every 0.1 s
+    step_deg = np.degrees(np.linalg.norm(rotvec[span:] - rotvec[:-span], axis=1))
+    t_end = flown.t_s[span:]
+
+    def peak(segment: str) -> float:
+        seg = reactionless.segment(segment)
+        return float(np.max(step_deg[(t_end >= seg.t_start_s) & (t_end <= seg.t_end_s + 10)]))
+
+    peak_out, peak_back = peak("B->C"), peak("C->B")
+    # Measured 0.0074 against 0.0034 deg (one 0.3 s lag on every joint: 6e-4 against 2e-4).
+    assert peak_out < 0.02  # the lagging servos leave a small residual ...
+    assert peak_out > 1.7 * peak_back  # ... that grows with speed (SPEC 3.1)
 
 
 def test_servo_lag_compensation_shrinks_the_residual_reaction(
@@ -135,8 +147,10 @@ def test_servo_lag_compensation_shrinks_the_residual_reaction(
         )
         tracking.append(np.degrees(np.max(np.abs(flown.joints_rad - desired))))
     plain_deg, shaped_deg = peaks
-    # measured: 6.0e-4 deg -> 0.8e-4 deg, joint tracking 0.68 deg -> 0.014 deg
-    assert shaped_deg < plain_deg / 3.0
+    # measured: 6.1e-3 deg -> 1.3e-4 deg, joint tracking 0.94 deg -> 0.015 deg, with the
+    # joints' own lags (planner.simulation.ETS7_SERVO_LAG_S; one 0.3 s lag on every joint:
+    # 6.0e-4 -> 0.8e-4 deg, 0.68 -> 0.014 deg)
+    assert shaped_deg < plain_deg / 10.0  # the compensation reads each joint's own lag
     assert tracking[1] < tracking[0] / 10.0
 
 

@@ -50,7 +50,8 @@ def test_ptp_settles_far_longer_than_the_reactionless_legs(analysis: PassAnalysi
     legs = reaction.motion("reactionless")
     assert [m.segment for m in legs] == ["reactionless: B->C", "reactionless: C->B"]
     # Measured: PTP 85.8 s to within 0.05 deg of its final attitude (flight: about 100 s),
-    # peak 0.94 deg; the reactionless legs never leave the band (0 s).
+    # peak 0.94 deg; the reactionless legs never leave the band (0 s), peaks 0.048 and
+    # 0.030 deg.
     assert ptp.settling_time_s is not None and ptp.settling_time_s > 50.0
     assert ptp.peak_excursion_deg is not None and ptp.peak_excursion_deg > 0.4
     for leg in legs:
@@ -65,37 +66,42 @@ def test_faster_reactionless_leg_has_the_larger_residual_reaction(
 ) -> None:
     assert analysis.reaction is not None
     fast, slow = analysis.reaction.motion("reactionless")
-    # Speeds from the measured joints (plan: 0.015 and 0.0075 m/s).
+    # Speeds from the measured joints (plan: 0.015 and 0.0075 m/s; measured 0.0158 and
+    # 0.0081).
     assert fast.peak_hand_speed_mps is not None and slow.peak_hand_speed_mps is not None
     assert fast.peak_hand_speed_mps == pytest.approx(0.015, rel=0.15)
     assert slow.peak_hand_speed_mps == pytest.approx(0.0075, rel=0.15)
-    # RMS |H~_bm phi'| over the leg: 0.0095 against 0.0056 N m s (noise floor in the hold
-    # after, 0.005 N m s; noise-free truth 0.009 against 0.002).
+    # RMS |H~_bm phi'| over the leg: 0.060 against 0.0187 N m s (noise-free truth 0.061
+    # against 0.018; noise floor in the hold after, 0.005 N m s). With one lag for every
+    # joint it was 0.0095 against 0.0056: the joints' different lags are the reaction.
     assert fast.rms_reaction_momentum_nms is not None and slow.rms_reaction_momentum_nms
     assert fast.rms_reaction_momentum_nms > 1.4 * slow.rms_reaction_momentum_nms
-    # The raw attitude excursion also orders them (0.050 against 0.027 deg), but that is
+    # The raw attitude excursion also orders them (0.048 against 0.030 deg), but that is
     # mostly the PTP's recovery tail (see test_analysis_ideal), not the legs' reaction.
     assert fast.peak_excursion_deg is not None and slow.peak_excursion_deg is not None
     assert fast.peak_excursion_deg > slow.peak_excursion_deg
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="does not hold on our data: with the calibrated law (issue #13) the servo-lag "
-    "attitude residual against the prediction is 7.8e-4 (fast) and 3.2e-4 deg (slow) in the "
-    "noise-free truth, seven times below the 0.005 deg attitude noise; measured 0.0052 (fast) "
-    "against 0.0056 deg (slow). Averaging does not rescue it: over the 25 s fast leg the mean "
-    "of 250 samples still has 3e-4 deg of noise per axis, and before the leg the residual "
-    "already drifts 3e-5 deg/s (the PTP's recovery, flown against predicted), as fast as the "
-    "leg's own. The flight's claim is on the reaction momentum (Fig. 5 middle), tested above",
-)
 def test_faster_reactionless_leg_leaves_the_larger_attitude_residual(
     analysis: PassAnalysis,
 ) -> None:
+    """Flight (Fig. 5 bottom): the reactionless legs turned the base a little, more at the
+    faster hand speed. A strict xfail while every joint lagged 0.3 s: a common lag only
+    re-times a null-space path (residual 7.8e-4 against 3.2e-4 deg noise-free, under the
+    0.005 deg attitude noise). ETS-VII's servos now lag by joint (planner.simulation
+    .ETS7_SERVO_LAG_S), and the residual is what the attitude does within 5 s against the
+    plan (telemetry.analysis.reaction): the servo lag's reaction steps in and out with the
+    hand speed in about a second, while the wheels' correction of it, the same for both
+    speeds, builds over tens of seconds. Taken instead from the attitude before each leg, as
+    before, the slow leg carries the wheels' correction of both legs and the order goes with
+    the noise: 0.0052 against 0.0045 deg noise-free, 0.0067 against 0.0079 with it."""
     assert analysis.reaction is not None
     fast, slow = analysis.reaction.motion("reactionless")
     assert fast.peak_residual_deg is not None and slow.peak_residual_deg is not None
+    # Measured 0.0099 against 0.0074 deg (noise-free 0.0071 against 0.0032; with one common
+    # lag, noise alone gives 0.005 to 0.0067 over seeds 1, 2, 3 and 7).
     assert fast.peak_residual_deg > slow.peak_residual_deg
+    assert fast.peak_residual_deg > 0.008
 
 
 def test_reaction_momentum_obeys_momentum_conservation_in_free_drift(
@@ -144,9 +150,11 @@ def test_joint_tracking_shows_servo_lag(
     assert len(legs) == 2
     # The faster leg lags more on every moving joint: error ~ rate x servo lag.
     fast, slow = legs
-    assert max(fast.rms_error_deg) > 1.7 * max(slow.rms_error_deg)
-    # Measured: joint 3 lags most (RMS 0.51 deg, joint 4 0.47 deg); the paper saw joint 4.
-    assert fast.worst_joint == 3 and slow.worst_joint == 3
+    assert max(fast.rms_error_deg) > 1.7 * max(slow.rms_error_deg)  # 0.86 against 0.43 deg
+    # Measured: joint 4 lags most, as in the flight (RMS 0.86 deg on the fast leg; joint 3,
+    # which moves a little faster, 0.60 deg with its shorter lag, 0.35 s against 0.55 s).
+    assert fast.worst_joint == 4 and slow.worst_joint == 4
+    assert fast.rms_error_deg[3] > 1.2 * fast.rms_error_deg[2]
     # A lag, not noise: the error has the opposite sign of the commanded rate.
     rows = tracking.segment_index == tracking.segments.index(fast)
     j = fast.worst_joint - 1
@@ -164,7 +172,9 @@ def test_hand_attitude_is_held_while_the_base_turns(analysis: PassAnalysis) -> N
     for span in ("approach", "retreat"):
         hold = hand.hold(span)
         assert hold.base_change_max_deg is not None and hold.hand_change_max_deg is not None
-        # Measured: base 0.55 / 0.70 deg, hand 0.093 / 0.093 deg (flight: +-0.1 deg).
+        # Measured: base 0.57 / 0.68 deg, hand 0.092 / 0.087 deg (flight: +-0.1 deg; 0.080 /
+        # 0.081 with one 0.3 s lag on every joint: the pitch joints' different lags turn
+        # the hand, planner.simulation.ETS7_SERVO_LAG_S).
         assert hold.base_change_max_deg > 0.45, hold
         assert hold.hand_change_max_deg < 0.15, hold
         assert hold.hold_ratio is not None and hold.hold_ratio < 0.25
@@ -295,10 +305,14 @@ def test_predicted_vs_flown_per_segment(analysis: PassAnalysis) -> None:
         assert seg.attitude_peak_deg is not None and seg.joint_peak_max_deg is not None
         # Measured at most 0.095 deg (nonholonomic tail, gravity gradient in free drift).
         assert seg.attitude_peak_deg < 0.15, seg
-        if seg.kind in ("hold", "settle"):
-            assert seg.joint_peak_max_deg < 0.05, seg  # servos caught up (measured 0.037)
+        if seg.kind in ("hold", "settle") and seg.segment != "reactionless: pause at C":
+            assert seg.joint_peak_max_deg < 0.05, seg  # servos caught up (measured 0.035)
+    # The pause at C starts as the fast leg stops: its peak is the wrist still catching up
+    # in the first second (joint 4, 0.55 s lag; measured 0.16 deg, 0.037 with one 0.3 s lag).
+    pause = comparison.segment("reactionless: pause at C")
+    assert pause.joint_peak_max_deg is not None and pause.joint_peak_max_deg < 0.3
     ptp = comparison.segment("ptp: A->B")
-    assert ptp.joint_peak_max_deg is not None and ptp.joint_peak_max_deg > 0.3  # lag, 0.82
+    assert ptp.joint_peak_max_deg is not None and ptp.joint_peak_max_deg > 0.3  # lag, 1.49
 
 
 # --- flight against ours (telemetry.analysis.paper) --------------------------------------
@@ -312,8 +326,8 @@ def test_flight_against_ours_on_the_demo_pass(analysis: PassAnalysis) -> None:
 
     rows = {c.id: c for c in compare_with_flight(Sources(numbers_only(analysis.to_dict())))}
     verdicts = {k: c.verdict for k, c in rows.items()}
-    # Measured: PTP 85.8 s, peak 0.94 deg; legs 0.050 / 0.027 deg against 0.94; RMS 0.0095
-    # against 0.0056 N m s; GJM base pitch -0.567 deg, hand 0.081 deg; (a) -0.40..+0.51 deg;
+    # Measured: PTP 85.8 s, peak 0.94 deg; legs 0.048 / 0.030 deg against 0.94; RMS 0.060
+    # against 0.0187 N m s; GJM base pitch -0.567 deg, hand 0.081 deg; (a) -0.40..+0.51 deg;
     # (b) dip -0.26, peak +0.81 deg; endpoint 0.105 deg. Not (c): range (a) 0.91 < (c) 0.97
     # < (b) 1.11 deg, settling (a) 38.6 < (c) 43.0 < (b) 67.0 s.
     for row in (
