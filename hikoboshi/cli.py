@@ -447,6 +447,14 @@ def spacecraft(
         ),
     ] = None,
     robot: RobotOption = None,
+    vehicle_config: Annotated[
+        Path | None,
+        typer.Option(
+            help="TOML file with [servo] and/or [sensor_noise] tables (a robot description's "
+            "keys; hikoboshi calibrate --vehicle-out writes one): the joint servos and sensor "
+            "noise flown, replacing the defaults (with --robot: the description's)"
+        ),
+    ] = None,
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link. With
     --robot it flies that robot description (model, servos, attitude control, wheel limits,
@@ -500,6 +508,8 @@ def spacecraft(
                     DynamicsWorkspace(default_model()), acs_config
                 )
             vehicle = VehicleConfig(**vehicle_fields)
+        if vehicle_config is not None:
+            vehicle = _with_vehicle_tables(vehicle, vehicle_config)
         config = ProcessConfig(
             ground_url=ground,
             token=token,
@@ -525,6 +535,24 @@ def spacecraft(
         )
 
     asyncio.run(main_async())
+
+
+def _with_vehicle_tables(vehicle: Any, path: Path) -> Any:
+    """``vehicle`` (a VehicleConfig) with the servos and sensor noise of ``path``'s
+    ``[servo]`` and ``[sensor_noise]`` tables (planner.description.load_vehicle_tables)."""
+    import dataclasses
+
+    from planner.description import load_vehicle_tables, servo_gains_of
+    from spacecraft.vehicle import SensorNoise
+
+    tables = load_vehicle_tables(path, vehicle.model.n_joints)
+    if tables.servo is not None:
+        sim = dataclasses.replace(vehicle.sim, servo=servo_gains_of(tables.servo, vehicle.model))
+        vehicle = dataclasses.replace(vehicle, sim=sim)
+    if tables.sensor_noise is not None:
+        noise = SensorNoise(**dataclasses.asdict(tables.sensor_noise))
+        vehicle = dataclasses.replace(vehicle, noise=noise)
+    return vehicle
 
 
 def _acs_table(path: Path) -> dict[str, object]:
@@ -632,14 +660,42 @@ def calibrate(
         ),
     ] = True,
     report: Annotated[Path | None, typer.Option(help="Where to write the JSON report.")] = None,
+    servo: Annotated[
+        bool,
+        typer.Option(
+            help="With a recorded pass: also fit the joint servos (lag, and bandwidth where "
+            "observable) and estimate the sensor noise, with their report rows."
+        ),
+    ] = True,
+    servo_max_evaluations: Annotated[
+        int,
+        typer.Option(help="Optimiser steps for the servos (each a few simulations of the arm)."),
+    ] = 20,
+    vehicle_out: Annotated[
+        Path | None,
+        typer.Option(
+            help="With a recorded pass: write the fitted [servo] and [sensor_noise] tables here "
+            "(a robot description's keys; hikoboshi spacecraft --vehicle-config reads it)."
+        ),
+    ] = None,
 ) -> None:
     """Fit the attitude-control law's parameters (SciPy least squares) to the paper's targets
-    or to a recorded pass; write the [acs] configuration and a report of every target."""
+    or to a recorded pass; write the [acs] configuration and a report of every target. From
+    a recorded pass also the joint servos and the sensor noise (--vehicle-out)."""
     from planner.errors import InvalidInput
-    from spacecraft.calibration import fit_to_paper, fit_to_recording, write_acs_config
+    from spacecraft.calibration import (
+        fit_to_paper,
+        fit_to_recording,
+        write_acs_config,
+        write_vehicle_config,
+    )
 
     if mcap is not None and pass_id is not None:
         _fail("give --mcap or --pass, not both")
+    if vehicle_out is not None and ((mcap is None and pass_id is None) or not servo):
+        _fail("--vehicle-out needs a recorded pass (--mcap or --pass) and --servo")
+    if servo_max_evaluations < 1:
+        _fail(f"--servo-max-evaluations {servo_max_evaluations} must be >= 1")
     if max_evaluations < 1:
         _fail(f"--max-evaluations {max_evaluations} must be >= 1")
     names = tuple(p.strip() for p in parameters.split(",") if p.strip())
@@ -674,11 +730,32 @@ def calibrate(
         def on_progress(done: int, total: int, cost: float) -> None:
             progress.update(task, completed=done, total=total, cost=f"{cost:.4g}")
 
+        servo_task = None
+
+        def on_servo(done: int) -> None:
+            # The arm's simulations: at most one for the start, then per optimiser step one
+            # and two per fitted parameter (a lag and a bandwidth per joint).
+            nonlocal servo_task
+            if servo_task is None:
+                assert recording is not None
+                joints = int(recording.plan.command_joints_rad.shape[1])
+                most = 1 + servo_max_evaluations * (1 + 4 * joints)
+                servo_task = progress.add_task("servos", total=most, cost="-")
+            progress.update(servo_task, completed=done)
+
         try:
             if recording is not None:
                 result = fit_to_recording(
-                    recording, names, max_evaluations=max_evaluations, progress=on_progress
+                    recording,
+                    names,
+                    max_evaluations=max_evaluations,
+                    progress=on_progress,
+                    servo_and_noise=servo,
+                    servo_max_evaluations=servo_max_evaluations,
+                    servo_progress=on_servo,
                 )
+                if servo_task is not None:
+                    progress.update(servo_task, completed=progress.tasks[servo_task].total)
             else:
                 result = fit_to_paper(
                     names,
@@ -694,10 +771,15 @@ def calibrate(
         if report is not None:
             report.parent.mkdir(parents=True, exist_ok=True)
             report.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        if vehicle_out is not None:
+            vehicle_out.parent.mkdir(parents=True, exist_ok=True)
+            write_vehicle_config(vehicle_out, result.servo, result.sensor_noise)
     except OSError as exc:
         _fail(str(exc))
     _print_calibration(result)
     console.print(f"wrote {out}" + ("" if report is None else f" and {report}"), highlight=False)
+    if vehicle_out is not None:
+        console.print(f"wrote {vehicle_out}", highlight=False)
 
 
 def _print_calibration(result: Any) -> None:

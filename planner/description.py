@@ -70,9 +70,12 @@ __all__ = [
     "RobotDescription",
     "SensorNoiseSpec",
     "ServoSpec",
+    "VehicleTables",
     "WheelLimits",
     "default_robot",
     "load_robot",
+    "load_vehicle_tables",
+    "servo_gains_of",
 ]
 
 Array = NDArray[np.float64]
@@ -235,15 +238,9 @@ class RobotDescription:
         return acs_gains_from_config(workspace, config)
 
     def servo_gains(self) -> ServoGains:
-        """The joint servos' PD gains (``planner.mjcf.ServoGains``)."""
-        from planner.mjcf import ServoGains
-        from planner.simulation import default_servo_gains
-
-        s = self.servo
-        if s.kp_nm_per_rad is not None and s.kd_nms_per_rad is not None:
-            return ServoGains(kp_nm_per_rad=s.kp_nm_per_rad, kd_nms_per_rad=s.kd_nms_per_rad)
-        # The design (kp = H_m[i, i] wn^2 at the all-zero pose, kd = lag kp), per joint.
-        return default_servo_gains(self.model, bandwidth_radps=s.bandwidth_radps, lag_s=s.lag_s)
+        """The joint servos' PD gains (``planner.mjcf.ServoGains``): explicit, or the design
+        (``kp = H_m[i, i] wn^2`` at the all-zero pose, ``kd = lag kp``), per joint."""
+        return servo_gains_of(self.servo, self.model)
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose
@@ -1015,6 +1012,47 @@ def _experiments(c: _Checker, value: object, n: int) -> dict[str, Mapping[str, o
 
 
 # --- loading ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class VehicleTables:
+    """A vehicle file's ``[servo]`` and ``[sensor_noise]`` (``None`` where absent)."""
+
+    servo: ServoSpec | None
+    sensor_noise: SensorNoiseSpec | None
+
+
+def load_vehicle_tables(path: str | Path, n_joints: int) -> VehicleTables:
+    """The ``[servo]`` and ``[sensor_noise]`` tables of a TOML file (``hikoboshi calibrate
+    --vehicle-out`` writes one; ``hikoboshi spacecraft --vehicle-config`` reads it), checked
+    as a robot description's for an arm of ``n_joints``; any other table is refused. Every
+    fault raises one :class:`InvalidRobotDescription`."""
+    toml_path = Path(path)
+    c = _Checker(toml_path)
+    raw = _read_limited(toml_path, "vehicle configuration")
+    try:
+        doc = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise c.fail("document", "not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise c.fail("document", f"not valid TOML: {exc}") from None
+    c.keys("document", doc, frozenset({"servo", "sensor_noise"}))
+    if not doc:
+        raise c.fail("document", "give a [servo] or a [sensor_noise] table")
+    return VehicleTables(
+        servo=_servo(c, doc["servo"], n_joints) if "servo" in doc else None,
+        sensor_noise=_sensor_noise(c, doc["sensor_noise"]) if "sensor_noise" in doc else None,
+    )
+
+
+def servo_gains_of(spec: ServoSpec, model: RobotModel) -> ServoGains:
+    """A ``[servo]`` table's PD gains on ``model`` (explicit, or the design)."""
+    from planner.mjcf import ServoGains
+    from planner.simulation import default_servo_gains
+
+    if spec.kp_nm_per_rad is not None and spec.kd_nms_per_rad is not None:
+        return ServoGains(kp_nm_per_rad=spec.kp_nm_per_rad, kd_nms_per_rad=spec.kd_nms_per_rad)
+    return default_servo_gains(model, bandwidth_radps=spec.bandwidth_radps, lag_s=spec.lag_s)
 
 
 def load_robot(path: str | Path) -> RobotDescription:

@@ -22,6 +22,11 @@ space (logarithms of the bandwidth and damping ratio, ``log(1 + tau)``, the inte
   the law does not shape (GJM flies in free drift; the reactionless reaction comes from
   joint-servo lag) are reported, not fitted.
 
+With ``servo_and_noise``, :func:`fit_to_recording` also fits the joint servos (each joint's
+lag and, where observable, bandwidth) and estimates the sensor noise
+(:mod:`spacecraft.servo_fit`), adding their rows to the report; :func:`write_vehicle_config`
+writes them as ``[servo]`` and ``[sensor_noise]`` tables.
+
 Every report row holds the target, its tolerance, the value at the start and at the fit and
 whether the criterion holds there: a target the fit cannot meet says so.
 """
@@ -49,6 +54,7 @@ from planner.attitude_control import (
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.mjcf import ServoGains
 from planner.model import default_model
 from planner.plan import Plan
 from planner.prediction import predict
@@ -58,6 +64,13 @@ from spacecraft._calibration import (
     calibration_plans,
     coordination_metrics,
     ptp_settling_s,
+)
+from spacecraft.servo_fit import (
+    NoiseEstimate,
+    ServoFit,
+    estimate_sensor_noise,
+    fit_servo,
+    write_vehicle_config,
 )
 
 __all__ = [
@@ -69,6 +82,7 @@ __all__ = [
     "fit_to_recording",
     "gains_from_parameters",
     "write_acs_config",
+    "write_vehicle_config",
 ]
 
 Array = NDArray[np.float64]
@@ -188,6 +202,9 @@ class CalibrationResult:
     evaluations: int
     targets: list[TargetRow] = field(default_factory=list)
     message: str = ""
+    #: a recording's joint servos and sensor noise (``fit_to_recording(servo_and_noise=True)``)
+    servo: ServoFit | None = None
+    sensor_noise: NoiseEstimate | None = None
 
     def to_dict(self) -> dict[str, Any]:
         def clean(value: Any) -> Any:
@@ -208,6 +225,8 @@ class CalibrationResult:
             "evaluations": self.evaluations,
             "message": self.message,
             "targets": [clean(dict(row.__dict__)) for row in self.targets],
+            "servo": None if self.servo is None else clean(self.servo.to_dict()),
+            "sensor_noise": None if self.sensor_noise is None else self.sensor_noise.to_dict(),
         }
 
 
@@ -328,11 +347,19 @@ def fit_to_recording(
     start: Mapping[str, float] | None = None,
     max_evaluations: int = 60,
     progress: Progress | None = None,
+    servo_and_noise: bool = False,
+    servo_start: ServoGains | None = None,
+    servo_max_evaluations: int = 20,
+    servo_progress: Callable[[int], None] | None = None,
 ) -> CalibrationResult:
     """Fit the law so that the recording's plan, predicted with it (ideal tracking), flies
     the recorded base attitude: residuals are the rotation vector (deg) from the prediction
     to each frame flown in feedback mode during the plan. ``start`` defaults to the
-    defaults; the standard errors come from the Jacobian at the fit."""
+    defaults; the standard errors come from the Jacobian at the fit. With
+    ``servo_and_noise`` also the joint servos (from ``servo_start``, default the model's
+    :func:`planner.simulation.default_servo_gains`; :func:`spacecraft.servo_fit.fit_servo`)
+    and the sensor noise (:func:`spacecraft.servo_fit.estimate_sensor_noise`), with their
+    report rows."""
     names = _check_parameters(parameters)
     plan: Plan = recording.plan
     ws = ws or DynamicsWorkspace(default_model())
@@ -373,6 +400,17 @@ def fit_to_recording(
         )
         for k, axis in enumerate(("x", "y", "z"))
     ]
+    servo = noise = None
+    if servo_and_noise:
+        servo = fit_servo(
+            recording,
+            ws,
+            start=servo_start,
+            max_evaluations=servo_max_evaluations,
+            progress=servo_progress,
+        )
+        noise = estimate_sensor_noise(recording)
+        rows += _servo_rows(servo) + _noise_rows(noise)
     return CalibrationResult(
         kind="recording",
         parameters=values,
@@ -384,7 +422,85 @@ def fit_to_recording(
         evaluations=objective.evaluations,
         targets=rows,
         message=message,
+        servo=servo,
+        sensor_noise=noise,
     )
+
+
+def _servo_rows(servo: ServoFit) -> list[TargetRow]:
+    rows: list[TargetRow] = []
+    for j in servo.joints:
+        se_lag = "-" if j.lag_standard_error_s is None else f"{j.lag_standard_error_s:.2g} s"
+        se_wn = (
+            "-"
+            if j.bandwidth_standard_error_radps is None
+            else f"{j.bandwidth_standard_error_radps:.2g} rad/s"
+        )
+        rows += [
+            TargetRow(
+                id=f"servo_lag_j{j.joint}_s",
+                target=f"joint {j.joint} servo lag kd/kp (s)",
+                tolerance=f"standard error {se_lag}",
+                start=j.start_lag_s,
+                fit=j.lag_s,
+                holds_start=None,
+                holds=None,
+                source="recording",
+                note=j.note if j.lag_s is None else "",
+            ),
+            TargetRow(
+                id=f"servo_bandwidth_j{j.joint}_radps",
+                target=f"joint {j.joint} servo bandwidth (rad/s)",
+                tolerance=f"standard error {se_wn}",
+                start=j.start_bandwidth_radps,
+                fit=j.bandwidth_radps,
+                holds_start=None,
+                holds=None,
+                source="recording",
+                note=j.note,
+            ),
+            TargetRow(
+                id=f"servo_tracking_rms_j{j.joint}_deg",
+                target=f"joint {j.joint} measured against the servo model (RMS, deg)",
+                tolerance="no worse than the start",
+                start=j.rms_start_deg,
+                fit=j.rms_fit_deg,
+                holds_start=None if j.rms_fit_deg is None else True,
+                holds=None
+                if j.rms_fit_deg is None or j.rms_start_deg is None
+                else j.rms_fit_deg <= j.rms_start_deg + 1e-12,
+                source="recording",
+                note=j.note if j.rms_fit_deg is None else "",
+            ),
+        ]
+    return rows
+
+
+def _noise_rows(noise: NoiseEstimate) -> list[TargetRow]:
+    from spacecraft.vehicle import SensorNoise
+
+    default = SensorNoise()
+    rows = []
+    for key, label, value, configured in (
+        ("attitude", "attitude (deg)", noise.attitude_deg, math.degrees(default.attitude_rad)),
+        ("rate", "base rate (deg/s)", noise.rate_degps, math.degrees(default.rate_radps)),
+        ("joint", "joint angles (deg)", noise.joint_deg, math.degrees(default.joint_rad)),
+    ):
+        count = noise.samples.get(key, 0)
+        rows.append(
+            TargetRow(
+                id=f"sensor_noise_{key}",
+                target=f"sensor noise 1-sigma, {label}",
+                tolerance=f"from {count} second differences in holds",
+                start=configured,
+                fit=value,
+                holds_start=None,
+                holds=None,
+                source="recording",
+                note="" if value is not None else "too few hold frames",
+            )
+        )
+    return rows
 
 
 # --- fitting the paper's targets -----------------------------------------------------------

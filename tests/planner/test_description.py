@@ -637,3 +637,28 @@ def test_base_box_comes_from_the_base_link_visual(
     text = urdf_xml(orihime.model, name="orihime", base_box_size_m=orihime.base_box_size_m)
     box = ET.fromstring(text).find("link/visual/geometry/box")
     assert box is not None and box.get("size") == "1.2 1.0 1.0"
+
+
+def test_vehicle_tables_load_as_a_description_s(tmp_path: Path) -> None:
+    """``hikoboshi calibrate --vehicle-out`` writes [servo] and [sensor_noise] tables that
+    load with a description's checks; anything else is one clear error."""
+    from planner.description import load_vehicle_tables
+
+    path = tmp_path / "vehicle.toml"
+    path.write_text(
+        "[servo]\nbandwidth_radps = 6.0\nlag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]\n\n"
+        "[sensor_noise]\nattitude_deg = 0.008\n"
+    )
+    tables = load_vehicle_tables(path, 6)
+    assert tables.servo is not None and tables.sensor_noise is not None
+    np.testing.assert_array_equal(tables.servo.lag_s, [0.3, 0.1, 0.35, 0.55, 0.3, 0.3])
+    assert tables.sensor_noise.attitude_rad == pytest.approx(np.radians(0.008), rel=1e-15)
+    assert tables.sensor_noise.joint_rad == pytest.approx(np.radians(0.005), rel=1e-15)
+    with pytest.raises(InvalidRobotDescription, match=r"\[servo\] lag_s: needs one number or"):
+        load_vehicle_tables(path, 7)
+    path.write_text("[acs]\nbandwidth_radps = 0.03\n")
+    with pytest.raises(InvalidRobotDescription, match="unknown key"):
+        load_vehicle_tables(path, 6)
+    path.write_text("")
+    with pytest.raises(InvalidRobotDescription, match="give a"):
+        load_vehicle_tables(path, 6)

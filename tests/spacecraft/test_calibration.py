@@ -223,3 +223,113 @@ def test_cli_calibrates_to_a_stored_pass(
     assert out.read_text().startswith("[acs]\n")
     missing = runner.invoke(app, [*args[:2], "00000000-0000-4000-8000-000000000000", *args[3:]])
     assert missing.exit_code == 2 and "not found" in missing.output
+
+
+# --- joint servos and sensor noise from a recorded pass ---------------------------------------
+
+#: The servos and noise a pass is flown with: a lag and a bandwidth per joint, noise unlike
+#: the defaults (0.005 deg, 0.0005 deg/s, 0.005 deg).
+SERVO_LAG_S = (0.25, 0.15, 0.4, 0.6, 0.2, 0.35)
+SERVO_BANDWIDTH_RADPS = (6.0, 5.0, 7.0, 6.0, 8.0, 4.0)
+NOISE_DEG = {"attitude_rad": 0.008, "rate_radps": 0.001, "joint_rad": 0.003}
+
+
+@pytest.fixture(scope="module")
+def servo_pass() -> PassRecording:
+    """A PTP from A to a pose that moves every joint, 40 s of settling, flown through the
+    vehicle with SERVO_* and NOISE_DEG (seed 5)."""
+    from planner.simulation import SimConfig, default_servo_gains
+    from spacecraft.vehicle import SensorNoise
+
+    workspace = DynamicsWorkspace(default_model())
+    goal = (20.0, 15.0, -20.0, 30.0, 25.0, 40.0)
+    plan = plan_ptp(workspace, PtpParams(goal_joints_deg=goal, settle_s=40.0))
+    servo = default_servo_gains(
+        workspace.model, bandwidth_radps=SERVO_BANDWIDTH_RADPS, lag_s=SERVO_LAG_S
+    )
+    config = VehicleConfig(
+        sim=SimConfig(gravity_gradient=True, servo=servo),
+        noise=SensorNoise(**{k: math.radians(v) for k, v in NOISE_DEG.items()}),
+        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
+    )
+    flight = fly_offline(plan, config, seed=5)
+    return PassRecording.from_frames("servo", plan, flight.epoch_ns, flight.frames)
+
+
+def test_servo_fit_recovers_each_joint_s_lag_and_bandwidth(
+    servo_pass: PassRecording, workspace: DynamicsWorkspace
+) -> None:
+    from spacecraft.servo_fit import fit_servo
+
+    calls: list[int] = []
+    fit = fit_servo(servo_pass, workspace, progress=calls.append)
+    assert calls == list(range(1, fit.evaluations + 1))
+    # Measured (seed 5): every lag within 0.1 % (0.2502, 0.1502, 0.4001, 0.6002, 0.2000,
+    # 0.3500 s); bandwidths 5.92, 5.05, -, 6.11, 7.86, 3.98 rad/s (1 to 2 %). Joint 3's
+    # (0.4 s at 7 rad/s, damping ratio 1.4) is not observable: its standard error is 2.2 rad/s,
+    # over the 10 % the fit accepts, and the start's 6 rad/s is kept, said in its note.
+    for joint, lag, bandwidth in zip(fit.joints, SERVO_LAG_S, SERVO_BANDWIDTH_RADPS, strict=True):
+        assert joint.lag_s == pytest.approx(lag, rel=0.02), joint
+        assert joint.lag_standard_error_s is not None and joint.lag_standard_error_s < 0.01
+        if joint.bandwidth_radps is not None:
+            assert joint.bandwidth_radps == pytest.approx(bandwidth, rel=0.06), joint
+        else:
+            assert "not observable" in joint.note
+        # the start (ETS-VII's servos) tracks worse than the fit; the fit down to the 0.003 deg
+        # encoder noise (measured 0.0028 to 0.0031 deg)
+        assert joint.rms_fit_deg is not None and joint.rms_start_deg is not None
+        assert joint.rms_fit_deg < 0.0035 and joint.rms_fit_deg <= joint.rms_start_deg
+    assert sum(j.bandwidth_radps is not None for j in fit.joints) >= 4
+
+
+def test_sensor_noise_is_estimated_from_the_holds(servo_pass: PassRecording) -> None:
+    from spacecraft.servo_fit import estimate_sensor_noise
+
+    noise = estimate_sensor_noise(servo_pass)
+    # Measured: 0.00815 deg, 0.00101 deg/s, 0.00308 deg from about 1000 second differences
+    # per axis in the 35 s of settling used (2 to 3 % off; the estimate's own spread is
+    # about 1 / sqrt(2 N) ~ 2 %).
+    assert noise.attitude_deg == pytest.approx(NOISE_DEG["attitude_rad"], rel=0.1)
+    assert noise.rate_degps == pytest.approx(NOISE_DEG["rate_radps"], rel=0.1)
+    assert noise.joint_deg == pytest.approx(NOISE_DEG["joint_rad"], rel=0.1)
+    assert min(noise.samples.values()) > 500
+
+
+def test_cli_writes_servos_and_noise_a_vehicle_reads(
+    flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
+) -> None:
+    """The recorded pass of the law's tests (ETS-VII's servos, default noise): --vehicle-out
+    holds [servo] and [sensor_noise] tables that load as a robot description's, and the
+    spacecraft's --vehicle-config flies them; the [acs] file is the law's as before."""
+    from hikoboshi.cli import _with_vehicle_tables
+    from planner.description import load_vehicle_tables
+    from planner.simulation import ETS7_SERVO_LAG_S
+
+    mcap = tmp_path / "pass.mcap"
+    write_mcap(flown, mcap)
+    out, report, vehicle = tmp_path / "acs.toml", tmp_path / "r.json", tmp_path / "vehicle.toml"
+    args = ["calibrate", "--mcap", str(mcap), "--max-evaluations", "2", "--out", str(out)]
+    args += ["--report", str(report), "--vehicle-out", str(vehicle)]
+    result = CliRunner().invoke(app, [*args, "--servo-max-evaluations", "3"])
+    assert result.exit_code == 0, result.output
+    load_acs_config(workspace, out)  # the law's file alone, as before
+    tables = load_vehicle_tables(vehicle, 6)
+    assert tables.servo is not None and tables.sensor_noise is not None
+    lags = np.asarray(tables.servo.lag_s)
+    # A->B moves joints 1 to 4 and 6 (fitted: within 2 % of ETS-VII's lags); joint 5 stays
+    # at 0 and keeps its start value.
+    np.testing.assert_allclose(lags, ETS7_SERVO_LAG_S, rtol=0.02)
+    assert tables.sensor_noise.attitude_rad == pytest.approx(math.radians(0.005), rel=0.1)
+    doc = json.loads(report.read_text())
+    ids = {row["id"] for row in doc["targets"]}
+    assert {"servo_lag_j4_s", "servo_bandwidth_j4_radps", "sensor_noise_joint"} <= ids
+    assert doc["servo"]["joints"][4]["note"].startswith("commanded at under")
+    assert doc["sensor_noise"]["samples"]["joint"] > 100
+    flying = _with_vehicle_tables(VehicleConfig(), vehicle)
+    np.testing.assert_allclose(
+        flying.sim.servo.kd_nms_per_rad / flying.sim.servo.kp_nm_per_rad, lags, rtol=1e-12
+    )
+    assert flying.noise.joint_rad == tables.sensor_noise.joint_rad
+    # without a recorded pass there are no servos to write
+    refused = CliRunner().invoke(app, ["calibrate", "--out", str(out), "--vehicle-out", "v.toml"])
+    assert refused.exit_code == 2 and "--vehicle-out needs a recorded pass" in refused.output
