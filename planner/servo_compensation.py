@@ -2,7 +2,9 @@
 joint servos follow the planned path, and with it the reaction null space.
 
 Each servo is a PD law without rate feed-forward (:mod:`planner.simulation`),
-``tau = kp (r - q) - kd q'``. The arm on its free-floating base obeys
+``tau = kp (r - q) - kd q'``, with its own gains: the joints lag by different times
+(ETS-VII: ``planner.simulation.ETS7_SERVO_LAG_S``), and the shaping below uses each joint's
+``kp`` and ``kd``. The arm on its free-floating base obeys
 ``H* q'' + c = tau`` with ``H* = H_m - H_bm^T H_b^-1 H_bm`` the arm's inertia with the base
 free to react (eq. 1 with ``x_b''`` eliminated). For the joints to follow ``q_d(t)`` the
 command must therefore be
