@@ -450,7 +450,7 @@ def spacecraft(
     vehicle_config: Annotated[
         Path | None,
         typer.Option(
-            help="TOML file with [servo] and/or [sensor_noise] tables (a robot description's "
+            help="TOML file with a servo and/or a sensor_noise table (a robot description's "
             "keys; hikoboshi calibrate --vehicle-out writes one): the joint servos and sensor "
             "noise flown, replacing the defaults (with --robot: the description's)"
         ),
@@ -674,7 +674,7 @@ def calibrate(
     vehicle_out: Annotated[
         Path | None,
         typer.Option(
-            help="With a recorded pass: write the fitted [servo] and [sensor_noise] tables here "
+            help="With a recorded pass: write the fitted servo and sensor_noise tables here "
             "(a robot description's keys; hikoboshi spacecraft --vehicle-config reads it)."
         ),
     ] = None,
