@@ -163,7 +163,11 @@ def test_demo_pass_report(
 
     reaction = tables["reaction_ordering"]
     rms = next(r for r in reaction["rows"] if r[0].startswith("RMS reaction momentum"))
-    assert rms[2] > 100 * rms[3] > 100 * rms[4] and rms[5] is True  # 3.06, 0.0095, 0.0056
+    # 3.07, 0.060, 0.0187 N m s (the joints' own servo lags; with one 0.3 s lag for every
+    # joint the legs' were 0.0095 and 0.0056)
+    assert rms[2] > 30 * rms[3] > 30 * rms[4] and rms[5] is True
+    residual = next(r for r in reaction["rows"] if r[0].startswith("peak attitude residual"))
+    assert residual[3] > residual[4] and residual[5] is True  # 0.0099 against 0.0074 deg
     phase = {r[0]: r for r in tables["phase_plane_ordering"]["rows"]}
     assert phase["pitch range"][2:] == ["(c) < (a) < (b)", False]
     assert phase["peak (positive overshoot)"][3] is True
