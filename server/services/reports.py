@@ -201,6 +201,7 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                 [
                     "variant",
                     "label",
+                    "start_pitch_deg",
                     "pitch_min_deg",
                     "pitch_max_deg",
                     "pitch_range_deg",

@@ -8,8 +8,11 @@ attitudes the pitch rate to within 1e-4 of its value). Both are smoothed by a ce
 ``smooth_s`` moving average (attitude-sensor noise, 0.005 deg, would otherwise widen the range
 by about three of its sigmas).
 
-``pitch_range_deg`` is max minus min pitch over the window; ``first_dip_deg`` is the minimum
-pitch during the forward leg (the first response to the arm's start, Fig. 9's "within
+``start_pitch_deg`` is the (smoothed) pitch when the forward leg starts: the paper's variants
+each start at the phase plane's origin (3.5), so a variant whose start lies outside
+``settle_band_deg`` began before the one before it had settled, and its numbers carry that
+one's tail. ``pitch_range_deg`` is max minus min pitch over the window; ``first_dip_deg`` is
+the minimum pitch during the forward leg (the first response to the arm's start, Fig. 9's "within
 -0.3 deg" of (b)) and ``peak_deg`` the maximum over the whole window (the positive overshoot;
 equal to ``pitch_max_deg``), each with its time; ``settling_time_s`` runs from the
 end of the back leg until the pitch stays within ``settle_band_deg`` of its final value (the
@@ -63,6 +66,7 @@ class VariantPhasePlane:
     first_dip_deg: float | None = None
     first_dip_t_s: float | None = None
     peak_t_s: float | None = None
+    start_pitch_deg: float | None = None
 
     @property
     def peak_deg(self) -> float | None:
@@ -90,6 +94,7 @@ class VariantPhasePlane:
             "first_dip_t_s": json_number(self.first_dip_t_s),
             "peak_deg": json_number(self.peak_deg),
             "peak_t_s": json_number(self.peak_t_s),
+            "start_pitch_deg": json_number(self.start_pitch_deg),
             "settling_time_s": json_number(self.settling_time_s),
             "settled": self.settling_time_s is not None,
             "note": self.note,
@@ -217,6 +222,7 @@ def analyse_phase_plane(
                 first_dip_deg=None if dip is None else math.degrees(float(pitch[dip])),
                 first_dip_t_s=None if dip is None else float(t[dip]),
                 peak_t_s=float(t[peak]),
+                start_pitch_deg=math.degrees(float(pitch[0])) if t[0] <= t0 + 1.0 else None,
             )
         )
     return PhasePlaneAnalysis(
