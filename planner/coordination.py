@@ -7,9 +7,21 @@ under three attitude-control variants flown one after the other:
 (a) ``feedback``: wheel feedback to the nominal attitude only;
 (b) ``feedforward``: feedback plus momentum feedforward of eq. (9);
 (c) ``offset``: feedback whose target is set to a multiple of the eq. (10) prediction
-    ``Omega_b`` of the leg's free-drift attitude change right after the arm starts, and back to
-    nominal right after it stops; by default the flight's size, -0.35 deg for the forward
-    leg (``FLIGHT_OFFSET_SCALE`` of ``Omega_b``, -0.57 deg).
+    ``Omega_b`` of the forward leg's free-drift attitude change right after the arm starts,
+    and back to nominal right after it stops; by default the flight's size, -0.35 deg
+    (``FLIGHT_OFFSET_SCALE`` of ``Omega_b``, -0.57 deg).
+
+The offset window (``offset_window``). The paper (3.5) changes the target once: to -0.35 deg
+"right after the arm's motion starts" and back to 0 "right after the arm stops", and its
+Fig. 9 shows each variant as one loop in the phase plane, from the origin into quadrant III
+(the start's reaction), clockwise, and back to the origin, with the largest quadrant II rate
+"right after the arm stops". We read the back-and-forth motion as the one arm operation it
+describes: ``"motion"`` (the default) holds the target from just after the forward leg starts
+to just after the back leg stops, pause included, so that the base waits tilted for the
+reversal's reaction to bring it back (the paper's train passenger, 2.4). ``"leg"`` offsets
+each leg by its own ``Omega_b`` (-0.35 deg forward, +0.35 deg back), the earlier reading:
+the back leg's offset then adds to the reversal's reaction, and (c) has a larger range than
+(a) (docs/spacecraft.md).
 
 Beyond the paper (its future work): :func:`optimise_offset` tunes the offset size and the two
 switch delays against the closed loop (lagging servos, wheel torque and momentum limits,
@@ -40,6 +52,7 @@ from planner.state import State
 
 __all__ = [
     "FLIGHT_OFFSET_SCALE",
+    "OFFSET_WINDOWS",
     "VARIANTS",
     "CoordinationParams",
     "OffsetOptimum",
@@ -52,6 +65,9 @@ __all__ = [
 Array = NDArray[np.float64]
 
 VARIANTS = ("feedback", "feedforward", "offset")
+#: Where (c)'s offset target holds: over the whole back-and-forth motion (the flight's one
+#: switch on and one off), or over each leg with that leg's own ``Omega_b``.
+OFFSET_WINDOWS = ("motion", "leg")
 #: The offset destination's default size, as a multiple of eq. (10)'s ``Omega_b``: the
 #: flight's -0.35 deg (paper 3.5) over the forward leg's ``Omega_b`` on the default model,
 #: -0.569 deg. (At scale 1, -0.57 deg, the offset's own response makes (c)'s range the
@@ -70,12 +86,13 @@ class CoordinationParams:
     distance_m: float = 0.2
     speed_mps: float = 0.006
     ramp_s: float = 2.0
-    pause_s: float = 20.0  # between the forward and the backward leg
-    settle_s: float = 120.0  # after each variant
+    pause_s: float = 0.0  # between the forward and the backward leg
+    settle_s: float = 120.0  # after each variant: the next starts at rest
     variants: tuple[str, ...] = VARIANTS
-    offset_scale: float = FLIGHT_OFFSET_SCALE  # (c): target = scale * Omega_b
-    offset_on_delay_s: float = 0.5  # (c): after the leg starts
-    offset_off_delay_s: float = 0.5  # (c): after the leg stops
+    offset_scale: float = 1.0  # (c): target = scale * Omega_b (the paper's rule)
+    offset_on_delay_s: float = 0.5  # (c): after the motion (or the leg) starts
+    offset_off_delay_s: float = 0.5  # (c): after the motion (or the leg) stops
+    offset_window: str = "motion"  # (c): OFFSET_WINDOWS
     settle_band_deg: float = REPORT_SETTLE_BAND_DEG
 
     def check(self) -> None:
@@ -93,6 +110,10 @@ class CoordinationParams:
             raise InvalidInput(f"variants {self.variants} must be drawn from {VARIANTS}")
         if not (0.0 <= self.offset_scale <= 3.0):
             raise InvalidInput(f"offset_scale = {self.offset_scale} must lie in [0, 3]")
+        if self.offset_window not in OFFSET_WINDOWS:
+            raise InvalidInput(
+                f"offset_window = {self.offset_window!r} must be one of {OFFSET_WINDOWS}"
+            )
         for name in ("offset_on_delay_s", "offset_off_delay_s"):
             if not 0.0 <= getattr(self, name) <= 60.0:
                 raise InvalidInput(f"{name} = {getattr(self, name)} must lie in [0, 60] s")
@@ -182,6 +203,14 @@ def _acs_for_variant(
     if variant == "feedforward":
         return [AcsCommand(t0, AcsMode.FEEDBACK, feedforward=True)]
     commands = [AcsCommand(t0, AcsMode.FEEDBACK)]
+    if params.offset_window == "motion":
+        (start_s, _, omega), (_, end_s, _) = legs[0], legs[-1]
+        target = _scaled(omega, params.offset_scale)
+        return [
+            *commands,
+            AcsCommand(start_s + params.offset_on_delay_s, AcsMode.FEEDBACK, target),
+            AcsCommand(end_s + params.offset_off_delay_s, AcsMode.FEEDBACK, _IDENTITY),
+        ]
     for start_s, end_s, omega in legs:
         target = _scaled(omega, params.offset_scale)
         commands.append(AcsCommand(start_s + params.offset_on_delay_s, AcsMode.FEEDBACK, target))
@@ -225,7 +254,8 @@ def plan_coordination(
         label = {"feedback": "(a)", "feedforward": "(b)", "offset": "(c)"}[variant]
         t0 = builder.t_s
         f0, f1 = builder.block(forward, f"{label} {variant}: forward", "coordination")
-        builder.hold(params.pause_s, f"{label} pause")
+        if params.pause_s > 0:  # 0: one continuous back-and-forth motion
+            builder.hold(params.pause_s, f"{label} pause")
         b0, b1 = builder.block(back, f"{label} {variant}: back", "coordination")
         builder.hold(params.settle_s, f"{label} settle", "settle")
         acs += _acs_for_variant(variant, t0, [(f0, f1, omega_fwd), (b0, b1, omega_back)], params)

@@ -188,8 +188,9 @@ def coordination_metrics(
     forward leg's start to the next variant's start (or the plan's end), the pitch extremes
     and range, the first dip (forward leg), the peak before the back leg starts, and the
     settling time after the back leg to within ``band_deg`` of the window's final value (the
-    mean over its last ``final_s``). A variant that has not settled by then counts as the
-    whole time left in its window (``settled`` 0)."""
+    mean over its last ``final_s``), and the pitch at its start (``start_pitch_deg``: the
+    paper's variants each start at rest at the origin). A variant that has not settled by
+    then counts as the whole time left in its window (``settled`` 0)."""
     from telemetry.analysis._common import settling_time_s
 
     segs = [s for s in plan.segments if s.name.startswith(variant_label)]
@@ -217,6 +218,7 @@ def coordination_metrics(
         "peak_before_back_leg_deg": float(np.max(pitch[(t >= t0) & (t < back.t_start_s)])),
         "settling_time_s": float(end - back.t_end_s) if settle is None else settle,
         "settled": float(settle is not None),
+        "start_pitch_deg": float(pw[0]),
     }
 
 
@@ -227,7 +229,7 @@ PTP_SETTLE_S = 360.0
 
 def calibration_plans(ws: Any) -> dict[str, Plan]:
     """The plans calibration flies: the PTP with a :data:`PTP_SETTLE_S` wait and experiment
-    3 as the demo pass schedules it (``planner.schedule.PassParams``: 10 s pause, 80 s
+    3 as the demo pass schedules it (``planner.schedule.PassParams``: no pause, 120 s
     settle), so that the calibration measures the variants the report judges."""
     from planner.coordination import CoordinationParams, plan_coordination
     from planner.experiments import PtpParams, plan_ptp
@@ -291,20 +293,23 @@ def calibration_table(config: VehicleConfig | None = None) -> dict[str, dict[str
     for label, name in (("(a)", "feedback"), ("(b)", "feedforward"), ("(c)", "offset")):
         out[f"coordination_{name}"] = coordination_metrics(flight, coordination, label)
     out["coordination_feedback"]["rejected"] = flight.rejected
-    # (c) again with the full eq. (10) Omega_b (scale 1, -0.57 deg), the old default, after
-    # (a) as in the pass (the variant's start depends on what came before)
+    # (c) again with the flight's -0.35 deg (FLIGHT_OFFSET_SCALE of eq. (10)'s Omega_b, the
+    # default being Omega_b itself), after (a) as in the pass (a variant's start depends on
+    # what came before)
+    from planner.coordination import FLIGHT_OFFSET_SCALE
+
     pass_params = PassParams()
-    full = plan_coordination(
+    flight_size = plan_coordination(
         ws,
         CoordinationParams(
             variants=("feedback", "offset"),
-            offset_scale=1.0,
+            offset_scale=FLIGHT_OFFSET_SCALE,
             pause_s=pass_params.coordination_pause_s,
             settle_s=pass_params.coordination_settle_s,
         ),
     )
-    flight = fly_plan(full, config)
-    out["coordination_offset_full_omega_b"] = coordination_metrics(flight, full, "(c)")
+    flight = fly_plan(flight_size, config)
+    out["coordination_offset_flight_size"] = coordination_metrics(flight, flight_size, "(c)")
     return out
 
 

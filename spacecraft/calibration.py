@@ -548,6 +548,11 @@ def _paper_targets() -> list[_PaperTarget]:
         others = max(m[fbk]["pitch_max_deg"], m[off]["pitch_max_deg"])
         return m[ffw]["pitch_max_deg"] - others
 
+    start = lim["coordination_start"]
+
+    def worst_start(m: Mapping[str, Mapping[str, float]]) -> float:
+        return max(abs(m[n]["start_pitch_deg"]) for n in (fbk, ffw, off))
+
     return [
         _PaperTarget(
             "ptp_settling",
@@ -560,6 +565,15 @@ def _paper_targets() -> list[_PaperTarget]:
                 (m["ptp"]["settling_time_s"] - ptp["flight_s"])
                 / (ptp["flight_s"] * ptp["relative_tolerance"])
             ],
+        ),
+        _PaperTarget(
+            "coordination_start",
+            "every variant of experiment 3 starts at the phase plane's origin (value: the "
+            "largest pitch at a forward leg's start)",
+            f"at most {start['max_deg']} deg, hinge",
+            worst_start,
+            lambda m: worst_start(m) <= start["max_deg"],
+            lambda m: [max(0.0, worst_start(m) + _MARGIN_DEG - start["max_deg"]) / 0.02],
         ),
         _PaperTarget(
             "coordination_feedback_min",

@@ -59,15 +59,15 @@ def ws(model: RobotModel) -> DynamicsWorkspace:
 
 def test_the_defaults_are_the_calibrated_filtered_pd_law(ws: DynamicsWorkspace) -> None:
     """Issue #13: the defaults are the law calibrated against the flight (docs/spacecraft.md):
-    PD on a 13 s first-order rate estimate, wn 0.0225 rad/s, zeta 0.9, no integral term, no
+    PD on an 18 s first-order rate estimate, wn 0.023 rad/s, zeta 0.85, no integral term, no
     dead band."""
     gains = default_acs_gains(ws)
     assert gains.stateful and not gains.has_integral and gains.dead_band_rad == 0.0
-    assert gains.rate_filter_tau_s == DEFAULT_RATE_FILTER_TAU_S == 13.0
-    assert (DEFAULT_ACS_BANDWIDTH_RADPS, DEFAULT_ACS_DAMPING_RATIO) == (0.0225, 0.9)
+    assert gains.rate_filter_tau_s == DEFAULT_RATE_FILTER_TAU_S == 18.0
+    assert (DEFAULT_ACS_BANDWIDTH_RADPS, DEFAULT_ACS_DAMPING_RATIO) == (0.023, 0.85)
     inertia = np.diag(ws.momentum_blocks(np.zeros(ws.model.n_joints))[0])
-    np.testing.assert_allclose(gains.kp_nm_per_rad, inertia * 0.0225**2, rtol=1e-12)
-    np.testing.assert_allclose(gains.kd_nms_per_rad, 2 * 0.9 * inertia * 0.0225, rtol=1e-12)
+    np.testing.assert_allclose(gains.kp_nm_per_rad, inertia * 0.023**2, rtol=1e-12)
+    np.testing.assert_allclose(gains.kd_nms_per_rad, 2 * 0.85 * inertia * 0.023, rtol=1e-12)
 
 
 def test_without_the_filter_the_defaults_are_the_memoryless_pd_law_bit_for_bit(

@@ -732,7 +732,7 @@ def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
     flight = fly_plan(ptp, config)
     assert flight.rejected == 0
     # flight: about 100 s to settle (70 to 130 s, the report's criterion: within 0.05 deg of
-    # the attitude the loop holds); ours 126.7 s with the calibrated law (issue #13). The
+    # the attitude the loop holds); ours 99.8 s with the calibrated law (issue #13). The
     # absolute return within 0.05 deg of nominal takes longer (about 165 s): gravity
     # gradient holds the base 0.015 deg off in pitch at pose B (docs/spacecraft.md).
     assert 70.0 < ptp_settling_s(flight, ptp) < 130.0
@@ -752,30 +752,31 @@ def test_the_attitude_modes_differ_on_the_coordination_motion_as_in_flight(
     ws: DynamicsWorkspace, config: VehicleConfig
 ) -> None:
     """Experiment 3 (paper 3.5, Fig. 9) flown through the vehicle, all three variants, as the
-    demo pass schedules them (10 s pause, 80 s settle) and measured as the report does
-    (spacecraft._calibration.coordination_metrics)."""
+    demo pass schedules them (one back-and-forth motion, 120 s settle) and measured as the
+    report does (spacecraft._calibration.coordination_metrics)."""
     from spacecraft._calibration import calibration_plans
 
     plan = calibration_plans(ws)["coordination"]
     flight = fly_plan(plan, config)
     assert flight.rejected == 0
     a, b, c = (coordination_metrics(flight, plan, label) for label in ("(a)", "(b)", "(c)"))
+    # every variant starts at rest, as in flight (ours within 0.026 deg)
+    assert all(abs(m["start_pitch_deg"]) < 0.05 for m in (a, b, c))
     # (a) feedback: a dip, a positive swing, then back (flight -0.5 to +0.4 deg, +-0.15;
-    # ours -0.352 to +0.521 from rest, -0.40 to +0.51 in the demo pass)
+    # ours -0.377 to +0.517 from rest, -0.35 to +0.52 in the demo pass)
     assert -0.65 < a["pitch_min_deg"] < -0.35 and 0.25 < a["pitch_max_deg"] < 0.55
-    # (b) feedforward: a faster first response, within -0.3 deg as in flight (ours -0.256) ...
+    # (b) feedforward: a faster first response, within -0.3 deg as in flight (ours -0.240) ...
     assert b["first_dip_deg"] > -0.3 and b["first_dip_deg"] > a["first_dip_deg"] + 0.05
-    # ... then the recovery adds to the deceleration reaction: the strongest positive
-    # overshoot (ours 0.285 deg above the next)
+    # ... then the recovery adds to the reversal's reaction: the strongest positive
+    # overshoot (ours 0.288 deg above the next)
     assert b["pitch_max_deg"] > max(a["pitch_max_deg"], c["pitch_max_deg"]) + 0.05
-    # (c) offset destination (the flight's -0.35 deg) beats the feedforward on range and
-    # settling (0.965 against 1.109 deg, 42.9 against 67.1 s) but, unlike the flight, not
-    # feedback alone (0.873 deg, 39.0 s): with a linear law the offset's response adds to
-    # feedback's, deepening the dip and raising the peak (a known difference,
-    # docs/spacecraft.md)
-    assert a["pitch_range_deg"] < c["pitch_range_deg"] < b["pitch_range_deg"]
+    # (c) offset destination, held over the whole motion: the smallest range, as in flight
+    # (0.260 deg below the next); its settling is within 3 s of feedback's (2.5 s after it
+    # here: a known difference, docs/spacecraft.md)
+    assert c["pitch_range_deg"] + 0.1 < a["pitch_range_deg"] < b["pitch_range_deg"]
     assert all(m["settled"] for m in (a, b, c))
-    assert a["settling_time_s"] < c["settling_time_s"] < b["settling_time_s"]
+    assert abs(c["settling_time_s"] - a["settling_time_s"]) < 5.0
+    assert max(a["settling_time_s"], c["settling_time_s"]) < b["settling_time_s"]
 
 
 def test_default_vehicle_uses_gravity_gradient_and_the_calibrated_wheels(
@@ -784,10 +785,10 @@ def test_default_vehicle_uses_gravity_gradient_and_the_calibrated_wheels(
     assert config.sim.gravity_gradient
     v = _vehicle(config)
     inertia = np.diag(DynamicsWorkspace(config.model).momentum_blocks(np.zeros(6))[0])
-    # the calibrated law (issue #13): PD on a 13 s filtered rate, wn 0.0225 rad/s, zeta 0.9
-    np.testing.assert_allclose(v.gains.kp_nm_per_rad, inertia * 0.0225**2, rtol=1e-12)
-    np.testing.assert_allclose(v.gains.kd_nms_per_rad, 2 * 0.9 * inertia * 0.0225, rtol=1e-12)
-    assert v.gains.rate_filter_tau_s == 13.0 and not v.gains.has_integral
+    # the calibrated law (issue #13): PD on an 18 s filtered rate, wn 0.023 rad/s, zeta 0.85
+    np.testing.assert_allclose(v.gains.kp_nm_per_rad, inertia * 0.023**2, rtol=1e-12)
+    np.testing.assert_allclose(v.gains.kd_nms_per_rad, 2 * 0.85 * inertia * 0.023, rtol=1e-12)
+    assert v.gains.rate_filter_tau_s == 18.0 and not v.gains.has_integral
     assert v.gains.dead_band_rad == 0.0
 
 

@@ -43,7 +43,9 @@ def test_aborted_pass_reports_what_it_can(
     demo_recording: PassRecording, workspace: DynamicsWorkspace
 ) -> None:
     t = demo_recording.t_s()
-    aborted = _keep(demo_recording, t < 700.0)  # during coordination variant (a)'s settle
+    settle = demo_recording.plan.segment("coordination: (a) settle")
+    cut = 0.5 * (settle.t_start_s + settle.t_end_s)
+    aborted = _keep(demo_recording, t < cut)  # during coordination variant (a)'s settle
     result = analyse_pass(aborted, workspace)
     assert result.coverage.ends_early
     assert any("ends at" in m for m in result.missing)

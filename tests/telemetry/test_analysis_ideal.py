@@ -125,11 +125,11 @@ def test_ideal_reactionless_legs_leave_no_attitude_and_settle_at_once(
         assert leg.peak_residual_deg is not None and leg.peak_residual_deg < 1e-9, leg
         assert leg.settling_time_s == 0.0
     # The excursion is not the residual: the first leg starts while the wheels still recover
-    # from the PTP (0.049 deg in the pass prediction with the calibrated law of issue #13,
+    # from the PTP (0.075 deg in the pass prediction with the calibrated law of issue #13,
     # whose tail is slower; 0.03 deg with the PD law before; under 1e-5 deg from the legs
     # themselves).
     assert legs[0].peak_excursion_deg is not None
-    assert 0.02 < legs[0].peak_excursion_deg < 0.07
+    assert 0.02 < legs[0].peak_excursion_deg < 0.1
     (ptp,) = result.motion("ptp")
     # The plan's own metric (0.02 deg band) is 98 s; with our 0.05 deg band, a shorter time,
     # but far from zero.

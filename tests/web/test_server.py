@@ -14,6 +14,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from planner.catalogue import experiments
+from planner.coordination import OFFSET_WINDOWS
 from server.api.web import make_router
 from server.errors import install_error_handlers
 
@@ -91,3 +92,8 @@ def test_the_console_offers_the_planner_parameters_with_their_defaults(name: str
             assert [float(s) for s in shown] == [float(s) for s in expected], f.name
         else:
             assert [s.strip("'") for s in shown] == [s.strip("'") for s in expected], f.name
+        if "choices" in spec:  # offered as a list: the default is one of them
+            assert spec["default"] in spec["choices"], f.name
+    if name == "coordination":
+        (window,) = (p for p in table[name]["params"] if p["name"] == "offset_window")
+        assert window["choices"] == list(OFFSET_WINDOWS)

@@ -8,9 +8,11 @@ import table from "./experiments.json";
 
 export interface ParamSpec {
   name: string;
-  type: "float" | "int" | "bool" | "floats" | "strings";
+  type: "float" | "int" | "bool" | "floats" | "string" | "strings";
   optional?: boolean;
   default: string;
+  /** The values a string parameter takes (the console offers them in a list). */
+  choices?: string[];
 }
 
 export const EXPERIMENTS = table as Record<string, { title: string; params: ParamSpec[] }>;

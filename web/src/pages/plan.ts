@@ -93,11 +93,11 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
       const dflt = defaultFor(spec, select.value, r);
       const jointList = isJointList(spec);
       const hint = jointList ? `${r.n_joints} values, or default (the robot's)` : spec.optional ? "default (derived)" : "";
-      const input =
-        spec.type === "bool"
-          ? h("select", { name: spec.name }, h("option", { value: "true" }, "true"), h("option", { value: "false" }, "false"))
-          : h("input", { type: "text", name: spec.name, value: dflt, spellcheck: "false", placeholder: hint });
-      if (spec.type === "bool") input.value = dflt;
+      const choices = spec.type === "bool" ? ["true", "false"] : spec.choices;
+      const input = choices
+        ? h("select", { name: spec.name }, ...choices.map((c) => h("option", { value: c }, c)))
+        : h("input", { type: "text", name: spec.name, value: dflt, spellcheck: "false", placeholder: hint });
+      if (choices) input.value = dflt;
       const error = h("span.field-error", { "data-test": `error-${spec.name}`, role: "alert" });
       const unit = jointList
         ? ` (deg, ${r.n_joints} comma-separated)`
