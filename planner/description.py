@@ -1022,20 +1022,25 @@ class VehicleTables:
     sensor_noise: SensorNoiseSpec | None
 
 
+def _read_toml(toml_path: Path, what: str) -> tuple[_Checker, dict[str, Any]]:
+    """The TOML document at ``toml_path`` (a ``what``, size-limited) and its checker; a file
+    that is not UTF-8 TOML raises one :class:`InvalidRobotDescription`."""
+    c = _Checker(toml_path)
+    raw = _read_limited(toml_path, what)
+    try:
+        return c, tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise c.fail("document", "not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise c.fail("document", f"not valid TOML: {exc}") from None
+
+
 def load_vehicle_tables(path: str | Path, n_joints: int) -> VehicleTables:
     """The ``[servo]`` and ``[sensor_noise]`` tables of a TOML file (``hikoboshi calibrate
     --vehicle-out`` writes one; ``hikoboshi spacecraft --vehicle-config`` reads it), checked
     as a robot description's for an arm of ``n_joints``; any other table is refused. Every
     fault raises one :class:`InvalidRobotDescription`."""
-    toml_path = Path(path)
-    c = _Checker(toml_path)
-    raw = _read_limited(toml_path, "vehicle configuration")
-    try:
-        doc = tomllib.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise c.fail("document", "not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise c.fail("document", f"not valid TOML: {exc}") from None
+    c, doc = _read_toml(Path(path), "vehicle configuration")
     c.keys("document", doc, frozenset({"servo", "sensor_noise"}))
     if not doc:
         raise c.fail("document", "give a [servo] or a [sensor_noise] table")
@@ -1064,14 +1069,7 @@ def load_robot(path: str | Path) -> RobotDescription:
     from planner.dynamics import DynamicsWorkspace
 
     toml_path = Path(path)
-    c = _Checker(toml_path)
-    raw = _read_limited(toml_path, "description")
-    try:
-        doc = tomllib.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise c.fail("document", "not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise c.fail("document", f"not valid TOML: {exc}") from None
+    c, doc = _read_toml(toml_path, "description")
     c.keys("document", doc, _TOP_KEYS)
     for key in ("name", "urdf", "base_link", "wheels"):
         if key not in doc:
