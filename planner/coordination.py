@@ -8,8 +8,8 @@ under three attitude-control variants flown one after the other:
 (b) ``feedforward``: feedback plus momentum feedforward of eq. (9);
 (c) ``offset``: feedback whose target is set to a multiple of the eq. (10) prediction
     ``Omega_b`` of the forward leg's free-drift attitude change right after the arm starts,
-    and back to nominal right after it stops; by default the flight's size, -0.35 deg
-    (``FLIGHT_OFFSET_SCALE`` of ``Omega_b``, -0.57 deg).
+    and back to nominal right after it stops; by default ``Omega_b`` itself (the paper's
+    rule; -0.57 deg on our model, -0.35 deg was the flight's: ``FLIGHT_OFFSET_SCALE``).
 
 The offset window (``offset_window``). The paper (3.5) changes the target once: to -0.35 deg
 "right after the arm's motion starts" and back to 0 "right after the arm stops", and its
@@ -19,7 +19,7 @@ Fig. 9 shows each variant as one loop in the phase plane, from the origin into q
 describes: ``"motion"`` (the default) holds the target from just after the forward leg starts
 to just after the back leg stops, pause included, so that the base waits tilted for the
 reversal's reaction to bring it back (the paper's train passenger, 2.4). ``"leg"`` offsets
-each leg by its own ``Omega_b`` (-0.35 deg forward, +0.35 deg back), the earlier reading:
+each leg by its own ``Omega_b`` (-0.57 deg forward, +0.57 deg back), the earlier reading:
 the back leg's offset then adds to the reversal's reaction, and (c) has a larger range than
 (a) (docs/spacecraft.md).
 
@@ -68,9 +68,9 @@ VARIANTS = ("feedback", "feedforward", "offset")
 #: Where (c)'s offset target holds: over the whole back-and-forth motion (the flight's one
 #: switch on and one off), or over each leg with that leg's own ``Omega_b``.
 OFFSET_WINDOWS = ("motion", "leg")
-#: The offset destination's default size, as a multiple of eq. (10)'s ``Omega_b``: the
-#: flight's -0.35 deg (paper 3.5) over the forward leg's ``Omega_b`` on the default model,
-#: -0.569 deg. (At scale 1, -0.57 deg, the offset's own response makes (c)'s range the
+#: The flight's offset size as a multiple of eq. (10)'s ``Omega_b``: its -0.35 deg (paper
+#: 3.5) over the forward leg's ``Omega_b`` on the default model, -0.569 deg. (The default is
+#: the paper's rule, scale 1. With each leg offset, scale 1 made (c)'s range the
 #: largest of the three variants.)
 FLIGHT_OFFSET_SCALE = 0.615
 #: The settling band of the pass report's experiments 1 and 3 and of the calibration (deg):
