@@ -211,7 +211,7 @@ def test_phase_plane_variants(analysis: PassAnalysis) -> None:
     fb, ff, off = plane.variants
     # Each variant starts at the phase plane's origin, as in flight (paper 3.5): measured
     # +0.025, +0.008, -0.027 deg (the proportional term's gravity-gradient offset and the
-    # last of the previous variant's tail after its 120 s wait; 80 s left (c) at -0.23 deg).
+    # last of the previous variant's tail after its 120 s wait; 80 s left (c) about -0.2 deg down).
     for v in plane.variants:
         assert v.start_pitch_deg is not None and abs(v.start_pitch_deg) < 0.05, v.variant
     # Measured pitch ranges (calibrated law, issue #13): feedback -0.35..+0.52, feedforward
