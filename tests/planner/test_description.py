@@ -497,7 +497,11 @@ TOML_FAULTS = {
         "damping_ratio = 0.85\ntorque_limit_nm = 1.0",
         ["[acs] torque_limit_nm", "[[wheels]]"],
     ),
-    "acs_unknown": ("damping_ratio = 0.85", "damping = 0.85", ["[acs]", "unknown attitude-control"]),
+    "acs_unknown": (
+        "damping_ratio = 0.85",
+        "damping = 0.85",
+        ["[acs]", "unknown attitude-control"],
+    ),
     "servo_negative": ("lag_s = [0.3, 0.1,", "lag_s = [0.3, -0.1,", ["[servo] lag_s[1]", ">= 0"]),
     "servo_negative_scalar": (
         "lag_s = [0.3, 0.1, 0.35, 0.55, 0.3, 0.3]",
