@@ -211,10 +211,15 @@ def _acs_for_variant(
             AcsCommand(start_s + params.offset_on_delay_s, AcsMode.FEEDBACK, target),
             AcsCommand(end_s + params.offset_off_delay_s, AcsMode.FEEDBACK, _IDENTITY),
         ]
-    for start_s, end_s, omega in legs:
+    ons = [start_s + params.offset_on_delay_s for start_s, _, _ in legs]
+    for i, (_, end_s, omega) in enumerate(legs):
         target = _scaled(omega, params.offset_scale)
-        commands.append(AcsCommand(start_s + params.offset_on_delay_s, AcsMode.FEEDBACK, target))
-        commands.append(AcsCommand(end_s + params.offset_off_delay_s, AcsMode.FEEDBACK, _IDENTITY))
+        commands.append(AcsCommand(ons[i], AcsMode.FEEDBACK, target))
+        off_s = end_s + params.offset_off_delay_s
+        # With no pause, a leg's off delay can outlast the next leg's on delay: the next
+        # leg's target then replaces this one, and going back to nominal would cancel it.
+        if i + 1 == len(legs) or off_s < ons[i + 1]:
+            commands.append(AcsCommand(off_s, AcsMode.FEEDBACK, _IDENTITY))
     return commands
 
 

@@ -226,7 +226,8 @@ def test_coordination_plan_has_three_variants_with_their_attitude_commands(
 
 def test_offset_window_per_leg_and_refused_names(ws: DynamicsWorkspace) -> None:
     """``offset_window="leg"``: each leg its own offset (the forward leg's down, the back
-    leg's up), each switched off after its leg; an unknown window is refused by name."""
+    leg's up), each switched off after its leg or replaced by the next leg's; an unknown
+    window is refused by name."""
     plan = plan_coordination(
         ws, CoordinationParams(variants=("offset",), offset_window="leg", settle_s=10.0)
     )
@@ -243,7 +244,38 @@ def test_offset_window_per_leg_and_refused_names(ws: DynamicsWorkspace) -> None:
     assert pitches[0] < -0.3 and pitches[1] > 0.3
     forward, back = plan.segment("(c) offset: forward"), plan.segment("(c) offset: back")
     resets = [c.t_s for c in plan.acs_commands if c not in targets and c.t_s > 0.0]
-    assert resets == [pytest.approx(forward.t_end_s + 0.5), pytest.approx(back.t_end_s + 0.5)]
+    # with no pause the forward leg's off and the back leg's on fall together: the back
+    # leg's target replaces the forward leg's, and nominal comes back after the back leg
+    assert targets[1].t_s == pytest.approx(forward.t_end_s + 0.5)
+    assert resets == [pytest.approx(back.t_end_s + 0.5)]
+    paused = plan_coordination(
+        ws,
+        CoordinationParams(variants=("offset",), offset_window="leg", pause_s=5.0, settle_s=10.0),
+    )
+    forward, back = paused.segment("(c) offset: forward"), paused.segment("(c) offset: back")
+    assert [c.t_s for c in paused.acs_commands[1:]] == [
+        pytest.approx(forward.t_start_s + 0.5),
+        pytest.approx(forward.t_end_s + 0.5),
+        pytest.approx(back.t_start_s + 0.5),
+        pytest.approx(back.t_end_s + 0.5),
+    ]
+    # An off delay longer than the on delay, with no pause: the back leg's offset replaces
+    # the forward leg's (going back to nominal in between would cancel the back leg's)
+    forward, back = plan.segment("(c) offset: forward"), plan.segment("(c) offset: back")
+    late = plan_coordination(
+        ws,
+        CoordinationParams(
+            variants=("offset",), offset_window="leg", offset_off_delay_s=5.0, settle_s=10.0
+        ),
+    )
+    switches = [(c.t_s, c.target_quat_orbit_from_base_xyzw) for c in late.acs_commands[1:]]
+    assert [t for t, _ in switches] == [
+        pytest.approx(forward.t_start_s + 0.5),
+        pytest.approx(back.t_start_s + 0.5),
+        pytest.approx(back.t_end_s + 5.0),
+    ]
+    assert np.allclose(switches[-1][1], [0, 0, 0, 1])
+    assert not np.allclose(switches[1][1], [0, 0, 0, 1])
     with pytest.raises(InvalidInput, match="offset_window = 'legs' must be one of"):
         plan_coordination(ws, CoordinationParams(offset_window="legs"))
 
