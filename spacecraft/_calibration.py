@@ -187,11 +187,13 @@ def coordination_metrics(
     phase plane measures it (``telemetry.analysis.phase_plane``): over the window from its
     forward leg's start to the next variant's start (or the plan's end), the pitch extremes
     and range, the first dip (forward leg), the peak before the back leg starts, and the
-    settling time after the back leg to within ``band_deg`` of the window's final value (the
-    mean over its last ``final_s``), and the pitch at its start (``start_pitch_deg``: the
-    paper's variants each start at rest at the origin). A variant that has not settled by
-    then counts as the whole time left in its window (``settled`` 0)."""
+    settling time after the back leg to within ``band_deg`` of the attitude target in force
+    at the window's end (the report's reference), and the pitch at its start
+    (``start_pitch_deg``: the paper's variants each start at rest at the origin). A variant
+    that has not stayed inside for ``final_s`` by then counts as the whole time left in its
+    window (``settled`` 0)."""
     from telemetry.analysis._common import settling_time_s
+    from telemetry.analysis.phase_plane import _target_pitch_rad
 
     segs = [s for s in plan.segments if s.name.startswith(variant_label)]
     forward, back = (next(s for s in segs if s.name.endswith(word)) for word in ("forward", "back"))
@@ -207,8 +209,14 @@ def coordination_metrics(
     window = (t >= t0) & (t <= end)
     tw, pw = t[window], pitch[window]
     dev = np.column_stack([np.zeros(tw.size), np.radians(pw), np.zeros(tw.size)])
+    target = _target_pitch_rad(plan.acs_commands, end)
     settle, _ = settling_time_s(
-        tw, dev, motion_end_s=back.t_end_s, band_rad=np.radians(band_deg), final_s=final_s
+        tw,
+        dev,
+        motion_end_s=back.t_end_s,
+        band_rad=np.radians(band_deg),
+        final_s=final_s,
+        reference=None if target is None else np.array([0.0, target, 0.0]),
     )
     return {
         "pitch_min_deg": float(np.min(pw)),

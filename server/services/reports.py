@@ -224,8 +224,9 @@ def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
                 [r.row() for r in phase_plane_ordering(plane)],
                 [
                     "first dip: the lowest pitch during the forward leg; peak: the highest "
-                    "over the variant's window; settling after the back leg, band "
-                    f"{plane.get('settle_band_deg')} deg"
+                    "over the variant's window; settling after the back leg, back within "
+                    f"{plane.get('settle_band_deg')} deg of the attitude target (the origin) "
+                    f"and inside over the last {plane.get('final_s')} s of its window"
                 ],
             )
         )

@@ -143,19 +143,30 @@ def mean_quat_xyzw(quats_xyzw: Array) -> Array:
 
 
 def settling_time_s(
-    t_s: Array, deviation: Array, *, motion_end_s: float, band_rad: float, final_s: float
+    t_s: Array,
+    deviation: Array,
+    *,
+    motion_end_s: float,
+    band_rad: float,
+    final_s: float,
+    reference: Array | None = None,
 ) -> tuple[float | None, Array]:
     """Settling after ``motion_end_s`` to within ``band_rad`` of the final value.
 
-    The final value is the mean of ``deviation`` (n, 3) over the last ``final_s`` of the rows;
-    the settling time is the last time a row after ``motion_end_s`` lies outside the band,
-    minus ``motion_end_s`` (0 if none). ``None`` when the rows end before they had stayed
-    inside for ``final_s`` (not settled within the window). Returns it and the final value.
+    The final value is ``reference`` (3,) when given (the attitude the loop is commanded to,
+    which a wait that ends early has not reached yet), else the mean of ``deviation`` (n, 3)
+    over the last ``final_s`` of the rows; the settling time is the last time a row after
+    ``motion_end_s`` lies outside the band, minus ``motion_end_s`` (0 if none). ``None`` when
+    the rows end before they had stayed inside for ``final_s`` (not settled within the
+    window). Returns it and the final value.
     """
     if t_s.size == 0:
         return None, np.full(3, np.nan)
     tail = t_s >= t_s[-1] - final_s
-    final = np.asarray(np.mean(deviation[tail], axis=0), dtype=np.float64)
+    if reference is not None:
+        final = np.asarray(reference, dtype=np.float64).reshape(3)
+    else:
+        final = np.asarray(np.mean(deviation[tail], axis=0), dtype=np.float64)
     after = t_s > motion_end_s
     outside = after & (np.linalg.norm(deviation - final, axis=1) > band_rad)
     if not bool(np.any(outside)):

@@ -133,6 +133,17 @@ def _variants(src: Sources) -> dict[str, Doc]:
     return {str(v.get("label")): v for v in plane.get("variants", [])}
 
 
+def _settling_values(variants: Mapping[str, Doc]) -> dict[str, float | None]:
+    """Each variant's settling time; ``inf`` for one flown whole that had not settled by its
+    window's end (slower than any that had), ``None`` where it was not measured."""
+    out: dict[str, float | None] = {}
+    for k, v in variants.items():
+        value = _num(v.get("settling_time_s"))
+        flown = (_num(v.get("frames", 1)) or 0.0) > 0 and not v.get("note")
+        out[k] = math.inf if value is None and v.get("settled") is False and flown else value
+    return out
+
+
 def _legs_fast_slow(src: Sources) -> tuple[Doc, Doc] | None:
     legs = [m for m in _motions(src, "reactionless") if _num(m.get("peak_hand_speed_mps"))]
     if len(legs) < 2:
@@ -283,12 +294,14 @@ def _offset_range(r: PaperResult, src: Sources) -> Measured:
 
 
 def _offset_settling(r: PaperResult, src: Sources) -> Measured:
-    found = _offset_numbers(src, "settling_time_s")
-    if found is None:
+    settles = _settling_values(_variants(src))
+    if set(settles) < {"(a)", "(b)", "(c)"}:
         return _missing("variants (a), (b), (c) not all analysed")
-    settles = found[1]
-    fastest = settles.get("(c)") is not None and all(
-        s is None or s > float(settles["(c)"] or 0.0) for k, s in settles.items() if k != "(c)"
+    c = settles["(c)"]
+    fastest = (
+        c is not None
+        and math.isfinite(c)
+        and all(s is None or s > c for k, s in settles.items() if k != "(c)")
     )
     return Measured(f"settling {ordered(settles, 's', digits=1)}", fastest)
 
@@ -492,13 +505,18 @@ def compare_with_flight(
 
 def ordered(values: Mapping[str, float | None], unit: str, *, digits: int = 2) -> str:
     """``"(a) 0.55 < (b) 0.76 < (c) 0.84 deg"``: the labels by increasing value (missing
-    values last, as "n/a")."""
-    known = sorted((v, k) for k, v in values.items() if v is not None)
+    values last, as "n/a"; infinite ones, a settling that had not happened by the window's
+    end, after the finite ones as "not settled")."""
+    known = sorted((v, k) for k, v in values.items() if v is not None and math.isfinite(v))
     text = " < ".join(f"{k} {v:.{digits}f}" for v, k in known)
+    text = f"{text} {unit}".strip()
+    never = [k for k, v in values.items() if v is not None and not math.isfinite(v)]
+    if never:
+        text += (" < " if known else "") + ", ".join(never) + " not settled by its window's end"
     unknown = [k for k, v in values.items() if v is None]
     if unknown:
         text += (", " if text else "") + ", ".join(f"{k} n/a" for k in unknown)
-    return f"{text} {unit}".strip()
+    return text
 
 
 @dataclass(frozen=True)
@@ -520,7 +538,7 @@ def phase_plane_ordering(plane: Doc | None) -> list[OrderingRow]:
         return {k: _num(v.get(key)) for k, v in variants.items()}
 
     complete = {"(a)", "(b)", "(c)"} <= set(variants)
-    rng, settle, peak = values("pitch_range_deg"), values("settling_time_s"), values("peak_deg")
+    rng, settle, peak = values("pitch_range_deg"), _settling_values(variants), values("peak_deg")
     for k, v in variants.items():  # documents stored before peak_deg had pitch_max_deg only
         if peak.get(k) is None:
             peak[k] = _num(v.get("pitch_max_deg"))

@@ -15,8 +15,13 @@ one's tail. ``pitch_range_deg`` is max minus min pitch over the window; ``first_
 the minimum pitch during the forward leg (the first response to the arm's start, Fig. 9's "within
 -0.3 deg" of (b)) and ``peak_deg`` the maximum over the whole window (the positive overshoot;
 equal to ``pitch_max_deg``), each with its time; ``settling_time_s`` runs from the
-end of the back leg until the pitch stays within ``settle_band_deg`` of its final value (the
-mean over the window's last ``final_s``), ``None`` when it has not by the window's end.
+end of the back leg until the pitch stays within ``settle_band_deg`` of the pitch the loop
+is commanded to hold at the window's end (the plan's attitude-control target: the phase
+plane's origin, "finally converging to zero", paper 3.5), ``None`` when it has not by the
+window's end (stayed inside for ``final_s``). Not the window's last pitch: the pass waits
+120 s after each variant, and none has reached its final value by then, so settling measured
+to where the window happens to end would depend on the wait (docs/spacecraft.md). A window
+in free drift (no target) falls back to the mean over its last ``final_s``.
 """
 
 from __future__ import annotations
@@ -28,8 +33,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.attitude_control import AcsMode
 from planner.coordination import REPORT_SETTLE_BAND_DEG
-from planner.plan import Segment
+from planner.plan import AcsCommand, Segment
 from telemetry.analysis._common import (
     Array,
     experiment_segments,
@@ -140,6 +146,15 @@ def _groups(segments: tuple[Segment, ...]) -> list[tuple[str, str, list[Segment]
     return [(label, variant, legs) for label, (variant, legs) in groups.items()]
 
 
+def _target_pitch_rad(acs: tuple[AcsCommand, ...], t_s: float) -> float | None:
+    """The pitch of the attitude target in force at ``t_s`` (None: free drift or no law)."""
+    in_force = [c for c in sorted(acs, key=lambda c: c.t_s) if c.t_s <= t_s]
+    if not in_force or in_force[-1].mode is not AcsMode.FEEDBACK:
+        return None
+    target = np.asarray(in_force[-1].target_quat_orbit_from_base_xyzw, dtype=np.float64)
+    return float(rpy_rad(target[None])[0, 1])
+
+
 def analyse_phase_plane(
     recording: PassRecording,
     *,
@@ -189,12 +204,14 @@ def analyse_phase_plane(
         pitch = moving_average(t, rpy_rad(frames.quat_orbit_from_base_xyzw[rows])[:, 1], smooth_s)
         rate = moving_average(t, frames.omega_base_in_base_radps[rows, 1], smooth_s)
         dev = np.column_stack([np.zeros(t.size), pitch, np.zeros(t.size)])
+        target = _target_pitch_rad(recording.plan.acs_commands, window_end)
         settle, _ = settling_time_s(
             t,
             dev,
             motion_end_s=motion_end,
             band_rad=math.radians(settle_band_deg),
             final_s=final_s,
+            reference=None if target is None else np.array([0.0, target, 0.0]),
         )
         in_forward = t <= forward_end
         dip = int(np.argmin(np.where(in_forward, pitch, np.inf))) if np.any(in_forward) else None

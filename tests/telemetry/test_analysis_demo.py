@@ -225,11 +225,13 @@ def test_phase_plane_variants(analysis: PassAnalysis) -> None:
     assert ff.first_dip_deg is not None and fb.first_dip_deg is not None
     assert -0.3 < ff.first_dip_deg < 0.0
     assert ff.first_dip_deg > fb.first_dip_deg + 0.05
-    for v in plane.variants:
-        assert v.settling_time_s is not None  # all settle within their 120 s wait
-    # Measured settling: feedback 100.0 s, offset 102.5 s, feedforward 108.2 s.
-    assert off.settling_time_s is not None and ff.settling_time_s is not None
-    assert off.settling_time_s < ff.settling_time_s
+    # Settling to the phase plane's origin (the target the loop holds) within 0.05 deg:
+    # feedback 98.2 s, feedforward 114.5 s, and the offset at 114.4 to 115.3 s over seeds
+    # and in the truth, so at the end of its 120 s wait (the last 5 s must be inside): not
+    # settled on seed 7. Feedback settles first by more than 10 s, whichever way (c) falls.
+    assert fb.settling_time_s is not None and fb.settling_time_s < 110.0
+    for v in (ff, off):
+        assert v.settling_time_s is None or v.settling_time_s > fb.settling_time_s + 10.0
 
 
 def test_offset_destination_has_the_smallest_range(analysis: PassAnalysis) -> None:
@@ -249,11 +251,12 @@ def test_offset_destination_has_the_smallest_range(analysis: PassAnalysis) -> No
 
 @pytest.mark.xfail(
     strict=True,
-    reason="does not hold on our data: settling (a) 100.0 < (c) 102.5 < (b) 108.2 s. After "
-    "the stop (c) undershoots from +0.13 to -0.32 deg (the loop pulled toward the offset "
-    "through the back leg), (a) from +0.52 to -0.12 deg, and the law's slow tail decides both: "
-    "across the laws that keep (a) within -0.5 +- 0.15 deg, (c) settles within 3 s of (a), "
-    "either side (docs/spacecraft.md 'What we could not match')",
+    reason="does not hold on our data: settling to the origin (a) 98.2 < (b) 114.5 s, (c) "
+    "not settled by the end of its 120 s wait (115 s in the truth). After the stop (c) "
+    "undershoots from +0.13 to -0.32 deg (the loop pulled toward the offset through the back "
+    "leg), (a) from +0.52 to -0.12 deg; no law that keeps (a) within -0.5 +- 0.15 deg, nor "
+    "switching time at the paper's, gives (c) both the smallest range and the fastest "
+    "settling (docs/spacecraft.md 'What we could not match')",
 )
 def test_offset_destination_settles_fastest(analysis: PassAnalysis) -> None:
     plane = analysis.phase_plane
@@ -334,7 +337,7 @@ def test_flight_against_ours_on_the_demo_pass(analysis: PassAnalysis) -> None:
     # against 0.0187 N m s; GJM base pitch -0.592 deg, hand 0.067 deg; variants start at
     # +0.025, +0.008, -0.027 deg; (a) -0.35..+0.52 deg; (b) dip -0.24, peak +0.81 deg; (c)
     # range 0.63 < (a) 0.87 < (b) 1.14 deg; endpoint 0.095 deg. Not (c)'s settling: (a)
-    # 100.0 < (c) 102.5 < (b) 108.2 s.
+    # 98.2 < (b) 114.5 s, (c) not settled by its window's end.
     for row in (
         "ptp_settling",
         "reactionless_little_disturbance",

@@ -149,3 +149,29 @@ def test_ideal_pass_analysis_is_complete(
     assert result.endpoint.attitude_error_angle_deg is not None
     assert result.endpoint.attitude_error_angle_deg < 1e-6
     assert math.isfinite(result.coverage.period_s) and result.coverage.period_s == 0.25
+
+
+def test_settling_to_a_reference_does_not_depend_on_where_the_window_ends() -> None:
+    """A pitch decaying to 0 with a 30 s time constant from 0.5 deg enters a 0.05 deg band
+    at 30 ln 10 = 69.1 s. Measured against the window's last 5 s (the default), a 100 s
+    window calls that final and the time shrinks; against the reference (the loop's target)
+    it is the same for 100 s and 300 s, and a window ending before the entry is "not
+    settled" (None)."""
+    from telemetry.analysis._common import settling_time_s
+
+    def settle(window_s: float, reference: np.ndarray | None) -> float | None:
+        t = np.arange(0.0, window_s + 1e-9, 0.1)
+        pitch = np.radians(0.5) * np.exp(-t / 30.0)
+        dev = np.column_stack([np.zeros(t.size), pitch, np.zeros(t.size)])
+        found, _ = settling_time_s(
+            t, dev, motion_end_s=0.0, band_rad=np.radians(0.05), final_s=5.0, reference=reference
+        )
+        return found
+
+    origin = np.zeros(3)
+    entry = 30.0 * math.log(10.0)
+    assert settle(100.0, origin) == pytest.approx(entry, abs=0.1)
+    assert settle(300.0, origin) == pytest.approx(entry, abs=0.1)
+    assert settle(72.0, origin) is None  # inside for under 5 s when the window ends
+    tail_mean = settle(100.0, None)
+    assert tail_mean is not None and tail_mean < entry - 5.0  # the tail's 0.02 deg taken as final

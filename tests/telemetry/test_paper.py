@@ -208,6 +208,32 @@ def test_phase_plane_ordering_both_ways() -> None:
     assert [r.holds for r in phase_plane_ordering(None)] == [None, None, None]
 
 
+def test_a_variant_not_settled_by_its_window_end_is_the_slowest() -> None:
+    """A variant flown whole (``settled`` false, frames, no note) that had not settled when
+    its window ended is slower than any that had: it cannot be the fastest, and one that
+    never settled does not stop (c) from being the fastest. Unmeasured stays unknown."""
+    a, b, c = (
+        variant(k, -0.5, 0.4, -0.5, s) for k, s in (("(a)", 98.2), ("(b)", 114.5), ("(c)", None))
+    )
+    c["settled"], c["frames"] = False, 1200
+    src = Sources(pass_analysis={"phase_plane": {"variants": [a, b, c]}})
+    (row,) = [r for r in compare_with_flight(src) if r.id == "coordination_offset_settling"]
+    assert row.verdict == NOT_REPRODUCED
+    assert row.ours == "settling (a) 98.2 < (b) 114.5 s < (c) not settled by its window's end"
+    rows = {r.quantity: r for r in phase_plane_ordering({"variants": [a, b, c]})}
+    assert rows["settling time after the back leg"].holds is False
+    # (a) and (b) unsettled, (c) settled: (c) the fastest
+    a2, b2 = ({**v, "settling_time_s": None, "settled": False} for v in (a, b))
+    c2 = {**c, "settling_time_s": 90.0, "settled": True}
+    src = Sources(pass_analysis={"phase_plane": {"variants": [a2, b2, c2]}})
+    (row,) = [r for r in compare_with_flight(src) if r.id == "coordination_offset_settling"]
+    assert row.verdict == REPRODUCED, row
+    # a variant with no telemetry (its note says so) is not measured, not "slowest"
+    c3 = {**c, "frames": 0, "note": "no telemetry"}
+    rows = {r.quantity: r for r in phase_plane_ordering({"variants": [a, b, c3]})}
+    assert rows["settling time after the back leg"].holds is None
+
+
 def test_reaction_ordering_names_the_legs_by_speed_both_ways() -> None:
     reaction = flight_like().pass_analysis["reaction"]  # type: ignore[index]
     swapped = copy.deepcopy(reaction)

@@ -153,11 +153,11 @@ def test_demo_pass_report(
     assert {r[-1] for r in flight["rows"]} <= {"reproduced", "not reproduced"}
     by_result = {r[0]: r for r in flight["rows"]}
     # issue #13: the offset held over the whole motion, (c) has the smallest range; it does
-    # not settle fastest (within 3 s of (a))
+    # not settle fastest ((a) 98.2 s to the origin, (c) about 115 s: at its window's end)
     smallest = by_result["Exp. 3 (c) offset destination: the smallest pitch range of the three"]
     assert smallest[-1] == "reproduced" and "(c) 0.63 < (a) 0.87 < (b) 1.14" in smallest[3]
     fastest = by_result["Exp. 3 (c) offset destination: the fastest settling of the three"]
-    assert fastest[-1] == "not reproduced" and fastest[3].startswith("settling (a) 100.")
+    assert fastest[-1] == "not reproduced" and fastest[3].startswith("settling (a) 98.")
     start = by_result["Exp. 3: every variant starts at the phase plane's origin"]
     assert start[-1] == "reproduced"
     ptp = next(r for k, r in by_result.items() if k.startswith("Exp. 1: PTP"))
