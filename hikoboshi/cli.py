@@ -647,7 +647,7 @@ def calibrate(
         str,
         typer.Option(
             help="Comma-separated law parameters to fit among bandwidth_radps, damping_ratio, "
-            "rate_filter_tau_s, integral_time_s"
+            "rate_filter_tau_s, integral_time_s, torque_limit_nm, dead_band_deg"
         ),
     ] = "bandwidth_radps,damping_ratio",
     max_evaluations: Annotated[

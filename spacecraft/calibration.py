@@ -48,6 +48,7 @@ from planner.attitude_control import (
     DEFAULT_ACS_BANDWIDTH_RADPS,
     DEFAULT_ACS_DAMPING_RATIO,
     DEFAULT_RATE_FILTER_TAU_S,
+    DEFAULT_WHEEL_TORQUE_LIMIT_NM,
     AcsGains,
     AcsMode,
     default_acs_gains,
@@ -112,9 +113,19 @@ class _Parameter:
     #: where the optimiser starts when the start is the parameter's "off" value (on the
     #: bound, where a finite difference sees nothing): a small, active value
     active_start: float | None = None
+    #: which bound is "off": the lower (no filter, no integral term, no dead band) or the
+    #: upper (a torque limit that does not bind)
+    off_at_upper: bool = False
 
 
-#: The law's fittable parameters; ``integral_time_s`` = ``inf`` means no integral term.
+#: The largest dead band the fit tries (deg): a wider one would leave the attitude the loop
+#: holds further off than the settling band the report judges by.
+MAX_FIT_DEAD_BAND_DEG = 0.5
+
+#: The law's fittable parameters; ``integral_time_s`` = ``inf`` means no integral term;
+#: ``torque_limit_nm`` is the law's saturation, at most the wheels' rating (the default: it
+#: does not bind in the calibration flights) and only seen where the loop saturates;
+#: ``dead_band_deg`` 0 means none.
 PARAMETERS: Mapping[str, _Parameter] = {
     "bandwidth_radps": _Parameter(
         DEFAULT_ACS_BANDWIDTH_RADPS, math.log(1e-3), math.log(1.0), math.log, math.exp
@@ -138,6 +149,23 @@ PARAMETERS: Mapping[str, _Parameter] = {
         lambda x: math.inf if x <= 0.0 else 100.0 / x,
         active_start=1000.0,
     ),
+    "torque_limit_nm": _Parameter(
+        DEFAULT_WHEEL_TORQUE_LIMIT_NM,
+        math.log(0.005),
+        math.log(DEFAULT_WHEEL_TORQUE_LIMIT_NM),
+        math.log,
+        math.exp,
+        active_start=0.1,
+        off_at_upper=True,
+    ),
+    "dead_band_deg": _Parameter(
+        0.0,
+        0.0,
+        MAX_FIT_DEAD_BAND_DEG,
+        float,
+        float,
+        active_start=0.01,
+    ),
 }
 
 
@@ -160,6 +188,8 @@ def gains_from_parameters(ws: DynamicsWorkspace, values: Mapping[str, float]) ->
         damping_ratio=float(values.get("damping_ratio", DEFAULT_ACS_DAMPING_RATIO)),
         rate_filter_tau_s=float(values.get("rate_filter_tau_s", DEFAULT_RATE_FILTER_TAU_S)),
         integral_time_s=None if math.isinf(ti) else ti,
+        torque_limit_nm=float(values.get("torque_limit_nm", DEFAULT_WHEEL_TORQUE_LIMIT_NM)),
+        dead_band_rad=math.radians(float(values.get("dead_band_deg", 0.0))),
     )
 
 
@@ -278,9 +308,10 @@ def _solve(
     upper = np.array([PARAMETERS[n].upper for n in names])
     x0 = np.array([PARAMETERS[n].to_x(float(start[n])) for n in names])
     for i, n in enumerate(names):
-        active = PARAMETERS[n].active_start
-        if active is not None and x0[i] <= lower[i]:
-            x0[i] = PARAMETERS[n].to_x(active)
+        p = PARAMETERS[n]
+        off = x0[i] >= upper[i] if p.off_at_upper else x0[i] <= lower[i]
+        if p.active_start is not None and off:
+            x0[i] = p.to_x(p.active_start)
     x0 = np.clip(x0, lower, upper)
     objective = _Objective(names, residuals, max_evaluations, progress)
     jac: Array | None = None

@@ -89,6 +89,8 @@ def test_written_config_with_filter_and_integral_loads(
         "damping_ratio": 0.8,
         "rate_filter_tau_s": 2.5,
         "integral_time_s": 300.0,
+        "torque_limit_nm": 0.04,
+        "dead_band_deg": 0.03,
     }
     path = tmp_path / "acs.toml"
     write_acs_config(path, values)
@@ -96,6 +98,8 @@ def test_written_config_with_filter_and_integral_loads(
     want = gains_from_parameters(workspace, values)
     np.testing.assert_array_equal(loaded.ki_nm_per_rad_s, want.ki_nm_per_rad_s)
     assert loaded.rate_filter_tau_s == 2.5
+    assert loaded.torque_limit_nm == want.torque_limit_nm == 0.04
+    assert loaded.dead_band_rad == want.dead_band_rad == pytest.approx(math.radians(0.03))
 
 
 def test_paper_fit_reports_every_target(workspace: DynamicsWorkspace) -> None:
@@ -206,6 +210,29 @@ def test_fit_recovers_a_filtered_pid_law() -> None:
     assert math.isinf(result.start["integral_time_s"])
     for name, truth in FAMILY_TRUTH.items():
         assert result.parameters[name] == pytest.approx(truth, rel=FAMILY_TOLERANCE[name])
+
+
+#: A law whose wheels saturate in the PTP (the default law asks for about 0.1 N m there).
+#: Measured (seed 3): wn 0.0304 (1.3 %), zeta 0.857 (5 %), torque limit 0.0403 N m (1 %),
+#: from the default 0.3 N m, which does not bind: the fit starts at 0.1 N m, where it does.
+SATURATING_TRUTH = {"bandwidth_radps": 0.03, "damping_ratio": 0.9, "torque_limit_nm": 0.04}
+SATURATING_TOLERANCE = {"bandwidth_radps": 0.05, "damping_ratio": 0.10, "torque_limit_nm": 0.05}
+
+
+def test_fit_recovers_a_wheel_torque_limit() -> None:
+    workspace = DynamicsWorkspace(default_model())
+    plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
+    config = VehicleConfig(
+        acs_gains=gains_from_parameters(workspace, SATURATING_TRUTH),
+        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
+    )
+    flight = fly_offline(plan, config, seed=3)
+    recording = PassRecording.from_frames("saturating", plan, flight.epoch_ns, flight.frames)
+    result = fit_to_recording(recording, tuple(SATURATING_TRUTH), ws=workspace, max_evaluations=60)
+    assert result.start["torque_limit_nm"] == 0.3
+    for name, truth in SATURATING_TRUTH.items():
+        assert result.parameters[name] == pytest.approx(truth, rel=SATURATING_TOLERANCE[name])
+    assert result.cost < 0.01 * result.cost_start
 
 
 def test_cli_calibrates_to_a_stored_pass(
