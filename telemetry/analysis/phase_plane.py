@@ -147,8 +147,9 @@ def _groups(segments: tuple[Segment, ...]) -> list[tuple[str, str, list[Segment]
 
 
 def _target_pitch_rad(acs: tuple[AcsCommand, ...], t_s: float) -> float | None:
-    """The pitch of the attitude target in force at ``t_s`` (None: free drift or no law)."""
-    in_force = [c for c in sorted(acs, key=lambda c: c.t_s) if c.t_s <= t_s]
+    """The pitch of the attitude target in force just before ``t_s`` (a window's end: a
+    command at it belongs to what comes next); None in free drift or with no law."""
+    in_force = [c for c in sorted(acs, key=lambda c: c.t_s) if c.t_s < t_s]
     if not in_force or in_force[-1].mode is not AcsMode.FEEDBACK:
         return None
     target = np.asarray(in_force[-1].target_quat_orbit_from_base_xyzw, dtype=np.float64)
