@@ -37,17 +37,22 @@ TRUTH = {"bandwidth_radps": 0.03, "damping_ratio": 0.9}
 RELATIVE_TOLERANCE = {"bandwidth_radps": 0.03, "damping_ratio": 0.05}
 
 
-@pytest.fixture(scope="module")
-def flown() -> PassRecording:
-    """A PTP A -> B with 60 s of settling, flown through the vehicle with the TRUTH law."""
+def ptp_flown_with(law: dict[str, float], name: str) -> PassRecording:
+    """A PTP A -> B with 60 s of settling, flown through the vehicle (seed 3) with ``law``."""
     workspace = DynamicsWorkspace(default_model())
     plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
     config = VehicleConfig(
-        acs_gains=gains_from_parameters(workspace, TRUTH),
+        acs_gains=gains_from_parameters(workspace, law),
         initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
     )
     flight = fly_offline(plan, config, seed=3)
-    return PassRecording.from_frames("calibration", plan, flight.epoch_ns, flight.frames)
+    return PassRecording.from_frames(name, plan, flight.epoch_ns, flight.frames)
+
+
+@pytest.fixture(scope="module")
+def flown() -> PassRecording:
+    """The PTP flown with the TRUTH law."""
+    return ptp_flown_with(TRUTH, "calibration")
 
 
 def test_fit_recovers_the_law_a_pass_was_flown_with(
@@ -197,13 +202,7 @@ FAMILY_TOLERANCE = {
 
 def test_fit_recovers_a_filtered_pid_law() -> None:
     workspace = DynamicsWorkspace(default_model())
-    plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
-    config = VehicleConfig(
-        acs_gains=gains_from_parameters(workspace, FAMILY_TRUTH),
-        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
-    )
-    flight = fly_offline(plan, config, seed=3)
-    recording = PassRecording.from_frames("family", plan, flight.epoch_ns, flight.frames)
+    recording = ptp_flown_with(FAMILY_TRUTH, "family")
     result = fit_to_recording(recording, tuple(FAMILY_TRUTH), ws=workspace, max_evaluations=80)
     # from the defaults: the calibrated 18 s filter, no integral term
     assert result.start["rate_filter_tau_s"] == 18.0
@@ -221,13 +220,7 @@ SATURATING_TOLERANCE = {"bandwidth_radps": 0.05, "damping_ratio": 0.10, "torque_
 
 def test_fit_recovers_a_wheel_torque_limit() -> None:
     workspace = DynamicsWorkspace(default_model())
-    plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
-    config = VehicleConfig(
-        acs_gains=gains_from_parameters(workspace, SATURATING_TRUTH),
-        initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
-    )
-    flight = fly_offline(plan, config, seed=3)
-    recording = PassRecording.from_frames("saturating", plan, flight.epoch_ns, flight.frames)
+    recording = ptp_flown_with(SATURATING_TRUTH, "saturating")
     result = fit_to_recording(recording, tuple(SATURATING_TRUTH), ws=workspace, max_evaluations=60)
     assert result.start["torque_limit_nm"] == 0.3
     for name, truth in SATURATING_TRUTH.items():
