@@ -193,7 +193,7 @@ def coordination_metrics(
     that has not stayed inside for ``final_s`` by then counts as the whole time left in its
     window (``settled`` 0)."""
     from telemetry.analysis._common import settling_time_s
-    from telemetry.analysis.phase_plane import _target_pitch_rad
+    from telemetry.analysis.phase_plane import attitude_target_pitch_rad
 
     segs = [s for s in plan.segments if s.name.startswith(variant_label)]
     forward, back = (next(s for s in segs if s.name.endswith(word)) for word in ("forward", "back"))
@@ -209,7 +209,7 @@ def coordination_metrics(
     window = (t >= t0) & (t <= end)
     tw, pw = t[window], pitch[window]
     dev = np.column_stack([np.zeros(tw.size), np.radians(pw), np.zeros(tw.size)])
-    target = _target_pitch_rad(plan.acs_commands, end)
+    target = attitude_target_pitch_rad(plan.acs_commands, end)
     settle, _ = settling_time_s(
         tw,
         dev,

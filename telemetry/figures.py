@@ -204,20 +204,16 @@ def phase_plane_figure(result: PhasePlaneAnalysis) -> bytes:
             if v.first_dip_t_s is not None or v.peak_t_s is not None:
                 ax.legend(loc="lower right", fontsize="x-small")
             rng = "n/a" if v.pitch_range_deg is None else f"{v.pitch_range_deg:.2f} deg"
-            if v.settling_time_s is not None:
-                settle = f"{v.settling_time_s:.0f} s"
+            rank = v.settling_rank_s
+            if rank is None:
+                settle = "n/a"
             else:
-                settle = "not by its window's end" if v.frames and not v.note else "n/a"
+                settle = f"{rank:.0f} s" if math.isfinite(rank) else "not by its window's end"
             ax.set_title(f"{v.label} {v.variant}\nrange {rng}, settles {settle}", fontsize=9)
             ax.set_xlabel("pitch (deg)")
         axes[0].set_ylabel("pitch rate (deg/s)")
         ranges = {v.label: v.pitch_range_deg for v in result.variants}
-        settles = {
-            v.label: (math.inf if v.frames and not v.note else None)
-            if v.settling_time_s is None
-            else v.settling_time_s
-            for v in result.variants
-        }
+        settles = {v.label: v.settling_rank_s for v in result.variants}
         fig.suptitle(
             f"Base pitch phase plane. Range: {ordered(ranges, 'deg')} "
             f"(flight: {' < '.join(FLIGHT_RANGE_ORDER)}); settling: "

@@ -134,8 +134,9 @@ def _variants(src: Sources) -> dict[str, Doc]:
 
 
 def _settling_values(variants: Mapping[str, Doc]) -> dict[str, float | None]:
-    """Each variant's settling time; ``inf`` for one flown whole that had not settled by its
-    window's end (slower than any that had), ``None`` where it was not measured."""
+    """Each variant's settling time as ``VariantPhasePlane.settling_rank_s`` gives it, read
+    from a stored document: ``inf`` for one flown whole that had not settled by its window's
+    end, ``None`` where it was not measured."""
     out: dict[str, float | None] = {}
     for k, v in variants.items():
         value = _num(v.get("settling_time_s"))

@@ -48,7 +48,12 @@ from telemetry.analysis._common import (
 )
 from telemetry.recording import PassRecording
 
-__all__ = ["PhasePlaneAnalysis", "VariantPhasePlane", "analyse_phase_plane"]
+__all__ = [
+    "PhasePlaneAnalysis",
+    "VariantPhasePlane",
+    "analyse_phase_plane",
+    "attitude_target_pitch_rad",
+]
 
 _LEG = re.compile(r"\((?P<label>[a-z])\) (?P<variant>\w+): (?P<leg>forward|back)$")
 
@@ -77,6 +82,16 @@ class VariantPhasePlane:
     @property
     def peak_deg(self) -> float | None:
         return self.pitch_max_deg
+
+    @property
+    def settling_rank_s(self) -> float | None:
+        """The settling time for ordering the variants: ``inf`` when the variant was flown
+        whole (frames, no note) and had not settled by its window's end, slower than any
+        that had; ``None`` when not measured. (``telemetry.analysis.paper`` reads the same
+        from a stored document.)"""
+        if self.settling_time_s is not None:
+            return self.settling_time_s
+        return math.inf if self.frames and not self.note else None
 
     @property
     def pitch_range_deg(self) -> float | None:
@@ -146,7 +161,7 @@ def _groups(segments: tuple[Segment, ...]) -> list[tuple[str, str, list[Segment]
     return [(label, variant, legs) for label, (variant, legs) in groups.items()]
 
 
-def _target_pitch_rad(acs: tuple[AcsCommand, ...], t_s: float) -> float | None:
+def attitude_target_pitch_rad(acs: tuple[AcsCommand, ...], t_s: float) -> float | None:
     """The pitch of the attitude target in force just before ``t_s`` (a window's end: a
     command at it belongs to what comes next); None in free drift or with no law."""
     in_force = [c for c in sorted(acs, key=lambda c: c.t_s) if c.t_s < t_s]
@@ -205,7 +220,7 @@ def analyse_phase_plane(
         pitch = moving_average(t, rpy_rad(frames.quat_orbit_from_base_xyzw[rows])[:, 1], smooth_s)
         rate = moving_average(t, frames.omega_base_in_base_radps[rows, 1], smooth_s)
         dev = np.column_stack([np.zeros(t.size), pitch, np.zeros(t.size)])
-        target = _target_pitch_rad(recording.plan.acs_commands, window_end)
+        target = attitude_target_pitch_rad(recording.plan.acs_commands, window_end)
         settle, _ = settling_time_s(
             t,
             dev,
