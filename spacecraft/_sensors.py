@@ -32,7 +32,7 @@ class SensorNoise:
     - joint angles 0.005 deg: encoder and quantisation noise.
 
     Through the calibrated wheel law they jitter the base by a few 1e-4 deg (1-sigma; the
-    loop is slow and the base heavy), far below the 0.02 deg settling band.
+    loop is slow and the base heavy), far below the 0.05 deg settling band.
     """
 
     attitude_rad: float = math.radians(0.005)

@@ -47,6 +47,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from planner.attitude_control import (
     DEFAULT_ACS_BANDWIDTH_RADPS,
     DEFAULT_ACS_DAMPING_RATIO,
+    DEFAULT_DEAD_BAND_DEG,
     DEFAULT_RATE_FILTER_TAU_S,
     DEFAULT_WHEEL_TORQUE_LIMIT_NM,
     AcsGains,
@@ -159,7 +160,7 @@ PARAMETERS: Mapping[str, _Parameter] = {
         off_at_upper=True,
     ),
     "dead_band_deg": _Parameter(
-        0.0,
+        DEFAULT_DEAD_BAND_DEG,
         0.0,
         MAX_FIT_DEAD_BAND_DEG,
         float,
@@ -189,7 +190,7 @@ def gains_from_parameters(ws: DynamicsWorkspace, values: Mapping[str, float]) ->
         rate_filter_tau_s=float(values.get("rate_filter_tau_s", DEFAULT_RATE_FILTER_TAU_S)),
         integral_time_s=None if math.isinf(ti) else ti,
         torque_limit_nm=float(values.get("torque_limit_nm", DEFAULT_WHEEL_TORQUE_LIMIT_NM)),
-        dead_band_rad=math.radians(float(values.get("dead_band_deg", 0.0))),
+        dead_band_rad=math.radians(float(values.get("dead_band_deg", DEFAULT_DEAD_BAND_DEG))),
     )
 
 

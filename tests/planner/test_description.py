@@ -493,13 +493,13 @@ TOML_FAULTS = {
         ["[[wheels]]", "must fit inside the base"],
     ),
     "acs_limit": (
-        "damping_ratio = 0.85",
-        "damping_ratio = 0.85\ntorque_limit_nm = 1.0",
+        "damping_ratio = 0.55",
+        "damping_ratio = 0.55\ntorque_limit_nm = 1.0",
         ["[acs] torque_limit_nm", "[[wheels]]"],
     ),
     "acs_unknown": (
-        "damping_ratio = 0.85",
-        "damping = 0.85",
+        "damping_ratio = 0.55",
+        "damping = 0.55",
         ["[acs]", "unknown attitude-control"],
     ),
     "servo_negative": ("lag_s = [0.3, 0.1,", "lag_s = [0.3, -0.1,", ["[servo] lag_s[1]", ">= 0"]),
