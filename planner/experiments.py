@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from planner._builder import CommandBuilder
 from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
+from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.frames import matrix_from_rpy
@@ -113,7 +114,7 @@ class PtpParams:
     rate_fraction: float = 0.9
     settle_s: float = 120.0
     acs_feedback: bool = True
-    settle_band_deg: float = 0.02
+    settle_band_deg: float = REPORT_SETTLE_BAND_DEG
 
 
 def plan_ptp(
@@ -179,7 +180,7 @@ class ReactionlessParams:
     pause_s: float = 10.0
     tail_s: float = 30.0
     compensate_servo_lag: bool = False
-    settle_band_deg: float = 0.02
+    settle_band_deg: float = REPORT_SETTLE_BAND_DEG
 
 
 def plan_reactionless(
