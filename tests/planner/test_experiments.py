@@ -61,9 +61,9 @@ def test_ptp_baseline_turns_the_base_by_degrees(ws: DynamicsWorkspace) -> None:
     # with feedback on, the base comes back, but only after a settling wait
     assert plan.metrics["peak_attitude_deg"] > 0.2
     assert plan.metrics["settling_time_after_motion_s"] > 30.0
-    # The calibrated law (issue #13, docs/spacecraft.md) brings it back within 0.05 deg
-    # about 120 s after the motion, not within the planner's 0.02 deg band by the end of the
-    # 120 s wait: measured 0.052 deg then (the memoryless PD law it replaced: under 0.02).
+    # The calibrated law (docs/spacecraft.md) brings it back within the planner's 0.05 deg
+    # band 107 s after the motion and leaves it 0.036 deg off at the end of the 120 s wait,
+    # inside its 0.035 deg dead band and gravity gradient's push.
     assert plan.metrics["final_attitude_deg"] < 0.1
 
 
@@ -300,8 +300,8 @@ def test_feedforward_answers_the_start_fast_then_overshoots_as_in_flight(
 
     fb_dip, fb_peak = dip_and_peak("(a)", "feedback")
     ff_dip, ff_peak = dip_and_peak("(b)", "feedforward")
-    # measured with the calibrated law (issue #13): dips -0.36 (a) and -0.24 (b) deg (flight:
-    # -0.5 and "within -0.3"); peaks +0.52 and +0.78 deg
+    # measured with the calibrated law: dips -0.36 (a) and -0.27 (b) deg (flight: -0.5 and
+    # "within -0.3"); peaks +0.49 and +0.69 deg
     assert fb_dip < -0.3
     # the feedforward answers the start reaction faster, within the flight's -0.3 deg ...
     assert ff_dip > -0.3 and ff_dip > fb_dip + 0.05
@@ -314,11 +314,11 @@ def test_feedforward_answers_the_start_fast_then_overshoots_as_in_flight(
 def test_optimised_offset_beats_the_unoptimised_rule_in_the_closed_loop(
     ws: DynamicsWorkspace,
 ) -> None:
-    # Calibrated wheel law (issue #13, docs/spacecraft.md), the offset held over the whole
-    # back-and-forth motion; a 150 s window and a second of settling worth 0.006 deg of range.
-    # Measured with 20 evaluations: the optimum is 1.75 Omega_b (-1.0 deg), on 17 s after the
-    # start and off at the stop: range 0.50 deg against the paper's rule's 0.66 (1 Omega_b,
-    # 0.5 s) and feedback's 0.89, for a slower settling (131 s against 122 s and 105 s).
+    # Calibrated wheel law (docs/spacecraft.md), the offset held over the whole back-and-forth
+    # motion; a 150 s window and a second of settling worth 0.006 deg of range. Measured with
+    # 20 evaluations: the optimum is 1.17 Omega_b (-0.66 deg), on 14.5 s after the start and
+    # off at the stop: range 0.47 deg against the paper's rule's 0.56 (1 Omega_b, 0.5 s) and
+    # feedback's 0.85, settling in 102.0 s against 102.5 s and 119.1 s.
     weight = 0.006
     params = CoordinationParams(settle_s=150.0)
     optimum = optimise_offset(ws, params, max_evaluations=20, settle_weight_deg_per_s=weight)

@@ -152,8 +152,9 @@ def test_feedback_prediction_matches_the_truth_simulation(model: RobotModel) -> 
         :, 1
     ]
     assert np.min(pitch_pred) < -0.2  # the controller holds a PTP disturbance, not nothing
-    # Servo lag (0.3 s) and the 10 Hz controller vs the continuous one: 2 % of the peak.
+    # Servo lag (0.3 s) and the 10 Hz controller vs the continuous one: measured 1.3 % of
+    # the peak.
     assert np.max(np.abs(pitch_pred - pitch_sim)) < 0.02 * np.max(np.abs(pitch_pred))
-    # back by the end of the 120 s hold: 0.01 deg with the PD law before issue #13; the
-    # calibrated law's slower tail leaves a few hundredths (within 0.05 deg at about 126 s)
+    # back by the end of the 120 s hold: -0.014 deg with the calibrated law (inside its
+    # 0.035 deg dead band), 0.01 deg with the memoryless PD law
     assert abs(pitch_pred[-1]) < 0.06
