@@ -15,7 +15,8 @@ experiment's default parameters (its ``[experiments.NAME]`` table, under what a 
 ``defaults=robot.experiment_defaults(name)``) and its poses; ``plan_experiment(...,
 robot=robot)`` plans on its model and stamps the plan with its name and hash.
 
-The parameters' conversion and bounds are :mod:`planner.parameters`'s (offered here too).
+The parameters' conversion and bounds are :mod:`planner.parameters`'s (its two conversions
+and ``type_name`` are offered here too).
 """
 
 from __future__ import annotations
@@ -31,18 +32,7 @@ from planner.experiments import PtpParams, ReactionlessParams, plan_ptp, plan_re
 from planner.gjm import GjmParams, plan_gjm
 from planner.model import default_model
 from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
-from planner.parameters import (
-    MAX_DURATION_S,
-    MAX_ITEMS,
-    MAX_SEGMENT_S,
-    MIN_SPEED_MPS,
-    WORK_LIMITS,
-    WORST_PLAN_S,
-    parameters_from_values,
-    parse_assignments,
-    show,
-    type_name,
-)
+from planner.parameters import parameters_from_values, parse_assignments, show, type_name
 from planner.plan import Plan, plan_for_robot
 from planner.schedule import PassParams, plan_coordination_for, plan_pass
 
@@ -50,12 +40,6 @@ if TYPE_CHECKING:
     from planner.robot import RobotDescription
 
 __all__ = [
-    "MAX_DURATION_S",
-    "MAX_ITEMS",
-    "MAX_SEGMENT_S",
-    "MIN_SPEED_MPS",
-    "WORK_LIMITS",
-    "WORST_PLAN_S",
     "Entry",
     "experiments",
     "parameters_from_values",
