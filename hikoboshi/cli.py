@@ -500,7 +500,7 @@ def spacecraft(
             )
         else:
             if acs_config is not None:
-                from planner.attitude_control import load_acs_config
+                from planner.description import load_acs_config
                 from planner.dynamics import DynamicsWorkspace
                 from planner.model import default_model
 

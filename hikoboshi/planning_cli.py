@@ -13,7 +13,7 @@ from planner.catalogue import experiments, parse_assignments, plan_experiment, r
 from planner.plan import Plan
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = ["make_plan", "parameters_help", "parse_parameters", "write_atomically"]
 

@@ -68,11 +68,9 @@ time scales (tens of seconds) are far above the 0.1 s sample period.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -88,7 +86,6 @@ __all__ = [
     "attitude_error_rad",
     "default_acs_gains",
     "law_rates",
-    "load_acs_config",
     "reaction_rate_radps",
     "wheel_torque_nm",
 ]
@@ -306,26 +303,6 @@ def acs_gains_from_config(ws: DynamicsWorkspace, config: Mapping[str, object]) -
         rate_filter_tau_s=gains.rate_filter_tau_s,
         dead_band_rad=gains.dead_band_rad,
     )
-
-
-def load_acs_config(ws: DynamicsWorkspace, path: str | Path) -> AcsGains:
-    """The law from a TOML file: its ``[acs]`` table (:func:`acs_gains_from_config`)."""
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise InvalidInput(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise InvalidInput(
-            f"{path}: cannot read the attitude-control configuration: {exc}"
-        ) from None
-    unknown = sorted(set(doc) - {"acs"})
-    if unknown or not isinstance(doc.get("acs"), dict):
-        raise InvalidInput(f"{path}: expected one [acs] table (found {sorted(doc)})")
-    try:
-        return acs_gains_from_config(ws, doc["acs"])
-    except InvalidInput as exc:
-        raise InvalidInput(f"{path}: {exc}") from None
 
 
 def attitude_error_rad(quat_orbit_from_base_xyzw: Array, target_quat_xyzw: Array) -> Array:

@@ -30,7 +30,7 @@ from planner.servo_compensation import compensate_servo_lag
 from planner.simulation import default_servo_gains
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = [
     "POSE_B_POS_ROBOT_M",

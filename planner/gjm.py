@@ -60,7 +60,7 @@ from planner.ptp import COMMAND_PERIOD_S, quintic
 from planner.state import State
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = ["MAX_APPROACH_DISTANCE_M", "GjmParams", "hand_positions_orbit_m", "plan_gjm"]
 

@@ -78,7 +78,7 @@ from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, QUINTIC_PEAK_RATE_FACTOR, quintic
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = [
     "PAPER_PHI_MID_DEG",

@@ -26,9 +26,10 @@ from planner.model import RobotModel
 from planner.ptp import COMMAND_PERIOD_S
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = [
+    "ETS7_ROBOT_HASH",
     "ETS7_ROBOT_NAME",
     "SEGMENT_KINDS",
     "AcsCommand",
@@ -36,7 +37,6 @@ __all__ = [
     "Prediction",
     "Segment",
     "check_plan_limits",
-    "ets7_robot_hash",
     "plan_for_robot",
 ]
 
@@ -57,23 +57,12 @@ SEGMENT_KINDS = (
 PLAN_FORMAT_VERSION = 1
 
 #: The robot a plan is for when a document does not say (documents without a robot field):
-#: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name; its hash is the file's
-#: ``content_sha256`` (:func:`ets7_robot_hash`, also ``planner.plan.ETS7_ROBOT_HASH``), read
-#: from the file when first needed, so that it follows the file (its [acs] calibration, say).
+#: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name, and that description's
+#: ``content_sha256``. A constant, so that no planner module reads a file: a test loads the
+#: file and checks the two agree (tests/planner/test_plan_robot.py), so a change to the file
+#: (its [acs] calibration, say) fails there until this constant follows it.
 ETS7_ROBOT_NAME = "ets7"
-
-
-def ets7_robot_hash() -> str:
-    """ETS-VII's description's ``content_sha256`` (the file is loaded once per process)."""
-    from planner.description import default_robot
-
-    return default_robot().content_sha256
-
-
-def __getattr__(name: str) -> str:
-    if name == "ETS7_ROBOT_HASH":
-        return ets7_robot_hash()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+ETS7_ROBOT_HASH = "f2049c7335fe05f2e6666aad4f070e4ec812b2e597b6f73a44362b4efebcc541"
 
 
 @dataclass(frozen=True)
@@ -184,7 +173,7 @@ class Plan:
         default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0])
     )
     robot: str = ETS7_ROBOT_NAME
-    robot_hash: str = field(default_factory=ets7_robot_hash)
+    robot_hash: str = ETS7_ROBOT_HASH
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -267,7 +256,7 @@ class Plan:
                 metrics={str(k): float(v) for k, v in doc["metrics"].items()},
                 # a document without a robot field is an ETS-VII plan
                 robot=doc.get("robot", ETS7_ROBOT_NAME),
-                robot_hash=doc["robot_hash"] if "robot_hash" in doc else ets7_robot_hash(),
+                robot_hash=doc.get("robot_hash", ETS7_ROBOT_HASH),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InvalidInput):
@@ -306,5 +295,5 @@ def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 
 def plan_for_robot(plan: Plan, robot: RobotDescription | None) -> Plan:
     """``plan`` stamped with the robot it was made for (``None``: ETS-VII, the default)."""
     if robot is None:
-        return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ets7_robot_hash())
+        return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ETS7_ROBOT_HASH)
     return replace(plan, robot=robot.name, robot_hash=robot.content_sha256)

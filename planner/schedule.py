@@ -28,12 +28,13 @@ from planner.experiments import (
     plan_reactionless,
 )
 from planner.gjm import GjmParams, plan_gjm
+from planner.parameters import parameters_from_values
 from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import ptp_commands
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = ["EXPERIMENTS", "PassParams", "plan_coordination_for", "plan_pass"]
 
@@ -89,8 +90,6 @@ def _robot_params(
     under ``overrides``; ETS-VII's built-in defaults without a robot."""
     if robot is None:
         return params_type(**overrides)
-    from planner.catalogue import parameters_from_values
-
     return parameters_from_values(
         params_type, overrides, defaults=robot.experiment_defaults(experiment)
     )

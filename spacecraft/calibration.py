@@ -195,7 +195,7 @@ def gains_from_parameters(ws: DynamicsWorkspace, values: Mapping[str, float]) ->
 
 
 def write_acs_config(path: str | Path, values: Mapping[str, float]) -> None:
-    """An ``[acs]`` TOML table (:func:`planner.attitude_control.load_acs_config` reads it);
+    """An ``[acs]`` TOML table (:func:`planner.description.load_acs_config` reads it);
     an infinite ``integral_time_s`` (no integral term) is left out."""
     lines = ["[acs]"]
     for name, value in values.items():

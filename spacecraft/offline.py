@@ -19,7 +19,7 @@ from telemetry.uplink import plan_commands
 from telemetry.wire import CommandAck, CommandStage, TelemetryFrame
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = ["OfflineFlight", "fly_offline"]
 

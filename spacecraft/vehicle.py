@@ -98,7 +98,7 @@ from telemetry.wire import (
 )
 
 if TYPE_CHECKING:
-    from planner.description import RobotDescription
+    from planner.robot import RobotDescription
 
 __all__ = ["SensorNoise", "Vehicle", "VehicleConfig", "VehicleError", "vehicle_config_for"]
 
@@ -144,7 +144,7 @@ class VehicleConfig:
     """What the flight segment is. ``acs_gains`` is the attitude-control law (PD gains, and
     optionally an integral term, a rate-estimate filter and a dead band:
     :class:`planner.attitude_control.AcsGains`; a TOML file gives one with
-    :func:`planner.attitude_control.load_acs_config`); ``None`` means the calibrated PD defaults
+    :func:`planner.description.load_acs_config`); ``None`` means the calibrated PD defaults
     (:func:`planner.attitude_control.default_acs_gains`). Its torque and momentum limits are
     the wheels' limits in the truth simulation. A plan predicted with the same law
     (``gains=`` of the planners) predicts what this vehicle flies."""

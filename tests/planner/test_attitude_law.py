@@ -21,10 +21,10 @@ from planner.attitude_control import (
     AttitudeController,
     acs_gains_from_config,
     default_acs_gains,
-    load_acs_config,
     wheel_torque_nm,
 )
 from planner.closed_loop import fly
+from planner.description import load_acs_config
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.experiments import plan_ptp

@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from hikoboshi.cli import app
-from planner.attitude_control import load_acs_config
+from planner.description import load_acs_config
 from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model

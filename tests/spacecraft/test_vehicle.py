@@ -807,7 +807,8 @@ def test_a_vehicle_configured_with_a_law_flies_what_the_plan_predicted_with_it(
     """The law's parameters flow from one TOML file to both the planner's prediction and
     the vehicle: a 10 s rate-estimate lag, wn 0.03 rad/s, zeta 0.85, no dead band and a
     small integral (not the default law)."""
-    from planner.attitude_control import default_acs_gains, load_acs_config
+    from planner.attitude_control import default_acs_gains
+    from planner.description import load_acs_config
     from planner.experiments import plan_ptp
 
     path = tmp_path / "acs.toml"

@@ -1,0 +1,210 @@
+"""A robot description, loaded: the value every planner takes for a robot other than ETS-VII.
+
+This module holds the loaded description and what follows from it by computation alone
+(the attitude-control law, the servos' gains, poses solved by IK); it reads no file.
+Reading, parsing and checking a description's TOML and URDF is :mod:`planner.description`'s
+(the edge): ``planner.description.load_robot(path) -> RobotDescription``.
+
+    RobotDescription.model                     the RobotModel every planner takes
+    RobotDescription.acs_gains(ws)             the attitude-control law (planner.attitude_control)
+    RobotDescription.servo_gains()             the joint servos' PD gains (planner.mjcf)
+    RobotDescription.sensor_noise              1-sigma noise, radians (spacecraft.SensorNoise's
+                                               field names and units)
+    RobotDescription.poses / pose_joints_rad   named poses (A, B, C for ETS-VII)
+    RobotDescription.experiments               default parameters per experiment (raw values
+                                               for planner.parameters.parameters_from_values)
+    RobotDescription.content_sha256            hash of the canonical TOML and URDF content
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.attitude_control import AcsGains, acs_gains_from_config
+from planner.dynamics import DynamicsWorkspace
+from planner.errors import InvalidInput, PlannerError
+from planner.frames import matrix_from_rpy
+from planner.ik import solve_ik
+from planner.mjcf import ServoGains
+from planner.model import RobotModel
+from planner.simulation import default_servo_gains
+
+__all__ = [
+    "DEFAULT_SERVO_BANDWIDTH_RADPS",
+    "DEFAULT_SERVO_LAG_S",
+    "NamedPose",
+    "RobotDescription",
+    "SensorNoiseSpec",
+    "ServoSpec",
+    "WheelLimits",
+    "servo_gains_of",
+]
+
+Array = NDArray[np.float64]
+
+#: The servos' design where a description leaves it out: one lag and bandwidth for every
+#: joint (ETS-VII's file gives one per joint).
+DEFAULT_SERVO_BANDWIDTH_RADPS = 6.0
+DEFAULT_SERVO_LAG_S = 0.3
+
+
+@dataclass(frozen=True, eq=False)
+class WheelLimits:
+    """What the attitude-control law may ask of one wheel."""
+
+    torque_limit_nm: float
+    momentum_limit_nms: float
+
+
+@dataclass(frozen=True, eq=False)
+class ServoSpec:
+    """The joint servos: either the PD design of :func:`planner.simulation.default_servo_gains`
+    (``bandwidth_radps``, ``lag_s``: one number for every joint, or an array of one per joint)
+    or explicit per-joint gains (both arrays, shape (n,))."""
+
+    bandwidth_radps: float | Array = DEFAULT_SERVO_BANDWIDTH_RADPS
+    lag_s: float | Array = DEFAULT_SERVO_LAG_S
+    kp_nm_per_rad: Array | None = None
+    kd_nms_per_rad: Array | None = None
+
+
+@dataclass(frozen=True)
+class SensorNoiseSpec:
+    """1-sigma sensor noise in radians; the field names of ``spacecraft.SensorNoise``, so
+    ``SensorNoise(**dataclasses.asdict(spec))`` builds the vehicle's."""
+
+    attitude_rad: float
+    rate_radps: float
+    joint_rad: float
+
+
+@dataclass(frozen=True, eq=False)
+class NamedPose:
+    """A pose by joint angles, by hand pose (robot frame), or by both (checked to agree)."""
+
+    name: str
+    description: str = ""
+    joints_rad: Array | None = None
+    hand_pos_robot_m: Array | None = None
+    hand_rpy_deg: Array | None = None  # roll, pitch, yaw: Rz(yaw) Ry(pitch) Rx(roll)
+
+    @property
+    def rot_robot_from_hand(self) -> Array | None:
+        return None if self.hand_rpy_deg is None else matrix_from_rpy(np.radians(self.hand_rpy_deg))
+
+
+@dataclass(frozen=True, eq=False)
+class RobotDescription:
+    """A loaded, validated robot description. ``model`` is what every planner takes."""
+
+    name: str
+    description: str
+    path: Path  # the TOML
+    urdf_path: Path
+    content_sha256: str  # canonical TOML (without the URDF's file name) + canonical URDF
+    base_link: str
+    model: RobotModel
+    wheel_limits: tuple[WheelLimits, ...]  # one per model.wheels entry
+    acs_config: Mapping[str, object]  # the [acs] table as written (planner.attitude_control)
+    servo: ServoSpec
+    sensor_noise: SensorNoiseSpec
+    poses: Mapping[str, NamedPose]
+    experiments: Mapping[str, Mapping[str, object]] = field(
+        default_factory=lambda: MappingProxyType({})
+    )
+    #: the base link's first box visual (display only; planner.urdf.urdf_xml draws it)
+    base_box_size_m: tuple[float, float, float] | None = None
+
+    @property
+    def n_joints(self) -> int:
+        return self.model.n_joints
+
+    @property
+    def wheel_torque_limit_nm(self) -> float:
+        """The law's one torque limit: the smallest wheel's."""
+        return min(w.torque_limit_nm for w in self.wheel_limits)
+
+    @property
+    def wheel_momentum_limit_nms(self) -> float:
+        """The law's one momentum limit: the smallest wheel's."""
+        return min(w.momentum_limit_nms for w in self.wheel_limits)
+
+    def acs_gains(self, ws: DynamicsWorkspace | None = None) -> AcsGains:
+        """The attitude-control law: the ``[acs]`` table read by
+        :func:`planner.attitude_control.acs_gains_from_config`, with the wheels' limits."""
+        workspace = ws if ws is not None else DynamicsWorkspace(self.model)
+        config = {
+            **self.acs_config,
+            "torque_limit_nm": self.wheel_torque_limit_nm,
+            "momentum_limit_nms": self.wheel_momentum_limit_nms,
+        }
+        return acs_gains_from_config(workspace, config)
+
+    def servo_gains(self) -> ServoGains:
+        """The joint servos' PD gains (``planner.mjcf.ServoGains``): explicit, or the design
+        (``kp = H_m[i, i] wn^2`` at the all-zero pose, ``kd = lag kp``), per joint."""
+        return servo_gains_of(self.servo, self.model)
+
+    def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
+        """Joint angles of the named pose: as written, or the IK solution of its hand pose
+        nearest the all-zero pose (:func:`planner.ik.solve_ik`)."""
+        if name not in self.poses:
+            raise InvalidInput(
+                f"robot {self.name!r} has no pose {name!r}; it has {sorted(self.poses)}"
+            )
+        pose = self.poses[name]
+        if pose.joints_rad is not None:
+            return pose.joints_rad.copy()
+        assert pose.hand_pos_robot_m is not None and pose.rot_robot_from_hand is not None
+        workspace = ws if ws is not None else DynamicsWorkspace(self.model)
+        return solve_ik(workspace, pose.hand_pos_robot_m, pose.rot_robot_from_hand)[0].joints_rad
+
+    def target_joints_rad(self, name: str, ws: DynamicsWorkspace, *, experiment: str) -> Array:
+        """Joint angles for the named pose as an experiment's start or goal.
+
+        A pose with a hand pose is that hand pose exactly: the IK solution nearest the pose's
+        written joints (nearest the all-zero pose when none are written), so ETS-VII's B is
+        the grapple approach of SPEC 1.2, not the paper's joints rounded to 0.1 deg, and a
+        redundant arm keeps the configuration its joints name. A pose of joints alone is
+        those joints. Refused (:class:`~planner.errors.InvalidInput`) with the reason when
+        the robot has no such pose, or its hand pose cannot be reached within the limits.
+        """
+        if name not in self.poses:
+            raise InvalidInput(
+                f"{experiment}: robot {self.name!r} has no pose {name!r}, which the experiment "
+                f"needs (its poses: {sorted(self.poses) or 'none'}); add [poses.{name}] to its "
+                "description or give the joints as parameters"
+            )
+        pose = self.poses[name]
+        if pose.hand_pos_robot_m is None or pose.rot_robot_from_hand is None:
+            assert pose.joints_rad is not None
+            return self.model.check_joints(pose.joints_rad).copy()
+        try:
+            solutions = solve_ik(
+                ws,
+                pose.hand_pos_robot_m,
+                pose.rot_robot_from_hand,
+                reference_joints_rad=pose.joints_rad,
+            )
+        except PlannerError as exc:
+            raise InvalidInput(
+                f"{experiment}: robot {self.name!r}'s pose {name!r} cannot be reached: {exc}"
+            ) from exc
+        return solutions[0].joints_rad
+
+    def experiment_defaults(self, experiment: str) -> Mapping[str, object]:
+        """The ``[experiments.NAME]`` table (raw values), empty when the file has none."""
+        return self.experiments.get(experiment, MappingProxyType({}))
+
+
+def servo_gains_of(spec: ServoSpec, model: RobotModel) -> ServoGains:
+    """A ``[servo]`` table's PD gains on ``model`` (explicit, or the design)."""
+    if spec.kp_nm_per_rad is not None and spec.kd_nms_per_rad is not None:
+        return ServoGains(kp_nm_per_rad=spec.kp_nm_per_rad, kd_nms_per_rad=spec.kd_nms_per_rad)
+    return default_servo_gains(model, bandwidth_radps=spec.bandwidth_radps, lag_s=spec.lag_s)
