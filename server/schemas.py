@@ -24,6 +24,7 @@ __all__ = [
     "ErrorPublic",
     "EventPublic",
     "EventsPublic",
+    "PassControlPublic",
     "PassCreate",
     "PassImportPublic",
     "PassPublic",
@@ -216,6 +217,17 @@ class PassesPublic(BaseModel):
     count: int
 
 
+class PassControlPublic(BaseModel):
+    """A pass after ``POST /api/passes/{id}/start`` or ``/abort``."""
+
+    pass_id: str
+    name: str
+    state: str
+    state_reason: str | None
+    version: int
+    epoch_ns: int | None
+
+
 # --- commands ------------------------------------------------------------------------------
 
 
@@ -313,7 +325,7 @@ class ErrorDetail(BaseModel):
 
 
 class ErrorPublic(BaseModel):
-    """The one error shape (:mod:`server.errors`)."""
+    """The one error shape (:mod:`server.api.errors`)."""
 
     error: ErrorDetail
 

@@ -41,8 +41,8 @@ from sqlalchemy.orm import Session
 
 from planner.dynamics import DynamicsWorkspace
 from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
-from server.errors import ServiceError
 from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
+from server.services.errors import NotFoundError
 from server.services.recordings import load_recording
 from server.services.robots import model_for_plan
 from server.storage import repository as repo
@@ -250,8 +250,8 @@ def get_analysis(*, session: Session, pass_id: str, kind: str) -> AnalysisPublic
     """The newest analysis of ``kind``; 404 if the pass has none."""
     record = newest_documents(session=session, pass_id=pass_id).get(kind)
     if record is None:
-        raise ServiceError(
-            404, "analysis_not_run", f"no {kind} analysis of pass {pass_id}: run the analyses"
+        raise NotFoundError(
+            "analysis_not_run", f"no {kind} analysis of pass {pass_id}: run the analyses"
         )
     return _public(record)
 
@@ -269,7 +269,7 @@ def figure_png(*, session: Session, pass_id: str, name: str) -> bytes:
     found = figures(session=session, pass_id=pass_id)
     if name not in found:
         known = ", ".join(sorted(found)) or "none: run the analyses"
-        raise ServiceError(
-            404, "figure_not_found", f"pass {pass_id} has no figure {name!r} (figures: {known})"
+        raise NotFoundError(
+            "figure_not_found", f"pass {pass_id} has no figure {name!r} (figures: {known})"
         )
     return found[name]

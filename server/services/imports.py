@@ -26,8 +26,8 @@ from typing import Any
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
 from server.schemas import PassImportPublic
+from server.services.errors import InvalidRequestError
 from server.services.passes import public
 from server.settings import Settings
 from server.storage import repository as repo
@@ -43,11 +43,11 @@ _FINISHED = ("complete", "aborted")
 _MAX_UNCOMPRESSED: int = Settings.model_fields["max_import_uncompressed_bytes"].default
 
 
-class InvalidRecording(ServiceError):
+class InvalidRecording(InvalidRequestError):
     """A recording that cannot be read or stored: 422 with the reason."""
 
     def __init__(self, code: str, message: str) -> None:
-        super().__init__(422, code, message)
+        super().__init__(code, message)
 
 
 def _int(meta: Mapping[str, Any], key: str) -> int | None:
@@ -211,7 +211,7 @@ def import_file_job(
 ) -> PassImportPublic:
     """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
     route spooled to ``path``, on the job's own connection to ``url``."""
-    from server.services.workers import session_job
+    from server.services.jobs import session_job
 
     data = Path(path).read_bytes()
     return session_job(

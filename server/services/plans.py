@@ -19,7 +19,6 @@ from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import load_robot
 from planner.errors import PlannerError
 from planner.plan import Plan
-from server.errors import ServiceError
 from server.schemas import (
     PlanBrief,
     PlanCreate,
@@ -31,6 +30,7 @@ from server.schemas import (
     ValidationIssue,
     iso_from_ns,
 )
+from server.services.errors import DomainError, InvalidRequestError
 from server.storage import repository as repo
 from server.storage.models import PlanRecord
 
@@ -56,9 +56,9 @@ def check_parameters(request: PlanCreate) -> None:
         parameters_from_values(params_type, request.parameters)
 
 
-def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
+def invalid(exc: PlannerError | DomainError) -> PlanValidation:
     """What ``POST /api/plans/validate`` answers for a refused request."""
-    if isinstance(exc, ServiceError):
+    if isinstance(exc, DomainError):
         return PlanValidation(
             valid=False, errors=[ValidationIssue(code=exc.code, message=exc.message)]
         )
@@ -86,8 +86,8 @@ def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]
     except PlannerError:
         raise
     except (ValueError, ArithmeticError) as exc:
-        raise ServiceError(
-            422, "planning_failed", f"{request.experiment} could not be planned: {exc}"
+        raise InvalidRequestError(
+            "planning_failed", f"{request.experiment} could not be planned: {exc}"
         ) from exc
     return result, document
 
@@ -110,7 +110,7 @@ def validate(request: PlanCreate, robot_path: str | None = None) -> PlanValidati
     """The checks of :func:`create_plan`, planning included, without storing anything."""
     try:
         result, _ = plan(request, robot_path)
-    except (PlannerError, ServiceError) as exc:
+    except (PlannerError, DomainError) as exc:
         return invalid(exc)
     return PlanValidation(valid=True, errors=[], summary=_summary(result))
 

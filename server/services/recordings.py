@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from planner.plan import Plan
-from server.errors import ServiceError
+from server.services.errors import ConflictError
 from server.services.robots import model_for_plan, urdf_for_plan
 from server.storage import repository as repo
 from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
@@ -28,11 +28,11 @@ __all__ = ["NotFlown", "load_recording", "recording_mcap", "write_recording"]
 _TABLE = TelemetryFrameRecord.__table__
 
 
-class NotFlown(ServiceError):
+class NotFlown(ConflictError):
     """The pass has not started: no epoch, no telemetry, nothing to analyse or export."""
 
     def __init__(self, message: str) -> None:
-        super().__init__(409, "pass_not_flown", message)
+        super().__init__("pass_not_flown", message)
 
 
 def _frames(session: Session, pass_id: str) -> FrameArrays:

@@ -20,7 +20,7 @@ from planner.errors import PlannerError
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
 from planner.urdf import urdf_xml
-from server.errors import ServiceError
+from server.services.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.settings import Settings
 
 __all__ = [
@@ -68,8 +68,7 @@ def resolve_robot(settings: Settings, name: str | None) -> Path | None:
         return None
     robots = known_robots(settings)
     if name not in robots:
-        raise ServiceError(
-            422,
+        raise InvalidRequestError(
             "unknown_robot",
             f"no robot named {name!r} on this server; it knows {sorted(robots)} (a server "
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
@@ -109,8 +108,7 @@ def description_named(settings: Settings, name: str) -> RobotDescription:
     """The known robot ``name``; 404 ``unknown_robot`` naming the known ones."""
     robots = robot_descriptions(settings)
     if name not in robots:
-        raise ServiceError(
-            404,
+        raise NotFoundError(
             "unknown_robot",
             f"no robot named {name!r} on this server; it knows {sorted(robots)} (a server "
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
@@ -132,8 +130,7 @@ def description_by_hash(settings: Settings, robot_hash: str) -> RobotDescription
     ``unknown_robot`` when the server has none."""
     found = _by_hash(settings.robot_files, robot_hash)
     if found is None:
-        raise ServiceError(
-            404,
+        raise NotFoundError(
             "unknown_robot",
             f"no robot description with hash {robot_hash} on this server (it knows "
             f"{sorted(robot_descriptions(settings))}; a plan made for a robot given by file "
@@ -188,8 +185,7 @@ def model_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotM
         found = _hash_and_model(str(path.resolve()), mtime_ns)
         if found is not None and found[0] == plan.robot_hash:
             return found[1]
-    raise ServiceError(
-        409,
+    raise ConflictError(
         "robot_unknown",
         f"the pass's plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
         "which this server has no description of: start it with hikoboshi serve --robot FILE",

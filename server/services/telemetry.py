@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
 from server.schemas import (
     EventPublic,
     EventsPublic,
@@ -18,6 +17,7 @@ from server.schemas import (
     TelemetryRowPublic,
     iso_from_ns,
 )
+from server.services.errors import InvalidRequestError
 from server.storage import repository as repo
 from server.storage._telemetry import MAX_BUCKETS
 from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
@@ -35,14 +35,13 @@ def parse_fields(text: str | None, *, allowed: tuple[str, ...], what: str) -> li
     for name in names:
         if name not in allowed:
             shown = name if len(name) <= 40 else name[:37] + "..."
-            raise ServiceError(
-                422,
+            raise InvalidRequestError(
                 "unknown_field",
                 f"telemetry field {shown!r} is not one of the {what} fields {list(allowed)}",
                 {"field": shown},
             )
     if len(set(names)) != len(names):
-        raise ServiceError(422, "repeated_field", f"telemetry fields {names} repeat a name")
+        raise InvalidRequestError("repeated_field", f"telemetry fields {names} repeat a name")
     return names
 
 
@@ -59,7 +58,7 @@ def telemetry(
     """Frames with ``t0_ns <= generation_time_ns < t1_ns``: the first ``limit`` raw rows, or
     ``buckets`` equal spans with min / max / mean per field (empty spans left out)."""
     if t1_ns <= t0_ns:
-        raise ServiceError(422, "empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
+        raise InvalidRequestError("empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
     allowed = BUCKET_FIELDS if buckets is not None else TELEMETRY_FIELDS
     parse_fields(fields, allowed=allowed, what=_WHAT[buckets is not None])
     # The pass's robot's values only (ETS-VII: j1..j6, t1..t6): every one of them if none
