@@ -93,29 +93,27 @@ def run_job(
         conn.close()
 
 
-def session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
-    """Run ``fn(session=..., **kwargs)`` on a session of a new engine for ``url`` (the job's
-    own connection: nothing shared with the server's pool)."""
-    from server.storage.db import make_engine, session_factory
+def _on_own_engine(url: str, read_only: bool, fn: Callable[..., T], kwargs: dict[str, Any]) -> T:
+    from server.storage.db import make_engine, read_session_factory, session_factory
 
     engine = make_engine(url)
+    factory = read_session_factory if read_only else session_factory
     try:
-        with session_factory(engine)() as session:
+        with factory(engine)() as session:
             return fn(session=session, **kwargs)
     finally:
         engine.dispose()
+
+
+def session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
+    """Run ``fn(session=..., **kwargs)`` on a session of a new engine for ``url`` (the job's
+    own connection: nothing shared with the server's pool)."""
+    return _on_own_engine(url, False, fn, kwargs)
 
 
 def read_session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
     """:func:`session_job` with a read-only session (as the API gives GET requests)."""
-    from server.storage.db import make_engine, read_session_factory
-
-    engine = make_engine(url)
-    try:
-        with read_session_factory(engine)() as session:
-            return fn(session=session, **kwargs)
-    finally:
-        engine.dispose()
+    return _on_own_engine(url, True, fn, kwargs)
 
 
 def read_session_file_job(

@@ -13,16 +13,8 @@ from fastapi.testclient import TestClient
 
 from planner.errors import InfeasibleGoal, JointLimitExceeded
 from server.api.errors import HttpError, describe, install_error_handlers, status_of
-from server.services.errors import (
-    ClientGoneError,
-    ConflictError,
-    DeadlineExceededError,
-    DomainError,
-    InvalidRequestError,
-    JobFailedError,
-    NotFoundError,
-    UnavailableError,
-)
+from server.services import errors as refusals
+from server.services.errors import ConflictError, DomainError, InvalidRequestError, UnavailableError
 from server.services.imports import InvalidRecording
 from server.services.recordings import NotFlown
 from server.services.workers import WorkerPool
@@ -35,13 +27,13 @@ PATIENCE_S = 60.0
 @pytest.mark.parametrize(
     ("error", "status"),
     [
-        (NotFoundError("analysis_not_run", "m"), 404),
+        (refusals.NotFoundError("analysis_not_run", "m"), 404),
         (ConflictError("robot_mismatch", "m", {"x": 1}), 409),
         (InvalidRequestError("window_reversed", "m"), 422),
         (UnavailableError("m", 2.0), 503),
-        (DeadlineExceededError("deadline_exceeded", "m"), 504),
-        (ClientGoneError("client_closed", "m"), 499),
-        (JobFailedError("worker_failed", "m"), 500),
+        (refusals.DeadlineExceededError("deadline_exceeded", "m"), 504),
+        (refusals.ClientGoneError("client_closed", "m"), 499),
+        (refusals.JobFailedError("worker_failed", "m"), 500),
         (NotFlown("m"), 409),
         (InvalidRecording("invalid_recording", "m"), 422),
     ],
@@ -172,5 +164,8 @@ def test_a_jobs_error_reaches_the_server_as_the_api_would_answer_it_in_process()
             InvalidRequestError,
             (422, "JointLimitExceeded", "joint 1 at 2.000 rad exceeds limit 1.000 rad", None),
         ),
-        (JobFailedError, (500, "worker_failed", "the job failed: ValueError: a bug", None)),
+        (
+            refusals.JobFailedError,
+            (500, "worker_failed", "the job failed: ValueError: a bug", None),
+        ),
     ]
