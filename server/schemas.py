@@ -217,9 +217,8 @@ class PassesPublic(BaseModel):
     count: int
 
 
+#: A pass after ``POST /api/passes/{id}/start`` or ``/abort``.
 class PassControlPublic(BaseModel):
-    """A pass after ``POST /api/passes/{id}/start`` or ``/abort``."""
-
     pass_id: str
     name: str
     state: str

@@ -8,10 +8,10 @@ after its own recorded history. Its state is the recording's ``meta["state"]`` w
 
 A recording from a file is untrusted: every value that would reach a constrained column
 (lengths, command kinds and stages, int64 times) is checked first, and what the database
-still refuses is reported as 422 ``recording_not_storable``; either way nothing is kept.
+still refuses is the invalid request ``recording_not_storable``; either way nothing is kept.
 Before anything is decompressed, a file whose chunks declare more than 64 MiB each, or
 more than ``max_uncompressed_bytes`` together (the setting
-``max_import_uncompressed_bytes``), is refused as 422 ``invalid_recording`` (docs/mcap.md).
+``max_import_uncompressed_bytes``), is refused as ``invalid_recording`` (docs/mcap.md).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ _MAX_UNCOMPRESSED: int = Settings.model_fields["max_import_uncompressed_bytes"].
 
 
 class InvalidRecording(InvalidRequestError):
-    """A recording that cannot be read or stored: 422 with the reason."""
+    """A recording that cannot be read or stored: an invalid request, with the reason."""
 
     def __init__(self, code: str, message: str) -> None:
         super().__init__(code, message)
@@ -188,7 +188,7 @@ def import_mcap(
     source: str,
     max_uncompressed_bytes: int = _MAX_UNCOMPRESSED,
 ) -> PassImportPublic:
-    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it; 422
+    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it;
     ``invalid_recording`` with the reader's reason for a bad file, or one whose chunks hold
     more than 64 MiB each or ``max_uncompressed_bytes`` together (nothing decompressed,
     nothing stored)."""

@@ -63,8 +63,8 @@ def schedule_pass(
 ) -> PassPublic:
     """Store a ``scheduled`` pass and the audit event ``pass_scheduled`` in one transaction.
 
-    404 for an unknown plan; 422 for a window that is reversed, outside 1970..2200 or too
-    short for the plan.
+    Storage's ``NotFound`` for an unknown plan; an invalid request for a window that is
+    reversed, outside 1970..2200 or too short for the plan.
     """
     for label, value in (("aos_time", request.aos_time), ("los_time", request.los_time)):
         if not EARLIEST <= value < LATEST:
@@ -165,7 +165,7 @@ def list_commands(
     The repository lists a pass's commands without an offset or a count, so the page is
     cut here; a pass holds a few thousand commands at most (one window at 4 Hz).
     """
-    repo.get_pass(session=session, pass_id=pass_id)  # 404 for an unknown pass
+    repo.get_pass(session=session, pass_id=pass_id)  # NotFound for an unknown pass
     records = repo.list_commands(session=session, pass_id=pass_id, stages=stages)
     return CommandsPublic(
         data=[_command(r) for r in records[offset : offset + limit]], count=len(records)

@@ -48,7 +48,7 @@ __all__ = [
 
 def check_parameters(request: PlanCreate) -> None:
     """The experiment and its parameters checked, without planning (milliseconds): the
-    server refuses a bad request (422) before it takes a worker process. A request for a
+    server refuses a bad request before it takes a worker process. A request for a
     robot (whose description supplies the defaults) has its names checked only: the
     worker loads the description and checks the rest."""
     params_type, _ = resolve(request.experiment)
@@ -68,13 +68,14 @@ def invalid(exc: PlannerError | DomainError) -> PlanValidation:
 
 
 def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]:
-    """The plan for ``request`` and its JSON document; planner errors propagate (422).
+    """The plan for ``request`` and its JSON document; planner errors propagate.
     ``robot_path`` is the description of the robot the request names, as the server
     resolved it (:func:`server.services.robots.resolve_robot`; None: ETS-VII): its model,
     poses and ``[experiments.*]`` defaults, and the plan records its name and hash.
 
     A numerical failure other than the planner's own errors (a singular matrix, an
-    overflow) is still caused by the parameters sent: 422 ``planning_failed``, not a 500.
+    overflow) is still caused by the parameters sent: the invalid request
+    ``planning_failed``, not an unexpected error.
     """
     params_type, _ = resolve(request.experiment)
     robot = None if robot_path is None else load_robot(Path(robot_path))

@@ -55,7 +55,7 @@ def _frames(session: Session, pass_id: str) -> FrameArrays:
 
 
 def load_recording(*, session: Session, pass_id: str) -> PassRecording:
-    """Everything stored of one pass (404 unknown, 409 never started)."""
+    """Everything stored of one pass (``NotFound`` unknown, :class:`NotFlown` never started)."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     if record.epoch_ns is None:
         raise NotFlown(f"pass {record.name!r} is {record.state}: it has not flown")
@@ -105,9 +105,10 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
 def recording_mcap(
     *, session: Session, pass_id: str, robot_files: tuple[str, ...] = ()
 ) -> tuple[str, bytes]:
-    """The pass's name and its recording as MCAP bytes (404 unknown, 409 never started),
-    with its robot's URDF and transforms (the plan's robot: ETS-VII, a shipped description
-    or one of ``robot_files``, :func:`server.services.robots.model_for_plan`).
+    """The pass's name and its recording as MCAP bytes (``NotFound`` unknown,
+    :class:`NotFlown` never started), with its robot's URDF and transforms (the plan's
+    robot: ETS-VII, a shipped description or one of ``robot_files``,
+    :func:`server.services.robots.model_for_plan`).
 
     The read transaction ends before the file is written (seconds for a whole pass): on
     SQLite a transaction holds the write lock the link needs."""

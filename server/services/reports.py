@@ -105,8 +105,8 @@ def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
 
 
 def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[str, bytes]]:
-    """The report of the pass's newest analyses and their figures (PNG bytes by name); 404
-    before the first run."""
+    """The report of the pass's newest analyses and their figures (PNG bytes by name);
+    ``NotFoundError`` ``analysis_not_run`` before the first run."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     rows = analyses.newest_documents(session=session, pass_id=record.id)
     if not rows:
@@ -131,7 +131,7 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
 
 
 def pass_report(*, session: Session, pass_id: str) -> ReportPublic:
-    """The report of the pass's newest analyses; 404 before the first run."""
+    """The report of the pass's newest analyses (see :func:`stored_report`)."""
     return stored_report(session, pass_id)[0]
 
 

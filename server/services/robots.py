@@ -63,7 +63,7 @@ def known_robots(settings: Settings) -> dict[str, Path]:
 
 def resolve_robot(settings: Settings, name: str | None) -> Path | None:
     """The description file of the robot a request names (None: ETS-VII as built in);
-    422 ``unknown_robot`` naming the known ones."""
+    the invalid request ``unknown_robot`` naming the known ones."""
     if name is None:
         return None
     robots = known_robots(settings)
@@ -105,7 +105,7 @@ def robot_descriptions(settings: Settings) -> dict[str, RobotDescription]:
 
 
 def description_named(settings: Settings, name: str) -> RobotDescription:
-    """The known robot ``name``; 404 ``unknown_robot`` naming the known ones."""
+    """The known robot ``name``; ``NotFoundError`` ``unknown_robot`` naming the known ones."""
     robots = robot_descriptions(settings)
     if name not in robots:
         raise NotFoundError(
@@ -126,8 +126,8 @@ def _by_hash(robot_files: Sequence[Path | str], robot_hash: str) -> RobotDescrip
 
 def description_by_hash(settings: Settings, robot_hash: str) -> RobotDescription:
     """The description whose ``content_sha256`` is ``robot_hash`` (a plan's ``robot_hash``:
-    a shipped robot or one the server was given, whatever its name now); 404
-    ``unknown_robot`` when the server has none."""
+    a shipped robot or one the server was given, whatever its name now);
+    ``NotFoundError`` ``unknown_robot`` when the server has none."""
     found = _by_hash(settings.robot_files, robot_hash)
     if found is None:
         raise NotFoundError(
@@ -150,13 +150,13 @@ def robot_urdf(description: RobotDescription) -> str:
 
 def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:
     """The URDF of the robot ``plan`` was made for (:func:`robot_urdf`; None: ETS-VII's
-    built-in model), found by hash as :func:`model_for_plan` finds its model (409
-    ``robot_unknown`` when the server has no description of it)."""
+    built-in model), found by hash as :func:`model_for_plan` finds its model
+    (``ConflictError`` ``robot_unknown`` when the server has no description of it)."""
     if plan.robot_hash == ETS7_ROBOT_HASH:
         return None
     found = _by_hash(robot_files, plan.robot_hash)
     if found is None:
-        model_for_plan(plan, robot_files)  # raises 409 robot_unknown
+        model_for_plan(plan, robot_files)  # raises ConflictError robot_unknown
         return None
     return robot_urdf(found)
 
@@ -173,8 +173,8 @@ def _hash_and_model(path: str, mtime_ns: int) -> tuple[str, RobotModel] | None:
 def model_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotModel | None:
     """The model of the robot ``plan`` was made for (None: ETS-VII's built-in model), found
     by its description hash among the descriptions the server knows (shipped, and
-    ``robot_files``); 409 ``robot_unknown`` when none has it (the post-pass work needs the
-    robot's own model: its URDF, its joints)."""
+    ``robot_files``); ``ConflictError`` ``robot_unknown`` when none has it (the post-pass
+    work needs the robot's own model: its URDF, its joints)."""
     if plan.robot_hash == ETS7_ROBOT_HASH:
         return None
     for path in _files(robot_files):

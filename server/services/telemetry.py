@@ -1,8 +1,8 @@
 """Telemetry of a pass, raw or decimated, and the audit log.
 
 Field names are checked here against the storage's whitelists, then against the pass's
-robot's layout (a 6-joint pass has no ``j7``), so that an unknown one is a 422 naming it
-(the storage would refuse it too, as a 400).
+robot's layout (a 6-joint pass has no ``j7``), so that an unknown one is an invalid request naming
+it (the storage would refuse it too, as an ``InvalidArgument``).
 """
 
 from __future__ import annotations
@@ -123,7 +123,7 @@ def telemetry(
 
 
 def list_events(*, session: Session, pass_id: str | None, offset: int, limit: int) -> EventsPublic:
-    """The audit log in time order, of one pass if given (404 for an unknown pass)."""
+    """The audit log in time order, of one pass if given (``NotFound`` for an unknown pass)."""
     if pass_id is not None:
         pass_id = repo.get_pass(session=session, pass_id=pass_id).id
     page = repo.list_events(session=session, pass_id=pass_id, offset=offset, limit=limit)

@@ -16,13 +16,13 @@ whose path the route streams from and deletes.
 The limits (see :class:`~server.settings.Settings`):
 
 - ``worker_processes`` jobs run at once, ``worker_queue`` more may wait; past that a request
-  is answered at once with 503 ``busy`` and ``Retry-After``.
+  is refused at once as unavailable (``busy``, with the time to retry after).
 - Each job has a deadline (``plan_deadline_s``, ``read_deadline_s``), counted from when it
-  starts; past it the process is killed and the client gets 504 ``deadline_exceeded``.
-  Waiting for a free worker is bounded by the same deadline (then 503 ``busy``).
+  starts; past it the process is killed and the request fails with ``deadline_exceeded``.
+  Waiting for a free worker is bounded by the same deadline (then ``busy``).
 - A job whose client disconnects is killed at once (polled every :data:`POLL_S`).
 - A job's address space is limited (``worker_memory_bytes``, ``RLIMIT_AS``): a job that
-  exceeds it fails with 503 ``out_of_memory``; one killed by a signal with 503
+  exceeds it fails as unavailable with ``out_of_memory``; one killed by a signal with
   ``worker_crashed``. Either way the next request gets a fresh process.
 - Closing the pool (the app's lifespan) kills running jobs.
 
@@ -30,9 +30,9 @@ The job's side (what runs in the process, the session jobs, the result files) is
 :mod:`server.services.jobs`. Errors raised by a job keep their meaning: they reach the
 server as the errors they are (a planner error as the invalid request it is) and the API
 answers them as it would have in-process. The pool's own refusals are
-:class:`~server.services.errors.UnavailableError` (503 with ``Retry-After``),
-:class:`~server.services.errors.DeadlineExceededError` (504) and
-:class:`~server.services.errors.ClientGoneError`.
+:class:`~server.services.errors.UnavailableError` (the API adds ``Retry-After``),
+:class:`~server.services.errors.DeadlineExceededError` and
+:class:`~server.services.errors.ClientGoneError`; their statuses: :mod:`server.api.errors`.
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ class _Disconnectable(Protocol):
 
 
 def busy(message: str, retry_after_s: float, code: str = "busy") -> UnavailableError:
-    """503: the work cannot be done now; the answer carries ``Retry-After``."""
+    """The work cannot be done now: retry after ``retry_after_s``."""
     return UnavailableError(message, retry_after_s, code)
 
 
