@@ -40,7 +40,7 @@ def _fail(reason: str) -> NoReturn:
 @contextmanager
 def _session() -> Iterator[Session]:
     """A session on the configured database, migrated to head; errors become one line."""
-    from server.errors import ServiceError
+    from server.services.errors import DomainError
     from server.settings import Settings
     from server.storage.db import make_engine, session_factory, upgrade
     from server.storage.errors import StorageError
@@ -54,7 +54,7 @@ def _session() -> Iterator[Session]:
         upgrade(engine)
         with session_factory(engine)() as session:
             yield session
-    except ServiceError as exc:
+    except DomainError as exc:
         _fail(exc.message)
     except StorageError as exc:
         _fail(str(exc))

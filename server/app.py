@@ -20,7 +20,7 @@ from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
 from server.api import web as web_api
 from server.api.edge import install_edge
-from server.errors import install_error_handlers
+from server.api.errors import install_error_handlers
 from server.services.console import ConsoleHub
 from server.services.link import GroundLink
 from server.services.runner import PassRunner

@@ -24,6 +24,7 @@ __all__ = [
     "ErrorPublic",
     "EventPublic",
     "EventsPublic",
+    "PassControlPublic",
     "PassCreate",
     "PassImportPublic",
     "PassPublic",
@@ -216,6 +217,16 @@ class PassesPublic(BaseModel):
     count: int
 
 
+#: A pass after ``POST /api/passes/{id}/start`` or ``/abort``.
+class PassControlPublic(BaseModel):
+    pass_id: str
+    name: str
+    state: str
+    state_reason: str | None
+    version: int
+    epoch_ns: int | None
+
+
 # --- commands ------------------------------------------------------------------------------
 
 
@@ -313,7 +324,7 @@ class ErrorDetail(BaseModel):
 
 
 class ErrorPublic(BaseModel):
-    """The one error shape (:mod:`server.errors`)."""
+    """The one error shape (:mod:`server.api.errors`)."""
 
     error: ErrorDetail
 

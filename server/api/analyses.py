@@ -14,7 +14,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Path, Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep, WorkersDep
 from server.schemas import (
     ERROR_RESPONSES,
     AnalysesPublic,
@@ -24,9 +24,7 @@ from server.schemas import (
 )
 from server.services import analyses as service
 from server.services import reports
-from server.services.workers import (
-    BoundedRoute,
-    WorkersDep,
+from server.services.jobs import (
     jobs_dir,
     read_session_file_job,
     read_session_job,
@@ -37,9 +35,7 @@ from server.services.workers import (
 
 __all__ = ["router"]
 
-router = APIRouter(
-    prefix="/api/passes", tags=["analyses"], responses=ERROR_RESPONSES, route_class=BoundedRoute
-)
+router = APIRouter(prefix="/api/passes", tags=["analyses"], responses=ERROR_RESPONSES)
 
 #: The served page holds only inline style and data: images; nothing else may load.
 _HTML_POLICY = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"

@@ -17,7 +17,7 @@ import asyncio
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from server.api.deps import Principal, authenticate, record_auth_failure, websocket_principal
-from server.errors import ServiceError
+from server.api.errors import HttpError
 from server.services.console import AuthMsg, ConsoleHub, ProtocolError, decode_client
 from server.settings import Role, Settings
 
@@ -35,7 +35,7 @@ async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
     try:
         first = await asyncio.wait_for(websocket.receive(), hub.limits.auth_timeout_s)
     except TimeoutError:
-        raise ServiceError(401, "unauthorized", "no auth message in time") from None
+        raise HttpError(401, "unauthorized", "no auth message in time") from None
     if first["type"] == "websocket.disconnect":
         raise WebSocketDisconnect(first.get("code", 1000))
     raw = first.get("text")
@@ -44,17 +44,17 @@ async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
     try:
         message = decode_client(raw, hub.limits.max_message_bytes)
     except ProtocolError as exc:
-        raise ServiceError(401, "unauthorized", f"auth expected first: {exc}") from None
+        raise HttpError(401, "unauthorized", f"auth expected first: {exc}") from None
     if not isinstance(message, AuthMsg):
-        raise ServiceError(401, "unauthorized", f"auth expected first, not {message.type}")
+        raise HttpError(401, "unauthorized", f"auth expected first, not {message.type}")
     settings: Settings = websocket.app.state.settings
     try:
         principal = authenticate(settings, f"Bearer {message.token}")
-    except ServiceError as exc:
+    except HttpError as exc:
         record_auth_failure(websocket, exc.message)
         raise
     if principal.role not in _WATCHERS:
-        raise ServiceError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
+        raise HttpError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
     return principal
 
 
@@ -64,7 +64,7 @@ async def console(websocket: WebSocket) -> None:
     hub: ConsoleHub = websocket.app.state.console
     try:
         principal = await _principal(websocket, hub)
-    except ServiceError as exc:
+    except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
         return
     except WebSocketDisconnect:

@@ -14,7 +14,6 @@ refused confirmation).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
@@ -24,11 +23,11 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from server.api.deps import OperatorDep, ViewerDep
-from server.errors import ServiceError
-from server.schemas import ERROR_RESPONSES
+from server.schemas import ERROR_RESPONSES, PassControlPublic
+from server.services.errors import ConflictError, InvalidRequestError
 from server.services.link import GroundLink, LinkUnavailable
+from server.services.passes import check_confirmation, control_state
 from server.services.runner import PassRunner
-from server.storage import repository as repo
 
 __all__ = ["router"]
 
@@ -46,15 +45,6 @@ class AbortRequest(BaseModel):
     reason: str = Field(default="operator abort", min_length=1, max_length=300)
 
 
-class PassControlPublic(BaseModel):
-    pass_id: str
-    name: str
-    state: str
-    state_reason: str | None
-    version: int
-    epoch_ns: int | None
-
-
 def _confirmation_job(
     pass_id: str, action: str, confirm: str, actor: str
 ) -> Callable[[Session], tuple[str, str | None]]:
@@ -62,19 +52,9 @@ def _confirmation_job(
     refusal is written to the audit log)."""
 
     def job(session: Session) -> tuple[str, str | None]:
-        record = repo.get_pass(session=session, pass_id=pass_id)
-        expected = f"{action} {record.name}"
-        if confirm == expected:
-            return record.id, None
-        repo.add_event(
-            session=session,
-            time_ns=time.time_ns(),
-            kind="pass_control_refused",
-            actor=actor,
-            detail={"action": action.lower(), "confirm": confirm},
-            pass_id=record.id,
+        return check_confirmation(
+            session=session, pass_id=pass_id, action=action, confirm=confirm, actor=actor
         )
-        return record.id, expected
 
     return job
 
@@ -86,23 +66,15 @@ async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, 
         _confirmation_job(pass_id, action, confirm, actor), control=True
     )
     if expected is not None:
-        raise ServiceError(
-            422, "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
+        raise InvalidRequestError(
+            "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
         )
     return key
 
 
 async def _public(link: GroundLink, pass_id: str) -> PassControlPublic:
     def job(session: Session) -> PassControlPublic:
-        record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
-        return PassControlPublic(
-            pass_id=record.id,
-            name=record.name,
-            state=record.state,
-            state_reason=record.state_reason,
-            version=record.version,
-            epoch_ns=record.epoch_ns,
-        )
+        return control_state(session=session, pass_id=pass_id)
 
     return await link.db.run(job, control=True)
 
@@ -117,7 +89,7 @@ async def start_pass(
     try:
         await runner.start(key, who.name)
     except LinkUnavailable as exc:
-        raise ServiceError(409, "link_down", str(exc)) from None
+        raise ConflictError("link_down", str(exc)) from None
     return await _public(link, key)
 
 

@@ -11,7 +11,8 @@ from typing import Annotated
 from fastapi import Depends, Header, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
 
-from server.errors import ServiceError
+from server.api.errors import HttpError
+from server.services.workers import WorkerPool
 from server.settings import ApiToken, Role, Settings
 
 __all__ = [
@@ -20,6 +21,7 @@ __all__ = [
     "SessionDep",
     "SettingsDep",
     "ViewerDep",
+    "WorkersDep",
     "authenticate",
     "find_token",
     "record_auth_failure",
@@ -72,10 +74,10 @@ def find_token(tokens: Mapping[str, ApiToken], presented: str) -> ApiToken | Non
 def authenticate(settings: Settings, authorization: str | None) -> Principal:
     """The caller behind ``Authorization: Bearer TOKEN``; 401 without a known token."""
     if not authorization or not authorization.startswith("Bearer "):
-        raise ServiceError(401, "unauthorized", "an API token is required (Authorization: Bearer)")
+        raise HttpError(401, "unauthorized", "an API token is required (Authorization: Bearer)")
     token = find_token(settings.tokens, authorization.removeprefix("Bearer ").strip())
     if token is None:
-        raise ServiceError(401, "unauthorized", "unknown API token")
+        raise HttpError(401, "unauthorized", "unknown API token")
     return Principal(token.name, token.role)
 
 
@@ -98,7 +100,7 @@ def require(role: Role) -> Callable[..., Awaitable[Principal]]:
         settings: Settings = request.app.state.settings
         principal = authenticate(settings, authorization)
         if principal.role not in _GRANTS[role]:
-            raise ServiceError(
+            raise HttpError(
                 403,
                 "forbidden",
                 f"role {principal.role.value!r} may not do this ({role.value} only)",
@@ -120,11 +122,11 @@ def websocket_principal(websocket: WebSocket, role: Role) -> Principal:
     settings: Settings = websocket.app.state.settings
     try:
         principal = authenticate(settings, websocket.headers.get("authorization"))
-    except ServiceError as exc:
+    except HttpError as exc:
         record_auth_failure(websocket, exc.message)
         raise
     if principal.role not in _GRANTS[role]:
-        raise ServiceError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
+        raise HttpError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
     return principal
 
 
@@ -135,3 +137,12 @@ def record_auth_failure(websocket: WebSocket, reason: str) -> None:
     if guard is not None:
         client = websocket.client
         guard.failed(client.host if client else "unknown", websocket.url.path, reason)
+
+
+def get_workers(request: Request) -> WorkerPool:
+    workers: WorkerPool = request.app.state.workers
+    return workers
+
+
+#: The pool of worker processes for CPU-heavy requests (server/services/workers.py).
+WorkersDep = Annotated[WorkerPool, Depends(get_workers)]

@@ -49,7 +49,7 @@ from starlette.routing import Match, Router
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import authenticate
-from server.errors import ServiceError, error_body
+from server.api.errors import HttpError, error_body
 from server.services.command_stages import write_event
 from server.settings import Settings
 
@@ -337,7 +337,7 @@ class EdgeMiddleware:
         if protected:
             try:
                 authenticate(self.settings, _header(scope, b"authorization"))
-            except ServiceError as exc:
+            except HttpError as exc:
                 self.guard.failed(address, scope["path"], exc.message)
                 headers = ((b"www-authenticate", b"Bearer"), *close)
                 await _respond(send, exc.status, exc.code, exc.message, headers=headers)
@@ -419,7 +419,7 @@ def _limited(receive: Receive, limit: int) -> Receive:
         if message["type"] == "http.request":
             received += len(message.get("body", b""))
             if received > limit:
-                raise ServiceError(413, "request_too_large", _too_large(received, limit))
+                raise HttpError(413, "request_too_large", _too_large(received, limit))
         return message
 
     return limited

@@ -15,7 +15,7 @@ import time
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from server.api.deps import websocket_principal
-from server.errors import ServiceError
+from server.api.errors import HttpError
 from server.services.link import Connection, GroundLink
 from server.settings import Role
 
@@ -30,7 +30,7 @@ async def spacecraft_link(websocket: WebSocket) -> None:
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
-    except ServiceError as exc:
+    except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
         return
     link: GroundLink = websocket.app.state.link

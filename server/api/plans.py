@@ -16,18 +16,16 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request, Response
 
 from planner.errors import PlannerError
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
-from server.errors import ServiceError
+from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep, WorkersDep
 from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
+from server.services.errors import DomainError
+from server.services.jobs import session_job
 from server.services.robots import resolve_robot
-from server.services.workers import BoundedRoute, WorkersDep, session_job
 
 __all__ = ["router"]
 
-router = APIRouter(
-    prefix="/api/plans", tags=["plans"], responses=ERROR_RESPONSES, route_class=BoundedRoute
-)
+router = APIRouter(prefix="/api/plans", tags=["plans"], responses=ERROR_RESPONSES)
 
 
 @router.post("", status_code=201, response_model=PlanPublic)
@@ -73,7 +71,7 @@ async def validate_plan(
     try:
         service.check_parameters(request)
         robot_path = resolve_robot(settings, request.robot)
-    except (PlannerError, ServiceError) as exc:
+    except (PlannerError, DomainError) as exc:
         return service.invalid(exc)
     return await workers.run(
         service.validate,

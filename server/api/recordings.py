@@ -13,14 +13,12 @@ import re
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 
-from server.api.deps import OperatorDep, SettingsDep, ViewerDep
-from server.errors import ServiceError
+from server.api.deps import OperatorDep, SettingsDep, ViewerDep, WorkersDep
+from server.api.errors import HttpError
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
 from server.services import recordings as service
 from server.services.imports import import_file_job
-from server.services.workers import (
-    BoundedRoute,
-    WorkersDep,
+from server.services.jobs import (
     jobs_dir,
     read_session_job,
     stream_file,
@@ -29,9 +27,7 @@ from server.services.workers import (
 
 __all__ = ["router"]
 
-router = APIRouter(
-    prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES, route_class=BoundedRoute
-)
+router = APIRouter(prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES)
 
 _BINARY = {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}
 
@@ -121,7 +117,7 @@ async def import_recording(
         path.unlink(missing_ok=True)
 
 
-def _too_large(size: int, limit: int) -> ServiceError:
-    return ServiceError(
+def _too_large(size: int, limit: int) -> HttpError:
+    return HttpError(
         413, "recording_too_large", f"upload of {size} bytes exceeds the limit of {limit} bytes"
     )

@@ -12,14 +12,14 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request
 from starlette.concurrency import run_in_threadpool
 
-from server.api.deps import SessionDep, SettingsDep, ViewerDep
+from server.api.deps import SessionDep, SettingsDep, ViewerDep, WorkersDep
 from server.schemas import ERROR_RESPONSES, MAX_NS, EventsPublic, TelemetryPublic
 from server.services import telemetry as service
-from server.services.workers import BoundedRoute, WorkersDep, read_session_job
+from server.services.jobs import read_session_job
 
 __all__ = ["router"]
 
-router = APIRouter(prefix="/api", responses=ERROR_RESPONSES, route_class=BoundedRoute)
+router = APIRouter(prefix="/api", responses=ERROR_RESPONSES)
 
 #: The most raw rows one request returns.
 MAX_ROWS = 10_000

@@ -16,7 +16,7 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse, HTMLResponse, Response
 
-from server.errors import ServiceError
+from server.api.errors import HttpError
 
 __all__ = ["DEFAULT_DIST", "make_router"]
 
@@ -50,10 +50,10 @@ def _file(root: Path, name: str, cache: str) -> Response:
     a control character too: the edge refuses those first, and the file system would raise
     on a NUL)."""
     if not name.isprintable():
-        raise ServiceError(404, "not_found", f"no console file {name!r}")
+        raise HttpError(404, "not_found", f"no console file {name!r}")
     path = (root / name).resolve()
     if not path.is_relative_to(root.resolve()) or not path.is_file() or path.suffix not in _TYPES:
-        raise ServiceError(404, "not_found", f"no console file {name!r}")
+        raise HttpError(404, "not_found", f"no console file {name!r}")
     return FileResponse(path, media_type=_TYPES[path.suffix], headers={"Cache-Control": cache})
 
 

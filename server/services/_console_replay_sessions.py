@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from server.errors import ServiceError
 from server.services._console_protocol import (
     PROTOCOL_VERSION,
     AsFastAsPossibleSpec,
@@ -44,6 +43,7 @@ from server.services._console_protocol import (
     StepSpec,
     encode,
 )
+from server.services.errors import DomainError
 from server.services.recordings import load_recording
 from server.storage import repository as repo
 from server.storage.errors import InvalidArgument, NotFound
@@ -449,7 +449,7 @@ class Replays:
                 return load_recording(session=session, pass_id=record.id)
         except (NotFound, InvalidArgument) as exc:
             raise ProtocolError(str(exc)) from None
-        except ServiceError as exc:
+        except DomainError as exc:
             raise ProtocolError(exc.message) from None
 
     def _forget(self, session: ReplaySession) -> None:

@@ -41,8 +41,8 @@ from sqlalchemy.orm import Session
 
 from planner.dynamics import DynamicsWorkspace
 from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
-from server.errors import ServiceError
 from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
+from server.services.errors import NotFoundError
 from server.services.recordings import load_recording
 from server.services.robots import model_for_plan
 from server.storage import repository as repo
@@ -186,10 +186,11 @@ def run_analyses(
     now_ns: int | None = None,
     robot_files: tuple[str, ...] = (),
 ) -> AnalysesPublic:
-    """Analyse the pass afresh and store the results (see the module doc); 404 unknown
-    pass, 409 not flown. The audit event ``analyses_run`` names who asked. Without
-    ``model``, the model of the plan's robot (:func:`server.services.robots.model_for_plan`,
-    among the shipped descriptions and ``robot_files``)."""
+    """Analyse the pass afresh and store the results (see the module doc); storage's ``NotFound``
+    for an unknown pass, :class:`~server.services.recordings.NotFlown` for one not flown. The audit
+    event ``analyses_run`` names who asked. Without ``model``, the model of the plan's robot
+    (:func:`server.services.robots.model_for_plan`, among the shipped descriptions and
+    ``robot_files``)."""
     recording = load_recording(session=session, pass_id=pass_id)
     key = str(recording.meta["pass_id"])
     session.rollback()  # end the read: no transaction (no SQLite write lock) while computing
@@ -247,11 +248,11 @@ def list_analyses(*, session: Session, pass_id: str) -> AnalysesPublic:
 
 
 def get_analysis(*, session: Session, pass_id: str, kind: str) -> AnalysisPublic:
-    """The newest analysis of ``kind``; 404 if the pass has none."""
+    """The newest analysis of ``kind``; ``NotFoundError`` if the pass has none."""
     record = newest_documents(session=session, pass_id=pass_id).get(kind)
     if record is None:
-        raise ServiceError(
-            404, "analysis_not_run", f"no {kind} analysis of pass {pass_id}: run the analyses"
+        raise NotFoundError(
+            "analysis_not_run", f"no {kind} analysis of pass {pass_id}: run the analyses"
         )
     return _public(record)
 
@@ -265,11 +266,11 @@ def figures(*, session: Session, pass_id: str) -> dict[str, bytes]:
 
 
 def figure_png(*, session: Session, pass_id: str, name: str) -> bytes:
-    """One figure of the newest run; 404 when there is none of that name."""
+    """One figure of the newest run; ``NotFoundError`` when there is none of that name."""
     found = figures(session=session, pass_id=pass_id)
     if name not in found:
         known = ", ".join(sorted(found)) or "none: run the analyses"
-        raise ServiceError(
-            404, "figure_not_found", f"pass {pass_id} has no figure {name!r} (figures: {known})"
+        raise NotFoundError(
+            "figure_not_found", f"pass {pass_id} has no figure {name!r} (figures: {known})"
         )
     return found[name]

@@ -8,10 +8,10 @@ after its own recorded history. Its state is the recording's ``meta["state"]`` w
 
 A recording from a file is untrusted: every value that would reach a constrained column
 (lengths, command kinds and stages, int64 times) is checked first, and what the database
-still refuses is reported as 422 ``recording_not_storable``; either way nothing is kept.
+still refuses is the invalid request ``recording_not_storable``; either way nothing is kept.
 Before anything is decompressed, a file whose chunks declare more than 64 MiB each, or
 more than ``max_uncompressed_bytes`` together (the setting
-``max_import_uncompressed_bytes``), is refused as 422 ``invalid_recording`` (docs/mcap.md).
+``max_import_uncompressed_bytes``), is refused as ``invalid_recording`` (docs/mcap.md).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from typing import Any
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
 from server.schemas import PassImportPublic
+from server.services.errors import InvalidRequestError
 from server.services.passes import public
 from server.settings import Settings
 from server.storage import repository as repo
@@ -43,11 +43,11 @@ _FINISHED = ("complete", "aborted")
 _MAX_UNCOMPRESSED: int = Settings.model_fields["max_import_uncompressed_bytes"].default
 
 
-class InvalidRecording(ServiceError):
-    """A recording that cannot be read or stored: 422 with the reason."""
+class InvalidRecording(InvalidRequestError):
+    """A recording that cannot be read or stored: an invalid request, with the reason."""
 
     def __init__(self, code: str, message: str) -> None:
-        super().__init__(422, code, message)
+        super().__init__(code, message)
 
 
 def _int(meta: Mapping[str, Any], key: str) -> int | None:
@@ -188,7 +188,7 @@ def import_mcap(
     source: str,
     max_uncompressed_bytes: int = _MAX_UNCOMPRESSED,
 ) -> PassImportPublic:
-    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it; 422
+    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it;
     ``invalid_recording`` with the reader's reason for a bad file, or one whose chunks hold
     more than 64 MiB each or ``max_uncompressed_bytes`` together (nothing decompressed,
     nothing stored)."""
@@ -211,7 +211,7 @@ def import_file_job(
 ) -> PassImportPublic:
     """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
     route spooled to ``path``, on the job's own connection to ``url``."""
-    from server.services.workers import session_job
+    from server.services.jobs import session_job
 
     data = Path(path).read_bytes()
     return session_job(

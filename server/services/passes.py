@@ -8,28 +8,37 @@ sent before AOS.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from datetime import datetime
 
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
 from server.schemas import (
     EARLIEST,
     LATEST,
     CommandPublic,
     CommandsPublic,
+    PassControlPublic,
     PassCreate,
     PassesPublic,
     PassPublic,
     iso_from_ns,
     ns_from_datetime,
 )
+from server.services.errors import InvalidRequestError
 from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, PassRecord
 
-__all__ = ["get_pass", "list_commands", "list_passes", "schedule_pass"]
+__all__ = [
+    "check_confirmation",
+    "control_state",
+    "get_pass",
+    "list_commands",
+    "list_passes",
+    "schedule_pass",
+]
 
 
 def public(record: PassRecord) -> PassPublic:
@@ -54,19 +63,18 @@ def schedule_pass(
 ) -> PassPublic:
     """Store a ``scheduled`` pass and the audit event ``pass_scheduled`` in one transaction.
 
-    404 for an unknown plan; 422 for a window that is reversed, outside 1970..2200 or too
-    short for the plan.
+    Storage's ``NotFound`` for an unknown plan; an invalid request for a window that is
+    reversed, outside 1970..2200 or too short for the plan.
     """
     for label, value in (("aos_time", request.aos_time), ("los_time", request.los_time)):
         if not EARLIEST <= value < LATEST:
-            raise ServiceError(
-                422, "time_out_of_range", f"{label} {value.isoformat()} is outside 1970..2200"
+            raise InvalidRequestError(
+                "time_out_of_range", f"{label} {value.isoformat()} is outside 1970..2200"
             )
     aos_ns = ns_from_datetime(request.aos_time)
     los_ns = ns_from_datetime(request.los_time)
     if los_ns <= aos_ns:
-        raise ServiceError(
-            422,
+        raise InvalidRequestError(
             "window_reversed",
             f"los_time {request.los_time.isoformat()} is not after "
             f"aos_time {request.aos_time.isoformat()}",
@@ -79,8 +87,7 @@ def schedule_pass(
         )
         window_s = (los_ns - aos_ns) / 1e9
         if window_s < plan.duration_s + lead_s:
-            raise ServiceError(
-                422,
+            raise InvalidRequestError(
                 "window_too_short",
                 f"window of {window_s:.3f} s is shorter than plan {plan.id}'s "
                 f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s start lead",
@@ -158,8 +165,42 @@ def list_commands(
     The repository lists a pass's commands without an offset or a count, so the page is
     cut here; a pass holds a few thousand commands at most (one window at 4 Hz).
     """
-    repo.get_pass(session=session, pass_id=pass_id)  # 404 for an unknown pass
+    repo.get_pass(session=session, pass_id=pass_id)  # NotFound for an unknown pass
     records = repo.list_commands(session=session, pass_id=pass_id, stages=stages)
     return CommandsPublic(
         data=[_command(r) for r in records[offset : offset + limit]], count=len(records)
+    )
+
+
+def check_confirmation(
+    *, session: Session, pass_id: str, action: str, confirm: str, actor: str
+) -> tuple[str, str | None]:
+    """The pass's id, and the expected text (``"<ACTION> <pass name>"``) when ``confirm`` is
+    not it; then the refusal is written to the audit log (``pass_control_refused``), for
+    the caller to commit before it refuses the request."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    expected = f"{action} {record.name}"
+    if confirm == expected:
+        return record.id, None
+    repo.add_event(
+        session=session,
+        time_ns=time.time_ns(),
+        kind="pass_control_refused",
+        actor=actor,
+        detail={"action": action.lower(), "confirm": confirm},
+        pass_id=record.id,
+    )
+    return record.id, expected
+
+
+def control_state(*, session: Session, pass_id: str) -> PassControlPublic:
+    """The pass's state as start and abort answer it, read afresh."""
+    record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
+    return PassControlPublic(
+        pass_id=record.id,
+        name=record.name,
+        state=record.state,
+        state_reason=record.state_reason,
+        version=record.version,
+        epoch_ns=record.epoch_ns,
     )

@@ -19,7 +19,6 @@ from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import load_robot
 from planner.errors import PlannerError
 from planner.plan import Plan
-from server.errors import ServiceError
 from server.schemas import (
     PlanBrief,
     PlanCreate,
@@ -31,6 +30,7 @@ from server.schemas import (
     ValidationIssue,
     iso_from_ns,
 )
+from server.services.errors import DomainError, InvalidRequestError
 from server.storage import repository as repo
 from server.storage.models import PlanRecord
 
@@ -48,7 +48,7 @@ __all__ = [
 
 def check_parameters(request: PlanCreate) -> None:
     """The experiment and its parameters checked, without planning (milliseconds): the
-    server refuses a bad request (422) before it takes a worker process. A request for a
+    server refuses a bad request before it takes a worker process. A request for a
     robot (whose description supplies the defaults) has its names checked only: the
     worker loads the description and checks the rest."""
     params_type, _ = resolve(request.experiment)
@@ -56,9 +56,9 @@ def check_parameters(request: PlanCreate) -> None:
         parameters_from_values(params_type, request.parameters)
 
 
-def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
+def invalid(exc: PlannerError | DomainError) -> PlanValidation:
     """What ``POST /api/plans/validate`` answers for a refused request."""
-    if isinstance(exc, ServiceError):
+    if isinstance(exc, DomainError):
         return PlanValidation(
             valid=False, errors=[ValidationIssue(code=exc.code, message=exc.message)]
         )
@@ -68,13 +68,14 @@ def invalid(exc: PlannerError | ServiceError) -> PlanValidation:
 
 
 def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]:
-    """The plan for ``request`` and its JSON document; planner errors propagate (422).
+    """The plan for ``request`` and its JSON document; planner errors propagate.
     ``robot_path`` is the description of the robot the request names, as the server
     resolved it (:func:`server.services.robots.resolve_robot`; None: ETS-VII): its model,
     poses and ``[experiments.*]`` defaults, and the plan records its name and hash.
 
     A numerical failure other than the planner's own errors (a singular matrix, an
-    overflow) is still caused by the parameters sent: 422 ``planning_failed``, not a 500.
+    overflow) is still caused by the parameters sent: the invalid request
+    ``planning_failed``, not an unexpected error.
     """
     params_type, _ = resolve(request.experiment)
     robot = None if robot_path is None else load_robot(Path(robot_path))
@@ -86,8 +87,8 @@ def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]
     except PlannerError:
         raise
     except (ValueError, ArithmeticError) as exc:
-        raise ServiceError(
-            422, "planning_failed", f"{request.experiment} could not be planned: {exc}"
+        raise InvalidRequestError(
+            "planning_failed", f"{request.experiment} could not be planned: {exc}"
         ) from exc
     return result, document
 
@@ -110,7 +111,7 @@ def validate(request: PlanCreate, robot_path: str | None = None) -> PlanValidati
     """The checks of :func:`create_plan`, planning included, without storing anything."""
     try:
         result, _ = plan(request, robot_path)
-    except (PlannerError, ServiceError) as exc:
+    except (PlannerError, DomainError) as exc:
         return invalid(exc)
     return PlanValidation(valid=True, errors=[], summary=_summary(result))
 

@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from planner.plan import Plan
-from server.errors import ServiceError
+from server.services.errors import ConflictError
 from server.services.robots import model_for_plan, urdf_for_plan
 from server.storage import repository as repo
 from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
@@ -28,11 +28,11 @@ __all__ = ["NotFlown", "load_recording", "recording_mcap", "write_recording"]
 _TABLE = TelemetryFrameRecord.__table__
 
 
-class NotFlown(ServiceError):
+class NotFlown(ConflictError):
     """The pass has not started: no epoch, no telemetry, nothing to analyse or export."""
 
     def __init__(self, message: str) -> None:
-        super().__init__(409, "pass_not_flown", message)
+        super().__init__("pass_not_flown", message)
 
 
 def _frames(session: Session, pass_id: str) -> FrameArrays:
@@ -55,7 +55,7 @@ def _frames(session: Session, pass_id: str) -> FrameArrays:
 
 
 def load_recording(*, session: Session, pass_id: str) -> PassRecording:
-    """Everything stored of one pass (404 unknown, 409 never started)."""
+    """Everything stored of one pass (``NotFound`` unknown, :class:`NotFlown` never started)."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     if record.epoch_ns is None:
         raise NotFlown(f"pass {record.name!r} is {record.state}: it has not flown")
@@ -105,9 +105,10 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
 def recording_mcap(
     *, session: Session, pass_id: str, robot_files: tuple[str, ...] = ()
 ) -> tuple[str, bytes]:
-    """The pass's name and its recording as MCAP bytes (404 unknown, 409 never started),
-    with its robot's URDF and transforms (the plan's robot: ETS-VII, a shipped description
-    or one of ``robot_files``, :func:`server.services.robots.model_for_plan`).
+    """The pass's name and its recording as MCAP bytes (``NotFound`` unknown,
+    :class:`NotFlown` never started), with its robot's URDF and transforms (the plan's
+    robot: ETS-VII, a shipped description or one of ``robot_files``,
+    :func:`server.services.robots.model_for_plan`).
 
     The read transaction ends before the file is written (seconds for a whole pass): on
     SQLite a transaction holds the write lock the link needs."""

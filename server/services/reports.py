@@ -1,8 +1,9 @@
 """Pass reports: the newest stored analyses as tables, as JSON and as one HTML page.
 
-:func:`build_report` and :func:`render_html` are pure (the command line uses them on a
-recording file, without a database); :func:`pass_report` and :func:`pass_report_html` read
-the newest stored run of a pass.
+:func:`build_report` (its tables: :mod:`server.services.report_tables`) and
+:func:`render_html` are pure (the command line uses them on a recording file, without a
+database); :func:`pass_report` and :func:`pass_report_html` read the newest stored run of a
+pass.
 
 Figures in the served HTML are ``data:`` URIs, so the page is one self-contained document:
 a browser ``<img>`` cannot send the ``Authorization`` header the API needs, and a page the
@@ -16,28 +17,15 @@ from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any
+from collections.abc import Mapping
 
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
-from server.schemas import (
-    ReportAnalysisPublic,
-    ReportCell,
-    ReportPublic,
-    ReportTablePublic,
-    iso_from_ns,
-)
+from server.schemas import ReportCell, ReportPublic
 from server.services import analyses
+from server.services.errors import NotFoundError
+from server.services.report_tables import FIGURE_CAPTIONS, build_report
 from server.storage import repository as repo
-from telemetry.analysis.paper import (
-    Sources,
-    compare_with_flight,
-    phase_plane_ordering,
-    reaction_ordering,
-)
-from telemetry.identification import INERTIA_PARAMETER_NAMES
 
 __all__ = [
     "FIGURE_CAPTIONS",
@@ -47,385 +35,6 @@ __all__ = [
     "render_html",
     "stored_report",
 ]
-
-FIGURE_CAPTIONS = {
-    "predicted_vs_flown": "Predicted against flown: base attitude, attitude and joint differences.",
-    "reaction": "Experiment 1 (paper Fig. 5): hand speed, the reaction momentum |H~bm phi'| "
-    "and the base attitude, PTP against the fast and slow reactionless legs.",
-    "joint_tracking": "Joint tracking (Fig. 6): commanded against measured joints.",
-    "hand_attitude": "Experiment 2 (Fig. 8): hand attitude held while the base turns.",
-    "phase_plane": "Experiment 3 (paper Fig. 9): base pitch against pitch rate, side by side: "
-    "(a) feedback, (b) feedforward, (c) offset; first dip and peak marked.",
-    "endpoint": "Experiment 4 (Fig. 11): non-holonomic motion and its end-point errors.",
-}
-_RPY = ("roll", "pitch", "yaw")
-
-
-def _table(
-    id_: str, title: str, columns: Sequence[str], rows: list[list[Any]], notes: Sequence[str] = ()
-) -> ReportTablePublic:
-    return ReportTablePublic(
-        id=id_, title=title, columns=list(columns), rows=rows, notes=list(notes)
-    )
-
-
-def _records_table(
-    id_: str, title: str, columns: Sequence[str], records: Iterable[Mapping[str, Any]]
-) -> ReportTablePublic:
-    """A table with one row per record, each cell the record's value of its column."""
-    return _table(id_, title, columns, [_get(r, *columns) for r in records])
-
-
-def _get(doc: Mapping[str, Any], *keys: str) -> list[Any]:
-    return [doc.get(k) for k in keys]
-
-
-def _vector(values: Any, n: int) -> list[Any]:
-    return list(values) if isinstance(values, list) and len(values) == n else [None] * n
-
-
-def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    out = []
-    cov = doc.get("coverage") or {}
-    notes = [f"missing: {m}" for m in doc.get("missing", [])]
-    notes += [f"skipped (not in the plan): {s}" for s in doc.get("skipped", [])]
-    out.append(
-        _table(
-            "coverage",
-            "Telemetry coverage (plan clock)",
-            ["frames", "period_s", "first_t_s", "last_t_s", "plan_end_s", "gaps", "ends_early"],
-            [
-                [
-                    *_get(cov, "frames", "period_s", "first_t_s", "last_t_s", "plan_end_s"),
-                    len(cov.get("gaps_s", [])),
-                    cov.get("ends_early"),
-                ]
-            ],
-            notes,
-        )
-    )
-    pvf = doc.get("predicted_vs_flown")
-    if pvf:
-        out.append(
-            _records_table(
-                "predicted_vs_flown",
-                "Predicted against flown, per plan segment (flown minus the plan's prediction)",
-                [
-                    "segment",
-                    "kind",
-                    "frames",
-                    "attitude_rms_deg",
-                    "attitude_peak_deg",
-                    "joint_peak_max_deg",
-                ],
-                pvf.get("segments", []),
-            )
-        )
-    reaction = doc.get("reaction")
-    if reaction:
-        out.append(
-            _records_table(
-                "reaction",
-                f"Experiment 1: settling after each motion (band {reaction.get('settle_band_deg')}"
-                " deg)",
-                [
-                    "segment",
-                    "kind",
-                    "settling_time_s",
-                    "peak_excursion_deg",
-                    "peak_hand_speed_mps",
-                    "rms_reaction_momentum_nms",
-                    "peak_residual_deg",
-                    "note",
-                ],
-                reaction.get("motions", []),
-            )
-        )
-        rows, notes = reaction_ordering(reaction)
-        out.append(
-            _table(
-                "reaction_ordering",
-                "Experiment 1 (Fig. 5): the reaction on the reaction momentum |H~bm phi'| "
-                "beside the attitude; flight: the faster leg, the larger reaction",
-                ["measure", "unit", "ptp", "fast_leg", "slow_leg", "fast_leg_larger"],
-                rows,
-                notes,
-            )
-        )
-    tracking = doc.get("joint_tracking")
-    if tracking:
-        out.append(
-            _table(
-                "joint_tracking",
-                "Joint tracking: RMS of measured minus commanded "
-                f"({tracking.get('commanded_source')})",
-                [
-                    "segment",
-                    "kind",
-                    "frames",
-                    "worst_joint",
-                    *(f"j{j}_rms_error_deg" for j in range(1, 7)),
-                ],
-                [
-                    [
-                        *_get(s, "segment", "kind", "frames", "worst_joint"),
-                        *_vector(s.get("rms_error_deg"), 6),
-                    ]
-                    for s in tracking.get("segments", [])
-                ],
-            )
-        )
-    hand = doc.get("hand_attitude")
-    if hand:
-        out.append(
-            _records_table(
-                "hand_attitude",
-                "Experiment 2: hand attitude held in the orbit frame while the base turns",
-                [
-                    "span",
-                    "t_start_s",
-                    "t_end_s",
-                    "hand_change_max_deg",
-                    "base_change_max_deg",
-                    "hold_ratio",
-                ],
-                hand.get("holds", []),
-            )
-        )
-    plane = doc.get("phase_plane")
-    if plane:
-        out.append(
-            _records_table(
-                "phase_plane",
-                "Experiment 3: base pitch per attitude-control variant",
-                [
-                    "variant",
-                    "label",
-                    "start_pitch_deg",
-                    "pitch_min_deg",
-                    "pitch_max_deg",
-                    "pitch_range_deg",
-                    "first_dip_deg",
-                    "first_dip_t_s",
-                    "peak_deg",
-                    "peak_t_s",
-                    "settling_time_s",
-                    "settled",
-                    "note",
-                ],
-                plane.get("variants", []),
-            )
-        )
-        out.append(
-            _table(
-                "phase_plane_ordering",
-                "Experiment 3 (Fig. 9): the variants' ordering, ours against the flight's",
-                ["quantity", "ours", "flight", "same_as_flight"],
-                [r.row() for r in phase_plane_ordering(plane)],
-                [
-                    "first dip: the lowest pitch during the forward leg; peak: the highest "
-                    "over the variant's window; settling after the back leg, back within "
-                    f"{plane.get('settle_band_deg')} deg of the attitude target (the origin) "
-                    f"and inside over the last {plane.get('final_s')} s of its window"
-                ],
-            )
-        )
-    end = doc.get("endpoint")
-    if end:
-        rows = [
-            [
-                "attitude error (final against target)",
-                *_vector(end.get("attitude_error_deg"), 3),
-                end.get("attitude_error_angle_deg"),
-            ],
-            [
-                "attitude change error (flown against predicted change)",
-                *_vector(end.get("attitude_change_error_deg"), 3),
-                None,
-            ],
-            [
-                "attitude error against nominal",
-                *_vector(end.get("attitude_error_nominal_deg"), 3),
-                None,
-            ],
-            ["largest joint error", None, None, None, end.get("max_joint_error_deg")],
-        ]
-        out.append(
-            _table(
-                "endpoint",
-                "Experiment 4: non-holonomic end-point errors",
-                ["quantity", "roll_deg", "pitch_deg", "yaw_deg", "angle_deg"],
-                rows,
-            )
-        )
-    return out
-
-
-def _identification_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    estimate = doc.get("parameters_kgm2", {})
-    error = doc.get("standard_error_kgm2", {})
-    reference = (doc.get("reference") or {}).get("parameters_kgm2", {})
-    rows = []
-    for name in INERTIA_PARAMETER_NAMES:
-        value, sigma, truth = estimate.get(name), error.get(name), reference.get(name)
-        diff = None if value is None or truth is None else value - truth
-        ratio = None if diff is None or not sigma else diff / sigma
-        rows.append([name, value, sigma, truth, diff, ratio])
-    segments = doc.get("segments_s", [])
-    notes = [
-        f"{doc.get('n_blocks')} blocks of {doc.get('block_s')} s ({doc.get('n_samples')} "
-        f"samples) in {len(segments)} motion segments; condition number "
-        f"{doc.get('condition_number')}",
-        f"residual RMS per axis (orbit frame, N m s): {doc.get('residual_rms_nms')}",
-        f"reference: {(doc.get('reference') or {}).get('source', 'none')}",
-    ]
-    principal = [
-        [i + 1, value, sigma]
-        for i, (value, sigma) in enumerate(
-            zip(
-                doc.get("principal_moments_kgm2", []),
-                doc.get("principal_standard_error_kgm2", []),
-                strict=False,
-            )
-        )
-    ]
-    return [
-        _table(
-            "inertia_identification",
-            "Base inertia identified from momentum conservation (base frame, about the base CoM)",
-            [
-                "parameter",
-                "identified_kgm2",
-                "standard_error_kgm2",
-                "reference_kgm2",
-                "difference_kgm2",
-                "difference_sigma",
-            ],
-            rows,
-            notes,
-        ),
-        _table(
-            "inertia_principal",
-            "Principal moments of the identified inertia",
-            ["moment", "identified_kgm2", "standard_error_kgm2"],
-            principal,
-        ),
-    ]
-
-
-def _resim_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    rows = []
-    for seg in doc.get("segments", []):
-        for key, label in (("with_gg", "with eq. (11)"), ("without_gg", "without")):
-            run = seg.get(key) or {}
-            rows.append(
-                [
-                    seg.get("t_start_s"),
-                    seg.get("t_end_s"),
-                    label,
-                    *_vector(run.get("rms_residual_deg"), 3),
-                    run.get("rms_residual_angle_deg"),
-                    *_vector(run.get("final_residual_deg"), 3),
-                ]
-            )
-    return [
-        _table(
-            "gravity_gradient_resim",
-            "Free drift re-simulated with and without the gravity-gradient torque: residual "
-            "against the recorded attitude (base frame)",
-            [
-                "t_start_s",
-                "t_end_s",
-                "run",
-                *(f"rms_{a}_deg" for a in _RPY),
-                "rms_angle_deg",
-                *(f"final_{a}_deg" for a in _RPY),
-            ],
-            rows,
-            [
-                f"initial momentum and attitude from the first {doc.get('initial_window_s')} s of "
-                "each segment"
-            ],
-        )
-    ]
-
-
-_TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
-    "pass_analysis": _pass_tables,
-    "inertia_identification": _identification_tables,
-    "gravity_gradient_resim": _resim_tables,
-}
-
-
-def _flight_table(
-    documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
-) -> ReportTablePublic:
-    """The paper's results against this pass's (:mod:`telemetry.analysis.paper`); an
-    analysis absent or failed gives "not measured" rows."""
-
-    def result(kind: str) -> Mapping[str, Any] | None:
-        doc = documents.get(kind, ({}, None))[0]
-        found = doc.get("result") if doc.get("status") == "ok" else None
-        return found if isinstance(found, Mapping) else None
-
-    rows = compare_with_flight(
-        Sources(
-            pass_analysis=result("pass_analysis"),
-            identification=result("inertia_identification"),
-            resim=result("gravity_gradient_resim"),
-        )
-    )
-    counts = {v: sum(r.verdict == v for r in rows) for v in dict.fromkeys(r.verdict for r in rows)}
-    return _table(
-        "flight_against_ours",
-        "Flight against ours: every result of the paper, measured on this pass",
-        ["result", "paper", "flight", "ours", "criterion", "verdict"],
-        [r.row() for r in rows],
-        [", ".join(f"{n} {v}" for v, n in counts.items())],
-    )
-
-
-def build_report(
-    *,
-    pass_id: str | None,
-    name: str,
-    state: str | None,
-    experiment: str,
-    imported: bool,
-    documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
-    figure_names: Sequence[str],
-) -> ReportPublic:
-    """The report of stored documents (``kind -> (document, created_at_ns)``, as
-    :mod:`server.services.analyses` stores them)."""
-    statuses, tables = [], []
-    for kind in analyses.KINDS:
-        if kind not in documents:
-            statuses.append(ReportAnalysisPublic(kind=kind, status="absent"))
-            continue
-        doc, created_ns = documents[kind]
-        created = None if created_ns is None else iso_from_ns(created_ns)
-        if doc.get("status") == "ok":
-            statuses.append(ReportAnalysisPublic(kind=kind, status="ok", created_at=created))
-            tables += _TABLES[kind](doc.get("result") or {})
-        else:
-            error = doc.get("error") or {}
-            reason = f"{error.get('type', 'error')}: {error.get('message', '')}"
-            statuses.append(
-                ReportAnalysisPublic(kind=kind, status="failed", created_at=created, error=reason)
-            )
-    tables.insert(0, _flight_table(documents))
-    order = list(FIGURE_CAPTIONS)
-    names = sorted(figure_names, key=lambda n: (order.index(n) if n in order else len(order), n))
-    return ReportPublic(
-        pass_id=pass_id,
-        name=name,
-        state=state,
-        experiment=experiment,
-        imported=imported,
-        analyses=statuses,
-        tables=tables,
-        figures=names,
-    )
 
 
 def _cell(value: ReportCell) -> str:
@@ -496,13 +105,12 @@ def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
 
 
 def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[str, bytes]]:
-    """The report of the pass's newest analyses and their figures (PNG bytes by name); 404
-    before the first run."""
+    """The report of the pass's newest analyses and their figures (PNG bytes by name);
+    ``NotFoundError`` ``analysis_not_run`` before the first run."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     rows = analyses.newest_documents(session=session, pass_id=record.id)
     if not rows:
-        raise ServiceError(
-            404,
+        raise NotFoundError(
             "analysis_not_run",
             f"pass {record.id} has no analyses yet: POST /api/passes/{record.id}/analyses",
         )
@@ -523,7 +131,7 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
 
 
 def pass_report(*, session: Session, pass_id: str) -> ReportPublic:
-    """The report of the pass's newest analyses; 404 before the first run."""
+    """The report of the pass's newest analyses (see :func:`stored_report`)."""
     return stored_report(session, pass_id)[0]
 
 

@@ -20,7 +20,7 @@ from planner.errors import PlannerError
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
 from planner.urdf import urdf_xml
-from server.errors import ServiceError
+from server.services.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.settings import Settings
 
 __all__ = [
@@ -63,13 +63,12 @@ def known_robots(settings: Settings) -> dict[str, Path]:
 
 def resolve_robot(settings: Settings, name: str | None) -> Path | None:
     """The description file of the robot a request names (None: ETS-VII as built in);
-    422 ``unknown_robot`` naming the known ones."""
+    the invalid request ``unknown_robot`` naming the known ones."""
     if name is None:
         return None
     robots = known_robots(settings)
     if name not in robots:
-        raise ServiceError(
-            422,
+        raise InvalidRequestError(
             "unknown_robot",
             f"no robot named {name!r} on this server; it knows {sorted(robots)} (a server "
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
@@ -106,11 +105,10 @@ def robot_descriptions(settings: Settings) -> dict[str, RobotDescription]:
 
 
 def description_named(settings: Settings, name: str) -> RobotDescription:
-    """The known robot ``name``; 404 ``unknown_robot`` naming the known ones."""
+    """The known robot ``name``; ``NotFoundError`` ``unknown_robot`` naming the known ones."""
     robots = robot_descriptions(settings)
     if name not in robots:
-        raise ServiceError(
-            404,
+        raise NotFoundError(
             "unknown_robot",
             f"no robot named {name!r} on this server; it knows {sorted(robots)} (a server "
             "flies other descriptions given at its start: hikoboshi serve --robot FILE)",
@@ -128,12 +126,11 @@ def _by_hash(robot_files: Sequence[Path | str], robot_hash: str) -> RobotDescrip
 
 def description_by_hash(settings: Settings, robot_hash: str) -> RobotDescription:
     """The description whose ``content_sha256`` is ``robot_hash`` (a plan's ``robot_hash``:
-    a shipped robot or one the server was given, whatever its name now); 404
-    ``unknown_robot`` when the server has none."""
+    a shipped robot or one the server was given, whatever its name now);
+    ``NotFoundError`` ``unknown_robot`` when the server has none."""
     found = _by_hash(settings.robot_files, robot_hash)
     if found is None:
-        raise ServiceError(
-            404,
+        raise NotFoundError(
             "unknown_robot",
             f"no robot description with hash {robot_hash} on this server (it knows "
             f"{sorted(robot_descriptions(settings))}; a plan made for a robot given by file "
@@ -153,13 +150,13 @@ def robot_urdf(description: RobotDescription) -> str:
 
 def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:
     """The URDF of the robot ``plan`` was made for (:func:`robot_urdf`; None: ETS-VII's
-    built-in model), found by hash as :func:`model_for_plan` finds its model (409
-    ``robot_unknown`` when the server has no description of it)."""
+    built-in model), found by hash as :func:`model_for_plan` finds its model
+    (``ConflictError`` ``robot_unknown`` when the server has no description of it)."""
     if plan.robot_hash == ETS7_ROBOT_HASH:
         return None
     found = _by_hash(robot_files, plan.robot_hash)
     if found is None:
-        model_for_plan(plan, robot_files)  # raises 409 robot_unknown
+        model_for_plan(plan, robot_files)  # raises ConflictError robot_unknown
         return None
     return robot_urdf(found)
 
@@ -176,8 +173,8 @@ def _hash_and_model(path: str, mtime_ns: int) -> tuple[str, RobotModel] | None:
 def model_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotModel | None:
     """The model of the robot ``plan`` was made for (None: ETS-VII's built-in model), found
     by its description hash among the descriptions the server knows (shipped, and
-    ``robot_files``); 409 ``robot_unknown`` when none has it (the post-pass work needs the
-    robot's own model: its URDF, its joints)."""
+    ``robot_files``); ``ConflictError`` ``robot_unknown`` when none has it (the post-pass
+    work needs the robot's own model: its URDF, its joints)."""
     if plan.robot_hash == ETS7_ROBOT_HASH:
         return None
     for path in _files(robot_files):
@@ -188,8 +185,7 @@ def model_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotM
         found = _hash_and_model(str(path.resolve()), mtime_ns)
         if found is not None and found[0] == plan.robot_hash:
             return found[1]
-    raise ServiceError(
-        409,
+    raise ConflictError(
         "robot_unknown",
         f"the pass's plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
         "which this server has no description of: start it with hikoboshi serve --robot FILE",

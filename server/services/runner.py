@@ -75,10 +75,10 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME, Plan
-from server.errors import ServiceError
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands, set_command_stage, write_event
 from server.services.dbworker import done_unless
+from server.services.errors import ConflictError
 from server.services.link import (
     CommandAcked,
     GroundLink,
@@ -448,8 +448,8 @@ class PassRunner:
             link.publisher.publish(events)
             if started is None:
                 link.drop_window(window)
-                raise ServiceError(
-                    409, "robot_mismatch", refusal or "robot mismatch", events[0].get("detail")
+                raise ConflictError(
+                    "robot_mismatch", refusal or "robot mismatch", events[0].get("detail")
                 )
             active = started
             link.expect_commands(active.pass_id, [c.seq for c in commands])

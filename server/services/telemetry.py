@@ -1,15 +1,14 @@
 """Telemetry of a pass, raw or decimated, and the audit log.
 
 Field names are checked here against the storage's whitelists, then against the pass's
-robot's layout (a 6-joint pass has no ``j7``), so that an unknown one is a 422 naming it
-(the storage would refuse it too, as a 400).
+robot's layout (a 6-joint pass has no ``j7``), so that an unknown one is an invalid request naming
+it (the storage would refuse it too, as an ``InvalidArgument``).
 """
 
 from __future__ import annotations
 
 from sqlalchemy.orm import Session
 
-from server.errors import ServiceError
 from server.schemas import (
     EventPublic,
     EventsPublic,
@@ -18,6 +17,7 @@ from server.schemas import (
     TelemetryRowPublic,
     iso_from_ns,
 )
+from server.services.errors import InvalidRequestError
 from server.storage import repository as repo
 from server.storage._telemetry import MAX_BUCKETS
 from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
@@ -35,14 +35,13 @@ def parse_fields(text: str | None, *, allowed: tuple[str, ...], what: str) -> li
     for name in names:
         if name not in allowed:
             shown = name if len(name) <= 40 else name[:37] + "..."
-            raise ServiceError(
-                422,
+            raise InvalidRequestError(
                 "unknown_field",
                 f"telemetry field {shown!r} is not one of the {what} fields {list(allowed)}",
                 {"field": shown},
             )
     if len(set(names)) != len(names):
-        raise ServiceError(422, "repeated_field", f"telemetry fields {names} repeat a name")
+        raise InvalidRequestError("repeated_field", f"telemetry fields {names} repeat a name")
     return names
 
 
@@ -59,7 +58,7 @@ def telemetry(
     """Frames with ``t0_ns <= generation_time_ns < t1_ns``: the first ``limit`` raw rows, or
     ``buckets`` equal spans with min / max / mean per field (empty spans left out)."""
     if t1_ns <= t0_ns:
-        raise ServiceError(422, "empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
+        raise InvalidRequestError("empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
     allowed = BUCKET_FIELDS if buckets is not None else TELEMETRY_FIELDS
     parse_fields(fields, allowed=allowed, what=_WHAT[buckets is not None])
     # The pass's robot's values only (ETS-VII: j1..j6, t1..t6): every one of them if none
@@ -124,7 +123,7 @@ def telemetry(
 
 
 def list_events(*, session: Session, pass_id: str | None, offset: int, limit: int) -> EventsPublic:
-    """The audit log in time order, of one pass if given (404 for an unknown pass)."""
+    """The audit log in time order, of one pass if given (``NotFound`` for an unknown pass)."""
     if pass_id is not None:
         pass_id = repo.get_pass(session=session, pass_id=pass_id).id
     page = repo.list_events(session=session, pass_id=pass_id, offset=offset, limit=limit)

@@ -16,66 +16,53 @@ whose path the route streams from and deletes.
 The limits (see :class:`~server.settings.Settings`):
 
 - ``worker_processes`` jobs run at once, ``worker_queue`` more may wait; past that a request
-  is answered at once with 503 ``busy`` and ``Retry-After``.
+  is refused at once as unavailable (``busy``, with the time to retry after).
 - Each job has a deadline (``plan_deadline_s``, ``read_deadline_s``), counted from when it
-  starts; past it the process is killed and the client gets 504 ``deadline_exceeded``.
-  Waiting for a free worker is bounded by the same deadline (then 503 ``busy``).
+  starts; past it the process is killed and the request fails with ``deadline_exceeded``.
+  Waiting for a free worker is bounded by the same deadline (then ``busy``).
 - A job whose client disconnects is killed at once (polled every :data:`POLL_S`).
 - A job's address space is limited (``worker_memory_bytes``, ``RLIMIT_AS``): a job that
-  exceeds it fails with 503 ``out_of_memory``; one killed by a signal with 503
+  exceeds it fails as unavailable with ``out_of_memory``; one killed by a signal with
   ``worker_crashed``. Either way the next request gets a fresh process.
 - Closing the pool (the app's lifespan) kills running jobs.
 
-Errors raised by a job keep their meaning: a :class:`~server.errors.ServiceError`, a planner
-error (422 with its type name) or a storage error (404/409/400) reach the client as they
-would have in-process, through :class:`~server.errors.ServiceError`.
+The job's side (what runs in the process, the session jobs, the result files) is
+:mod:`server.services.jobs`. Errors raised by a job keep their meaning: they reach the
+server as the errors they are (a planner error as the invalid request it is) and the API
+answers them as it would have in-process. The pool's own refusals are
+:class:`~server.services.errors.UnavailableError` (the API adds ``Retry-After``),
+:class:`~server.services.errors.DeadlineExceededError` and
+:class:`~server.services.errors.ClientGoneError`; their statuses: :mod:`server.api.errors`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import logging
-import math
 import multiprocessing
 import os
-import resource
-import tempfile
 import time
-import traceback
-from collections.abc import Callable, Coroutine, Iterator
-from multiprocessing.connection import Connection
+from collections.abc import Callable
 from multiprocessing.process import BaseProcess
 from pathlib import Path
-from typing import Annotated, Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
-from fastapi import Depends, Request, Response
-from fastapi.responses import JSONResponse
-from fastapi.routing import APIRoute
-
-from server.errors import ServiceError, error_body
+from server.services.errors import (
+    ClientGoneError,
+    DeadlineExceededError,
+    DomainError,
+    UnavailableError,
+)
+from server.services.jobs import run_job
 
 __all__ = [
     "POLL_S",
     "PRELOAD",
-    "BoundedRoute",
-    "Busy",
     "WorkerPool",
-    "WorkersDep",
-    "jobs_dir",
-    "read_session_file_job",
-    "read_session_job",
-    "session_job",
-    "stream_file",
-    "temporary_path",
+    "busy",
 ]
 
-log = logging.getLogger("hikoboshi.ground.workers")
-
 T = TypeVar("T")
-
-#: How much lower a job's CPU priority is than the server's (``nice``).
-JOB_NICENESS = 10
 
 #: Modules the forkserver imports once, so that a job needs no imports of its own.
 PRELOAD = (
@@ -103,172 +90,9 @@ class _Disconnectable(Protocol):
     async def is_disconnected(self) -> bool: ...
 
 
-class Busy(ServiceError):
-    """503: the work cannot be done now; the answer carries ``Retry-After`` (see
-    :class:`BoundedRoute`)."""
-
-    def __init__(self, message: str, retry_after_s: float, code: str = "busy") -> None:
-        super().__init__(503, code, message, {"retry_after_s": retry_after_s})
-        self.retry_after_s = retry_after_s
-
-
-def busy(message: str, retry_after_s: float, code: str = "busy") -> Busy:
-    return Busy(message, retry_after_s, code)
-
-
-class BoundedRoute(APIRoute):
-    """A route whose :class:`Busy` refusals carry ``Retry-After`` (the app's error handler
-    knows no headers): ``APIRouter(route_class=BoundedRoute)``."""
-
-    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
-        handler = super().get_route_handler()
-
-        async def bounded(request: Request) -> Response:
-            try:
-                return await handler(request)
-            except Busy as exc:
-                return JSONResponse(
-                    status_code=exc.status,
-                    content=error_body(exc.code, exc.message, exc.detail),
-                    headers={"Retry-After": str(max(1, math.ceil(exc.retry_after_s)))},
-                )
-
-        return bounded
-
-
-# ---------------------------------------------------------------------------------------
-# The child's side
-
-
-def _describe(exc: BaseException) -> tuple[int, str, str, Any]:
-    """``(status, code, message, detail)`` for an exception raised in a job, as the
-    server's error handlers would answer it in-process."""
-    from planner.errors import PlannerError
-    from server.storage.errors import Conflict, InvalidArgument, NotFound
-
-    if isinstance(exc, ServiceError):
-        return exc.status, exc.code, exc.message, exc.detail
-    if isinstance(exc, PlannerError):
-        return 422, type(exc).__name__, str(exc), None
-    if isinstance(exc, NotFound):
-        return 404, "not_found", str(exc), None
-    if isinstance(exc, Conflict):
-        return 409, "conflict", str(exc), None
-    if isinstance(exc, InvalidArgument):
-        return 400, "invalid_argument", str(exc), None
-    if isinstance(exc, MemoryError):
-        return 503, "out_of_memory", "the request needs more memory than one job may use", None
-    traceback.print_exception(exc)
-    return 500, "worker_failed", f"the job failed: {type(exc).__name__}: {exc}", None
-
-
-def _child(
-    conn: Connection,
-    memory_bytes: int | None,
-    fn: Callable[..., Any],
-    args: tuple[Any, ...],
-    kwargs: dict[str, Any],
-) -> None:
-    """The job process: lower its CPU priority, limit the address space, run ``fn``, send
-    ``("ok", result)`` or ``("error", (status, code, message, detail))``."""
-    # Below the server and the link: on a machine with few cores a download or a plan must
-    # take the CPU the live pass leaves, not share it evenly (at equal priority two jobs
-    # made an operator's abort wait seconds for the link's database worker).
-    os.nice(JOB_NICENESS)
-    if memory_bytes:
-        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
-    try:
-        message: tuple[str, Any] = ("ok", fn(*args, **kwargs))
-    except BaseException as exc:  # every failure goes back to the server
-        message = ("error", _describe(exc))
-    try:
-        conn.send(message)
-    except MemoryError:
-        conn.send(("error", _describe(MemoryError())))
-    finally:
-        conn.close()
-
-
-def session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
-    """Run ``fn(session=..., **kwargs)`` on a session of a new engine for ``url`` (the job's
-    own connection: nothing shared with the server's pool)."""
-    from server.storage.db import make_engine, session_factory
-
-    engine = make_engine(url)
-    try:
-        with session_factory(engine)() as session:
-            return fn(session=session, **kwargs)
-    finally:
-        engine.dispose()
-
-
-def read_session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
-    """:func:`session_job` with a read-only session (as the API gives GET requests)."""
-    from server.storage.db import make_engine, read_session_factory
-
-    engine = make_engine(url)
-    try:
-        with read_session_factory(engine)() as session:
-            return fn(session=session, **kwargs)
-    finally:
-        engine.dispose()
-
-
-def read_session_file_job(
-    url: str, path: str, fn: Callable[..., str | bytes], /, **kwargs: Any
-) -> int:
-    """:func:`read_session_job`, whose result (text as UTF-8, or bytes) is written to the
-    file ``path``; its size in bytes."""
-    result = read_session_job(url, fn, **kwargs)
-    data = result.encode("utf-8") if isinstance(result, str) else result
-    with open(path, "wb") as stream:
-        stream.write(data)
-    return len(data)
-
-
-# ---------------------------------------------------------------------------------------
-# Temporary files: a job writes its large result there, the route streams and deletes it
-
-
-def jobs_dir(data_dir: Path) -> Path:
-    """Where jobs write their result files: ``DATA_DIR/jobs``."""
-    return Path(data_dir) / "jobs"
-
-
-def temporary_path(directory: Path | None, suffix: str) -> Path:
-    """A new, empty file for a job's result, under ``directory`` (created) or the system's
-    temporary directory."""
-    if directory is not None:
-        directory.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix="hikoboshi-job-", suffix=suffix, dir=directory)
-    os.close(fd)
-    return Path(name)
-
-
-def stream_file(path: Path, chunk_bytes: int = 1 << 20) -> tuple[Iterator[bytes], int]:
-    """An iterator over the file's bytes and its size. The file is opened and deleted at
-    once (the open descriptor keeps the data until the iterator is done or dropped), so no
-    file is left behind whatever happens to the response."""
-    handle = path.open("rb")
-    with contextlib.suppress(FileNotFoundError):
-        path.unlink()
-    size = os.fstat(handle.fileno()).st_size
-
-    def chunks() -> Iterator[bytes]:
-        with handle:
-            while chunk := handle.read(chunk_bytes):
-                yield chunk
-
-    return chunks(), size
-
-
-# ---------------------------------------------------------------------------------------
-# The server's side
-
-
-def get_workers(request: Request) -> WorkerPool:
-    workers: WorkerPool = request.app.state.workers
-    return workers
+def busy(message: str, retry_after_s: float, code: str = "busy") -> UnavailableError:
+    """The work cannot be done now: retry after ``retry_after_s``."""
+    return UnavailableError(message, retry_after_s, code)
 
 
 class WorkerPool:
@@ -405,7 +229,7 @@ class WorkerPool:
         loop = asyncio.get_running_loop()
         receiver, sender = self._ctx.Pipe(duplex=False)
         process: BaseProcess = self._ctx.Process(  # type: ignore[attr-defined]
-            target=_child,
+            target=run_job,
             args=(sender, self.memory_bytes, fn, args, kwargs),
             name=f"hikoboshi-job: {what}",
             daemon=True,
@@ -437,8 +261,7 @@ class WorkerPool:
             if outcome is _GONE:
                 raise _client_gone(what)
             if outcome is _LATE:
-                raise ServiceError(
-                    504,
+                raise DeadlineExceededError(
                     "deadline_exceeded",
                     f"{what} did not finish within {deadline_s:g} s and was stopped",
                     {"deadline_s": deadline_s},
@@ -463,18 +286,15 @@ class WorkerPool:
         if kind == "ok":
             result: T = value
             return result
-        status, code, text, detail = value
-        if code == "out_of_memory":
+        error: BaseException = value
+        if isinstance(error, DomainError) and error.code == "out_of_memory":
             limit = f"{self.memory_bytes / 2**30:.3g} GiB" if self.memory_bytes else "the limit"
             raise busy(f"{what} needs more than {limit} of memory", 10.0, "out_of_memory")
-        raise ServiceError(status, code, text, detail)
+        raise error
 
 
 _GONE = object()
 _LATE = object()
-
-
-WorkersDep = Annotated[WorkerPool, Depends(get_workers)]
 
 
 async def _race(
@@ -510,12 +330,12 @@ async def _race(
             lost()
 
 
-def _client_gone(what: str) -> ServiceError:
-    # Nobody reads this answer; it ends the request (499 as nginx names it).
-    return ServiceError(499, "client_closed", f"{what}: the client went away; the job was stopped")
+def _client_gone(what: str) -> ClientGoneError:
+    # Nobody reads this answer; it ends the request.
+    return ClientGoneError("client_closed", f"{what}: the client went away; the job was stopped")
 
 
-def _crashed(what: str, exitcode: int | None) -> Busy:
+def _crashed(what: str, exitcode: int | None) -> UnavailableError:
     how = f"signal {-exitcode}" if exitcode is not None and exitcode < 0 else f"exit {exitcode}"
     return busy(
         f"{what}: the worker process ended without an answer ({how})", 5.0, "worker_crashed"

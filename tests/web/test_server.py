@@ -15,8 +15,8 @@ from fastapi.testclient import TestClient
 
 from planner.catalogue import experiments
 from planner.coordination import OFFSET_WINDOWS
+from server.api.errors import install_error_handlers
 from server.api.web import make_router
-from server.errors import install_error_handlers
 
 EXPERIMENTS_JSON = Path(__file__).resolve().parents[2] / "web/src/pages/experiments.json"
 

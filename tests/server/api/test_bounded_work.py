@@ -21,8 +21,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from server.errors import ServiceError
+from server.api.errors import status_of
 from server.services import recordings as recordings_service
+from server.services.errors import DomainError
 from server.services.workers import WorkerPool
 from server.storage.db import make_engine, read_session_factory
 from telemetry.mcap import read_mcap
@@ -96,10 +97,10 @@ def test_a_full_pool_answers_busy_at_once() -> None:
             waiting = asyncio.create_task(pool.run(os.getpid, deadline_s=120, what="wait"))
             await _await_for(lambda: pool.running == 1, "the first job")
             t0 = time.monotonic()
-            with pytest.raises(ServiceError) as refused:
+            with pytest.raises(DomainError) as refused:
                 await pool.run(os.getpid, deadline_s=120, what="planning ptp")
             assert time.monotonic() - t0 < 5.0  # at once, not after the running job
-            assert (refused.value.status, refused.value.code) == (503, "busy")
+            assert (status_of(refused.value), refused.value.code) == (503, "busy")
             assert "planning ptp" in refused.value.message
             assert refused.value.detail["retry_after_s"] > 0
             first.cancel()  # the running job is killed; the waiting one gets a worker
@@ -144,9 +145,9 @@ def test_a_job_past_its_deadline_is_killed() -> None:
             task = asyncio.create_task(pool.run(time.sleep, 120, deadline_s=1.0, what="plan"))
             await _await_for(lambda: pool.running == 1, "the job")
             (pid,) = _running_pids(pool)
-            with pytest.raises(ServiceError) as late:
+            with pytest.raises(DomainError) as late:
                 await task
-            assert (late.value.status, late.value.code) == (504, "deadline_exceeded")
+            assert (status_of(late.value), late.value.code) == (504, "deadline_exceeded")
             assert "1 s" in late.value.message
             await _await_for(lambda: _gone(pid), "the killed job to go")
             assert pool.running == 0
@@ -168,7 +169,7 @@ def test_a_job_whose_client_leaves_is_killed() -> None:
             await _await_for(lambda: pool.running == 1, "the job")
             (pid,) = _running_pids(pool)
             client.leave.set()
-            with pytest.raises(ServiceError) as gone:
+            with pytest.raises(DomainError) as gone:
                 await task
             assert gone.value.code == "client_closed"
             await _await_for(lambda: _gone(pid), "the killed job to go")
@@ -184,14 +185,14 @@ def test_a_crashed_or_oversized_job_leaves_the_pool_working() -> None:
         pool = WorkerPool(workers=1, queue=0, memory_bytes=1 << 30)
         try:
             for crash, how in ((_exit_without_answer, "exit 3"), (_kill_myself, "signal 9")):
-                with pytest.raises(ServiceError) as crashed:
+                with pytest.raises(DomainError) as crashed:
                     await pool.run(crash, deadline_s=PATIENCE_S, what="a crash")
-                assert (crashed.value.status, crashed.value.code) == (503, "worker_crashed")
+                assert (status_of(crashed.value), crashed.value.code) == (503, "worker_crashed")
                 assert how in crashed.value.message
                 assert isinstance(await pool.run(os.getpid, deadline_s=PATIENCE_S, what="x"), int)
-            with pytest.raises(ServiceError) as oom:
+            with pytest.raises(DomainError) as oom:
                 await pool.run(_allocate, 2 << 30, deadline_s=PATIENCE_S, what="a big job")
-            assert (oom.value.status, oom.value.code) == (503, "out_of_memory")
+            assert (status_of(oom.value), oom.value.code) == (503, "out_of_memory")
             assert "1 GiB" in oom.value.message
             assert await pool.run(_allocate, 1 << 20, deadline_s=PATIENCE_S, what="x") == 1 << 20
         finally:

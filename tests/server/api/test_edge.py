@@ -602,12 +602,12 @@ def test_serve_refuses_a_network_without_tokens(tmp_path: Path) -> None:
 
 
 def test_the_console_files_refuse_control_characters_behind_the_edge(tmp_path: Path) -> None:
+    from server.api.errors import HttpError
     from server.api.web import _file
-    from server.errors import ServiceError
 
     (tmp_path / "a.js").write_text("x")
     assert _file(tmp_path, "a.js", "no-cache").status_code == 200
     for name in ("a\x00.js", "a\n.js", "a\x7f.js"):
-        with pytest.raises(ServiceError) as refused:
+        with pytest.raises(HttpError) as refused:
             _file(tmp_path, name, "no-cache")
         assert refused.value.status == 404

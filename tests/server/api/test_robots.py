@@ -16,8 +16,9 @@ from planner.description import EXAMPLES_DIR, default_robot, load_robot
 from planner.model import default_model
 from planner.plan import plan_for_robot
 from planner.urdf import urdf_xml
+from server.api.errors import status_of
 from server.app import create_app
-from server.errors import ServiceError
+from server.services.errors import DomainError
 from server.services.robots import robot_urdf, urdf_for_plan
 from server.settings import Settings
 from server.storage import repository as repo
@@ -167,9 +168,9 @@ def test_the_recordings_urdf_is_the_plans_robots(renamed: Path) -> None:
     assert urdf_for_plan(plan_for_robot(make_plan(n_joints=7), orihime)) == robot_urdf(orihime)
     hikari_plan = plan_for_robot(make_plan(n_joints=7), load_robot(renamed))
     assert urdf_for_plan(hikari_plan, [renamed]) == robot_urdf(load_robot(renamed))
-    with pytest.raises(ServiceError) as refused:
+    with pytest.raises(DomainError) as refused:
         urdf_for_plan(hikari_plan)
-    assert refused.value.status == 409 and refused.value.code == "robot_unknown"
+    assert status_of(refused.value) == 409 and refused.value.code == "robot_unknown"
 
 
 def test_the_grounds_recording_of_an_orihime_pass_attaches_orihime_urdf(

@@ -17,8 +17,9 @@ from fastapi.testclient import TestClient
 
 from planner.description import EXAMPLES_DIR
 from planner.plan import Plan
+from server.api.errors import status_of
 from server.app import create_app
-from server.errors import ServiceError
+from server.services.errors import DomainError
 from server.services.robots import known_robots, model_for_plan, resolve_robot
 from server.settings import ApiToken, Role, Settings
 from server.storage.db import sqlite_url
@@ -65,9 +66,9 @@ def test_the_server_knows_the_shipped_robots_and_its_own(tmp_path: Path, own_rob
     assert resolve_robot(settings, "orihime") == (ORIHIME_DIR / "orihime.toml").resolve()
     assert resolve_robot(settings, None) is None
     for name in ("nobody", str(own_robot), "../orihime/orihime.toml"):
-        with pytest.raises(ServiceError) as caught:
+        with pytest.raises(DomainError) as caught:
             resolve_robot(plain, name)
-        assert (caught.value.status, caught.value.code) == (422, "unknown_robot")
+        assert (status_of(caught.value), caught.value.code) == (422, "unknown_robot")
         assert "it knows ['ets7', 'orihime']" in caught.value.message
 
 
@@ -105,6 +106,6 @@ def test_a_robot_the_server_does_not_know_is_422_and_no_file_is_read(client: Tes
 def test_the_model_of_a_plan_is_its_robots() -> None:
     assert model_for_plan(make_plan()) is None  # ETS-VII: the built-in model
     stranger = replace(make_plan(n_joints=7), robot="stranger", robot_hash="ab" * 32)
-    with pytest.raises(ServiceError) as caught:
+    with pytest.raises(DomainError) as caught:
         model_for_plan(stranger)
-    assert (caught.value.status, caught.value.code) == (409, "robot_unknown")
+    assert (status_of(caught.value), caught.value.code) == (409, "robot_unknown")

@@ -20,8 +20,9 @@ import pytest
 from sqlalchemy import select
 
 from planner.plan import ETS7_ROBOT_HASH, Plan
-from server.errors import ServiceError
+from server.api.errors import status_of
 from server.services.clock import ManualClock
+from server.services.errors import DomainError
 from server.storage.models import EventRecord
 from telemetry.wire import AcsCommandMsg, JointCommandMsg, decode_ground
 from tests.server.link.harness import add_plan_and_pass
@@ -88,12 +89,12 @@ def _events(g: Any, kind: str) -> list[EventRecord]:
         return list(session.scalars(select(EventRecord).where(EventRecord.kind == kind)).all())
 
 
-async def _refused(g: Any, sc: RecordingSpacecraft, pass_id: str) -> ServiceError:
-    with pytest.raises(ServiceError) as caught:
+async def _refused(g: Any, sc: RecordingSpacecraft, pass_id: str) -> DomainError:
+    with pytest.raises(DomainError) as caught:
         await g.runner.start(pass_id, "otto")
     await sc.run(10.0)
     await g.link.db.drain()
-    assert caught.value.status == 409 and caught.value.code == "robot_mismatch"
+    assert status_of(caught.value) == 409 and caught.value.code == "robot_mismatch"
     # nothing started, nothing stored, nothing sent: the pass can still be flown later
     assert pass_state(g.sessions, pass_id) == "scheduled"
     assert commands(g.sessions, pass_id) == []

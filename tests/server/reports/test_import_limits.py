@@ -20,6 +20,7 @@ import zstandard
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session
 
+from server.api.errors import status_of
 from server.services.imports import InvalidRecording, import_mcap
 from telemetry.mcap import RecordingFileError, read_mcap
 from tests.server.api.conftest import OPERATOR
@@ -99,7 +100,7 @@ def test_a_decompression_bomb_is_refused_and_nothing_is_stored(
     before = row_counts(session)
     with pytest.raises(InvalidRecording) as info:
         import_mcap(session, data, "otto", source="upload")
-    assert info.value.status == 422 and info.value.code == "invalid_recording"
+    assert status_of(info.value) == 422 and info.value.code == "invalid_recording"
     assert reason in info.value.message
     session.rollback()
     assert row_counts(session) == before

@@ -9,6 +9,7 @@ import pytest
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from server.api.errors import status_of
 from server.services import imports
 from server.services.imports import InvalidRecording, store_recording
 from server.services.recordings import load_recording
@@ -97,7 +98,7 @@ def test_a_row_the_database_refuses_is_reported_and_nothing_is_kept(
     bad = dataclasses.replace(short_recording, commands=(*short_recording.commands, twice))
     with pytest.raises(InvalidRecording) as caught:
         store_recording(session, bad, "otto")
-    assert caught.value.status == 422 and caught.value.code == "recording_not_storable"
+    assert status_of(caught.value) == 422 and caught.value.code == "recording_not_storable"
     assert row_counts(session) == before
 
 

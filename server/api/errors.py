@@ -1,17 +1,23 @@
-"""One JSON error shape for every failure the API reports, and the map from domain errors.
+"""One JSON error shape for every failure the API reports, and the one map to it from the
+errors of the layers below.
 
     {"error": {"code": "not_found", "message": "pass 1234 does not exist", "detail": ...}}
 
-Planner domain errors are 422 (the request was understood but cannot be planned), storage
-``NotFound`` 404, ``Conflict`` 409, ``InvalidArgument`` 400, service errors their own 4xx,
-request validation 422, a value the database refuses (``DataError``) 400. Nothing a client
-sends should produce a 500; anything unexpected still answers 500 ``internal_error`` in the
-shape, without the traceback (which goes to the log).
+The statuses (:func:`describe`): a service's refusal (:mod:`server.services.errors`) by its
+kind: not found 404, conflict 409, invalid request 422, unavailable 503 (with
+``Retry-After``), deadline exceeded 504, client gone 499, a failed worker job 500; planner
+domain errors 422 (the request was understood but cannot be planned), storage ``NotFound``
+404, ``Conflict`` 409, ``InvalidArgument`` 400. The API's own refusals (a missing token, a
+body over the limit) are :class:`HttpError` with their status; request validation is 422,
+a value the database refuses (``DataError``) 400. Nothing a client sends should produce a
+500; anything unexpected still answers 500 ``internal_error`` in the shape, without the
+traceback (which goes to the log).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -22,15 +28,26 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from planner.errors import PlannerError
+from server.services.errors import (
+    ClientGoneError,
+    ConflictError,
+    DeadlineExceededError,
+    DomainError,
+    InvalidRequestError,
+    JobFailedError,
+    NotFoundError,
+    UnavailableError,
+)
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 
-__all__ = ["ServiceError", "error_body", "install_error_handlers"]
+__all__ = ["HttpError", "describe", "error_body", "install_error_handlers", "status_of"]
 
 log = logging.getLogger("hikoboshi.ground.errors")
 
 
-class ServiceError(Exception):
-    """A request the service refuses: ``status`` (4xx), ``code`` and a message."""
+class HttpError(Exception):
+    """A refusal of the API itself (authentication, the edge's limits, a console file):
+    ``status`` (4xx), ``code`` and a message."""
 
     def __init__(self, status: int, code: str, message: str, detail: Any = None) -> None:
         super().__init__(message)
@@ -38,6 +55,44 @@ class ServiceError(Exception):
         self.code = code
         self.message = message
         self.detail = detail
+
+
+#: A service's refusal's status, by kind (the first class in the error's MRO listed here).
+_DOMAIN_STATUS: dict[type[DomainError], int] = {
+    NotFoundError: 404,
+    ConflictError: 409,
+    InvalidRequestError: 422,
+    UnavailableError: 503,
+    DeadlineExceededError: 504,
+    ClientGoneError: 499,  # nobody reads it; it ends the request (as nginx names it)
+    JobFailedError: 500,
+}
+
+
+def describe(exc: BaseException) -> tuple[int, str, str, Any] | None:
+    """``(status, code, message, detail)`` the API answers for ``exc``, or None for an
+    error that is not a refusal of ours (the framework's and the database's have their own
+    handlers below; anything else is a 500)."""
+    if isinstance(exc, HttpError):
+        return exc.status, exc.code, exc.message, exc.detail
+    if isinstance(exc, DomainError):
+        status = next(_DOMAIN_STATUS[k] for k in type(exc).__mro__ if k in _DOMAIN_STATUS)
+        return status, exc.code, exc.message, exc.detail
+    if isinstance(exc, PlannerError):
+        return 422, type(exc).__name__, str(exc), None
+    if isinstance(exc, NotFound):
+        return 404, "not_found", str(exc), None
+    if isinstance(exc, Conflict):
+        return 409, "conflict", str(exc), None
+    if isinstance(exc, InvalidArgument):
+        return 400, "invalid_argument", str(exc), None
+    return None
+
+
+def status_of(exc: BaseException) -> int:
+    """The HTTP status the API answers ``exc`` with (500 for what it does not map)."""
+    described = describe(exc)
+    return 500 if described is None else described[0]
 
 
 def error_body(code: str, message: str, detail: Any = None) -> dict[str, Any]:
@@ -49,25 +104,16 @@ def _json(status: int, code: str, message: str, detail: Any = None) -> JSONRespo
 
 
 def install_error_handlers(app: FastAPI) -> None:
-    @app.exception_handler(ServiceError)
-    async def service_error(_: Request, exc: ServiceError) -> JSONResponse:
-        return _json(exc.status, exc.code, exc.message, exc.detail)
+    async def refused(_: Request, exc: Exception) -> JSONResponse:
+        described = describe(exc)
+        assert described is not None  # registered for the mapped classes only
+        response = _json(*described)
+        if isinstance(exc, UnavailableError):
+            response.headers["Retry-After"] = str(max(1, math.ceil(exc.retry_after_s)))
+        return response
 
-    @app.exception_handler(PlannerError)
-    async def planner_error(_: Request, exc: PlannerError) -> JSONResponse:
-        return _json(422, type(exc).__name__, str(exc))
-
-    @app.exception_handler(NotFound)
-    async def not_found(_: Request, exc: NotFound) -> JSONResponse:
-        return _json(404, "not_found", str(exc))
-
-    @app.exception_handler(Conflict)
-    async def conflict(_: Request, exc: Conflict) -> JSONResponse:
-        return _json(409, "conflict", str(exc))
-
-    @app.exception_handler(InvalidArgument)
-    async def invalid(_: Request, exc: InvalidArgument) -> JSONResponse:
-        return _json(400, "invalid_argument", str(exc))
+    for mapped in (HttpError, DomainError, PlannerError, NotFound, Conflict, InvalidArgument):
+        app.add_exception_handler(mapped, refused)
 
     @app.exception_handler(RequestValidationError)
     async def validation(_: Request, exc: RequestValidationError) -> JSONResponse:

@@ -1,0 +1,164 @@
+"""The worker job's side of :mod:`server.services.workers`: what runs in the job process,
+and the jobs the routes give it.
+
+:func:`run_job` (the process's target) lowers its CPU priority, limits its address space,
+runs the function and sends back ``("ok", result)`` or ``("error", exc)``: a service's
+refusal (:mod:`server.services.errors`) or a storage error as raised, a planner error as
+the invalid request it is (its type's name as the code), running out of memory as
+``out_of_memory`` and anything else as a failed job (its traceback printed to the job's
+stderr). The API answers these as it would have in-process (:mod:`server.api.errors`).
+
+:func:`session_job`, :func:`read_session_job` and :func:`read_session_file_job` run a
+service function on the job's own database connection; a large result goes to a temporary
+file (:func:`temporary_path`) that the route streams (:func:`stream_file`) and deletes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import resource
+import tempfile
+import traceback
+from collections.abc import Callable, Iterator
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any, TypeVar
+
+from server.services.errors import InvalidRequestError, JobFailedError, UnavailableError
+
+__all__ = [
+    "JOB_NICENESS",
+    "jobs_dir",
+    "read_session_file_job",
+    "read_session_job",
+    "run_job",
+    "session_job",
+    "stream_file",
+    "temporary_path",
+]
+
+T = TypeVar("T")
+
+#: How much lower a job's CPU priority is than the server's (``nice``).
+JOB_NICENESS = 10
+
+
+def _sendable(exc: BaseException) -> BaseException:
+    """What the server is sent for ``exc`` raised in a job (see the module doc)."""
+    from planner.errors import PlannerError
+    from server.services.errors import DomainError
+    from server.storage.errors import StorageError
+
+    if isinstance(exc, DomainError | StorageError):
+        return exc
+    if isinstance(exc, PlannerError):
+        # Its own class may not unpickle (JointLimitExceeded takes the values, not the text).
+        return InvalidRequestError(type(exc).__name__, str(exc))
+    if isinstance(exc, MemoryError):
+        return UnavailableError(
+            "the request needs more memory than one job may use", 10.0, "out_of_memory"
+        )
+    traceback.print_exception(exc)
+    return JobFailedError("worker_failed", f"the job failed: {type(exc).__name__}: {exc}")
+
+
+def run_job(
+    conn: Connection,
+    memory_bytes: int | None,
+    fn: Callable[..., Any],
+    args: tuple[Any, ...],
+    kwargs: dict[str, Any],
+) -> None:
+    """The job process: lower its CPU priority, limit the address space, run ``fn``, send
+    ``("ok", result)`` or ``("error", exc)`` (see the module doc)."""
+    # Below the server and the link: on a machine with few cores a download or a plan must
+    # take the CPU the live pass leaves, not share it evenly (at equal priority two jobs
+    # made an operator's abort wait seconds for the link's database worker).
+    os.nice(JOB_NICENESS)
+    if memory_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    try:
+        message: tuple[str, Any] = ("ok", fn(*args, **kwargs))
+    except BaseException as exc:  # every failure goes back to the server
+        message = ("error", _sendable(exc))
+    try:
+        conn.send(message)
+    except MemoryError:
+        conn.send(("error", _sendable(MemoryError())))
+    except pickle.PicklingError as exc:  # a result or a detail that does not pickle
+        conn.send(("error", _sendable(exc)))
+    finally:
+        conn.close()
+
+
+def _on_own_engine(url: str, read_only: bool, fn: Callable[..., T], kwargs: dict[str, Any]) -> T:
+    from server.storage.db import make_engine, read_session_factory, session_factory
+
+    engine = make_engine(url)
+    factory = read_session_factory if read_only else session_factory
+    try:
+        with factory(engine)() as session:
+            return fn(session=session, **kwargs)
+    finally:
+        engine.dispose()
+
+
+def session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
+    """Run ``fn(session=..., **kwargs)`` on a session of a new engine for ``url`` (the job's
+    own connection: nothing shared with the server's pool)."""
+    return _on_own_engine(url, False, fn, kwargs)
+
+
+def read_session_job(url: str, fn: Callable[..., T], /, **kwargs: Any) -> T:
+    """:func:`session_job` with a read-only session (as the API gives GET requests)."""
+    return _on_own_engine(url, True, fn, kwargs)
+
+
+def read_session_file_job(
+    url: str, path: str, fn: Callable[..., str | bytes], /, **kwargs: Any
+) -> int:
+    """:func:`read_session_job`, whose result (text as UTF-8, or bytes) is written to the
+    file ``path``; its size in bytes."""
+    result = read_session_job(url, fn, **kwargs)
+    data = result.encode("utf-8") if isinstance(result, str) else result
+    with open(path, "wb") as stream:
+        stream.write(data)
+    return len(data)
+
+
+# ---------------------------------------------------------------------------------------
+# Temporary files: a job writes its large result there, the route streams and deletes it
+
+
+def jobs_dir(data_dir: Path) -> Path:
+    """Where jobs write their result files: ``DATA_DIR/jobs``."""
+    return Path(data_dir) / "jobs"
+
+
+def temporary_path(directory: Path | None, suffix: str) -> Path:
+    """A new, empty file for a job's result, under ``directory`` (created) or the system's
+    temporary directory."""
+    if directory is not None:
+        directory.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix="hikoboshi-job-", suffix=suffix, dir=directory)
+    os.close(fd)
+    return Path(name)
+
+
+def stream_file(path: Path, chunk_bytes: int = 1 << 20) -> tuple[Iterator[bytes], int]:
+    """An iterator over the file's bytes and its size. The file is opened and deleted at
+    once (the open descriptor keeps the data until the iterator is done or dropped), so no
+    file is left behind whatever happens to the response."""
+    handle = path.open("rb")
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    size = os.fstat(handle.fileno()).st_size
+
+    def chunks() -> Iterator[bytes]:
+        with handle:
+            while chunk := handle.read(chunk_bytes):
+                yield chunk
+
+    return chunks(), size
