@@ -44,6 +44,7 @@ from server.services._console_protocol import (
 )
 from server.services._console_streams import requested_columns
 from server.services.console_messages import (
+    FrameColumns,
     ReplayClosedMsg,
     ReplayCommand,
     ReplayCommandsMsg,
@@ -285,7 +286,7 @@ class ReplaySession:
                 seq=self.seq,
                 row=batch.first_row + lo,
                 count=len(part),
-                columns=frame_columns(part, self.columns),
+                columns=FrameColumns(frame_columns(part, self.columns)),
             )
             self.client.queue_replay(message.encode())
         if batch.commands:

@@ -23,6 +23,7 @@ from server.services.console_messages import (
     ConsoleEvent,
     EventMsg,
     EventTopic,
+    FrameColumns,
     LinkMsg,
     ServerMsg,
     TelemetryMsg,
@@ -185,7 +186,9 @@ def render(stream: Stream, message: Message, flt: TelemetryFilter | None) -> str
             pass_id=stream.pass_id,
             seq=message.seq,
             count=len(rows),
-            columns=dict(zip(names, (list(c) for c in zip(*rows, strict=True)), strict=True)),
+            columns=FrameColumns(
+                dict(zip(names, (list(c) for c in zip(*rows, strict=True)), strict=True))
+            ),
         )
     elif isinstance(payload, LinkReport):
         doc = LinkMsg(seq=message.seq, ground_time_ns=payload.ground_time_ns, status=payload.status)

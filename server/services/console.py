@@ -41,7 +41,7 @@ import time
 import uuid
 from collections.abc import Awaitable, Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, cast
 
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -75,6 +75,7 @@ from server.services._console_streams import (
 )
 from server.services.console_messages import (
     ConsoleEvent,
+    ConsoleRole,
     ErrorMsg,
     PongMsg,
     ResyncMsg,
@@ -237,7 +238,7 @@ class ConsoleHub:
             WelcomeMsg(
                 epoch=self.epoch,
                 actor=actor,
-                role=role,
+                role=cast(ConsoleRole, role),  # validated: a viewer or an operator
                 topics=list(TOPICS),
                 limits=WelcomeLimits(
                     queue_bytes=limits.queue_bytes,

@@ -15,7 +15,15 @@ from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    RootModel,
+    SerializerFunctionWrapHandler,
+    WithJsonSchema,
+    model_serializer,
+)
 
 from server.services._console_protocol import (
     AsFastAsPossibleSpec,
@@ -24,14 +32,17 @@ from server.services._console_protocol import (
     encode,
 )
 from server.services.link import LinkStatus
+from telemetry.layout import DEFAULT_LAYOUT
 
 __all__ = [
     "OMIT_IF_NONE",
     "SERVER_MESSAGES",
     "ConsoleEvent",
+    "ConsoleRole",
     "ErrorMsg",
     "EventMsg",
     "EventTopic",
+    "FrameColumns",
     "LinkMsg",
     "PongMsg",
     "ReplayClosedMsg",
@@ -56,9 +67,8 @@ OMIT_IF_NONE = "omitIfNone"
 
 #: A number sent as given: an int stays an int (``5``, not ``5.0``).
 Number = int | float
-#: The columns of frames: one list per field, one entry per frame.
-Columns = dict[str, list[Any]]
 EventTopic = Literal["commands", "passes", "events"]
+ConsoleRole = Literal["viewer", "operator"]
 ReplaySpeed = Annotated[RealTimeSpec | AsFastAsPossibleSpec | StepSpec, Field(discriminator="mode")]
 
 
@@ -90,6 +100,38 @@ class _Doc(BaseModel):
         return doc
 
 
+def _frame_columns_schema() -> dict[str, Any]:
+    """The JSON Schema of frames as columns (:class:`FrameColumns`), from the layout: the
+    float vectors are numbers; the other columns are these."""
+    layout = DEFAULT_LAYOUT
+    kinds: dict[str, Any] = {
+        "seq": "integer",
+        "generation_time_ns": "integer",
+        "acs_mode": "string",
+        "acs_feedforward": "boolean",
+        "buffer_queued": "integer",
+        "buffer_next_execute_time_ns": ["integer", "null"],  # null: nothing queued
+        "buffer_last_executed_seq": "integer",
+        "reception_time_ns": "integer",
+    }
+    assert list(kinds) == [c for c in layout.columns if c not in layout.float_fields]
+    return {
+        "type": "object",
+        "properties": {name: {"type": "array", "items": {"type": t}} for name, t in kinds.items()},
+        # every other column is a float vector's (j1..jn, t1..tn, qx.., ws1..wsk, ...)
+        "additionalProperties": {"type": "array", "items": {"type": "number"}},
+        # the three sent whatever the fields asked for
+        "required": ["seq", "generation_time_ns", "reception_time_ns"],
+    }
+
+
+class FrameColumns(
+    RootModel[Annotated[dict[str, list[Any]], WithJsonSchema(_frame_columns_schema())]]
+):
+    """Frames as columns, ready for a plotting library: one list per field (the pass's
+    layout's, or those asked for), one entry per frame, in generation-time order."""
+
+
 class ServerMsg(_Doc):
     """A message of the server to a console (``v`` first, ``type`` names it)."""
 
@@ -111,7 +153,7 @@ class TelemetryMsg(ServerMsg):
     pass_id: str
     seq: int
     count: int
-    columns: Columns
+    columns: FrameColumns
 
 
 class LinkMsg(ServerMsg):
@@ -165,7 +207,7 @@ class WelcomeMsg(ServerMsg):
     type: Literal["welcome"] = "welcome"
     epoch: str
     actor: str
-    role: str
+    role: ConsoleRole
     topics: list[str]
     limits: WelcomeLimits
 
@@ -274,7 +316,7 @@ class ReplayTelemetryMsg(ServerMsg):
     seq: int
     row: int
     count: int
-    columns: Columns
+    columns: FrameColumns
 
 
 class ReplayCommand(_Doc):
