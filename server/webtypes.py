@@ -111,13 +111,39 @@ def _doc(text: str | None, indent: str = "") -> list[str]:
     return [f"{indent}/** {lines} */"]
 
 
-def _declaration(name: str, schema: dict[str, Any]) -> list[str]:
+#: A message that has every property of another but its ``type`` extends it (the
+#: generated file says each property once) when they share at least this many.
+_EXTEND_FROM = 6
+
+
+def _base(name: str, schema: dict[str, Any], defs: dict[str, Any]) -> str | None:
+    """The largest other declaration whose properties, ``type`` aside, ``schema`` has."""
+    props = schema.get("properties", {})
+    best: tuple[int, str] | None = None
+    for other, candidate in defs.items():
+        theirs = {k: v for k, v in candidate.get("properties", {}).items() if k != "type"}
+        if other == name or "type" not in props or len(theirs) < _EXTEND_FROM:
+            continue
+        if all(props.get(k) == v for k, v in theirs.items()) and len(theirs) < len(props) - 1:
+            best = max(best or (0, ""), (len(theirs), other))
+    return best[1] if best else None
+
+
+def _declaration(name: str, schema: dict[str, Any], defs: dict[str, Any]) -> list[str]:
     description = schema.get("description")
     if description and description.startswith(f"{name}("):
         description = None  # a dataclass's generated signature says nothing
     out = _doc(description)
     if schema.get("type") == "object" and "properties" in schema:
-        out.append(f"export interface {name} {{")
+        base = _base(name, schema, defs)
+        if base is None:
+            out.append(f"export interface {name} {{")
+        else:
+            out.append(f'export interface {name} extends Omit<{base}, "type"> {{')
+            inherited = set(defs[base]["properties"]) - {"type"}
+            schema = {**schema, "properties": {
+                k: v for k, v in schema["properties"].items() if k not in inherited
+            }}  # fmt: skip
         out += [f"  {line}" for line in _properties(schema)]
         out.append("}")
     else:
@@ -131,8 +157,9 @@ def message_types() -> list[str]:
         [(model, "validation") for model in SERVER_MESSAGES], ref_template="#/$defs/{model}"
     )
     out: list[str] = []
-    for name, schema in sorted(top["$defs"].items()):
-        out += [*_declaration(name, schema), ""]
+    defs = top["$defs"]
+    for name, schema in sorted(defs.items()):
+        out += [*_declaration(name, schema, defs), ""]
     out += ["/** Any message of the server to a console. */", "export type ServerMessage ="]
     out += [f"  | {model.__name__}" for model in SERVER_MESSAGES]
     out[-1] += ";"

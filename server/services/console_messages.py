@@ -212,33 +212,35 @@ class WelcomeMsg(ServerMsg):
     limits: WelcomeLimits
 
 
-class SubscribedMsg(ServerMsg):
+class _StreamControl(ServerMsg):
+    """A message about one stream: its topic and, for telemetry, its pass."""
+
+    type: str
+    topic: str
+    pass_id: str | None = omitted_if_none()
+
+
+class SubscribedMsg(_StreamControl):
     """A subscription is in place; ``seq`` is the stream's last seq when it was made."""
 
     type: Literal["subscribed"] = "subscribed"
-    topic: str
-    pass_id: str | None = omitted_if_none()
     epoch: str
     seq: int
 
 
-class ResyncMsg(ServerMsg):
+class ResyncMsg(_StreamControl):
     """Nothing up to ``seq`` will be replayed (``reason`` says why): reload from REST."""
 
     type: Literal["resync"] = "resync"
-    topic: str
-    pass_id: str | None = omitted_if_none()
     epoch: str
     seq: int
     reason: str
 
 
-class UnsubscribedMsg(ServerMsg):
+class UnsubscribedMsg(_StreamControl):
     """A subscription ended: ``requested``, or dropped (``overflow: ...``) at ``seq``."""
 
     type: Literal["unsubscribed"] = "unsubscribed"
-    topic: str
-    pass_id: str | None = omitted_if_none()
     seq: int
     reason: str
 

@@ -133,21 +133,8 @@ export interface ReplayCommandsMsg {
 }
 
 /** A replay is open: its state and what the recording holds. */
-export interface ReplayOpenedMsg {
-  v: 1;
+export interface ReplayOpenedMsg extends Omit<ReplayStateMsg, "type"> {
   type: "replay_opened";
-  replay_id: string;
-  pass_id: string;
-  seq: number;
-  reason: string;
-  playing: boolean;
-  finished: boolean;
-  speed: RealTimeSpec | AsFastAsPossibleSpec | StepSpec;
-  position: number;
-  frames: number;
-  next_generation_time_ns: number | null;
-  playhead_ns: number;
-  playhead_t_s: number;
   name: string;
   epoch_ns: number;
   commands: number;
