@@ -13,6 +13,8 @@ committed file to it).
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
@@ -29,7 +31,6 @@ from server.services._console_protocol import (
     AsFastAsPossibleSpec,
     RealTimeSpec,
     StepSpec,
-    encode,
 )
 from server.services.link import LinkStatus
 from telemetry.layout import DEFAULT_LAYOUT
@@ -99,6 +100,28 @@ class _Doc(BaseModel):
                 del doc[name]
         return doc
 
+    def _shallow(self) -> dict[str, Any]:
+        """:meth:`model_dump`'s document one level deep, the values as they are (the
+        encoder walks into them: frames' columns are not copied on the ingest path)."""
+        doc = {name: getattr(self, name) for name in type(self).model_fields}
+        for name in self._omit:
+            if doc[name] is None:
+                del doc[name]
+        return doc
+
+
+def _plain(value: Any) -> Any:
+    """What the JSON encoder writes for a value it does not know (see :meth:`ServerMsg.encode`)."""
+    if isinstance(value, _Doc):
+        return value._shallow()
+    if isinstance(value, RootModel):
+        return value.root
+    if isinstance(value, BaseModel):
+        return {name: getattr(value, name) for name in type(value).model_fields}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    raise TypeError(f"{type(value).__name__} is not a console message's value")
+
 
 def _frame_columns_schema() -> dict[str, Any]:
     """The JSON Schema of frames as columns (:class:`FrameColumns`), from the layout: the
@@ -138,8 +161,9 @@ class ServerMsg(_Doc):
     v: Literal[1] = 1  # _console_protocol.PROTOCOL_VERSION
 
     def encode(self) -> str:
-        """The message as sent: compact JSON, fields in declaration order."""
-        return encode(self.model_dump())
+        """The message as sent: compact JSON, fields in declaration order (the text of
+        :meth:`model_dump`'s document, written without copying it first)."""
+        return json.dumps(self, default=_plain, separators=(",", ":"), allow_nan=False)
 
 
 # --- stream data ---------------------------------------------------------------------------

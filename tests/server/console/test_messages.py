@@ -4,6 +4,8 @@ console receives fits the JSON Schema the web console's types are generated from
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict
 from typing import Any
 
 import jsonschema
@@ -18,7 +20,10 @@ from server.services.console_messages import (
     ErrorMsg,
     EventMsg,
     FrameColumns,
+    LinkMsg,
     PongMsg,
+    ReplayCommand,
+    ReplayCommandsMsg,
     ReplayOpenedMsg,
     ReplayStateMsg,
     SubscribedMsg,
@@ -27,6 +32,7 @@ from server.services.console_messages import (
     WelcomeLimits,
     WelcomeMsg,
 )
+from server.services.link import LinkStatus, ScheduleStatus
 from tests.server.console.conftest import (
     AS_VIEWER,
     CONSOLE,
@@ -202,3 +208,56 @@ def test_every_message_a_console_receives_fits_the_schema(
     ]  # fmt: skip
     for message in bad:
         assert not validator.is_valid(message), message
+
+
+def test_the_text_is_the_models_document_and_a_link_status_is_its_dataclass() -> None:
+    schedule = ScheduleStatus(
+        queued=3, capacity=10, free=7, first_tag_ns=5, last_tag_ns=None, lead_s=1.5, as_of_ns=2
+    )
+    status = LinkStatus(
+        connected=True,
+        actor="ets7",
+        vehicle="ETS-VII",
+        time_scale=1.0,
+        onboard_time_ns=4,
+        round_trip_s=None,
+        frames_received=9,
+        duplicates=0,
+        frames_outside_pass=0,
+        highest_seq=8,
+        frames_behind=None,
+        open_gaps=[(1, 2)],
+        frames_missing=2,
+        retransmit_requests=1,
+        errors_replied=0,
+        errors_received=0,
+        schedule=schedule,
+        uplink={"pass_id": "p", "sent": 3},
+    )
+    link = LinkMsg(seq=2, ground_time_ns=7, status=status)
+    assert json.loads(link.encode()) == {
+        "v": 1,
+        "topic": "link",
+        "type": "link",
+        "seq": 2,
+        "ground_time_ns": 7,
+        "status": json.loads(json.dumps(asdict(status))),
+    }
+    command = ReplayCommand(
+        seq=1,
+        kind="joints",
+        execute_time_ns=5,
+        stage="executed",
+        reject_reason=None,
+        stage_times_ns={"queued": 1, "sent": None},
+        payload={"joints_rad": [0.1, 0.2]},
+    )
+    event = ConsoleEvent(kind="k", actor="a", detail={}, pass_id="p", time_ns=1, id=None)
+    for message in (
+        link,
+        ReplayCommandsMsg(replay_id="r", pass_id="p", seq=3, commands=[command]),
+        EventMsg(topic="commands", seq=1, event=event),
+        SubscribedMsg(topic="telemetry", pass_id="p", epoch="e", seq=1),
+    ):
+        assert message.encode() == json.dumps(message.model_dump(), separators=(",", ":"))
+    assert '"id"' not in EventMsg(topic="commands", seq=1, event=event).encode()
