@@ -20,6 +20,7 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.services.console_messages import ConsoleEvent
 from server.storage import repository as repo
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import TelemetryFrame
@@ -110,14 +111,14 @@ def replay_events(
                 key = (record.time_ns, record.kind, record.pass_id)
                 seqs = waiting.get(key)
                 if seqs:
-                    event = {
-                        "kind": record.kind,
-                        "actor": record.actor,
-                        "detail": record.detail,
-                        "pass_id": record.pass_id,
-                        "time_ns": record.time_ns,
-                        "id": record.id,
-                    }
+                    event = ConsoleEvent(
+                        kind=record.kind,
+                        actor=record.actor,
+                        detail=record.detail,
+                        pass_id=record.pass_id,
+                        time_ns=record.time_ns,
+                        id=record.id,
+                    )
                     seq = seqs.popleft()
                     found[seq] = (seq, key, event)
             offset += len(page.items)

@@ -28,7 +28,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.services._console_protocol import (
-    PROTOCOL_VERSION,
     AsFastAsPossibleSpec,
     ProtocolError,
     RealTimeSpec,
@@ -41,13 +40,23 @@ from server.services._console_protocol import (
     ReplaySpeedMsg,
     ReplayStepMsg,
     StepSpec,
-    encode,
+)
+from server.services._console_streams import requested_columns
+from server.services.console_messages import (
+    FrameColumns,
+    ReplayClosedMsg,
+    ReplayCommand,
+    ReplayCommandsMsg,
+    ReplayOpenedMsg,
+    ReplaySpeed,
+    ReplayStateMsg,
+    ReplayTelemetryMsg,
+    ServerMsg,
 )
 from server.services.errors import DomainError
 from server.services.recordings import load_recording
 from server.storage import repository as repo
 from server.storage.errors import InvalidArgument, NotFound
-from server.storage.models import TELEMETRY_FIELDS
 from telemetry.recording import CommandRow, FrameArrays, PassRecording
 from telemetry.replay import AsFastAsPossible, Batch, RealTime, Replay, Speed, Step
 
@@ -67,7 +76,7 @@ class ReplayClient(Protocol):
     actor: str
     replay_bytes: int
 
-    def control(self, doc: dict[str, Any]) -> None: ...
+    def control(self, message: ServerMsg) -> None: ...
 
     def queue_replay(self, text: str) -> None: ...
 
@@ -93,24 +102,24 @@ def frame_columns(frames: FrameArrays, names: Sequence[str]) -> dict[str, list[A
     return out
 
 
-def _command_doc(command: CommandRow) -> dict[str, Any]:
-    return {
-        "seq": command.seq,
-        "kind": command.kind,
-        "execute_time_ns": command.execute_time_ns,
-        "stage": command.stage,
-        "reject_reason": command.reject_reason,
-        "stage_times_ns": dict(command.stage_times_ns),
-        "payload": dict(command.payload),
-    }
+def _command_doc(command: CommandRow) -> ReplayCommand:
+    return ReplayCommand(
+        seq=command.seq,
+        kind=command.kind,
+        execute_time_ns=command.execute_time_ns,
+        stage=command.stage,
+        reject_reason=command.reject_reason,
+        stage_times_ns=dict(command.stage_times_ns),
+        payload=dict(command.payload),
+    )
 
 
-def _speed_doc(speed: Speed) -> dict[str, Any]:
+def _speed_doc(speed: Speed) -> ReplaySpeed:
     if isinstance(speed, RealTime):
-        return {"mode": "real_time", "factor": speed.factor}
+        return RealTimeSpec(mode="real_time", factor=speed.factor)
     if isinstance(speed, AsFastAsPossible):
-        return {"mode": "as_fast_as_possible", "batch_frames": speed.batch_frames}
-    return {"mode": "step"}
+        return AsFastAsPossibleSpec(mode="as_fast_as_possible", batch_frames=speed.batch_frames)
+    return StepSpec(mode="step")
 
 
 def _speed(spec: RealTimeSpec | AsFastAsPossibleSpec | StepSpec, limits: ConsoleLimits) -> Speed:
@@ -124,18 +133,6 @@ def _speed(spec: RealTimeSpec | AsFastAsPossibleSpec | StepSpec, limits: Console
             raise ProtocolError(f"batch_frames {spec.batch_frames} exceeds {limit}")
         return AsFastAsPossible(spec.batch_frames)
     return Step()
-
-
-def _columns(fields: list[str] | None) -> tuple[str, ...] | None:
-    """The columns asked for (checked against every stored field), None for all."""
-    if fields is None:
-        return None
-    for name in fields:
-        if name not in TELEMETRY_FIELDS:
-            raise ProtocolError(f"field {name!r} is not one of {TELEMETRY_FIELDS}")
-    if len(set(fields)) != len(fields):
-        raise ProtocolError(f"fields {fields} repeat a name")
-    return tuple(dict.fromkeys(["seq", "generation_time_ns", "reception_time_ns", *fields]))
 
 
 # --- one replay ----------------------------------------------------------------------------
@@ -178,44 +175,45 @@ class ReplaySession:
         self._sync(time.monotonic_ns())
         self.task = asyncio.create_task(self._run(), name=f"console-replay-{self.replay_id}")
 
-    def info(self) -> dict[str, Any]:
-        """What ``replay_opened`` says of the recording, beside the state."""
+    def opened(self) -> ReplayOpenedMsg:
+        """``replay_opened``: the state and what the recording holds."""
         recording = self.recording
-        return {
-            "name": recording.name,
-            "epoch_ns": recording.epoch_ns,
-            "commands": len(recording.commands),
-            "first_generation_time_ns": self.first_ns,
-            "last_generation_time_ns": self.last_ns,
-            "plan_duration_s": recording.plan.duration_s,
-            "columns": list(self.columns),
-        }
+        return ReplayOpenedMsg(
+            **self.state("open").model_dump(exclude={"v", "type"}),
+            name=recording.name,
+            epoch_ns=recording.epoch_ns,
+            commands=len(recording.commands),
+            first_generation_time_ns=self.first_ns,
+            last_generation_time_ns=self.last_ns,
+            plan_duration_s=recording.plan.duration_s,
+            columns=list(self.columns),
+        )
 
-    def state(self, reason: str) -> dict[str, Any]:
+    def state(self, reason: str) -> ReplayStateMsg:
         engine = self.engine
         frames = len(self.recording.frames)
         playhead_ns = min(engine.playhead_ns(time.monotonic_ns()), self.last_ns)
         position = engine.position
         times_ns = self.recording.frames.generation_time_ns
         next_ns = int(times_ns[position]) if position < frames else None
-        return {
-            "replay_id": self.replay_id,
-            "pass_id": self.pass_id,
-            "seq": self.seq,
-            "reason": reason,
-            "playing": self.playing,
-            "finished": engine.finished,
-            "speed": _speed_doc(engine.speed),
-            "position": position,
-            "frames": frames,
-            "next_generation_time_ns": next_ns,
-            "playhead_ns": playhead_ns,
-            "playhead_t_s": (playhead_ns - self.recording.epoch_ns) / 1e9,
-        }
+        return ReplayStateMsg(
+            replay_id=self.replay_id,
+            pass_id=self.pass_id,
+            seq=self.seq,
+            reason=reason,
+            playing=self.playing,
+            finished=engine.finished,
+            speed=_speed_doc(engine.speed),
+            position=position,
+            frames=frames,
+            next_generation_time_ns=next_ns,
+            playhead_ns=playhead_ns,
+            playhead_t_s=(playhead_ns - self.recording.epoch_ns) / 1e9,
+        )
 
     def report(self, reason: str) -> None:
         self._last_report_ns = time.monotonic_ns()
-        self.client.control({"type": "replay_state", **self.state(reason)})
+        self.client.control(self.state(reason))
 
     # -- control (the hub's handler; the task is woken to notice) --------------------------
 
@@ -277,20 +275,27 @@ class ReplaySession:
     # -- delivery ------------------------------------------------------------------------
 
     def _deliver(self, batch: Batch) -> None:
-        base = {"v": PROTOCOL_VERSION, "topic": "replay", "replay_id": self.replay_id}
-        base["pass_id"] = self.pass_id
+        replay_id, pass_id = self.replay_id, self.pass_id
         chunk = self.limits.max_replay_batch_frames
         for lo in range(0, len(batch.frames), chunk):
             part = batch.frames.take(slice(lo, lo + chunk))
             self.seq += 1
-            doc = {**base, "type": "telemetry", "seq": self.seq, "row": batch.first_row + lo}
-            doc |= {"count": len(part), "columns": frame_columns(part, self.columns)}
-            self.client.queue_replay(encode(doc))
+            message = ReplayTelemetryMsg(
+                replay_id=replay_id,
+                pass_id=pass_id,
+                seq=self.seq,
+                row=batch.first_row + lo,
+                count=len(part),
+                columns=FrameColumns(frame_columns(part, self.columns)),
+            )
+            self.client.queue_replay(message.encode())
         if batch.commands:
             self.seq += 1
             commands = [_command_doc(c) for c in batch.commands]
             self.client.queue_replay(
-                encode({**base, "type": "commands", "seq": self.seq, "commands": commands})
+                ReplayCommandsMsg(
+                    replay_id=replay_id, pass_id=pass_id, seq=self.seq, commands=commands
+                ).encode()
             )
 
     async def _wait(self, delay_s: float | None) -> None:
@@ -308,8 +313,7 @@ class ReplaySession:
             self._on_end(self)
             reason = f"failed: {exc!r}"[:300]
             self.client.control(
-                {"type": "replay_closed", "replay_id": self.replay_id, "seq": self.seq}
-                | {"reason": reason}
+                ReplayClosedMsg(replay_id=self.replay_id, seq=self.seq, reason=reason)
             )
 
     async def _pace(self) -> None:
@@ -387,14 +391,13 @@ class Replays:
         elif isinstance(message, ReplayCloseMsg):
             self._end(session)
             client.control(
-                {"type": "replay_closed", "replay_id": session.replay_id, "seq": session.seq}
-                | {"reason": "requested"}
+                ReplayClosedMsg(replay_id=session.replay_id, seq=session.seq, reason="requested")
             )
 
     async def _open(self, client: ReplayClient, message: ReplayOpenMsg) -> None:
         limits = self.limits
         speed = _speed(message.speed or RealTimeSpec(mode="real_time"), limits)
-        asked = _columns(message.fields)
+        asked = requested_columns(message.fields)
         if self._count(client) >= limits.max_replays_per_console:
             raise ProtocolError(
                 f"{limits.max_replays_per_console} replays per console at most: close one"
@@ -425,7 +428,7 @@ class Replays:
         except ValueError as exc:  # an onboard clock that ran backwards
             raise ProtocolError(f"pass {recording.name!r} cannot be replayed: {exc}") from None
         self._by_id[replay_id] = session
-        client.control({"type": "replay_opened", **session.state("open"), **session.info()})
+        client.control(session.opened())
         session.start()
         log.info("console %s replays pass %s as %s", client.actor, session.pass_id, replay_id)
 

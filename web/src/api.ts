@@ -1,6 +1,7 @@
 // REST client: the token from the sign-in, the server's one error shape, and the
 // feature probe (which optional endpoints this server offers, from its OpenAPI document).
 
+import type { CommandStage, LinkStatus as LinkStatusDoc, ScheduleStatus } from "./protocol.gen";
 import { DEFAULT_JOINTS, jointCount, rawFields } from "./store";
 
 export type Role = "viewer" | "operator";
@@ -25,7 +26,7 @@ export interface CommandPublic {
   kind: string;
   execute_time_ns: number;
   payload: Record<string, unknown>;
-  stage: string;
+  stage: CommandStage;
   reject_reason: string | null;
   /** Copies sent: the uplink retransmits until the vehicle acknowledges. */
   transmissions?: number;
@@ -105,33 +106,15 @@ export interface PlanValidation {
   summary: (Omit<PlanPublic, "id" | "created_at">) | null;
 }
 
-export interface LinkStatus {
-  connected: boolean;
-  vehicle: string | null;
-  time_scale: number | null;
-  onboard_time_ns: number | null;
-  round_trip_s: number | null;
-  frames_received: number;
-  frames_behind: number | null;
-  open_gaps: [number, number][];
-  frames_missing: number;
-  /** The onboard schedule as the newest telemetry frame reports it (PUS 11 summary). */
-  schedule?: ScheduleStatus | null;
+/** ``GET /api/link/status`` (the console's ``link`` message's ``status``, generated from
+ * server/services/link.py, with the uplink's fields and the active pass). */
+export interface LinkStatus extends Omit<LinkStatusDoc, "uplink"> {
   /** The running pass's uplink (server/services/uplink.py); null without one. */
-  uplink?: UplinkStatus | null;
+  uplink: UplinkStatus | null;
   active_pass_id?: string | null;
 }
 
-export interface ScheduleStatus {
-  queued: number;
-  capacity: number;
-  free: number;
-  first_tag_ns: number | null;
-  last_tag_ns: number | null;
-  /** Onboard s from the frame's time to the last tag loaded. */
-  lead_s: number | null;
-  as_of_ns: number;
-}
+export type { ScheduleStatus };
 
 export interface UplinkStatus {
   pass_id: string;

@@ -2,16 +2,19 @@
 // stream, the dedupe rule (per stream: epoch and highest seq accepted), resume after a
 // reconnect, resync (the caller reloads from REST), and a ping for the clock offset.
 
-import type { Role } from "./api";
+import type {
+  EventMsg, LinkMsg, ReplayCommandsMsg, ReplayOpenedMsg, ReplayStateMsg, ReplayTelemetryMsg,
+  ServerMessage, TelemetryMsg, WelcomeMsg,
+} from "./protocol.gen";
 
-export interface Welcome {
-  epoch: string;
-  actor: string;
-  role: Role;
-  topics: string[];
-}
+/** The server's first message (generated from server/services/console_messages.py). */
+export type Welcome = WelcomeMsg;
 
-export type Message = Record<string, unknown> & { type: string; topic?: string; seq?: number };
+/** A message of a subscribed stream: ``telemetry``, ``link`` or ``event``. */
+export type Message = TelemetryMsg | LinkMsg | EventMsg;
+
+/** A replay's data message (``topic: "replay"``). */
+export type ReplayData = ReplayTelemetryMsg | ReplayCommandsMsg;
 
 export interface SocketHandlers {
   welcome(w: Welcome): void;
@@ -40,11 +43,11 @@ const key = (topic: string, passId: string | null): string => `${topic}|${passId
 /** What a replay's owner hears (docs/console.md, "Replay of a recorded pass"). */
 export interface ReplayHandlers {
   /** ``replay_opened``: also after a reconnect, when the replay was opened again. */
-  opened(m: Message): void;
+  opened(m: ReplayOpenedMsg): void;
   /** ``replay_state``. */
-  state(m: Message): void;
+  state(m: ReplayStateMsg): void;
   /** A data message (``topic: "replay"``): ``telemetry`` or ``commands``. */
-  data(m: Message): void;
+  data(m: ReplayData): void;
   /** An ``error`` answering one of this console's replay requests. */
   error(reason: string, refType: string): void;
   /** The socket dropped: the server closed the replay (it is opened again on reconnect). */
@@ -110,7 +113,8 @@ export class ConsoleSocket {
     this.ws = ws;
     ws.onopen = () => ws.send(JSON.stringify({ v: 1, type: "auth", token: this.token }));
     ws.onmessage = (ev) => {
-      if (typeof ev.data === "string") this.receive(JSON.parse(ev.data) as Message);
+      // The server's messages are the generated types (tests/server/console hold them).
+      if (typeof ev.data === "string") this.receive(JSON.parse(ev.data));
     };
     ws.onclose = (ev) => {
       this.ws = null;
@@ -182,55 +186,36 @@ export class ConsoleSocket {
     }
   }
 
-  /** Replay traffic (dispatched before anything else): true when ``m`` was one. */
-  private receiveReplay(m: Message): boolean {
-    if (m.topic === "replay") {
-      const handle = this.replays.get(m.replay_id as string);
-      if (handle && !handle.closed) handle.handlers.data(m);
+  /** A replay's data: to its handle, if it is still open. */
+  private replayData(m: ReplayData): void {
+    const handle = this.replays.get(m.replay_id);
+    if (handle && !handle.closed) handle.handlers.data(m);
+  }
+
+  /** An ``error`` answering a replay request: true when it was one. */
+  private replayError(reason: string, refType: string | null): boolean {
+    if (!refType?.startsWith("replay_")) return false;
+    console.warn("console websocket (replay):", reason);
+    if (refType === "replay_open") {
+      const handle = this.replayOpens.shift();
+      if (handle && !handle.closed) handle.handlers.error(reason, refType);
       return true;
     }
-    switch (m.type) {
-      case "replay_opened": {
-        const handle = this.replayOpens.shift();
-        const id = m.replay_id as string;
-        if (!handle || handle.closed) {
-          // Its page went away before the answer: close it at once.
-          this.send({ type: "replay_close", replay_id: id });
-          return true;
-        }
-        handle.id = id;
-        this.replays.set(id, handle);
-        handle.handlers.opened(m);
-        return true;
-      }
-      case "replay_state": {
-        const handle = this.replays.get(m.replay_id as string);
-        if (handle && !handle.closed) handle.handlers.state(m);
-        return true;
-      }
-      case "replay_closed": {
-        const handle = this.replays.get(m.replay_id as string);
-        if (handle) {
-          this.replays.delete(handle.id as string);
-          handle.id = null;
-        }
-        return true;
-      }
-      case "error": {
-        const refType = typeof m.ref_type === "string" ? m.ref_type : "";
-        if (!refType.startsWith("replay_")) return false;
-        console.warn("console websocket (replay):", m.reason);
-        if (refType === "replay_open") {
-          const handle = this.replayOpens.shift();
-          if (handle && !handle.closed) handle.handlers.error(String(m.reason), refType);
-          return true;
-        }
-        for (const handle of this.replays.values()) handle.handlers.error(String(m.reason), refType);
-        return true;
-      }
-      default:
-        return false;
+    for (const handle of this.replays.values()) handle.handlers.error(reason, refType);
+    return true;
+  }
+
+  private replayOpened(m: ReplayOpenedMsg): void {
+    const handle = this.replayOpens.shift();
+    const id = m.replay_id;
+    if (!handle || handle.closed) {
+      // Its page went away before the answer: close it at once.
+      this.send({ type: "replay_close", replay_id: id });
+      return;
     }
+    handle.id = id;
+    this.replays.set(id, handle);
+    handle.handlers.opened(m);
   }
 
   private sendSubscribe(s: Stream): void {
@@ -288,15 +273,14 @@ export class ConsoleSocket {
     this.send({ type: "ping", id });
   }
 
-  private receive(m: Message): void {
-    if (this.receiveReplay(m)) return;
+  private receive(m: ServerMessage): void {
     switch (m.type) {
       case "welcome": {
         this.backoffMs = 250;
-        this.welcome = m as unknown as Welcome;
-        this.epoch = this.welcome.epoch;
+        this.welcome = m;
+        this.epoch = m.epoch;
         this.setConnected(true);
-        this.handlers.welcome(this.welcome);
+        this.handlers.welcome(m);
         // Resume every stream: with the old seq and epoch (a new epoch answers resync).
         for (const s of this.streams.values()) this.sendSubscribe(s);
         for (const handle of this.replayHandles) this.sendReplayOpen(handle);
@@ -306,22 +290,23 @@ export class ConsoleSocket {
         return;
       }
       case "pong": {
-        const sent = this.pings.get(m.id as number);
-        this.pings.delete(m.id as number);
+        if (typeof m.id !== "number") return;
+        const sent = this.pings.get(m.id);
+        this.pings.delete(m.id);
         if (sent === undefined) return;
         const now = performance.now();
         this.socketRttMs = now - sent;
-        const groundMs = (m.time_ns as number) / 1e6;
+        const groundMs = m.time_ns / 1e6;
         this.clockOffsetMs = groundMs + this.socketRttMs / 2 - Date.now();
         return;
       }
       case "subscribed": {
-        const s = this.streams.get(key(m.topic as string, (m.pass_id as string) ?? null));
+        const s = this.streams.get(key(m.topic, m.pass_id ?? null));
         if (!s) return;
-        if (s.seq === null || s.epoch !== (m.epoch as string)) {
+        if (s.seq === null || s.epoch !== m.epoch) {
           // A fresh subscription: live messages follow ``seq``.
-          if (s.seq === null) s.seq = m.seq as number;
-          if (s.epoch === null) s.epoch = m.epoch as string;
+          if (s.seq === null) s.seq = m.seq;
+          if (s.epoch === null) s.epoch = m.epoch;
         }
         if (!s.subscribed) {
           s.subscribed = true;
@@ -330,32 +315,60 @@ export class ConsoleSocket {
         return;
       }
       case "resync": {
-        const passId = (m.pass_id as string) ?? null;
-        const s = this.streams.get(key(m.topic as string, passId));
+        const passId = m.pass_id ?? null;
+        const s = this.streams.get(key(m.topic, passId));
         if (!s) return;
-        s.epoch = m.epoch as string;
-        s.seq = m.seq as number;
+        s.epoch = m.epoch;
+        s.seq = m.seq;
         this.handlers.resync(s.topic, passId);
         return;
       }
       case "unsubscribed": {
-        const s = this.streams.get(key(m.topic as string, (m.pass_id as string) ?? null));
+        const s = this.streams.get(key(m.topic, m.pass_id ?? null));
         if (s && m.reason !== "requested") this.sendSubscribe(s); // overflow: resume
         return;
       }
       case "error":
-        console.warn("console websocket:", m.reason);
+        if (!this.replayError(m.reason, m.ref_type)) console.warn("console websocket:", m.reason);
         return;
-      default: {
-        if (typeof m.seq !== "number" || typeof m.topic !== "string") return;
-        const s = this.streams.get(key(m.topic, (m.pass_id as string) ?? null));
-        if (!s) return;
-        if (s.epoch !== null && s.epoch !== this.epoch) return; // the old epoch, awaiting resync
-        if (s.seq !== null && m.seq <= s.seq) return; // the dedupe rule
-        s.seq = m.seq;
-        s.epoch = this.epoch;
-        this.handlers.message(m);
+      case "replay_opened":
+        this.replayOpened(m);
+        return;
+      case "replay_state": {
+        const handle = this.replays.get(m.replay_id);
+        if (handle && !handle.closed) handle.handlers.state(m);
+        return;
       }
+      case "replay_closed": {
+        const handle = this.replays.get(m.replay_id);
+        if (handle) {
+          this.replays.delete(m.replay_id);
+          handle.id = null;
+        }
+        return;
+      }
+      case "commands":
+        this.replayData(m);
+        return;
+      case "telemetry":
+        if (m.topic === "replay") this.replayData(m);
+        else this.streamMessage(m);
+        return;
+      case "link":
+      case "event":
+        this.streamMessage(m);
+        return;
     }
+  }
+
+  /** A message of a subscribed stream, after the dedupe rule. */
+  private streamMessage(m: Message): void {
+    const s = this.streams.get(key(m.topic, m.type === "telemetry" ? m.pass_id : null));
+    if (!s) return;
+    if (s.epoch !== null && s.epoch !== this.epoch) return; // the old epoch, awaiting resync
+    if (s.seq !== null && m.seq <= s.seq) return; // the dedupe rule
+    s.seq = m.seq;
+    s.epoch = this.epoch;
+    this.handlers.message(m);
   }
 }

@@ -6,18 +6,46 @@
 //
 // The joint count comes from the data (the ``j1..jn`` a message or a page names: the pass's
 // robot's, telemetry/layout.py), not from a constant: ETS-VII has 6 until data says otherwise.
+// The values kept and their order come from the layout (protocol.gen.ts, generated from
+// telemetry/layout.py): a frame's ``v`` is the columns of STORE_VECTORS.
+
+import { vectorColumns } from "./layout";
+import {
+  DEFAULT_JOINTS, MAX_STORED_JOINTS, type FrameColumns, type FrameVector,
+} from "./protocol.gen";
 
 /** The most joints the archive stores (server/storage/models.py MAX_STORED_JOINTS). */
-export const MAX_JOINTS = 12;
+export const MAX_JOINTS = MAX_STORED_JOINTS;
 /** ETS-VII's joint count: a store's until its data names another. */
-export const DEFAULT_JOINTS = 6;
+export { DEFAULT_JOINTS };
 
-/** The values a store keeps of a robot of ``n`` joints, in the order of a frame's ``v``:
- * measured joints, servo targets, base quaternion, base rates, wheel momentum. */
+/** The vectors a store keeps of a frame, in the order of its ``v``: measured joints, servo
+ * targets, base quaternion, base rates, wheel momentum. */
+const STORE_VECTORS = [
+  "joints_rad",
+  "joint_targets_rad",
+  "quat_orbit_from_base_xyzw",
+  "omega_base_in_base_radps",
+  "wheel_momentum_nms",
+] as const satisfies readonly FrameVector[];
+
+/** The values a store keeps of a robot of ``n`` joints, in the order of a frame's ``v``. */
 export function rawFields(n: number): string[] {
-  const joints = Array.from({ length: n }, (_, i) => `j${i + 1}`);
-  const targets = Array.from({ length: n }, (_, i) => `t${i + 1}`);
-  return [...joints, ...targets, "qx", "qy", "qz", "qw", "wx", "wy", "wz", "hw1", "hw2", "hw3"];
+  return STORE_VECTORS.flatMap((array) => vectorColumns(array, n));
+}
+
+type StoreVector = (typeof STORE_VECTORS)[number];
+
+/** Where each kept vector starts and ends in a frame's ``v`` of a robot of ``n`` joints. */
+function slices(n: number): Map<StoreVector, [number, number]> {
+  let at = 0;
+  const out = new Map<StoreVector, [number, number]>();
+  for (const array of STORE_VECTORS) {
+    const width = vectorColumns(array, n).length;
+    out.set(array, [at, at + width]);
+    at += width;
+  }
+  return out;
 }
 
 /** Every joint up to the archive's most: what the console may ask of any pass (a pass's
@@ -59,16 +87,25 @@ interface Frame {
   v: Float64Array; // rawFields(n)
 }
 
+const SLICES = new Map<number, Map<StoreVector, [number, number]>>();
+/** A frame's values of one kept vector. */
+function frameVector(f: Frame, array: StoreVector): Float64Array {
+  let s = SLICES.get(f.n);
+  if (s === undefined) SLICES.set(f.n, (s = slices(f.n)));
+  const [lo, hi] = s.get(array)!;
+  return f.v.subarray(lo, hi);
+}
+
 /** A frame's measured joints (rad). */
-export const frameJoints = (f: Frame): Float64Array => f.v.subarray(0, f.n);
+export const frameJoints = (f: Frame): Float64Array => frameVector(f, "joints_rad");
 /** A frame's servo targets (rad). */
-export const frameTargets = (f: Frame): Float64Array => f.v.subarray(f.n, 2 * f.n);
+export const frameTargets = (f: Frame): Float64Array => frameVector(f, "joint_targets_rad");
 /** A frame's quat_orbit_from_base (x, y, z, w). */
-export const frameQuat = (f: Frame): Float64Array => f.v.subarray(2 * f.n, 2 * f.n + 4);
+export const frameQuat = (f: Frame): Float64Array => frameVector(f, "quat_orbit_from_base_xyzw");
 /** A frame's base rates, base frame (rad/s). */
-export const frameRates = (f: Frame): Float64Array => f.v.subarray(2 * f.n + 4, 2 * f.n + 7);
+export const frameRates = (f: Frame): Float64Array => frameVector(f, "omega_base_in_base_radps");
 /** A frame's wheel momentum, base frame (N m s). */
-export const frameMomentum = (f: Frame): Float64Array => f.v.subarray(2 * f.n + 7, 2 * f.n + 10);
+export const frameMomentum = (f: Frame): Float64Array => frameVector(f, "wheel_momentum_nms");
 
 export class TelemetryStore {
   x: Column = [];
@@ -109,19 +146,22 @@ export class TelemetryStore {
 
   private pushRow(f: Frame | null, x: number): void {
     this.x.push(x);
-    const v = f?.v;
     const n = this.nJoints;
+    const joints = f ? frameJoints(f) : null;
+    const targets = f ? frameTargets(f) : null;
     for (let i = 0; i < n; i++) {
-      this.joints[i].push(v ? v[i] * DEG : null);
-      this.targets[i].push(v ? v[n + i] * DEG : null);
+      this.joints[i].push(joints ? joints[i] * DEG : null);
+      this.targets[i].push(targets ? targets[i] * DEG : null);
     }
-    if (v) {
-      const q = 2 * n;
-      const rpy = rpyFromQuat(v[q], v[q + 1], v[q + 2], v[q + 3]);
+    if (f) {
+      const [qx, qy, qz, qw] = frameQuat(f);
+      const rates = frameRates(f);
+      const momentum = frameMomentum(f);
+      const rpy = rpyFromQuat(qx, qy, qz, qw);
       for (let i = 0; i < 3; i++) {
         this.rpy[i].push(rpy[i] * DEG);
-        this.rates[i].push(v[q + 4 + i] * DEG);
-        this.momentum[i].push(v[q + 7 + i]);
+        this.rates[i].push(rates[i] * DEG);
+        this.momentum[i].push(momentum[i]);
       }
     } else {
       for (let i = 0; i < 3; i++) {
@@ -182,12 +222,12 @@ export class TelemetryStore {
   }
 
   /** A console ``telemetry`` message's columns (its ``j1..jn`` give the joint count). */
-  addColumns(columns: Record<string, unknown[]>, live = true): void {
-    const seq = columns.seq as number[];
-    const gen = columns.generation_time_ns as number[];
+  addColumns(columns: FrameColumns, live = true): void {
+    const seq = columns.seq;
+    const gen = columns.generation_time_ns;
     const n = jointCount(Object.keys(columns)) || this.nJoints;
     const names = rawFields(n);
-    const fields = names.map((name) => columns[name] as number[] | undefined);
+    const fields = names.map((name) => columns[name]);
     const frames: Frame[] = [];
     for (let k = 0; k < seq.length; k++) {
       const v = new Float64Array(names.length);

@@ -11,6 +11,7 @@ import {
   type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
 } from "../api";
 import type { Ctx } from "../main";
+import { COMMAND_STAGES, FINAL_STAGES, STAGE_RANK, type CommandStage } from "../protocol.gen";
 import type { Message } from "../socket";
 import { frameJoints, frameMomentum, frameTargets, TelemetryStore } from "../store";
 import { clear, clock, fmt, h, utc } from "../ui";
@@ -22,7 +23,7 @@ export const TELEMETRY_STALE_S = 2.0;
 /** No link message for two heartbeats: the link status is stale (docs/console.md). */
 const LINK_STALE_S = 10.0;
 const LIVE_STATES = new Set(["aos", "running", "los"]);
-const STAGE_COLORS: Record<string, string> = {
+const STAGE_COLORS: Record<CommandStage, string> = {
   queued: "#5a6272",
   released: "#7e8aa3",
   sent: "#4f8df7",
@@ -32,13 +33,11 @@ const STAGE_COLORS: Record<string, string> = {
   expired: "#ffb74d",
   cancelled: "#ba68c8",
 };
-const STAGES = Object.keys(STAGE_COLORS);
 /** The strip's mark under a command sent more than once. */
 const RESENT_COLOR = "#e6e9ef";
-/** Stages in the order a command reaches them (the four outcomes last). */
-const STAGE_RANK: Record<string, number> = {
-  queued: 0, released: 1, sent: 2, received: 3, executed: 4, rejected: 4, expired: 4, cancelled: 4,
-};
+/** Whether a pushed stage is one of the server's (command_stages.py, generated). */
+const isStage = (stage: unknown): stage is CommandStage =>
+  typeof stage === "string" && Object.hasOwn(STAGE_RANK, stage);
 
 async function choosePass(): Promise<PassPublic | null> {
   const status = await get<LinkStatus>("/api/link/status");
@@ -192,18 +191,18 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   let commandReload: number | undefined = undefined;
   const onMessage = (m: Message): void => {
     if (m.type === "telemetry" && m.pass_id === pass.id) {
-      const columns = m.columns as Record<string, unknown[]>;
+      const columns = m.columns;
       store.addColumns(columns);
-      const modes = columns.acs_mode as string[] | undefined;
+      const modes = columns.acs_mode;
       if (modes?.length) acsMode = modes[modes.length - 1];
-      const queued = columns.buffer_queued as number[] | undefined;
+      const queued = columns.buffer_queued;
       if (queued?.length) bufferQueued = queued[queued.length - 1];
     } else if (m.type === "link") {
-      link = m.status as LinkStatus;
+      link = m.status as LinkStatus; // its uplink is a dict on the server: UplinkStatus
       linkAtMs = performance.now();
       renderLink();
     } else if (m.type === "event") {
-      const event = m.event as { kind: string; pass_id: string | null; detail: Record<string, unknown> };
+      const event = m.event;
       if (event.pass_id !== pass.id) return;
       if (event.kind === "pass_state") {
         void refreshPass();
@@ -215,9 +214,10 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
         reloadCommandsSoon();
       }
       if (event.kind === "command_stage") {
-        const c = commands.get(event.detail.seq as number);
+        const { seq, stage } = event.detail;
+        const c = typeof seq === "number" ? commands.get(seq) : undefined;
         if (c) {
-          c.stage = event.detail.stage as string;
+          if (isStage(stage)) c.stage = stage;
           commandsDirty = true;
         } else {
           reloadCommandsSoon(); // a command not loaded yet (made at start)
@@ -384,9 +384,11 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     const counts = new Map<string, number>();
     for (const c of list) counts.set(c.stage, (counts.get(c.stage) ?? 0) + 1);
     clear(stageCounts);
-    for (const stage of STAGES) {
+    // Stages in the order a command reaches them (the final ones, the outcomes, last).
+    for (const stage of COMMAND_STAGES) {
       const n = counts.get(stage) ?? 0;
-      stageCounts.append(h("span.stage", { "data-stage": stage, "data-count": n, style: `--c:${STAGE_COLORS[stage]}` }, `${stage} ${n}`));
+      const final = FINAL_STAGES.includes(stage);
+      stageCounts.append(h("span.stage", { "data-stage": stage, "data-count": n, "data-final": final, style: `--c:${STAGE_COLORS[stage]}` }, `${stage} ${n}`));
     }
     // Commands sent more than once (as of the last REST load: copies raise no event; the
     // uplink's live total is under "retransmissions").

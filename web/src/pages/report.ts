@@ -9,7 +9,7 @@ import {
   type CommandPublic, type PassPublic, type PlanDocument,
 } from "../api";
 import type { Ctx } from "../main";
-import type { Message } from "../socket";
+import type { ReplayOpenedMsg, ReplayStateMsg } from "../protocol.gen";
 import { RAW_FIELDS, TelemetryStore } from "../store";
 import { clear, fmt, h, utc } from "../ui";
 import { PassView, predictionColumns } from "./passview";
@@ -121,28 +121,28 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
     root.dataset.replaying = String(value);
   };
 
-  const applyState = (m: Message): void => {
-    setPlaying(m.playing as boolean);
-    finished = m.finished as boolean;
-    const position = m.position as number;
-    const frames = m.frames as number;
-    const playheadNs = m.playhead_ns as number;
+  const applyState = (m: ReplayStateMsg | ReplayOpenedMsg): void => {
+    setPlaying(m.playing);
+    finished = m.finished;
+    const position = m.position;
+    const frames = m.frames;
+    const playheadNs = m.playhead_ns;
     resumeNs = playheadNs;
-    root.dataset.replayReason = m.reason as string;
+    root.dataset.replayReason = m.reason;
     root.dataset.replayPosition = String(position);
     root.dataset.replayFrames = String(frames);
     root.dataset.replayNextNs = String(m.next_generation_time_ns ?? "");
     root.dataset.replayStates = String(Number(root.dataset.replayStates ?? 0) + 1);
-    tLabel.textContent = `t = ${fmt(m.playhead_t_s as number, 1)} s · frame ${Math.min(position, frames)} / ${frames}${finished ? " · end" : ""}`;
+    tLabel.textContent = `t = ${fmt(m.playhead_t_s, 1)} s · frame ${Math.min(position, frames)} / ${frames}${finished ? " · end" : ""}`;
     showPosition(playheadNs);
   };
 
   const replay = ctx.socket.openReplay(passId, { paused: true, speed: speedSpec("rt:10"), fields: [...RAW_FIELDS] }, {
     opened(m) {
       const resume = resumeNs; // the playhead before a reconnect, if any
-      epochNs = m.epoch_ns as number;
-      range = [m.first_generation_time_ns as number, m.last_generation_time_ns as number];
-      root.dataset.replayId = m.replay_id as string;
+      epochNs = m.epoch_ns;
+      range = [m.first_generation_time_ns, m.last_generation_time_ns];
+      root.dataset.replayId = m.replay_id;
       root.dataset.replayFirstNs = String(range[0]);
       root.dataset.replayLastNs = String(range[1]);
       play.disabled = false;
@@ -155,22 +155,22 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
     },
     state(m) {
       if (m.reason === "seek") {
-        seekSeq = m.seq as number;
+        seekSeq = m.seq;
         root.dataset.replaySeeks = String(Number(root.dataset.replaySeeks ?? 0) + 1);
-        restartAt((m.next_generation_time_ns as number | null) ?? null);
+        restartAt(m.next_generation_time_ns ?? null);
       }
       applyState(m);
     },
     data(m) {
-      if ((m.seq as number) <= seekSeq || m.type !== "telemetry") return;
-      const columns = m.columns as Record<string, unknown[]>;
-      const gen = columns.generation_time_ns as number[];
+      if (m.seq <= seekSeq || m.type !== "telemetry") return;
+      const columns = m.columns;
+      const gen = columns.generation_time_ns;
       if (gen.length === 0) return;
       if (!shown) restartAt(gen[0]);
       if (root.dataset.replayFirstRow === undefined) root.dataset.replayFirstRow = String(m.row);
       received += gen.length;
       root.dataset.replayReceived = String(received);
-      root.dataset.replayLastRow = String((m.row as number) + gen.length - 1);
+      root.dataset.replayLastRow = String(m.row + gen.length - 1);
       shown!.addColumns(columns, false);
       const last = shown!.latest;
       if (last) view.showFrame(last);

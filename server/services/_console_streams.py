@@ -1,0 +1,322 @@
+"""The console hub's streams, subscriptions and clients (:mod:`server.services.console`).
+
+A :class:`Stream` is one topic's (or one pass's telemetry) numbered messages: a ring of the
+last ones and an index of keys to find older ones in the database. A :class:`Subscription`
+is one client's view of a stream (a telemetry filter, the replay backlog, the last seq
+queued). A :class:`ConsoleClient` is one websocket: its subscriptions, its queue and its
+send task. Every message is a :mod:`server.services.console_messages` model, encoded once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import deque
+from collections.abc import Awaitable, Callable, Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
+
+from server.services._console_protocol import ProtocolError, SubscribeMsg
+from server.services._console_replay import Row, TelemetryRows
+from server.services.console_messages import (
+    ConsoleEvent,
+    EventMsg,
+    EventTopic,
+    FrameColumns,
+    LinkMsg,
+    ServerMsg,
+    TelemetryMsg,
+)
+from server.services.link import LinkStatus
+from server.storage.models import TELEMETRY_FIELDS
+
+if TYPE_CHECKING:
+    from server.services.console import ConsoleHub, ConsoleLimits
+
+__all__ = [
+    "ConsoleClient",
+    "LinkReport",
+    "Message",
+    "Payload",
+    "Stream",
+    "Subscription",
+    "TelemetryFilter",
+    "render",
+    "requested_columns",
+]
+
+log = logging.getLogger("hikoboshi.ground.console")
+
+
+class LinkReport(NamedTuple):
+    """A ``link`` message's payload: the status and when the ground took it."""
+
+    ground_time_ns: int
+    status: LinkStatus
+
+
+#: What a stream's message carries: an event, a link report, or telemetry rows.
+Payload = ConsoleEvent | LinkReport | TelemetryRows
+
+
+def requested_columns(fields: list[str] | None) -> tuple[str, ...] | None:
+    """The columns a console asked for (checked against every stored field), None for all."""
+    if fields is None:
+        return None
+    for name in fields:
+        if name not in TELEMETRY_FIELDS:
+            raise ProtocolError(f"field {name!r} is not one of {TELEMETRY_FIELDS}")
+    if len(set(fields)) != len(fields):
+        raise ProtocolError(f"fields {fields} repeat a name")
+    return tuple(dict.fromkeys(["seq", "generation_time_ns", "reception_time_ns", *fields]))
+
+
+# --- streams -------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class Message:
+    """One message of a stream, as held in its ring."""
+
+    seq: int
+    key: Any  # how to find it in the database (None: it is not stored)
+    payload: Payload
+    text: str | None = None  # encoded once, for every subscriber without a filter
+
+
+class Stream:
+    """One topic's (or one pass's telemetry) numbered messages: a ring and an index."""
+
+    def __init__(self, topic: str, pass_id: str | None, limits: ConsoleLimits):
+        self.topic = topic
+        self.pass_id = pass_id
+        self.limits = limits
+        self.last_seq = 0
+        self.ring: deque[Message] = deque()
+        # keys[i] belongs to seq last_seq - len(keys) + 1 + i
+        self.keys: deque[Any] = deque()
+        self.subscriptions: list[Subscription] = []
+
+    def append(self, key: Any, payload: Payload) -> Message:
+        self.last_seq += 1
+        message = Message(self.last_seq, key, payload)
+        message.text = render(self, message, None)
+        self.ring.append(message)
+        self.keys.append(key)
+        while len(self.ring) > self.limits.ring_size:
+            self.ring.popleft()
+        while len(self.keys) > self.limits.index_size:
+            self.keys.popleft()
+        return message
+
+    def from_ring(self, since_seq: int) -> list[Message] | None:
+        """Messages after ``since_seq``, or None when the ring no longer holds them all."""
+        if since_seq >= self.last_seq:
+            return []
+        if not self.ring or self.ring[0].seq > since_seq + 1:
+            return None
+        return [m for m in self.ring if m.seq > since_seq]
+
+    def indexed(self, since_seq: int) -> list[tuple[int, Any]] | None:
+        """``(seq, key)`` after ``since_seq``, or None when the index does not reach back."""
+        first = self.last_seq - len(self.keys) + 1
+        if since_seq + 1 < first:
+            return None
+        skip = since_seq + 1 - first
+        return [(first + i, k) for i, k in enumerate(self.keys) if i >= skip]
+
+
+@dataclass
+class TelemetryFilter:
+    """What a telemetry subscription asked for: columns and decimation."""
+
+    #: The columns asked for (None: every column of the pass's layout); one a pass's robot
+    #: does not have (``j7`` of a 6-joint pass) is left out of its messages.
+    columns: tuple[str, ...] | None
+    period_ns: int | None  # decimation: one frame per this much generation time
+    next_generation_ns: int = -(2**63)
+
+    @classmethod
+    def of(cls, message: SubscribeMsg, max_rate_hz: float) -> TelemetryFilter | None:
+        """The filter a ``subscribe`` asks for (None: none), or :class:`ProtocolError`."""
+        if message.max_rate_hz is None and message.fields is None:
+            return None
+        if message.topic != "telemetry":
+            raise ProtocolError("max_rate_hz and fields apply to telemetry only")
+        period_ns = None
+        if message.max_rate_hz is not None:
+            if message.max_rate_hz > max_rate_hz:
+                raise ProtocolError(f"max_rate_hz {message.max_rate_hz} exceeds {max_rate_hz}")
+            period_ns = round(1e9 / message.max_rate_hz)
+        return cls(columns=requested_columns(message.fields), period_ns=period_ns)
+
+    def apply(self, rows: list[Row]) -> list[Row]:
+        if self.period_ns is not None:
+            kept = []
+            for row in rows:
+                if row[1] >= self.next_generation_ns:
+                    kept.append(row)
+                    self.next_generation_ns = row[1] + self.period_ns
+            rows = kept
+        return rows
+
+
+def render(stream: Stream, message: Message, flt: TelemetryFilter | None) -> str | None:
+    """The message as sent; None when a filter leaves nothing of it."""
+    payload = message.payload
+    doc: ServerMsg
+    if isinstance(payload, TelemetryRows):
+        batch = payload
+        rows: list[Row] = batch.rows
+        names: Iterable[str] = batch.columns
+        if flt is not None:
+            kept = flt.apply(rows)
+            if not kept:
+                return None
+            if flt.columns is None and len(kept) == len(rows) and message.text is not None:
+                return message.text  # decimation kept it whole: the shared text will do
+            rows = kept
+            if flt.columns is not None:
+                index = {name: i for i, name in enumerate(batch.columns)}
+                names = [name for name in flt.columns if name in index]
+                rows = [tuple(row[index[name]] for name in names) for row in rows]
+        assert stream.pass_id is not None  # a telemetry stream is a pass's
+        doc = TelemetryMsg(
+            pass_id=stream.pass_id,
+            seq=message.seq,
+            count=len(rows),
+            columns=FrameColumns(
+                dict(zip(names, (list(c) for c in zip(*rows, strict=True)), strict=True))
+            ),
+        )
+    elif isinstance(payload, LinkReport):
+        doc = LinkMsg(seq=message.seq, ground_time_ns=payload.ground_time_ns, status=payload.status)
+    else:
+        doc = EventMsg(topic=cast(EventTopic, stream.topic), seq=message.seq, event=payload)
+    return doc.encode()
+
+
+class Subscription:
+    """One client's subscription to one stream."""
+
+    def __init__(self, client: ConsoleClient, stream: Stream, flt: TelemetryFilter | None):
+        self.client = client
+        self.stream = stream
+        self.filter = flt
+        self.replaying = True
+        self.backlog: list[Message] = []
+        self.backlog_bytes = 0
+        self.last_seq = 0  # the last seq queued (or passed over by the filter)
+        self.closed = False
+
+    def offer(self, message: Message, *, live: bool) -> None:
+        if self.closed:
+            return
+        if self.replaying and live:
+            self.backlog.append(message)
+            self.backlog_bytes += len(message.text or "")
+            if self.backlog_bytes > self.client.limits.queue_bytes:
+                self.client.hub.drop(self, "overflow: the console is not keeping up")
+            return
+        if message.seq <= self.last_seq:
+            return  # already queued (a live message that raced a replay)
+        text = message.text if self.filter is None else render(self.stream, message, self.filter)
+        if text is not None and not self.client.queue_data(text, live=live):
+            self.client.hub.drop(self, "overflow: the console is not keeping up")
+            return
+        self.last_seq = message.seq
+
+
+# --- clients -------------------------------------------------------------------------------
+
+_CONTROL, _LIVE, _REPLAY = 0, 1, 2  # what a queued text is
+
+
+class ConsoleClient:
+    """One console websocket: its subscriptions, its queue and its send task."""
+
+    def __init__(
+        self,
+        hub: ConsoleHub,
+        actor: str,
+        send_text: Callable[[str], Awaitable[None]],
+        close: Callable[[int, str], Awaitable[None]],
+    ):
+        self.hub = hub
+        self.actor = actor
+        self.limits = hub.limits
+        self._send_text = send_text
+        self._close = close
+        self.subscriptions: dict[tuple[str, str | None], Subscription] = {}
+        # (text, kind): control, live data (may be dropped) or replay data (flow-controlled)
+        self._queue: asyncio.Queue[tuple[str, int] | None] = asyncio.Queue()
+        self.live_bytes = 0  # live data queued and not yet handed to the socket
+        self.replay_bytes = 0  # replay data queued and not yet handed to the socket
+        self._replay_sent = asyncio.Event()
+        self.closing = False
+        self.sender = asyncio.create_task(self._send_loop(), name=f"console-send-{actor}")
+
+    @property
+    def queued(self) -> int:
+        return self._queue.qsize()
+
+    def queue_data(self, text: str, *, live: bool) -> bool:
+        """Queue a data message; False (nothing queued) when the client is too far behind."""
+        if live:
+            if self.live_bytes + len(text) > self.limits.queue_bytes:
+                return False
+            self.live_bytes += len(text)
+        self._queue.put_nowait((text, _LIVE if live else _CONTROL))
+        return True
+
+    def queue_replay(self, text: str) -> None:
+        """Queue replay data (never dropped: a replay waits, :meth:`replay_below`)."""
+        self.replay_bytes += len(text)
+        self._queue.put_nowait((text, _REPLAY))
+
+    async def replay_below(self, limit_bytes: int) -> None:
+        """Return once at most ``limit_bytes`` of replay data are unsent."""
+        while self.replay_bytes > limit_bytes:
+            self._replay_sent.clear()
+            await self._replay_sent.wait()
+
+    def control(self, message: ServerMsg) -> None:
+        """Queue a control message (never dropped; a client that lets them pile up goes)."""
+        if self._queue.qsize() >= self.limits.hard_cap:
+            self.kill(1008, "the console does not read its messages")
+            return
+        self._queue.put_nowait((message.encode(), _CONTROL))
+
+    def kill(self, code: int, reason: str) -> None:
+        if self.closing:
+            return
+        self.closing = True
+        self.hub.remove(self)
+
+        async def close() -> None:
+            with contextlib.suppress(Exception):
+                await self._close(code, reason)
+
+        self.hub.background(asyncio.get_running_loop().create_task(close()))
+
+    async def _send_loop(self) -> None:
+        while (item := await self._queue.get()) is not None:
+            text, kind = item
+            if kind == _LIVE:
+                self.live_bytes -= len(text)
+            elif kind == _REPLAY:
+                self.replay_bytes -= len(text)
+                self._replay_sent.set()
+            try:
+                await self._send_text(text)
+            except Exception as exc:  # the socket went away; the receive loop ends it
+                log.info("console %s: send failed: %r", self.actor, exc)
+                return
+
+    async def stop(self) -> None:
+        self._queue.put_nowait(None)
+        if not self.sender.done():
+            self.sender.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self.sender
