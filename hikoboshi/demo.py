@@ -181,8 +181,9 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     operator = _token_of(tokens, Role.OPERATOR)
     port = _port(options.port)
     base = f"http://127.0.0.1:{port}"
-    # The flight's uplink settings at any speed: commands are loaded 120 s onboard ahead of
-    # their tags and sent again until acknowledged, so the ground's own pauses delay none.
+    # The flight's uplink settings at any speed: a command goes up once its tag is within
+    # 120 s of the onboard clock and is sent again until acknowledged, so the ground's own
+    # pauses delay none.
     robot = None if options.robot is None else options.robot.resolve()
     robot_name, robot_label = None, "ETS-VII"
     if robot is not None:
