@@ -32,3 +32,12 @@ def demo_recording(model: RobotModel) -> PassRecording:
     return PassRecording.from_frames(
         "demo", plan, flight.epoch_ns, flight.frames, meta={"source": "offline flight, seed 7"}
     )
+
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Modules with a slow test run first, each module's tests in their own order: with the
+    suite spread over workers (pyproject's ``-n``), a minute-long test started last keeps one
+    worker busy after the other has run out of work."""
+    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow)  # stable: the order within stays

@@ -55,6 +55,7 @@ def flown() -> PassRecording:
     return ptp_flown_with(TRUTH, "calibration")
 
 
+@pytest.mark.slow
 def test_fit_recovers_the_law_a_pass_was_flown_with(
     flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
 ) -> None:
@@ -107,6 +108,7 @@ def test_written_config_with_filter_and_integral_loads(
     assert loaded.dead_band_rad == want.dead_band_rad == pytest.approx(math.radians(0.03))
 
 
+@pytest.mark.slow
 def test_paper_fit_reports_every_target(workspace: DynamicsWorkspace) -> None:
     result = fit_to_paper(ws=workspace, max_evaluations=2, check_vehicle=True)
     assert result.evaluations <= 2
@@ -143,6 +145,7 @@ def test_paper_fit_reports_every_target(workspace: DynamicsWorkspace) -> None:
     json.dumps(result.to_dict())
 
 
+@pytest.mark.slow
 def test_cli_calibrates_to_a_recorded_pass(
     flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
 ) -> None:
@@ -199,6 +202,7 @@ FAMILY_TOLERANCE = {
 }
 
 
+@pytest.mark.slow
 def test_fit_recovers_a_filtered_pid_law() -> None:
     workspace = DynamicsWorkspace(default_model())
     recording = ptp_flown_with(FAMILY_TRUTH, "family")
@@ -218,6 +222,7 @@ SATURATING_TRUTH = {"bandwidth_radps": 0.04, "damping_ratio": 0.9, "torque_limit
 SATURATING_TOLERANCE = {"bandwidth_radps": 0.05, "damping_ratio": 0.10, "torque_limit_nm": 0.05}
 
 
+@pytest.mark.slow
 def test_fit_recovers_a_wheel_torque_limit() -> None:
     workspace = DynamicsWorkspace(default_model())
     recording = ptp_flown_with(SATURATING_TRUTH, "saturating")
@@ -228,6 +233,7 @@ def test_fit_recovers_a_wheel_torque_limit() -> None:
     assert result.cost < 0.01 * result.cost_start
 
 
+@pytest.mark.slow
 def test_cli_calibrates_to_a_stored_pass(
     flown: PassRecording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -279,6 +285,7 @@ def servo_pass() -> PassRecording:
     return PassRecording.from_frames("servo", plan, flight.epoch_ns, flight.frames)
 
 
+@pytest.mark.slow
 def test_servo_fit_recovers_each_joint_s_lag_and_bandwidth(
     servo_pass: PassRecording, workspace: DynamicsWorkspace
 ) -> None:
@@ -318,6 +325,7 @@ def test_sensor_noise_is_estimated_from_the_holds(servo_pass: PassRecording) -> 
     assert min(noise.samples.values()) > 500
 
 
+@pytest.mark.slow
 def test_cli_writes_servos_and_noise_a_vehicle_reads(
     flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
 ) -> None:

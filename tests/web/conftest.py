@@ -72,8 +72,11 @@ def _skip_reason() -> str | None:
     return None
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
+    """Chromium, one per test module: Playwright's sync API keeps an event loop running in
+    this thread while it is open, so every ``asyncio.run`` after it in the same process (a
+    test worker goes on to other modules) would fail; a module's tests share one browser."""
     reason = _skip_reason()
     if reason:
         pytest.skip(reason)

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import pytest
 import websockets
 
 from server.storage import repository as repo
@@ -87,6 +88,7 @@ def _stages(ground: Ground, pass_id: str) -> dict[str, int]:
     return counts
 
 
+@pytest.mark.slow
 def test_abort_of_a_long_pass_is_one_event_and_keeps_every_console(tmp_path: Path) -> None:
     async def scenario(ground: Ground, pass_id: str) -> tuple[float, list[Console]]:
         process, _ = spacecraft(ground)
