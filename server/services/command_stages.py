@@ -1,15 +1,6 @@
-r"""The stage rules of a command, and the events that record them (docs/protocol.md).
-
-    queued -> released -> sent -> received -> executed
-                                          \-> rejected (reason)
-    queued | released | sent | received -> cancelled (abort: deleted from the schedule)
-    queued | released | sent -> expired (could not reach the vehicle before its tag)
-
-A stage only moves to a higher rank (:data:`STAGE_RANK`): acknowledgements cross on the
-link. The vehicle's own word beats the ground's inference: a command the ground took as
-lost (``expired``) or as deleted (``cancelled``) that the vehicle then reports
-``executed`` or ``rejected`` is what the vehicle says.
-"""
+"""The events that record a command's stages (docs/protocol.md). The stage rules themselves
+(ranks, which stages are final, which move overrules which) are defined once in
+:mod:`server.storage.stages` and re-exported here."""
 
 from __future__ import annotations
 
@@ -19,6 +10,7 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from server.storage import repository as repo
+from server.storage.stages import FINAL_STAGES, STAGE_RANK, moves
 
 __all__ = [
     "FINAL_STAGES",
@@ -28,21 +20,6 @@ __all__ = [
     "set_command_stage",
     "write_event",
 ]
-
-#: A stage only ever moves to a higher rank; those of rank 4 end a command.
-STAGE_RANK = {
-    "queued": 0,
-    "released": 1,
-    "sent": 2,
-    "received": 3,
-    "executed": 4,
-    "rejected": 4,
-    "expired": 4,
-    "cancelled": 4,
-}
-FINAL_STAGES = tuple(stage for stage, rank in STAGE_RANK.items() if rank == 4)
-#: Inferred final stages the vehicle's own report replaces.
-_INFERRED = ("expired", "cancelled")
 
 
 def event_dict(
@@ -79,8 +56,7 @@ def set_command_stage(
     record = repo.get_command(session=session, pass_id=pass_id, seq=seq)
     if transmissions is not None and transmissions > record.transmissions:
         record.transmissions = transmissions
-    overrules = record.stage in _INFERRED and stage in ("executed", "rejected")
-    if STAGE_RANK[stage] <= STAGE_RANK[record.stage] and not overrules:
+    if not moves(record.stage, stage):
         return []
     previous = record.stage
     repo.update_command_stage(

@@ -47,6 +47,7 @@ from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink, SeqRanges, TelemetryWindow
 from server.storage import repository as repo
 from server.storage.models import CommandRecord
+from server.storage.stages import acked_stage, expires_unknown
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
@@ -58,7 +59,6 @@ from telemetry.wire import (
     JointCommandMsg,
     Ping,
     Pong,
-    RejectReason,
     ScheduleDelete,
     TelemetryMsg,
     Verification,
@@ -547,13 +547,14 @@ class GroundLink:
         actor = self.vehicle or "spacecraft"
         reason = None if ack.reason is None else ack.reason.value
         stage = ack.stage.value
-        if reason == RejectReason.SCHEDULE_FULL.value:
+        filed = acked_stage(stage, reason)
+        if filed is None:
             # Transient: the vehicle did not keep it, the runner sends it again.
             info = {"seq": ack.seq, "reason": reason, "detail": ack.detail}
             self.db.submit(lambda s: [write_event(s, "command_deferred", actor, info)])
         else:
-            cancelled = reason == RejectReason.CANCELLED.value
-            at_ns = self.clock.time_ns() if cancelled else ack.onboard_time_ns
+            # cancelled: the ground's clock (the stage times of storage/models.py)
+            at_ns = self.clock.time_ns() if filed == "cancelled" else ack.onboard_time_ns
 
             def job(session: Session) -> list[dict[str, Any]]:
                 key = self._pass_of(session, ack.seq)
@@ -564,7 +565,7 @@ class GroundLink:
                     session,
                     pass_id=key,
                     seq=ack.seq,
-                    stage="cancelled" if cancelled else stage,
+                    stage=filed,
                     time_ns=at_ns,
                     actor=actor,
                     reason=reason,
@@ -588,10 +589,10 @@ class GroundLink:
                 if key is None:
                     continue
                 record = repo.get_command(session=session, pass_id=key, seq=seq)
-                if record.stage not in ("queued", "released", "sent"):
-                    continue  # received after all, or already final
-                if record.execute_time_ns > message.onboard_time_ns:
-                    continue  # not due yet: the runner still sends it
+                if not expires_unknown(
+                    record.stage, record.execute_time_ns, message.onboard_time_ns
+                ):
+                    continue  # received after all, already final, or not due yet
                 events += set_command_stage(
                     session,
                     pass_id=key,
