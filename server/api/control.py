@@ -19,15 +19,15 @@ from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from server.api.deps import OperatorDep, ViewerDep
+from server.api.deps import DatabaseDep, LinkDep, OperatorDep, RunnerDep, ViewerDep
 from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES
-from server.services.link import GroundLink, LinkUnavailable
-from server.services.runner import PassRunner
+from server.services.dbworker import Database
+from server.services.link import LinkUnavailable
 from server.storage import repository as repo
 
 __all__ = ["router"]
@@ -79,12 +79,10 @@ def _confirmation_job(
     return job
 
 
-async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, actor: str) -> str:
-    # Through the link's database worker (no blocking database call in the event loop, and
-    # the command path's own connections: readers cannot hold it up), ahead of its queue.
-    key, expected = await link.db.run(
-        _confirmation_job(pass_id, action, confirm, actor), control=True
-    )
+async def _confirmed(db: Database, pass_id: str, action: str, confirm: str, actor: str) -> str:
+    # Through the command path's database worker (no blocking database call in the event
+    # loop, and its own connections: readers cannot hold it up), ahead of its queue.
+    key, expected = await db.run(_confirmation_job(pass_id, action, confirm, actor), control=True)
     if expected is not None:
         raise ServiceError(
             422, "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -92,7 +90,7 @@ async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, 
     return key
 
 
-async def _public(link: GroundLink, pass_id: str) -> PassControlPublic:
+async def _public(db: Database, pass_id: str) -> PassControlPublic:
     def job(session: Session) -> PassControlPublic:
         record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
         return PassControlPublic(
@@ -104,36 +102,30 @@ async def _public(link: GroundLink, pass_id: str) -> PassControlPublic:
             epoch_ns=record.epoch_ns,
         )
 
-    return await link.db.run(job, control=True)
+    return await db.run(job, control=True)
 
 
 @router.post("/api/passes/{pass_id}/start")
 async def start_pass(
-    pass_id: str, body: StartRequest, who: OperatorDep, request: Request
+    pass_id: str, body: StartRequest, who: OperatorDep, db: DatabaseDep, runner: RunnerDep
 ) -> PassControlPublic:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
-    key = await _confirmed(link, pass_id, "START", body.confirm, who.name)
+    key = await _confirmed(db, pass_id, "START", body.confirm, who.name)
     try:
         await runner.start(key, who.name)
     except LinkUnavailable as exc:
         raise ServiceError(409, "link_down", str(exc)) from None
-    return await _public(link, key)
+    return await _public(db, key)
 
 
 @router.post("/api/passes/{pass_id}/abort")
 async def abort_pass(
-    pass_id: str, body: AbortRequest, who: OperatorDep, request: Request
+    pass_id: str, body: AbortRequest, who: OperatorDep, db: DatabaseDep, runner: RunnerDep
 ) -> PassControlPublic:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
-    key = await _confirmed(link, pass_id, "ABORT", body.confirm, who.name)
+    key = await _confirmed(db, pass_id, "ABORT", body.confirm, who.name)
     await runner.abort(key, who.name, body.reason)
-    return await _public(link, key)
+    return await _public(db, key)
 
 
 @router.get("/api/link/status")
-def link_status(_: ViewerDep, request: Request) -> dict[str, Any]:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
+def link_status(_: ViewerDep, link: LinkDep, runner: RunnerDep) -> dict[str, Any]:
     return {**asdict(link.status()), "active_pass_id": runner.active_pass_id}

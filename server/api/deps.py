@@ -1,4 +1,7 @@
-"""Dependencies as ``Annotated`` aliases: settings, a database session, the caller."""
+"""Dependencies as ``Annotated`` aliases: settings, a database session, the caller, and the
+services the composition root (:mod:`server.app`) built: the link, the downlink, the
+runner, the command path's database worker and the consoles' hub. Routes take these; none
+reads ``app.state`` itself."""
 
 from __future__ import annotations
 
@@ -10,13 +13,24 @@ from typing import Annotated
 
 from fastapi import Depends, Header, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
+from starlette.requests import HTTPConnection
 
 from server.errors import ServiceError
+from server.services.console import ConsoleHub
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink
+from server.services.link import GroundLink
+from server.services.runner import PassRunner
 from server.settings import ApiToken, Role, Settings
 
 __all__ = [
+    "ConsoleDep",
+    "DatabaseDep",
+    "DownlinkDep",
+    "LinkDep",
     "OperatorDep",
     "Principal",
+    "RunnerDep",
     "SessionDep",
     "SettingsDep",
     "ViewerDep",
@@ -28,9 +42,36 @@ __all__ = [
 ]
 
 
-async def get_settings(request: Request) -> Settings:
-    settings: Settings = request.app.state.settings
+async def get_settings(connection: HTTPConnection) -> Settings:
+    settings: Settings = connection.app.state.settings
     return settings
+
+
+async def get_link(connection: HTTPConnection) -> GroundLink:
+    link: GroundLink = connection.app.state.link
+    return link
+
+
+async def get_downlink(connection: HTTPConnection) -> GroundDownlink:
+    downlink: GroundDownlink = connection.app.state.downlink
+    return downlink
+
+
+async def get_runner(connection: HTTPConnection) -> PassRunner:
+    runner: PassRunner = connection.app.state.runner
+    return runner
+
+
+async def get_database(connection: HTTPConnection) -> Database:
+    """The command path's database worker (its own connections: readers cannot hold it
+    up)."""
+    db: Database = connection.app.state.db
+    return db
+
+
+async def get_console(connection: HTTPConnection) -> ConsoleHub:
+    hub: ConsoleHub = connection.app.state.console
+    return hub
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -45,6 +86,11 @@ def get_session(request: Request) -> Iterator[Session]:
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SessionDep = Annotated[Session, Depends(get_session)]
+LinkDep = Annotated[GroundLink, Depends(get_link)]
+DownlinkDep = Annotated[GroundDownlink, Depends(get_downlink)]
+RunnerDep = Annotated[PassRunner, Depends(get_runner)]
+DatabaseDep = Annotated[Database, Depends(get_database)]
+ConsoleDep = Annotated[ConsoleHub, Depends(get_console)]
 
 
 @dataclass(frozen=True)

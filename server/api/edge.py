@@ -463,7 +463,7 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
     service write more than that. On the readers' connections, in a thread: never on the
     command path's."""
     sessions = getattr(app.state, "sessions", None)
-    link = getattr(app.state, "link", None)
+    publisher = getattr(app.state, "publisher", None)
     if sessions is None:
         return
     loop = asyncio.get_running_loop()
@@ -478,8 +478,8 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
     def done(future: asyncio.Future[dict[str, Any]]) -> None:
         if future.cancelled() or future.exception() is not None:
             log.error("auth_blocked event not written: %r", future.exception())
-        elif link is not None:
-            link.publisher.publish([future.result()])
+        elif publisher is not None:
+            publisher.publish([future.result()])
 
     loop.run_in_executor(None, write).add_done_callback(done)
 

@@ -14,9 +14,9 @@ import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import websocket_principal
+from server.api.deps import LinkDep, websocket_principal
 from server.errors import ServiceError
-from server.services.link import Connection, GroundLink
+from server.services.link import Connection
 from server.settings import Role
 
 __all__ = ["router"]
@@ -26,14 +26,13 @@ log = logging.getLogger("hikoboshi.ground.link")
 
 
 @router.websocket("/api/link")
-async def spacecraft_link(websocket: WebSocket) -> None:
+async def spacecraft_link(websocket: WebSocket, link: LinkDep) -> None:
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
     except ServiceError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
         return
-    link: GroundLink = websocket.app.state.link
 
     async def close(code: int, reason: str) -> None:
         await websocket.close(code=code, reason=reason)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query
 
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.api.deps import DownlinkDep, OperatorDep, SessionDep, SettingsDep, ViewerDep
 from server.schemas import (
     ERROR_RESPONSES,
     CommandsPublic,
@@ -70,9 +70,9 @@ def list_commands(
 
 @router.get("/{pass_id}/summary", response_model=PassSummaryPublic)
 def get_summary(
-    pass_id: str, session: SessionDep, _: ViewerDep, request: Request
+    pass_id: str, session: SessionDep, _: ViewerDep, downlink: DownlinkDep
 ) -> PassSummaryPublic:
     """Frames expected, stored and missing in the pass's telemetry window; its commands by
     outcome (rejected by reason); duplicates dropped and stored."""
-    dropped = request.app.state.link.duplicates_by_pass.get(pass_id, 0)
+    dropped = downlink.duplicates_by_pass.get(pass_id, 0)
     return pass_summary(session=session, pass_id=pass_id, duplicates_dropped=dropped)

@@ -38,13 +38,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sqlalchemy import select
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 
 from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME
-from server.services.clock import Clock, OnboardClock, SystemClock
+from server.services.clock import Clock, OnboardClock
 from server.services.command_stages import set_command_stage, write_event
-from server.services.dbworker import Database, Publisher
-from server.services.downlink import GroundDownlink, SeqRanges, TelemetryWindow
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink, TelemetryWindow
 from server.storage import repository as repo
 from server.storage.models import CommandRecord
 from server.storage.stages import acked_stage, expires_unknown
@@ -77,7 +77,6 @@ __all__ = [
     "LinkStatus",
     "LinkUnavailable",
     "LinkUp",
-    "Publisher",
     "RequestVerified",
     "RobotIdentity",
     "ScheduleStatus",
@@ -247,14 +246,15 @@ class GroundLink:
     def __init__(
         self,
         *,
-        sessions: sessionmaker[Session],
-        publisher: Publisher | None = None,
-        clock: Clock | None = None,
+        db: Database,
+        downlink: GroundDownlink,
+        clock: Clock,
         one_way_delay_s: float = 3.0,
     ) -> None:
-        self.publisher = publisher or Publisher()
-        self.db = Database(sessions, self.publisher)
-        self.clock: Clock = clock or SystemClock()
+        self._db = db
+        #: telemetry goes there (it sends its acknowledgements through :meth:`send`)
+        self._downlink = downlink
+        self.clock = clock
         self.one_way_delay_s = one_way_delay_s
         self._conn: Connection | None = None
         self._pinger: asyncio.Task[None] | None = None
@@ -271,13 +271,6 @@ class GroundLink:
         self._ping_ids = itertools.count()
         self.errors_replied = 0
         self.errors_received = 0
-        self.downlink = GroundDownlink(
-            db=self.db,
-            publisher=self.publisher,
-            clock=self.clock,
-            send=self.send,
-            time_scale=lambda: self.time_scale,
-        )
         #: seq -> pass, for acknowledgements (registered by the runner)
         self._command_pass: dict[int, str] = {}
         self._listeners: list[Callable[[LinkEvent], None]] = []
@@ -302,51 +295,8 @@ class GroundLink:
         for seq in seqs:
             self._command_pass[seq] = pass_id
 
-    def open_window(
-        self, pass_id: str, start_ns: int, end_ns: int | None = None
-    ) -> TelemetryWindow:
-        """Frames generated from ``start_ns`` (onboard) on are the pass's."""
-        return self.downlink.open_window(pass_id, start_ns, end_ns)
-
-    def close_window(self, window: TelemetryWindow, end_ns: int | None) -> None:
-        self.downlink.close_window(window, end_ns)
-
-    def drop_window(self, window: TelemetryWindow) -> None:
-        self.downlink.drop_window(window)
-
     def set_uplink_status(self, provider: Callable[[], dict[str, Any] | None] | None) -> None:
         self._uplink_status = provider
-
-    # -- downlink state, for the API, the consoles and the tests --------------------------
-
-    @property
-    def windows(self) -> list[TelemetryWindow]:
-        return self.downlink.windows
-
-    @property
-    def held(self) -> SeqRanges:
-        return self.downlink.held
-
-    @property
-    def latest_frame(self) -> Any:
-        return self.downlink.latest_frame
-
-    @property
-    def newest(self) -> tuple[int, int] | None:
-        """(seq, generation ns) of the newest frame received."""
-        return self.downlink.newest
-
-    @property
-    def duplicates(self) -> int:
-        return self.downlink.duplicates
-
-    @property
-    def duplicates_by_pass(self) -> dict[str, int]:
-        return self.downlink.duplicates_by_pass
-
-    @property
-    def frames_outside_pass(self) -> int:
-        return self.downlink.frames_outside_pass
 
     # -- clock ---------------------------------------------------------------------------
 
@@ -387,7 +337,7 @@ class GroundLink:
             with contextlib.suppress(Exception):
                 await old.close(1000, "superseded by a new spacecraft connection")
         # Not awaited: the hello behind it must be read (and timed) at once.
-        self.db.submit(
+        self._db.submit(
             lambda s: [write_event(s, "link_connected", conn.actor, {"connection": conn.id})]
         )
 
@@ -400,7 +350,7 @@ class GroundLink:
             self._pinger = None
         self._emit(LinkDown(reason))
         detail = {"connection": conn.id, "reason": reason}
-        await self.db.write(lambda s: [write_event(s, "link_disconnected", conn.actor, detail)])
+        await self._db.write(lambda s: [write_event(s, "link_disconnected", conn.actor, detail)])
 
     async def send(self, text: str) -> bool:
         """Send one message to the spacecraft; False when there is no link or it failed."""
@@ -437,8 +387,6 @@ class GroundLink:
         if conn is not None:
             with contextlib.suppress(Exception):
                 await conn.close(1001, "ground service stopping")
-        await self.db.drain()
-        await asyncio.to_thread(self.db.close)
 
     # -- incoming ------------------------------------------------------------------------
 
@@ -460,7 +408,9 @@ class GroundLink:
             # Never answered (not even before the hello); its text arrives escaped.
             self.errors_received += 1
             info: dict[str, Any] = {"reason": message.reason, "ref_type": message.ref_type}
-            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+            await self._db.write(
+                lambda s: [write_event(s, "link_error_received", conn.actor, info)]
+            )
         elif isinstance(message, Hello):
             await self._on_hello(conn, message, received)
         elif not conn.greeted:
@@ -468,7 +418,7 @@ class GroundLink:
         elif isinstance(message, TelemetryMsg):
             if message.frames:
                 self._observe(max(f.generation_time_ns for f in message.frames), received)
-            await self.downlink.on_telemetry(message)
+            await self._downlink.on_telemetry(message)
         elif isinstance(message, CommandAck):
             self._observe(message.onboard_time_ns, received)
             self._on_command_ack(message, received)
@@ -492,12 +442,14 @@ class GroundLink:
         if exc.ref_type == "error":
             self.errors_received += 1
             info = {"reason": f"unreadable error message: {reason}"[:500], "ref_type": None}
-            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+            await self._db.write(
+                lambda s: [write_event(s, "link_error_received", conn.actor, info)]
+            )
             return
         self.errors_replied += 1
         await self.send(encode(ErrorMsg(reason=reason, ref_type=exc.ref_type)))
         detail = {"reason": reason, "ref_type": exc.ref_type}
-        await self.db.write(lambda s: [write_event(s, "link_error_replied", conn.actor, detail)])
+        await self._db.write(lambda s: [write_event(s, "link_error_replied", conn.actor, detail)])
 
     async def _on_hello(self, conn: Connection, hello: Hello, received_mono: float) -> None:
         # Timed when read off the socket: at 20x, 50 ms of queueing would put the ground's
@@ -516,10 +468,10 @@ class GroundLink:
         self.schedule_capacity = hello.schedule_capacity
         self.los_policy = hello.los_policy
         self.los_hold_after_s = hello.los_hold_after_s
-        if hello.next_telemetry_seq <= self.downlink.held.highest():
-            self.downlink.restart_numbering()  # a new spacecraft process counts from 0
+        if hello.next_telemetry_seq <= self._downlink.held.highest():
+            self._downlink.restart_numbering()  # a new spacecraft process counts from 0
         detail = hello.model_dump(mode="json", exclude={"v", "type"})
-        await self.db.write(lambda s: [write_event(s, "link_hello", conn.actor, detail)])
+        await self._db.write(lambda s: [write_event(s, "link_hello", conn.actor, detail)])
         if self._pinger is None or self._pinger.done():
             self._pinger = asyncio.create_task(self._ping_loop(), name="ground-pinger")
         self._emit(LinkUp(hello))
@@ -551,7 +503,7 @@ class GroundLink:
         if filed is None:
             # Transient: the vehicle did not keep it, the runner sends it again.
             info = {"seq": ack.seq, "reason": reason, "detail": ack.detail}
-            self.db.submit(lambda s: [write_event(s, "command_deferred", actor, info)])
+            self._db.submit(lambda s: [write_event(s, "command_deferred", actor, info)])
         else:
             # cancelled: the ground's clock (the stage times of storage/models.py)
             at_ns = self.clock.time_ns() if filed == "cancelled" else ack.onboard_time_ns
@@ -573,7 +525,7 @@ class GroundLink:
                 )
 
             # Not awaited: acknowledgements queue behind each other in order, share commits.
-            self.db.submit(job)
+            self._db.submit(job)
         self._emit(CommandAcked(ack.seq, stage, reason, ack.onboard_time_ns, read_mono))
 
     async def _on_command_unknown(self, message: CommandUnknown) -> None:
@@ -604,13 +556,13 @@ class GroundLink:
                 )
             return events
 
-        await self.db.write(job)
+        await self._db.write(job)
         self._emit(CommandsUnknown(tuple(message.seqs), message.onboard_time_ns))
 
     # -- status --------------------------------------------------------------------------
 
     def schedule_status(self) -> ScheduleStatus | None:
-        frame = self.downlink.latest_frame
+        frame = self._downlink.latest_frame
         if frame is None:
             return None
         buffer = frame.buffer
@@ -628,7 +580,7 @@ class GroundLink:
         )
 
     def status(self) -> LinkStatus:
-        down = self.downlink
+        down = self._downlink
         gaps = down.held.gaps()
         onboard_now = self.onboard_now_ns() if self._onboard is not None else None
         uplink = None

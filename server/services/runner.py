@@ -61,6 +61,8 @@ from typing import Any
 
 from server.errors import ServiceError
 from server.services.clock import Clock
+from server.services.dbworker import Database, Publisher
+from server.services.downlink import GroundDownlink
 from server.services.link import (
     CommandAcked,
     GroundLink,
@@ -112,17 +114,21 @@ class PassRunner:
         self,
         *,
         link: GroundLink,
+        downlink: GroundDownlink,
+        db: Database,
+        publisher: Publisher,
+        trackers: Trackers,
         settings: Settings,
-        clock: Clock | None = None,
-        trackers: Trackers | None = None,
+        clock: Clock,
     ):
         self._link = link
-        self._db = link.db
-        self._publisher = link.publisher
-        self._clock: Clock = clock or link.clock
+        self._downlink = downlink
+        self._db = db
+        self._publisher = publisher
+        self._trackers = trackers
+        self._clock = clock
         self._settings = settings
         self._delay_s = settings.link_one_way_delay_s
-        self._trackers = trackers or Trackers(link, self._db, self._clock, self._delay_s)
         self._margin_s = settings.uplink_margin_s
         self._lead_ns = round((settings.link_one_way_delay_s + settings.uplink_margin_s) * 1e9)
         self._settle_ns = round(SETTLE_S * 1e9)
@@ -133,6 +139,7 @@ class PassRunner:
         self._background: set[asyncio.Task[Any]] = set()
         self._deletes = ScheduleDeletes(
             link=link,
+            downlink=downlink,
             db=self._db,
             clock=self._clock,
             lead_ns=self._lead_ns,
@@ -231,7 +238,9 @@ class PassRunner:
             # The window opens before the start transaction: storing thousands of commands
             # takes longer than the relay delay at high time scales, and the frames
             # generated meanwhile must already find their pass.
-            window = link.open_window(canonical_id(pass_id, what="pass"), link.onboard_now_ns())
+            window = self._downlink.open_window(
+                canonical_id(pass_id, what="pass"), link.onboard_now_ns()
+            )
             # onboard s: the first command's last chance, then its first copies before it
             first_rto_s = RttEstimator(2 * self._delay_s / link.time_scale).rto_s
             lead_s = max(
@@ -250,11 +259,11 @@ class PassRunner:
             try:
                 events, started, refusal = await self._db.run(job)
             except BaseException:
-                link.drop_window(window)
+                self._downlink.drop_window(window)
                 raise
             self._publisher.publish(events)
             if started is None:
-                link.drop_window(window)
+                self._downlink.drop_window(window)
                 raise ServiceError(
                     409, "robot_mismatch", refusal or "robot mismatch", events[0].get("detail")
                 )
@@ -303,7 +312,7 @@ class PassRunner:
                 return
             self.fill_margins_s = active.uplink.fill_margins_s()
             end = link.onboard_now_ns()
-            link.close_window(active.window, end)
+            self._downlink.close_window(active.window, end)
             reason = f"last command's tag + {SETTLE_S} s passed"
             now_wall = self._clock.time_ns()
             await self._db.write(
@@ -379,14 +388,15 @@ class PassRunner:
         link = self._link
         found = await self._db.run(load_recovery)
         opened = {
-            w.pass_id: link.open_window(w.pass_id, w.start_ns, w.end_ns) for w in found.windows
+            w.pass_id: self._downlink.open_window(w.pass_id, w.start_ns, w.end_ns)
+            for w in found.windows
         }
         for decision in decide(found.unfinished, running=self._active is not None):
             if isinstance(decision, AbortPass):
                 await self._abort_locked(decision.pass_id, "ground", decision.reason)
                 continue
             p = decision.unfinished
-            window = opened.get(p.id) or link.open_window(p.id, p.start_ns or 0)
+            window = opened.get(p.id) or self._downlink.open_window(p.id, p.start_ns or 0)
             link.expect_commands(p.id, [r.seq for r in p.commands])
             detail = {"state": p.state, "pending": len(p.pending), "commands": len(p.commands)}
             await self._db.write(event_job("pass_resumed", detail, p.id))
@@ -451,7 +461,7 @@ class PassRunner:
             end = from_ns + self._settle_ns
         elif deletion is None and link.connected:
             end = link.onboard_now_ns()
-        link.close_window(active.window, end)
+        self._downlink.close_window(active.window, end)
         # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
         cancel = [c.seq for c in up.commands if c.transmissions == 0]
         if from_ns is not None:

@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands, write_event
 from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink
 from server.services.link import GroundLink, LinkEvent, LinkUp, RequestVerified, TelemetryWindow
 from server.services.tracker import LINK_DOWN_POLL_S, CommandTracker
 from server.services.uplink import RttEstimator
@@ -65,9 +66,17 @@ class ScheduleDeletes:
     with their ``verification`` by request id."""
 
     def __init__(
-        self, *, link: GroundLink, db: Database, clock: Clock, lead_ns: int, settle_ns: int
+        self,
+        *,
+        link: GroundLink,
+        downlink: GroundDownlink,
+        db: Database,
+        clock: Clock,
+        lead_ns: int,
+        settle_ns: int,
     ) -> None:
         self._link = link
+        self._downlink = downlink
         self._db = db
         self._clock = clock
         self._lead_ns = lead_ns
@@ -123,7 +132,7 @@ class ScheduleDeletes:
                 break  # every command's tag has passed: nothing left to delete
             if deletion.request is None:
                 from_ns = self._choose(deletion)
-                link.close_window(deletion.window, from_ns + self._settle_ns)
+                self._downlink.close_window(deletion.window, from_ns + self._settle_ns)
                 await self._send(deletion, DELETE_COPIES)
             else:
                 await self._send(deletion, 1)

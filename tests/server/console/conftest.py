@@ -15,6 +15,8 @@ from starlette.testclient import WebSocketTestSession
 from planner.plan import Plan
 from server.services.command_stages import write_event
 from server.services.console import ConsoleHub
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink
 from server.services.link import Connection, GroundLink
 from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight, fly_offline
@@ -38,6 +40,11 @@ def hub(client: TestClient) -> ConsoleHub:
 def link(client: TestClient) -> GroundLink:
     ground_link: GroundLink = client.app.state.link  # type: ignore[attr-defined]
     return ground_link
+
+
+def downlink(client: TestClient) -> GroundDownlink:
+    ground_downlink: GroundDownlink = client.app.state.downlink  # type: ignore[attr-defined]
+    return ground_downlink
 
 
 def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str:
@@ -126,7 +133,8 @@ def emit_events(
             for kind, detail in zip(kinds, details, strict=True)
         ]
 
-    client.portal.call(link(client).db.write, job)  # type: ignore[union-attr]
+    db: Database = client.app.state.db  # type: ignore[attr-defined]
+    client.portal.call(db.write, job)  # type: ignore[union-attr]
     return details
 
 
@@ -150,14 +158,14 @@ class FakeSpacecraft:
         )
         portal.call(ground.attach, self.conn)
         portal.call(ground.handle, self.conn, encode(hello))
-        ground.open_window(pass_id, 0)
+        downlink(client).open_window(pass_id, 0)
 
     def send(self, frames: list[TelemetryFrame]) -> None:
         message = encode(TelemetryMsg(frames=frames))
         ground = link(self.client)
         self.portal.call(ground.handle, self.conn, message)
         # the link reads on while frames commit: wait until they are stored and published
-        self.portal.call(ground.downlink.settled)
+        self.portal.call(downlink(self.client).settled)
 
 
 def drain(ws: WebSocketTestSession) -> list[dict[str, Any]]:
