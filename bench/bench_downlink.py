@@ -102,7 +102,7 @@ class _Tap:
         on_telemetry, committed = downlink.on_telemetry, downlink._committed
         requested = downlink._requested_at
 
-        async def tapped_on_telemetry(message: TelemetryMsg) -> None:
+        async def tapped_on_telemetry(message: TelemetryMsg, *received: float) -> None:
             now = time.monotonic()
             if self.first_read is None:
                 self.first_read = now
@@ -114,7 +114,7 @@ class _Tap:
                 self.last_read = now
                 if len(self.kept) < self._keep:
                     self.kept.extend(message.frames)
-            await on_telemetry(message)
+            await on_telemetry(message, *received)  # the arrival time, where the link gives it
 
         def tapped_committed(
             fresh: list[TelemetryFrame],

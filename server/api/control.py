@@ -14,20 +14,30 @@ refused confirmation).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from dataclasses import asdict
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Annotated, Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from server.api.deps import DatabaseDep, LinkDep, OperatorDep, RunnerDep, ViewerDep
+from server.api.deps import (
+    ClockDep,
+    DatabaseDep,
+    LinkDep,
+    OperatorDep,
+    PublisherDep,
+    RunnerDep,
+    ViewerDep,
+)
 from server.errors import ServiceError
 from server.schemas import ERROR_RESPONSES
-from server.services.dbworker import Database
+from server.services.clock import Clock
+from server.services.dbworker import Database, Publisher
+from server.services.events import PassControlRefused, record
 from server.services.link import LinkUnavailable
+from server.services.runner import PassRunner
 from server.storage import repository as repo
 
 __all__ = ["router"]
@@ -56,33 +66,30 @@ class PassControlPublic(BaseModel):
 
 
 def _confirmation_job(
-    pass_id: str, action: str, confirm: str, actor: str
-) -> Callable[[Session], tuple[str, str | None]]:
+    pass_id: str, action: str, confirm: str, actor: str, clock: Clock
+) -> Callable[[Session], tuple[str, str | None, list[dict[str, Any]]]]:
     """A DB job: the pass's id, and the expected text when ``confirm`` is wrong (then the
-    refusal is written to the audit log)."""
+    refusal is written to the audit log: its event to publish)."""
 
-    def job(session: Session) -> tuple[str, str | None]:
-        record = repo.get_pass(session=session, pass_id=pass_id)
-        expected = f"{action} {record.name}"
+    def job(session: Session) -> tuple[str, str | None, list[dict[str, Any]]]:
+        row = repo.get_pass(session=session, pass_id=pass_id)
+        expected = f"{action} {row.name}"
         if confirm == expected:
-            return record.id, None
-        repo.add_event(
-            session=session,
-            time_ns=time.time_ns(),
-            kind="pass_control_refused",
-            actor=actor,
-            detail={"action": action.lower(), "confirm": confirm},
-            pass_id=record.id,
+            return row.id, None, []
+        refused = PassControlRefused(
+            actor=actor, pass_id=row.id, action=action.lower(), confirm=confirm
         )
-        return record.id, expected
+        return row.id, expected, [record(session, refused, clock.time_ns())]
 
     return job
 
 
-async def _confirmed(db: Database, pass_id: str, action: str, confirm: str, actor: str) -> str:
+async def _confirmed(ground: _Ground, pass_id: str, action: str, confirm: str, actor: str) -> str:
     # Through the command path's database worker (no blocking database call in the event
     # loop, and its own connections: readers cannot hold it up), ahead of its queue.
-    key, expected = await db.run(_confirmation_job(pass_id, action, confirm, actor), control=True)
+    job = _confirmation_job(pass_id, action, confirm, actor, ground.clock)
+    key, expected, events = await ground.db.run(job, control=True)
+    ground.publisher.publish(events)
     if expected is not None:
         raise ServiceError(
             422, "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -105,25 +112,44 @@ async def _public(db: Database, pass_id: str) -> PassControlPublic:
     return await db.run(job, control=True)
 
 
+@dataclass(frozen=True)
+class _Ground:
+    """What pass control needs of the command path."""
+
+    db: Database
+    publisher: Publisher
+    clock: Clock
+    runner: PassRunner
+
+
+def _ground(
+    db: DatabaseDep, publisher: PublisherDep, clock: ClockDep, runner: RunnerDep
+) -> _Ground:
+    return _Ground(db, publisher, clock, runner)
+
+
+GroundDep = Annotated[_Ground, Depends(_ground)]
+
+
 @router.post("/api/passes/{pass_id}/start")
 async def start_pass(
-    pass_id: str, body: StartRequest, who: OperatorDep, db: DatabaseDep, runner: RunnerDep
+    pass_id: str, body: StartRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
-    key = await _confirmed(db, pass_id, "START", body.confirm, who.name)
+    key = await _confirmed(ground, pass_id, "START", body.confirm, who.name)
     try:
-        await runner.start(key, who.name)
+        await ground.runner.start(key, who.name)
     except LinkUnavailable as exc:
         raise ServiceError(409, "link_down", str(exc)) from None
-    return await _public(db, key)
+    return await _public(ground.db, key)
 
 
 @router.post("/api/passes/{pass_id}/abort")
 async def abort_pass(
-    pass_id: str, body: AbortRequest, who: OperatorDep, db: DatabaseDep, runner: RunnerDep
+    pass_id: str, body: AbortRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
-    key = await _confirmed(db, pass_id, "ABORT", body.confirm, who.name)
-    await runner.abort(key, who.name, body.reason)
-    return await _public(db, key)
+    key = await _confirmed(ground, pass_id, "ABORT", body.confirm, who.name)
+    await ground.runner.abort(key, who.name, body.reason)
+    return await _public(ground.db, key)
 
 
 @router.get("/api/link/status")

@@ -9,27 +9,32 @@ import hashlib
 import hmac
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from fastapi import Depends, Header, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.requests import HTTPConnection
 
 from server.errors import ServiceError
+from server.services.clock import Clock
 from server.services.console import ConsoleHub
-from server.services.dbworker import Database
+from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
 from server.settings import ApiToken, Role, Settings
 
+T = TypeVar("T")
+
 __all__ = [
+    "ClockDep",
     "ConsoleDep",
     "DatabaseDep",
     "DownlinkDep",
     "LinkDep",
     "OperatorDep",
     "Principal",
+    "PublisherDep",
     "RunnerDep",
     "SessionDep",
     "SettingsDep",
@@ -42,36 +47,19 @@ __all__ = [
 ]
 
 
-async def get_settings(connection: HTTPConnection) -> Settings:
-    settings: Settings = connection.app.state.settings
-    return settings
+def _state(name: str, kind: type[T]) -> Callable[[HTTPConnection], Awaitable[T]]:
+    """A dependency on ``app.state.<name>`` (set by the lifespan, :mod:`server.app`), on the
+    event loop, for routes and websockets alike."""
+
+    async def get(connection: HTTPConnection) -> T:
+        value: T = getattr(connection.app.state, name)
+        return value
+
+    get.__name__ = f"get_{name}"
+    return get
 
 
-async def get_link(connection: HTTPConnection) -> GroundLink:
-    link: GroundLink = connection.app.state.link
-    return link
-
-
-async def get_downlink(connection: HTTPConnection) -> GroundDownlink:
-    downlink: GroundDownlink = connection.app.state.downlink
-    return downlink
-
-
-async def get_runner(connection: HTTPConnection) -> PassRunner:
-    runner: PassRunner = connection.app.state.runner
-    return runner
-
-
-async def get_database(connection: HTTPConnection) -> Database:
-    """The command path's database worker (its own connections: readers cannot hold it
-    up)."""
-    db: Database = connection.app.state.db
-    return db
-
-
-async def get_console(connection: HTTPConnection) -> ConsoleHub:
-    hub: ConsoleHub = connection.app.state.console
-    return hub
+get_settings = _state("settings", Settings)
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -86,11 +74,16 @@ def get_session(request: Request) -> Iterator[Session]:
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SessionDep = Annotated[Session, Depends(get_session)]
-LinkDep = Annotated[GroundLink, Depends(get_link)]
-DownlinkDep = Annotated[GroundDownlink, Depends(get_downlink)]
-RunnerDep = Annotated[PassRunner, Depends(get_runner)]
-DatabaseDep = Annotated[Database, Depends(get_database)]
-ConsoleDep = Annotated[ConsoleHub, Depends(get_console)]
+#: The injected clock every event and arrival is timed on.
+ClockDep = Annotated[Clock, Depends(_state("clock", Clock))]
+#: The consoles' publish hook.
+PublisherDep = Annotated[Publisher, Depends(_state("publisher", Publisher))]
+LinkDep = Annotated[GroundLink, Depends(_state("link", GroundLink))]
+DownlinkDep = Annotated[GroundDownlink, Depends(_state("downlink", GroundDownlink))]
+RunnerDep = Annotated[PassRunner, Depends(_state("runner", PassRunner))]
+#: The command path's database worker (its own connections: readers cannot hold it up).
+DatabaseDep = Annotated[Database, Depends(_state("db", Database))]
+ConsoleDep = Annotated[ConsoleHub, Depends(_state("console", ConsoleHub))]
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import authenticate
 from server.errors import ServiceError, error_body
-from server.services.command_stages import write_event
+from server.services.clock import Clock, SystemClock
+from server.services.events import AuthBlocked, record
 from server.settings import Settings
 
 if TYPE_CHECKING:
@@ -464,14 +465,17 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
     command path's."""
     sessions = getattr(app.state, "sessions", None)
     publisher = getattr(app.state, "publisher", None)
+    clock: Clock = getattr(app.state, "clock", None) or SystemClock()
     if sessions is None:
         return
     loop = asyncio.get_running_loop()
-    detail = {"address": address, "failures": failures, "blocked_s": round(left_s, 1)}
+    blocked = AuthBlocked(
+        actor="edge", address=address, failures=failures, blocked_s=round(left_s, 1)
+    )
 
     def write() -> dict[str, Any]:
         with sessions() as session:
-            event = write_event(session, "auth_blocked", "edge", detail)
+            event = record(session, blocked, clock.time_ns())
             session.commit()
             return event
 

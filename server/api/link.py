@@ -10,11 +10,10 @@ handling one message (a bug, a database failure) is logged and the next message 
 from __future__ import annotations
 
 import logging
-import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import LinkDep, websocket_principal
+from server.api.deps import ClockDep, LinkDep, websocket_principal
 from server.errors import ServiceError
 from server.services.link import Connection
 from server.settings import Role
@@ -26,7 +25,7 @@ log = logging.getLogger("hikoboshi.ground.link")
 
 
 @router.websocket("/api/link")
-async def spacecraft_link(websocket: WebSocket, link: LinkDep) -> None:
+async def spacecraft_link(websocket: WebSocket, link: LinkDep, clock: ClockDep) -> None:
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
@@ -47,7 +46,7 @@ async def spacecraft_link(websocket: WebSocket, link: LinkDep) -> None:
             except RuntimeError as exc:  # the socket was closed under us (superseded)
                 reason = str(exc)[:200]
                 break
-            received_mono = time.monotonic()
+            received_mono = clock.monotonic()  # the one timing of its arrival
             if message["type"] == "websocket.disconnect":
                 reason = f"closed by the spacecraft ({message.get('code')})"
                 break

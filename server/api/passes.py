@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-import time
 from typing import Annotated
 
+from anyio import from_thread
 from fastapi import APIRouter, Query
 
-from server.api.deps import DownlinkDep, OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.api.deps import (
+    ClockDep,
+    DownlinkDep,
+    OperatorDep,
+    PublisherDep,
+    SessionDep,
+    SettingsDep,
+    ViewerDep,
+)
 from server.schemas import (
     ERROR_RESPONSES,
     CommandsPublic,
@@ -19,6 +27,7 @@ from server.schemas import (
     PassSummaryPublic,
 )
 from server.services import passes as service
+from server.services.events import written
 from server.services.summary import pass_summary
 
 __all__ = ["router"]
@@ -28,12 +37,21 @@ router = APIRouter(prefix="/api/passes", tags=["passes"], responses=ERROR_RESPON
 
 @router.post("", status_code=201, response_model=PassPublic)
 def schedule_pass(
-    request: PassCreate, session: SessionDep, settings: SettingsDep, who: OperatorDep
+    request: PassCreate,
+    session: SessionDep,
+    settings: SettingsDep,
+    who: OperatorDep,
+    clock: ClockDep,
+    publisher: PublisherDep,
 ) -> PassPublic:
     """Schedule a pass of a stored plan; its window must hold the plan and the uplink lead."""
-    return service.schedule_pass(
-        session=session, settings=settings, request=request, actor=who.name, now_ns=time.time_ns()
+    scheduled = service.schedule_pass(
+        session=session, settings=settings, request=request, actor=who.name, now_ns=clock.time_ns()
     )
+    # committed: its event goes to the consoles, on the event loop (this route runs in a
+    # worker thread)
+    from_thread.run_sync(publisher.publish, written(session))
+    return scheduled
 
 
 @router.get("", response_model=PassesPublic)

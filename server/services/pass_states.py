@@ -42,10 +42,13 @@ from sqlalchemy.orm import Session
 
 from planner.plan import Plan
 from server.services.clock import Clock
-from server.services.command_stages import cancel_commands, write_event
+from server.services.command_stages import cancel_commands
+from server.services.events import PassStartRefused, PassState
+from server.services.events import record as record_event
 from server.services.link import GroundLink, RobotIdentity, TelemetryWindow, robot_mismatch
 from server.services.tracker import CommandTracker
 from server.services.uplink import Uplink
+from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.errors import Conflict
 from server.storage.models import CommandRecord
@@ -62,7 +65,7 @@ __all__ = [
     "Started",
     "abort_job",
     "command_from_record",
-    "event_job",
+    "new_uplink",
     "plan_robot",
     "start_job",
     "transition",
@@ -89,6 +92,7 @@ MAX_REFUSED_IN_A_ROW = 8
 
 def transition(
     session: Session,
+    clock: Clock,
     pass_id: str,
     to: str,
     actor: str,
@@ -112,15 +116,16 @@ def transition(
         telemetry_start_ns=window_ns.get("telemetry_start_ns"),
         telemetry_end_ns=window_ns.get("telemetry_end_ns"),
     )
-    detail: dict[str, Any] = {"from": previous, "to": to, "reason": reason}
-    detail["version"] = record.version
-    if epoch_ns is not None:
-        detail["epoch_ns"] = epoch_ns
-    return write_event(session, "pass_state", actor, detail, record.id)
-
-
-def event_job(kind: str, detail: dict[str, Any], pass_id: str) -> Job:
-    return lambda session: [write_event(session, kind, "ground", detail, pass_id)]
+    event = PassState(
+        actor=actor,
+        pass_id=record.id,
+        from_state=previous,
+        to=to,
+        reason=reason,
+        version=record.version,
+        epoch_ns=epoch_ns,
+    )
+    return record_event(session, event, clock.time_ns())
 
 
 def plan_robot(plan: Plan) -> RobotIdentity:
@@ -136,6 +141,18 @@ def command_from_record(record: CommandRecord) -> Command:
     return AcsCommandMsg.model_validate(fields)
 
 
+def new_uplink(commands: list[Command], settings: Settings, link: GroundLink) -> Uplink:
+    """The windowed uplink of a pass's ``commands`` to the vehicle now connected."""
+    return Uplink(
+        commands,
+        one_way_delay_s=settings.link_one_way_delay_s,
+        margin_s=settings.uplink_margin_s,
+        lead_window_s=settings.uplink_lead_window_s,
+        capacity=link.schedule_capacity,
+        time_scale=link.time_scale,
+    )
+
+
 @dataclass(frozen=True)
 class Started:
     """A pass the start transaction made ``running``."""
@@ -146,21 +163,28 @@ class Started:
     robot: RobotIdentity
 
 
-def _refusal_detail(
-    plan_id: str, robot: RobotIdentity, vehicle: RobotIdentity | None, message: str
-) -> dict[str, Any]:
-    """The audit detail of a start refused for the robot (``pass_start_refused``)."""
-    return {
-        "reason": "robot_mismatch",
-        "message": message,
-        "plan_id": plan_id,
-        "plan_robot": robot.name,
-        "plan_robot_hash": robot.hash,
-        "plan_n_joints": robot.n_joints,
-        "vehicle_robot": None if vehicle is None else vehicle.name,
-        "vehicle_robot_hash": None if vehicle is None else vehicle.hash,
-        "vehicle_n_joints": None if vehicle is None else vehicle.n_joints,
-    }
+def _refusal(
+    actor: str,
+    pass_id: str,
+    plan_id: str,
+    robot: RobotIdentity,
+    vehicle: RobotIdentity | None,
+    message: str,
+) -> PassStartRefused:
+    """The audit event of a start refused for the robot."""
+    return PassStartRefused(
+        actor=actor,
+        pass_id=pass_id,
+        reason="robot_mismatch",
+        message=message,
+        plan_id=plan_id,
+        plan_robot=robot.name,
+        plan_robot_hash=robot.hash,
+        plan_n_joints=robot.n_joints,
+        vehicle_robot=None if vehicle is None else vehicle.name,
+        vehicle_robot_hash=None if vehicle is None else vehicle.hash,
+        vehicle_n_joints=None if vehicle is None else vehicle.n_joints,
+    )
 
 
 def start_job(
@@ -188,12 +212,12 @@ def start_job(
             else robot_mismatch(robot, vehicle_robot)
         )
         if refusal is not None:
-            detail = _refusal_detail(record.plan_id, robot, vehicle_robot, refusal)
-            event = write_event(session, "pass_start_refused", actor, detail, record.id)
-            return [event], None, refusal
+            event = _refusal(actor, record.id, record.plan_id, robot, vehicle_robot, refusal)
+            return [record_event(session, event, clock.time_ns())], None, refusal
         vehicle = link.vehicle or "spacecraft"
         now_wall = clock.time_ns()
-        events = [transition(session, record.id, "aos", actor, f"{vehicle} connected", now_wall)]
+        connected = f"{vehicle} connected"
+        events = [transition(session, clock, record.id, "aos", actor, connected, now_wall)]
         now_ns = link.onboard_now_ns()
         slack_s = lead_s + START_SLACK_WALL_S * link.time_scale
         epoch_ns = math.ceil((now_ns + round(slack_s * 1e9)) / GRID_NS) * GRID_NS
@@ -207,6 +231,7 @@ def start_job(
         events.append(
             transition(
                 session,
+                clock,
                 record.id,
                 "running",
                 actor,
@@ -248,6 +273,7 @@ def abort_job(
         if seqs:
             events += cancel_commands(
                 session,
+                clock=clock,
                 pass_id=key,
                 seqs=seqs,
                 time_ns=now,
@@ -256,7 +282,7 @@ def abort_job(
                 from_time_ns=from_ns,
             )
         events.append(
-            transition(session, key, "aborted", actor, reason, now, telemetry_end_ns=end_ns)
+            transition(session, clock, key, "aborted", actor, reason, now, telemetry_end_ns=end_ns)
         )
         return events
 

@@ -25,6 +25,8 @@ from server.schemas import (
     iso_from_ns,
     ns_from_datetime,
 )
+from server.services.events import PassScheduled
+from server.services.events import record as record_event
 from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, PassRecord
@@ -94,20 +96,16 @@ def schedule_pass(
             relay=request.relay,
             created_at_ns=now_ns,
         )
-        repo.add_event(
-            session=session,
-            time_ns=now_ns,
-            kind="pass_scheduled",
+        scheduled = PassScheduled(
             actor=actor,
             pass_id=record.id,
-            detail={
-                "plan_id": plan.id,
-                "name": record.name,
-                "aos_time_ns": aos_ns,
-                "los_time_ns": los_ns,
-                "relay": record.relay,
-            },
+            plan_id=plan.id,
+            name=record.name,
+            aos_time_ns=aos_ns,
+            los_time_ns=los_ns,
+            relay=record.relay,
         )
+        record_event(session, scheduled, now_ns)
         session.commit()
     except BaseException:
         session.rollback()

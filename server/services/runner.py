@@ -17,15 +17,11 @@ made for): ``aos`` then ``running`` in one transaction (:func:`~server.services.
 start_job`: the plan's epoch, the commands' seqs, a refusal for another robot, 409
 ``robot_mismatch``). The pass's telemetry window opens at onboard now, before it.
 
-**Uplink** (:mod:`server.services.uplink`): the onboard schedule is kept loaded
-``uplink_lead_window_s`` ahead of the onboard clock, within the vehicle's schedule
-capacity; every command is sent again on its retransmission timer until the vehicle
-acknowledges it, as long as it can still arrive (one-way delay + half the margin before its
-tag); a command never sent that can no longer arrive is ``expired``. Stages ``released``
-and ``sent`` (ground times) are written at the first transmission, the count of
-transmissions with them and after retransmissions (by the tracker). The runner wakes at the
-next timer, the next command entering the window, or any typed link event
-(acknowledgement, link up).
+**Uplink** (its rules: :mod:`server.services.uplink`): the onboard schedule is kept loaded
+``uplink_lead_window_s`` ahead of the onboard clock, every command sent again on its timer
+until acknowledged while it can still arrive, one never sent that can no longer arrive
+``expired`` (the tracker records the stages). The runner wakes at the next timer, the next
+command entering the window, or any typed link event (acknowledgement, link up).
 
 **Completion**: at the last tag + :data:`SETTLE_S` onboard the pass goes ``los`` (the
 telemetry window closes there); the tracker resolves the commands whose tag has passed
@@ -41,10 +37,8 @@ the pass's commands never sent, and those tagged from ``T`` on, become ``cancell
 telemetry window closes :data:`SETTLE_S` after ``T``. Then ``aborted``; the stages of the
 commands before ``T`` are resolved in the background as their tags pass.
 
-**Another robot mid-pass**: when the vehicle greets again (a new ``hello``) naming another
-robot than the running pass's plan, the uplink stops at once (no command of the plan goes to
-it) and the pass is aborted with that reason. A pass resumed after a restart is checked the
-same way before its uplink starts.
+**Another robot mid-pass** (a new ``hello`` naming another robot than the plan's): the
+uplink stops at once and the pass is aborted with that reason; a resumed pass is checked too.
 
 **Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the passes
 and carries out the decisions of :mod:`server.services.recovery` (resume a pass left
@@ -56,13 +50,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any
+
+from sqlalchemy.orm import Session
 
 from server.errors import ServiceError
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
+from server.services.events import PassResumed, event_job
 from server.services.link import (
     CommandAcked,
     GroundLink,
@@ -78,7 +75,7 @@ from server.services.pass_states import (
     ActivePass,
     abort_job,
     command_from_record,
-    event_job,
+    new_uplink,
     start_job,
     transition,
 )
@@ -92,11 +89,11 @@ from server.services.recovery import (
 from server.services.recovery import load as load_recovery
 from server.services.schedule_delete import Deletion, ScheduleDeletes
 from server.services.tracker import LINK_DOWN_POLL_S, Trackers
-from server.services.uplink import RttEstimator, Uplink, UplinkCommand
+from server.services.uplink import RttEstimator, UplinkCommand
 from server.settings import Settings
 from server.storage._common import canonical_id
 from server.storage.errors import Conflict
-from telemetry.uplink import Command, plan_commands
+from telemetry.uplink import plan_commands
 from telemetry.wire import JointCommandMsg
 
 __all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
@@ -129,7 +126,6 @@ class PassRunner:
         self._clock = clock
         self._settings = settings
         self._delay_s = settings.link_one_way_delay_s
-        self._margin_s = settings.uplink_margin_s
         self._lead_ns = round((settings.link_one_way_delay_s + settings.uplink_margin_s) * 1e9)
         self._settle_ns = round(SETTLE_S * 1e9)
         self._active: ActivePass | None = None
@@ -215,17 +211,6 @@ class PassRunner:
         onboard = self._link.onboard_now_ns() if self._link.connected else None
         return {"pass_id": active.pass_id, **active.uplink.status(onboard)}
 
-    def _new_uplink(self, commands: list[Command]) -> Uplink:
-        link = self._link
-        return Uplink(
-            commands,
-            one_way_delay_s=self._delay_s,
-            margin_s=self._margin_s,
-            lead_window_s=self._settings.uplink_lead_window_s,
-            capacity=link.schedule_capacity,
-            time_scale=link.time_scale,
-        )
-
     # -- start ---------------------------------------------------------------------------
 
     async def start(self, pass_id: str, actor: str) -> None:
@@ -273,7 +258,7 @@ class PassRunner:
             active = ActivePass.of(
                 started.pass_id,
                 started.name,
-                self._new_uplink(commands),
+                new_uplink(commands, self._settings, link),
                 window,
                 tracker,
                 {c.seq: c.execute_time_ns for c in commands},
@@ -314,13 +299,8 @@ class PassRunner:
             end = link.onboard_now_ns()
             self._downlink.close_window(active.window, end)
             reason = f"last command's tag + {SETTLE_S} s passed"
-            now_wall = self._clock.time_ns()
             await self._db.write(
-                lambda s: [
-                    transition(
-                        s, active.pass_id, "los", "ground", reason, now_wall, telemetry_end_ns=end
-                    )
-                ]
+                self._ground_transition(active.pass_id, "los", reason, telemetry_end_ns=end)
             )
             await self._finish(active)
         except Exception:
@@ -365,13 +345,17 @@ class PassRunner:
         if active.stop.is_set():
             return  # the abort has the tracker now
         reason = "every command acknowledged" if not left else f"{left} unacknowledged"
-        now_wall = self._clock.time_ns()
-        await self._db.write(
-            lambda s: [transition(s, active.pass_id, "complete", "ground", reason, now_wall)]
-        )
+        await self._db.write(self._ground_transition(active.pass_id, "complete", reason))
         active.tracker.close()
         if self._active is active:
             self._active = None
+
+    def _ground_transition(
+        self, pass_id: str, to: str, reason: str, **window_ns: int | None
+    ) -> Callable[[Session], list[dict[str, Any]]]:
+        """The ground's own transition of the pass to ``to``, timed now."""
+        now_ns, clock = self._clock.time_ns(), self._clock
+        return lambda s: [transition(s, clock, pass_id, to, "ground", reason, now_ns, **window_ns)]
 
     def _background_task(self, coro: Coroutine[Any, Any, None]) -> None:
         task = asyncio.get_running_loop().create_task(coro)
@@ -398,8 +382,14 @@ class PassRunner:
             p = decision.unfinished
             window = opened.get(p.id) or self._downlink.open_window(p.id, p.start_ns or 0)
             link.expect_commands(p.id, [r.seq for r in p.commands])
-            detail = {"state": p.state, "pending": len(p.pending), "commands": len(p.commands)}
-            await self._db.write(event_job("pass_resumed", detail, p.id))
+            resumed = PassResumed(
+                actor="ground",
+                pass_id=p.id,
+                state=p.state,
+                pending=len(p.pending),
+                commands=len(p.commands),
+            )
+            await self._db.write(event_job(resumed, self._clock))
             self._background_task(self._resume(p, window))
 
     async def _resume(self, p: UnfinishedPass, window: TelemetryWindow) -> None:
@@ -415,7 +405,7 @@ class PassRunner:
             if refusal is not None:
                 await self._abort_locked(p.id, "ground", refusal)
                 return
-            uplink = self._new_uplink([command_from_record(r) for r in p.pending])
+            uplink = new_uplink([command_from_record(r) for r in p.pending], self._settings, link)
             uplink.restore(p.transmitted)
             tracker = self._trackers.stored(p.id, p.commands)
             tags = {r.seq: r.execute_time_ns for r in p.commands}
@@ -486,9 +476,8 @@ class PassRunner:
         from_ns: int | None,
         end_ns: int | None,
     ) -> None:
-        """The abort's transaction, ahead of the stage writes still queued: the operator
-        waits for this answer, and none of them can undo it (``cancelled`` is final; the
-        vehicle's own ``executed`` still overrules it, as it should)."""
+        """The abort's transaction, ahead of the stage writes still queued: the operator waits
+        for it, and none of them can undo it (the vehicle's own word still overrules)."""
         job = abort_job(
             pass_id=pass_id, actor=actor, reason=reason, clock=self._clock, cancel=cancel,
             from_ns=from_ns, end_ns=end_ns,

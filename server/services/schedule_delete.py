@@ -22,9 +22,10 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
-from server.services.command_stages import cancel_commands, write_event
+from server.services.command_stages import cancel_commands
 from server.services.dbworker import Database
 from server.services.downlink import GroundDownlink
+from server.services.events import ScheduleDeleted, ScheduleDeleteUnverified, event_job, record
 from server.services.link import GroundLink, LinkEvent, LinkUp, RequestVerified, TelemetryWindow
 from server.services.tracker import LINK_DOWN_POLL_S, CommandTracker
 from server.services.uplink import RttEstimator
@@ -144,11 +145,12 @@ class ScheduleDeletes:
         if report is not None and request is not None:
             await self._db.write(self._deleted_job(deletion, report, request))
         elif not closing.is_set():
-            info = {"request_id": None if request is None else request.request_id}
-            pass_id = deletion.tracker.pass_id
-            await self._db.write(
-                lambda s: [write_event(s, "schedule_delete_unverified", "ground", info, pass_id)]
+            unverified = ScheduleDeleteUnverified(
+                actor="ground",
+                pass_id=deletion.tracker.pass_id,
+                request_id=None if request is None else request.request_id,
             )
+            await self._db.write(event_job(unverified, self._clock))
 
     def _deleted_job(
         self, deletion: Deletion, report: Verification, request: ScheduleDelete
@@ -156,21 +158,25 @@ class ScheduleDeletes:
         tracker = deletion.tracker
         seqs = [s for lo, hi in report.deleted_ranges for s in range(lo, hi + 1)]
         seqs += [seq for seq, tag in deletion.commands if tag >= request.from_time_ns]
-        detail = {
-            "request_id": report.request_id,
-            "from_time_ns": request.from_time_ns,
-            "deleted": report.deleted,
-            "executed_after_from": report.executed_after_from,
-            "copies_sent": deletion.sends,
-        }
-        now = self._clock.time_ns()
         pass_id = tracker.pass_id
+        deleted = ScheduleDeleted(
+            actor="ground",
+            pass_id=pass_id,
+            request_id=report.request_id,
+            from_time_ns=request.from_time_ns,
+            deleted=report.deleted,
+            executed_after_from=report.executed_after_from,
+            copies_sent=deletion.sends,
+        )
+        clock = self._clock
+        now = clock.time_ns()
 
         def job(session: Session) -> list[dict[str, Any]]:
-            events = [write_event(session, "schedule_deleted", "ground", detail, pass_id)]
+            events = [record(session, deleted, clock.time_ns())]
             if seqs:
                 events += cancel_commands(
                     session,
+                    clock=clock,
                     pass_id=pass_id,
                     seqs=seqs,
                     time_ns=now,

@@ -5,8 +5,9 @@ The tracker holds every command's stage in memory (the rules of
 by the typed link events (:class:`~server.services.link.CommandAcked`,
 :class:`~server.services.link.CommandsUnknown`) that :class:`~server.services.link.GroundLink`
 emits after filing the vehicle's word. The database is its record (the ground's own stage
-writes go through it, in jobs of :data:`STAGE_JOB_COMMANDS`), never its mailbox: nothing
-here reads a stage back.
+writes go through it, in jobs of :data:`STAGE_JOB_COMMANDS`: ``released`` and ``sent``,
+ground times, at a command's first transmission, the count of transmissions with them and
+after retransmissions; ``expired``), never its mailbox: nothing here reads a stage back.
 
 **Resolution after LOS** (:meth:`CommandTracker.resolve`): commands whose tag has passed
 without a final acknowledgement are asked about (``command_query``, up to
@@ -170,6 +171,7 @@ class CommandTracker:
                 for stage, at_ns in (("released", released_ns), ("sent", sent_ns)):
                     events += set_command_stage(
                         session,
+                        clock=self._clock,
                         pass_id=pass_id,
                         seq=seq,
                         stage=stage,
@@ -207,6 +209,7 @@ class CommandTracker:
             for seq in seqs:
                 events += set_command_stage(
                     session,
+                    clock=self._clock,
                     pass_id=pass_id,
                     seq=seq,
                     stage="expired",
