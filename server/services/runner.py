@@ -394,20 +394,18 @@ class PassRunner:
 
     async def _resume(self, p: UnfinishedPass, window: TelemetryWindow) -> None:
         link = self._link
+        tracker = self._trackers.stored(p.id, p.commands)  # follows the link from now on
         late = await spacecraft_back(p, link=link, clock=self._clock, closing=self._closing)
-        if late is not None:
-            await self.abort(p.id, "ground", late)
-            return
-        if self._closing.is_set():
-            return
         async with self._lock:
-            refusal = resume_refusal(p, running=self._active is not None, vehicle=link.robot)
-            if refusal is not None:
-                await self._abort_locked(p.id, "ground", refusal)
+            running = self._active is not None
+            refusal = late or resume_refusal(p, running=running, vehicle=link.robot)
+            if self._closing.is_set() or refusal is not None:
+                tracker.close()
+                if refusal is not None and not self._closing.is_set():
+                    await self._abort_locked(p.id, "ground", refusal)
                 return
             uplink = new_uplink([command_from_record(r) for r in p.pending], self._settings, link)
             uplink.restore(p.transmitted)
-            tracker = self._trackers.stored(p.id, p.commands)
             tags = {r.seq: r.execute_time_ns for r in p.commands}
             active = ActivePass.of(
                 p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True
