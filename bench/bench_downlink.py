@@ -102,7 +102,7 @@ class _Tap:
         on_telemetry, committed = downlink.on_telemetry, downlink._committed
         requested = downlink._requested_at
 
-        async def tapped_on_telemetry(message: TelemetryMsg) -> None:
+        async def tapped_on_telemetry(message: TelemetryMsg, *received: float) -> None:
             now = time.monotonic()
             if self.first_read is None:
                 self.first_read = now
@@ -114,7 +114,7 @@ class _Tap:
                 self.last_read = now
                 if len(self.kept) < self._keep:
                     self.kept.extend(message.frames)
-            await on_telemetry(message)
+            await on_telemetry(message, *received)  # the arrival time, where the link gives it
 
         def tapped_committed(
             fresh: list[TelemetryFrame],
@@ -163,9 +163,12 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
         engine = make_engine(url)
         sessions = session_factory(engine)
         pass_id = new_pass(sessions)
-        link = server.app.state.link
-        link.open_window(pass_id, 0)
-        tap = _Tap(link.downlink, keep)
+        state = server.app.state
+        # the composition root's downlink (before issue 23 the link built and held it)
+        downlink = getattr(state, "downlink", None) or state.link.downlink
+        db = getattr(state, "db", None) or state.link.db
+        downlink.open_window(pass_id, 0)
+        tap = _Tap(downlink, keep)
         args = [
             sys.executable, "-m", "hikoboshi", "spacecraft",
             "--ground", f"ws://127.0.0.1:{server.port}/api/link", "--token", "s",
@@ -180,7 +183,7 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
             start = tap.first_read
             while (elapsed := time.monotonic() - start) < DURATION_S:
                 time.sleep(min(2.0, DURATION_S - elapsed))
-                _progress(rate_fps, time.monotonic() - start, tap, link)
+                _progress(rate_fps, time.monotonic() - start, tap, downlink)
             proc.send_signal(signal.SIGTERM)
             _, err = proc.communicate(timeout=60)
         finally:
@@ -190,7 +193,7 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
         time.sleep(0.3)  # the last acknowledgement's commit
         with sessions() as session:
             stored = repo.count_frames(session=session, pass_id=pass_id)
-        groups, jobs = link.db.groups, link.db.jobs
+        groups, jobs = db.groups, db.jobs
         server.stop()
         engine.dispose()
     span_s = (tap.last_commit or start) - start
@@ -198,15 +201,15 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
     return {
         "rate_fps": rate_fps,
         "time_scale": scale,
-        "frames_sent": link.held.count,
+        "frames_sent": downlink.held.count,
         "frames_stored": stored,
         "offered_fps": tap.first_sent / (tap.last_read - start),
         "sustained_fps": stored / span_s if span_s > 0 else 0.0,
         "resent_frames": tap.resent,
         "resent_requested": tap.resent_requested,
         "late_ack_resends": late,
-        "duplicates": link.duplicates,
-        "retransmit_requests": link.downlink.retransmit_requests,
+        "duplicates": downlink.duplicates,
+        "retransmit_requests": downlink.retransmit_requests,
         "commit_latency_ms": {
             "p50": 1e3 * _pct(tap.latencies_s, 0.5),
             "p99": 1e3 * _pct(tap.latencies_s, 0.99),
@@ -218,10 +221,10 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
     }
 
 
-def _progress(rate: float, t_s: float, tap: _Tap, link: Any) -> None:
+def _progress(rate: float, t_s: float, tap: _Tap, downlink: Any) -> None:
     print(
         f"  {rate:>6.0f} frames/s  t={t_s:5.1f} s  read {tap.first_sent:>6}  "
-        f"committed {tap.committed:>6}  resent {tap.resent}  dup {link.duplicates}",
+        f"committed {tap.committed:>6}  resent {tap.resent}  dup {downlink.duplicates}",
         file=sys.stderr,
         flush=True,
     )

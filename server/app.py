@@ -1,12 +1,21 @@
-"""``create_app(settings)``: the ground service. The lifespan opens the database (and runs
-its migrations) and closes it; nothing is created at import time."""
+"""``create_app(settings)``: the ground service, and its composition root.
+
+The lifespan opens the database (and runs its migrations) and builds the live path's
+services as siblings (:func:`build_live_path`: the clock, the database worker, the
+publisher, the downlink, the link, the command trackers' factory and the runner), then the
+consoles' hub and the worker pool, each handed what it needs in its constructor; the routes
+reach them through the typed dependencies of :mod:`server.api.deps`. Nothing is created at
+import time."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from dataclasses import dataclass
 
 from fastapi import FastAPI
+from sqlalchemy.orm import Session, sessionmaker
 
 from server.api import analyses as analyses_api
 from server.api import console as console_api
@@ -21,9 +30,13 @@ from server.api import telemetry as telemetry_api
 from server.api import web as web_api
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.services.clock import Clock, SystemClock
 from server.services.console import ConsoleHub
+from server.services.dbworker import Database, Publisher
+from server.services.downlink import GroundDownlink
 from server.services.link import GroundLink
 from server.services.runner import PassRunner
+from server.services.tracker import Trackers
 from server.services.workers import WorkerPool
 from server.settings import Settings
 from server.storage.db import (
@@ -34,7 +47,56 @@ from server.storage.db import (
     upgrade,
 )
 
-__all__ = ["create_app"]
+__all__ = ["LivePath", "build_live_path", "create_app"]
+
+
+@dataclass(frozen=True)
+class LivePath:
+    """The services of the command path (one database worker, on its own connections)."""
+
+    clock: Clock
+    publisher: Publisher
+    db: Database
+    downlink: GroundDownlink
+    link: GroundLink
+    trackers: Trackers
+    runner: PassRunner
+
+    async def close(self) -> None:
+        """After the runner's shutdown: the link's socket, then the database worker."""
+        await self.link.close()
+        await self.db.drain()
+        await asyncio.to_thread(self.db.close)
+
+
+def build_live_path(
+    *, sessions: sessionmaker[Session], settings: Settings, clock: Clock
+) -> LivePath:
+    """The live path's services, each handed its collaborators. The downlink sends its
+    acknowledgements through the link's session (bound late: the link routes telemetry to
+    the downlink)."""
+    publisher = Publisher()
+    db = Database(sessions, publisher)
+    delay_s = settings.link_one_way_delay_s
+
+    async def send(text: str) -> bool:
+        return await link.send(text)
+
+    downlink = GroundDownlink(
+        db=db, publisher=publisher, clock=clock, send=send, time_scale=lambda: link.time_scale
+    )
+    link = GroundLink(db=db, downlink=downlink, clock=clock, one_way_delay_s=delay_s)
+    trackers = Trackers(link=link, db=db, clock=clock, one_way_delay_s=delay_s)
+    runner = PassRunner(
+        link=link,
+        downlink=downlink,
+        db=db,
+        publisher=publisher,
+        trackers=trackers,
+        settings=settings,
+        clock=clock,
+    )
+    return LivePath(clock, publisher, db, downlink, link, trackers, runner)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -60,15 +122,19 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.link_engine = link_engine
         app.state.sessions = session_factory(engine)
         app.state.read_sessions = read_session_factory(engine)
-        app.state.link = GroundLink(
-            sessions=session_factory(link_engine),
-            one_way_delay_s=settings.link_one_way_delay_s,
+        live = build_live_path(
+            sessions=session_factory(link_engine), settings=settings, clock=SystemClock()
         )
-        app.state.runner = PassRunner(link=app.state.link, settings=settings)
-        await app.state.runner.recover()
+        app.state.clock = live.clock
+        app.state.publisher = live.publisher
+        app.state.db = live.db
+        app.state.downlink = live.downlink
+        app.state.link = live.link
+        app.state.runner = live.runner
+        await live.runner.recover()
         app.state.console = ConsoleHub(
-            publisher=app.state.link.publisher,
-            link_status=app.state.link.status,
+            publisher=live.publisher,
+            link_status=live.link.status,
             sessions=app.state.read_sessions,
         )
         app.state.console.start()
@@ -83,8 +149,8 @@ def create_app(settings: Settings) -> FastAPI:
         finally:
             await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
-            await app.state.runner.shutdown()
-            await app.state.link.close()
+            await live.runner.shutdown()
+            await live.close()
             engine.dispose()
             link_engine.dispose()
 

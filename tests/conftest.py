@@ -34,7 +34,6 @@ def demo_recording(model: RobotModel) -> PassRecording:
     )
 
 
-
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Modules with a slow test run first, each module's tests in their own order: with the
     suite spread over workers (pyproject's ``-n``), a minute-long test started last keeps one

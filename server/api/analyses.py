@@ -9,12 +9,20 @@ as a temporary file that is streamed and deleted. A full pool answers 503 ``busy
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep, WorkersDep
+from server.api.deps import (
+    OperatorDep,
+    PublisherDep,
+    SessionDep,
+    SettingsDep,
+    ViewerDep,
+    WorkersDep,
+)
 from server.schemas import (
     ERROR_RESPONSES,
     AnalysesPublic,
@@ -24,6 +32,7 @@ from server.schemas import (
 )
 from server.services import analyses as service
 from server.services import reports
+from server.services.events import with_written
 from server.services.jobs import (
     jobs_dir,
     read_session_file_job,
@@ -51,15 +60,22 @@ _JSON_ERRORS: dict[int | str, dict[str, Any]] = {
 
 @router.post("/{pass_id}/analyses", status_code=201, response_model=AnalysesPublic)
 async def run_analyses(
-    pass_id: str, http: Request, settings: SettingsDep, who: OperatorDep, workers: WorkersDep
+    pass_id: str,
+    http: Request,
+    settings: SettingsDep,
+    who: OperatorDep,
+    workers: WorkersDep,
+    publisher: PublisherDep,
 ) -> AnalysesPublic:
     """Analyse the flown pass afresh (tens of seconds for a whole pass, in a worker process
     on its own connection; past ``post_pass_deadline_s``, 504) and store one result of each
     kind; an analysis that cannot run on this pass is stored as failed, with the reason."""
-    return await workers.run(
+    analyses: AnalysesPublic
+    events: list[dict[str, Any]]
+    analyses, events = await workers.run(
         session_job,
         settings.resolved_database_url(),
-        service.run_analyses,
+        partial(with_written, service.run_analyses),
         pass_id=pass_id,
         actor=who.name,
         robot_files=tuple(str(p) for p in settings.robot_files),
@@ -67,6 +83,8 @@ async def run_analyses(
         what=f"the analyses of pass {pass_id}",
         client=http,
     )
+    publisher.publish(events)
+    return analyses
 
 
 @router.get("/{pass_id}/analyses", response_model=AnalysesPublic)

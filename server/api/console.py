@@ -16,7 +16,14 @@ import asyncio
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import Principal, authenticate, record_auth_failure, websocket_principal
+from server.api.deps import (
+    ConsoleDep,
+    Principal,
+    SettingsDep,
+    authenticate,
+    record_auth_failure,
+    websocket_principal,
+)
 from server.api.errors import HttpError
 from server.services.console import AuthMsg, ConsoleHub, ProtocolError, decode_client
 from server.settings import Role, Settings
@@ -29,7 +36,7 @@ router = APIRouter(tags=["console"])
 _WATCHERS = (Role.VIEWER, Role.OPERATOR)
 
 
-async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
+async def _principal(websocket: WebSocket, hub: ConsoleHub, settings: Settings) -> Principal:
     if websocket.headers.get("authorization"):
         return websocket_principal(websocket, Role.VIEWER)
     try:
@@ -47,7 +54,6 @@ async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
         raise HttpError(401, "unauthorized", f"auth expected first: {exc}") from None
     if not isinstance(message, AuthMsg):
         raise HttpError(401, "unauthorized", f"auth expected first, not {message.type}")
-    settings: Settings = websocket.app.state.settings
     try:
         principal = authenticate(settings, f"Bearer {message.token}")
     except HttpError as exc:
@@ -59,11 +65,10 @@ async def _principal(websocket: WebSocket, hub: ConsoleHub) -> Principal:
 
 
 @router.websocket("/api/console")
-async def console(websocket: WebSocket) -> None:
+async def console(websocket: WebSocket, hub: ConsoleDep, settings: SettingsDep) -> None:
     await websocket.accept()
-    hub: ConsoleHub = websocket.app.state.console
     try:
-        principal = await _principal(websocket, hub)
+        principal = await _principal(websocket, hub, settings)
     except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
         return

@@ -15,17 +15,27 @@ refused confirmation).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
-from server.api.deps import OperatorDep, ViewerDep
+from server.api.deps import (
+    ClockDep,
+    DatabaseDep,
+    LinkDep,
+    OperatorDep,
+    PublisherDep,
+    RunnerDep,
+    ViewerDep,
+)
 from server.schemas import ERROR_RESPONSES, PassControlPublic
+from server.services.clock import Clock
+from server.services.dbworker import Database, Publisher
 from server.services.errors import ConflictError, InvalidRequestError
-from server.services.link import GroundLink, LinkUnavailable
+from server.services.link import LinkUnavailable
 from server.services.passes import check_confirmation, control_state
 from server.services.runner import PassRunner
 
@@ -46,25 +56,30 @@ class AbortRequest(BaseModel):
 
 
 def _confirmation_job(
-    pass_id: str, action: str, confirm: str, actor: str
-) -> Callable[[Session], tuple[str, str | None]]:
+    pass_id: str, action: str, confirm: str, actor: str, clock: Clock
+) -> Callable[[Session], tuple[str, str | None, list[dict[str, Any]]]]:
     """A DB job: the pass's id, and the expected text when ``confirm`` is wrong (then the
-    refusal is written to the audit log)."""
+    refusal is written to the audit log: its event to publish)."""
 
-    def job(session: Session) -> tuple[str, str | None]:
+    def job(session: Session) -> tuple[str, str | None, list[dict[str, Any]]]:
         return check_confirmation(
-            session=session, pass_id=pass_id, action=action, confirm=confirm, actor=actor
+            session=session,
+            pass_id=pass_id,
+            action=action,
+            confirm=confirm,
+            actor=actor,
+            time_ns=clock.time_ns(),
         )
 
     return job
 
 
-async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, actor: str) -> str:
-    # Through the link's database worker (no blocking database call in the event loop, and
-    # the command path's own connections: readers cannot hold it up), ahead of its queue.
-    key, expected = await link.db.run(
-        _confirmation_job(pass_id, action, confirm, actor), control=True
-    )
+async def _confirmed(ground: _Ground, pass_id: str, action: str, confirm: str, actor: str) -> str:
+    # Through the command path's database worker (no blocking database call in the event
+    # loop, and its own connections: readers cannot hold it up), ahead of its queue.
+    job = _confirmation_job(pass_id, action, confirm, actor, ground.clock)
+    key, expected, events = await ground.db.run(job, control=True)
+    ground.publisher.publish(events)
     if expected is not None:
         raise InvalidRequestError(
             "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -72,40 +87,53 @@ async def _confirmed(link: GroundLink, pass_id: str, action: str, confirm: str, 
     return key
 
 
-async def _public(link: GroundLink, pass_id: str) -> PassControlPublic:
+async def _public(db: Database, pass_id: str) -> PassControlPublic:
     def job(session: Session) -> PassControlPublic:
         return control_state(session=session, pass_id=pass_id)
 
-    return await link.db.run(job, control=True)
+    return await db.run(job, control=True)
+
+
+@dataclass(frozen=True)
+class _Ground:
+    """What pass control needs of the command path."""
+
+    db: Database
+    publisher: Publisher
+    clock: Clock
+    runner: PassRunner
+
+
+def _ground(
+    db: DatabaseDep, publisher: PublisherDep, clock: ClockDep, runner: RunnerDep
+) -> _Ground:
+    return _Ground(db, publisher, clock, runner)
+
+
+GroundDep = Annotated[_Ground, Depends(_ground)]
 
 
 @router.post("/api/passes/{pass_id}/start")
 async def start_pass(
-    pass_id: str, body: StartRequest, who: OperatorDep, request: Request
+    pass_id: str, body: StartRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
-    key = await _confirmed(link, pass_id, "START", body.confirm, who.name)
+    key = await _confirmed(ground, pass_id, "START", body.confirm, who.name)
     try:
-        await runner.start(key, who.name)
+        await ground.runner.start(key, who.name)
     except LinkUnavailable as exc:
         raise ConflictError("link_down", str(exc)) from None
-    return await _public(link, key)
+    return await _public(ground.db, key)
 
 
 @router.post("/api/passes/{pass_id}/abort")
 async def abort_pass(
-    pass_id: str, body: AbortRequest, who: OperatorDep, request: Request
+    pass_id: str, body: AbortRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
-    key = await _confirmed(link, pass_id, "ABORT", body.confirm, who.name)
-    await runner.abort(key, who.name, body.reason)
-    return await _public(link, key)
+    key = await _confirmed(ground, pass_id, "ABORT", body.confirm, who.name)
+    await ground.runner.abort(key, who.name, body.reason)
+    return await _public(ground.db, key)
 
 
 @router.get("/api/link/status")
-def link_status(_: ViewerDep, request: Request) -> dict[str, Any]:
-    link: GroundLink = request.app.state.link
-    runner: PassRunner = request.app.state.runner
+def link_status(_: ViewerDep, link: LinkDep, runner: RunnerDep) -> dict[str, Any]:
     return {**asdict(link.status()), "active_pass_id": runner.active_pass_id}

@@ -1,4 +1,7 @@
-"""Dependencies as ``Annotated`` aliases: settings, a database session, the caller."""
+"""Dependencies as ``Annotated`` aliases: settings, a database session, the caller, and the
+services the composition root (:mod:`server.app`) built: the link, the downlink, the
+runner, the command path's database worker and the consoles' hub. Routes take these; none
+reads ``app.state`` itself."""
 
 from __future__ import annotations
 
@@ -6,18 +9,34 @@ import hashlib
 import hmac
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from fastapi import Depends, Header, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
+from starlette.requests import HTTPConnection
 
 from server.api.errors import HttpError
+from server.services.clock import Clock
+from server.services.console import ConsoleHub
+from server.services.dbworker import Database, Publisher
+from server.services.downlink import GroundDownlink
+from server.services.link import GroundLink
+from server.services.runner import PassRunner
 from server.services.workers import WorkerPool
 from server.settings import ApiToken, Role, Settings
 
+T = TypeVar("T")
+
 __all__ = [
+    "ClockDep",
+    "ConsoleDep",
+    "DatabaseDep",
+    "DownlinkDep",
+    "LinkDep",
     "OperatorDep",
     "Principal",
+    "PublisherDep",
+    "RunnerDep",
     "SessionDep",
     "SettingsDep",
     "ViewerDep",
@@ -30,9 +49,19 @@ __all__ = [
 ]
 
 
-async def get_settings(request: Request) -> Settings:
-    settings: Settings = request.app.state.settings
-    return settings
+def _state(name: str, kind: type[T]) -> Callable[[HTTPConnection], Awaitable[T]]:
+    """A dependency on ``app.state.<name>`` (set by the lifespan, :mod:`server.app`), on the
+    event loop, for routes and websockets alike."""
+
+    async def get(connection: HTTPConnection) -> T:
+        value: T = getattr(connection.app.state, name)
+        return value
+
+    get.__name__ = f"get_{name}"
+    return get
+
+
+get_settings = _state("settings", Settings)
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -47,6 +76,16 @@ def get_session(request: Request) -> Iterator[Session]:
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SessionDep = Annotated[Session, Depends(get_session)]
+#: The injected clock every event and arrival is timed on.
+ClockDep = Annotated[Clock, Depends(_state("clock", Clock))]
+#: The consoles' publish hook.
+PublisherDep = Annotated[Publisher, Depends(_state("publisher", Publisher))]
+LinkDep = Annotated[GroundLink, Depends(_state("link", GroundLink))]
+DownlinkDep = Annotated[GroundDownlink, Depends(_state("downlink", GroundDownlink))]
+RunnerDep = Annotated[PassRunner, Depends(_state("runner", PassRunner))]
+#: The command path's database worker (its own connections: readers cannot hold it up).
+DatabaseDep = Annotated[Database, Depends(_state("db", Database))]
+ConsoleDep = Annotated[ConsoleHub, Depends(_state("console", ConsoleHub))]
 
 
 @dataclass(frozen=True)
@@ -139,10 +178,7 @@ def record_auth_failure(websocket: WebSocket, reason: str) -> None:
         guard.failed(client.host if client else "unknown", websocket.url.path, reason)
 
 
-def get_workers(request: Request) -> WorkerPool:
-    workers: WorkerPool = request.app.state.workers
-    return workers
-
+get_workers = _state("workers", WorkerPool)
 
 #: The pool of worker processes for CPU-heavy requests (server/services/workers.py).
 WorkersDep = Annotated[WorkerPool, Depends(get_workers)]

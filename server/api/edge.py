@@ -50,7 +50,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import authenticate
 from server.api.errors import HttpError, error_body
-from server.services.command_stages import write_event
+from server.services.clock import Clock, SystemClock
+from server.services.events import AuthBlocked, record
 from server.settings import Settings
 
 if TYPE_CHECKING:
@@ -463,23 +464,26 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
     service write more than that. On the readers' connections, in a thread: never on the
     command path's."""
     sessions = getattr(app.state, "sessions", None)
-    link = getattr(app.state, "link", None)
+    publisher = getattr(app.state, "publisher", None)
+    clock: Clock = getattr(app.state, "clock", None) or SystemClock()
     if sessions is None:
         return
     loop = asyncio.get_running_loop()
-    detail = {"address": address, "failures": failures, "blocked_s": round(left_s, 1)}
+    blocked = AuthBlocked(
+        actor="edge", address=address, failures=failures, blocked_s=round(left_s, 1)
+    )
 
     def write() -> dict[str, Any]:
         with sessions() as session:
-            event = write_event(session, "auth_blocked", "edge", detail)
+            event = record(session, blocked, clock.time_ns())
             session.commit()
             return event
 
     def done(future: asyncio.Future[dict[str, Any]]) -> None:
         if future.cancelled() or future.exception() is not None:
             log.error("auth_blocked event not written: %r", future.exception())
-        elif link is not None:
-            link.publisher.publish([future.result()])
+        elif publisher is not None:
+            publisher.publish([future.result()])
 
     loop.run_in_executor(None, write).add_done_callback(done)
 

@@ -10,13 +10,12 @@ handling one message (a bug, a database failure) is logged and the next message 
 from __future__ import annotations
 
 import logging
-import time
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import websocket_principal
+from server.api.deps import ClockDep, LinkDep, websocket_principal
 from server.api.errors import HttpError
-from server.services.link import Connection, GroundLink
+from server.services.link import Connection
 from server.settings import Role
 
 __all__ = ["router"]
@@ -26,14 +25,13 @@ log = logging.getLogger("hikoboshi.ground.link")
 
 
 @router.websocket("/api/link")
-async def spacecraft_link(websocket: WebSocket) -> None:
+async def spacecraft_link(websocket: WebSocket, link: LinkDep, clock: ClockDep) -> None:
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
     except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
         return
-    link: GroundLink = websocket.app.state.link
 
     async def close(code: int, reason: str) -> None:
         await websocket.close(code=code, reason=reason)
@@ -48,7 +46,7 @@ async def spacecraft_link(websocket: WebSocket) -> None:
             except RuntimeError as exc:  # the socket was closed under us (superseded)
                 reason = str(exc)[:200]
                 break
-            received_mono = time.monotonic()
+            received_mono = clock.monotonic()  # the one timing of its arrival
             if message["type"] == "websocket.disconnect":
                 reason = f"closed by the spacecraft ({message.get('code')})"
                 break

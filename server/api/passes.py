@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-import time
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from anyio import from_thread
+from fastapi import APIRouter, Query
 
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep
+from server.api.deps import (
+    ClockDep,
+    DownlinkDep,
+    OperatorDep,
+    PublisherDep,
+    SessionDep,
+    SettingsDep,
+    ViewerDep,
+)
 from server.schemas import (
     ERROR_RESPONSES,
     CommandsPublic,
@@ -19,6 +27,7 @@ from server.schemas import (
     PassSummaryPublic,
 )
 from server.services import passes as service
+from server.services.events import written
 from server.services.summary import pass_summary
 
 __all__ = ["router"]
@@ -28,12 +37,21 @@ router = APIRouter(prefix="/api/passes", tags=["passes"], responses=ERROR_RESPON
 
 @router.post("", status_code=201, response_model=PassPublic)
 def schedule_pass(
-    request: PassCreate, session: SessionDep, settings: SettingsDep, who: OperatorDep
+    request: PassCreate,
+    session: SessionDep,
+    settings: SettingsDep,
+    who: OperatorDep,
+    clock: ClockDep,
+    publisher: PublisherDep,
 ) -> PassPublic:
     """Schedule a pass of a stored plan; its window must hold the plan and the uplink lead."""
-    return service.schedule_pass(
-        session=session, settings=settings, request=request, actor=who.name, now_ns=time.time_ns()
+    scheduled = service.schedule_pass(
+        session=session, settings=settings, request=request, actor=who.name, now_ns=clock.time_ns()
     )
+    # committed: its event goes to the consoles, on the event loop (this route runs in a
+    # worker thread)
+    from_thread.run_sync(publisher.publish, written(session))
+    return scheduled
 
 
 @router.get("", response_model=PassesPublic)
@@ -70,9 +88,9 @@ def list_commands(
 
 @router.get("/{pass_id}/summary", response_model=PassSummaryPublic)
 def get_summary(
-    pass_id: str, session: SessionDep, _: ViewerDep, request: Request
+    pass_id: str, session: SessionDep, _: ViewerDep, downlink: DownlinkDep
 ) -> PassSummaryPublic:
     """Frames expected, stored and missing in the pass's telemetry window; its commands by
     outcome (rejected by reason); duplicates dropped and stored."""
-    dropped = request.app.state.link.duplicates_by_pass.get(pass_id, 0)
+    dropped = downlink.duplicates_by_pass.get(pass_id, 0)
     return pass_summary(session=session, pass_id=pass_id, duplicates_dropped=dropped)

@@ -10,16 +10,25 @@ takes a worker. The reads are plain functions (FastAPI's threadpool).
 
 from __future__ import annotations
 
-import time
-from typing import Annotated
+from functools import partial
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 
 from planner.errors import PlannerError
-from server.api.deps import OperatorDep, SessionDep, SettingsDep, ViewerDep, WorkersDep
+from server.api.deps import (
+    ClockDep,
+    OperatorDep,
+    PublisherDep,
+    SessionDep,
+    SettingsDep,
+    ViewerDep,
+    WorkersDep,
+)
 from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
 from server.services.errors import DomainError
+from server.services.events import with_written
 from server.services.jobs import session_job
 from server.services.robots import resolve_robot
 
@@ -35,6 +44,8 @@ async def create_plan(
     settings: SettingsDep,
     who: OperatorDep,
     workers: WorkersDep,
+    clock: ClockDep,
+    publisher: PublisherDep,
 ) -> PlanPublic:
     """Plan ``experiment`` with ``parameters`` for ``robot`` (a robot's name the server
     knows: shipped under ``examples/robots/`` or given at its start; none: ETS-VII) and store
@@ -43,18 +54,22 @@ async def create_plan(
     (``Retry-After``) when every worker is taken; 504 past ``plan_deadline_s``."""
     service.check_parameters(request)
     robot_path = resolve_robot(settings, request.robot)
-    return await workers.run(
+    plan: PlanPublic
+    events: list[dict[str, Any]]
+    plan, events = await workers.run(
         session_job,
         settings.resolved_database_url(),
-        service.create_plan,
+        partial(with_written, service.create_plan),
         request=request,
         actor=who.name,
-        now_ns=time.time_ns(),
+        now_ns=clock.time_ns(),
         robot_path=None if robot_path is None else str(robot_path),
         deadline_s=settings.plan_deadline_s,
         what=f"planning {request.experiment}",
         client=http,
     )
+    publisher.publish(events)
+    return plan
 
 
 @router.post("/validate", response_model=PlanValidation)

@@ -13,7 +13,7 @@ import re
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 
-from server.api.deps import OperatorDep, SettingsDep, ViewerDep, WorkersDep
+from server.api.deps import OperatorDep, PublisherDep, SettingsDep, ViewerDep, WorkersDep
 from server.api.errors import HttpError
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
 from server.services import recordings as service
@@ -81,7 +81,11 @@ async def download_recording(
     responses={413: {"model": ErrorPublic, "description": "The upload exceeds the size limit"}},
 )
 async def import_recording(
-    request: Request, settings: SettingsDep, who: OperatorDep, workers: WorkersDep
+    request: Request,
+    settings: SettingsDep,
+    who: OperatorDep,
+    workers: WorkersDep,
+    publisher: PublisherDep,
 ) -> PassImportPublic:
     """Store an MCAP pass recording (the body, as ``hikoboshi mcap export`` or
     ``recording.mcap`` writes it) as a new, finished pass marked imported. A file that is
@@ -103,7 +107,7 @@ async def import_recording(
                 if size > limit:
                     raise _too_large(size, limit)
                 spool.write(chunk)
-        return await workers.run(
+        imported, events = await workers.run(
             import_file_job,
             settings.resolved_database_url(),
             str(path),
@@ -113,6 +117,8 @@ async def import_recording(
             what="the import",
             client=request,
         )
+        publisher.publish(events)
+        return imported
     finally:
         path.unlink(missing_ok=True)
 

@@ -43,6 +43,8 @@ from planner.dynamics import DynamicsWorkspace
 from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
 from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
 from server.services.errors import NotFoundError
+from server.services.events import AnalysesRun
+from server.services.events import record as record_event
 from server.services.recordings import load_recording
 from server.services.robots import model_for_plan
 from server.storage import repository as repo
@@ -211,14 +213,8 @@ def run_analyses(
             result={"status": "ok", "format": "png", "images": images},
             created_at_ns=now_ns,
         )
-        repo.add_event(
-            session=session,
-            time_ns=now_ns,
-            kind="analyses_run",
-            actor=actor,
-            pass_id=key,
-            detail={kind: doc["status"] for kind, doc in run.documents.items()},
-        )
+        statuses = {kind: doc["status"] for kind, doc in run.documents.items()}
+        record_event(session, AnalysesRun(actor=actor, pass_id=key, statuses=statuses), now_ns)
         session.commit()
     except BaseException:
         session.rollback()

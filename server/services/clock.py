@@ -38,6 +38,11 @@ class Clock(Protocol):
         """Wall-clock nanoseconds (UTC), for the ground times the archive keeps."""
         ...
 
+    def time_ns_at(self, mono: float) -> int:
+        """The wall-clock nanoseconds of the earlier monotonic instant ``mono`` (an arrival
+        timed once, when it was read off the socket)."""
+        ...
+
     async def sleep_until(self, deadline: float, wake: asyncio.Event | None = None) -> None:
         """Return at ``deadline`` (monotonic s), or as soon as ``wake`` is set."""
         ...
@@ -49,6 +54,9 @@ class SystemClock:
 
     def time_ns(self) -> int:
         return time.time_ns()
+
+    def time_ns_at(self, mono: float) -> int:
+        return time.time_ns() - round((time.monotonic() - mono) * 1e9)
 
     async def sleep_until(self, deadline: float, wake: asyncio.Event | None = None) -> None:
         remaining = deadline - time.monotonic()
@@ -77,6 +85,9 @@ class ManualClock:
 
     def time_ns(self) -> int:
         return self._wall0 + round(self._now * 1e9)
+
+    def time_ns_at(self, mono: float) -> int:
+        return self._wall0 + round(mono * 1e9)
 
     async def sleep_until(self, deadline: float, wake: asyncio.Event | None = None) -> None:
         if deadline <= self._now or (wake is not None and wake.is_set()):

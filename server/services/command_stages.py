@@ -1,70 +1,31 @@
-r"""The stage rules of a command, and the events that record them (docs/protocol.md).
-
-    queued -> released -> sent -> received -> executed
-                                          \-> rejected (reason)
-    queued | released | sent | received -> cancelled (abort: deleted from the schedule)
-    queued | released | sent -> expired (could not reach the vehicle before its tag)
-
-A stage only moves to a higher rank (:data:`STAGE_RANK`): acknowledgements cross on the
-link. The vehicle's own word beats the ground's inference: a command the ground took as
-lost (``expired``) or as deleted (``cancelled``) that the vehicle then reports
-``executed`` or ``rejected`` is what the vehicle says.
-"""
+"""The writes that move a command's stage, and their events (docs/protocol.md). The stage
+rules themselves (ranks, which stages are final, which move overrules which) are defined once
+in :mod:`server.storage.stages` and re-exported here. Their events are stamped by the
+writer's injected clock (``clock``), like every event (:mod:`server.services.events`)."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from sqlalchemy.orm import Session
 
+from server.services.clock import Clock
+from server.services.events import CommandsCancelled, CommandStage, record
 from server.storage import repository as repo
+from server.storage.stages import FINAL_STAGES, STAGE_RANK, moves
 
 __all__ = [
     "FINAL_STAGES",
     "STAGE_RANK",
     "cancel_commands",
-    "event_dict",
     "set_command_stage",
-    "write_event",
 ]
-
-#: A stage only ever moves to a higher rank; those of rank 4 end a command.
-STAGE_RANK = {
-    "queued": 0,
-    "released": 1,
-    "sent": 2,
-    "received": 3,
-    "executed": 4,
-    "rejected": 4,
-    "expired": 4,
-    "cancelled": 4,
-}
-FINAL_STAGES = tuple(stage for stage, rank in STAGE_RANK.items() if rank == 4)
-#: Inferred final stages the vehicle's own report replaces.
-_INFERRED = ("expired", "cancelled")
-
-
-def event_dict(
-    kind: str, actor: str, detail: dict[str, Any], pass_id: str | None, time_ns: int
-) -> dict[str, Any]:
-    return {"kind": kind, "actor": actor, "detail": detail, "pass_id": pass_id, "time_ns": time_ns}
-
-
-def write_event(
-    session: Session, kind: str, actor: str, detail: dict[str, Any], pass_id: str | None = None
-) -> dict[str, Any]:
-    """Add an event row (ground time now) and return it as the dict to publish."""
-    now = time.time_ns()
-    record = repo.add_event(
-        session=session, time_ns=now, kind=kind, actor=actor, detail=detail, pass_id=pass_id
-    )
-    return {**event_dict(kind, actor, detail, pass_id, now), "id": record.id}
 
 
 def set_command_stage(
     session: Session,
     *,
+    clock: Clock,
     pass_id: str,
     seq: int,
     stage: str,
@@ -76,13 +37,12 @@ def set_command_stage(
 ) -> list[dict[str, Any]]:
     """Move a command forward to ``stage`` at ``time_ns`` (on the clock the storage models
     name for it) and write the event; nothing if that would move it backwards."""
-    record = repo.get_command(session=session, pass_id=pass_id, seq=seq)
-    if transmissions is not None and transmissions > record.transmissions:
-        record.transmissions = transmissions
-    overrules = record.stage in _INFERRED and stage in ("executed", "rejected")
-    if STAGE_RANK[stage] <= STAGE_RANK[record.stage] and not overrules:
+    row = repo.get_command(session=session, pass_id=pass_id, seq=seq)
+    if transmissions is not None and transmissions > row.transmissions:
+        row.transmissions = transmissions
+    if not moves(row.stage, stage):
         return []
-    previous = record.stage
+    previous = row.stage
     repo.update_command_stage(
         session=session,
         pass_id=pass_id,
@@ -91,17 +51,23 @@ def set_command_stage(
         time_ns=time_ns,
         reject_reason=reason,
     )
-    info: dict[str, Any] = {"seq": seq, "from": previous, "stage": stage, "time_ns": time_ns}
-    if reason is not None:
-        info["reason"] = reason
-    if detail is not None:
-        info["detail"] = detail
-    return [write_event(session, "command_stage", actor, info, pass_id)]
+    event = CommandStage(
+        actor=actor,
+        pass_id=pass_id,
+        seq=seq,
+        from_stage=previous,
+        stage=stage,
+        time_ns=time_ns,
+        reason=reason,
+        detail_text=detail,
+    )
+    return [record(session, event, clock.time_ns())]
 
 
 def cancel_commands(
     session: Session,
     *,
+    clock: Clock,
     pass_id: str,
     seqs: list[int],
     time_ns: int,
@@ -115,11 +81,13 @@ def cancel_commands(
     n = repo.cancel_commands(session=session, pass_id=pass_id, seqs=seqs, time_ns=time_ns)
     if not n:
         return []
-    detail: dict[str, Any] = {
-        "count": n,
-        "first_seq": min(seqs),
-        "last_seq": max(seqs),
-        "from_time_ns": from_time_ns,
-        "reason": reason[:200],
-    }
-    return [write_event(session, "commands_cancelled", actor, detail, pass_id)]
+    event = CommandsCancelled(
+        actor=actor,
+        pass_id=pass_id,
+        count=n,
+        first_seq=min(seqs),
+        last_seq=max(seqs),
+        from_time_ns=from_time_ns,
+        reason=reason[:200],
+    )
+    return [record(session, event, clock.time_ns())]

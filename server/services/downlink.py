@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
-from server.services.command_stages import write_event
 from server.services.dbworker import Database, Publisher
+from server.services.events import RetransmitRequested, event_job
 from server.storage import repository as repo
 from server.storage.models import PassRecord
 from telemetry.wire import Retransmit, TelemetryAck, TelemetryFrame, TelemetryMsg, encode
@@ -186,14 +186,17 @@ class GroundDownlink:
 
     # -- frames --------------------------------------------------------------------------
 
-    async def on_telemetry(self, message: TelemetryMsg) -> None:
+    async def on_telemetry(self, message: TelemetryMsg, received_mono: float | None = None) -> None:
         """File one telemetry message. Its frames are handed to the database worker and the
         socket is read on at once: the frames are acknowledged when they have committed
         (from the worker's completion), and the acknowledgements of everything that
         committed meanwhile go out as one. So the live path pipelines decode, storage and
         acknowledgement instead of waiting for a commit per message, and the console's
-        fan-out never holds up an acknowledgement."""
-        reception_ns = self._clock.time_ns()
+        fan-out never holds up an acknowledgement. ``received_mono``: when the message was
+        read off the socket, on the ground clock (the link's one timing of its arrival; now if
+        not given); the frames' reception time is that instant's."""
+        clock = self._clock
+        reception_ns = clock.time_ns() if received_mono is None else clock.time_ns_at(received_mono)
         by_pass: dict[str, list[TelemetryFrame]] = {}
         fresh: list[TelemetryFrame] = []
         held, storing = self.held, self._storing
@@ -383,8 +386,9 @@ class GroundDownlink:
         if due:
             self.retransmit_requests += 1
             await self._send(encode(Retransmit(ranges=due[:MAX_ACK_RANGES])))
-            detail = {"ranges": due[:20], "frames": sum(hi - lo + 1 for lo, hi in due)}
-            self._db.submit(lambda s: [write_event(s, "retransmit_requested", "ground", detail)])
+            frames = sum(hi - lo + 1 for lo, hi in due)
+            asked = RetransmitRequested(actor="ground", ranges=due[:20], frames=frames)
+            self._db.submit(event_job(asked, self._clock))
 
     def frames_behind(self, onboard_now_ns: int | None) -> int | None:
         """Frames generated onboard (estimated from the rate) that the ground does not hold."""

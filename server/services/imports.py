@@ -20,6 +20,7 @@ import hashlib
 import io
 import time
 from collections.abc import Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,8 @@ from sqlalchemy.orm import Session
 
 from server.schemas import PassImportPublic
 from server.services.errors import InvalidRequestError
+from server.services.events import PassImported, with_written
+from server.services.events import record as record_event
 from server.services.passes import public
 from server.settings import Settings
 from server.storage import repository as repo
@@ -152,22 +155,18 @@ def store_recording(
         repo.add_event_rows(session=session, pass_id=record.id, events=recording.events)
         repo.add_command_rows(session=session, pass_id=record.id, commands=recording.commands)
         frames = repo.add_frame_arrays(session=session, pass_id=record.id, frames=recording.frames)
-        repo.add_event(
-            session=session,
-            time_ns=now_ns,
-            kind="pass_imported",
+        original = meta.get("pass_id")
+        imported = PassImported(
             actor=actor,
             pass_id=record.id,
-            detail={
-                "source": source,
-                "original_pass_id": meta.get("pass_id") if isinstance(meta.get("pass_id"), str)
-                else None,
-                "frames": frames,
-                "commands": len(recording.commands),
-                "events": len(recording.events),
-                **(detail or {}),
-            },
-        )  # fmt: skip
+            source=source,
+            original_pass_id=original if isinstance(original, str) else None,
+            frames=frames,
+            commands=len(recording.commands),
+            events=len(recording.events),
+            extra=dict(detail or {}),
+        )
+        record_event(session, imported, now_ns)
         pass_id = record.id
         session.commit()
     except (IntegrityError, DataError, Conflict, InvalidArgument) as exc:
@@ -208,15 +207,16 @@ def import_mcap(
 
 def import_file_job(
     url: str, path: str, actor: str, max_uncompressed_bytes: int
-) -> PassImportPublic:
+) -> tuple[PassImportPublic, list[dict[str, Any]]]:
     """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
-    route spooled to ``path``, on the job's own connection to ``url``."""
+    route spooled to ``path``, on the job's own connection to ``url``; with the events it
+    wrote, for the server to publish."""
     from server.services.jobs import session_job
 
     data = Path(path).read_bytes()
     return session_job(
         url,
-        import_mcap,
+        partial(with_written, import_mcap),
         data=data,
         actor=actor,
         source="upload",

@@ -1,15 +1,18 @@
 """The ground end of the space-ground link (docs/protocol.md, v2): one spacecraft at a time.
 
 The API layer owns the websocket and hands this service each text frame
-(:meth:`GroundLink.handle`) and a way to send (:class:`Connection`). This module is the
-protocol: the session (``hello``, ping), the onboard clock, and the routing of what the
-vehicle says. Its parts live beside it, each the one owner of its state:
+(:meth:`GroundLink.handle`, timed once when read off the socket, on the injected clock)
+and a way to send (:class:`Connection`). This module is the protocol: the session
+(``hello``, ping), the onboard clock, and the routing of what the vehicle says. Its
+collaborators are built beside it by the composition root (:mod:`server.app`) and handed to
+it, each the one owner of its state:
 
 - :mod:`server.services.clock`: the injected ground clock and the ground's estimate of the
   onboard clock (from ``hello``, refined by every later onboard time stamp);
 - :mod:`server.services.downlink`: telemetry in, stored once, acknowledged, gaps asked for,
-  against the telemetry windows the runner opens through :meth:`GroundLink.open_window`;
-- :mod:`server.services.command_stages`: the stage rules of a command and their events;
+  against the telemetry windows the runner opens on it;
+- :mod:`server.storage.stages` and :mod:`server.services.command_stages`: the stage rules of
+  a command and the writes that move it; :mod:`server.services.events`: every event;
 - :mod:`server.services.dbworker`: the database worker thread and the consoles' publisher.
 
 What the vehicle says about commands reaches the runner (:mod:`server.services.runner`) as
@@ -38,15 +41,39 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sqlalchemy import select
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 
-from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME
-from server.services.clock import Clock, OnboardClock, SystemClock
-from server.services.command_stages import set_command_stage, write_event
-from server.services.dbworker import Database, Publisher
-from server.services.downlink import GroundDownlink, SeqRanges, TelemetryWindow
+from server.services.clock import Clock, OnboardClock
+from server.services.command_stages import set_command_stage
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink, TelemetryWindow
+from server.services.events import (
+    CommandAcked,
+    CommandAckUnknown,
+    CommandDeferred,
+    CommandsUnknown,
+    LinkConnected,
+    LinkDisconnected,
+    LinkDown,
+    LinkErrorReceived,
+    LinkErrorReplied,
+    LinkEvent,
+    LinkHello,
+    LinkUp,
+    RequestVerified,
+    event_job,
+    record,
+)
+from server.services.vehicle import (
+    ETS7_ROBOT,
+    LinkStatus,
+    RobotIdentity,
+    ScheduleStatus,
+    robot_mismatch,
+)
 from server.storage import repository as repo
 from server.storage.models import CommandRecord
+from server.storage.stages import acked_stage, expires_unknown
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
@@ -58,7 +85,6 @@ from telemetry.wire import (
     JointCommandMsg,
     Ping,
     Pong,
-    RejectReason,
     ScheduleDelete,
     TelemetryMsg,
     Verification,
@@ -68,6 +94,7 @@ from telemetry.wire import (
 )
 
 __all__ = [
+    "ETS7_ROBOT",
     "CommandAcked",
     "CommandsUnknown",
     "Connection",
@@ -77,7 +104,6 @@ __all__ = [
     "LinkStatus",
     "LinkUnavailable",
     "LinkUp",
-    "Publisher",
     "RequestVerified",
     "RobotIdentity",
     "ScheduleStatus",
@@ -97,49 +123,6 @@ class LinkUnavailable(Exception):
     """No spacecraft is connected, or its clock is not known yet."""
 
 
-# --- typed events to the runner ------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CommandAcked:
-    """The vehicle's word on one command, read off the socket at ``read_mono``."""
-
-    seq: int
-    stage: str  # received | executed | rejected
-    reason: str | None
-    onboard_time_ns: int
-    read_mono: float
-
-
-@dataclass(frozen=True)
-class CommandsUnknown:
-    """The vehicle never received these commands (answer to ``command_query``)."""
-
-    seqs: tuple[int, ...]
-    onboard_time_ns: int
-
-
-@dataclass(frozen=True)
-class RequestVerified:
-    """A ``verification``: the report on a ``schedule_delete``."""
-
-    report: Verification
-    read_mono: float
-
-
-@dataclass(frozen=True)
-class LinkUp:
-    hello: Hello
-
-
-@dataclass(frozen=True)
-class LinkDown:
-    reason: str
-
-
-LinkEvent = CommandAcked | CommandsUnknown | RequestVerified | LinkUp | LinkDown
-
-
 # --- connection and status -----------------------------------------------------------------
 
 
@@ -155,91 +138,6 @@ class Connection:
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
 
-@dataclass(frozen=True)
-class ScheduleStatus:
-    """The onboard schedule as the newest telemetry frame reports it (PUS 11 summary)."""
-
-    queued: int
-    capacity: int
-    free: int
-    first_tag_ns: int | None
-    last_tag_ns: int | None
-    #: onboard s from the frame's time to the last tag loaded: how far ahead the arm's
-    #: motion is already on board
-    lead_s: float | None
-    as_of_ns: int  # the frame's onboard time
-
-
-@dataclass(frozen=True)
-class LinkStatus:
-    connected: bool
-    actor: str | None
-    vehicle: str | None
-    time_scale: float | None
-    onboard_time_ns: int | None
-    round_trip_s: float | None  # onboard s, last pong
-    frames_received: int  # distinct frames held since the ground started
-    duplicates: int
-    frames_outside_pass: int
-    highest_seq: int
-    frames_behind: int | None  # estimated generated onboard minus held
-    open_gaps: list[tuple[int, int]]
-    frames_missing: int
-    retransmit_requests: int
-    errors_replied: int
-    errors_received: int
-    schedule: ScheduleStatus | None = None
-    #: the uplink of the running pass (:meth:`server.services.uplink.Uplink.status`)
-    uplink: dict[str, Any] | None = None
-    #: onboard s the clock mapping was moved forward by later stamps since the hello
-    clock_corrected_s: float = 0.0
-    #: the robot the vehicle announced in its hello (ETS-VII's when it named none)
-    robot: str | None = None
-    robot_hash: str | None = None
-    n_joints: int | None = None
-
-
-@dataclass(frozen=True)
-class RobotIdentity:
-    """Which robot: its description's name, ``content_sha256`` and joint count (None: not
-    announced)."""
-
-    name: str | None
-    hash: str | None
-    n_joints: int | None
-
-    @classmethod
-    def of_hello(cls, hello: Hello) -> RobotIdentity:
-        """The robot a ``hello`` announces: ETS-VII when it names none (a vehicle that
-        predates robot descriptions, or the built-in ETS-VII)."""
-        if hello.robot is None and hello.robot_hash is None and hello.n_joints is None:
-            return ETS7_ROBOT
-        return cls(hello.robot, hello.robot_hash, hello.n_joints)
-
-    def __str__(self) -> str:
-        joints = "? joints" if self.n_joints is None else f"{self.n_joints} joints"
-        digest = "no description hash" if self.hash is None else f"description {self.hash[:12]}"
-        return f"{self.name or 'unnamed'!r} ({joints}, {digest})"
-
-
-ETS7_ROBOT = RobotIdentity(ETS7_ROBOT_NAME, ETS7_ROBOT_HASH, 6)
-
-
-def robot_mismatch(plan: RobotIdentity, vehicle: RobotIdentity) -> str | None:
-    """Why a plan made for ``plan`` must not be flown by ``vehicle``, or None when it is the
-    same robot: the same description hash, and the same joint count where announced."""
-    if (
-        vehicle.hash is not None
-        and vehicle.hash == plan.hash
-        and vehicle.n_joints in (None, plan.n_joints)
-    ):
-        return None
-    return (
-        f"the plan was made for robot {plan} but the connected vehicle flies {vehicle}: "
-        "plan the pass for the vehicle's robot, or connect the vehicle of the plan's robot"
-    )
-
-
 # --- the link ------------------------------------------------------------------------------
 
 
@@ -247,14 +145,15 @@ class GroundLink:
     def __init__(
         self,
         *,
-        sessions: sessionmaker[Session],
-        publisher: Publisher | None = None,
-        clock: Clock | None = None,
+        db: Database,
+        downlink: GroundDownlink,
+        clock: Clock,
         one_way_delay_s: float = 3.0,
     ) -> None:
-        self.publisher = publisher or Publisher()
-        self.db = Database(sessions, self.publisher)
-        self.clock: Clock = clock or SystemClock()
+        self._db = db
+        #: telemetry goes there (it sends its acknowledgements through :meth:`send`)
+        self._downlink = downlink
+        self.clock = clock
         self.one_way_delay_s = one_way_delay_s
         self._conn: Connection | None = None
         self._pinger: asyncio.Task[None] | None = None
@@ -271,13 +170,6 @@ class GroundLink:
         self._ping_ids = itertools.count()
         self.errors_replied = 0
         self.errors_received = 0
-        self.downlink = GroundDownlink(
-            db=self.db,
-            publisher=self.publisher,
-            clock=self.clock,
-            send=self.send,
-            time_scale=lambda: self.time_scale,
-        )
         #: seq -> pass, for acknowledgements (registered by the runner)
         self._command_pass: dict[int, str] = {}
         self._listeners: list[Callable[[LinkEvent], None]] = []
@@ -302,51 +194,8 @@ class GroundLink:
         for seq in seqs:
             self._command_pass[seq] = pass_id
 
-    def open_window(
-        self, pass_id: str, start_ns: int, end_ns: int | None = None
-    ) -> TelemetryWindow:
-        """Frames generated from ``start_ns`` (onboard) on are the pass's."""
-        return self.downlink.open_window(pass_id, start_ns, end_ns)
-
-    def close_window(self, window: TelemetryWindow, end_ns: int | None) -> None:
-        self.downlink.close_window(window, end_ns)
-
-    def drop_window(self, window: TelemetryWindow) -> None:
-        self.downlink.drop_window(window)
-
     def set_uplink_status(self, provider: Callable[[], dict[str, Any] | None] | None) -> None:
         self._uplink_status = provider
-
-    # -- downlink state, for the API, the consoles and the tests --------------------------
-
-    @property
-    def windows(self) -> list[TelemetryWindow]:
-        return self.downlink.windows
-
-    @property
-    def held(self) -> SeqRanges:
-        return self.downlink.held
-
-    @property
-    def latest_frame(self) -> Any:
-        return self.downlink.latest_frame
-
-    @property
-    def newest(self) -> tuple[int, int] | None:
-        """(seq, generation ns) of the newest frame received."""
-        return self.downlink.newest
-
-    @property
-    def duplicates(self) -> int:
-        return self.downlink.duplicates
-
-    @property
-    def duplicates_by_pass(self) -> dict[str, int]:
-        return self.downlink.duplicates_by_pass
-
-    @property
-    def frames_outside_pass(self) -> int:
-        return self.downlink.frames_outside_pass
 
     # -- clock ---------------------------------------------------------------------------
 
@@ -387,9 +236,7 @@ class GroundLink:
             with contextlib.suppress(Exception):
                 await old.close(1000, "superseded by a new spacecraft connection")
         # Not awaited: the hello behind it must be read (and timed) at once.
-        self.db.submit(
-            lambda s: [write_event(s, "link_connected", conn.actor, {"connection": conn.id})]
-        )
+        self._db.submit(event_job(LinkConnected(actor=conn.actor, connection=conn.id), self.clock))
 
     async def detach(self, conn: Connection, reason: str) -> None:
         if self._conn is not conn:
@@ -399,8 +246,8 @@ class GroundLink:
             self._pinger.cancel()
             self._pinger = None
         self._emit(LinkDown(reason))
-        detail = {"connection": conn.id, "reason": reason}
-        await self.db.write(lambda s: [write_event(s, "link_disconnected", conn.actor, detail)])
+        event = LinkDisconnected(actor=conn.actor, connection=conn.id, reason=reason)
+        await self._db.write(event_job(event, self.clock))
 
     async def send(self, text: str) -> bool:
         """Send one message to the spacecraft; False when there is no link or it failed."""
@@ -437,8 +284,6 @@ class GroundLink:
         if conn is not None:
             with contextlib.suppress(Exception):
                 await conn.close(1001, "ground service stopping")
-        await self.db.drain()
-        await asyncio.to_thread(self.db.close)
 
     # -- incoming ------------------------------------------------------------------------
 
@@ -459,8 +304,10 @@ class GroundLink:
         if isinstance(message, ErrorMsg):
             # Never answered (not even before the hello); its text arrives escaped.
             self.errors_received += 1
-            info: dict[str, Any] = {"reason": message.reason, "ref_type": message.ref_type}
-            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+            info = LinkErrorReceived(
+                actor=conn.actor, reason=message.reason, ref_type=message.ref_type
+            )
+            await self._db.write(event_job(info, self.clock))
         elif isinstance(message, Hello):
             await self._on_hello(conn, message, received)
         elif not conn.greeted:
@@ -468,7 +315,7 @@ class GroundLink:
         elif isinstance(message, TelemetryMsg):
             if message.frames:
                 self._observe(max(f.generation_time_ns for f in message.frames), received)
-            await self.downlink.on_telemetry(message)
+            await self._downlink.on_telemetry(message, received)
         elif isinstance(message, CommandAck):
             self._observe(message.onboard_time_ns, received)
             self._on_command_ack(message, received)
@@ -491,13 +338,14 @@ class GroundLink:
         reason = str(exc)[:500]
         if exc.ref_type == "error":
             self.errors_received += 1
-            info = {"reason": f"unreadable error message: {reason}"[:500], "ref_type": None}
-            await self.db.write(lambda s: [write_event(s, "link_error_received", conn.actor, info)])
+            text = f"unreadable error message: {reason}"[:500]
+            info = LinkErrorReceived(actor=conn.actor, reason=text, ref_type=None)
+            await self._db.write(event_job(info, self.clock))
             return
         self.errors_replied += 1
         await self.send(encode(ErrorMsg(reason=reason, ref_type=exc.ref_type)))
-        detail = {"reason": reason, "ref_type": exc.ref_type}
-        await self.db.write(lambda s: [write_event(s, "link_error_replied", conn.actor, detail)])
+        replied = LinkErrorReplied(actor=conn.actor, reason=reason, ref_type=exc.ref_type)
+        await self._db.write(event_job(replied, self.clock))
 
     async def _on_hello(self, conn: Connection, hello: Hello, received_mono: float) -> None:
         # Timed when read off the socket: at 20x, 50 ms of queueing would put the ground's
@@ -516,10 +364,10 @@ class GroundLink:
         self.schedule_capacity = hello.schedule_capacity
         self.los_policy = hello.los_policy
         self.los_hold_after_s = hello.los_hold_after_s
-        if hello.next_telemetry_seq <= self.downlink.held.highest():
-            self.downlink.restart_numbering()  # a new spacecraft process counts from 0
+        if hello.next_telemetry_seq <= self._downlink.held.highest():
+            self._downlink.restart_numbering()  # a new spacecraft process counts from 0
         detail = hello.model_dump(mode="json", exclude={"v", "type"})
-        await self.db.write(lambda s: [write_event(s, "link_hello", conn.actor, detail)])
+        await self._db.write(event_job(LinkHello(actor=conn.actor, hello=detail), self.clock))
         if self._pinger is None or self._pinger.done():
             self._pinger = asyncio.create_task(self._ping_loop(), name="ground-pinger")
         self._emit(LinkUp(hello))
@@ -547,24 +395,28 @@ class GroundLink:
         actor = self.vehicle or "spacecraft"
         reason = None if ack.reason is None else ack.reason.value
         stage = ack.stage.value
-        if reason == RejectReason.SCHEDULE_FULL.value:
+        filed = acked_stage(stage, reason)
+        if filed is None:
             # Transient: the vehicle did not keep it, the runner sends it again.
-            info = {"seq": ack.seq, "reason": reason, "detail": ack.detail}
-            self.db.submit(lambda s: [write_event(s, "command_deferred", actor, info)])
+            deferred = CommandDeferred(
+                actor=actor, seq=ack.seq, reason=reason, detail_text=ack.detail
+            )
+            self._db.submit(event_job(deferred, self.clock))
         else:
-            cancelled = reason == RejectReason.CANCELLED.value
-            at_ns = self.clock.time_ns() if cancelled else ack.onboard_time_ns
+            # cancelled: the ground's clock (the stage times of storage/models.py)
+            at_ns = self.clock.time_ns() if filed == "cancelled" else ack.onboard_time_ns
 
             def job(session: Session) -> list[dict[str, Any]]:
                 key = self._pass_of(session, ack.seq)
                 if key is None:
-                    info = {"seq": ack.seq, "stage": stage}
-                    return [write_event(session, "command_ack_unknown", actor, info)]
+                    unknown = CommandAckUnknown(actor=actor, seq=ack.seq, stage=stage)
+                    return [record(session, unknown, self.clock.time_ns())]
                 return set_command_stage(
                     session,
+                    clock=self.clock,
                     pass_id=key,
                     seq=ack.seq,
-                    stage="cancelled" if cancelled else stage,
+                    stage=filed,
                     time_ns=at_ns,
                     actor=actor,
                     reason=reason,
@@ -572,7 +424,7 @@ class GroundLink:
                 )
 
             # Not awaited: acknowledgements queue behind each other in order, share commits.
-            self.db.submit(job)
+            self._db.submit(job)
         self._emit(CommandAcked(ack.seq, stage, reason, ack.onboard_time_ns, read_mono))
 
     async def _on_command_unknown(self, message: CommandUnknown) -> None:
@@ -588,12 +440,13 @@ class GroundLink:
                 if key is None:
                     continue
                 record = repo.get_command(session=session, pass_id=key, seq=seq)
-                if record.stage not in ("queued", "released", "sent"):
-                    continue  # received after all, or already final
-                if record.execute_time_ns > message.onboard_time_ns:
-                    continue  # not due yet: the runner still sends it
+                if not expires_unknown(
+                    record.stage, record.execute_time_ns, message.onboard_time_ns
+                ):
+                    continue  # received after all, already final, or not due yet
                 events += set_command_stage(
                     session,
+                    clock=self.clock,
                     pass_id=key,
                     seq=seq,
                     stage="expired",
@@ -603,31 +456,13 @@ class GroundLink:
                 )
             return events
 
-        await self.db.write(job)
+        await self._db.write(job)
         self._emit(CommandsUnknown(tuple(message.seqs), message.onboard_time_ns))
 
     # -- status --------------------------------------------------------------------------
 
-    def schedule_status(self) -> ScheduleStatus | None:
-        frame = self.downlink.latest_frame
-        if frame is None:
-            return None
-        buffer = frame.buffer
-        capacity = buffer.capacity or self.schedule_capacity
-        last = buffer.last_queued_time_ns
-        lead = None if last is None else (last - frame.generation_time_ns) / 1e9
-        return ScheduleStatus(
-            queued=buffer.queued,
-            capacity=capacity,
-            free=max(0, capacity - buffer.queued),
-            first_tag_ns=buffer.next_execute_time_ns,
-            last_tag_ns=last,
-            lead_s=lead,
-            as_of_ns=frame.generation_time_ns,
-        )
-
     def status(self) -> LinkStatus:
-        down = self.downlink
+        down = self._downlink
         gaps = down.held.gaps()
         onboard_now = self.onboard_now_ns() if self._onboard is not None else None
         uplink = None
@@ -653,7 +488,7 @@ class GroundLink:
             retransmit_requests=down.retransmit_requests,
             errors_replied=self.errors_replied,
             errors_received=self.errors_received,
-            schedule=self.schedule_status(),
+            schedule=ScheduleStatus.of(self._downlink.latest_frame, self.schedule_capacity),
             uplink=uplink,
             clock_corrected_s=0.0 if self._onboard is None else self._onboard.corrected_ns / 1e9,
             robot=None if self.robot is None else self.robot.name,

@@ -8,9 +8,9 @@ sent before AOS.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from datetime import datetime
+from typing import Any
 
 from sqlalchemy.orm import Session
 
@@ -27,6 +27,8 @@ from server.schemas import (
     ns_from_datetime,
 )
 from server.services.errors import InvalidRequestError
+from server.services.events import PassControlRefused, PassScheduled
+from server.services.events import record as record_event
 from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, PassRecord
@@ -101,20 +103,16 @@ def schedule_pass(
             relay=request.relay,
             created_at_ns=now_ns,
         )
-        repo.add_event(
-            session=session,
-            time_ns=now_ns,
-            kind="pass_scheduled",
+        scheduled = PassScheduled(
             actor=actor,
             pass_id=record.id,
-            detail={
-                "plan_id": plan.id,
-                "name": record.name,
-                "aos_time_ns": aos_ns,
-                "los_time_ns": los_ns,
-                "relay": record.relay,
-            },
+            plan_id=plan.id,
+            name=record.name,
+            aos_time_ns=aos_ns,
+            los_time_ns=los_ns,
+            relay=record.relay,
         )
+        record_event(session, scheduled, now_ns)
         session.commit()
     except BaseException:
         session.rollback()
@@ -173,24 +171,20 @@ def list_commands(
 
 
 def check_confirmation(
-    *, session: Session, pass_id: str, action: str, confirm: str, actor: str
-) -> tuple[str, str | None]:
+    *, session: Session, pass_id: str, action: str, confirm: str, actor: str, time_ns: int
+) -> tuple[str, str | None, list[dict[str, Any]]]:
     """The pass's id, and the expected text (``"<ACTION> <pass name>"``) when ``confirm`` is
-    not it; then the refusal is written to the audit log (``pass_control_refused``), for
-    the caller to commit before it refuses the request."""
-    record = repo.get_pass(session=session, pass_id=pass_id)
-    expected = f"{action} {record.name}"
+    not it; then the refusal is written to the audit log (``pass_control_refused``, stamped
+    ``time_ns``), for the caller to commit and publish (the events returned) before it
+    refuses the request."""
+    row = repo.get_pass(session=session, pass_id=pass_id)
+    expected = f"{action} {row.name}"
     if confirm == expected:
-        return record.id, None
-    repo.add_event(
-        session=session,
-        time_ns=time.time_ns(),
-        kind="pass_control_refused",
-        actor=actor,
-        detail={"action": action.lower(), "confirm": confirm},
-        pass_id=record.id,
+        return row.id, None, []
+    refused = PassControlRefused(
+        actor=actor, pass_id=row.id, action=action.lower(), confirm=confirm
     )
-    return record.id, expected
+    return row.id, expected, [record_event(session, refused, time_ns)]
 
 
 def control_state(*, session: Session, pass_id: str) -> PassControlPublic:

@@ -31,6 +31,8 @@ from server.schemas import (
     iso_from_ns,
 )
 from server.services.errors import DomainError, InvalidRequestError
+from server.services.events import PlanCreated
+from server.services.events import record as record_event
 from server.storage import repository as repo
 from server.storage.models import PlanRecord
 
@@ -147,18 +149,14 @@ def create_plan(
     result, document = plan(request, robot_path)
     try:
         record = repo.add_plan(session=session, plan=result, created_at_ns=now_ns)
-        repo.add_event(
-            session=session,
-            time_ns=now_ns,
-            kind="plan_created",
+        created = PlanCreated(
             actor=actor,
-            detail={
-                "plan_id": record.id,
-                "experiment": record.experiment,
-                "robot": result.robot,
-                "robot_hash": result.robot_hash,
-            },
+            plan_id=record.id,
+            experiment=record.experiment,
+            robot=result.robot,
+            robot_hash=result.robot_hash,
         )
+        record_event(session, created, now_ns)
         session.commit()
     except BaseException:
         session.rollback()

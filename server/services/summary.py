@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session
 from server.schemas import PassSummaryPublic
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, TelemetryFrameRecord
+from server.storage.stages import AWAITING_ACK_STAGES
 
 __all__ = ["pass_summary"]
 
@@ -118,5 +119,5 @@ def pass_summary(
         commands_cancelled=stages.get("cancelled", 0),
         commands_retransmitted=retransmitted or 0,
         min_command_lead_s=None if lead_ns is None else lead_ns / 1e9,
-        commands_outstanding=sum(stages.get(s, 0) for s in ("sent", "received")),
+        commands_outstanding=sum(stages.get(s, 0) for s in AWAITING_ACK_STAGES),
     )

@@ -61,6 +61,7 @@ from server.storage.models import (
     PlanRecord,
     stored_layout,
 )
+from server.storage.stages import OPEN_STAGES
 from telemetry.layout import FrameLayout
 from telemetry.wire import AcsCommandMsg, JointCommandMsg
 
@@ -381,7 +382,7 @@ def cancel_commands(*, session: Session, pass_id: str, seqs: Collection[int], ti
             .where(
                 CommandRecord.pass_id == key,
                 CommandRecord.seq.in_(wanted[lo : lo + 1000]),
-                CommandRecord.stage.in_(("queued", "released", "sent", "received")),
+                CommandRecord.stage.in_(OPEN_STAGES),
             )
             .values(stage="cancelled", cancelled_at_ns=time_ns)
             # objects of these rows already in the session are updated by evaluating the

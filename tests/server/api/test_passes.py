@@ -174,3 +174,29 @@ def test_commands_page_with_each_stages_time(client: TestClient, ptp_plan: Plan)
         "/api/passes/00000000-0000-0000-0000-000000000000/commands", headers=VIEWER
     )
     assert missing.status_code == 404
+
+
+def test_rest_side_events_reach_the_consoles_once_committed(
+    client: TestClient, ptp_plan: Plan
+) -> None:
+    """Every REST-side event write is published too (issue 23): scheduling a pass, and a
+    refused pass control, reach the publisher the consoles subscribe to, as stored."""
+    published: list[dict[str, Any]] = []
+    unsubscribe = client.app.state.publisher.subscribe(published.append)  # type: ignore[attr-defined]
+    try:
+        plan_id = _stored_plan(client, ptp_plan)
+        body = _request(plan_id, ptp_plan.duration_s + LEAD_S)
+        pass_id = client.post("/api/passes", json=body, headers=OPERATOR).json()["id"]
+        refused = client.post(
+            f"/api/passes/{pass_id}/abort", json={"confirm": "ABORT nothing"}, headers=OPERATOR
+        )
+        assert refused.status_code == 422
+    finally:
+        unsubscribe()
+    stored = client.get(f"/api/events?pass_id={pass_id}", headers=VIEWER).json()["data"]
+    assert [e["kind"] for e in published] == ["pass_scheduled", "pass_control_refused"]
+    by_id = {e["id"]: e for e in stored}
+    for event in published:
+        row = by_id[event["id"]]
+        assert event["detail"] == row["detail"] and event["pass_id"] == pass_id
+    assert published[1]["detail"] == {"action": "abort", "confirm": "ABORT nothing"}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import pytest
@@ -13,8 +14,11 @@ from sqlalchemy.orm import Session
 from starlette.testclient import WebSocketTestSession
 
 from planner.plan import Plan
-from server.services.command_stages import write_event
+from server.services.clock import Clock
 from server.services.console import ConsoleHub
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink
+from server.services.events import Event, record
 from server.services.link import Connection, GroundLink
 from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight, fly_offline
@@ -38,6 +42,11 @@ def hub(client: TestClient) -> ConsoleHub:
 def link(client: TestClient) -> GroundLink:
     ground_link: GroundLink = client.app.state.link  # type: ignore[attr-defined]
     return ground_link
+
+
+def downlink(client: TestClient) -> GroundDownlink:
+    ground_downlink: GroundDownlink = client.app.state.downlink  # type: ignore[attr-defined]
+    return ground_downlink
 
 
 def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str:
@@ -113,6 +122,20 @@ def add_flown_pass(
 _numbers = itertools.count(1)
 
 
+@dataclass(frozen=True, kw_only=True)
+class _Emitted(Event):
+    """An event of any kind a test names, its detail as given."""
+
+    info: dict[str, Any]
+
+    def detail(self) -> dict[str, Any]:
+        return dict(self.info)
+
+
+def _emitted(kind: str) -> type[_Emitted]:
+    return type(f"Emitted_{kind}", (_Emitted,), {"kind": kind})
+
+
 def emit_events(
     client: TestClient, kinds: list[str], pass_id: str | None = None
 ) -> list[dict[str, Any]]:
@@ -120,13 +143,17 @@ def emit_events(
     each carries a unique ``detail.n``."""
     details = [{"n": next(_numbers), "seq": 7, "stage": "sent"} for _ in kinds]
 
+    db: Database = client.app.state.db  # type: ignore[attr-defined]
+    clock: Clock = client.app.state.clock  # type: ignore[attr-defined]
+
     def job(session: Session) -> list[dict[str, Any]]:
         return [
-            write_event(session, kind, "tester", detail, pass_id)
+            record(session, _emitted(kind)(actor="tester", pass_id=pass_id, info=detail), now)
             for kind, detail in zip(kinds, details, strict=True)
+            for now in [clock.time_ns()]
         ]
 
-    client.portal.call(link(client).db.write, job)  # type: ignore[union-attr]
+    client.portal.call(db.write, job)  # type: ignore[union-attr]
     return details
 
 
@@ -150,14 +177,14 @@ class FakeSpacecraft:
         )
         portal.call(ground.attach, self.conn)
         portal.call(ground.handle, self.conn, encode(hello))
-        ground.open_window(pass_id, 0)
+        downlink(client).open_window(pass_id, 0)
 
     def send(self, frames: list[TelemetryFrame]) -> None:
         message = encode(TelemetryMsg(frames=frames))
         ground = link(self.client)
         self.portal.call(ground.handle, self.conn, message)
         # the link reads on while frames commit: wait until they are stored and published
-        self.portal.call(ground.downlink.settled)
+        self.portal.call(downlink(self.client).settled)
 
 
 def drain(ws: WebSocketTestSession) -> list[dict[str, Any]]:

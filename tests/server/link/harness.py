@@ -240,7 +240,7 @@ def settled(ground: Ground, pass_id: str) -> bool:
         outstanding = repo.list_commands(
             session=session, pass_id=pass_id, stages=("sent", "received")
         )
-    newest = ground.app.state.link.newest
+    newest = ground.app.state.downlink.newest
     runner = ground.app.state.runner
     resolved = not outstanding or (runner.active_pass_id is None and not runner.resolving)
     return (

@@ -22,7 +22,10 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.app import build_live_path
 from server.services.clock import ManualClock
+from server.services.dbworker import Database
+from server.services.downlink import GroundDownlink
 from server.services.link import Connection, GroundLink
 from server.services.runner import PassRunner
 from server.settings import Settings
@@ -91,6 +94,7 @@ class SimulatedSpacecraft:
         self._events: list[tuple[float, int, str, Any]] = []  # (mono, order, to, payload)
         self._order = itertools.count()
         self.link: GroundLink | None = None
+        self.db: Database | None = None
         self.conn: Connection | None = None
         self.lost = 0
 
@@ -117,12 +121,13 @@ class SimulatedSpacecraft:
     # -- the ground's socket ---------------------------------------------------------------
 
     async def connect(
-        self, link: GroundLink, *, hello_read_late_s: float = 0.0, **robot: Any
+        self, ground: Ground, *, hello_read_late_s: float = 0.0, **robot: Any
     ) -> None:
-        """Open a session with ``link``: its hello is stamped now and read
+        """Open a session with ``ground``'s link: its hello is stamped now and read
         ``hello_read_late_s`` later (a ground busy starting up); ``robot`` adds hello's
         ``robot``, ``robot_hash`` and ``n_joints`` (none: ETS-VII as the ground takes it)."""
-        self.link = link
+        self.link = link = ground.link
+        self.db = ground.db
 
         async def send_text(text: str) -> None:
             self._relay("vehicle", text)
@@ -148,6 +153,7 @@ class SimulatedSpacecraft:
     def lose_ground(self) -> None:
         """The ground process died: its socket is gone, nobody reads or detaches it."""
         self.link = None
+        self.db = None
         self.conn = None
 
     async def disconnect(self) -> None:
@@ -294,8 +300,8 @@ class SimulatedSpacecraft:
             )
             await self.clock.advance(max(0.0, nxt - self.clock.monotonic()))
             await self._process(ground_reads=True)
-            if self.link is not None and drain:
-                await self.link.db.drain()
+            if self.db is not None and drain:
+                await self.db.drain()
             await self.clock.settle()
 
     async def _process(self, *, ground_reads: bool) -> None:
@@ -342,6 +348,8 @@ class Ground:
     link: GroundLink
     runner: PassRunner
     sessions: sessionmaker[Session]
+    db: Database
+    downlink: GroundDownlink
 
 
 def make_sessions(tmp_path: Path) -> sessionmaker[Session]:
@@ -351,9 +359,8 @@ def make_sessions(tmp_path: Path) -> sessionmaker[Session]:
 
 
 def ground(sessions: sessionmaker[Session], clock: ManualClock, **settings: Any) -> Ground:
-    config = Settings(**settings)
-    link = GroundLink(sessions=sessions, clock=clock, one_way_delay_s=config.link_one_way_delay_s)
-    return Ground(link, PassRunner(link=link, settings=config), sessions)
+    live = build_live_path(sessions=sessions, settings=Settings(**settings), clock=clock)
+    return Ground(live.link, live.runner, sessions, live.db, live.downlink)
 
 
 def store_pass(sessions: sessionmaker[Session], n_commands: int, clock: ManualClock) -> str:

@@ -37,16 +37,16 @@ def test_a_backlog_is_stored_together_and_a_bad_message_alone_is_refused(
         sessions = make_sessions(tmp_path)
         g = ground(sessions, clock)
         sc = SimulatedSpacecraft(clock)
-        await sc.connect(g.link)
+        await sc.connect(g)
         pass_id = store_pass(sessions, 40, clock)  # a six-joint plan
-        g.link.open_window(pass_id, 0)
+        g.downlink.open_window(pass_id, 0)
         gate = threading.Event()
 
         def held(session: Any) -> list[dict[str, Any]]:
             assert gate.wait(60.0)
             return []
 
-        g.link.db.submit(held)  # the database is busy: messages pile up behind it
+        g.db.submit(held)  # the database is busy: messages pile up behind it
         messages = [
             make_frames(range(0, 10)),
             make_frames(range(10, 20)),
@@ -56,11 +56,11 @@ def test_a_backlog_is_stored_together_and_a_bad_message_alone_is_refused(
         for frames in messages:
             await g.link.handle(sc.conn, encode(TelemetryMsg(frames=frames)))
         gate.set()
-        await g.link.downlink.settled()
-        await g.link.db.drain()
+        await g.downlink.settled()
+        await g.db.drain()
         with sessions() as session:
             stored = repo.frame_seqs(session=session, pass_id=pass_id)
-        return stored, g.link.downlink.held
+        return stored, g.downlink.held
 
     stored, held = asyncio.run(scenario())
     good = [*range(0, 20), *range(30, 40)]

@@ -39,7 +39,7 @@ TARGETS = tuple(f"t{i}" for i in range(1, 7))
 
 
 def _window_frames(ground: Ground, generated: list[TelemetryFrame]) -> list[int]:
-    [window] = ground.app.state.link.windows
+    [window] = ground.app.state.downlink.windows
     assert window.end_ns is not None
     return sorted(f.seq for f in generated if window.contains(f.generation_time_ns))
 
@@ -261,7 +261,7 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
                 from_ns = deleted_from_ns(ground, pass_id)
 
                 def seen_past_the_delete() -> bool:
-                    newest = ground.app.state.link.newest
+                    newest = ground.app.state.downlink.newest
                     return newest is not None and newest[1] >= from_ns + 5 * 10**9
 
                 await wait_for(seen_past_the_delete, 30.0, "telemetry past the delete")

@@ -79,7 +79,7 @@ async def _setup(
     sessions = make_sessions(tmp_path)
     g = ground(sessions, clock)
     sc = RecordingSpacecraft(clock)
-    await sc.connect(g.link, **hello)
+    await sc.connect(g, **hello)
     pass_id = add_plan_and_pass(sessions, plan, "robot-pass", now_ns=clock.time_ns(), window_s=3600)
     return clock, g, sc, pass_id
 
@@ -93,13 +93,13 @@ async def _refused(g: Any, sc: RecordingSpacecraft, pass_id: str) -> DomainError
     with pytest.raises(DomainError) as caught:
         await g.runner.start(pass_id, "otto")
     await sc.run(10.0)
-    await g.link.db.drain()
+    await g.db.drain()
     assert status_of(caught.value) == 409 and caught.value.code == "robot_mismatch"
     # nothing started, nothing stored, nothing sent: the pass can still be flown later
     assert pass_state(g.sessions, pass_id) == "scheduled"
     assert commands(g.sessions, pass_id) == []
     assert sc.commands_sent() == [] and g.runner.active_pass_id is None
-    assert g.link.windows == [] or all(w.pass_id != pass_id for w in g.link.windows)
+    assert g.downlink.windows == [] or all(w.pass_id != pass_id for w in g.downlink.windows)
     return caught.value
 
 
@@ -144,7 +144,7 @@ async def test_a_plan_for_orihime_flies_on_the_orihime_vehicle(tmp_path: Path) -
     _, g, sc, pass_id = await _setup(tmp_path, _orihime_plan(), **ORIHIME)
     await g.runner.start(pass_id, "otto")
     await sc.run(90.0)
-    await g.link.db.drain()
+    await g.db.drain()
     rows = commands(g.sessions, pass_id)
     assert pass_state(g.sessions, pass_id) == "complete"
     assert {r.stage for r in rows} == {"executed"} and len(rows) == 81  # 80 joint + 1 ACS
@@ -161,7 +161,7 @@ async def test_an_ets7_plan_flies_on_a_vehicle_that_names_no_robot(tmp_path: Pat
     assert (status.robot, status.robot_hash, status.n_joints) == ("ets7", ETS7_ROBOT_HASH, 6)
     await g.runner.start(pass_id, "otto")
     await sc.run(60.0)
-    await g.link.db.drain()
+    await g.db.drain()
     assert pass_state(g.sessions, pass_id) == "complete"
 
 
@@ -178,9 +178,9 @@ async def test_another_robot_greeting_mid_pass_gets_no_command_and_the_pass_abor
     await sc.disconnect()
     await sc.run(2.0)
     reconnected = clock.monotonic()
-    await sc.connect(g.link)  # a vehicle that names no robot: ETS-VII
+    await sc.connect(g)  # a vehicle that names no robot: ETS-VII
     await sc.run(150.0)
-    await g.link.db.drain()
+    await g.db.drain()
     assert sc.commands_sent(since=reconnected) == []
     assert pass_state(g.sessions, pass_id) == "aborted"
     aborted = [e for e in _events(g, "pass_state") if e.detail["to"] == "aborted"]

@@ -169,7 +169,7 @@ async def _run_pass(
     sessions = make_sessions(tmp_path)
     g = ground(sessions, clock, **(settings or {}))
     sc = SimulatedSpacecraft(clock, **spacecraft_kw)  # type: ignore[arg-type]
-    await sc.connect(g.link)
+    await sc.connect(g)
     pass_id = store_pass(sessions, n_commands, clock)
     await g.runner.start(pass_id, "otto")
     t = 0.0
@@ -191,13 +191,13 @@ async def _run_pass(
             await sc.run(drop[0] - t)
             await sc.disconnect()
             await sc.run(drop[1])
-            await sc.connect(g.link)
+            await sc.connect(g)
             t = drop[0] + drop[1]
             drop = None
             continue
         await sc.run(step)
         t += step
-    await g.link.db.drain()
+    await g.db.drain()
     return sc, g, pass_id
 
 
@@ -332,7 +332,7 @@ async def test_after_a_restart_the_pass_resumes_and_a_late_hello_is_corrected(
     sessions = make_sessions(tmp_path)
     first = ground(sessions, clock)
     sc = SimulatedSpacecraft(clock, loss=0.1, seed=7)
-    await sc.connect(first.link)
+    await sc.connect(first)
     pass_id = store_pass(sessions, 400, clock)
     await first.runner.start(pass_id, "otto")
     await sc.run(40.0)
@@ -341,15 +341,15 @@ async def test_after_a_restart_the_pass_resumes_and_a_late_hello_is_corrected(
     assert active_task is not None
     active_task.cancel()
     await asyncio.gather(active_task, return_exceptions=True)
-    await first.link.db.drain()
-    first.link.db.close()
+    await first.db.drain()
+    first.db.close()
     sc.lose_ground()
     await sc.run(3.0)
     second = ground(sessions, clock)
     await second.runner.recover()
     # the new process reads the hello 2 s after it was sent: its onboard clock starts 2 s
     # behind, and the stamps of later messages move it forward
-    await sc.connect(second.link, hello_read_late_s=2.0)
+    await sc.connect(second, hello_read_late_s=2.0)
     behind = sc.onboard_ns() - second.link.onboard_now_ns()
     assert behind == pytest.approx(2e9, abs=1e6)
     await sc.run(140.0)
@@ -372,10 +372,10 @@ async def test_an_abort_at_los_does_not_wait_for_the_database_backlog(tmp_path: 
     sessions = make_sessions(tmp_path)
     g = ground(sessions, clock)
     sc = SimulatedSpacecraft(clock)
-    await sc.connect(g.link)
+    await sc.connect(g)
     pass_id = store_pass(sessions, 40, clock)
     await g.runner.start(pass_id, "otto")
-    db = g.link.db
+    db = g.db
     first, second = threading.Event(), threading.Event()
     ran: list[str] = []
 
