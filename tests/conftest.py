@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
 import pytest
 
 from planner.dynamics import DynamicsWorkspace
@@ -40,3 +46,60 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     worker busy after the other has run out of work."""
     slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
     items.sort(key=lambda item: item.path not in slow)  # stable: the order within stays
+
+
+# --- no test leaves a thread or a process of ours behind --------------------------------------
+
+#: Threads our code and our test harnesses name; one still alive after its test is a leak
+#: (a database worker nobody closed, a server nobody stopped).
+OUR_THREADS = ("ground-db", "ground", "uvicorn", "uvicorn-edge", "spacecraft")
+#: How long a test's threads and processes get to end after its teardown (the OS reaps
+#: children asynchronously; a loaded machine is slow to schedule a thread's last steps).
+LEAK_GRACE_S = 10.0
+
+
+def _our_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.name in OUR_THREADS and t.is_alive()}
+
+
+#: Children that live as long as the interpreter: multiprocessing's forkserver and its
+#: resource tracker, one each, shared by every worker pool of the process; not a test's.
+LIFELONG_CHILDREN = (b"multiprocessing.forkserver", b"multiprocessing.resource_tracker")
+
+
+def _children() -> dict[int, str]:
+    """This process's live child processes (not zombies) but the lifelong ones, with their
+    command lines."""
+    me = str(os.getpid())
+    found: dict[int, str] = {}
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = Path(entry.path, "stat").read_text()
+            cmdline = Path(entry.path, "cmdline").read_bytes()
+        except OSError:
+            continue
+        state, parent = stat.rsplit(")", 1)[-1].split()[:2]
+        if parent == me and state != "Z" and not any(k in cmdline for k in LIFELONG_CHILDREN):
+            found[int(entry.name)] = cmdline.replace(b"\0", b" ").decode(errors="replace")[:200]
+    return found
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads_or_processes() -> Iterator[None]:
+    """Every test ends its own database workers, servers and child processes (autouse: torn
+    down after the test's other function fixtures)."""
+    threads, children = _our_threads(), _children()
+    yield
+    deadline = time.monotonic() + LEAK_GRACE_S
+    for thread in _our_threads() - threads:
+        thread.join(max(0.0, deadline - time.monotonic()))
+    left = _our_threads() - threads
+    extra = _children().keys() - children.keys()
+    while extra and time.monotonic() < deadline:
+        time.sleep(0.05)
+        extra = _children().keys() - children.keys()
+    assert not left, f"threads left running by the test: {sorted(t.name for t in left)}"
+    left_children = {pid: cmd for pid, cmd in _children().items() if pid in extra}
+    assert not left_children, f"child processes left running by the test: {left_children}"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import itertools
 import logging
 import queue
@@ -193,7 +194,10 @@ class Database:
                         outcomes.append((False, exc))
         self.jobs += ran
         for job, (ok, value) in zip(group[:ran], outcomes, strict=True):
-            job.loop.call_soon_threadsafe(_settle, job.future, ok, value)
+            # A loop closed meanwhile has nobody left to wait for the result (the committed
+            # work stands).
+            with contextlib.suppress(RuntimeError):
+                job.loop.call_soon_threadsafe(_settle, job.future, ok, value)
         return ran
 
     def _enqueue(

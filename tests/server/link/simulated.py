@@ -358,9 +358,23 @@ def make_sessions(tmp_path: Path) -> sessionmaker[Session]:
     return session_factory(engine)
 
 
+#: The database workers of the grounds made since the last :func:`close_grounds`.
+_OPEN: list[Database] = []
+
+
 def ground(sessions: sessionmaker[Session], clock: ManualClock, **settings: Any) -> Ground:
+    """A ground on the simulated link; its database worker is closed by
+    :func:`close_grounds` (tests/server/link/conftest.py, after every test)."""
     live = build_live_path(sessions=sessions, settings=Settings(**settings), clock=clock)
+    _OPEN.append(live.db)
     return Ground(live.link, live.runner, sessions, live.db, live.downlink)
+
+
+def close_grounds() -> None:
+    """End the database worker of every ground made so far (a test's grounds outlive its
+    event loop: their threads would idle on for the rest of the run)."""
+    while _OPEN:
+        _OPEN.pop().close()
 
 
 def store_pass(sessions: sessionmaker[Session], n_commands: int, clock: ManualClock) -> str:
