@@ -8,7 +8,8 @@ An event is written in one way, :func:`record` (the row stamped by the injected
 published to the consoles in one way, the dict :func:`record` returns (``kind, actor, detail,
 pass_id, time_ns, id``, the console protocol's ``event``): through the command path's
 :class:`~server.services.dbworker.Database` once its transaction commits, or, for the REST
-side's own transactions, by :func:`publish_after` once the route's service has committed.
+side's own transactions, by the route through the publisher once the route's service has
+committed (:func:`written`; :func:`with_written` for a job of a worker process).
 
 ``detail`` is each class's fields but ``actor`` and ``pass_id``, named as the stored and
 published detail has always named them (``from`` for :class:`PassState`'s ``from_state``).
