@@ -16,6 +16,7 @@ from fastapi import APIRouter, Path, Request
 from fastapi.responses import HTMLResponse, Response, StreamingResponse
 
 from server.api.deps import (
+    ClockDep,
     OperatorDep,
     PublisherDep,
     SessionDep,
@@ -66,6 +67,7 @@ async def run_analyses(
     who: OperatorDep,
     workers: WorkersDep,
     publisher: PublisherDep,
+    clock: ClockDep,
 ) -> AnalysesPublic:
     """Analyse the flown pass afresh (tens of seconds for a whole pass, in a worker process
     on its own connection; past ``post_pass_deadline_s``, 504) and store one result of each
@@ -78,6 +80,7 @@ async def run_analyses(
         partial(with_written, service.run_analyses),
         pass_id=pass_id,
         actor=who.name,
+        now_ns=clock.time_ns(),
         robot_files=tuple(str(p) for p in settings.robot_files),
         deadline_s=settings.post_pass_deadline_s,
         what=f"the analyses of pass {pass_id}",

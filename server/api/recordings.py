@@ -13,7 +13,14 @@ import re
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 
-from server.api.deps import OperatorDep, PublisherDep, SettingsDep, ViewerDep, WorkersDep
+from server.api.deps import (
+    ClockDep,
+    OperatorDep,
+    PublisherDep,
+    SettingsDep,
+    ViewerDep,
+    WorkersDep,
+)
 from server.api.errors import HttpError
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
 from server.services import recordings as service
@@ -86,6 +93,7 @@ async def import_recording(
     who: OperatorDep,
     workers: WorkersDep,
     publisher: PublisherDep,
+    clock: ClockDep,
 ) -> PassImportPublic:
     """Store an MCAP pass recording (the body, as ``hikoboshi mcap export`` or
     ``recording.mcap`` writes it) as a new, finished pass marked imported. A file that is
@@ -113,6 +121,7 @@ async def import_recording(
             str(path),
             who.name,
             settings.max_import_uncompressed_bytes,
+            clock.time_ns(),
             deadline_s=settings.post_pass_deadline_s,
             what="the import",
             client=request,

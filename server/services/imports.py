@@ -186,8 +186,10 @@ def import_mcap(
     *,
     source: str,
     max_uncompressed_bytes: int = _MAX_UNCOMPRESSED,
+    now_ns: int | None = None,
 ) -> PassImportPublic:
-    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it;
+    """Read an MCAP pass recording (:func:`telemetry.mcap.read_mcap`) and store it (at
+    ``now_ns``: the request's time on the server's clock; None: now);
     ``invalid_recording`` with the reader's reason for a bad file, or one whose chunks hold
     more than 64 MiB each or ``max_uncompressed_bytes`` together (nothing decompressed,
     nothing stored)."""
@@ -196,7 +198,9 @@ def import_mcap(
     except RecordingFileError as exc:
         raise InvalidRecording("invalid_recording", str(exc)) from exc
     detail = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    pass_id = store_recording(session, recording, actor, source=source, detail=detail)
+    pass_id = store_recording(
+        session, recording, actor, source=source, detail=detail, now_ns=now_ns
+    )
     return PassImportPublic(
         imported=public(repo.get_pass(session=session, pass_id=pass_id)),
         frames=len(recording.frames),
@@ -206,7 +210,7 @@ def import_mcap(
 
 
 def import_file_job(
-    url: str, path: str, actor: str, max_uncompressed_bytes: int
+    url: str, path: str, actor: str, max_uncompressed_bytes: int, now_ns: int | None = None
 ) -> tuple[PassImportPublic, list[dict[str, Any]]]:
     """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
     route spooled to ``path``, on the job's own connection to ``url``; with the events it
@@ -221,4 +225,5 @@ def import_file_job(
         actor=actor,
         source="upload",
         max_uncompressed_bytes=max_uncompressed_bytes,
+        now_ns=now_ns,
     )

@@ -12,11 +12,14 @@ from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 
 from server.app import create_app
 from server.services import analyses as analyses_service
 from server.services.analyses import AnalysisRun
+from server.services.clock import ManualClock
 from server.settings import Settings
+from server.storage.models import AnalysisRecord, EventRecord
 from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.reports.conftest import SHORT_NAME
@@ -292,3 +295,22 @@ def test_html_marks_what_the_flight_showed_and_we_did_not() -> None:
     assert '<tr class="not-measured"><td>drift</td>' in page
     assert "<tr><td>range</td>" in page
     assert "<tr><td>not reproduced</td></tr>" in page
+
+
+def test_import_and_analyses_are_stamped_by_the_servers_clock(
+    client: TestClient, short_mcap: bytes
+) -> None:
+    """The worker-process jobs of an import and of the analyses take the request's time off
+    the server's injected clock (issue 23: one clock), not the worker's own."""
+    clock = ManualClock(wall_ns=1_700_000_000 * 10**9)
+    client.app.state.clock = clock  # type: ignore[attr-defined]
+    pass_id = upload(client, short_mcap)["imported"]["id"]
+    imported_at = clock.time_ns()
+    clock.jump(7.0)  # the analyses are asked for later, on the same clock
+    analyse(client, pass_id)
+    with sessions(client)() as session:
+        rows = session.scalars(select(EventRecord).where(EventRecord.pass_id == pass_id)).all()
+        times = {r.kind: r.time_ns for r in rows if r.kind in ("pass_imported", "analyses_run")}
+        created = {a.created_at_ns for a in session.scalars(select(AnalysisRecord)).all()}
+    assert times == {"pass_imported": imported_at, "analyses_run": imported_at + 7 * 10**9}
+    assert created == {imported_at + 7 * 10**9}
