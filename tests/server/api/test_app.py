@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import get_args
 
 import pytest
 from fastapi.testclient import TestClient
@@ -12,7 +13,9 @@ from planner.model import default_model
 from planner.urdf import urdf_xml
 from server.api.deps import OperatorDep, ViewerDep
 from server.app import create_app
+from server.schemas import CommandStage, PassState
 from server.settings import ApiToken, Role, Settings
+from server.storage.models import COMMAND_STAGES, PASS_STATES
 
 TOKENS = {
     "v-token": ApiToken(name="vera", role=Role.VIEWER),
@@ -77,3 +80,10 @@ def test_the_model_urdf_is_the_planner_s_and_needs_a_token(client: TestClient) -
     assert response.text == urdf_xml(default_model())
     links = {link.get("name") for link in ET.fromstring(response.text).iter("link")}
     assert {"base_link", "link1", "link6"} <= links
+
+
+def test_the_api_s_stage_and_state_names_are_the_archive_s() -> None:
+    """The schemas' literal types name the command stages and pass states storage defines
+    (mypy needs them written out; this holds the two spellings to one list)."""
+    assert get_args(CommandStage) == COMMAND_STAGES
+    assert get_args(PassState) == PASS_STATES
