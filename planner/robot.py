@@ -27,13 +27,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.attitude_control import AcsGains, acs_gains_from_config
+from planner.collision import CollisionModel
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput, PlannerError
+from planner.flight_rules import FlightRules, FlightRulesReport, ServoModel, check_plan
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.mjcf import ServoGains
 from planner.model import RobotModel
+from planner.plan import Plan
 from planner.simulation import default_servo_gains
+from planner.state import State
 
 __all__ = [
     "DEFAULT_SERVO_BANDWIDTH_RADPS",
@@ -120,6 +124,10 @@ class RobotDescription:
     )
     #: the base link's first box visual (display only; planner.urdf.urdf_xml draws it)
     base_box_size_m: tuple[float, float, float] | None = None
+    #: the URDF's <collision> shapes (None: it has none, and no plan can be shown clear)
+    collision: CollisionModel | None = None
+    #: the [flight_rules] table (SPEC 8's numbers where it leaves a key out)
+    flight_rules: FlightRules = field(default_factory=FlightRules)
 
     @property
     def n_joints(self) -> int:
@@ -150,6 +158,41 @@ class RobotDescription:
         """The joint servos' PD gains (``planner.mjcf.ServoGains``): explicit, or the design
         (``kp = H_m[i, i] wn^2`` at the all-zero pose, ``kd = lag kp``), per joint."""
         return servo_gains_of(self.servo, self.model)
+
+    def servo_model(self, ws: DynamicsWorkspace | None = None) -> ServoModel:
+        """The servos as the flight rules model them: each joint's PD gains on its own
+        inertia ``H_m[i, i]`` at the all-zero pose (:class:`planner.flight_rules.ServoModel`)."""
+        workspace = ws if ws is not None else DynamicsWorkspace(self.model)
+        zeros = np.zeros(self.n_joints)
+        inertia = np.diag(workspace.evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+        gains = self.servo_gains()
+        return ServoModel(
+            stiffness=np.asarray(gains.kp_nm_per_rad) / inertia,
+            damping=np.asarray(gains.kd_nms_per_rad) / inertia,
+        )
+
+    def check_plan(
+        self, plan: Plan, *, window_s: float | None = None, ws: DynamicsWorkspace | None = None
+    ) -> FlightRulesReport:
+        """``plan`` against this robot's flight rules (:func:`planner.flight_rules.
+        check_plan`); ``window_s``: its pass's window (None: ``[flight_rules]
+        pass_window_s``). Refused (:class:`InvalidInput`) for a plan made for another robot
+        or a robot without collision shapes."""
+        if plan.robot_hash != self.content_sha256:
+            raise InvalidInput(
+                f"the plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
+                f"not {self.name!r} ({self.content_sha256[:12]})"
+            )
+        return check_plan(
+            plan,
+            self.model,
+            self.collision,
+            self.flight_rules,
+            servo=self.servo_model(ws),
+            wheel_momentum_limits_nms=[w.momentum_limit_nms for w in self.wheel_limits],
+            window_s=window_s,
+            robot=self.name,
+        )
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose

@@ -25,8 +25,10 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from planner.description.checks import NAME, WHEEL_NAMES, Checker, InvalidRobotDescription, frozen
+from planner.description.collision_xml import collision_model_from, flight_rules_from
 from planner.description.hashing import content_sha256
 from planner.description.tables import (
     Header,
@@ -55,6 +57,8 @@ MIN_ARM_JOINTS = 4
 CONTINUOUS_LIMIT_RAD = 2.0 * math.pi
 _ARM_JOINT_TYPES = frozenset({"revolute", "continuous"})
 _HAND = "hand"
+
+Array = NDArray[np.float64]
 
 
 def arm_chain(urdf: Urdf, base_link: str) -> list[ET.Element]:
@@ -225,15 +229,32 @@ def model_from_urdf(urdf: Urdf, base_link: str, wheels: tuple[WheelSpec, ...]) -
 
 
 def build_robot(
-    c: Checker, doc: Mapping[str, Any], head: Header, urdf_bytes: bytes
+    c: Checker,
+    doc: Mapping[str, Any],
+    head: Header,
+    urdf: Urdf,
+    meshes: Mapping[str, Array] | None = None,
 ) -> RobotDescription:
     """The description from its parsed TOML document (``head`` already checked) and its
-    URDF's bytes; ``c`` names the TOML file and ``head.urdf_path`` the URDF in messages.
-    Reads no file: :func:`planner.description.load_robot` has read both."""
+    parsed URDF (``meshes``: the points of every mesh its ``<collision>`` names, read); ``c``
+    names the TOML file and ``head.urdf_path`` the URDF in messages. Reads no file:
+    :func:`planner.description.load_robot` has read them."""
     urdf_path = head.urdf_path
-    urdf = Urdf(urdf_path, urdf_bytes)
     urdf.check_tree(head.base_link)
     model = model_from_urdf(urdf, head.base_link, head.wheels)
+    chain = arm_chain(urdf, head.base_link)
+    arm_joints = [j.get("name", "") for j in chain if j.get("type") in _ARM_JOINT_TYPES]
+    first = next(j for j in chain if j.get("type") in _ARM_JOINT_TYPES)
+    rules, allowed = flight_rules_from(c, doc.get("flight_rules", {}))
+    collision = collision_model_from(
+        urdf,
+        head.base_link,
+        arm_joints,
+        urdf.link_ref(first, "child"),
+        allowed,
+        meshes or {},
+        c,
+    )
 
     rotor_mass, rotor_free_inertia = base_body_inertial(model)
     if rotor_mass <= 0.0 or float(np.linalg.eigvalsh(rotor_free_inertia)[0]) <= 0.0:
@@ -269,6 +290,8 @@ def build_robot(
             experiments_from(c, doc.get("experiments", {}), model.n_joints)
         ),
         base_box_size_m=urdf.box_size(head.base_link),
+        collision=collision,
+        flight_rules=rules,
     )
     try:
         description.acs_gains(ws)

@@ -10,6 +10,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from planner.description.checks import Checker, InvalidRobotDescription
 
 __all__ = [
@@ -17,6 +20,7 @@ __all__ = [
     "EXAMPLES_DIR",
     "MAX_FILE_BYTES",
     "read_limited",
+    "read_mesh_points",
     "read_toml",
     "urdf_path_of",
 ]
@@ -76,3 +80,28 @@ def urdf_path_of(c: Checker, toml_path: Path, urdf_name: str) -> Path:
     if not inside:
         raise c.fail("urdf", f"{urdf_name!r} must stay inside the description's folder")
     return urdf_path
+
+
+def read_mesh_points(urdf_path: Path, filename: str) -> NDArray[np.float64]:
+    """The vertices of a mesh a URDF's ``<collision>`` names (a path relative to the URDF,
+    or ``file://``; ``package://`` URIs need a ROS workspace and are refused with that
+    reason), read by coal's mesh loader (assimp: STL, OBJ, DAE, ...), size-limited like the
+    description's own files. The rules take the mesh as its convex hull."""
+    import coal
+
+    where = f"<collision> <mesh filename={filename!r}>"
+    if filename.startswith("package://"):
+        raise InvalidRobotDescription(
+            urdf_path, where, "package:// needs a ROS workspace: give a path relative to the URDF"
+        )
+    name = filename.removeprefix("file://")
+    path = Path(name) if Path(name).is_absolute() else urdf_path.parent / name
+    read_limited(path, "mesh")  # the size limit and a clear error for a missing file
+    try:
+        mesh = coal.MeshLoader().load(str(path), np.ones(3))
+        points = np.array([mesh.vertex(i) for i in range(mesh.num_vertices)], dtype=np.float64)
+    except Exception as exc:  # assimp's own errors
+        raise InvalidRobotDescription(urdf_path, where, f"cannot read the mesh: {exc}") from None
+    if points.ndim != 2 or points.shape[0] < 4 or not np.all(np.isfinite(points)):
+        raise InvalidRobotDescription(urdf_path, where, "the mesh has fewer than 4 finite points")
+    return points

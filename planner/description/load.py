@@ -8,8 +8,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from planner.description.build import build_robot
-from planner.description.files import ETS7_DESCRIPTION, read_limited, read_toml, urdf_path_of
+from planner.description.collision_xml import mesh_filenames
+from planner.description.files import (
+    ETS7_DESCRIPTION,
+    read_limited,
+    read_mesh_points,
+    read_toml,
+    urdf_path_of,
+)
 from planner.description.tables import head_from, sensor_noise_from, servo_from
+from planner.description.urdf_xml import Urdf
 from planner.robot import RobotDescription, SensorNoiseSpec, ServoSpec
 
 __all__ = ["VehicleTables", "default_robot", "load_robot", "load_vehicle_tables"]
@@ -25,7 +33,11 @@ def load_robot(path: str | Path) -> RobotDescription:
     toml_path = Path(path)
     c, doc = read_toml(toml_path, "description")
     head = head_from(c, doc, lambda urdf_name: urdf_path_of(c, toml_path, urdf_name))
-    return build_robot(c, doc, head, read_limited(head.urdf_path, "URDF"))
+    urdf = Urdf(head.urdf_path, read_limited(head.urdf_path, "URDF"))
+    meshes = {
+        name: read_mesh_points(head.urdf_path, name) for name in mesh_filenames(urdf)
+    }
+    return build_robot(c, doc, head, urdf, meshes)
 
 
 @functools.cache

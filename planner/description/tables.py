@@ -64,6 +64,7 @@ TOP_KEYS = frozenset(
         "sensor_noise",
         "poses",
         "experiments",
+        "flight_rules",
     }
 )
 _WHEEL_KEYS = frozenset(
