@@ -62,7 +62,7 @@ PLAN_FORMAT_VERSION = 1
 #: file and checks the two agree (tests/planner/test_plan_robot.py), so a change to the file
 #: (its [acs] calibration, say) fails there until this constant follows it.
 ETS7_ROBOT_NAME = "ets7"
-ETS7_ROBOT_HASH = "f2049c7335fe05f2e6666aad4f070e4ec812b2e597b6f73a44362b4efebcc541"
+ETS7_ROBOT_HASH = "f2e447372f03773582fa57b5bd4dcf3186b5346af6be6456f3df0c97bc2addcd"
 
 
 @dataclass(frozen=True)
@@ -174,6 +174,10 @@ class Plan:
     )
     robot: str = ETS7_ROBOT_NAME
     robot_hash: str = ETS7_ROBOT_HASH
+    #: the flight-rules report on this plan (``planner.flight_rules.FlightRulesReport.
+    #: to_dict()``), None until the plan has been checked; a plan that fails a rule keeps it,
+    #: so that whoever opens the file sees why
+    flight_rules: Mapping[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -227,6 +231,7 @@ class Plan:
             ],
             "prediction": self.prediction.to_dict(),
             "metrics": dict(self.metrics),
+            **({} if self.flight_rules is None else {"flight_rules": dict(self.flight_rules)}),
         }
 
     def to_json(self) -> str:
@@ -257,6 +262,7 @@ class Plan:
                 # a document without a robot field is an ETS-VII plan
                 robot=doc.get("robot", ETS7_ROBOT_NAME),
                 robot_hash=doc.get("robot_hash", ETS7_ROBOT_HASH),
+                flight_rules=_rules_doc(doc.get("flight_rules")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InvalidInput):
@@ -272,6 +278,14 @@ class Plan:
         if not isinstance(doc, dict):
             raise InvalidInput("plan JSON must be an object")
         return cls.from_dict(doc)
+
+
+def _rules_doc(value: object) -> Mapping[str, Any] | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not isinstance(value.get("rows"), list):
+        raise InvalidInput("plan flight_rules must be a report object with its rows")
+    return value
 
 
 def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 1e-9) -> None:

@@ -19,7 +19,7 @@ Reading, parsing and checking a description's TOML and URDF is :mod:`planner.des
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 
@@ -193,6 +193,13 @@ class RobotDescription:
             window_s=window_s,
             robot=self.name,
         )
+
+    def checked(
+        self, plan: Plan, *, window_s: float | None = None, ws: DynamicsWorkspace | None = None
+    ) -> tuple[Plan, FlightRulesReport]:
+        """``plan`` carrying its flight-rules report (:meth:`check_plan`), and the report."""
+        report = self.check_plan(plan, window_s=window_s, ws=ws)
+        return replace(plan, flight_rules=report.to_dict()), report
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose
