@@ -109,13 +109,14 @@ class FlightRules:
                 raise InvalidInput(f"flight rule {name} must be > 0, got {value!r}")
         if not (math.isfinite(self.joint_limit_margin_deg) and self.joint_limit_margin_deg >= 0):
             raise InvalidInput(
-                f"flight rule joint_limit_margin_deg must be >= 0, got {self.joint_limit_margin_deg!r}"
+                "flight rule joint_limit_margin_deg must be >= 0, got "
+                f"{self.joint_limit_margin_deg!r}"
             )
         modes = {m.value for m in AcsMode}
         if set(self.max_attitude_excursion_deg) != modes:
             raise InvalidInput(
-                f"flight rule max_attitude_excursion_deg needs a limit for each mode {sorted(modes)}"
-                f", got {sorted(self.max_attitude_excursion_deg)}"
+                "flight rule max_attitude_excursion_deg needs a limit for each mode "
+                f"{sorted(modes)}, got {sorted(self.max_attitude_excursion_deg)}"
             )
         for mode, value in self.max_attitude_excursion_deg.items():
             if not (math.isfinite(value) and value > 0.0):
@@ -357,10 +358,7 @@ def servo_response(
     C = np.eye(2 * n)
     D = np.zeros((2 * n, n))
     inputs = np.column_stack(
-        [
-            np.interp(sample_times_s, command_times_s, command_joints_rad[:, k])
-            for k in range(n)
-        ]
+        [np.interp(sample_times_s, command_times_s, command_joints_rad[:, k]) for k in range(n)]
     )
     x0 = np.zeros(2 * n)
     x0[0::2] = initial_joints_rad
@@ -394,7 +392,7 @@ def check_plan(
     per_period = round(COMMAND_PERIOD_S / step)
     t0 = float(plan.command_times_s[0])
     count = (plan.command_times_s.size - 1) * per_period + 1
-    times = t0 + np.arange(count) * step
+    times: Array = t0 + np.arange(count, dtype=np.float64) * step
     joints, rates = servo_response(
         servo, plan.command_times_s, plan.command_joints_rad, plan.initial_joints_rad, times
     )
@@ -437,9 +435,7 @@ def fits_pass_row(duration_s: float, window_s: float) -> RuleRow:
     )
 
 
-def _pair_motion_coefficients(
-    collision: CollisionModel, model: RobotModel
-) -> Array:
+def _pair_motion_coefficients(collision: CollisionModel, model: RobotModel) -> Array:
     """``C[p, k]``: how far body b of pair p can move relative to body a per radian of
     joint k (``rho[k, b]`` for the joints between them, 0 for the others)."""
     rho = reach_bounds(model, collision)
@@ -593,7 +589,8 @@ def _wheel_row(
         fraction, when, wheel = 0.0, None, -1
     else:
         per_wheel = np.abs(h @ axes.T) / np.asarray(limits_nms, dtype=np.float64)
-        k, wheel = np.unravel_index(int(np.argmax(per_wheel)), per_wheel.shape)
+        k, w = np.unravel_index(int(np.argmax(per_wheel)), per_wheel.shape)
+        wheel = int(w)
         fraction, when = float(per_wheel[k, wheel]), float(plan.prediction.t_s[k])
     return RuleRow(
         rule="wheel_momentum",
