@@ -1,7 +1,7 @@
 """MuJoCo model generated from the canonical :class:`~planner.model.RobotModel`.
 
-Free base, zero gravity, RK4, contacts off (the arm is checked for collisions by the planner,
-not by the engine). Body frames follow :mod:`planner.model`: each link body has its origin on
+Free base, zero gravity, RK4, contacts off (collisions are the flight rules' business, before
+uplink: planner.flight_rules with the description's shapes). Body frames follow :mod:`planner.model`: each link body has its origin on
 its joint and is parallel to the robot frame at the all-zero pose.
 
 Joint servos, when asked for, are MuJoCo ``intvelocity`` actuators plus joint damping: the
