@@ -1,8 +1,9 @@
 """MuJoCo model generated from the canonical :class:`~planner.model.RobotModel`.
 
-Free base, zero gravity, RK4, contacts off (collisions are the flight rules' business, before
-uplink: planner.flight_rules with the description's shapes). Body frames follow :mod:`planner.model`: each link body has its origin on
-its joint and is parallel to the robot frame at the all-zero pose.
+Free base, zero gravity, RK4, contacts off (collisions are checked before uplink, by
+planner.flight_rules on the description's shapes, not by the engine). Body frames follow
+:mod:`planner.model`: each link body has its origin on its joint and is parallel to the
+robot frame at the all-zero pose.
 
 Joint servos, when asked for, are MuJoCo ``intvelocity`` actuators plus joint damping: the
 actuator's activation is the position target, its control the target's rate, so a target
