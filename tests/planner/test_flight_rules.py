@@ -1,7 +1,8 @@
 """Flight rules: coal's distances against answers worked out by hand, the kinematics against
 MuJoCo's, the fine grid's exact per-sample minimum against brute force, and the rules on
 the issue's plans (into the base: refused; 0.15 m from it: accepted; Orihime folding its
-wrist onto itself: refused; every shipped plan: accepted)."""
+wrist onto itself: refused). Every shipped pass keeping every rule: test_schedule.py (ETS-VII)
+and test_robot_planners.py (Orihime), which plan the passes already."""
 
 from __future__ import annotations
 
@@ -32,7 +33,6 @@ from planner.description import (
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.flight_rules import (
-    FlightRulesReport,
     _joint_paths,
     sample_step_s,
     sampled_clearance,
@@ -245,27 +245,6 @@ def test_orihime_folding_its_wrist_onto_itself_is_refused(orihime: RobotDescript
     assert not row.passed and row.value < 0.0
     assert set(row.bodies or ()) == {"link5", "hand"}
     assert report.row("clearance").passed
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("robot_name", ["ets7", "orihime"])
-def test_every_shipped_pass_keeps_every_rule(
-    robot_name: str, ets7: RobotDescription, orihime: RobotDescription
-) -> None:
-    robot = ets7 if robot_name == "ets7" else orihime
-    params_type, _ = resolve("pass")
-    plan = plan_experiment(
-        "pass",
-        parameters_from_values(params_type, dict(robot.experiment_defaults("pass"))),
-        robot=None if robot_name == "ets7" else robot,
-    )
-    checked, report = robot.checked(plan)
-    assert report.passed, [r.describe() for r in report.failing]
-    assert {r.rule for r in report.rows} >= {"clearance", "self_clearance", "fits_pass"}
-    # the report travels in the plan's document
-    again = Plan.from_json(checked.to_json())
-    assert again.flight_rules is not None
-    assert FlightRulesReport.from_dict(again.flight_rules) == report
 
 
 def test_a_plan_for_another_robot_is_refused(

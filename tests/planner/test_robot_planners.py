@@ -205,6 +205,9 @@ def test_the_pass_schedule_for_orihime(
         assert f"{experiment}.start_s" in plan.metrics
     assert plan.metrics["duration_s"] < PassParams().window_s
     np.testing.assert_array_equal(plan.initial_joints_rad, np.zeros(7))
+    # every flight rule kept (tests/planner/test_flight_rules.py tests the rules)
+    report = robot.check_plan(plan, ws=ws)
+    assert report.passed, [r.describe() for r in report.failing]
 
 
 def _without_pose(tmp_path: Path, pose: str) -> RobotDescription:

@@ -62,3 +62,18 @@ def test_a_pass_that_does_not_fit_is_refused() -> None:
         plan_pass(ws, PassParams(window_s=100.0, experiments=("ptp",)))
     with pytest.raises(InvalidInput, match="experiments"):
         plan_pass(ws, PassParams(experiments=("ptp", "juggling")))
+
+
+@pytest.mark.slow
+def test_the_pass_keeps_every_flight_rule_and_carries_its_report(full_pass: Plan) -> None:
+    """ETS-VII's whole demo pass meets every rule (tests/planner/test_flight_rules.py tests
+    the rules themselves), and the report travels in the plan's document."""
+    from planner.description import default_robot
+    from planner.flight_rules import FlightRulesReport
+
+    checked, report = default_robot().checked(full_pass)
+    assert report.passed, [r.describe() for r in report.failing]
+    assert {r.rule for r in report.rows} >= {"clearance", "self_clearance", "fits_pass"}
+    again = Plan.from_json(checked.to_json())
+    assert again.flight_rules is not None
+    assert FlightRulesReport.from_dict(again.flight_rules) == report
