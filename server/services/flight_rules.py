@@ -147,8 +147,8 @@ def check_pass_plan(
             {"rows": []},
         )
         try:
-            event = _refusal_event(actor, pass_key, plan_id, refusal, window_s)
-            record_event(session, event, now_ns)
+            refused = _refusal_event(actor, pass_key, plan_id, refusal, window_s)
+            record_event(session, refused, now_ns)
             session.commit()
         except BaseException:
             session.rollback()
@@ -156,7 +156,7 @@ def check_pass_plan(
         return refusal
     try:
         repo.set_plan_document(session=session, plan_id=plan_id, plan=checked)
-        event = PlanChecked(
+        checked_event = PlanChecked(
             actor=actor,
             pass_id=pass_key,
             plan_id=plan_id,
@@ -164,7 +164,7 @@ def check_pass_plan(
             passed=report.passed,
             failing=[row.rule for row in report.failing],
         )
-        record_event(session, event, now_ns)
+        record_event(session, checked_event, now_ns)
         session.commit()
     except BaseException:
         session.rollback()
