@@ -463,7 +463,9 @@ class PassSummaryPublic(BaseModel):
 # --- analyses, reports, recordings -------------------------------------------------------
 
 #: The stored post-pass analyses (server.services.analyses), one row of each per run.
-AnalysisKind = Literal["pass_analysis", "inertia_identification", "gravity_gradient_resim"]
+AnalysisKind = Literal[
+    "pass_analysis", "inertia_identification", "gravity_gradient_resim", "flown_clearance"
+]
 ReportCell = float | int | str | bool | None
 
 

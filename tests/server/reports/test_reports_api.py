@@ -24,7 +24,12 @@ from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.reports.conftest import SHORT_NAME
 
-KINDS = ("pass_analysis", "inertia_identification", "gravity_gradient_resim")
+KINDS = (
+    "pass_analysis",
+    "inertia_identification",
+    "gravity_gradient_resim",
+    "flown_clearance",
+)
 
 
 def upload(client: TestClient, data: bytes) -> dict[str, Any]:
