@@ -19,11 +19,14 @@ __all__ = [
     "AnalysisErrorPublic",
     "AnalysisKind",
     "AnalysisPublic",
+    "ClearanceTracePublic",
     "CommandPublic",
     "CommandsPublic",
     "ErrorPublic",
     "EventPublic",
     "EventsPublic",
+    "FlightRuleRowPublic",
+    "FlightRulesPublic",
     "PassControlPublic",
     "PassCreate",
     "PassImportPublic",
@@ -111,9 +114,72 @@ class PlanBrief(_Out):
     created_at: datetime
 
 
+FlightRuleName = Literal[
+    "clearance",
+    "attitude_excursion_feedback",
+    "attitude_excursion_free_drift",
+    "wheel_momentum",
+    "joint_limit_margin",
+    "hand_speed",
+    "fits_pass",
+]
+
+
+class FlightRuleRowPublic(BaseModel):
+    """One flight rule on one plan (``planner.flight_rules.RuleRow``): the worst value of
+    the plan's predicted motion, its limit (``bound`` "min": the value must be at least the
+    limit; "max": at most), the verdict and when the worst value happens (s from the plan's
+    start; null where the rule has no time). Clearance only: the two bodies (link names) and
+    their nearest points in the robot frame (origin at joint 1, base axes)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    rule: FlightRuleName
+    value: float
+    limit: float
+    unit: Literal["m", "deg", "of limit", "m/s", "s"]
+    bound: Literal["min", "max"]
+    verdict: Literal["pass", "fail"]
+    t_s: float | None = None
+    bodies: tuple[str, str] | None = None
+    points_robot_m: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    detail: str = ""
+
+
+class ClearanceTracePublic(BaseModel):
+    """The least clearance over every checked pair of bodies in each command period:
+    ``min_m[k]`` is the least over the fine samples since the command before ``t_s[k]``."""
+
+    model_config = ConfigDict(frozen=True)
+
+    t_s: list[float]
+    min_m: list[float]
+
+
+class FlightRulesPublic(BaseModel):
+    """A plan's flight-rules report (``planner.flight_rules.FlightRulesReport``; the
+    ``flight_rules`` object of its document): ``passed`` when every row passes. How it was
+    checked: the fine grid's step, the samples, the checked pairs of bodies and the
+    distance queries made."""
+
+    model_config = ConfigDict(frozen=True)
+
+    passed: bool
+    robot: str
+    step_s: float
+    n_samples: int
+    n_pairs: int
+    n_queries: int
+    rows: list[FlightRuleRowPublic]
+    clearance: ClearanceTracePublic
+
+
 class PlanPublic(PlanBrief):
     metrics: dict[str, float]
     segments: list[SegmentPublic]
+    #: The plan's flight-rules report; null for a plan stored before the rules existed
+    #: (checked, and the report stored, when a pass of it is started).
+    flight_rules: FlightRulesPublic | None = None
 
 
 class PlansPublic(BaseModel):
@@ -138,9 +204,14 @@ class PlanSummary(BaseModel):
 
 
 class PlanValidation(BaseModel):
+    """``valid`` when the request plans and the plan keeps every flight rule; a plan that
+    fails a rule is not valid (an error ``flight_rule_violation``) and carries its
+    ``summary`` and full ``flight_rules`` table all the same."""
+
     valid: bool
     errors: list[ValidationIssue]
     summary: PlanSummary | None = None
+    flight_rules: FlightRulesPublic | None = None
 
 
 # --- robots --------------------------------------------------------------------------------
@@ -392,7 +463,9 @@ class PassSummaryPublic(BaseModel):
 # --- analyses, reports, recordings -------------------------------------------------------
 
 #: The stored post-pass analyses (server.services.analyses), one row of each per run.
-AnalysisKind = Literal["pass_analysis", "inertia_identification", "gravity_gradient_resim"]
+AnalysisKind = Literal[
+    "pass_analysis", "inertia_identification", "gravity_gradient_resim", "flown_clearance"
+]
 ReportCell = float | int | str | bool | None
 
 

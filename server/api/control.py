@@ -5,6 +5,11 @@
   ``{"confirm": "ABORT <pass name>", "reason": "..."}``
 - ``GET /api/link/status`` (viewer)
 
+A start is refused 409 ``flight_rule_violation`` when the pass's plan fails a flight rule
+(the failing rows in the error's detail; :mod:`server.services.flight_rules`), before the
+runner is asked: the pass stays ``scheduled``, nothing is uplinked. A plan stored without a
+report is checked first, in a worker process, as planning is.
+
 The confirmation must spell the action and the pass's exact name, so a stale console tab
 or a copied request cannot start or abort the wrong pass. Missing: 422 ``invalid_request``;
 wrong: 422 ``confirmation_mismatch`` naming the expected text. Both actions are audited
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends
@@ -29,15 +35,22 @@ from server.api.deps import (
     OperatorDep,
     PublisherDep,
     RunnerDep,
+    SettingsDep,
     ViewerDep,
+    WorkersDep,
 )
 from server.schemas import ERROR_RESPONSES, PassControlPublic
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.errors import ConflictError, InvalidRequestError
+from server.services.events import with_written
+from server.services.flight_rules import Refusal, check_pass_plan, start_gate_job
+from server.services.jobs import session_job
 from server.services.link import LinkUnavailable
-from server.services.passes import check_confirmation, control_state
+from server.services.passes import check_confirmation, control_state, start_lead_s
 from server.services.runner import PassRunner
+from server.services.workers import WorkerPool
+from server.settings import Settings
 
 __all__ = ["router"]
 
@@ -102,12 +115,55 @@ class _Ground:
     publisher: Publisher
     clock: Clock
     runner: PassRunner
+    settings: Settings
+    workers: WorkerPool
 
 
 def _ground(
-    db: DatabaseDep, publisher: PublisherDep, clock: ClockDep, runner: RunnerDep
+    db: DatabaseDep,
+    publisher: PublisherDep,
+    clock: ClockDep,
+    runner: RunnerDep,
+    settings: SettingsDep,
+    workers: WorkersDep,
 ) -> _Ground:
-    return _Ground(db, publisher, clock, runner)
+    return _Ground(db, publisher, clock, runner, settings, workers)
+
+
+def _refused(refusal: Refusal) -> ConflictError:
+    return ConflictError(refusal.code, refusal.message, refusal.detail)
+
+
+async def _flight_rules_kept(ground: _Ground, pass_id: str, actor: str) -> None:
+    """Refuse (409, audited) a start whose plan fails a flight rule or cannot be checked;
+    a plan without a report is checked in a worker process first and the gate asked
+    again."""
+    lead_s = start_lead_s(ground.settings)
+    job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s)
+    gate = await ground.db.run(job, control=True)
+    ground.publisher.publish(gate.events)
+    if gate.needs_check:
+        refusal: Refusal | None
+        settings = ground.settings
+        refusal, events = await ground.workers.run(
+            session_job,
+            settings.resolved_database_url(),
+            partial(with_written, check_pass_plan),
+            pass_id=pass_id,
+            actor=actor,
+            now_ns=ground.clock.time_ns(),
+            lead_s=lead_s,
+            robot_files=tuple(str(p) for p in settings.robot_files),
+            deadline_s=settings.plan_deadline_s,
+            what=f"checking the flight rules of plan {gate.plan_id}",
+        )
+        ground.publisher.publish(events)
+        if refusal is not None:
+            raise _refused(refusal)
+        gate = await ground.db.run(job, control=True)
+        ground.publisher.publish(gate.events)
+    if gate.refusal is not None:
+        raise _refused(gate.refusal)
 
 
 GroundDep = Annotated[_Ground, Depends(_ground)]
@@ -118,6 +174,7 @@ async def start_pass(
     pass_id: str, body: StartRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
     key = await _confirmed(ground, pass_id, "START", body.confirm, who.name)
+    await _flight_rules_kept(ground, key, who.name)
     try:
         await ground.runner.start(key, who.name)
     except LinkUnavailable as exc:

@@ -9,6 +9,9 @@ three ways and stores one row of each kind, plus the figures:
                              base inertia (the simulator's truth, Table 1) as the reference
     gravity_gradient_resim   telemetry.resim.resimulate_free_drift: free drift re-simulated
                              with and without eq. (11)
+    flown_clearance          server.services.clearance.flown_clearance: the least clearance
+                             between the robot's bodies at the measured joints, beside the
+                             one the plan's flight rules predicted
     report_figures           the PNGs of telemetry.figures.pass_figures (base64), so a report
                              is a read, never a re-analysis
 
@@ -33,8 +36,9 @@ import base64
 import json
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -42,11 +46,12 @@ from sqlalchemy.orm import Session
 from planner.dynamics import DynamicsWorkspace
 from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
 from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
+from server.services.clearance import flown_clearance
 from server.services.errors import NotFoundError
 from server.services.events import AnalysesRun
 from server.services.events import record as record_event
 from server.services.recordings import load_recording
-from server.services.robots import model_for_plan
+from server.services.robots import description_for_plan, model_for_plan
 from server.storage import repository as repo
 from server.storage.errors import NotFound
 from server.storage.models import AnalysisRecord
@@ -74,7 +79,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-KINDS = ("pass_analysis", "inertia_identification", "gravity_gradient_resim")
+KINDS = ("pass_analysis", "inertia_identification", "gravity_gradient_resim", "flown_clearance")
 FIGURES_KIND = "report_figures"
 #: Keys whose list or object values are per-sample series, left out of stored results.
 SERIES_KEYS = frozenset({"series", "t_s", "quat_orbit_from_base_xyzw"})
@@ -123,8 +128,14 @@ def _attempt(kind: str, run: Callable[[], Any]) -> tuple[Any, dict[str, Any]]:
     return value, {"status": "ok", "result": result}
 
 
-def compute_analyses(recording: PassRecording, model: RobotModel | None = None) -> AnalysisRun:
-    """Run every analysis on ``recording`` and draw the figures (pure: no database)."""
+def compute_analyses(
+    recording: PassRecording,
+    model: RobotModel | None = None,
+    robot_files: Sequence[str] = (),
+) -> AnalysisRun:
+    """Run every analysis on ``recording`` and draw the figures (pure: no database). The
+    flown clearance needs the plan's robot description (ETS-VII's built in; another found
+    by its hash among the shipped ones and ``robot_files``)."""
     model = model or default_model()
     n = len(recording.frames)
 
@@ -149,6 +160,12 @@ def compute_analyses(recording: PassRecording, model: RobotModel | None = None) 
             "parameters_kgm2": _reference_parameters(model),
         }
     _, resim_doc = _attempt("gravity_gradient_resim", resim)
+
+    def clearance() -> Any:
+        description = description_for_plan(recording.plan, [Path(p) for p in robot_files])
+        return flown_clearance(recording, description)
+
+    _, clearance_doc = _attempt("flown_clearance", clearance)
     figures: dict[str, bytes] = {}
     if isinstance(analysis, PassAnalysis):
         try:
@@ -160,6 +177,7 @@ def compute_analyses(recording: PassRecording, model: RobotModel | None = None) 
             "pass_analysis": pass_doc,
             "inertia_identification": ident_doc,
             "gravity_gradient_resim": resim_doc,
+            "flown_clearance": clearance_doc,
         },
         figures=figures,
     )
@@ -196,7 +214,9 @@ def run_analyses(
     recording = load_recording(session=session, pass_id=pass_id)
     key = str(recording.meta["pass_id"])
     session.rollback()  # end the read: no transaction (no SQLite write lock) while computing
-    run = compute_analyses(recording, model or model_for_plan(recording.plan, robot_files))
+    run = compute_analyses(
+        recording, model or model_for_plan(recording.plan, robot_files), robot_files
+    )
     now_ns = time.time_ns() if now_ns is None else now_ns
     try:
         records = [

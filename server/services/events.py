@@ -50,7 +50,9 @@ __all__ = [
     "PassResumed",
     "PassScheduled",
     "PassStartRefused",
+    "PassStartRefusedFlightRules",
     "PassState",
+    "PlanChecked",
     "PlanCreated",
     "RequestVerified",
     "RetransmitRequested",
@@ -321,6 +323,22 @@ class PassStartRefused(Event):
 
 
 @dataclass(frozen=True, kw_only=True)
+class PassStartRefusedFlightRules(Event):
+    """A start refused because the plan fails a flight rule (``reason``
+    ``flight_rule_violation``: ``rows`` are the failing rows, the ``fits_pass`` row taken
+    with the pass's own ``window_s``) or because it could not be checked (``reason`` the
+    error's code, ``rows`` empty). The same kind as a robot mismatch's refusal: one kind for
+    every refused start, told apart by ``reason``."""
+
+    kind = "pass_start_refused"
+    reason: str
+    message: str
+    plan_id: str
+    rows: list[dict[str, Any]]
+    window_s: float
+
+
+@dataclass(frozen=True, kw_only=True)
 class PassResumed(Event):
     kind = "pass_resumed"
     state: str
@@ -379,6 +397,18 @@ class PlanCreated(Event):
     experiment: str
     robot: str
     robot_hash: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlanChecked(Event):
+    """A stored plan that had no flight-rules report (stored before the rules existed, or
+    imported) checked when a pass of it was started; the report is now in its document."""
+
+    kind = "plan_checked"
+    plan_id: str
+    robot: str
+    passed: bool
+    failing: list[str]
 
 
 @dataclass(frozen=True, kw_only=True)

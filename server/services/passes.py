@@ -40,7 +40,19 @@ __all__ = [
     "list_commands",
     "list_passes",
     "schedule_pass",
+    "start_lead_s",
 ]
+
+
+def start_lead_s(settings: Settings) -> float:
+    """The part of a pass's window before its plan's first command (s): the start lead
+    (``uplink_start_lead_s``, at least the one-way delay, the margin and 1 s for the start
+    itself). A window must hold it and the plan; the rest is the plan's to use
+    (the flight rule ``fits_pass`` at start)."""
+    return max(
+        settings.uplink_start_lead_s,
+        settings.link_one_way_delay_s + settings.uplink_margin_s + 1.0,
+    )
 
 
 def public(record: PassRecord) -> PassPublic:
@@ -83,10 +95,7 @@ def schedule_pass(
         )
     try:
         plan = repo.get_plan(session=session, plan_id=request.plan_id)
-        lead_s = max(
-            settings.uplink_start_lead_s,
-            settings.link_one_way_delay_s + settings.uplink_margin_s + 1.0,
-        )
+        lead_s = start_lead_s(settings)
         window_s = (los_ns - aos_ns) / 1e9
         if window_s < plan.duration_s + lead_s:
             raise InvalidRequestError(

@@ -1,4 +1,13 @@
-"""Plans: run the planner on a request, store the result, read plans back.
+"""Plans: run the planner on a request, check it against its robot's flight rules, store
+the result, read plans back.
+
+Every plan is checked after planning (``RobotDescription.checked``: its predicted motion
+against the robot's ``[flight_rules]``, docs/robots.md) and carries the report in its
+document (``"flight_rules"``). A plan that fails a rule is still stored, so that the user can
+look at it (a pass of it will not start: :mod:`server.services.flight_rules`); validation
+calls it invalid (``flight_rule_violation``) and returns the table. A robot without
+collision shapes cannot be shown clear: validation says so (``no_collision_geometry``) and
+creation refuses it.
 
 Planning takes seconds of CPU and touches no database: it runs before the transaction
 opens, so no lock (SQLite takes the write lock at ``BEGIN``) is held while it runs. The API
@@ -16,10 +25,13 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
-from planner.description import load_robot
-from planner.errors import PlannerError
+from planner.collision import check_collision_model
+from planner.description import RobotDescription, default_robot, load_robot
+from planner.errors import InvalidInput, PlannerError
+from planner.flight_rules import FlightRulesReport
 from planner.plan import Plan
 from server.schemas import (
+    FlightRulesPublic,
     PlanBrief,
     PlanCreate,
     PlanPublic,
@@ -37,15 +49,50 @@ from server.storage import repository as repo
 from server.storage.models import PlanRecord
 
 __all__ = [
+    "FLIGHT_RULE_VIOLATION",
+    "NO_COLLISION_GEOMETRY",
     "check_parameters",
     "create_plan",
+    "flight_rules_public",
     "get_plan",
     "get_plan_document",
     "invalid",
     "list_plans",
     "plan",
     "validate",
+    "violation_message",
 ]
+
+
+#: The error code of a plan that fails a flight rule (validation, and a refused start).
+FLIGHT_RULE_VIOLATION = "flight_rule_violation"
+#: The error code of a robot whose description gives no collision shapes to check with.
+NO_COLLISION_GEOMETRY = "no_collision_geometry"
+
+
+def flight_rules_public(report: Mapping[str, Any] | None) -> FlightRulesPublic | None:
+    """A plan document's ``flight_rules`` as the API types it (None: never checked)."""
+    return None if report is None else FlightRulesPublic.model_validate(report)
+
+
+def violation_message(report: FlightRulesReport) -> str:
+    """The failing rows of ``report``, each described on one line (``RuleRow.describe``)."""
+    failing = report.failing
+    head = f"the plan fails {len(failing)} flight rule{'s' if len(failing) != 1 else ''}"
+    return head + ": " + "; ".join(row.describe() for row in failing)
+
+
+def check_flight_rules(
+    description: RobotDescription, result: Plan, window_s: float | None = None
+) -> tuple[Plan, FlightRulesReport]:
+    """``result`` carrying its flight-rules report, and the report. A robot without
+    collision shapes is the invalid request ``no_collision_geometry`` (its plans cannot
+    be shown clear of the spacecraft); any other refusal of the check is the planner's."""
+    try:
+        check_collision_model(description.collision, description.name)
+    except InvalidInput as exc:
+        raise InvalidRequestError(NO_COLLISION_GEOMETRY, str(exc)) from None
+    return description.checked(result, window_s=window_s)
 
 
 def check_parameters(request: PlanCreate) -> None:
@@ -70,14 +117,16 @@ def invalid(exc: PlannerError | DomainError) -> PlanValidation:
 
 
 def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]:
-    """The plan for ``request`` and its JSON document; planner errors propagate.
+    """The plan for ``request``, checked against its robot's flight rules (its document
+    carries the report, passing or not), and its JSON document; planner errors propagate.
     ``robot_path`` is the description of the robot the request names, as the server
     resolved it (:func:`server.services.robots.resolve_robot`; None: ETS-VII): its model,
     poses and ``[experiments.*]`` defaults, and the plan records its name and hash.
 
     A numerical failure other than the planner's own errors (a singular matrix, an
     overflow) is still caused by the parameters sent: the invalid request
-    ``planning_failed``, not an unexpected error.
+    ``planning_failed``, not an unexpected error. A robot without collision shapes: the
+    invalid request ``no_collision_geometry`` (:func:`check_flight_rules`).
     """
     params_type, _ = resolve(request.experiment)
     robot = None if robot_path is None else load_robot(Path(robot_path))
@@ -85,8 +134,9 @@ def plan(request: PlanCreate, robot_path: str | None = None) -> tuple[Plan, str]
     params = parameters_from_values(params_type, request.parameters, defaults=defaults)
     try:
         result = plan_experiment(request.experiment, params, robot=robot)
+        result, _ = check_flight_rules(robot or default_robot(), result)
         document = result.to_json()  # refuses NaN and infinity
-    except PlannerError:
+    except (PlannerError, DomainError):
         raise
     except (ValueError, ArithmeticError) as exc:
         raise InvalidRequestError(
@@ -115,7 +165,19 @@ def validate(request: PlanCreate, robot_path: str | None = None) -> PlanValidati
         result, _ = plan(request, robot_path)
     except (PlannerError, DomainError) as exc:
         return invalid(exc)
-    return PlanValidation(valid=True, errors=[], summary=_summary(result))
+    assert result.flight_rules is not None  # plan() checks every plan
+    report = FlightRulesReport.from_dict(result.flight_rules)
+    errors = (
+        []
+        if report.passed
+        else [ValidationIssue(code=FLIGHT_RULE_VIOLATION, message=violation_message(report))]
+    )
+    return PlanValidation(
+        valid=report.passed,
+        errors=errors,
+        summary=_summary(result),
+        flight_rules=flight_rules_public(result.flight_rules),
+    )
 
 
 def _brief(record: PlanRecord) -> PlanBrief:
@@ -134,6 +196,7 @@ def _public(record: PlanRecord, document: Mapping[str, Any]) -> PlanPublic:
         **_brief(record).model_dump(),
         metrics=document["metrics"],
         segments=[SegmentPublic(**s) for s in document["segments"]],
+        flight_rules=flight_rules_public(document.get("flight_rules")),
     )
 
 
@@ -145,7 +208,9 @@ def create_plan(
     now_ns: int,
     robot_path: str | None = None,
 ) -> PlanPublic:
-    """Plan, then store the plan and an audit event ``plan_created`` in one transaction."""
+    """Plan and check it (:func:`plan`), then store the plan, its flight-rules report in its
+    document whether it passes or not, and an audit event ``plan_created`` in one
+    transaction."""
     result, document = plan(request, robot_path)
     try:
         record = repo.add_plan(session=session, plan=result, created_at_ns=now_ns)

@@ -330,10 +330,60 @@ def _resim_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
     ]
 
 
+def _bodies(value: Any) -> str | None:
+    return " / ".join(str(b) for b in value) if isinstance(value, list) else None
+
+
+def _clearance_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
+    """The clearance flown (measured joints) beside the plan's predicted one."""
+    flown = doc.get("flown") or {}
+    predicted = doc.get("predicted")
+    limit = doc.get("limit_m")
+    rows = [
+        [
+            "flown (measured joints)",
+            flown.get("value_m"),
+            flown.get("t_s"),
+            _bodies(flown.get("bodies")),
+            limit,
+            flown.get("verdict"),
+        ]
+    ]
+    if isinstance(predicted, Mapping):
+        value = predicted.get("value_m")
+        verdict = None if value is None or limit is None else ("pass" if value >= limit else "fail")
+        rows.append(
+            [
+                "predicted (the plan's flight rules)",
+                value,
+                predicted.get("t_s"),
+                _bodies(predicted.get("bodies")),
+                limit,
+                verdict,
+            ]
+        )
+    notes = [
+        f"{doc.get('n_frames')} of {doc.get('n_frames_total')} telemetry frames, "
+        f"{doc.get('n_pairs')} pairs of bodies, {doc.get('n_queries')} distance queries"
+    ]
+    if not isinstance(predicted, Mapping):
+        notes.append("the plan carries no flight-rules report: nothing predicted to compare")
+    return [
+        _table(
+            "clearance",
+            "Clearance: flown against predicted",
+            ["", "min_clearance_m", "t_s", "bodies", "limit_m", "verdict"],
+            rows,
+            notes,
+        )
+    ]
+
+
 _TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
     "pass_analysis": _pass_tables,
     "inertia_identification": _identification_tables,
     "gravity_gradient_resim": _resim_tables,
+    "flown_clearance": _clearance_tables,
 }
 
 

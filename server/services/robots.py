@@ -15,7 +15,13 @@ import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 
-from planner.description import EXAMPLES_DIR, MAX_FILE_BYTES, RobotDescription, load_robot
+from planner.description import (
+    EXAMPLES_DIR,
+    MAX_FILE_BYTES,
+    RobotDescription,
+    default_robot,
+    load_robot,
+)
 from planner.errors import PlannerError
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
@@ -25,6 +31,7 @@ from server.settings import Settings
 
 __all__ = [
     "description_by_hash",
+    "description_for_plan",
     "description_named",
     "known_robots",
     "model_for_plan",
@@ -135,6 +142,24 @@ def description_by_hash(settings: Settings, robot_hash: str) -> RobotDescription
             f"no robot description with hash {robot_hash} on this server (it knows "
             f"{sorted(robot_descriptions(settings))}; a plan made for a robot given by file "
             "needs that file: hikoboshi serve --robot FILE)",
+        )
+    return found
+
+
+def description_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> RobotDescription:
+    """The description of the robot ``plan`` was made for, found by its hash (ETS-VII's
+    built in; another among the shipped descriptions and ``robot_files``);
+    ``ConflictError`` ``robot_unknown`` when the server has none (the flight rules and the
+    flown clearance need the robot's own collision geometry)."""
+    if plan.robot_hash == ETS7_ROBOT_HASH:
+        return default_robot()
+    found = _by_hash(robot_files, plan.robot_hash)
+    if found is None:
+        raise ConflictError(
+            "robot_unknown",
+            f"the plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
+            "which this server has no description of: start it with hikoboshi serve --robot "
+            "FILE",
         )
     return found
 

@@ -92,6 +92,7 @@ __all__ = [
     "list_passes",
     "list_plans",
     "missing_seqs",
+    "set_plan_document",
     "telemetry_buckets",
     "telemetry_range",
     "update_command_stage",
@@ -141,6 +142,23 @@ def add_plan(
         n_joints=n_joints,
     )
     session.add(record)
+    _flush(session, f"plan {record.id}")
+    return record
+
+
+def set_plan_document(*, session: Session, plan_id: str, plan: Plan) -> PlanRecord:
+    """Replace the stored document of plan ``plan_id`` with ``plan``'s: the same plan with
+    more said of it (its flight-rules report). Anything a summary column holds must be
+    unchanged: :class:`InvalidArgument` otherwise (a plan's commands never change)."""
+    record = get_plan(session=session, plan_id=plan_id)
+    summary = (plan.experiment, plan.duration_s, len(plan.initial_joints_rad))
+    if summary != (record.experiment, record.duration_s, record.n_joints):
+        raise InvalidArgument(
+            f"plan {record.id}: the new document's experiment, duration or joints "
+            f"{summary} differ from the stored "
+            f"{(record.experiment, record.duration_s, record.n_joints)}"
+        )
+    record.document = plan.to_json()
     _flush(session, f"plan {record.id}")
     return record
 

@@ -45,7 +45,7 @@ def test_import_report_and_export_a_stored_pass(
     assert "gravity_gradient_resim: failed (InsufficientData: no free-drift segment" in out
     report = json.loads((env / "report" / "report.json").read_text())
     assert report["pass_id"] == pass_id and report["imported"] is True
-    assert [a["status"] for a in report["analyses"]] == ["ok", "ok", "failed"]
+    assert [a["status"] for a in report["analyses"]] == ["ok", "ok", "failed", "ok"]
     page = (env / "report" / "report.html").read_text()
     for name in report["figures"]:
         assert f'src="{name}.png"' in page

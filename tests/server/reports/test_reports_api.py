@@ -24,7 +24,12 @@ from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.reports.conftest import SHORT_NAME
 
-KINDS = ("pass_analysis", "inertia_identification", "gravity_gradient_resim")
+KINDS = (
+    "pass_analysis",
+    "inertia_identification",
+    "gravity_gradient_resim",
+    "flown_clearance",
+)
 
 
 def upload(client: TestClient, data: bytes) -> dict[str, Any]:
@@ -126,8 +131,13 @@ def test_demo_pass_report(
     response = client.get(f"/api/passes/{pass_id}/report", headers=VIEWER)
     assert response.status_code == 200
     report = response.json()
-    assert [a["status"] for a in report["analyses"]] == ["ok"] * 3
+    assert [a["status"] for a in report["analyses"]] == ["ok"] * 4
     tables = {t["id"]: t for t in report["tables"]}
+    # The whole pass kept its clearance as flown (0.127 m predicted by the lead's checker,
+    # link3-link5 at the end of GJM's retreat); the demo's plan carries no table here.
+    [flown] = tables["clearance"]["rows"]
+    assert flown[0] == "flown (measured joints)" and flown[5] == "pass"
+    assert 0.10 <= flown[1] < 0.2, flown
     assert len(tables["predicted_vs_flown"]["rows"]) == 30  # experiment 3 has no pause
 
     ident = tables["inertia_identification"]

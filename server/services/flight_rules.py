@@ -1,0 +1,172 @@
+"""The flight rules at a pass's start: no plan that fails one is uplinked (issue #24; the
+rules: docs/robots.md, SPEC 8).
+
+``POST /api/passes/{id}/start`` asks :func:`start_gate_job` (a short database job of the
+command path) before the runner starts the pass. It reads the report the plan's document
+carries (:mod:`server.services.plans` stores every plan with one), takes the ``fits_pass``
+row again with the pass's own window (``los - aos`` less the start lead,
+:func:`server.services.passes.start_lead_s`), and refuses the start when any row fails:
+the conflict ``flight_rule_violation``, its detail the failing rows, audited as
+``pass_start_refused`` (:class:`~server.services.events.PassStartRefusedFlightRules`). The
+pass stays ``scheduled`` and nothing reaches the link. There is no override.
+
+Nothing is recomputed for a plan that has a report: the gate parses the document (what the
+start transaction does anyway) and compares numbers. A plan stored without one (before the
+rules existed, or imported from a recording) is checked first by :func:`check_pass_plan`,
+in a worker process as planning is (a second of CPU for a 25-minute pass), and its report
+stored in its document (``plan_checked``); then the gate decides. A plan that cannot be
+checked (its robot's description unknown to the server, or without collision shapes) cannot
+be shown clear and is refused too, with that reason.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from planner.errors import PlannerError
+from planner.flight_rules import FlightRulesReport, fits_pass_row
+from planner.plan import Plan
+from server.services.clock import Clock
+from server.services.errors import DomainError
+from server.services.events import PassStartRefusedFlightRules, PlanChecked
+from server.services.events import record as record_event
+from server.services.plans import FLIGHT_RULE_VIOLATION, check_flight_rules, violation_message
+from server.services.robots import description_for_plan
+from server.storage import repository as repo
+from server.storage.models import PassRecord
+
+__all__ = ["Refusal", "StartGate", "check_pass_plan", "pass_window_s", "start_gate_job"]
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Why a start is refused: the conflict's code, message and detail."""
+
+    code: str
+    message: str
+    detail: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class StartGate:
+    """The gate's answer: the pass's plan, whether it must be checked first (no report in
+    its document), or why the start is refused (None: it may start); the events written."""
+
+    plan_id: str
+    needs_check: bool = False
+    refusal: Refusal | None = None
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+
+def pass_window_s(record: PassRecord, lead_s: float) -> float:
+    """The time the pass's window leaves its plan: ``los - aos`` less the start lead."""
+    return (record.los_time_ns - record.aos_time_ns) / 1e9 - lead_s
+
+
+def _refusal_event(
+    actor: str, pass_id: str, plan_id: str, refusal: Refusal, window_s: float
+) -> PassStartRefusedFlightRules:
+    return PassStartRefusedFlightRules(
+        actor=actor,
+        pass_id=pass_id,
+        reason=refusal.code,
+        message=refusal.message,
+        plan_id=plan_id,
+        rows=list(refusal.detail.get("rows", [])),
+        window_s=window_s,
+    )
+
+
+def start_gate_job(
+    *, pass_id: str, actor: str, clock: Clock, lead_s: float
+) -> Callable[[Session], StartGate]:
+    """A database job: may the pass's plan start (module doc)? A pass that is not
+    ``scheduled`` is let through: the start transaction refuses it with its own reason."""
+
+    def job(session: Session) -> StartGate:
+        record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
+        if record.state != "scheduled":
+            return StartGate(record.plan_id)
+        plan = repo.get_plan(session=session, plan_id=record.plan_id)
+        stored = json.loads(plan.document).get("flight_rules")
+        if stored is None:
+            return StartGate(record.plan_id, needs_check=True)
+        window_s = pass_window_s(record, lead_s)
+        report = FlightRulesReport.from_dict(stored).with_row(
+            fits_pass_row(plan.duration_s, window_s)
+        )
+        if report.passed:
+            return StartGate(record.plan_id)
+        refusal = Refusal(
+            FLIGHT_RULE_VIOLATION,
+            f"pass {record.name!r} will not start: {violation_message(report)}",
+            {"rows": [row.to_dict() for row in report.failing]},
+        )
+        event = _refusal_event(actor, record.id, record.plan_id, refusal, window_s)
+        written = record_event(session, event, clock.time_ns())
+        return StartGate(record.plan_id, refusal=refusal, events=[written])
+
+    return job
+
+
+def check_pass_plan(
+    *,
+    session: Session,
+    pass_id: str,
+    actor: str,
+    now_ns: int,
+    lead_s: float,
+    robot_files: Sequence[str] = (),
+) -> Refusal | None:
+    """Check the plan of pass ``pass_id`` against its robot's flight rules (the robot
+    found by the plan's description hash among those the server knows) and store the
+    report in its document (``plan_checked``); None. A plan that cannot be checked: the
+    refusal (``robot_unknown``, ``no_collision_geometry`` or the planner's reason), audited
+    as a refused start. A worker process's job: it holds no transaction while it computes."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    pass_key, plan_id, name = record.id, record.plan_id, record.name
+    window_s = pass_window_s(record, lead_s)
+    plan = Plan.from_json(repo.get_plan(session=session, plan_id=plan_id).document)
+    session.rollback()  # no transaction (no SQLite write lock) while the plan is checked
+    try:
+        description = description_for_plan(plan, [Path(p) for p in robot_files])
+        checked, report = check_flight_rules(description, plan)
+    except (DomainError, PlannerError) as exc:
+        code = exc.code if isinstance(exc, DomainError) else type(exc).__name__
+        text = exc.message if isinstance(exc, DomainError) else str(exc)
+        refusal = Refusal(
+            code,
+            f"the plan of pass {name!r} cannot be checked against the flight rules, so it "
+            f"will not start: {text}",
+            {"rows": []},
+        )
+        try:
+            refused = _refusal_event(actor, pass_key, plan_id, refusal, window_s)
+            record_event(session, refused, now_ns)
+            session.commit()
+        except BaseException:
+            session.rollback()
+            raise
+        return refusal
+    try:
+        repo.set_plan_document(session=session, plan_id=plan_id, plan=checked)
+        checked_event = PlanChecked(
+            actor=actor,
+            pass_id=pass_key,
+            plan_id=plan_id,
+            robot=description.name,
+            passed=report.passed,
+            failing=[row.rule for row in report.failing],
+        )
+        record_event(session, checked_event, now_ns)
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    return None
