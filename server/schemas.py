@@ -116,6 +116,7 @@ class PlanBrief(_Out):
 
 FlightRuleName = Literal[
     "clearance",
+    "self_clearance",
     "attitude_excursion_feedback",
     "attitude_excursion_free_drift",
     "wheel_momentum",

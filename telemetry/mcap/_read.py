@@ -39,6 +39,7 @@ from telemetry.mcap._schemas import (
     FORMAT_VERSION,
     METADATA_NAME,
     OWN_SCHEMAS,
+    PLAN_SCHEMA_BEFORE_FLIGHT_RULES,
     PLAN_SCHEMA_BEFORE_ROBOTS,
     SCHEMA_ENCODING,
     TOPIC_COMMANDS,
@@ -244,7 +245,7 @@ def _channels(summary: Summary) -> tuple[dict[str, Channel], FrameLayout]:
             same = found is not None
             layout = found or layout
         elif topic == TOPIC_PLAN:
-            same = written in (want, PLAN_SCHEMA_BEFORE_ROBOTS)
+            same = written in (want, PLAN_SCHEMA_BEFORE_FLIGHT_RULES, PLAN_SCHEMA_BEFORE_ROBOTS)
         else:
             same = written == want
         if not same:

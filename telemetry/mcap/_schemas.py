@@ -19,6 +19,7 @@ __all__ = [
     "FORMAT_VERSION",
     "METADATA_NAME",
     "OWN_SCHEMAS",
+    "PLAN_SCHEMA_BEFORE_FLIGHT_RULES",
     "PLAN_SCHEMA_BEFORE_ROBOTS",
     "SCHEMA_ENCODING",
     "TOPIC_COMMANDS",
@@ -192,6 +193,9 @@ PLAN_SCHEMA: dict[str, Any] = {
         # plans written before robots were described: ETS-VII's
         "robot": _STR,
         "robot_hash": _STR,
+        # the flight-rules report on the plan (planner.flight_rules.FlightRulesReport.to_dict);
+        # absent in plans never checked and in files written before the rules
+        "flight_rules": {"type": "object"},
     },
     "required": [
         "format_version",
@@ -208,12 +212,21 @@ PLAN_SCHEMA: dict[str, Any] = {
     "additionalProperties": False,
 }
 
+#: The plan schema before plans carried their flight-rules report: files written with it are
+#: read too.
+PLAN_SCHEMA_BEFORE_FLIGHT_RULES: dict[str, Any] = {
+    **PLAN_SCHEMA,
+    "properties": {k: v for k, v in PLAN_SCHEMA["properties"].items() if k != "flight_rules"},
+}
+
 #: The plan schema before plans named their robot: a file written with it is read too (its
 #: plans are ETS-VII's).
 PLAN_SCHEMA_BEFORE_ROBOTS: dict[str, Any] = {
     **PLAN_SCHEMA,
     "properties": {
-        k: v for k, v in PLAN_SCHEMA["properties"].items() if k not in ("robot", "robot_hash")
+        k: v
+        for k, v in PLAN_SCHEMA["properties"].items()
+        if k not in ("robot", "robot_hash", "flight_rules")
     },
 }
 

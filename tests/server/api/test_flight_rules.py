@@ -240,3 +240,13 @@ def test_the_openapi_document_types_the_rules_table(client: TestClient) -> None:
     assert "clearance" in row["rule"]["enum"]
     for model in ("PlanPublic", "PlanValidation"):
         assert "flight_rules" in schemas[model]["properties"]
+
+
+def test_the_apis_rule_names_are_the_planners() -> None:
+    """The schema's literal list (mypy needs it written out) is held to the planner's."""
+    from typing import get_args
+
+    from planner.flight_rules import RULE_NAMES
+    from server.schemas import FlightRuleName
+
+    assert get_args(FlightRuleName) == RULE_NAMES
