@@ -153,19 +153,36 @@ class Robot {
     const coloured: string[] = [];
     for (const [name, link] of this.links) {
       const on = names.has(name) && link !== this.rootLink;
+      // While a pair is shown the base body is see-through: the arm may be inside it.
+      const seeThrough = names.size > 0 && link === this.rootLink;
       for (const child of link.children) {
         if (!(child instanceof THREE.Mesh)) continue;
         const material = child.material as THREE.MeshStandardMaterial;
-        const saved = child.userData.colour as { color: THREE.Color; emissive: THREE.Color } | undefined;
-        if (on) {
-          if (!saved) child.userData.colour = { color: material.color.clone(), emissive: material.emissive.clone() };
-          const c = this.moving.has(name) ? ARM_HIGHLIGHT : FIXED_HIGHLIGHT;
-          material.color.copy(c);
-          material.emissive.copy(c).multiplyScalar(0.45);
+        type Saved = { color: THREE.Color; emissive: THREE.Color; opacity: number; transparent: boolean };
+        const saved = child.userData.colour as Saved | undefined;
+        if (on || seeThrough) {
+          if (!saved) {
+            child.userData.colour = {
+              color: material.color.clone(), emissive: material.emissive.clone(),
+              opacity: material.opacity, transparent: material.transparent,
+            } satisfies Saved;
+          }
+          if (on) {
+            const c = this.moving.has(name) ? ARM_HIGHLIGHT : FIXED_HIGHLIGHT;
+            material.color.copy(c);
+            material.emissive.copy(c).multiplyScalar(0.45);
+          } else {
+            material.transparent = true;
+            material.opacity = Math.min(material.opacity, 0.35);
+          }
+          material.needsUpdate = true;
         } else if (saved) {
           material.color.copy(saved.color);
           material.emissive.copy(saved.emissive);
+          material.opacity = saved.opacity;
+          material.transparent = saved.transparent;
           delete child.userData.colour;
+          material.needsUpdate = true;
         }
       }
       if (on) coloured.push(name);
@@ -264,7 +281,7 @@ export class SatelliteView {
    * coloured (the arm's red, equipment on the base amber; the base body itself is left as
    * it is, the segment shows where), a segment between the two nearest points (robot frame,
    * drawn in the base frame) over everything, and a label with the bodies and the distance.
-   * The caller poses the arm at the pair's moment (``pair.t_s``). */
+   * The caller poses the arm at the pair's moment (``pair.t_s``) first. */
   showWorstPair(pair: WorstPair | null): void {
     const robot = this.robot;
     if (this.pair) {
@@ -282,6 +299,7 @@ export class SatelliteView {
     delete this.el.dataset.highlight;
     delete this.el.dataset.highlightColoured;
     delete this.el.dataset.pairBaseM;
+    delete this.el.dataset.pairBodiesBaseM;
     if (!robot || !pair) {
       this.request();
       return;
@@ -320,6 +338,7 @@ export class SatelliteView {
     this.el.dataset.highlight = pair.bodies.join(",");
     this.el.dataset.highlightColoured = coloured.join(",");
     this.el.dataset.pairBaseM = JSON.stringify([a.toArray(), b.toArray()]);
+    this.el.dataset.pairBodiesBaseM = JSON.stringify(pair.bodies.map((n) => this.linkPosition(n)));
     this.request();
   }
 

@@ -254,8 +254,8 @@ export class PassView {
     if (!pred || pred.t.length === 0) return;
     const { joints, k } = predictedJointsAt(pred, t);
     const worst = this.worst;
-    this.setWorstShown(worst !== null && Math.abs(t - worst.t_s) <= this.worstTolS);
     this.view3d?.setPose(joints, null, pred.quat[k]);
+    this.setWorstShown(worst !== null && Math.abs(t - worst.t_s) <= this.worstTolS);
     this.phase.set([], [], [pred.rpy[1][k], pred.rates[1][k]]);
   }
 
