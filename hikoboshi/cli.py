@@ -11,6 +11,7 @@ from typing import Annotated, Any, NoReturn
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -177,9 +178,18 @@ def _plan_help() -> str:
 @app.command("plan", help=_plan_help())
 def plan_command(
     experiment: Annotated[
-        str, typer.Argument(help="ptp, reactionless, gjm, coordination, nonholonomic or pass")
+        str,
+        typer.Argument(
+            help="ptp, reactionless, gjm, coordination, nonholonomic or pass; or check, to "
+            "evaluate a stored plan FILE against the flight rules"
+        ),
     ],
-    out: Annotated[Path, typer.Option("--out", help="Plan JSON file to write.")],
+    file: Annotated[
+        Path | None, typer.Argument(help="check: the plan JSON file to evaluate.")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Plan JSON file to write (planning).")
+    ] = None,
     assignments: Annotated[
         list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable.")
     ] = None,
@@ -190,13 +200,26 @@ def plan_command(
             help="coordination: optimise the offset size and switch times in the closed loop.",
         ),
     ] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the metrics and the rules as JSON.")
+    ] = False,
     robot: RobotOption = None,
 ) -> None:
+    """Plan (exit 3 when the plan fails a flight rule: the file is still written, with its
+    rules table, so that it can be looked at), or ``plan check FILE``."""
+    if experiment == "check":
+        if file is None:
+            _fail("plan check needs the plan FILE to evaluate")
+        _plan_check(file, robot, as_json=as_json)
+        return
+    if file is not None:
+        _fail(f"unexpected argument {str(file)!r} (only plan check takes a FILE)")
+    if out is None:
+        _fail("give --out FILE: where to write the plan")
     from hikoboshi.planning_cli import make_plan, write_atomically
     from planner.errors import PlannerError
 
-    description = None if robot is None else _load(robot)
+    description = _load(robot) if robot is not None else _default_description()
     try:
         status = (
             contextlib.nullcontext()
@@ -208,13 +231,21 @@ def plan_command(
                 experiment,
                 assignments or [],
                 optimise_offset_flag=optimise_offset_flag,
-                robot=description,
+                robot=None if robot is None else description,
             )
+        if not as_json:
+            status = console.status("checking the flight rules", spinner="dots")
+        with status:
+            plan, report = description.checked(plan)
     except PlannerError as exc:
         _fail(str(exc))
     write_atomically(out, plan.to_json())
     if as_json:
-        sys.stdout.write(json.dumps({"out": str(out), "metrics": dict(plan.metrics)}) + "\n")
+        sys.stdout.write(
+            json.dumps({"out": str(out), "metrics": dict(plan.metrics), **_rules_summary(report)})
+            + "\n"
+        )
+        _exit_on_rules(report, quiet=True)
         return
     table = Table(
         title=f"{experiment}: {plan.command_times_s.size} commands, {plan.duration_s:.2f} s"
@@ -232,7 +263,135 @@ def plan_command(
     for key, value in plan.metrics.items():
         metrics.add_row(key, f"{value:.6g}")
     console.print(metrics)
-    console.print(f"wrote {out}")
+    _print_rules(report)
+    console.print(f"wrote {out}" + ("" if report.passed else " (it FAILS the flight rules)"))
+    _exit_on_rules(report, quiet=False)
+
+
+def _default_description() -> Any:
+    """ETS-VII's description file (its collision geometry and flight rules)."""
+    from planner.description import default_robot
+    from planner.errors import PlannerError
+
+    try:
+        return default_robot()
+    except PlannerError as exc:
+        _fail(str(exc))
+
+
+def _description_for(plan: Any, robot: Path | None) -> Any:
+    """The description ``plan`` was made for: ``robot`` if given (it must be the one), else
+    the shipped description whose content hash the plan records."""
+    from planner.description import EXAMPLES_DIR, load_robot
+    from planner.errors import PlannerError
+
+    if robot is not None:
+        description = _load(robot)
+    else:
+        description = None
+        for path in sorted(EXAMPLES_DIR.glob("*/*.toml")):
+            try:
+                candidate = load_robot(path)
+            except PlannerError:
+                continue
+            if candidate.content_sha256 == plan.robot_hash:
+                description = candidate
+                break
+        if description is None:
+            _fail(
+                f"the plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), "
+                "which is not shipped: give its description with --robot FILE"
+            )
+    if description.content_sha256 != plan.robot_hash:
+        _fail(
+            f"the plan is for robot {plan.robot!r} (description {plan.robot_hash[:12]}), not "
+            f"{description.name!r} ({description.content_sha256[:12]})"
+        )
+    return description
+
+
+def _plan_check(file: Path, robot: Path | None, *, as_json: bool) -> None:
+    from planner.errors import PlannerError
+    from planner.plan import Plan
+
+    try:
+        plan = Plan.from_json(file.read_text(encoding="utf-8"))
+    except OSError as exc:
+        _fail(f"{file}: {exc.strerror}")
+    except (PlannerError, UnicodeDecodeError) as exc:
+        _fail(f"{file}: {exc}")
+    description = _description_for(plan, robot)
+    try:
+        status = (
+            contextlib.nullcontext()
+            if as_json
+            else console.status("checking the flight rules", spinner="dots")
+        )
+        with status:
+            report = description.check_plan(plan)
+    except PlannerError as exc:
+        _fail(str(exc))
+    if as_json:
+        sys.stdout.write(json.dumps({"plan": str(file), **_rules_summary(report)}) + "\n")
+    else:
+        console.print(
+            f"{file}: {plan.experiment} for {plan.robot}, {plan.duration_s:.2f} s", highlight=False
+        )
+        _print_rules(report)
+    _exit_on_rules(report, quiet=as_json)
+
+
+def _rules_summary(report: Any) -> dict[str, Any]:
+    """The rules for --json: the verdict and every row (not the clearance trace)."""
+    return {
+        "flight_rules": {
+            "passed": report.passed,
+            "rows": [row.to_dict() for row in report.rows],
+            "step_s": report.step_s,
+            "n_samples": report.n_samples,
+            "n_pairs": report.n_pairs,
+            "n_queries": report.n_queries,
+        }
+    }
+
+
+def _print_rules(report: Any) -> None:
+    table = Table(
+        title=f"flight rules ({report.n_pairs} body pairs at a {report.step_s:.4g} s step)"
+    )
+    for column, justify in (
+        ("rule", "left"),
+        ("worst", "right"),
+        ("limit", "right"),
+        ("verdict", "left"),
+        ("at s", "right"),
+        ("where", "left"),
+    ):
+        table.add_column(column, justify=justify)  # type: ignore[arg-type]
+    for row in report.rows:
+        relation = ">=" if row.bound == "min" else "<="
+        where = " / ".join(row.bodies) if row.bodies is not None else row.detail
+        table.add_row(
+            row.rule,
+            f"{row.value:.4g} {row.unit}",
+            f"{relation} {row.limit:.4g}",
+            "[green]pass[/green]" if row.passed else "[bold red]FAIL[/bold red]",
+            "" if row.t_s is None else f"{row.t_s:.2f}",
+            escape(where),
+        )
+    console.print(table)
+
+
+def _exit_on_rules(report: Any, *, quiet: bool) -> None:
+    """Exit status 3 when a rule fails, naming each failing row on stderr."""
+    if report.passed:
+        return
+    if not quiet:
+        for row in report.failing:
+            err_console.print(
+                f"flight rule failed: {escape(row.describe())}", highlight=False, soft_wrap=True
+            )
+    raise typer.Exit(code=3)
 
 
 @app.command()

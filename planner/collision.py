@@ -235,7 +235,6 @@ class ShapeSet:
         self.collision = collision
         self._geometries = [[s.geometry() for s in b.shapes] for b in collision.bodies]
         self._request = coal.DistanceRequest()
-        self._request.enable_nearest_points = True
         self._request.enable_signed_distance = True
         self._request.rel_err = 0.0
         self._request.abs_err = 0.0

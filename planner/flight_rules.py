@@ -65,9 +65,12 @@ __all__ = [
     "FlightRules",
     "FlightRulesReport",
     "RuleRow",
+    "SampledClearance",
+    "ServoModel",
     "check_plan",
     "fits_pass_row",
     "sample_step_s",
+    "sampled_clearance",
     "servo_response",
 ]
 
@@ -76,6 +79,7 @@ Array = NDArray[np.float64]
 #: Every rule a report may hold, in the order of its rows.
 RULE_NAMES = (
     "clearance",
+    "self_clearance",
     "attitude_excursion_feedback",
     "attitude_excursion_free_drift",
     "wheel_momentum",
@@ -109,13 +113,14 @@ class FlightRules:
                 raise InvalidInput(f"flight rule {name} must be > 0, got {value!r}")
         if not (math.isfinite(self.joint_limit_margin_deg) and self.joint_limit_margin_deg >= 0):
             raise InvalidInput(
-                f"flight rule joint_limit_margin_deg must be >= 0, got {self.joint_limit_margin_deg!r}"
+                "flight rule joint_limit_margin_deg must be >= 0, got "
+                f"{self.joint_limit_margin_deg!r}"
             )
         modes = {m.value for m in AcsMode}
         if set(self.max_attitude_excursion_deg) != modes:
             raise InvalidInput(
-                f"flight rule max_attitude_excursion_deg needs a limit for each mode {sorted(modes)}"
-                f", got {sorted(self.max_attitude_excursion_deg)}"
+                "flight rule max_attitude_excursion_deg needs a limit for each mode "
+                f"{sorted(modes)}, got {sorted(self.max_attitude_excursion_deg)}"
             )
         for mode, value in self.max_attitude_excursion_deg.items():
             if not (math.isfinite(value) and value > 0.0):
@@ -357,10 +362,7 @@ def servo_response(
     C = np.eye(2 * n)
     D = np.zeros((2 * n, n))
     inputs = np.column_stack(
-        [
-            np.interp(sample_times_s, command_times_s, command_joints_rad[:, k])
-            for k in range(n)
-        ]
+        [np.interp(sample_times_s, command_times_s, command_joints_rad[:, k]) for k in range(n)]
     )
     x0 = np.zeros(2 * n)
     x0[0::2] = initial_joints_rad
@@ -394,17 +396,38 @@ def check_plan(
     per_period = round(COMMAND_PERIOD_S / step)
     t0 = float(plan.command_times_s[0])
     count = (plan.command_times_s.size - 1) * per_period + 1
-    times = t0 + np.arange(count) * step
+    times: Array = t0 + np.arange(count, dtype=np.float64) * step
     joints, rates = servo_response(
         servo, plan.command_times_s, plan.command_joints_rad, plan.initial_joints_rad, times
     )
     R, t = body_poses(model, joints)
 
-    clearance_row, trace, queries = _clearance(
-        collision, model, servo, plan, times, joints, rates, R, t, rules.min_clearance_m
+    path = _joint_paths(servo, plan, step, joints, rates)
+    rows: list[RuleRow] = []
+    per_sample = np.full(count, np.inf)
+    queries = 0
+    groups = (
+        ("clearance", "the arm against the base and its equipment", True),
+        ("self_clearance", "arm links against each other", False),
     )
-    rows = [
-        clearance_row,
+    for rule, what, spacecraft in groups:
+        pairs = [
+            p
+            for p in collision.pairs
+            if (collision.bodies[p[0]].is_equipment or collision.bodies[p[1]].is_equipment)
+            == spacecraft
+        ]
+        if not pairs:
+            continue
+        found = sampled_clearance(collision, pairs, R, t, path, model)
+        rows.append(_clearance_row(rule, collision, found, times, rules.min_clearance_m, what))
+        per_sample = np.minimum(per_sample, found.per_sample_m)
+        queries += found.queries
+    k = plan.command_times_s.size
+    trace = [float(per_sample[0])]
+    for i in range(1, k):
+        trace.append(float(per_sample[(i - 1) * per_period + 1 : i * per_period + 1].min()))
+    rows += [
         *_attitude_rows(plan, rules),
         _wheel_row(plan, model, wheel_momentum_limits_nms, rules),
         _joint_margin_row(model, times, joints, rules),
@@ -419,7 +442,7 @@ def check_plan(
         n_samples=count,
         n_pairs=len(collision.pairs),
         n_queries=queries,
-        clearance=trace,
+        clearance=ClearanceTrace(tuple(float(v) for v in plan.command_times_s), tuple(trace)),
         robot=robot or plan.robot,
     )
 
@@ -433,54 +456,52 @@ def fits_pass_row(duration_s: float, window_s: float) -> RuleRow:
         unit="s",
         bound="max",
         passed=duration_s <= window_s,
-        detail="the plan's duration within the pass's window",
+        detail="duration within the window",
     )
 
 
 def _pair_motion_coefficients(
-    collision: CollisionModel, model: RobotModel
+    collision: CollisionModel, model: RobotModel, pairs: Sequence[tuple[int, int]]
 ) -> Array:
-    """``C[p, k]``: how far body b of pair p can move relative to body a per radian of
+    """``C[p, k]``: how far one body of pair p can move relative to the other per radian of
     joint k (``rho[k, b]`` for the joints between them, 0 for the others)."""
     rho = reach_bounds(model, collision)
-    coefficients = np.zeros((len(collision.pairs), model.n_joints))
-    for p, (a, b) in enumerate(collision.pairs):
+    coefficients = np.zeros((len(pairs), model.n_joints))
+    for p, (a, b) in enumerate(pairs):
         ja, jb = collision.bodies[a].joint, collision.bodies[b].joint
         lo, hi, moving = (ja, jb, b) if ja < jb else (jb, ja, a)
         coefficients[p, lo:hi] = rho[lo:hi, moving]
     return coefficients
 
 
-def _clearance(
+@dataclass(frozen=True)
+class SampledClearance:
+    """The exact least distance over ``pairs`` at every sample, and the worst of them."""
+
+    per_sample_m: Array
+    worst_m: float
+    worst_sample: int
+    worst_pair: tuple[int, int]
+    nearest: PairDistance
+    queries: int
+
+
+def sampled_clearance(
     collision: CollisionModel,
-    model: RobotModel,
-    servo: ServoModel,
-    plan: Plan,
-    times: Array,
-    joints: Array,
-    rates: Array,
+    pairs: Sequence[tuple[int, int]],
     R: Array,
     t: Array,
-    limit_m: float,
-) -> tuple[RuleRow, ClearanceTrace, int]:
+    path_rad: Array,
+    model: RobotModel,
+) -> SampledClearance:
+    """The least distance over ``pairs`` at each sample of the body frames ``(R, t)``
+    (:func:`planner.collision.body_poses`), exact at every sample, asking coal only for the
+    pairs whose lower bound (last exact distance less the relative path since,
+    ``path_rad[s]`` being each joint's path from sample s to s + 1) is below the best found
+    at that sample (the module docstring)."""
     shapes = ShapeSet(collision)
-    pairs = collision.pairs
     frame_of = [body.joint for body in collision.bodies]
-    step = float(times[1] - times[0]) if times.size > 1 else COMMAND_PERIOD_S
-
-    # The path each joint may travel in each step: the larger of its rates at the two ends
-    # and its commanded rate, with the servo's overshoot allowed for, times the step.
-    commanded = np.abs(np.diff(plan.command_joints_rad, axis=0)) / COMMAND_PERIOD_S
-    per_period = max(1, round(COMMAND_PERIOD_S / step))
-    commanded_per_step = (
-        np.repeat(commanded, per_period, axis=0)
-        if commanded.size
-        else np.zeros((0, model.n_joints))
-    )
-    ends = np.maximum(np.abs(rates[:-1]), np.abs(rates[1:]))
-    path = np.maximum(ends, commanded_per_step[: ends.shape[0]]) * (1.0 + servo.rate_overshoot)
-    path = np.maximum(path * step, np.abs(np.diff(joints, axis=0)))
-    drift_per_step = path @ _pair_motion_coefficients(collision, model).T  # (S-1, P)
+    drift_per_step = path_rad @ _pair_motion_coefficients(collision, model, pairs).T
 
     def exact(p: int, s: int) -> PairDistance:
         a, b = pairs[p]
@@ -491,10 +512,10 @@ def _clearance(
     last_d = np.array([d.distance_m for d in last])
     drift = np.zeros(len(pairs))
     best_p = int(np.argmin(last_d))
-    per_sample = np.empty(times.size)
+    per_sample = np.empty(R.shape[0])
     per_sample[0] = last_d[best_p]
     worst = (float(last_d[best_p]), 0, best_p, last[best_p])
-    for s in range(1, times.size):
+    for s in range(1, R.shape[0]):
         step_drift = drift_per_step[s - 1]
         if not step_drift.any():
             per_sample[s] = per_sample[s - 1]
@@ -514,30 +535,49 @@ def _clearance(
         per_sample[s] = best
         if best < worst[0]:
             worst = (best, s, best_p, last[best_p])
-
     value, s_worst, p_worst, nearest = worst
-    a, b = pairs[p_worst]
-    row = RuleRow(
-        rule="clearance",
-        value=value,
+    return SampledClearance(per_sample, value, s_worst, pairs[p_worst], nearest, shapes.queries)
+
+
+def _joint_paths(servo: ServoModel, plan: Plan, step: float, joints: Array, rates: Array) -> Array:
+    """Each joint's path in each step, bounded: the larger of its rates at the two ends and
+    its commanded rate, with the servo's overshoot allowed for, times the step (and never
+    less than the change between the samples)."""
+    commanded = np.abs(np.diff(plan.command_joints_rad, axis=0)) / COMMAND_PERIOD_S
+    per_period = max(1, round(COMMAND_PERIOD_S / step))
+    commanded_per_step = np.repeat(commanded, per_period, axis=0)
+    ends = np.maximum(np.abs(rates[:-1]), np.abs(rates[1:]))
+    path = np.maximum(ends, commanded_per_step[: ends.shape[0]]) * (1.0 + servo.rate_overshoot)
+    out: Array = np.maximum(path * step, np.abs(np.diff(joints, axis=0)))
+    return out
+
+
+def _clearance_row(
+    rule: str,
+    collision: CollisionModel,
+    found: SampledClearance,
+    times: Array,
+    limit_m: float,
+    what: str,
+) -> RuleRow:
+    a, b = found.worst_pair
+    n_pairs = sum(
+        1
+        for p in collision.pairs
+        if (collision.bodies[p[0]].is_equipment or collision.bodies[p[1]].is_equipment)
+        == (rule == "clearance")
+    )
+    return RuleRow(
+        rule=rule,
+        value=found.worst_m,
         limit=limit_m,
         unit="m",
         bound="min",
-        passed=value >= limit_m,
-        t_s=float(times[s_worst]),
+        passed=found.worst_m >= limit_m,
+        t_s=float(times[found.worst_sample]),
         bodies=(collision.bodies[a].name, collision.bodies[b].name),
-        points_robot_m=(nearest.point_a_robot_m, nearest.point_b_robot_m),
-        detail=f"{len(pairs)} pairs at a {step:.4g} s step ({times.size} samples)",
-    )
-    # per command period: the least of the samples since the previous command
-    k = plan.command_times_s.size
-    trace = [float(per_sample[0])]
-    for i in range(1, k):
-        trace.append(float(per_sample[(i - 1) * per_period + 1 : i * per_period + 1].min()))
-    return (
-        row,
-        ClearanceTrace(tuple(float(v) for v in plan.command_times_s), tuple(trace)),
-        shapes.queries,
+        points_robot_m=(found.nearest.point_a_robot_m, found.nearest.point_b_robot_m),
+        detail=f"{what}: {n_pairs} pairs",
     )
 
 
@@ -578,7 +618,7 @@ def _attitude_rows(plan: Plan, rules: FlightRules) -> list[RuleRow]:
                 bound="max",
                 passed=angle <= limit,
                 t_s=when,
-                detail=f"predicted base rotation while the attitude control is in {mode}",
+                detail="from the target" if mode == AcsMode.FEEDBACK.value else "from the start",
             )
         )
     return rows
@@ -593,7 +633,8 @@ def _wheel_row(
         fraction, when, wheel = 0.0, None, -1
     else:
         per_wheel = np.abs(h @ axes.T) / np.asarray(limits_nms, dtype=np.float64)
-        k, wheel = np.unravel_index(int(np.argmax(per_wheel)), per_wheel.shape)
+        k, w = np.unravel_index(int(np.argmax(per_wheel)), per_wheel.shape)
+        wheel = int(w)
         fraction, when = float(per_wheel[k, wheel]), float(plan.prediction.t_s[k])
     return RuleRow(
         rule="wheel_momentum",
@@ -644,5 +685,5 @@ def _hand_speed_row(
         bound="max",
         passed=value <= rules.max_hand_speed_mps,
         t_s=when,
-        detail="the hand point relative to the base, as the servos follow the commands",
+        detail="relative to the base",
     )

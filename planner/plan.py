@@ -15,7 +15,7 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,8 +25,16 @@ from planner.errors import InvalidInput, JointLimitExceeded
 from planner.model import RobotModel
 from planner.ptp import COMMAND_PERIOD_S
 
-if TYPE_CHECKING:
-    from planner.robot import RobotDescription
+
+class Described(Protocol):
+    """What a plan takes from its robot's description (planner.robot.RobotDescription)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def content_sha256(self) -> str: ...
+
 
 __all__ = [
     "ETS7_ROBOT_HASH",
@@ -306,7 +314,7 @@ def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 
             )
 
 
-def plan_for_robot(plan: Plan, robot: RobotDescription | None) -> Plan:
+def plan_for_robot(plan: Plan, robot: Described | None) -> Plan:
     """``plan`` stamped with the robot it was made for (``None``: ETS-VII, the default)."""
     if robot is None:
         return replace(plan, robot=ETS7_ROBOT_NAME, robot_hash=ETS7_ROBOT_HASH)

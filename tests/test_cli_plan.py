@@ -109,3 +109,39 @@ def test_plan_refuses_an_experiment_the_robot_cannot_give(tmp_path: Path) -> Non
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "has no pose 'B'" in lines[0], result.stderr
     assert not out.exists()
+
+
+def test_a_plan_into_the_base_exits_3_naming_the_bodies_and_is_still_written(
+    tmp_path: Path,
+) -> None:
+    """The issue's plan: the hand driven into ETS-VII's base box. Exit 3, the failing rule on
+    stderr with the two bodies, the file written with its rules table; ``plan check`` says
+    the same of the file, as text and as JSON."""
+    out = tmp_path / "bad.json"
+    result = run("plan", "ptp", "--set", "goal_joints_deg=90,120,60,0,0,0", "--out", str(out))
+    assert result.returncode == 3, result.stderr
+    assert "flight rule failed: clearance" in result.stderr
+    assert "base_link and hand" in result.stderr
+    doc = json.loads(out.read_text())
+    assert doc["flight_rules"]["passed"] is False
+    failing = [r for r in doc["flight_rules"]["rows"] if r["verdict"] == "fail"]
+    assert [r["rule"] for r in failing] == ["clearance"]
+    assert set(failing[0]["bodies"]) == {"base_link", "hand"}
+
+    checked = run("plan", "check", str(out), "--json")
+    assert checked.returncode == 3
+    report = json.loads(checked.stdout)["flight_rules"]
+    assert report["passed"] is False
+    assert report["rows"] == doc["flight_rules"]["rows"]
+
+
+def test_plan_check_passes_a_good_plan_and_refuses_another_robots(tmp_path: Path) -> None:
+    out = tmp_path / "ptp.json"
+    assert run("plan", "ptp", "--out", str(out)).returncode == 0
+    checked = run("plan", "check", str(out))
+    assert checked.returncode == 0, checked.stderr
+    assert "clearance" in checked.stdout and "FAIL" not in checked.stdout
+    other = run("plan", "check", str(out), "--robot", "examples/robots/orihime/orihime.toml")
+    assert other.returncode == 2
+    assert "not 'orihime'" in other.stderr
+    assert run("plan", "check").returncode == 2  # no FILE

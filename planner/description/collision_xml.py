@@ -80,7 +80,7 @@ def _moving_joint(urdf: Urdf, link: str, arm_joints: Sequence[str]) -> int:
         joint = urdf.parent_joint.get(link)
         if joint is None:
             return 0
-        name = joint.get("name")
+        name = joint.get("name", "")
         if name in arm_joints:
             return list(arm_joints).index(name) + 1
         link = urdf.link_ref(joint, "parent")
@@ -112,7 +112,9 @@ def _shape(
     if g.tag == "box":
         size = urdf.floats(f"{where} <box size>", g.get("size"), 3, "")
         if np.any(size <= 0.0):
-            raise c.fail(f"{where} <box size>", f"must be 3 positive numbers, got {g.get('size')!r}")
+            raise c.fail(
+                f"{where} <box size>", f"must be 3 positive numbers, got {g.get('size')!r}"
+            )
         kind, dims = "box", tuple(float(v) for v in size)
     elif g.tag == "sphere":
         kind, dims = "sphere", (positive("radius"),)
@@ -164,7 +166,7 @@ def collision_model_from(
             _shape(
                 urdf,
                 elem,
-                f"link {name!r} <collision{'' if not elem.get('name') else ' ' + elem.get('name', '')}>",
+                f"link {name!r} <collision {elem.get('name', '')}>".replace(" >", ">"),
                 frames[name],
                 robot_origin,
                 meshes,
@@ -209,7 +211,9 @@ def flight_rules_from(c: Checker, value: object) -> tuple[FlightRules, tuple[All
             c.keys(where, raw, frozenset(_MODES))
             missing = [m for m in _MODES if m not in raw]
             if missing:
-                raise c.fail(where, f"give a limit for every mode {list(_MODES)}; missing {missing}")
+                raise c.fail(
+                    where, f"give a limit for every mode {list(_MODES)}; missing {missing}"
+                )
             kwargs["max_attitude_excursion_deg"] = {
                 m: c.number(f"{where}.{m}", raw[m], positive=True) for m in _MODES
             }
@@ -233,7 +237,9 @@ def flight_rules_from(c: Checker, value: object) -> tuple[FlightRules, tuple[All
         ):
             raise c.fail(f"{where} bodies", f"must be two different link names, got {bodies!r}")
         contacts.append(
-            AllowedContact((bodies[0], bodies[1]), c.text(f"{where} reason", entry.get("reason", "")))
+            AllowedContact(
+                (bodies[0], bodies[1]), c.text(f"{where} reason", entry.get("reason", ""))
+            )
         )
     try:
         rules = FlightRules(**kwargs)  # type: ignore[arg-type]
