@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import time
-import warnings
 from typing import Any
 
 import pytest
@@ -21,7 +20,7 @@ from planner.flight_rules import FlightRulesReport, RuleRow
 from planner.plan import Plan
 from server.storage import repository as repo
 from tests.server.link.harness import Ground, add_plan_and_pass
-from tests.web.conftest import VIEWER_TOKEN, Console
+from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
 #: ETS-VII's base box half sizes (examples/robots/ets7/ets7.urdf, base_box) and hand sphere.
 BASE_HALF_M = (1.2, 1.0, 1.0)
@@ -40,11 +39,7 @@ def failing_plan() -> tuple[Plan, FlightRulesReport]:
         PtpParams(goal_joints_deg=(90.0, 120.0, 60.0, 0.0, 0.0, 0.0), settle_s=10.0),
         robot=robot,
     )
-    with warnings.catch_warnings():
-        # planner/collision.py sets coal's deprecated enable_nearest_points (coal 3 always
-        # computes them); the suite turns warnings into errors. Not this test's subject.
-        warnings.filterwarnings("ignore", "enable_nearest_points", DeprecationWarning)
-        checked, report = robot.checked(plan)
+    checked, report = robot.checked(plan)
     return checked, report
 
 
@@ -186,3 +181,40 @@ def test_pass_page_shows_the_failing_rules(
     # No telemetry yet: the 3D view shows why the start will be refused.
     _check_highlight(console, row)
     console.screenshot("flight-rules-pass")
+
+
+def _server_returns_rules() -> bool:
+    from server.schemas import PlanValidation
+
+    return "flight_rules" in PlanValidation.model_fields
+
+
+@pytest.mark.skipif(
+    not _server_returns_rules(),
+    reason="this branch's server does not return flight_rules from validate yet",
+)
+def test_operator_sees_a_plan_refused_by_its_rules_and_can_still_look_at_it(
+    console: Console,
+) -> None:
+    page = console.page
+    console.sign_in(OPERATOR_TOKEN, "#/plan")
+    page.select_option("[data-test=experiment]", "ptp")
+    page.fill("[data-field=goal_joints_deg] input", "90, 120, 60, 0, 0, 0")
+    page.fill("[data-field=settle_s] input", "10")
+    page.click("[data-test=validate]")
+    # Not valid, and why: the failing clearance row with its bodies, under the error.
+    page.wait_for_selector("[data-test=validation] [data-test=rules-table] tr.fail")
+    assert "flight_rule_violation" in (page.text_content("[data-test=validation]") or "")
+    failing = page.locator("[data-test=validation] [data-test=rules-table] tr.fail")
+    assert failing.count() == 1
+    assert failing.get_attribute("data-rule") == "clearance"
+    assert failing.locator("[data-test=rule-bodies]").text_content() == "base_link – hand"
+
+    # Refused by a flight rule only: stored (marked failing) and opened at its worst moment.
+    page.click("[data-test=create-plan]")
+    page.wait_for_selector("[data-test=plan-info] h3")
+    page.wait_for_selector("[data-test=flight-rules] tr.fail[data-rule=clearance]")
+    page.wait_for_function(
+        "() => document.querySelector('[data-test=view3d]')?.dataset.highlight === 'base_link,hand'"
+    )
+    assert "FAIL" in (page.text_content("[data-test=rules-verdict]") or "")

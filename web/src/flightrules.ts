@@ -7,6 +7,7 @@
 /** The rules a report has a row for, in the planner's order. */
 export type RuleName =
   | "clearance"
+  | "self_clearance"
   | "attitude_excursion_feedback"
   | "attitude_excursion_free_drift"
   | "wheel_momentum"
@@ -28,15 +29,15 @@ export interface RuleRow {
   verdict: "pass" | "fail";
   /** Plan time (s) of the worst value; null for a rule without one (fits_pass). */
   t_s: number | null;
-  /** Clearance only: the two bodies (URDF link names) of the worst pair. */
+  /** Clearance rows only: the two bodies (URDF link names) of the worst pair. */
   bodies: [string, string] | null;
-  /** Clearance only: each body's nearest point, in the robot frame (origin at joint 1,
+  /** Clearance rows only: each body's nearest point, in the robot frame (origin at joint 1,
    * the base's axes), in the order of ``bodies``. */
   points_robot_m: [Vec3, Vec3] | null;
   detail: string;
 }
 
-/** The least clearance over all pairs in each 4 Hz command period. */
+/** The least clearance over all pairs (both clearance rules') in each 4 Hz command period. */
 export interface ClearanceTrace {
   t_s: number[];
   min_m: number[];
@@ -54,14 +55,24 @@ export interface FlightRulesReport {
   clearance: ClearanceTrace;
 }
 
-/** The report's clearance row (null when it has none). */
+/** The rows of pairs of bodies: "clearance" (the arm against the base and its equipment)
+ * and "self_clearance" (arm links against each other). */
+export const CLEARANCE_RULES: ReadonlySet<string> = new Set(["clearance", "self_clearance"]);
+
+/** The clearance row that matters most (null without one): the least distance among the
+ * failing clearance rows, else among all of them. */
 export function clearanceRow(report: FlightRulesReport | null | undefined): RuleRow | null {
-  return report?.rows.find((r) => r.rule === "clearance") ?? null;
+  const rows = (report?.rows ?? []).filter((r) => CLEARANCE_RULES.has(r.rule));
+  const failing = rows.filter((r) => r.verdict === "fail");
+  const pool = failing.length ? failing : rows;
+  return pool.reduce<RuleRow | null>((best, r) => (best === null || r.value < best.value ? r : best), null);
 }
 
 /** The worst pair of bodies, when the clearance row names one with its nearest points and
  * its time: what the 3D view highlights. */
 export interface WorstPair {
+  /** The clearance rule whose worst pair it is. */
+  rule: string;
   t_s: number;
   bodies: [string, string];
   points_robot_m: [Vec3, Vec3];
@@ -74,6 +85,7 @@ export function worstPair(report: FlightRulesReport | null | undefined): WorstPa
   const row = clearanceRow(report);
   if (!row || row.t_s === null || !row.bodies || !row.points_robot_m) return null;
   return {
+    rule: row.rule,
     t_s: row.t_s,
     bodies: row.bodies,
     points_robot_m: row.points_robot_m,

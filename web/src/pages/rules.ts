@@ -8,7 +8,8 @@ import { COLORS, timePlot, type TimePlot } from "../plots";
 import { clear, fmt, h } from "../ui";
 
 const RULE_TITLES: Record<string, string> = {
-  clearance: "Clearance between bodies",
+  clearance: "Clearance to the spacecraft",
+  self_clearance: "Clearance between arm links",
   attitude_excursion_feedback: "Attitude excursion (feedback)",
   attitude_excursion_free_drift: "Attitude excursion (free drift)",
   wheel_momentum: "Wheel momentum",
