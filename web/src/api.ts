@@ -2,6 +2,7 @@
 // feature probe (which optional endpoints this server offers, from its OpenAPI document).
 
 import type { CommandStage, LinkStatus as LinkStatusDoc, ScheduleStatus } from "./protocol.gen";
+import type { FlightRulesReport } from "./flightrules";
 import { DEFAULT_JOINTS, jointCount, rawFields } from "./store";
 
 export type Role = "viewer" | "operator";
@@ -52,6 +53,9 @@ export interface PlanBrief {
 export interface PlanPublic extends PlanBrief {
   metrics: Record<string, number>;
   segments: Segment[];
+  /** The flight-rules report stored with the plan; null: never checked (absent: a server
+   * from before the flight rules). */
+  flight_rules?: FlightRulesReport | null;
 }
 
 export interface Prediction {
@@ -72,6 +76,8 @@ export interface PlanDocument {
   segments: Segment[];
   prediction: Prediction;
   metrics: Record<string, number>;
+  /** The flight-rules report the plan carries (absent or null: never checked). */
+  flight_rules?: FlightRulesReport | null;
 }
 
 /** A robot the server plans for (``GET /api/robots``). */
@@ -104,6 +110,17 @@ export interface PlanValidation {
   valid: boolean;
   errors: { code: string; message: string }[];
   summary: (Omit<PlanPublic, "id" | "created_at">) | null;
+  /** The rules table of a plan that plans (also when it fails a rule: then ``valid`` is
+   * false with a ``flight_rule_violation`` error); null when it does not plan. */
+  flight_rules?: FlightRulesReport | null;
+}
+
+/** The plan's flight-rules report: the server's answer's, else its document's. */
+export function planRules(
+  plan: { flight_rules?: FlightRulesReport | null } | null,
+  doc: PlanDocument | null,
+): FlightRulesReport | null {
+  return plan?.flight_rules ?? doc?.flight_rules ?? null;
 }
 
 /** ``GET /api/link/status`` (the console's ``link`` message's ``status``, generated from

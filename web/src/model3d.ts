@@ -3,10 +3,13 @@
 // (x flight direction, z nadir) turned so nadir points down the screen; the base body is
 // placed by quat_orbit_from_base. A second, translucent arm shows the commanded targets.
 // Renders on demand (when a pose changes or the camera moves), never in a busy loop.
+// The flight rules' worst pair of bodies can be highlighted: its arm link coloured, a
+// segment between the two nearest points, labelled with the bodies and their distance.
 
 import * as THREE from "three";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 import { storedToken } from "./api";
+import type { Vec3, WorstPair } from "./flightrules";
 
 interface UrdfJoint {
   name: string;
@@ -71,13 +74,26 @@ function visualMesh(visual: Element, opacity: number): THREE.Object3D | null {
   return mesh;
 }
 
+/** The highlight colours: an arm link of the worst pair, and equipment fixed to the base. */
+const ARM_HIGHLIGHT = new THREE.Color(0xff2a2a);
+const FIXED_HIGHLIGHT = new THREE.Color(0xffb020);
+
 /** One copy of the robot: the base body and the revolute joints in URDF order. */
 class Robot {
   readonly root: THREE.Group;
   readonly joints: { pivot: THREE.Group; axis: THREE.Vector3 }[] = [];
+  /** Every link's frame, by its URDF name. */
+  readonly links = new Map<string, THREE.Group>();
+  /** The root link (the base body): the frame the robot frame's points are drawn in. */
+  readonly rootLink: THREE.Group;
+  /** The links a joint moves (the arm), as opposed to the base and what is fixed on it. */
+  readonly moving = new Set<string>();
+  /** The robot frame's origin in the root link's frame: joint 1's origin (the robot frame
+   * has the base's axes, so only this offset turns its points into the base frame). */
+  readonly robotOrigin = new THREE.Vector3();
 
   constructor(doc: Document, opacity: number, withBase: boolean) {
-    const links = new Map<string, THREE.Group>();
+    const links = this.links;
     for (const link of doc.querySelectorAll("robot > link")) {
       const g = new THREE.Group();
       g.name = link.getAttribute("name") ?? "";
@@ -99,6 +115,7 @@ class Robot {
       axis: nums(j.querySelector("axis")?.getAttribute("xyz"), 3, 0),
     }));
     const children = new Set(joints.map((j) => j.child));
+    let firstFrame: THREE.Group | null = null;
     for (const j of joints) {
       const parent = links.get(j.parent);
       const child = links.get(j.child);
@@ -111,11 +128,71 @@ class Robot {
       parent.add(frame);
       if (j.type === "revolute" || j.type === "continuous") {
         this.joints.push({ pivot, axis: new THREE.Vector3(...j.axis).normalize() });
+        firstFrame ??= frame;
       }
     }
     const rootName = [...links.keys()].find((n) => !children.has(n)) ?? "base_link";
+    this.rootLink = links.get(rootName) ?? new THREE.Group();
     this.root = new THREE.Group();
-    this.root.add(links.get(rootName) ?? new THREE.Group());
+    this.root.add(this.rootLink);
+    for (const { pivot } of this.joints) {
+      pivot.traverse((o) => {
+        if (o instanceof THREE.Group && links.get(o.name) === o) this.moving.add(o.name);
+      });
+    }
+    if (firstFrame) {
+      // At the all-zero pose nothing before joint 1 moves: its origin is fixed on the base.
+      this.root.updateMatrixWorld(true);
+      this.rootLink.worldToLocal(firstFrame.getWorldPosition(this.robotOrigin));
+    }
+  }
+
+  /** Colour the named links' own shapes (not their children's) and restore the others';
+   * the names coloured (the root link never is). */
+  colour(names: Set<string>): string[] {
+    const coloured: string[] = [];
+    for (const [name, link] of this.links) {
+      const on = names.has(name) && link !== this.rootLink;
+      // While a pair is shown the base body is see-through: the arm may be inside it.
+      const seeThrough = names.size > 0 && link === this.rootLink;
+      for (const child of link.children) {
+        if (!(child instanceof THREE.Mesh)) continue;
+        const material = child.material as THREE.MeshStandardMaterial;
+        type Saved = { color: THREE.Color; emissive: THREE.Color; opacity: number; transparent: boolean };
+        const saved = child.userData.colour as Saved | undefined;
+        if (on || seeThrough) {
+          if (!saved) {
+            child.userData.colour = {
+              color: material.color.clone(), emissive: material.emissive.clone(),
+              opacity: material.opacity, transparent: material.transparent,
+            } satisfies Saved;
+          }
+          if (on) {
+            const c = this.moving.has(name) ? ARM_HIGHLIGHT : FIXED_HIGHLIGHT;
+            material.color.copy(c);
+            material.emissive.copy(c).multiplyScalar(0.45);
+          } else {
+            material.transparent = true;
+            material.opacity = Math.min(material.opacity, 0.35);
+          }
+          material.needsUpdate = true;
+        } else if (saved) {
+          material.color.copy(saved.color);
+          material.emissive.copy(saved.emissive);
+          material.opacity = saved.opacity;
+          material.transparent = saved.transparent;
+          delete child.userData.colour;
+          material.needsUpdate = true;
+        }
+      }
+      if (on) coloured.push(name);
+    }
+    return coloured;
+  }
+
+  /** A point of the robot frame (m) in the root link's frame. */
+  fromRobotFrame(p: Vec3): THREE.Vector3 {
+    return new THREE.Vector3(p[0], p[1], p[2]).add(this.robotOrigin);
   }
 
   setJoints(anglesRad: ArrayLike<number>): void {
@@ -136,6 +213,9 @@ export class SatelliteView {
   private robot: Robot | null = null;
   private ghost: Robot | null = null;
   private pending = false;
+  /** The worst pair's segment (in the root link's frame) and its label, when highlighted. */
+  private pair: { line: THREE.Group; mid: THREE.Vector3 } | null = null;
+  private readonly pairLabel: HTMLElement;
   readonly el: HTMLElement;
 
   constructor(parent: HTMLElement) {
@@ -147,6 +227,11 @@ export class SatelliteView {
     this.renderer.setPixelRatio(devicePixelRatio);
     this.renderer.setClearColor(0x0d1017);
     this.el.appendChild(this.renderer.domElement);
+    this.pairLabel = document.createElement("div");
+    this.pairLabel.className = "pair-label";
+    this.pairLabel.dataset.test = "worst-pair-label";
+    this.pairLabel.hidden = true;
+    this.el.appendChild(this.pairLabel);
     this.camera = new THREE.PerspectiveCamera(40, 1, 0.05, 100);
     this.camera.position.set(5.5, 2.5, 5.5);
     this.controls = new OrbitControls(this.camera, this.renderer.domElement);
@@ -192,6 +277,92 @@ export class SatelliteView {
     this.request();
   }
 
+  /** Highlight the flight rules' worst pair of bodies (null: none): the named links
+   * coloured (the arm's red, equipment on the base amber; the base body itself is left as
+   * it is, the segment shows where), a segment between the two nearest points (robot frame,
+   * drawn in the base frame) over everything, and a label with the bodies and the distance.
+   * The caller poses the arm at the pair's moment (``pair.t_s``) first. */
+  showWorstPair(pair: WorstPair | null): void {
+    const robot = this.robot;
+    if (this.pair) {
+      this.pair.line.removeFromParent();
+      for (const o of this.pair.line.children) {
+        if (o instanceof THREE.Mesh || o instanceof THREE.Line) {
+          o.geometry.dispose();
+          (o.material as THREE.Material).dispose();
+        }
+      }
+      this.pair = null;
+    }
+    robot?.colour(new Set());
+    this.pairLabel.hidden = true;
+    delete this.el.dataset.highlight;
+    delete this.el.dataset.highlightColoured;
+    delete this.el.dataset.pairBaseM;
+    delete this.el.dataset.pairBodiesBaseM;
+    if (!robot || !pair) {
+      this.request();
+      return;
+    }
+    const coloured = robot.colour(new Set(pair.bodies));
+    const a = robot.fromRobotFrame(pair.points_robot_m[0]);
+    const b = robot.fromRobotFrame(pair.points_robot_m[1]);
+    const colour = pair.failed ? 0xff2a2a : 0xffd54f;
+    const group = new THREE.Group();
+    const overAll = (m: THREE.Material): THREE.Material => {
+      m.depthTest = false; // seen through the base box the hand is in
+      m.transparent = true;
+      return m;
+    };
+    const line = new THREE.Line(
+      new THREE.BufferGeometry().setFromPoints([a, b]),
+      overAll(new THREE.LineBasicMaterial({ color: colour })),
+    );
+    group.add(line);
+    for (const p of [a, b]) {
+      const dot = new THREE.Mesh(new THREE.SphereGeometry(0.025, 12, 8), overAll(new THREE.MeshBasicMaterial({ color: colour })));
+      dot.position.copy(p);
+      group.add(dot);
+    }
+    group.renderOrder = 999;
+    group.traverse((o) => (o.renderOrder = 999));
+    robot.rootLink.add(group);
+    this.pair = { line: group, mid: a.clone().add(b).multiplyScalar(0.5) };
+    const d = pair.distance_m;
+    this.pairLabel.textContent =
+      `${pair.bodies[0]} – ${pair.bodies[1]}: ${d < 0 ? `${(-d).toFixed(3)} m inside` : `${d.toFixed(3)} m`}` +
+      ` (least ${pair.limit_m} m) at t = ${pair.t_s.toFixed(2)} s`;
+    this.pairLabel.classList.toggle("fail", pair.failed);
+    this.pairLabel.hidden = false;
+    // What is drawn, for the tests: the pair, the links coloured, the segment's ends (base frame).
+    this.el.dataset.highlight = pair.bodies.join(",");
+    this.el.dataset.highlightColoured = coloured.join(",");
+    this.el.dataset.pairBaseM = JSON.stringify([a.toArray(), b.toArray()]);
+    this.el.dataset.pairBodiesBaseM = JSON.stringify(pair.bodies.map((n) => this.linkPosition(n)));
+    this.request();
+  }
+
+  /** A link's origin in the root link's frame (m), as drawn now; null for an unknown link. */
+  linkPosition(name: string): number[] | null {
+    const robot = this.robot;
+    const link = robot?.links.get(name);
+    if (!robot || !link) return null;
+    this.scene.updateMatrixWorld(true);
+    return robot.rootLink.worldToLocal(link.getWorldPosition(new THREE.Vector3())).toArray();
+  }
+
+  /** Keep the label over the segment's middle (after each render: the camera may move). */
+  private placeLabel(): void {
+    if (!this.pair) return;
+    const p = this.pair.line.localToWorld(this.pair.mid.clone()).project(this.camera);
+    const w = this.renderer.domElement.clientWidth;
+    const hgt = this.renderer.domElement.clientHeight;
+    const inFront = p.z < 1;
+    this.pairLabel.style.left = `${Math.round(((p.x + 1) / 2) * w)}px`;
+    this.pairLabel.style.top = `${Math.round(((1 - p.y) / 2) * hgt)}px`;
+    this.pairLabel.style.visibility = inFront ? "visible" : "hidden";
+  }
+
   private resize(): void {
     const w = this.el.clientWidth || 300;
     const h = this.el.clientHeight || 260;
@@ -207,6 +378,7 @@ export class SatelliteView {
     requestAnimationFrame(() => {
       this.pending = false;
       this.renderer.render(this.scene, this.camera);
+      this.placeLabel();
     });
   }
 

@@ -7,7 +7,7 @@
 // link status for two heartbeats: the link is stale); missing frames are gaps.
 
 import {
-  ApiError, get, getAll, passRawFields, planRobot,
+  ApiError, get, getAll, passRawFields, planRobot, planRules,
   type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
 } from "../api";
 import type { Ctx } from "../main";
@@ -134,6 +134,10 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
         plan = doc;
         view.setPrediction(predictionColumns(doc));
         view.setRobot(planRobot(doc));
+        view.setFlightRules(planRules(null, doc));
+        // Before any telemetry, a plan that fails its clearance shows its worst moment: why
+        // the server will refuse to start this pass.
+        if (store.count === 0 && view.clearanceFails) view.showWorstMoment();
         renderedVersion = -1;
       })
       .catch(() => {

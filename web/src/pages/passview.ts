@@ -1,9 +1,11 @@
 // The plots of a pass, shared by the live view, the plan preview and the report: joints
 // (measured, servo target, plan), base attitude, base rates, wheel momentum, the pitch
 // phase plane and the 3D view. Fed by a TelemetryStore (flown) and a plan document
-// (prediction, drawn dashed underneath).
+// (prediction, drawn dashed underneath). Above them, the plan's flight rules (table and
+// clearance plot); the 3D view shows their worst pair of bodies at its worst moment.
 
 import type { PlanDocument } from "../api";
+import { worstPair, type FlightRulesReport, type WorstPair } from "../flightrules";
 import { fetchUrdf, SatelliteView, type RobotRef } from "../model3d";
 import { COLORS, PhasePlane, timePlot, type PredLine, type TimePlot } from "../plots";
 import {
@@ -11,6 +13,7 @@ import {
   type Column, type Frame, type TelemetryStore,
 } from "../store";
 import { clear, h } from "../ui";
+import { RulesPanel } from "./rules";
 
 const DEG = 180 / Math.PI;
 const AXES = ["x", "y", "z"];
@@ -65,7 +68,16 @@ export class PassView {
   readonly momentum: TimePlot;
   readonly phase: PhasePlane;
   view3d: SatelliteView | null = null;
+  readonly rules: RulesPanel;
+  /** What the rules panel's "worst moment" button does (the page may move its scrub too);
+   * by default the 3D view shows the worst moment. */
+  onShowWorst: (t: number) => void = () => this.showWorstMoment();
   private pred: PredictionColumns | null = null;
+  private worst: WorstPair | null = null;
+  /** Half the rules' sampling step: a pose this near the worst moment is shown with the pair. */
+  private worstTolS = 0;
+  /** The 3D view shows the predicted pose at the worst moment (with the pair highlighted). */
+  private atWorst = false;
   private readonly jointGrid: HTMLElement;
   private readonly bodyPlots: TimePlot[];
   private readonly holder: HTMLElement;
@@ -83,7 +95,9 @@ export class PassView {
     const side = h("div.side");
     const caption = h("p.caption.muted.small", {},
       "Solid: flown (telemetry). Thin dashed: commanded servo target. Grey dashed: the plan's prediction. Amber line: now / replay time. Breaks in a line: missing frames.");
-    this.el.append(h("div.plots", {}, caption, jointGrid, bodyGrid), side);
+    const rulesHolder = h("div.rules-holder");
+    this.el.append(h("div.plots", {}, rulesHolder, caption, jointGrid, bodyGrid), side);
+    this.rules = new RulesPanel(rulesHolder, (t) => this.onShowWorst(t));
     this.setJointCount(DEFAULT_JOINTS);
     const three = (color: string[]) => AXES.map((a, i) => ({ label: a, color: color[i] }));
     this.attitude = timePlot(bodyGrid, "Base attitude roll / pitch / yaw", "deg", [
@@ -132,7 +146,8 @@ export class PassView {
       }
       this.view3d = view;
       const initial = this.pred;
-      if (initial) view.setPose(initial.jointsRad[0], null, initial.quat[0]);
+      if (this.atWorst) this.showWorstMoment();
+      else if (initial) view.setPose(initial.jointsRad[0], null, initial.quat[0]);
     });
   }
 
@@ -169,6 +184,35 @@ export class PassView {
     this.phase.setPlanned(pred ? { x: pred.rpy[1], y: pred.rates[1] } : null);
   }
 
+  /** The plan's flight-rules report (null: never checked): the table, the clearance plot,
+   * and the worst pair the 3D view highlights at its moment. */
+  setFlightRules(report: FlightRulesReport | null): void {
+    this.rules.set(report);
+    this.worst = worstPair(report);
+    this.worstTolS = report ? Math.max(1e-6, report.step_s / 2) : 0;
+    if (this.atWorst) this.showWorstMoment();
+  }
+
+  /** The 3D view at the worst clearance's moment: the arm in its predicted pose then, the
+   * pair highlighted. False (nothing changed) without a worst pair or a prediction. */
+  showWorstMoment(): boolean {
+    const worst = this.worst;
+    if (!worst || !this.pred || this.pred.t.length === 0) return false;
+    this.atWorst = true;
+    this.showPredictedAt(worst.t_s);
+    return true;
+  }
+
+  /** Whether the plan fails its clearance rule (its worst pair then deserves the 3D view). */
+  get clearanceFails(): boolean {
+    return this.worst?.failed ?? false;
+  }
+
+  /** The worst pair's plan time (s); null without one. */
+  get worstTime(): number | null {
+    return this.worst?.t_s ?? null;
+  }
+
   /** Plot what ``store`` holds. */
   showStore(store: TelemetryStore): void {
     this.setJointCount(store.nJoints);
@@ -197,27 +241,38 @@ export class PassView {
     return [rpy[1] * DEG, frameRates(f)[1] * DEG];
   }
 
-  /** The 3D pose and phase-plane point of one frame. */
+  /** The 3D pose and phase-plane point of one frame (flown: no worst pair shown). */
   showFrame(f: Frame): void {
+    this.setWorstShown(false);
     this.view3d?.setPose(frameJoints(f), frameTargets(f), frameQuat(f));
   }
 
-  /** The predicted pose at plan time ``t`` (preview). */
+  /** The predicted pose at plan time ``t`` (preview): joints linear between the prediction's
+   * samples; the worst pair highlighted when ``t`` is its moment. */
   showPredictedAt(t: number): void {
     const pred = this.pred;
     if (!pred || pred.t.length === 0) return;
-    let k = pred.t.findIndex((v) => v >= t);
-    if (k < 0) k = pred.t.length - 1;
-    this.view3d?.setPose(pred.jointsRad[k], null, pred.quat[k]);
+    const { joints, k } = predictedJointsAt(pred, t);
+    const worst = this.worst;
+    this.view3d?.setPose(joints, null, pred.quat[k]);
+    this.setWorstShown(worst !== null && Math.abs(t - worst.t_s) <= this.worstTolS);
     this.phase.set([], [], [pred.rpy[1][k], pred.rates[1][k]]);
+  }
+
+  private setWorstShown(on: boolean): void {
+    if (!on && !this.atWorst) return; // nothing highlighted (a new view starts without)
+    this.atWorst = on;
+    this.view3d?.showWorstPair(on ? this.worst : null);
   }
 
   setMarker(t: number | null): void {
     for (const p of this.plots) p.setMarker(t);
+    this.rules.setMarker(t);
   }
 
   setXRange(range: [number, number] | null): void {
     for (const p of this.plots) p.setXRange(range);
+    this.rules.setXRange(range);
   }
 
   /** Points on each plot (the tests and the bench read these). */
@@ -229,5 +284,26 @@ export class PassView {
     this.disposed = true;
     this.view3d?.dispose();
     for (const p of this.plots) p.plot.destroy();
+    this.rules.dispose();
   }
+}
+
+/** The predicted joints (rad) at plan time ``t``, linear between the two samples around it
+ * (held before the first and after the last), and the index of the sample nearest ``t``. */
+export function predictedJointsAt(pred: PredictionColumns, t: number): { joints: number[]; k: number } {
+  const ts = pred.t;
+  const n = ts.length;
+  let lo = 0;
+  let hi = n - 1;
+  if (t <= ts[0]) return { joints: [...pred.jointsRad[0]], k: 0 };
+  if (t >= ts[hi]) return { joints: [...pred.jointsRad[hi]], k: hi };
+  while (hi - lo > 1) {
+    const mid = (lo + hi) >> 1;
+    if (ts[mid] <= t) lo = mid;
+    else hi = mid;
+  }
+  const f = (t - ts[lo]) / (ts[hi] - ts[lo] || 1);
+  const a = pred.jointsRad[lo];
+  const b = pred.jointsRad[hi];
+  return { joints: a.map((v, i) => v + f * (b[i] - v)), k: f < 0.5 ? lo : hi };
 }

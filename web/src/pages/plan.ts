@@ -4,7 +4,7 @@
 // can preview stored plans.
 
 import {
-  ApiError, get, getAll, planRobot, post,
+  ApiError, get, getAll, planRobot, planRules, post,
   type PassPublic, type PlanBrief, type PlanDocument, type PlanPublic, type PlanValidation,
   type RobotPublic,
 } from "../api";
@@ -12,6 +12,7 @@ import type { Ctx } from "../main";
 import { clear, fmt, h } from "../ui";
 import { EXPERIMENTS, type ParamSpec } from "./experiments";
 import { PassView, predictionColumns } from "./passview";
+import { rulesSummary, rulesTable } from "./rules";
 
 const norm = (s: string): string => s.replace(/\s+/g, "").toLowerCase();
 
@@ -198,13 +199,29 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
       ...unplaced.map((m) => h("p.error", {}, m)));
   };
 
+  /** A plan that plans has its rules table (also when a rule fails: that is why). */
+  const showRules = (v: PlanValidation): void => {
+    if (v.flight_rules) result.append(rulesSummary(v.flight_rules), rulesTable(v.flight_rules));
+  };
+
   const showSummary = (v: PlanValidation): void => {
     clear(result);
     const s = v.summary!;
     result.append(
       h("p.ok", { "data-test": "validation-ok" }, `Valid: ${fmt(s.duration_s, 1)} s, ${s.n_commands} commands, ${s.segments.length} segments`),
       h("table.list", {}, ...Object.entries(s.metrics).map(([k, val]) => h("tr", {}, h("th", {}, k), h("td", {}, fmt(val, 6))))));
+    showRules(v);
   };
+
+  const showInvalid = (v: PlanValidation): void => {
+    showErrors(v.errors);
+    showRules(v);
+  };
+
+  /** Refused only by flight rules: the plan plans, and is stored marked failing so that it
+   * can be looked at (as `hikoboshi plan` writes it); the server refuses to start its pass. */
+  const onlyRules = (v: PlanValidation): boolean =>
+    v.errors.length > 0 && v.errors.every((e) => e.code === "flight_rule_violation");
 
   const busy = (on: boolean, what: string): void => {
     validate.disabled = on;
@@ -220,7 +237,7 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
     if (counts.length) return showErrors(counts);
     busy(true, "Validating (planning without storing)…");
     post<PlanValidation>("/api/plans/validate", body())
-      .then((v) => (v.valid ? showSummary(v) : showErrors(v.errors)))
+      .then((v) => (v.valid ? showSummary(v) : showInvalid(v)))
       .catch((e: Error) => showErrors([{ code: (e as ApiError).code ?? "error", message: e.message }]))
       .finally(() => busy(false, ""));
   });
@@ -232,7 +249,7 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
     // Validate first: a refused plan is shown inline rather than as a failed request.
     post<PlanValidation>("/api/plans/validate", body())
       .then(async (v) => {
-        if (!v.valid) return showErrors(v.errors);
+        if (!v.valid && !onlyRules(v)) return showInvalid(v);
         const plan = await post<PlanPublic>("/api/plans", body());
         location.hash = `#/plan/${plan.id}`;
       })
@@ -300,7 +317,15 @@ function previewPlan(root: HTMLElement, ctx: Ctx, planId: string): () => void {
       view.setPrediction(pred);
       view.setRobot(planRobot(doc));
       view.showPredictionAsData(pred);
-      show(0);
+      view.setFlightRules(planRules(plan, doc));
+      view.onShowWorst = (t) => {
+        scrub.value = String(duration > 0 ? (1000 * t) / duration : 0);
+        show(t);
+      };
+      // A plan that fails its clearance opens at its worst moment, the pair highlighted.
+      const worst = view.clearanceFails ? view.worstTime : null;
+      if (worst !== null) view.onShowWorst(worst);
+      else show(0);
       clear(info);
       info.append(
         h("h3", {}, `${plan.experiment} · ${fmt(plan.duration_s, 1)} s · ${plan.n_commands} commands`),

@@ -5,7 +5,7 @@
 // speed, step and seek; docs/console.md), its telemetry drawn on the same plots.
 
 import {
-  get, getAll, passRawFields, planRobot, post, storedToken,
+  get, getAll, passRawFields, planRobot, planRules, post, storedToken,
   type CommandPublic, type PassPublic, type PlanDocument,
 } from "../api";
 import type { Ctx } from "../main";
@@ -226,6 +226,7 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
         h("tr", {}, h("th", {}, k), h("td", {}, typeof v === "object" && v !== null ? JSON.stringify(v) : String(v ?? "—"))))));
     if (doc) view.setPrediction(predictionColumns(doc));
     view.setRobot(doc ? planRobot(doc) : null);
+    view.setFlightRules(planRules(null, doc));
     // The whole archive, page by page.
     const s = new TelemetryStore(pass.epoch_ns ?? 0);
     const rows: unknown[] = [];
