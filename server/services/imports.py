@@ -20,6 +20,7 @@ import hashlib
 import io
 import time
 from collections.abc import Mapping
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -131,7 +132,13 @@ def store_recording(
         end_ns = int(gen.max()) + 1 if end_ns is None else end_ns
     state = meta.get("state") if meta.get("state") in _FINISHED else "complete"
     try:
-        plan = repo.add_plan(session=session, plan=recording.plan, created_at_ns=now_ns)
+        # A flight-rules report from outside is not the ground's word: the plan is stored
+        # without it, and checked by the ground before any pass of it may start.
+        plan = repo.add_plan(
+            session=session,
+            plan=replace(recording.plan, flight_rules=None),
+            created_at_ns=now_ns,
+        )
         record = repo.add_pass(
             session=session,
             name=recording.name[:128] or "imported pass",

@@ -118,3 +118,20 @@ def test_commands_the_tables_cannot_take_are_refused_before_writing(
     with pytest.raises(InvalidRecording, match=reason):
         store_recording(session, bad, "otto")
     assert row_counts(session)["passes"] == 0
+
+
+def test_an_imported_plans_flight_rules_report_is_not_trusted(
+    session: Session, short_recording: PassRecording
+) -> None:
+    """A recording may carry any report (a forged 'passed'): the plan is stored without it,
+    so the ground checks it itself before any pass of it may start."""
+    forged = {"passed": True, "rows": [], "step_s": 0.25, "n_samples": 1, "n_pairs": 0,
+              "n_queries": 0, "clearance": {"t_s": [], "min_m": []}}  # fmt: skip
+    carrying = dataclasses.replace(
+        short_recording, plan=dataclasses.replace(short_recording.plan, flight_rules=forged)
+    )
+    pass_id = store_recording(session, carrying, "otto", now_ns=5)
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    stored = repo.get_plan(session=session, plan_id=record.plan_id)
+    assert "flight_rules" not in stored.document
+    assert load_recording(session=session, pass_id=pass_id).plan.flight_rules is None
