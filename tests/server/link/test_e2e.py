@@ -306,3 +306,57 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
     hold_target = np.tile(last.payload["joints_rad"], (len(after), 1))
     np.testing.assert_allclose(targets, hold_target, rtol=0, atol=1e-12)
     assert transitions[-1] == ("running", "aborted", "otto")
+
+
+def test_a_plan_into_the_base_is_refused_with_the_vehicle_connected_and_it_never_moves(
+    database_url: str,
+) -> None:
+    """Issue #24's plan, stored with its rules table, against a live vehicle: start is 409
+    ``flight_rule_violation`` naming the pair, the pass stays scheduled, no command reaches
+    the vehicle, and its arm stays where it was while telemetry keeps coming."""
+    from planner.description import default_robot
+
+    def checked(plan: Plan) -> Plan:
+        return default_robot().checked(plan)[0]
+
+    async def attempt(ground: Ground, pass_id: str) -> tuple[httpx.Response, list[Any]]:
+        process, generated = spacecraft(ground)
+        stop = asyncio.Event()
+        task = asyncio.create_task(process.run(stop))
+        try:
+            async with httpx.AsyncClient(base_url=ground.url) as client:
+                await connected(client)
+                response = await client.post(
+                    f"/api/passes/{pass_id}/start",
+                    json={"confirm": "START into-the-base"},
+                    headers=OPERATOR,
+                )
+                seen = len(generated)
+                # 20 onboard seconds of telemetry after the refusal
+                await wait_for(lambda: len(generated) >= seen + 40, 30.0, "telemetry")
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, 40.0)
+        return response, list(generated)
+
+    with running_ground(database_url) as ground:
+        pass_id = store_pass(
+            ground.sessions, "into-the-base", (90.0, 120.0, 60.0, 0.0, 0.0, 0.0), 4.0, checked
+        )
+        response, frames = asyncio.run(attempt(ground, pass_id))
+        with ground.readers() as session:
+            commands = repo.list_commands(session=session, pass_id=pass_id)
+            record = repo.get_pass(session=session, pass_id=pass_id)
+            refused = repo.list_events(
+                session=session, pass_id=pass_id, kinds=["pass_start_refused"]
+            ).items
+    assert response.status_code == 409, response.text
+    body = response.json()["error"]
+    assert body["code"] == "flight_rule_violation"
+    [row] = body["detail"]["rows"]
+    assert row["rule"] == "clearance" and set(row["bodies"]) == {"base_link", "hand"}
+    assert record.state == "scheduled" and commands == []
+    assert len(refused) == 1 and refused[0].actor == "otto"
+    joints = np.array([f.joints_rad for f in frames])
+    assert len(joints) > 40
+    assert np.max(np.abs(joints - joints[0])) < np.radians(0.1)  # sensor noise only
