@@ -30,16 +30,23 @@ round-trips), so a parser gets back exactly the model's floats.
 
 Visuals are for display only: a box for the base (2.4 x 2.0 x 2.0 m unless told), a
 cylinder along each link's segment from its joint to the next joint (the hand point for the
-last link), a sphere at the hand.
+last link), a sphere at the hand. ``equipment`` (a description's keep-out bodies,
+:class:`planner.collision.CollisionBody` fixed on the base) adds one massless link per body,
+fixed on ``base_link`` at its origin, with a visual per shape (a capsule drawn as a cylinder
+of its whole length; a convex hull is not drawn), so that viewers show what the flight rules
+keep the arm away from.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.collision import CollisionBody
+from planner.frames import rpy_from_matrix
 from planner.model import RobotModel
 
 __all__ = ["urdf_xml"]
@@ -57,6 +64,7 @@ _MIN_SEGMENT_M = 1e-9  # a shorter segment gets no cylinder (its direction is un
 _BASE_RGBA = (0.85, 0.7, 0.3, 1.0)
 _LINK_RGBA = (0.8, 0.8, 0.85, 1.0)
 _HAND_RGBA = (0.9, 0.3, 0.2, 1.0)
+_EQUIPMENT_RGBA = (0.55, 0.6, 0.7, 1.0)
 
 
 def _num(x: float) -> str:
@@ -126,14 +134,44 @@ def _joint(
     return joint
 
 
+def _equipment(robot: ET.Element, body: CollisionBody, pos_base_from_robot_m: Array) -> None:
+    """One keep-out body as a massless link fixed on the base (its shapes' zero-pose robot
+    frame positions moved into the base frame)."""
+    link = ET.SubElement(robot, "link", name=body.name)
+    for k, shape in enumerate(body.shapes):
+        xyz = shape.pos_robot_m + pos_base_from_robot_m
+        rpy = rpy_from_matrix(shape.rot_robot_from_shape)
+        name = f"{body.name}_{k}"
+        if shape.kind == "box":
+            _visual(link, name, xyz, rpy, "box", _EQUIPMENT_RGBA, size=_vec(shape.dims))
+        elif shape.kind == "sphere":
+            _visual(link, name, xyz, rpy, "sphere", _EQUIPMENT_RGBA, radius=_num(shape.dims[0]))
+        elif shape.kind in ("cylinder", "capsule"):
+            radius, length = shape.dims
+            whole = length + (2.0 * radius if shape.kind == "capsule" else 0.0)
+            _visual(
+                link,
+                name,
+                xyz,
+                rpy,
+                "cylinder",
+                _EQUIPMENT_RGBA,
+                radius=_num(radius),
+                length=_num(whole),
+            )
+    _joint(robot, f"{body.name}_joint", "fixed", "base_link", body.name, np.zeros(3))
+
+
 def urdf_xml(
     model: RobotModel,
     *,
     name: str = "ets7",
     base_box_size_m: tuple[float, float, float] = _BASE_BOX_SIZE_M,
+    equipment: Sequence[CollisionBody] = (),
 ) -> str:
     """The URDF document of ``model`` (frames as in the module docstring), as a string.
-    ``base_box_size_m``: the base's display box (ETS-VII's by default)."""
+    ``base_box_size_m``: the base's display box (ETS-VII's by default); ``equipment``: the
+    keep-out bodies fixed on the base to draw (none by default)."""
     robot = ET.Element("robot", name=name)
 
     base = ET.SubElement(robot, "link", name="base_link")
@@ -218,6 +256,9 @@ def urdf_xml(
         "hand",
         model.hand_pos_robot_m - parent_pos_robot_m,
     )
+
+    for body in equipment:
+        _equipment(robot, body, model.pos_base_from_robot_m)
 
     ET.indent(robot, space="  ")
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"

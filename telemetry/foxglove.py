@@ -162,6 +162,33 @@ def _json_str(text: str) -> str:
     return json.dumps(text).replace("%", "%%")
 
 
+def _add_fixed_links(urdf: str, poses: dict[str, tuple[Array, Array]]) -> None:
+    """The poses of links the MuJoCo model does not have but which a ``fixed`` joint holds to
+    one it has (the keep-out equipment drawn on the base, :func:`planner.urdf.urdf_xml`):
+    the parent's pose composed with the joint's origin."""
+    fixed = []
+    for joint in ET.fromstring(urdf).iter("joint"):
+        parent_el, child_el = joint.find("parent"), joint.find("child")
+        if joint.get("type") == "fixed" and parent_el is not None and child_el is not None:
+            origin = joint.find("origin")
+            xyz = "0 0 0" if origin is None else origin.get("xyz", "0 0 0")
+            rpy = "0 0 0" if origin is None else origin.get("rpy", "0 0 0")
+            fixed.append(
+                (str(parent_el.get("link")), str(child_el.get("link")), xyz.split(), rpy.split())
+            )
+    added = True
+    while added:
+        added = False
+        for parent, child, xyz_text, rpy_text in fixed:
+            if child in poses or parent not in poses:
+                continue
+            pos_p, rot_p = poses[parent]
+            offset = np.array([float(v) for v in xyz_text])
+            rot = Rotation.from_euler("xyz", [float(v) for v in rpy_text]).as_matrix()
+            poses[child] = (pos_p + np.einsum("nij,j->ni", rot_p, offset), rot_p @ rot)
+            added = True
+
+
 def frame_transforms(
     model: RobotModel,
     urdf: str,
@@ -175,6 +202,7 @@ def frame_transforms(
     be finite and every time non-negative."""
     tree = urdf_tree(urdf)
     poses = link_poses_base(model, joints_rad)
+    _add_fixed_links(urdf, poses)
     unknown = sorted({name for edge in tree for name in edge} - set(poses))
     if unknown:
         raise ValueError(f"URDF links {unknown} have no pose in the MuJoCo model")

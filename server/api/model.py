@@ -1,7 +1,8 @@
 """``/api/model``: the robot as the ground models it (viewer).
 
-``GET /api/model/urdf``: the URDF generated from the canonical model (SPEC 1.1, 6, 7), the
-same document the MCAP recordings attach and the console's 3D view draws.
+``GET /api/model/urdf``: the URDF generated from the canonical model (SPEC 1.1, 6, 7) with
+ETS-VII's keep-out equipment drawn (``server.services.robots.robot_urdf``), the document the
+console's 3D view draws (the MCAP recordings attach the model's export alone).
 """
 
 from __future__ import annotations
@@ -11,10 +12,10 @@ from functools import cache
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from planner.model import default_model
-from planner.urdf import urdf_xml
+from planner.description import default_robot
 from server.api.deps import ViewerDep
 from server.schemas import ERROR_RESPONSES
+from server.services import robots as service
 
 __all__ = ["router"]
 
@@ -23,7 +24,7 @@ router = APIRouter(prefix="/api/model", tags=["model"], responses=ERROR_RESPONSE
 
 @cache
 def _urdf() -> str:
-    return urdf_xml(default_model())
+    return service.robot_urdf(default_robot())
 
 
 @router.get(

@@ -165,12 +165,22 @@ def description_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> 
 
 
 def robot_urdf(description: RobotDescription) -> str:
-    """The robot's URDF as ``hikoboshi model urdf --robot FILE`` prints it: the export of its
-    model under its name, with its base's display box (ETS-VII: exactly ``GET
+    """The robot's URDF for viewers: the export of its model under its name (as ``hikoboshi
+    model urdf --robot FILE`` prints it), with its base's display box and the keep-out
+    equipment the flight rules check against, drawn (ETS-VII: exactly ``GET
     /api/model/urdf``)."""
     box = description.base_box_size_m
     extra = {} if box is None else {"base_box_size_m": box}
-    return urdf_xml(description.model, name=description.name, **extra)
+    equipment = (
+        ()
+        if description.collision is None
+        else tuple(
+            b
+            for b in description.collision.bodies
+            if b.is_equipment and b.name != description.base_link
+        )
+    )
+    return urdf_xml(description.model, name=description.name, equipment=equipment, **extra)
 
 
 def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:

@@ -9,11 +9,11 @@ from typing import get_args
 import pytest
 from fastapi.testclient import TestClient
 
-from planner.model import default_model
-from planner.urdf import urdf_xml
+from planner.description import default_robot
 from server.api.deps import OperatorDep, ViewerDep
 from server.app import create_app
 from server.schemas import CommandStage, PassState
+from server.services.robots import robot_urdf
 from server.settings import ApiToken, Role, Settings
 from server.storage.models import COMMAND_STAGES, PASS_STATES
 
@@ -77,9 +77,9 @@ def test_the_model_urdf_is_the_planner_s_and_needs_a_token(client: TestClient) -
     response = client.get("/api/model/urdf", headers={"Authorization": "Bearer v-token"})
     assert response.status_code == 200
     assert response.headers["content-type"].startswith("application/xml")
-    assert response.text == urdf_xml(default_model())
+    assert response.text == robot_urdf(default_robot())
     links = {link.get("name") for link in ET.fromstring(response.text).iter("link")}
-    assert {"base_link", "link1", "link6"} <= links
+    assert {"base_link", "link1", "link6", "target_satellite"} <= links
 
 
 def test_the_api_s_stage_and_state_names_are_the_archive_s() -> None:

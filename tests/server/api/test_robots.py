@@ -78,7 +78,21 @@ def test_a_robots_urdf_by_name_is_its_own(client: TestClient) -> None:
     assert len(_revolute(ets7.text)) == 6
     # ETS-VII's by name is the document /api/model/urdf has always served
     assert ets7.text == client.get("/api/model/urdf", headers=VIEWER).text
-    assert ets7.text == urdf_xml(default_model())
+    assert ets7.text == robot_urdf(default_robot())
+    # the model's own export, with the keep-out equipment drawn on the base
+    equipment = {"target_satellite", "task_board", "paddle_root_py", "paddle_root_ny"}
+    drawn = ET.fromstring(ets7.text)
+    assert equipment <= {link.get("name") for link in drawn.iter("link")}
+    for joint in drawn.findall("joint"):
+        child = joint.find("child")
+        if child is not None and child.get("link") in equipment | {"antenna_ioc"}:
+            drawn.remove(joint)
+    for link in drawn.findall("link"):
+        if link.get("name") in equipment | {"antenna_ioc"}:
+            drawn.remove(link)
+    assert ET.canonicalize(ET.tostring(drawn, encoding="unicode"), strip_text=True) == (
+        ET.canonicalize(urdf_xml(default_model()), strip_text=True)
+    )
 
 
 def test_an_unknown_or_malformed_robot_is_refused_with_the_reason(client: TestClient) -> None:
