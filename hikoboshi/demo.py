@@ -207,6 +207,17 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             request["robot"] = robot_name
         plan = api.call("POST", "/api/plans", request)
         report("planning the pass (all four experiments)", 1, 1)
+        rules = plan.get("flight_rules") or {}
+        if not rules.get("passed", False):
+            failing = [
+                f"{r['rule']} {r['value']:.4g} {r['unit']} (limit {r['limit']:.4g})"
+                for r in rules.get("rows", [])
+                if r["verdict"] == "fail"
+            ]
+            raise DemoError(
+                f"plan {plan['id']} fails the flight rules and would not be uplinked: "
+                + ("; ".join(failing) or "it could not be checked")
+            )
         duration_s = float(plan["duration_s"])
         name = f"{robot_label} demo {datetime.now(UTC):%Y-%m-%d %H:%M:%S}"
         now = datetime.now(UTC)
