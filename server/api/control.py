@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends
@@ -43,9 +42,7 @@ from server.schemas import ERROR_RESPONSES, PassControlPublic
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.errors import ConflictError, InvalidRequestError
-from server.services.events import with_written
-from server.services.flight_rules import Refusal, check_pass_plan, start_gate_job
-from server.services.jobs import session_job
+from server.services.flight_rules import Refusal, start_gate_job
 from server.services.link import LinkUnavailable
 from server.services.passes import check_confirmation, control_state, start_lead_s
 from server.services.runner import PassRunner
@@ -135,33 +132,12 @@ def _refused(refusal: Refusal) -> ConflictError:
 
 
 async def _flight_rules_kept(ground: _Ground, pass_id: str, actor: str) -> None:
-    """Refuse (409, audited) a start whose plan fails a flight rule or cannot be checked;
-    a plan without a report is checked in a worker process first and the gate asked
-    again."""
+    """Refuse (409, audited) a start whose plan fails a flight rule or was never checked
+    (server.services.flight_rules); a database job of the command path, no computation."""
     lead_s = start_lead_s(ground.settings)
     job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s)
     gate = await ground.db.run(job, control=True)
     ground.publisher.publish(gate.events)
-    if gate.needs_check:
-        refusal: Refusal | None
-        settings = ground.settings
-        refusal, events = await ground.workers.run(
-            session_job,
-            settings.resolved_database_url(),
-            partial(with_written, check_pass_plan),
-            pass_id=pass_id,
-            actor=actor,
-            now_ns=ground.clock.time_ns(),
-            lead_s=lead_s,
-            robot_files=tuple(str(p) for p in settings.robot_files),
-            deadline_s=settings.plan_deadline_s,
-            what=f"checking the flight rules of plan {gate.plan_id}",
-        )
-        ground.publisher.publish(events)
-        if refusal is not None:
-            raise _refused(refusal)
-        gate = await ground.db.run(job, control=True)
-        ground.publisher.publish(gate.events)
     if gate.refusal is not None:
         raise _refused(gate.refusal)
 

@@ -29,6 +29,7 @@ from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic,
 from server.services import plans as service
 from server.services.errors import DomainError
 from server.services.events import with_written
+from server.services.flight_rules import check_stored_plan
 from server.services.jobs import session_job
 from server.services.robots import resolve_robot
 
@@ -96,6 +97,39 @@ async def validate_plan(
         what=f"planning {request.experiment}",
         client=http,
     )
+
+
+@router.post("/{plan_id}/check", response_model=PlanPublic)
+async def check_plan(
+    plan_id: str,
+    http: Request,
+    settings: SettingsDep,
+    who: OperatorDep,
+    workers: WorkersDep,
+    clock: ClockDep,
+    publisher: PublisherDep,
+) -> PlanPublic:
+    """Check a stored plan against its robot's flight rules and store the report (for a plan
+    stored before the rules, or imported: a pass's start refuses a plan the ground has not
+    checked, ``flight_rules_unchecked``); the plan with its ``flight_rules``, audited as
+    ``plan_checked``. 404 for an unknown plan, 409 ``robot_unknown`` when the server has no
+    description of its robot, 422 ``no_collision_geometry``; 503 ``busy`` as planning."""
+    plan: PlanPublic
+    events: list[dict[str, Any]]
+    plan, events = await workers.run(
+        session_job,
+        settings.resolved_database_url(),
+        partial(with_written, check_stored_plan),
+        plan_id=plan_id,
+        actor=who.name,
+        now_ns=clock.time_ns(),
+        robot_files=tuple(str(p) for p in settings.robot_files),
+        deadline_s=settings.plan_deadline_s,
+        what=f"checking the flight rules of plan {plan_id}",
+        client=http,
+    )
+    publisher.publish(events)
+    return plan
 
 
 @router.get("", response_model=PlansPublic)

@@ -4,27 +4,24 @@ flight rules predicted (issue #24, docs/robots.md).
 
 The pass's frames are taken at most :data:`MAX_FRAMES` of them, evenly spread (the demo
 pass has about 12 000); at each the exact minimum over every checked pair of the robot's
-description (``description.collision.pairs``, coal's distances via
-:class:`planner.collision.ShapeSet`, the bodies posed by :func:`planner.collision.body_poses`
-at the measured joints). A pair is asked again only when the path its bodies may have
-travelled since its last exact distance (joint by joint, ``|dq_k|`` times the reach bound
-``rho``) could have brought it below the best found at that frame: the minimum is exact at
-every frame taken, at a fraction of the queries.
+description (``description.collision.pairs``), by the planner's own
+:func:`planner.flight_rules.sampled_clearance` on the bodies posed at the measured joints
+(a pair is asked again only when the path its bodies may have travelled since its last
+exact distance could have brought it below the best found at that frame, each joint's path
+being what it measured between the two frames).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.collision import CollisionModel, ShapeSet, body_poses, reach_bounds
+from planner.collision import body_poses
 from planner.errors import InvalidInput
-from planner.flight_rules import FlightRulesReport
-from planner.model import RobotModel
+from planner.flight_rules import FlightRulesReport, sampled_clearance
 from planner.robot import RobotDescription
 from telemetry.recording import PassRecording
 
@@ -80,23 +77,11 @@ class FlownClearance:
         }
 
 
-def _pair_coefficients(collision: CollisionModel, model: RobotModel) -> Array:
-    """``C[p, k]``: how far pair p's bodies can move relative to each other per radian of
-    joint k (the reach of joint k to the body it moves; 0 for joints that move both or
-    neither)."""
-    rho = reach_bounds(model, collision)
-    out = np.zeros((len(collision.pairs), model.n_joints))
-    for p, (a, b) in enumerate(collision.pairs):
-        ja, jb = collision.bodies[a].joint, collision.bodies[b].joint
-        lo, hi, moving = (ja, jb, b) if ja < jb else (jb, ja, a)
-        out[p, lo:hi] = rho[lo:hi, moving]
-    return out
-
-
 def flown_clearance(
     recording: PassRecording, description: RobotDescription, max_frames: int = MAX_FRAMES
 ) -> FlownClearance:
-    """The least clearance over the pass's measured joints (module doc)."""
+    """The least clearance over the pass's measured joints (module doc), over every checked
+    pair (the arm against the spacecraft and against itself)."""
     collision = description.collision
     if collision is None or not collision.pairs:
         raise InvalidInput(
@@ -111,45 +96,21 @@ def flown_clearance(
     joints = np.asarray(recording.frames.joints_rad, dtype=np.float64)[rows]
     times = recording.t_s()[rows]
     R, t = body_poses(model, joints)
-    shapes = ShapeSet(collision)
-    pairs = collision.pairs
-    frame_of = [body.joint for body in collision.bodies]
-    drift_per_step = np.abs(np.diff(joints, axis=0)) @ _pair_coefficients(collision, model).T
-
-    def exact(p: int, s: int) -> float:
-        a, b = pairs[p]
-        ja, jb = frame_of[a], frame_of[b]
-        return shapes.distance(a, b, R[s, ja], t[s, ja], R[s, jb], t[s, jb]).distance_m
-
-    last = np.array([exact(p, 0) for p in range(len(pairs))])
-    drift = np.zeros(len(pairs))
-    best_p = int(np.argmin(last))
-    worst = (float(last[best_p]), 0, best_p)
-    for s in range(1, len(rows)):
-        drift += drift_per_step[s - 1]
-        bounds = last - drift
-        best, best_p = math.inf, -1
-        for p in np.argsort(bounds):
-            if bounds[p] >= best:
-                break
-            d = exact(int(p), s)
-            last[p], drift[p] = d, 0.0
-            if d < best:
-                best, best_p = d, int(p)
-        if best < worst[0]:
-            worst = (best, s, best_p)
-    value, s_worst, p_worst = worst
-    a, b = pairs[p_worst]
+    # the path of each joint between two frames taken: what the measured joints moved
+    found = sampled_clearance(
+        collision, collision.pairs, R, t, np.abs(np.diff(joints, axis=0)), model
+    )
+    a, b = found.worst_pair
     predicted = _predicted(recording)
     return FlownClearance(
-        value_m=value,
-        t_s=float(times[s_worst]),
+        value_m=found.worst_m,
+        t_s=float(times[found.worst_sample]),
         bodies=(collision.bodies[a].name, collision.bodies[b].name),
         limit_m=description.flight_rules.min_clearance_m,
         n_frames=len(rows),
         n_frames_total=total,
-        n_pairs=len(pairs),
-        n_queries=shapes.queries,
+        n_pairs=len(collision.pairs),
+        n_queries=found.queries,
         predicted_m=None if predicted is None else predicted[0],
         predicted_t_s=None if predicted is None else predicted[1],
         predicted_bodies=None if predicted is None else predicted[2],
@@ -159,8 +120,13 @@ def flown_clearance(
 def _predicted(
     recording: PassRecording,
 ) -> tuple[float, float | None, tuple[str, str] | None] | None:
-    """The plan's predicted clearance row (value, time, bodies); None without a report."""
+    """The plan's predicted least clearance over every checked pair (value, time, bodies):
+    the nearer of its ``clearance`` and ``self_clearance`` rows; None without a report."""
     if recording.plan.flight_rules is None:
         return None
-    row = FlightRulesReport.from_dict(recording.plan.flight_rules).row("clearance")
+    report = FlightRulesReport.from_dict(recording.plan.flight_rules)
+    rows = [r for r in report.rows if r.rule in ("clearance", "self_clearance")]
+    if not rows:
+        return None
+    row = min(rows, key=lambda r: r.value)
     return row.value, row.t_s, row.bodies

@@ -401,8 +401,9 @@ class PlanCreated(Event):
 
 @dataclass(frozen=True, kw_only=True)
 class PlanChecked(Event):
-    """A stored plan that had no flight-rules report (stored before the rules existed, or
-    imported) checked when a pass of it was started; the report is now in its document."""
+    """A stored plan checked against the flight rules on request (``POST
+    /api/plans/{id}/check``: one stored before the rules existed, or imported); the ground's
+    report is now in its document."""
 
     kind = "plan_checked"
     plan_id: str

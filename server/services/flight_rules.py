@@ -10,13 +10,12 @@ the conflict ``flight_rule_violation``, its detail the failing rows, audited as
 ``pass_start_refused`` (:class:`~server.services.events.PassStartRefusedFlightRules`). The
 pass stays ``scheduled`` and nothing reaches the link. There is no override.
 
-Nothing is recomputed for a plan that has a report: the gate parses the document (what the
-start transaction does anyway) and compares numbers. A plan stored without one (before the
-rules existed, or imported from a recording) is checked first by :func:`check_pass_plan`,
-in a worker process as planning is (a second of CPU for a 25-minute pass), and its report
-stored in its document (``plan_checked``); then the gate decides. A plan that cannot be
-checked (its robot's description unknown to the server, or without collision shapes) cannot
-be shown clear and is refused too, with that reason.
+The start never computes: it compares numbers the ground stored. A plan stored without a
+report (before the rules existed, or imported from a recording, whose report is not the
+ground's word) is refused with ``flight_rules_unchecked``, saying how to check it:
+``POST /api/plans/{id}/check`` (:func:`check_stored_plan`, in a worker process as planning
+is), which stores the ground's report in the plan's document (``plan_checked``). So an
+operator's start never waits for a worker that viewers may be keeping busy.
 """
 
 from __future__ import annotations
@@ -32,16 +31,32 @@ from sqlalchemy.orm import Session
 from planner.errors import PlannerError
 from planner.flight_rules import FlightRulesReport, fits_pass_row
 from planner.plan import Plan
+from server.schemas import PlanPublic
 from server.services.clock import Clock
-from server.services.errors import DomainError
+from server.services.errors import ConflictError
 from server.services.events import PassStartRefusedFlightRules, PlanChecked
 from server.services.events import record as record_event
-from server.services.plans import FLIGHT_RULE_VIOLATION, check_flight_rules, violation_message
+from server.services.plans import (
+    FLIGHT_RULE_VIOLATION,
+    check_flight_rules,
+    get_plan,
+    violation_message,
+)
 from server.services.robots import description_for_plan
 from server.storage import repository as repo
 from server.storage.models import PassRecord
 
-__all__ = ["Refusal", "StartGate", "check_pass_plan", "pass_window_s", "start_gate_job"]
+__all__ = [
+    "FLIGHT_RULES_UNCHECKED",
+    "Refusal",
+    "StartGate",
+    "check_stored_plan",
+    "pass_window_s",
+    "start_gate_job",
+]
+
+#: The start's refusal of a plan the ground has not checked.
+FLIGHT_RULES_UNCHECKED = "flight_rules_unchecked"
 
 
 @dataclass(frozen=True)
@@ -55,11 +70,10 @@ class Refusal:
 
 @dataclass(frozen=True)
 class StartGate:
-    """The gate's answer: the pass's plan, whether it must be checked first (no report in
-    its document), or why the start is refused (None: it may start); the events written."""
+    """The gate's answer: the pass's plan, and why the start is refused (None: it may
+    start); the events written."""
 
     plan_id: str
-    needs_check: bool = False
     refusal: Refusal | None = None
     events: list[dict[str, Any]] = field(default_factory=list)
 
@@ -95,9 +109,18 @@ def start_gate_job(
             return StartGate(record.plan_id)
         plan = repo.get_plan(session=session, plan_id=record.plan_id)
         stored = json.loads(plan.document).get("flight_rules")
-        if stored is None:
-            return StartGate(record.plan_id, needs_check=True)
         window_s = pass_window_s(record, lead_s)
+        if stored is None:
+            refusal = Refusal(
+                FLIGHT_RULES_UNCHECKED,
+                f"pass {record.name!r} will not start: its plan {record.plan_id} has never been "
+                "checked against the flight rules (stored before them, or imported): check it "
+                f"with POST /api/plans/{record.plan_id}/check, then start the pass",
+                {"rows": []},
+            )
+            event = _refusal_event(actor, record.id, record.plan_id, refusal, window_s)
+            written = record_event(session, event, clock.time_ns())
+            return StartGate(record.plan_id, refusal=refusal, events=[written])
         report = FlightRulesReport.from_dict(stored).with_row(
             fits_pass_row(plan.duration_s, window_s)
         )
@@ -115,50 +138,30 @@ def start_gate_job(
     return job
 
 
-def check_pass_plan(
+def check_stored_plan(
     *,
     session: Session,
-    pass_id: str,
+    plan_id: str,
     actor: str,
     now_ns: int,
-    lead_s: float,
     robot_files: Sequence[str] = (),
-) -> Refusal | None:
-    """Check the plan of pass ``pass_id`` against its robot's flight rules (the robot
-    found by the plan's description hash among those the server knows) and store the
-    report in its document (``plan_checked``); None. A plan that cannot be checked: the
-    refusal (``robot_unknown``, ``no_collision_geometry`` or the planner's reason), audited
-    as a refused start. A worker process's job: it holds no transaction while it computes."""
-    record = repo.get_pass(session=session, pass_id=pass_id)
-    pass_key, plan_id, name = record.id, record.plan_id, record.name
-    window_s = pass_window_s(record, lead_s)
+) -> PlanPublic:
+    """Check stored plan ``plan_id`` against its robot's flight rules (the robot found by the
+    plan's description hash among those the server knows), store the report in its document
+    and audit ``plan_checked``; the plan as ``GET /api/plans/{id}`` gives it. A plan that
+    cannot be checked raises the reason (``robot_unknown``, ``no_collision_geometry``). A
+    worker process's job: it holds no transaction while it computes."""
     plan = Plan.from_json(repo.get_plan(session=session, plan_id=plan_id).document)
     session.rollback()  # no transaction (no SQLite write lock) while the plan is checked
     try:
         description = description_for_plan(plan, [Path(p) for p in robot_files])
         checked, report = check_flight_rules(description, plan)
-    except (DomainError, PlannerError) as exc:
-        code = exc.code if isinstance(exc, DomainError) else type(exc).__name__
-        text = exc.message if isinstance(exc, DomainError) else str(exc)
-        refusal = Refusal(
-            code,
-            f"the plan of pass {name!r} cannot be checked against the flight rules, so it "
-            f"will not start: {text}",
-            {"rows": []},
-        )
-        try:
-            refused = _refusal_event(actor, pass_key, plan_id, refusal, window_s)
-            record_event(session, refused, now_ns)
-            session.commit()
-        except BaseException:
-            session.rollback()
-            raise
-        return refusal
+    except PlannerError as exc:
+        raise ConflictError("plan_cannot_be_checked", str(exc)) from exc
     try:
         repo.set_plan_document(session=session, plan_id=plan_id, plan=checked)
         checked_event = PlanChecked(
             actor=actor,
-            pass_id=pass_key,
             plan_id=plan_id,
             robot=description.name,
             passed=report.passed,
@@ -169,4 +172,4 @@ def check_pass_plan(
     except BaseException:
         session.rollback()
         raise
-    return None
+    return get_plan(session=session, plan_id=plan_id)

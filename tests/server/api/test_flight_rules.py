@@ -1,7 +1,8 @@
 """Flight rules through REST (issue #24): every plan is stored with its rules table, a plan
 that fails one is not valid and its pass does not start (409 ``flight_rule_violation``,
 audited, the pass still ``scheduled``, no command stored for the link), a plan stored without
-a table is checked at start. SQLite and PostgreSQL (the ``client`` fixture)."""
+a table is refused at start until ``POST /api/plans/{id}/check`` has checked it. SQLite and
+PostgreSQL (the ``client`` fixture)."""
 
 from __future__ import annotations
 
@@ -144,9 +145,11 @@ def test_the_fits_pass_row_is_taken_with_the_passs_own_window(client: TestClient
     assert _start(client, pass_id, "tight").json()["error"]["code"] == "link_down"
 
 
-def test_a_plan_stored_without_a_table_is_checked_at_start_and_keeps_it(
+def test_a_plan_stored_without_a_table_is_refused_until_checked_then_starts(
     client: TestClient, ptp_plan: Plan
 ) -> None:
+    """The start never computes: a plan the ground has not checked (stored before the
+    rules, or imported) is refused, saying how to check it; checked, it goes on to start."""
     with sessions(client)() as session:
         record = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0)
         session.commit()
@@ -154,22 +157,29 @@ def test_a_plan_stored_without_a_table_is_checked_at_start_and_keeps_it(
     assert ptp_plan.flight_rules is None
     assert client.get(f"/api/plans/{plan_id}", headers=VIEWER).json()["flight_rules"] is None
     pass_id = _schedule(client, plan_id, "older")
-    response = _start(client, pass_id, "older")
-    assert response.json()["error"]["code"] == "link_down"  # checked, passed, then the link
-    [checked] = _events(client, "plan_checked")
-    assert checked["detail"] == {
-        "plan_id": plan_id,
-        "robot": "ets7",
-        "passed": True,
-        "failing": [],
-    }
-    table = client.get(f"/api/plans/{plan_id}", headers=VIEWER).json()["flight_rules"]
-    assert table is not None and table["passed"] is True
-    _start(client, pass_id, "older")  # the second start reads the stored table
-    assert len(_events(client, "plan_checked")) == 1
+    refused = _start(client, pass_id, "older")
+    assert refused.status_code == 409
+    error = refused.json()["error"]
+    assert error["code"] == "flight_rules_unchecked"
+    assert f"POST /api/plans/{plan_id}/check" in error["message"]
+    [event] = _events(client, "pass_start_refused")
+    assert event["pass_id"] == pass_id and event["detail"]["reason"] == "flight_rules_unchecked"
+    assert client.get(f"/api/passes/{pass_id}", headers=VIEWER).json()["state"] == "scheduled"
+
+    assert client.post(f"/api/plans/{plan_id}/check", headers=VIEWER).status_code == 403
+    checked = client.post(f"/api/plans/{plan_id}/check", headers=OPERATOR)
+    assert checked.status_code == 200, checked.text
+    table = checked.json()["flight_rules"]
+    assert table["passed"] is True
+    assert client.get(f"/api/plans/{plan_id}", headers=VIEWER).json()["flight_rules"] == table
+    [event] = _events(client, "plan_checked")
+    assert event["detail"] == {"plan_id": plan_id, "robot": "ets7", "passed": True, "failing": []}
+    # checked and passed: the start now goes as far as the link
+    assert _start(client, pass_id, "older").json()["error"]["code"] == "link_down"
+    assert client.post("/api/plans/no-such-plan/check", headers=OPERATOR).status_code == 404
 
 
-def test_a_plan_without_a_table_that_fails_is_refused_at_start(
+def test_a_plan_without_a_table_that_fails_its_check_is_refused_at_start(
     client: TestClient,
 ) -> None:
     # the issue's plan, stored without its table (as an older server or an import would)
@@ -182,11 +192,13 @@ def test_a_plan_without_a_table_that_fails_is_refused_at_start(
         plan_id = str(repo.add_plan(session=session, plan=bad, created_at_ns=0).id)
         session.commit()
     pass_id = _schedule(client, plan_id, "older-bad")
+    checked = client.post(f"/api/plans/{plan_id}/check", headers=OPERATOR)
+    assert checked.status_code == 200 and checked.json()["flight_rules"]["passed"] is False
+    [event] = _events(client, "plan_checked")
+    assert event["detail"]["passed"] is False and event["detail"]["failing"] == ["clearance"]
     refused = _start(client, pass_id, "older-bad")
     assert refused.status_code == 409
     assert refused.json()["error"]["code"] == "flight_rule_violation"
-    [checked] = _events(client, "plan_checked")
-    assert checked["detail"]["passed"] is False and checked["detail"]["failing"] == ["clearance"]
     assert client.get(f"/api/passes/{pass_id}", headers=VIEWER).json()["state"] == "scheduled"
     assert _commands(client, pass_id) == 0
 

@@ -142,13 +142,33 @@ def store_pass(
     plan = plan_ptp(
         DynamicsWorkspace(default_model()), PtpParams(goal_joints_deg=goal_deg, settle_s=settle_s)
     )
+    # checked as the ground checks what it plans; an edit comes after (a test of what the
+    # vehicle does with a plan the ground let through)
+    plan = with_flight_rules(plan)
     if edit is not None:
         plan = edit(plan)
     return add_plan_and_pass(sessions, plan, name, now_ns=time.time_ns(), window_s=1200.0)
 
 
+def with_flight_rules(plan: Plan) -> Plan:
+    """``plan`` with the ground's flight-rules report (as ``POST /api/plans`` stores every
+    plan; a pass's start refuses a plan without one), unless it has one already: checked
+    against the shipped description its ``robot_hash`` names."""
+    if plan.flight_rules is not None:
+        return plan
+    from planner.description import EXAMPLES_DIR, load_robot
+
+    for path in sorted(EXAMPLES_DIR.glob("*/*.toml")):
+        description = load_robot(path)
+        if description.content_sha256 == plan.robot_hash:
+            return description.checked(plan)[0]
+    raise AssertionError(f"no shipped description of plan robot {plan.robot!r}")
+
+
 def add_plan_and_pass(sessions: Any, plan: Plan, name: str, *, now_ns: int, window_s: float) -> str:
-    """Store ``plan`` and a pass of it scheduled from ``now_ns`` for ``window_s``; its id."""
+    """Store ``plan`` (with its flight-rules report: :func:`with_flight_rules`) and a pass of
+    it scheduled from ``now_ns`` for ``window_s``; its id."""
+    plan = with_flight_rules(plan)
     with sessions() as session:
         plan_record = repo.add_plan(session=session, plan=plan, created_at_ns=now_ns)
         record = repo.add_pass(

@@ -118,9 +118,8 @@ def test_the_report_sets_the_flown_clearance_beside_the_predicted(
 def test_the_served_report_shows_the_flown_clearance(
     client: TestClient, checked_recording: PassRecording
 ) -> None:
-    """Through the API on both backends. The recording goes up without its plan's report:
-    the MCAP plan schema (telemetry/mcap) does not take ``flight_rules`` yet, so nothing
-    predicted is set beside it here."""
+    """Through the API on both backends. An imported plan's report is not the ground's word
+    (it is stored without it): nothing predicted is set beside the flown clearance."""
     bare = replace(checked_recording, plan=replace(checked_recording.plan, flight_rules=None))
     response = client.post("/api/passes/import", content=mcap_bytes(bare), headers=OPERATOR)
     assert response.status_code == 201, response.text
