@@ -218,3 +218,39 @@ def test_operator_sees_a_plan_refused_by_its_rules_and_can_still_look_at_it(
         "() => document.querySelector('[data-test=view3d]')?.dataset.highlight === 'base_link,hand'"
     )
     assert "FAIL" in (page.text_content("[data-test=rules-verdict]") or "")
+
+
+def test_an_unchecked_plan_is_checked_from_its_pass_page(console: Console, ground: Ground) -> None:
+    """A pass whose plan the ground never checked (its start would be refused,
+    ``flight_rules_unchecked``): the page says so, and the operator's button has the ground
+    check it; the table appears and the stored plan carries it."""
+    robot = default_robot()
+    plan = plan_ptp(
+        DynamicsWorkspace(robot.model),
+        PtpParams(goal_joints_deg=(6.0, -3.0, 0.0, 6.0, 0.0, 0.0), settle_s=4.0),
+        robot=robot,
+    )
+    assert plan.flight_rules is None
+    now = time.time_ns()
+    with ground.sessions() as session:
+        plan_id = repo.add_plan(session=session, plan=plan, created_at_ns=now).id
+        record = repo.add_pass(
+            session=session,
+            name="unchecked",
+            plan_id=plan_id,
+            aos_time_ns=now + 3600 * 10**9,
+            los_time_ns=now + 4800 * 10**9,
+            relay="TDRS-W",
+            created_at_ns=now,
+        )
+        session.commit()
+        pass_id = record.id
+    page = console.page
+    console.sign_in(OPERATOR_TOKEN, f"#/live/{pass_id}")
+    page.wait_for_selector("[data-test=rules-none]")
+    page.click("[data-test=rules-check]")
+    page.wait_for_selector("[data-test=rules-table] tr[data-rule=clearance]")
+    assert page.locator("[data-test=rules-table] tr.fail").count() == 0
+    with ground.sessions() as session:
+        stored = json.loads(repo.get_plan(session=session, plan_id=plan_id).document)
+    assert stored["flight_rules"]["passed"] is True

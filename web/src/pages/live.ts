@@ -134,6 +134,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
         plan = doc;
         view.setPrediction(predictionColumns(doc));
         view.setRobot(planRobot(doc));
+        view.offerRulesCheck(pass.plan_id, () => undefined);
         view.setFlightRules(planRules(null, doc));
         // Before any telemetry, a plan that fails its clearance shows its worst moment: why
         // the server will refuse to start this pass.

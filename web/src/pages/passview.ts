@@ -184,6 +184,15 @@ export class PassView {
     this.phase.setPlanned(pred ? { x: pred.rpy[1], y: pred.rates[1] } : null);
   }
 
+  /** Offer to check plan ``planId`` when it has no report (the rules panel's button);
+   * ``done`` is given the report the ground stored. */
+  offerRulesCheck(planId: string, done: (report: FlightRulesReport) => void): void {
+    this.rules.offerCheck(planId, (report) => {
+      this.setFlightRules(report);
+      done(report);
+    });
+  }
+
   /** The plan's flight-rules report (null: never checked): the table, the clearance plot,
    * and the worst pair the 3D view highlights at its moment. */
   setFlightRules(report: FlightRulesReport | null): void {

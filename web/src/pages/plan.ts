@@ -317,6 +317,7 @@ function previewPlan(root: HTMLElement, ctx: Ctx, planId: string): () => void {
       view.setPrediction(pred);
       view.setRobot(planRobot(doc));
       view.showPredictionAsData(pred);
+      view.offerRulesCheck(planId, () => undefined);
       view.setFlightRules(planRules(plan, doc));
       view.onShowWorst = (t) => {
         scrub.value = String(duration > 0 ? (1000 * t) / duration : 0);

@@ -5,6 +5,7 @@
 
 import { clearanceRow, type FlightRulesReport, type RuleRow } from "../flightrules";
 import { COLORS, timePlot, type TimePlot } from "../plots";
+import { request } from "../api";
 import { clear, fmt, h } from "../ui";
 
 const RULE_TITLES: Record<string, string> = {
@@ -80,6 +81,8 @@ export class RulesPanel {
   private readonly body: HTMLElement;
   private readonly worstButton: HTMLButtonElement;
   private worstT: number | null = null;
+  /** A plan without a report can be checked from here (``offerCheck``). */
+  private checkOffer: { planId: string; done: (report: FlightRulesReport) => void } | null = null;
 
   constructor(parent: HTMLElement, onShowWorst: (t: number) => void) {
     this.body = h("div.rules-body");
@@ -100,6 +103,36 @@ export class RulesPanel {
     this.set(null);
   }
 
+  /** With no report shown, offer to check plan ``planId`` now (``POST /api/plans/{id}/check``,
+   * operator): the ground stores its report and ``done`` is given it. */
+  offerCheck(planId: string, done: (report: FlightRulesReport) => void): void {
+    this.checkOffer = { planId, done };
+  }
+
+  private checkButton(): HTMLElement {
+    const offer = this.checkOffer;
+    const message = h("span.field-error", { "data-test": "rules-check-error", role: "alert" });
+    const button = h("button", { type: "button", "data-test": "rules-check" },
+      "Check the flight rules now");
+    button.addEventListener("click", () => {
+      if (!offer) return;
+      button.disabled = true;
+      message.textContent = "";
+      request<{ flight_rules: FlightRulesReport | null }>("POST", `/api/plans/${offer.planId}/check`)
+        .then((plan) => {
+          if (plan.flight_rules) {
+            this.set(plan.flight_rules);
+            offer.done(plan.flight_rules);
+          }
+        })
+        .catch((err: Error) => {
+          message.textContent = err.message;
+          button.disabled = false;
+        });
+    });
+    return h("div.rules-check", {}, button, message);
+  }
+
   /** Show ``report`` (null: the plan was never checked, which is said plainly). */
   set(report: FlightRulesReport | null): void {
     clear(this.body);
@@ -109,8 +142,10 @@ export class RulesPanel {
     this.worstButton.hidden = this.worstT === null;
     if (report === null) {
       this.body.append(h("p.note", { "data-test": "rules-none" },
-        "Not checked: this plan carries no flight-rules report (planned before the flight rules, " +
-        "or on a server without them), so nothing shows it clear of the spacecraft."));
+        "Not checked: this plan carries no flight-rules report (planned before the flight rules " +
+        "or imported), so nothing shows it clear of the spacecraft, and no pass of it may " +
+        "start until the ground has checked it."));
+      if (this.checkOffer) this.body.append(this.checkButton());
       this.plot.el.hidden = true;
       this.plot.update([], [[], []]);
       return;
