@@ -314,10 +314,6 @@ def test_a_plan_into_the_base_is_refused_with_the_vehicle_connected_and_it_never
     """Issue #24's plan, stored with its rules table, against a live vehicle: start is 409
     ``flight_rule_violation`` naming the pair, the pass stays scheduled, no command reaches
     the vehicle, and its arm stays where it was while telemetry keeps coming."""
-    from planner.description import default_robot
-
-    def checked(plan: Plan) -> Plan:
-        return default_robot().checked(plan)[0]
 
     async def attempt(ground: Ground, pass_id: str) -> tuple[httpx.Response, list[Any]]:
         process, generated = spacecraft(ground)
@@ -341,7 +337,7 @@ def test_a_plan_into_the_base_is_refused_with_the_vehicle_connected_and_it_never
 
     with running_ground(database_url) as ground:
         pass_id = store_pass(
-            ground.sessions, "into-the-base", (90.0, 120.0, 60.0, 0.0, 0.0, 0.0), 4.0, checked
+            ground.sessions, "into-the-base", (90.0, 120.0, 60.0, 0.0, 0.0, 0.0), 4.0
         )
         response, frames = asyncio.run(attempt(ground, pass_id))
         with ground.readers() as session:
