@@ -29,13 +29,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import coal
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import InvalidInput
 from planner.model import RobotModel
+
+if TYPE_CHECKING:
+    import coal
 
 __all__ = [
     "SHAPE_KINDS",
@@ -100,6 +103,7 @@ class CollisionShape:
 
     def geometry(self) -> coal.CollisionGeometry:
         """The shape as coal's geometry (in the shape's own frame)."""
+        import coal  # imported where distances are asked for, not with the planner
         if self.kind == "box":
             return coal.Box(*self.dims)
         if self.kind == "sphere":
@@ -232,6 +236,9 @@ class ShapeSet:
     bodies at given frame poses; counts the queries it makes."""
 
     def __init__(self, collision: CollisionModel) -> None:
+        import coal
+
+        self._coal = coal
         self.collision = collision
         self._geometries = [[s.geometry() for s in b.shapes] for b in collision.bodies]
         self._request = coal.DistanceRequest()
@@ -257,8 +264,8 @@ class ShapeSet:
             ta = _transform(rot_a, pos_a, shape_a)
             for shape_b, geom_b in zip(body_b.shapes, self._geometries[b], strict=True):
                 tb = _transform(rot_b, pos_b, shape_b)
-                result = coal.DistanceResult()
-                d = float(coal.distance(geom_a, ta, geom_b, tb, self._request, result))
+                result = self._coal.DistanceResult()
+                d = float(self._coal.distance(geom_a, ta, geom_b, tb, self._request, result))
                 self.queries += 1
                 if best is None or d < best.distance_m:
                     pa = result.getNearestPoint1()
@@ -273,6 +280,8 @@ class ShapeSet:
 
 
 def _transform(rot: Array, pos: Array, shape: CollisionShape) -> coal.Transform3s:
+    import coal
+
     return coal.Transform3s(rot @ shape.rot_robot_from_shape, rot @ shape.pos_robot_m + pos)
 
 

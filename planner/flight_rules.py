@@ -42,7 +42,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
 from planner.attitude_control import AcsMode
 from planner.collision import (
@@ -349,6 +348,8 @@ def servo_response(
     """Joint angles and rates ``(S, n)`` at ``sample_times_s`` (which hold every command
     time): the servos, at rest at ``initial_joints_rad`` at time 0, driven by the commands
     linear between their times (held before the first and after the last)."""
+    from scipy import signal  # 0.8 s to import: only where a plan is checked
+
     n = command_joints_rad.shape[1]
     a = np.asarray(servo.stiffness, dtype=np.float64)
     b = np.asarray(servo.damping, dtype=np.float64)
