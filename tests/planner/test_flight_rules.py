@@ -286,3 +286,56 @@ def test_an_allowed_contact_must_name_collision_bodies(tmp_path: Path) -> None:
     )
     with pytest.raises(InvalidRobotDescription, match="no collision body 'wing'"):
         load_robot(toml)
+
+
+def test_a_mesh_is_taken_as_its_convex_hull(tmp_path: Path) -> None:
+    """Orihime's star tracker as a mesh file (a unit cube scaled to its box, plus a point
+    inside the hull) instead of a box: the same body, the same distances."""
+    folder = _copy_orihime(tmp_path)
+    corners = [(x, y, z) for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]
+    faces = [  # the cube's 12 triangles, 1-based OBJ indices
+        (1, 2, 4), (1, 4, 3), (5, 7, 8), (5, 8, 6), (1, 5, 6), (1, 6, 2),
+        (3, 4, 8), (3, 8, 7), (1, 3, 7), (1, 7, 5), (2, 6, 8), (2, 8, 4),
+    ]  # fmt: skip
+    lines = [f"v {x} {y} {z}" for x, y, z in corners] + ["v 0.1 0.1 0.1"]
+    lines += [f"f {a} {b} {c}" for a, b, c in faces]
+    (folder / "tracker.obj").write_text("\n".join(lines) + "\n")
+    urdf = folder / "orihime.urdf"
+    box = '<geometry><box size="0.15 0.15 0.2"/></geometry>\n    </collision>'
+    text = urdf.read_text()
+    assert text.count(box) == 1
+    urdf.write_text(
+        text.replace(
+            box,
+            '<geometry><mesh filename="tracker.obj" scale="0.15 0.15 0.2"/></geometry>\n'
+            "    </collision>",
+        )
+    )
+    meshed, boxed = load_robot(folder / "orihime.toml"), load_robot(ORIHIME)
+    assert meshed.collision is not None and boxed.collision is not None
+    [shape] = meshed.collision.body("star_tracker").shapes
+    assert shape.kind == "convex"
+    rng = np.random.default_rng(5)
+    joints = rng.uniform(-0.5, 0.5, size=(6, 7))
+    R, t = body_poses(boxed.model, joints)
+    names = [b.name for b in boxed.collision.bodies]
+    a, b = names.index("star_tracker"), names.index("hand")
+    for s in range(len(joints)):
+        ja, jb = 0, boxed.collision.bodies[b].joint
+        want = ShapeSet(boxed.collision).distance(a, b, R[s, ja], t[s, ja], R[s, jb], t[s, jb])
+        got = ShapeSet(meshed.collision).distance(a, b, R[s, ja], t[s, ja], R[s, jb], t[s, jb])
+        assert got.distance_m == pytest.approx(want.distance_m, abs=1e-6)
+
+
+def test_a_mesh_outside_a_ros_workspace_is_refused_with_the_reason(tmp_path: Path) -> None:
+    folder = _copy_orihime(tmp_path)
+    urdf = folder / "orihime.urdf"
+    urdf.write_text(
+        urdf.read_text().replace(
+            '<geometry><box size="0.15 0.15 0.2"/></geometry>\n    </collision>',
+            '<geometry><mesh filename="package://tracker/tracker.stl"/></geometry>\n'
+            "    </collision>",
+        )
+    )
+    with pytest.raises(InvalidRobotDescription, match="package:// needs a ROS workspace"):
+        load_robot(folder / "orihime.toml")
