@@ -68,6 +68,10 @@ T = TypeVar("T")
 PRELOAD = (
     "numpy",
     "scipy.spatial.transform",
+    "scipy.signal",  # the flight rules' servo response (about 0.8 s to import)
+    "coal",  # the flight rules' distances
+    "planner.flight_rules",
+    "planner.description",
     "sqlalchemy",
     "planner.catalogue",
     "server.services.plans",
