@@ -1,6 +1,6 @@
 """The clearance actually flown: the least distance between any two bodies that may not
 touch, computed from the MEASURED joints of a pass's telemetry, beside the one the plan's
-flight rules predicted (issue #24, docs/robots.md).
+flight rules predicted (docs/robots.md).
 
 The pass's frames are taken at most :data:`MAX_FRAMES` of them, evenly spread (the demo
 pass has about 12 000); at each the exact minimum over every checked pair of the robot's

@@ -1,4 +1,4 @@
-"""The flight rules at a pass's start: no plan that fails one is uplinked (issue #24; the
+"""The flight rules at a pass's start: no plan that fails one is uplinked (the
 rules: docs/robots.md, SPEC 8).
 
 ``POST /api/passes/{id}/start`` asks :func:`start_gate_job` (a short database job of the

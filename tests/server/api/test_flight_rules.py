@@ -1,4 +1,4 @@
-"""Flight rules through REST (issue #24): every plan is stored with its rules table, a plan
+"""Flight rules through REST: every plan is stored with its rules table, a plan
 that fails one is not valid and its pass does not start (409 ``flight_rule_violation``,
 audited, the pass still ``scheduled``, no command stored for the link), a plan stored without
 a table is refused at start until ``POST /api/plans/{id}/check`` has checked it. SQLite and
