@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import platform
 import resource
+import socket
+import subprocess
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
+
+import httpx
 
 
 def best_of(fn: Callable[[], object], *, repeat: int = 5) -> float:
@@ -31,3 +39,55 @@ def emit(name: str, figures: dict[str, Any], targets: dict[str, bool]) -> None:
         "machine": platform.machine(),
     }
     print(json.dumps(doc, indent=2))
+
+
+def free_port() -> int:
+    """A TCP port free on loopback now (for a server the bench starts)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def demo_mcap() -> bytes:
+    """The demo pass (ETS-VII's whole pass, flown offline, seed 7) as MCAP bytes."""
+    from planner.dynamics import DynamicsWorkspace
+    from planner.model import default_model
+    from planner.schedule import plan_pass
+    from spacecraft.offline import fly_offline
+    from telemetry.mcap import write_mcap
+    from telemetry.recording import PassRecording
+
+    plan = plan_pass(DynamicsWorkspace(default_model()))
+    flight = fly_offline(plan, seed=7)
+    recording = PassRecording.from_frames("demo", plan, flight.epoch_ns, flight.frames, meta={})
+    buffer = io.BytesIO()
+    write_mcap(recording, buffer)
+    return buffer.getvalue()
+
+
+@contextlib.contextmanager
+def serve_process(env: dict[str, str], log: Path) -> Iterator[tuple[subprocess.Popen[bytes], str]]:
+    """``hikoboshi serve`` on a free loopback port with ``env`` (its output to ``log``), up
+    once its health answers; the process and its base URL, terminated after."""
+    port = free_port()
+    with log.open("wb") as out:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                httpx.get(f"{base}/api/health", timeout=1.0)
+                break
+            except httpx.TransportError:
+                assert time.monotonic() < deadline and server.poll() is None, "no server"
+                time.sleep(0.2)
+        yield server, base
+    finally:
+        server.terminate()
+        server.wait(timeout=30)

@@ -240,7 +240,9 @@ def run(app: Any, base_url: str, n_consoles: int, first_seq: int) -> dict[str, A
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        app = create_app(Settings(data_dir=Path(tmp), tokens=TOKENS))
+        # Every console here is one token's, from one address: the caps admit them all.
+        caps = {"consoles_per_token": CONSOLES + 1, "consoles_per_address": CONSOLES + 1}
+        app = create_app(Settings(data_dir=Path(tmp), tokens=TOKENS, **caps))
         port = _free_port()
         config = uvicorn.Config(
             app, host="127.0.0.1", port=port, log_level="warning", ws_max_size=2**24

@@ -28,6 +28,16 @@ frames of the fastest run, 50 per transaction (as they arrive) and all in one tr
 
 Target (issue 11): >= 2000 frames/s sustained with zero late-ack resends.
 
+Limit checking (issue 25, docs/alarms.md): every run checks each stored frame against the
+scratch pass's limits (``Settings.limit_checking``, on by default; the pass flies ETS-VII's
+description, the arm at rest, so nothing alarms and every frame is evaluated). In the same
+run, the highest rate that held and the next one up (which did not: the ground saturated)
+run again with checking off and on, alternating, twice each (the best run of each setting is
+kept: the machine's other load swings a run by more than the checking costs); reported per
+rate: sustained frames/s each way, the throughput cost ``1 - on/off``, and the evaluation's
+own time (microseconds per frame, and its share of the wall time), timed around the alarm
+service's evaluation. Target: the cost under 10 %.
+
 On two cores the spacecraft process needs one of them for the physics and the encoding, and
 cannot offer much more than 6000 frames/s: above that, ``offered_fps`` falls short of the
 rate asked for, and the run says more about the spacecraft than about the ground.
@@ -40,10 +50,10 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import functools
 import io
 import pstats
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -54,11 +64,13 @@ from pathlib import Path
 from typing import Any
 
 import uvicorn
-from _common import emit
+from _common import emit, free_port
 from bench_ingest import new_pass
 
+from planner.plan import Plan
 from server.app import create_app
 from server.services import dbworker
+from server.services.alarms import AlarmService
 from server.services.downlink import GroundDownlink
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
@@ -71,12 +83,6 @@ DURATION_S = 12.0  # wall seconds of frames per rate
 BASELINE_FRAMES = 12_000
 LIVE_BATCH = 50
 TOKENS = {"s": ApiToken(name="ets7", role=Role.SPACECRAFT)}
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -133,12 +139,54 @@ class _Tap:
         downlink._committed = tapped_committed  # type: ignore[method-assign]
 
 
+class _EvalTap:
+    """Times the alarm service's evaluation of each committed frame batch."""
+
+    def __init__(self, alarms: AlarmService) -> None:
+        self.seconds = 0.0
+        self.frames = 0
+        evaluate = alarms._evaluate
+
+        def timed(monitor: Any, frames: list[TelemetryFrame]) -> None:
+            t0 = time.perf_counter()
+            evaluate(monitor, frames)
+            self.seconds += time.perf_counter() - t0
+            self.frames += len(frames)
+
+        alarms._evaluate = timed
+
+
+@functools.cache
+def _bench_plan() -> Plan:
+    """ETS-VII's cheapest real plan (PTP A -> B): the scratch pass's limits are its robot's.
+    It is never started, so the frames are checked against their own targets."""
+    from planner.catalogue import parameters_from_values, plan_experiment
+    from planner.experiments import PtpParams
+
+    return plan_experiment("ptp", parameters_from_values(PtpParams, {"settle_s": 0.25}))
+
+
+def _scratch_pass(sessions: Any) -> str:
+    with sessions() as session:
+        plan = repo.add_plan(session=session, plan=_bench_plan(), created_at_ns=0)
+        record = repo.add_pass(
+            session=session, name="bench", plan_id=plan.id, aos_time_ns=0, los_time_ns=1,
+            relay="TDRS", created_at_ns=0,
+        )  # fmt: skip
+        session.commit()
+        return str(record.id)
+
+
 class _Server:
     """The ground service on loopback in a thread of this process."""
 
-    def __init__(self, url: str, profile: cProfile.Profile | None) -> None:
-        self.app = create_app(Settings(database_url=url, tokens=TOKENS))
-        self.port = _free_port()
+    def __init__(
+        self, url: str, profile: cProfile.Profile | None, *, limit_checking: bool = True
+    ) -> None:
+        self.app = create_app(
+            Settings(database_url=url, tokens=TOKENS, limit_checking=limit_checking)
+        )
+        self.port = free_port()
         self.server = uvicorn.Server(
             uvicorn.Config(self.app, host="127.0.0.1", port=self.port, log_level="warning")
         )
@@ -155,15 +203,18 @@ class _Server:
         self.thread.join(timeout=30)
 
 
-def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> dict[str, Any]:
+def _run_rate(
+    rate_fps: float, keep: int, profile: cProfile.Profile | None, *, limit_checking: bool = True
+) -> dict[str, Any]:
     scale = rate_fps / ONBOARD_RATE_HZ
     with tempfile.TemporaryDirectory() as tmp:
         url = sqlite_url(Path(tmp))
-        server = _Server(url, profile)
+        server = _Server(url, profile, limit_checking=limit_checking)
         engine = make_engine(url)
         sessions = session_factory(engine)
-        pass_id = new_pass(sessions)
+        pass_id = _scratch_pass(sessions)
         state = server.app.state
+        evaluation = _EvalTap(state.alarms)
         # the composition root's downlink (before issue 23 the link built and held it)
         downlink = getattr(state, "downlink", None) or state.link.downlink
         db = getattr(state, "db", None) or state.link.db
@@ -216,6 +267,11 @@ def _run_rate(rate_fps: float, keep: int, profile: cProfile.Profile | None) -> d
             "max": 1e3 * max(tap.latencies_s, default=0.0),
         },
         "messages_per_commit": jobs / groups if groups else 0.0,
+        "limit_checking": limit_checking,
+        "frames_evaluated": evaluation.frames,
+        "evaluation_s": evaluation.seconds,
+        "evaluation_us_per_frame": 1e6 * evaluation.seconds / max(1, evaluation.frames),
+        "evaluation_share_of_wall": evaluation.seconds / span_s if span_s > 0 else 0.0,
         "spacecraft_says": err.strip().splitlines()[-1] if err.strip() else "",
         "_frames": tap.kept,
     }
@@ -280,6 +336,53 @@ def _profile(rate: float) -> None:
     print(result, file=sys.stderr)
 
 
+#: Runs of each setting per rate for the checking's cost (off and on alternating); the best
+#: of each is kept, the least disturbed by the rest of the machine (as _common.best_of).
+CHECKING_REPEATS = 2
+
+
+def _checking_cost(rates: list[float]) -> dict[str, Any]:
+    """Each rate run with limit checking off and on, alternating, :data:`CHECKING_REPEATS`
+    times each: the throughput cost of checking, from the best run of each setting."""
+    out: dict[str, Any] = {}
+    for rate in rates:
+        runs: dict[str, list[dict[str, Any]]] = {"off": [], "on": []}
+        failed: list[str] = []
+        for _ in range(CHECKING_REPEATS):
+            for checking in (False, True):
+                label = "on" if checking else "off"
+                print(f"rate {rate} frames/s, limit checking {label}", file=sys.stderr, flush=True)
+                try:
+                    run = _run_rate(rate, 0, None, limit_checking=checking)
+                except (RuntimeError, subprocess.TimeoutExpired) as exc:
+                    # an overloaded machine can stall the spacecraft past its drain timeout
+                    failed.append(f"{label}: {exc!r}"[:300])
+                    continue
+                run.pop("_frames")
+                runs[label].append(run)
+        if not runs["on"] or not runs["off"]:
+            out[str(rate)] = {"failed": failed}
+            continue
+        on = max(runs["on"], key=lambda r: r["sustained_fps"])
+        off = max(runs["off"], key=lambda r: r["sustained_fps"])
+        out[str(rate)] = {
+            "sustained_fps_off": off["sustained_fps"],
+            "sustained_fps_on": on["sustained_fps"],
+            "sustained_fps_all_off": [r["sustained_fps"] for r in runs["off"]],
+            "sustained_fps_all_on": [r["sustained_fps"] for r in runs["on"]],
+            "throughput_cost": 1.0 - on["sustained_fps"] / off["sustained_fps"]
+            if off["sustained_fps"]
+            else None,
+            "late_ack_resends_off": off["late_ack_resends"],
+            "late_ack_resends_on": on["late_ack_resends"],
+            "frames_evaluated_on": on["frames_evaluated"],
+            "evaluation_us_per_frame": on["evaluation_us_per_frame"],
+            "evaluation_share_of_wall": on["evaluation_share_of_wall"],
+            "failed": failed,
+        }
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--profile", type=float, metavar="RATE", help="profile one rate")
@@ -307,7 +410,15 @@ def main() -> None:
     ]  # fmt: skip
     best = max(ok, key=lambda r: r["rate_fps"], default=None)
     best_fps = best["sustained_fps"] if best else 0.0
+    # the highest rate that held, and the next one up (where the ground saturates)
+    tried = sorted(args.rates)
+    held = best["rate_fps"] if best else tried[0]
+    above = [r for r in tried if r > held][:1]
+    cost = _checking_cost([held, *above])
+    measured = [c["throughput_cost"] for c in cost.values() if c.get("throughput_cost") is not None]
+    worst = max(measured, default=1.0)
     figures = {
+        "limit_checking_cost": cost,
         "runs": runs,
         "highest_rate_zero_late_resends_fps": best["rate_fps"] if best else None,
         "its_sustained_fps": best_fps,
@@ -318,7 +429,10 @@ def main() -> None:
     emit(
         "downlink",
         figures,
-        {"ge_2000_fps_zero_late_ack_resends": bool(best and best["rate_fps"] >= 2000)},
+        {
+            "ge_2000_fps_zero_late_ack_resends": bool(best and best["rate_fps"] >= 2000),
+            "limit_checking_costs_lt_10_percent": worst < 0.10,
+        },
     )
 
 

@@ -29,9 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import io
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -41,34 +39,12 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-from _common import emit
+from _common import demo_mcap, emit, serve_process
 
 OPERATOR_TOKEN = "bench-operator-token-0123456789"
 VIEWER_TOKEN = "bench-viewer-token-0123456789a"
 OPERATOR = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
 VIEWER = {"Authorization": f"Bearer {VIEWER_TOKEN}"}
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _demo_mcap() -> bytes:
-    from planner.dynamics import DynamicsWorkspace
-    from planner.model import default_model
-    from planner.schedule import plan_pass
-    from spacecraft.offline import fly_offline
-    from telemetry.mcap import write_mcap
-    from telemetry.recording import PassRecording
-
-    plan = plan_pass(DynamicsWorkspace(default_model()))
-    flight = fly_offline(plan, seed=7)
-    recording = PassRecording.from_frames("demo", plan, flight.epoch_ns, flight.frames, meta={})
-    buffer = io.BytesIO()
-    write_mcap(recording, buffer)
-    return buffer.getvalue()
 
 
 async def _probe(client: httpx.AsyncClient, pass_id: str, seconds: float) -> dict[str, Any]:
@@ -165,9 +141,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     print("flying the demo pass offline for a recording to serve", file=sys.stderr)
-    recording = _demo_mcap()
+    recording = demo_mcap()
     with tempfile.TemporaryDirectory() as tmp:
-        port = _free_port()
         env = {
             **os.environ,
             "HIKOBOSHI_DATA_DIR": tmp,
@@ -176,28 +151,8 @@ def main() -> None:
         env.pop("DATABASE_URL", None)
         if args.database_url:
             env["DATABASE_URL"] = args.database_url
-        log = Path(tmp) / "server.log"
-        with log.open("wb") as out:
-            server = subprocess.Popen(
-                [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-                env=env,
-                stdout=out,
-                stderr=subprocess.STDOUT,
-            )
-        base = f"http://127.0.0.1:{port}"
-        try:
-            deadline = time.monotonic() + 60.0
-            while True:
-                try:
-                    httpx.get(f"{base}/api/health", timeout=1.0)
-                    break
-                except httpx.TransportError:
-                    assert time.monotonic() < deadline and server.poll() is None, "no server"
-                    time.sleep(0.2)
+        with serve_process(env, Path(tmp) / "server.log") as (_, base):
             result = asyncio.run(_run(base, recording, args.viewers, args.seconds, args.busy_cores))
-        finally:
-            server.terminate()
-            server.wait(timeout=30)
     idle, loaded = result["idle"], result["loaded"]
     ratios = {
         f"{probe}_{q}_ratio": loaded[probe][q] / idle[probe][q]

@@ -30,7 +30,6 @@ acknowledged >= 10 s (onboard) before its tag in these nominal runs.
 from __future__ import annotations
 
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -41,7 +40,7 @@ from typing import Any
 
 import httpx
 import uvicorn
-from _common import emit
+from _common import emit, free_port
 
 from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
@@ -59,12 +58,6 @@ HEADERS = {"Authorization": "Bearer o"}
 ONE_WAY_DELAY_S = 3.0  # the relay's nominal delay, ground to vehicle (SPEC 6), onboard s
 PROGRESS_EVERY_S = 5.0
 TARGET_MARGIN_S = 10.0
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _pick(values: list[float], q: float) -> float | None:
@@ -98,7 +91,7 @@ def _run(scale: float, motion_deg: float, settle_s: float) -> dict[str, Any]:
         url = sqlite_url(Path(tmp))
         settings = Settings(database_url=url, tokens=TOKENS)
         app = create_app(settings)
-        port = _free_port()
+        port = free_port()
         server = uvicorn.Server(
             uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")
         )

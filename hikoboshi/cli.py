@@ -10,18 +10,20 @@ from typing import Annotated, Any, NoReturn
 
 import numpy as np
 import typer
+from rich import box
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hikoboshi import post_cli
+from hikoboshi import limits_cli, post_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
 model_app = typer.Typer(
     no_args_is_help=True, help="The robot model (ETS-VII or --robot FILE): export and quantities."
 )
 app.add_typer(model_app, name="model")
+limits_cli.register(model_app)  # model limits
 post_cli.register(app)  # report, mcap export|import
 
 console = Console()
@@ -421,12 +423,31 @@ def demo(
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
     robot: RobotOption = None,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="A fault for the spacecraft, NAME@T[,key=value...], T in onboard s from the "
+            "spacecraft's start (as --outage): jointN-stuck, jointN-drift[,rate_degps=], "
+            "wheelN-fail, attitude-bias[,deg=][,axis=], bump[,nms=][,axis=]; repeatable "
+            "(docs/spacecraft.md)"
+        ),
+    ] = None,
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
     process, and the whole ETS-VII pass (all four experiments) at --speed times real time.
-    With --robot FILE: that robot's whole pass, planned, flown and checked for it."""
-    from hikoboshi.demo import DemoError, DemoOptions, run_demo
+    With --robot FILE: that robot's whole pass, planned, flown and checked for it.
+
+    The summary (OUT/summary.json) lists the pass's alarms and the vehicle's safing (the
+    truth log, OUT/truth.jsonl, says what really happened). Exit status: without --fault,
+    0 iff the pass ended complete with no frame missing (it also says how many alarms went
+    above watch); with --fault, 0 iff the pass ended safed or complete, every fault began,
+    no frame is missing, no command is outstanding and none executed after the vehicle
+    safed; 1 otherwise; 2 for bad options."""
+    from hikoboshi.demo import DemoError, DemoOptions, check_fault_specs, run_demo
+    from server.redaction import install_redaction
     from spacecraft.link import parse_outage
+
+    install_redaction()  # no token in any log of the demo (docs/security.md "Logs")
 
     if not 0 < speed <= 1000:
         _fail(f"--speed {speed} must lie in (0, 1000]")
@@ -440,7 +461,12 @@ def demo(
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
     if robot is not None:
         _load(robot)  # a bad description: one error line before anything starts
+    try:
+        check_fault_specs(fault or (), robot)
+    except DemoError as exc:
+        _fail(str(exc))
     options = DemoOptions(
+        faults=tuple(fault or ()),
         robot=robot,
         out=out,
         speed=speed,
@@ -476,15 +502,16 @@ def demo(
         sys.stdout.write(json.dumps(summary) + "\n")
     else:
         _print_demo(summary)
-    ok = summary["final_state"] == "complete" and summary["frames_missing"] == 0
-    if not ok:
+    if not summary["verdict"]["ok"]:
         raise typer.Exit(1)
 
 
-def _announce(console_url: str, viewer_token: str, operator_token: str) -> None:
+def _announce(console_url: str, tokens_file: Path) -> None:
+    # Where the tokens are, never the tokens: what is printed ends up in logs.
     err_console.print(
-        f"Ground service up: console {console_url} (sign in with the viewer token "
-        f"{viewer_token} or the operator token {operator_token}); API docs {console_url}docs"
+        f"Ground service up: console {console_url} (sign in with the demo-viewer or the "
+        f"demo-operator token from {tokens_file}, token=name:role,...); API docs "
+        f"{console_url}docs"
     )
 
 
@@ -504,15 +531,24 @@ def _print_demo(summary: dict[str, Any]) -> None:
         "commands_cancelled",
         "commands_retransmitted",
         "commands_outstanding",
+        "commands_unresolved",
         "min_command_lead_s",
+        "outcome",
     )
-    table = Table(title=f"{summary['name']}: {summary['final_state']}")
+    title = f"{summary['name']}: {summary['final_state']}, {summary.get('outcome')}"
+    table = Table(title=title)
     table.add_column("")
     table.add_column("")
     for key in keys:
-        table.add_row(key, str(summary[key]))
+        table.add_row(key, str(summary.get(key)))
     console.print(table)
-    console.print(json.dumps({k: summary[k] for k in keys}))
+    console.print(json.dumps({k: summary.get(k) for k in keys}))
+    _print_alarms(summary)
+    _print_safing(summary)
+    for note in summary["verdict"]["notes"]:
+        console.print(note, highlight=False, soft_wrap=True)
+    for problem in summary["verdict"]["problems"]:
+        err_console.print(f"not sound: {problem}", highlight=False, soft_wrap=True)
     console.print(f"Report: {summary['report_html']} (and report.json)")
     console.print(f"Recording (MCAP, opens in Foxglove): {summary['recording_mcap']}")
     if summary["analyses_failed"]:
@@ -520,6 +556,71 @@ def _print_demo(summary: dict[str, Any]) -> None:
     console.print(f"Summary: {summary['database'].rsplit('/', 1)[0]}/summary.json")
     console.print(f"Database: {summary['database']}")
     console.print(f"To browse it again: {summary['serve_again']}")
+
+
+def _s(value: float | None) -> str:
+    """Onboard s since the spacecraft's start, or blank where the demo could not say."""
+    return "" if value is None else f"{value:.2f}"
+
+
+def _print_alarms(summary: dict[str, Any]) -> None:
+    alarms = summary["alarms"]
+    if not alarms["items"]:
+        return
+    table = Table(
+        title=f"Alarms: {alarms['above_watch']} above watch (onboard s from the spacecraft's "
+        "start; raised: the frame's time, then the ground's)",
+        box=box.SIMPLE_HEAD,
+    )
+    table.add_column("alarm", no_wrap=True)  # a quantity's name unbroken
+    for column in ("limit", "trigger\nworst", "raised"):
+        table.add_column(column)
+    table.add_column("bands crossed", no_wrap=True)
+    for a in alarms["items"]:
+        unit = f" {a['unit']}" if a["unit"] else ""
+        table.add_row(
+            escape("\n".join(p for p in (a["quantity"], a["channel"]) if p)) + f"\n{a['severity']}",
+            "" if a["limit"] is None else f"{a['limit']:.4g}{unit}",
+            f"{_g(a['trigger_value'])}\n{_g(a['worst_value'])}",
+            f"{_s(a['raised_frame_s']) or '-'}\n{_s(a['raised_ground_s']) or '-'}",
+            "\n".join(f"{band} {_s(t)}" for band, t in a["crossings"].items()),
+        )
+    console.print(table)
+
+
+def _g(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def _print_safing(summary: dict[str, Any]) -> None:
+    safing = summary["safing"]
+    if not safing["safed"] and not safing["truth_faults"]:
+        return
+    table = Table(
+        title="Faults and safing (onboard s from the spacecraft's start)", box=box.SIMPLE_HEAD
+    )
+    table.add_column("what")
+    table.add_column("onboard s")
+    table.add_column("")
+    for fault in safing["truth_faults"]:
+        table.add_row("fault (truth)", _s(fault["onboard_s"]), escape(fault["spec"]))
+    for entry in safing["truth_safing"]:
+        what = "SAFE entered (truth)" if entry["event"] == "safing_entry" else "SAFE left (truth)"
+        where = " ".join(str(entry.get(k) or "") for k in ("quantity", "channel")).strip()
+        table.add_row(what, _s(entry["onboard_s"]), escape(where))
+    if safing["safed"]:
+        trigger = safing["trigger"] or {}
+        where = " ".join(str(trigger.get(k) or "") for k in ("quantity", "channel")).strip()
+        table.add_row("SAFE (vehicle's report)", _s(safing["since_s"]), escape(where))
+        table.add_row("ground heard it", _s(safing["ground_heard_s"]), "")
+        table.add_row("pass ended (ground)", _s(safing["pass_ended_s"]), "")
+        table.add_row("commands dropped on board", "", str(safing["cancelled_on_board"]))
+        table.add_row(
+            "commands executed after safing", "", str(safing["commands_executed_after_safing"])
+        )
+    table.add_row("pass", "", escape(f"{safing['pass_state']}: {safing['pass_reason'] or ''}"))
+    table.add_row("vehicle mode at the end", "", str(safing["vehicle_mode"]))
+    console.print(table)
 
 
 @app.command("ptp-demo")
@@ -584,6 +685,15 @@ def spacecraft(
     link_config: Annotated[
         Path | None, typer.Option(help="TOML file with [link], [uplink], [downlink] tables")
     ] = None,
+    garbage: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Noise toward the ground START:END:RATE: malformed messages (invalid JSON, "
+            "unknown types, wrong versions, malformed telemetry, in turn) at RATE per wall "
+            "second while the onboard clock is in [START, END) s (as --outage); repeatable "
+            "(docs/protocol.md, Malformed messages)"
+        ),
+    ] = None,
     telemetry_rate_hz: Annotated[float, typer.Option(help="Telemetry frames per second")] = 10.0,
     seed: Annotated[int, typer.Option(help="Seed for link and sensor noise")] = 0,
     los_policy: Annotated[
@@ -614,20 +724,48 @@ def spacecraft(
             "noise flown, replacing the defaults (with --robot: the description's)"
         ),
     ] = None,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="A fault injected in the truth simulation, NAME@T[,key=value...], T in onboard "
+            "s from the start: jointN-stuck@T, jointN-drift@T[,rate_degps=0.5], wheelN-fail@T, "
+            "attitude-bias@T[,deg=3.0][,axis=x], bump@T[,nms=10][,axis=x]; repeatable "
+            "(docs/spacecraft.md)"
+        ),
+    ] = None,
+    truth_log: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the truth log here (JSON lines: each fault's onset, each entry into "
+            "and exit from on-board safing; never sent to the ground)"
+        ),
+    ] = None,
+    no_safing: Annotated[
+        bool,
+        typer.Option(
+            "--no-safing",
+            help="Fly without on-board safing (rehearse the ground's alarms with no on-board "
+            "protection)",
+        ),
+    ] = False,
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link. With
     --robot it flies that robot description (model, servos, attitude control, wheel limits,
-    sensor noise) and names it, with its hash and joint count, in hello."""
+    sensor noise, live limits) and names it, with its hash and joint count, in hello. The
+    vehicle safes itself on a red limit unless --no-safing; --fault injects faults."""
     import asyncio
     import dataclasses
     import logging
     import signal
 
-    from spacecraft.link import LinkConfig, load_link_config, parse_outage
+    from server.redaction import install_redaction
+    from spacecraft.faults import parse_fault
+    from spacecraft.link import LinkConfig, load_link_config, parse_garbage, parse_outage
     from spacecraft.process import ProcessConfig, SpacecraftProcess
     from spacecraft.vehicle import VehicleConfig, vehicle_config_for
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    install_redaction()  # its token never in its log (docs/security.md "Logs")
     try:
         if link_config is not None:
             up, down = load_link_config(link_config)
@@ -650,7 +788,11 @@ def spacecraft(
             "telemetry_period_s": 1.0 / telemetry_rate_hz,
             "los_policy": los_policy,  # VehicleConfig checks it
             "los_hold_after_s": los_hold_after,
+            "faults": tuple(parse_fault(f) for f in fault or ()),
+            "safing": not no_safing,
         }
+        if truth_log is not None and not truth_log.parent.is_dir():
+            raise ValueError(f"--truth-log {truth_log}: no directory {truth_log.parent}")
         if robot is not None:
             vehicle = vehicle_config_for(
                 _load(robot),
@@ -677,6 +819,8 @@ def spacecraft(
             uplink=up,
             downlink=down,
             seed=seed,
+            truth_log=truth_log,
+            garbage=tuple(parse_garbage(g) for g in garbage or ()),
         )
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -691,6 +835,7 @@ def spacecraft(
         err_console.print(
             f"spacecraft stopped: {process.store.unacked} frames unacknowledged, "
             f"{process.connections} connections"
+            + (f", {process.garbage_sent} malformed messages sent" if garbage else "")
         )
 
     asyncio.run(main_async())
@@ -754,13 +899,16 @@ def serve(
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
     under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
-    unless listening on loopback only), HIKOBOSHI_ROBOTS (description files, as --robot).
-    The HTTP edge's limits and timeouts are in docs/security.md."""
-    import uvicorn
-
+    unless listening on loopback only), HIKOBOSHI_ROBOTS (description files, as --robot),
+    HIKOBOSHI_TRUSTED_PROXIES (the reverse proxy's addresses or networks, comma-separated:
+    X-Forwarded-For is believed from them only; none by default). The HTTP edge's limits
+    and timeouts are in docs/security.md."""
     from server.api.edge import uvicorn_config
-    from server.app import create_app
+    from server.app import GroundServer, create_app
+    from server.redaction import install_redaction
     from server.settings import Settings
+
+    install_redaction()  # before anything logs (uvicorn_config installs it too)
 
     try:
         settings = Settings.from_env()
@@ -783,8 +931,11 @@ def serve(
     weak = sorted({t.name for secret, t in settings.tokens.items() if len(secret) < 16})
     if weak:
         err_console.print(f"warning: short (guessable) tokens for {', '.join(weak)}")
-    config = uvicorn_config(create_app(settings), settings, host=host, port=port)
-    uvicorn.Server(config).run()
+    ground = create_app(settings)
+    config = uvicorn_config(ground, settings, host=host, port=port)
+    # On SIGTERM it stops the worker pool first: requests waiting answer JSON 503
+    # shutting_down and no job process outlives it (docs/operations.md "Stopping").
+    GroundServer(config, ground).run()
 
 
 @app.command()

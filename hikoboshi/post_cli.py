@@ -96,6 +96,8 @@ def _report_from_file(path: Path) -> tuple[ReportPublic, dict[str, bytes]]:
         imported=False,
         documents={kind: (doc, now_ns) for kind, doc in run.documents.items()},
         figure_names=list(run.figures),
+        alarms=recording.alarms,
+        epoch_ns=recording.epoch_ns,
     )
     return report, run.figures
 

@@ -104,6 +104,7 @@ class CollisionShape:
     def geometry(self) -> coal.CollisionGeometry:
         """The shape as coal's geometry (in the shape's own frame)."""
         import coal  # imported where distances are asked for, not with the planner
+
         if self.kind == "box":
             return coal.Box(*self.dims)
         if self.kind == "sphere":

@@ -70,7 +70,7 @@ PLAN_FORMAT_VERSION = 1
 #: file and checks the two agree (tests/planner/test_plan_robot.py), so a change to the file
 #: (its [acs] calibration, say) fails there until this constant follows it.
 ETS7_ROBOT_NAME = "ets7"
-ETS7_ROBOT_HASH = "f2e447372f03773582fa57b5bd4dcf3186b5346af6be6456f3df0c97bc2addcd"
+ETS7_ROBOT_HASH = "25ff6eb70cf40c5a1d73340136cec83be3c1f44b2bb50b2d22c3019cccb4fd61"
 
 
 @dataclass(frozen=True)

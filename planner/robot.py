@@ -13,6 +13,8 @@ Reading, parsing and checking a description's TOML and URDF is :mod:`planner.des
     RobotDescription.poses / pose_joints_rad   named poses (A, B, C for ETS-VII)
     RobotDescription.experiments               default parameters per experiment (raw values
                                                for planner.parameters.parameters_from_values)
+    RobotDescription.limits                    live limits' bands (planner.limits; the [limits]
+                                               table over the built-in defaults)
     RobotDescription.content_sha256            hash of the canonical TOML and URDF content
 """
 
@@ -33,6 +35,7 @@ from planner.errors import InvalidInput, PlannerError
 from planner.flight_rules import FlightRules, FlightRulesReport, ServoModel, check_plan
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
+from planner.limits import DEFAULT_LIMITS, Limits
 from planner.mjcf import ServoGains
 from planner.model import RobotModel
 from planner.plan import Plan
@@ -128,6 +131,8 @@ class RobotDescription:
     collision: CollisionModel | None = None
     #: the [flight_rules] table (SPEC 8's numbers where it leaves a key out)
     flight_rules: FlightRules = field(default_factory=FlightRules)
+    #: the live limits: the [limits] table over planner.limits.DEFAULT_LIMITS
+    limits: Limits = DEFAULT_LIMITS
 
     @property
     def n_joints(self) -> int:

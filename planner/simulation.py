@@ -210,6 +210,34 @@ class FreeFloatingSimulator:
         self._mjd.act[: self._n] = np.clip(target, lo, hi)
         self._mjd.ctrl[: self._n] = rate
 
+    def apply_base_impulse(self, impulse_base_nms: Array) -> None:
+        """An external angular impulse on the base now (N m s, base frame), as a bump gives:
+        the velocities jump by ``M^-1 J_b^T`` of it (the response of the whole free-floating
+        system to an impulsive torque on the base), so the system's angular momentum changes
+        by exactly the impulse and its linear momentum not at all; positions, servo targets
+        and the step count are unchanged."""
+        impulse = np.asarray(impulse_base_nms, dtype=np.float64)
+        if impulse.shape != (3,) or not np.all(np.isfinite(impulse)):
+            raise InvalidInput(f"base impulse needs 3 finite numbers, got {impulse_base_nms!r}")
+        m, d = self._mjm, self._mjd
+        mujoco.mj_forward(m, d)  # the mass matrix and frames at the current state
+        base = self._layout.base_body
+        rot_orbit_from_base = d.xmat[base].reshape(3, 3)
+        generalized = np.zeros(m.nv)
+        mujoco.mj_applyFT(
+            m,
+            d,
+            np.zeros(3),
+            rot_orbit_from_base @ impulse,
+            d.xipos[base].copy(),
+            base,
+            generalized,
+        )
+        dqvel = np.zeros(m.nv)
+        mujoco.mj_solveM(m, d, dqvel.reshape(1, -1), generalized.reshape(1, -1))
+        d.qvel[:] += dqvel
+        mujoco.mj_forward(m, d)
+
     def _steps_for(self, duration_s: float) -> int:
         steps = round(duration_s / self.config.timestep_s)
         if steps < 0 or abs(steps * self.config.timestep_s - duration_s) > 1e-9:

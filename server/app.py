@@ -2,7 +2,8 @@
 
 The lifespan opens the database (and runs its migrations) and builds the live path's
 services as siblings (:func:`build_live_path`: the clock, the database worker, the
-publisher, the downlink, the link, the command trackers' factory and the runner), then the
+publisher, the downlink, the link, the command trackers' factory, the runner and the
+alarms), then the
 consoles' hub and the worker pool, each handed what it needs in its constructor; the routes
 reach them through the typed dependencies of :mod:`server.api.deps`. Nothing is created at
 import time."""
@@ -10,13 +11,17 @@ import time."""
 from __future__ import annotations
 
 import asyncio
+import logging
+import socket
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
+import uvicorn
 from fastapi import FastAPI
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.api import alarms as alarms_api
 from server.api import analyses as analyses_api
 from server.api import console as console_api
 from server.api import control as control_api
@@ -30,11 +35,17 @@ from server.api import telemetry as telemetry_api
 from server.api import web as web_api
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.stopping import AnswerWhenStopping
+from server.services.alarms import AlarmService
+from server.services.artifacts import ArtifactStore
 from server.services.clock import Clock, SystemClock
 from server.services.console import ConsoleHub
+from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
+from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
+from server.services.malformed import MalformedPolicy
 from server.services.runner import PassRunner
 from server.services.tracker import Trackers
 from server.services.workers import WorkerPool
@@ -47,7 +58,9 @@ from server.storage.db import (
     upgrade,
 )
 
-__all__ = ["LivePath", "build_live_path", "create_app"]
+log = logging.getLogger("hikoboshi.ground")
+
+__all__ = ["GroundServer", "LivePath", "begin_shutdown", "build_live_path", "create_app"]
 
 
 @dataclass(frozen=True)
@@ -61,10 +74,13 @@ class LivePath:
     link: GroundLink
     trackers: Trackers
     runner: PassRunner
+    alarms: AlarmService
 
     async def close(self) -> None:
-        """After the runner's shutdown: the link's socket, then the database worker."""
+        """After the runner's shutdown: the link's socket, the alarms' last writes, then the
+        database worker."""
         await self.link.close()
+        await self.alarms.close()
         await self.db.drain()
         await asyncio.to_thread(self.db.close)
 
@@ -74,7 +90,8 @@ def build_live_path(
 ) -> LivePath:
     """The live path's services, each handed its collaborators. The downlink sends its
     acknowledgements through the link's session (bound late: the link routes telemetry to
-    the downlink)."""
+    the downlink). The alarms subscribe to the publisher first, so a frame batch is checked
+    before the consoles get it."""
     publisher = Publisher()
     db = Database(sessions, publisher)
     delay_s = settings.link_one_way_delay_s
@@ -85,8 +102,21 @@ def build_live_path(
     downlink = GroundDownlink(
         db=db, publisher=publisher, clock=clock, send=send, time_scale=lambda: link.time_scale
     )
-    link = GroundLink(db=db, downlink=downlink, clock=clock, one_way_delay_s=delay_s)
+    link = GroundLink(
+        db=db,
+        downlink=downlink,
+        clock=clock,
+        one_way_delay_s=delay_s,
+        malformed=MalformedPolicy(
+            interval_s=settings.malformed_interval_s,
+            replies_per_s=settings.malformed_replies_per_s,
+            close_after=settings.malformed_close_after,
+        ),
+    )
     trackers = Trackers(link=link, db=db, clock=clock, one_way_delay_s=delay_s)
+    alarms = AlarmService(
+        db=db, publisher=publisher, clock=clock, downlink=downlink, link=link, settings=settings
+    )
     runner = PassRunner(
         link=link,
         downlink=downlink,
@@ -95,8 +125,38 @@ def build_live_path(
         trackers=trackers,
         settings=settings,
         clock=clock,
+        alarms=alarms,
     )
-    return LivePath(clock, publisher, db, downlink, link, trackers, runner)
+    alarms.start()
+    return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
+
+
+async def begin_shutdown(app: FastAPI) -> None:
+    """The server is stopping (SIGTERM): before the HTTP server waits for the requests in
+    flight, stop the worker pool, so that every request waiting for a worker or running in
+    one is answered 503 ``shutting_down`` at once and no job process is left running
+    (docs/operations.md "Stopping"). The lifespan's shutdown does the rest."""
+    workers: WorkerPool | None = getattr(app.state, "workers", None)
+    if workers is not None:
+        await workers.close()
+
+
+class GroundServer(uvicorn.Server):
+    """uvicorn's server for ``hikoboshi serve``: on SIGTERM (or Ctrl-C) it calls
+    :func:`begin_shutdown` before its own shutdown, which waits a few seconds for the
+    requests in flight and cancels the rest (those answer JSON too:
+    :mod:`server.api.stopping`)."""
+
+    def __init__(self, config: uvicorn.Config, app: FastAPI) -> None:
+        super().__init__(config)
+        self.ground = app
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        try:
+            await begin_shutdown(self.ground)
+        except Exception:
+            log.exception("stopping the worker pool failed")
+        await super().shutdown(sockets)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -117,11 +177,25 @@ def create_app(settings: Settings) -> FastAPI:
                 statement_timeout_s=settings.api_statement_timeout_s,
             ),
         )
+        # And the operators' own (their requests, the consoles' hub): no viewer holds one
+        # (server/api/lanes.py).
+        operator_engine = make_engine(
+            url,
+            pool=PoolSizes(
+                size=settings.operator_pool_size,
+                overflow=settings.operator_pool_overflow,
+                timeout_s=settings.api_pool_timeout_s,
+                statement_timeout_s=settings.api_statement_timeout_s,
+            ),
+        )
         app.state.settings = settings
         app.state.engine = engine
         app.state.link_engine = link_engine
+        app.state.operator_engine = operator_engine
         app.state.sessions = session_factory(engine)
         app.state.read_sessions = read_session_factory(engine)
+        app.state.operator_sessions = session_factory(operator_engine)
+        app.state.operator_read_sessions = read_session_factory(operator_engine)
         live = build_live_path(
             sessions=session_factory(link_engine), settings=settings, clock=SystemClock()
         )
@@ -131,27 +205,49 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.downlink = live.downlink
         app.state.link = live.link
         app.state.runner = live.runner
+        app.state.alarms = live.alarms
+        await live.alarms.load_vehicle_alarms()
         await live.runner.recover()
         app.state.console = ConsoleHub(
             publisher=live.publisher,
             link_status=live.link.status,
-            sessions=app.state.read_sessions,
+            sessions=app.state.operator_read_sessions,
+            replay_sessions=app.state.read_sessions,  # a whole recording: a viewer's read
+            db_threads=settings.console_db_threads,
+            clock=live.clock,
         )
         app.state.console.start()
+        app.state.console_seats = ConsoleSeats(
+            per_token=settings.consoles_per_token, per_address=settings.consoles_per_address
+        )
         app.state.workers = WorkerPool(
             workers=settings.worker_processes,
             queue=settings.worker_queue,
             memory_bytes=settings.worker_memory_bytes or None,
         )
         await app.state.workers.start()
+        # Heavy artifacts (recording, report, figures): computed once, served from files.
+        app.state.artifacts = ArtifactStore(
+            root=settings.data_dir / "artifacts",
+            max_bytes=settings.artifact_cache_bytes,
+            sessions=app.state.read_sessions,
+            workers=app.state.workers,
+            url=url,
+            deadline_s=settings.read_deadline_s,
+            robot_files=tuple(str(p) for p in settings.robot_files),
+        )
+        app.state.artifacts.start()
+        app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
         try:
             yield
         finally:
+            await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
             await live.runner.shutdown()
             await live.close()
             engine.dispose()
+            operator_engine.dispose()
             link_engine.dispose()
 
     app = FastAPI(
@@ -162,6 +258,7 @@ def create_app(settings: Settings) -> FastAPI:
     )
     install_error_handlers(app)
     install_edge(app, settings)  # auth, limits and text checks before any route
+    app.add_middleware(AnswerWhenStopping)  # outermost: a request cut short answers JSON
     app.include_router(link_api.router)
     app.include_router(console_api.router)
     app.include_router(control_api.router)
@@ -169,13 +266,15 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(recordings_api.router)  # before passes: /api/passes/import
     app.include_router(passes_api.router)
     app.include_router(analyses_api.router)
+    app.include_router(alarms_api.router)
     app.include_router(telemetry_api.router)
     app.include_router(model_api.router)
     app.include_router(robots_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])
-    def health() -> dict[str, str]:
+    async def health() -> dict[str, str]:
+        """Liveness: on the event loop, no thread and no database (the live lane)."""
         return {"status": "ok"}
 
     return app

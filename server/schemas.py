@@ -4,17 +4,44 @@
 Times: ground times are ISO-8601 UTC (``created_at``, ``aos_time``); onboard times, which
 the spacecraft stamps, are integer ns (``execute_time_ns``) with an ISO rendering beside
 them where a client plots them. Tables live apart, in :mod:`server.storage.models`.
+
+Text a client sends is typed so that the OpenAPI document states the edge's rule
+(server/api/edge.py, docs/security.md): :data:`SafeText` for strings of a JSON body (no C0
+control character but tab, newline and carriage return, no DEL), :data:`SafeLine` for path
+and query parameters (no C0 control character at all, no DEL), each with the ``maxLength``
+the server enforces where it is used. The patterns are written for ECMA-262 and Python alike
+(``\\xHH`` escapes and one character class), so a JSON Schema validator, schemathesis's
+generator and pydantic read them the same.
 """
 
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StringConstraints,
+)
+
+from planner.parameters import MAX_ITEMS
 
 __all__ = [
     "ERROR_RESPONSES",
+    "LINE_PATTERN",
+    "TEXT_PATTERN",
+    "AlarmAcknowledge",
+    "AlarmPublic",
+    "AlarmSeverity",
+    "AlarmTimelineEntryPublic",
+    "AlarmsPublic",
     "AnalysesPublic",
     "AnalysisErrorPublic",
     "AnalysisKind",
@@ -27,6 +54,7 @@ __all__ = [
     "EventsPublic",
     "FlightRuleRowPublic",
     "FlightRulesPublic",
+    "ParameterValue",
     "PassControlPublic",
     "PassCreate",
     "PassImportPublic",
@@ -44,6 +72,8 @@ __all__ = [
     "RobotPosePublic",
     "RobotPublic",
     "RobotsPublic",
+    "SafeLine",
+    "SafeText",
     "SegmentPublic",
     "TelemetryBucketPublic",
     "TelemetryPublic",
@@ -60,7 +90,18 @@ LATEST = datetime(2200, 1, 1, tzinfo=UTC)
 #: The largest int64, the upper bound of every ``*_ns`` a client may give.
 MAX_NS = 2**63 - 1
 
-PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted"]
+#: A JSON body's strings (and keys): any character but the C0 controls other than tab (09),
+#: newline (0A) and carriage return (0D), and DEL (7F). The edge refuses the others, and
+#: lone surrogates (which no UTF-8 encoder produces), 400 ``invalid_text``.
+TEXT_PATTERN = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
+#: A path or query parameter: no C0 control character at all, and no DEL.
+LINE_PATTERN = r"^[^\x00-\x1f\x7f]*$"
+#: Free text in a JSON body; give it its ``max_length`` where it is used.
+SafeText = Annotated[str, StringConstraints(pattern=TEXT_PATTERN)]
+#: Free text in a path or query parameter; give it its ``max_length`` where it is used.
+SafeLine = Annotated[str, StringConstraints(pattern=LINE_PATTERN)]
+
+PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted", "safed"]
 CommandStage = Literal[
     "queued", "released", "sent", "received", "executed", "rejected", "expired", "cancelled"
 ]
@@ -83,17 +124,49 @@ class _Out(BaseModel):
 # --- plans ---------------------------------------------------------------------------------
 
 
+#: A planner parameter's name (``settle_s``): the planner refuses the names it does not know.
+ParameterName = Annotated[SafeText, StringConstraints(max_length=64)]
+#: A parameter's value as JSON carries it: a number, boolean, string or null, or a list of
+#: them for a tuple (at most ``planner.parameters.MAX_ITEMS`` items, the planner's bound). A
+#: string is read as text (the console sends ``"10, 20, 30"``).
+#: Strict: a string that breaks its rule is refused, not read as a number.
+ParameterScalar = (
+    Annotated[SafeText, StringConstraints(max_length=1000), Strict()]
+    | StrictBool
+    | StrictInt
+    | StrictFloat
+    | None
+)
+ParameterValue = ParameterScalar | Annotated[list[ParameterScalar], Field(max_length=MAX_ITEMS)]
+
+
+def _names_in_property_names(schema: dict[str, Any]) -> None:
+    """pydantic writes a dict's key pattern as ``patternProperties``, which leaves keys that
+    do not match it allowed (as additional properties); state it in ``propertyNames``."""
+    patterns = schema.pop("patternProperties", None)
+    if patterns:
+        ((pattern, values),) = patterns.items()
+        schema["propertyNames"] = {**schema.get("propertyNames", {}), "pattern": pattern}
+        schema["additionalProperties"] = values
+
+
 class PlanCreate(BaseModel):
     model_config = ConfigDict(
-        json_schema_extra={"examples": [{"experiment": "ptp", "parameters": {"settle_s": 0.25}}]}
+        extra="forbid",
+        json_schema_extra={"examples": [{"experiment": "ptp", "parameters": {"settle_s": 0.25}}]},
     )
 
-    experiment: str = Field(max_length=64, description="ptp, reactionless, gjm, ...")
+    experiment: SafeText = Field(
+        max_length=64,
+        description="ptp, reactionless, gjm, coordination, nonholonomic, pass",
+    )
     #: As JSON carries them: numbers, booleans, strings, lists for tuples, null for None.
-    parameters: dict[str, Any] = Field(default_factory=dict)
+    parameters: dict[ParameterName, ParameterValue] = Field(
+        default_factory=dict, json_schema_extra=_names_in_property_names
+    )
     #: The robot's name (its description's ``name``): one shipped under ``examples/robots/``
     #: or given to the server at start; null: ETS-VII as built in.
-    robot: str | None = Field(default=None, min_length=1, max_length=64)
+    robot: SafeText | None = Field(default=None, min_length=1, max_length=64)
 
 
 class SegmentPublic(_Out):
@@ -260,12 +333,14 @@ class RobotsPublic(BaseModel):
 
 
 class PassCreate(BaseModel):
-    plan_id: str = Field(max_length=64)
-    name: str = Field(min_length=1, max_length=128)
+    model_config = ConfigDict(extra="forbid")
+
+    plan_id: SafeText = Field(max_length=64)
+    name: SafeText = Field(min_length=1, max_length=128)
     #: Acquisition and loss of signal, ISO-8601 with a zone (UTC).
     aos_time: AwareDatetime
     los_time: AwareDatetime
-    relay: str = Field(default="TDRS", min_length=1, max_length=64)
+    relay: SafeText = Field(default="TDRS", min_length=1, max_length=64)
 
 
 class PassPublic(_Out):
@@ -386,6 +461,74 @@ class EventsPublic(BaseModel):
     count: int
 
 
+# --- alarms --------------------------------------------------------------------------------
+
+#: Yamcs's five levels, lowest first (``planner.limits.Severity``): docs/alarms.md.
+AlarmSeverity = Literal["watch", "warning", "distress", "critical", "severe"]
+
+
+class AlarmTimelineEntryPublic(BaseModel):
+    """A change of band: ``severity`` null when back within limits. ``generation_time_ns``
+    (onboard) and ``frame_seq`` are the frame's (null for the link's health, checked on the
+    ground's timer); ``time_ns`` is when the ground saw it (ground)."""
+
+    severity: AlarmSeverity | None
+    generation_time_ns: int | None
+    time_ns: int
+    frame_seq: int | None
+    value: float | None
+
+
+class AlarmPublic(BaseModel):
+    """An alarm (docs/alarms.md): ``severity`` the worst band reached, ``limit`` its
+    threshold; ``current_severity`` null once back within limits (``state`` cleared).
+    Active (listed) while triggered or not acknowledged. ``*_generation_time_ns`` are onboard
+    times, the other ``*_ns`` ground times."""
+
+    id: str
+    pass_id: str | None
+    quantity: str
+    channel: str
+    label: str
+    unit: str
+    direction: Literal["high", "low"]
+    source: Literal["limit", "vehicle"]
+    severity: AlarmSeverity
+    current_severity: AlarmSeverity | None
+    state: Literal["triggered", "cleared"]
+    acknowledged: bool
+    acknowledged_by: str | None
+    acknowledged_time_ns: int | None
+    comment: str | None
+    limit: float | None
+    trigger_value: float | None
+    worst_value: float | None
+    last_value: float | None
+    count: int
+    raised_frame_seq: int | None
+    raised_generation_time_ns: int | None
+    raised_time_ns: int
+    updated_time_ns: int
+    cleared_generation_time_ns: int | None
+    cleared_time_ns: int | None
+    timeline: list[AlarmTimelineEntryPublic]
+    detail: str | None
+
+
+class AlarmsPublic(BaseModel):
+    """Alarms, newest raised first; ``count`` of all that match."""
+
+    alarms: list[AlarmPublic]
+    count: int
+
+
+class AlarmAcknowledge(BaseModel):
+    """An operator's acknowledgement of an alarm, with an optional comment."""
+
+    model_config = ConfigDict(extra="forbid")
+    comment: SafeText | None = Field(default=None, max_length=500)
+
+
 # --- errors --------------------------------------------------------------------------------
 
 
@@ -412,11 +555,15 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         (409, "Conflict"),
         (413, "The request body exceeds the size limit"),
         (422, "Invalid request, or a plan that cannot be made"),
-        (429, "Too many failed authentications from this address (Retry-After)"),
+        (
+            429,
+            "Too many failed authentications from this address, or too many heavy reads of"
+            " this token in flight (Retry-After)",
+        ),
         (
             503,
-            "Busy: the bounded work pool, the readers' database connections or a deadline"
-            " (Retry-After)",
+            "Busy: the viewers' share of requests in flight, the bounded work pool, the"
+            " readers' database connections or a deadline (Retry-After)",
         ),
         (504, "The work did not finish within its deadline"),
     )
@@ -451,6 +598,8 @@ class PassSummaryPublic(BaseModel):
     #: executed on board exactly at their time tag (all executed ones, when the vehicle
     #: keeps its rule)
     commands_executed_at_tag: int
+    #: executed on board after their time tag
+    commands_executed_late: int
     commands_rejected: dict[str, int]
     commands_expired: int
     commands_cancelled: int
@@ -458,7 +607,15 @@ class PassSummaryPublic(BaseModel):
     #: the least time (onboard s) by which a command the vehicle received was ahead of its
     #: tag: how full the windowed uplink kept the onboard schedule
     min_command_lead_s: float | None
+    #: sent and not acknowledged final (``sent``, ``released``, ``received``)
     commands_outstanding: int
+    #: not final at all (``commands_outstanding`` and those still ``queued``)
+    commands_unresolved: int
+    #: once the pass has ended: ``nominal`` when every command executed at its tag,
+    #: ``degraded`` otherwise (docs/operations.md); None before
+    outcome: Literal["nominal", "degraded"] | None
+    #: the outcome with its counts: ``degraded: 393 of 6190 commands expired``
+    outcome_text: str | None
 
 
 # --- analyses, reports, recordings -------------------------------------------------------

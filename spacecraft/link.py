@@ -49,11 +49,13 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "Garbage",
     "LinkConfig",
     "LinkEmulator",
     "LinkStats",
     "Outage",
     "load_link_config",
+    "parse_garbage",
     "parse_outage",
 ]
 
@@ -94,6 +96,25 @@ class Outage:
     def overlaps(self, from_s: float, to_s: float) -> bool:
         """Whether the link is down at some instant of the closed interval ``[from_s, to_s]``."""
         return self.start_s <= to_s and self.end_s > from_s
+
+
+@dataclass(frozen=True)
+class Garbage:
+    """Noise toward the ground: malformed messages (:mod:`spacecraft.garbage`) at
+    ``rate`` a WALL-clock second on ``[start_s, end_s)`` onboard seconds since the link's
+    epoch, put on the link at its ground end (no delay, no loss: the relay's own noise)."""
+
+    start_s: float
+    end_s: float
+    rate: float
+
+    def __post_init__(self) -> None:
+        Outage(self.start_s, self.end_s)  # the same window rules
+        ok = _is_real(self.rate) and math.isfinite(self.rate) and 0 < self.rate <= 10_000
+        _check_real("garbage rate", self.rate, "(0, 10000] messages per wall s", ok)
+
+    def contains(self, t_s: float) -> bool:
+        return self.start_s <= t_s < self.end_s
 
 
 @dataclass(frozen=True)
@@ -324,3 +345,22 @@ def parse_outage(text: str) -> Outage:
         return Outage(start_s, end_s)
     except ValueError as exc:
         raise ValueError(f"outage {text!r}: {exc}") from None
+
+
+def parse_garbage(text: str) -> Garbage:
+    """Parse ``"START:END:RATE"`` (onboard seconds, messages per wall second, e.g.
+    ``"60:660:400"``) into a :class:`Garbage`."""
+    parts = text.split(":")
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        start_s, end_s, rate = (float(p) for p in parts)
+    except ValueError:
+        raise ValueError(
+            f"garbage {text!r} is not START:END:RATE (onboard s, messages per wall s, "
+            "e.g. 60:660:400)"
+        ) from None
+    try:
+        return Garbage(start_s, end_s, rate)
+    except ValueError as exc:
+        raise ValueError(f"garbage {text!r}: {exc}") from None

@@ -10,15 +10,27 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
   message, understood or not, tells the vehicle it has heard from the ground (its LOS
   policy's clock). Commands go to :meth:`~spacecraft.vehicle.Vehicle.receive`,
   ``schedule_delete`` to :meth:`~spacecraft.vehicle.Vehicle.delete_schedule`.
-- **Downlink**: acknowledgements, verifications, errors, pongs and telemetry leave through the
-  downlink emulator and are written to the socket at their delivery instant; telemetry stays
-  in the onboard store (:mod:`spacecraft.downlink`) until the ground acknowledges it.
+- **Downlink**: acknowledgements, verifications, errors, pongs, ``safing`` reports and
+  telemetry leave through the downlink emulator and are written to the socket at their
+  delivery instant; telemetry stays in the onboard store (:mod:`spacecraft.downlink`) until
+  the ground acknowledges it.
+- **On-board safing**: ``safe_exit`` goes to :meth:`~spacecraft.vehicle.Vehicle.safe_exit`,
+  whose ``safing`` report answers it. The vehicle's own reports (on entering SAFE, then every
+  onboard second while safe) go down while connected; they are not kept for a later
+  connection, which instead gets the report of the SAFE state right after ``hello``.
+- **Truth log** (``truth_log``, :mod:`spacecraft.truth`): the start, each fault's onset and
+  each entry into and exit from SAFE, written as they happen; never sent to the ground.
 - **Connection**: reconnects after any drop with exponential backoff. A drop changes nothing
   on board: the loaded schedule keeps executing, and only the vehicle's LOS policy (silence
   for ``los_hold_after_s`` with ``hold``) refuses queued joint commands. ``hello`` is the
   session handshake, announces the schedule's capacity, the LOS policy and (when the vehicle
   flies a robot description, ``hikoboshi spacecraft --robot``) the robot's name, the hash of
   its description and its joint count, and goes straight to the ground.
+- **Noise** (``garbage``, ``hikoboshi spacecraft --garbage``): while connected and the
+  onboard clock is inside a window, malformed messages (:mod:`spacecraft.garbage`) go
+  straight onto the socket at the window's rate per wall second, beside the real traffic
+  (a rehearsal of a noisy link; docs/protocol.md "Malformed messages"). The ground closes a
+  connection that sends too many; the process reconnects as after any drop.
 - **Stop** (SIGTERM): the vehicle stops, the link keeps running until every telemetry frame has
   been acknowledged or ``drain_timeout_s`` (wall) has passed, then the process exits.
 """
@@ -34,12 +46,15 @@ import logging
 import random
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
 from spacecraft.downlink import Downlink, DownlinkConfig
-from spacecraft.link import LinkConfig, LinkEmulator, Outage
+from spacecraft.garbage import GarbageMaker
+from spacecraft.link import Garbage, LinkConfig, LinkEmulator, Outage
+from spacecraft.truth import TruthLog
 from spacecraft.vehicle import Vehicle, VehicleConfig
 from telemetry.wire import (
     PROTOCOL_VERSION,
@@ -55,6 +70,7 @@ from telemetry.wire import (
     Pong,
     RejectReason,
     Retransmit,
+    SafeExit,
     ScheduleDelete,
     TelemetryAck,
     TelemetryMsg,
@@ -89,6 +105,10 @@ class ProcessConfig:
     backoff_initial_s: float = 0.2  # wall seconds
     backoff_max_s: float = 5.0
     drain_timeout_s: float = 30.0  # wall seconds
+    #: where the truth log is written (None: nowhere)
+    truth_log: Path | None = None
+    #: windows of malformed messages toward the ground (a rehearsal of a noisy link)
+    garbage: tuple[Garbage, ...] = ()
 
     def __post_init__(self) -> None:
         if not 0 < self.time_scale <= 1000:
@@ -124,6 +144,9 @@ class SpacecraftProcess:
         self._stopping = False
         self.connections = 0
         self.errors_replied = 0
+        self._truth: TruthLog | None = None
+        self.garbage = GarbageMaker(config.seed, epoch_ns=epoch)
+        self.garbage_sent = 0
 
     # -- clock ---------------------------------------------------------------------------
 
@@ -175,6 +198,31 @@ class SpacecraftProcess:
             with contextlib.suppress(ConnectionClosed):
                 await ws.send(text)
 
+    async def _noise(self) -> None:
+        """Malformed messages onto the socket at each garbage window's rate (wall), while
+        connected and inside the window (onboard); a burst catches up after a stall, at
+        most a tenth of a second's worth."""
+        windows = self.config.garbage
+        if not windows:
+            return
+        due = time.monotonic()
+        while True:
+            now_s = self.onboard_s()
+            window = next((w for w in windows if w.contains(now_s)), None)
+            ws = self._ws
+            if window is None or ws is None or not self._connected.is_set():
+                await asyncio.sleep(0.01)
+                due = time.monotonic()
+                continue
+            period = 1.0 / window.rate
+            due = max(due, time.monotonic() - 0.1)
+            while due <= time.monotonic():
+                with contextlib.suppress(ConnectionClosed):
+                    await ws.send(self.garbage.next())
+                    self.garbage_sent += 1
+                due += period
+            await asyncio.sleep(max(0.0, due - time.monotonic()))
+
     # -- uplink --------------------------------------------------------------------------
 
     def _handle(self, raw: str | bytes) -> None:
@@ -190,6 +238,9 @@ class SpacecraftProcess:
             self._send(encode(self.vehicle.receive(message)))
         elif isinstance(message, ScheduleDelete):
             self._send(encode(self.vehicle.delete_schedule(message)))
+        elif isinstance(message, SafeExit):
+            self._send(encode(self.vehicle.safe_exit(message)))
+            self._log_truth()
         elif isinstance(message, TelemetryAck):
             self.store.on_ack(message.through_seq, message.ranges)
         elif isinstance(message, Retransmit):
@@ -257,9 +308,18 @@ class SpacecraftProcess:
 
     def _advance(self, onboard_s: float) -> None:
         acks, frames = self.vehicle.advance_to(self.onboard_ns(onboard_s))
+        for report in self.vehicle.take_safing_reports():
+            if self._connected.is_set():  # else: a new connection gets the state after hello
+                self._send(encode(report))
         for ack in acks:
             self._send(encode(ack))
         self.store.add(frames)
+        self._log_truth()
+
+    def _log_truth(self) -> None:
+        events = self.vehicle.take_truth_events()
+        if self._truth is not None and events:
+            self._truth.write(events)
 
     def _flush_telemetry(self, now_s: float) -> None:
         if not self._connected.is_set():
@@ -267,19 +327,24 @@ class SpacecraftProcess:
         for frames, retransmission in self.store.due(now_s):
             self._send(encode(TelemetryMsg(frames=frames, retransmission=retransmission)))
 
+    def _deliver_due(self, now: float) -> None:
+        """Hand the vehicle every uplinked message delivered by ``now`` (onboard s), each at
+        its delivery instant."""
+        while self._incoming and self._incoming[0][0] <= now:
+            deliver, _, raw = heapq.heappop(self._incoming)
+            if not self._stopping:
+                self._advance(deliver)
+            self.vehicle.heard_from_ground()
+            try:
+                self._handle(raw)
+            except Exception:  # one message went wrong: the vehicle and link carry on
+                log.exception("handling a message from the ground failed")
+
     async def _onboard(self, stop: asyncio.Event) -> None:
         tick_s = self.config.vehicle.telemetry_period_s / 2
         while True:
             now = self.onboard_s()
-            while self._incoming and self._incoming[0][0] <= now:
-                deliver, _, raw = heapq.heappop(self._incoming)
-                if not self._stopping:
-                    self._advance(deliver)
-                self.vehicle.heard_from_ground()
-                try:
-                    self._handle(raw)
-                except Exception:  # one message went wrong: the vehicle and link carry on
-                    log.exception("handling a message from the ground failed")
+            self._deliver_due(now)
             if stop.is_set() and not self._stopping:
                 self._stopping = True
                 log.info("stopping: draining %d unacknowledged frames", self.store.unacked)
@@ -307,9 +372,15 @@ class SpacecraftProcess:
                     self._ws = ws
                     self.connections += 1
                     delay = self.config.backoff_initial_s
+                    now = self.onboard_s()
+                    if not self._stopping:
+                        # up to now before hello: a periodic report due while the link was
+                        # down is not sent; the report of the state now follows hello
+                        self._deliver_due(now)
+                        self._advance(now)
                     hello = Hello(
                         vehicle=self.config.vehicle.vehicle_name,
-                        onboard_time_ns=self.onboard_ns(self.onboard_s()),
+                        onboard_time_ns=self.onboard_ns(now),
                         time_scale=self.config.time_scale,
                         next_telemetry_seq=self.vehicle.next_telemetry_seq,
                         last_command_seq=self.vehicle.last_command_seq,
@@ -325,6 +396,9 @@ class SpacecraftProcess:
                     backlog, self._outbox = self._outbox, []
                     for text in backlog:
                         self._send(text)
+                    report = self.vehicle.safing_report()
+                    if report is not None:  # a safe vehicle says so at once
+                        self._send(encode(report))
                     log.info("connected to %s", self.config.ground_url)
                     await self._receiver(ws)
             except (OSError, ConnectionClosed, InvalidHandshake, InvalidURI, TimeoutError) as exc:
@@ -348,11 +422,32 @@ class SpacecraftProcess:
         vehicle = self.config.vehicle
         return None if vehicle.robot is None else vehicle.model.n_joints
 
+    def _open_truth_log(self) -> None:
+        path = self.config.truth_log
+        if path is None:
+            return
+        self._truth = TruthLog(path)
+        vehicle = self.config.vehicle
+        self._truth.write(
+            [
+                {
+                    "event": "start",
+                    "onboard_time_ns": self.epoch_ns,
+                    "vehicle": vehicle.vehicle_name,
+                    "robot": vehicle.robot,
+                    "faults": [fault.spec for fault in vehicle.faults],
+                    "safing": vehicle.safing,
+                }
+            ]
+        )
+
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set and the telemetry is drained (or the drain times out)."""
+        self._open_truth_log()
         tasks = [
             asyncio.create_task(self._sender(), name="sender"),
             asyncio.create_task(self._connection(stop), name="connection"),
+            asyncio.create_task(self._noise(), name="noise"),
         ]
         onboard = asyncio.create_task(self._onboard(stop), name="onboard")
         try:
@@ -369,3 +464,6 @@ class SpacecraftProcess:
                     await task
             if self._ws is not None:
                 await self._ws.close()
+            if self._truth is not None:
+                self._log_truth()
+                self._truth.close()

@@ -56,6 +56,19 @@ sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked comma
   the arm holds the target it has reached; attitude control carries on in its mode (queued
   attitude commands still execute at their tags). :meth:`~Vehicle.link_lost` does the same
   at once.
+- **On-board safing** (:mod:`spacecraft.safing`; ``safing=False`` flies without it): at each
+  control tick, before the commands due then, the red limits of the safing quantities are
+  checked on the measured sample. On one the vehicle is SAFE at that tick: the frame of that
+  sample goes down as it stood (the ground sees the value), every queued command is dropped
+  and acknowledged ``rejected`` ``safing`` (acks returned by ``advance_to``), the servo
+  targets hold the measured joints, attitude control holds the measured attitude in feedback
+  without feedforward, and a ``safing`` report is queued (:meth:`~Vehicle.take_safing_reports`;
+  again every onboard second while safe). Commands are refused ``safing`` until
+  :meth:`~Vehicle.safe_exit`.
+- **Faults** (:mod:`spacecraft.faults`) change the truth simulation at their onset: what the
+  servos' hardware applies (the software's target, in telemetry, is unchanged), the wheel
+  torques, the attitude sensor, the base's momentum. Their onsets and SAFE's entries and exits
+  are the truth log's records (:meth:`~Vehicle.take_truth_events`), never sent down.
 """
 
 from __future__ import annotations
@@ -76,13 +89,17 @@ from planner.attitude_control import (
     default_acs_gains,
     reaction_rate_radps,
 )
+from planner.collision import CollisionModel
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
+from planner.limits import Limits
 from planner.model import RobotModel, default_model
 from planner.simulation import FreeFloatingSimulator, SimConfig
 from planner.state import State
 from spacecraft._buffer import CommandBuffer
 from spacecraft._sensors import Measurement, SensorNoise, measure
+from spacecraft.faults import Fault, FaultInjector, FaultSpecError, check_faults
+from spacecraft.safing import OnboardSafing, monitor_for
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
@@ -92,6 +109,9 @@ from telemetry.wire import (
     CommandStage,
     JointCommandMsg,
     RejectReason,
+    SafeExit,
+    Safing,
+    SafingTrigger,
     ScheduleDelete,
     TelemetryFrame,
     Verification,
@@ -171,6 +191,17 @@ class VehicleConfig:
     #: says nothing of the robot (the ground takes that for ETS-VII).
     robot: str | None = None
     robot_hash: str | None = None
+    #: On-board safing (:mod:`spacecraft.safing`): on a red limit of a safing quantity the
+    #: vehicle makes itself safe; ``False`` flies without that protection. ``limits``: the
+    #: bands whose red thresholds it keeps (None: the built-in ETS-VII description's);
+    #: ``collision``: the shapes of the live clearance (None: ETS-VII's when ``robot`` is
+    #: None, else no live clearance).
+    safing: bool = True
+    limits: Limits | None = None
+    collision: CollisionModel | None = None
+    #: Faults injected into the truth simulation (:mod:`spacecraft.faults`), never told to
+    #: the ground.
+    faults: tuple[Fault, ...] = ()
 
     def __post_init__(self) -> None:
         step_ns = self.step_ns
@@ -228,6 +259,10 @@ class VehicleConfig:
                 f"los_hold_after_s = {hold_s!r} applies only with los_policy 'hold' "
                 f"(los_policy is {self.los_policy!r})"
             )
+        try:
+            check_faults(self.faults, n_joints=self.model.n_joints, n_wheels=len(self.model.wheels))
+        except FaultSpecError as exc:
+            raise VehicleError(str(exc)) from None
 
     @property
     def step_ns(self) -> int:
@@ -247,10 +282,11 @@ def vehicle_config_for(
 ) -> VehicleConfig:
     """The vehicle of a robot description (``planner.description.load_robot``): its model,
     joint servos, attitude-control law (the ``[acs]`` table with the wheels' torque and
-    momentum limits, which the truth simulation enforces), sensor noise, the all-zero initial
+    momentum limits, which the truth simulation enforces), sensor noise, its live limits and
+    collision shapes (on-board safing's red limits and live clearance), the all-zero initial
     pose and its name, hash and joint count for ``hello``. ``acs_overrides`` (an ``[acs]``
     table, e.g. of ``--acs-config``) replaces keys of the description's law; ``fields`` set
-    any other :class:`VehicleConfig` field (telemetry period, LOS policy, ...)."""
+    any other :class:`VehicleConfig` field (telemetry period, LOS policy, faults, ...)."""
     sim = fields.pop("sim", None) or _default_sim()
     sim = replace(sim, servo=description.servo_gains())
     model = description.model
@@ -273,6 +309,8 @@ def vehicle_config_for(
         "vehicle_name": description.name,
         "robot": description.name,
         "robot_hash": description.content_sha256,
+        "limits": description.limits,
+        "collision": description.collision,
     }
     values.update(fields)
     return VehicleConfig(**values)
@@ -345,6 +383,25 @@ class Vehicle:
         self._wheel_torque = np.zeros(3)
         self._law = AttitudeController(self._gains)
         self._sample: tuple[int, State, Measurement] | None = None
+        # The onboard software's servo target: `_target` at `_target_ns`, moving at
+        # `_target_rate`; the joint servos' hardware applies it through the faults.
+        self._target = q0.copy()
+        self._target_ns = epoch_ns
+        self._lo, self._hi = model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]
+        self._faults = FaultInjector(config.faults, epoch_ns=epoch_ns, step_ns=self._step_ns)
+        self._truth: list[dict[str, Any]] = []
+        self._safing = OnboardSafing(epoch_ns=epoch_ns)
+        self._monitor = (
+            monitor_for(
+                config.model,
+                limits=config.limits,
+                collision=config.collision,
+                builtin=config.robot is None,
+                momentum_limit_nms=self._gains.momentum_limit_nms,
+            )
+            if config.safing
+            else None
+        )
 
     # -- clock and counters -------------------------------------------------------------
 
@@ -397,8 +454,46 @@ class Vehicle:
         return self._sim.state()
 
     def joint_target_rad(self) -> Array:
-        """The servo target now (the commanded joints exactly at each command's tag)."""
-        return self._sim.joint_target_rad()
+        """The onboard software's servo target now (the commanded joints exactly at each
+        command's tag; a joint fault changes what the hardware applies, not this)."""
+        return self._software_target(self.onboard_time_ns)
+
+    # -- on-board safing and faults ------------------------------------------------------
+
+    @property
+    def safe(self) -> bool:
+        """The vehicle is in SAFE (on-board safing) until a ``safe_exit``."""
+        return self._safing.safe
+
+    @property
+    def onboard_safing(self) -> OnboardSafing:
+        """The SAFE state (when, why, how many commands it dropped), for tests and tools."""
+        return self._safing
+
+    def safe_exit(self, req: SafeExit) -> Safing:
+        """Leave SAFE (the arm keeps holding, attitude control keeps its feedback hold,
+        commands are accepted again): the ``safing`` report ``nominal`` with this
+        ``request_id``. Idempotent by ``request_id``; answered ``nominal`` when not safe."""
+        self.heard_from_ground()
+        report, _ = self._safing.exit(req.request_id, self.onboard_time_ns)
+        return report
+
+    def safing_report(self) -> Safing | None:
+        """The ``safing`` report of the SAFE state now (None when not safe): what a safe
+        vehicle sends right after ``hello``."""
+        return self._safing.report(self.onboard_time_ns) if self._safing.safe else None
+
+    def take_safing_reports(self) -> list[Safing]:
+        """The ``safing`` reports made since the last call (entry, then every onboard
+        second while safe), for the downlink."""
+        return self._safing.take_reports()
+
+    def take_truth_events(self) -> list[dict[str, Any]]:
+        """The truth log's records since the last call, in time order: each fault's onset,
+        each entry into SAFE and exit from it (never sent to the ground)."""
+        out = sorted(self._truth + self._safing.take_truth(), key=lambda r: r["onboard_time_ns"])
+        self._truth = []
+        return out
 
     def wheel_momentum_nms(self) -> Array:
         """Rotor momentum relative to the base, ``I_w * speed`` (N m s, base frame)."""
@@ -443,6 +538,16 @@ class Vehicle:
         return self._outcomes.get(seq)
 
     def _accept(self, cmd: JointCommandMsg | AcsCommandMsg, now: int) -> CommandAck:
+        if self._safing.safe:
+            trigger = self._safing.trigger
+            why = f" ({trigger.quantity} {trigger.channel})" if trigger is not None else ""
+            return self._reject(
+                cmd.seq,
+                now,
+                RejectReason.SAFING,
+                f"the vehicle is safe since {self._safing.since_ns}{why}: no command is "
+                "accepted until safe_exit",
+            )
         for from_ns, max_seq, request_id in self._barriers:
             if cmd.seq <= max_seq and cmd.execute_time_ns >= from_ns:
                 return self._reject(
@@ -530,7 +635,7 @@ class Vehicle:
             prev = np.array(before.joints_rad)
             steps.append((prev, tag - before.execute_time_ns, f"from seq {before.seq}"))
         else:  # it will be ramped to from where the target stands now
-            steps.append((self._sim.joint_target_rad(), tag - now, "from the current target"))
+            steps.append((self._software_target(now), tag - now, "from the current target"))
         if after is not None:
             steps.append(
                 (np.array(after.joints_rad), after.execute_time_ns - tag, f"to seq {after.seq}")
@@ -646,14 +751,27 @@ class Vehicle:
         while True:
             tag = self._buffer.next_tag_ns()
             los = self._los_deadline_ns()
-            t = min(self._next_control_ns, self._next_frame_ns)
-            if tag is not None:
-                t = min(t, tag)
-            if los is not None:
-                t = min(t, los)
+            fault = self._faults.next_onset_ns
+            report = self._safing.next_report_ns
+            t = min(
+                x
+                for x in (self._next_control_ns, self._next_frame_ns, tag, los, fault, report)
+                if x is not None
+            )
             if t > end:
                 break
             self._step_to(t)
+            if fault == t:  # the truth changes first: what is measured at t shows it
+                self._truth += self._faults.begin(t, self._sim)
+                self._apply_servo(t)
+            trigger = self._check_safing(t) if t == self._next_control_ns else None
+            if trigger is not None:  # before the commands due at t: none executes
+                # the frame of the sample that tripped, as it stood (the ground sees the
+                # value), then SAFE: the regular frame at t, if any, is this one
+                frames.append(self._frame(t))
+                if t == self._next_frame_ns:
+                    self._next_frame_ns += self._telemetry_ns
+                acks += self._enter_safe(t, trigger)
             if los == t:  # the silence lasted: no joint command executes from now on
                 silent_s = (t - self._last_heard_ns) / 1e9
                 acks += self._hold_arm(
@@ -666,6 +784,8 @@ class Vehicle:
             if t == self._next_control_ns:
                 self._control(t)
                 self._next_control_ns += self._control_ns
+            if report == t:
+                self._safing.tick(t)
             if t == self._next_frame_ns:
                 frames.append(self._frame(t))
                 self._next_frame_ns += self._telemetry_ns
@@ -675,13 +795,14 @@ class Vehicle:
     def _step_to(self, t: int) -> None:
         steps = (t - self.onboard_time_ns) // self._step_ns
         if steps > 0:
-            self._sim.advance(steps * self._timestep_s, wheel_torque_nm=self._wheel_torque)
+            torque = self._faults.wheel_torque(self._wheel_torque)
+            self._sim.advance(steps * self._timestep_s, wheel_torque_nm=torque)
 
     def _execute(self, t: int) -> list[CommandAck]:
         acks = []
         for cmd in self._buffer.pop_due(t):
             if isinstance(cmd, JointCommandMsg):
-                self._sim.set_joint_target(np.array(cmd.joints_rad, dtype=np.float64))
+                self._set_target(np.array(cmd.joints_rad, dtype=np.float64), None, t)
                 self._ramp_to_next(t)
             else:
                 self._acs_mode = AcsMode(cmd.mode.value)
@@ -697,7 +818,7 @@ class Vehicle:
     def _ramp_to_next(self, now: int) -> None:
         """Move the servo target from where it stands now to the earliest queued joint
         command, reaching it at its tag; hold if there is none."""
-        target = self._sim.joint_target_rad()
+        target = self._software_target(now)
         nxt = self._buffer.first_joint()
         if nxt is None:
             rate, self._ramp_to_ns = np.zeros_like(target), None
@@ -705,8 +826,61 @@ class Vehicle:
             duration_s = (nxt.execute_time_ns - now) / 1e9
             rate = (np.array(nxt.joints_rad) - target) / duration_s
             self._ramp_to_ns = nxt.execute_time_ns
+        self._set_target(target, rate, now)
+
+    def _software_target(self, t: int) -> Array:
+        """The onboard software's servo target at ``t`` (it saturates at the joint limits)."""
+        target = self._target + self._target_rate * ((t - self._target_ns) / 1e9)
+        return np.clip(target, self._lo, self._hi)
+
+    def _set_target(self, target: Array, rate: Array | None, now: int) -> None:
+        """The software's servo target from ``now`` (moving at ``rate``; None: holding),
+        applied by the servos' hardware."""
+        self._target = np.clip(target, self._lo, self._hi)
+        self._target_ns = now
+        self._target_rate = np.zeros_like(self._target) if rate is None else rate
+        self._apply_servo(now)
+
+    def _apply_servo(self, now: int) -> None:
+        """The software's target through the joint faults to the servos."""
+        target, rate = self._faults.servo(self._software_target(now), self._target_rate, now)
         self._sim.set_joint_target(target, rate)
-        self._target_rate = rate
+
+    def _check_safing(self, t: int) -> SafingTrigger | None:
+        """The red limit crossed by the measured sample at ``t`` (None: none, or the vehicle
+        is safe already, or flies without safing)."""
+        if self._monitor is None or self._safing.safe:
+            return None
+        state, m = self._measure(t)
+        return self._monitor.check(
+            joint_targets_rad=self._software_target(t),
+            joints_rad=m.joints_rad,
+            quat_orbit_from_base_xyzw=m.quat_orbit_from_base_xyzw,
+            acs_target_quat_xyzw=self._acs_target,
+            wheel_speeds_radps=state.wheel_rates_radps,
+        )
+
+    def _enter_safe(self, t: int, trigger: SafingTrigger) -> list[CommandAck]:
+        """SAFE at ``t``: every queued command dropped (acknowledged ``rejected``
+        ``safing``), the arm held where it is measured, attitude control to feedback on the
+        measured attitude, the entry report queued."""
+        _, m = self._measure(t)
+        channel = f" {trigger.channel}" if trigger.channel else ""
+        detail = (
+            f"on-board safing at {t}: {trigger.quantity}{channel} {trigger.value:.4g} "
+            f"beyond its red limit {trigger.limit:g}"
+        )
+        dropped = self._buffer.pop_where(lambda _: True)
+        acks = [self._reject(cmd.seq, t, RejectReason.SAFING, detail) for cmd in dropped]
+        self._outcomes.update((ack.seq, ack) for ack in acks)
+        # hold the arm where it is measured, and the attitude where it is measured
+        self._ramp_to_ns = None
+        self._set_target(m.joints_rad, None, t)
+        self._acs_mode = AcsMode.FEEDBACK
+        self._acs_target = m.quat_orbit_from_base_xyzw.copy()
+        self._acs_feedforward = False
+        self._safing.enter(t, trigger, len(dropped))
+        return acks
 
     # -- onboard attitude control and telemetry -------------------------------------------
 
@@ -714,7 +888,8 @@ class Vehicle:
         """The sensor sample at ``t`` (one per instant: control and telemetry share it)."""
         if self._sample is None or self._sample[0] != t:
             state = self._sim.state()
-            self._sample = (t, state, measure(state, self.config.noise, self._rng))
+            sample = self._faults.sense(measure(state, self.config.noise, self._rng))
+            self._sample = (t, state, sample)
         return self._sample[1], self._sample[2]
 
     def _control(self, t: int) -> None:
@@ -724,7 +899,7 @@ class Vehicle:
             return
         _, m = self._measure(t)
         reaction = (
-            reaction_rate_radps(self._ws, self._sim.joint_target_rad(), self._target_rate)
+            reaction_rate_radps(self._ws, self._software_target(t), self._target_rate)
             if self._acs_feedforward
             else None
         )
@@ -743,7 +918,7 @@ class Vehicle:
             seq=self._next_frame_seq,
             generation_time_ns=t,
             joints_rad=m.joints_rad.tolist(),
-            joint_targets_rad=self._sim.joint_target_rad().tolist(),
+            joint_targets_rad=self._software_target(t).tolist(),
             quat_orbit_from_base_xyzw=m.quat_orbit_from_base_xyzw.tolist(),
             omega_base_in_base_radps=m.omega_base_in_base_radps.tolist(),
             wheel_speeds_radps=state.wheel_rates_radps.tolist(),

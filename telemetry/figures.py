@@ -1,5 +1,5 @@
-"""Figures of the post-pass analyses (paper Figs. 5, 6, 8, 9, 11 and predicted-vs-flown), as
-PNG bytes.
+"""Figures of the post-pass analyses (paper Figs. 5, 6, 8, 9, 11 and predicted-vs-flown) and
+of a pass's alarms (their timeline), as PNG bytes.
 
 Each function draws one :mod:`telemetry.analysis` result on a fresh
 :class:`matplotlib.figure.Figure` with the Agg canvas and returns the PNG. Figures are built
@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import matplotlib
+import matplotlib.patches
 
 matplotlib.use("Agg")
 
@@ -33,6 +35,7 @@ from telemetry.analysis import (
 from telemetry.analysis.paper import FLIGHT_FASTEST_SETTLING, FLIGHT_RANGE_ORDER, ordered
 
 __all__ = [
+    "alarm_timeline_figure",
     "endpoint_figure",
     "hand_attitude_figure",
     "joint_tracking_figure",
@@ -296,3 +299,58 @@ def pass_figures(analysis: PassAnalysis) -> dict[str, bytes]:
     if analysis.predicted_vs_flown is not None:
         out["predicted_vs_flown"] = predicted_vs_flown_figure(analysis.predicted_vs_flown)
     return out
+
+
+#: Band colours of the alarm timeline, lowest severity first (Yamcs's five levels).
+_SEVERITY_COLOURS = {
+    "watch": "#9ecae1",
+    "warning": "#fdd835",
+    "distress": "#fb8c00",
+    "critical": "#e53935",
+    "severe": "#6a1b9a",
+}
+
+
+def alarm_timeline_figure(
+    alarms: Sequence[Mapping[str, Any]], epoch_ns: int, end_t_s: float
+) -> bytes:
+    """One row per alarm (its quantity and channel), coloured by the band it was in over the
+    plan's clock (s from ``t = 0``; onboard times of its frames). A band lasts until the
+    alarm's next change, or ``end_t_s`` when none came; ground-timed changes (the link's
+    health) are left out. Acknowledgements are not on the onboard clock: the table lists
+    them."""
+    rows = []
+    for alarm in alarms:
+        spans = []
+        timeline = [e for e in alarm.get("timeline") or () if e.get("generation_time_ns")]
+        for k, entry in enumerate(timeline):
+            severity = entry.get("severity")
+            if severity is None:
+                continue
+            t0 = (int(entry["generation_time_ns"]) - epoch_ns) / 1e9
+            after = timeline[k + 1] if k + 1 < len(timeline) else None
+            t1 = end_t_s if after is None else (int(after["generation_time_ns"]) - epoch_ns) / 1e9
+            spans.append((t0, max(t1 - t0, 0.0), severity))
+        channel = alarm.get("channel") or ""
+        rows.append((f"{alarm.get('quantity')}{' ' + channel if channel else ''}", spans))
+
+    def draw(fig: Figure) -> None:
+        ax = fig.subplots()
+        for i, (_, spans) in enumerate(rows):
+            for t0, width, severity in spans:
+                ax.broken_barh(
+                    [(t0, width)], (i - 0.4, 0.8), color=_SEVERITY_COLOURS.get(severity, "0.5")
+                )
+        ax.set_yticks(range(len(rows)), [label for label, _ in rows], fontsize="small")
+        ax.set_ylim(-0.6, len(rows) - 0.4)
+        ax.invert_yaxis()
+        ax.set_xlabel("t (s, plan clock)")
+        handles = [
+            matplotlib.patches.Patch(color=colour, label=name)
+            for name, colour in _SEVERITY_COLOURS.items()
+        ]
+        fig.legend(handles=handles, loc="outside lower center", fontsize="small", ncols=5)
+        ax.grid(axis="x", color="0.9")
+        fig.suptitle("Alarms: the band of each alarm over the pass")
+
+    return _png(draw, (9, 1.8 + 0.35 * max(len(rows), 1)))

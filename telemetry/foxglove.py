@@ -32,6 +32,9 @@ from planner.mujoco_conventions import MjLayout
 __all__ = [
     "FRAME_TRANSFORMS_SCHEMA",
     "FRAME_TRANSFORMS_SCHEMA_NAME",
+    "LOG_LEVELS",
+    "LOG_SCHEMA",
+    "LOG_SCHEMA_NAME",
     "ORBIT_FRAME",
     "STRING_SCHEMA",
     "STRING_SCHEMA_NAME",
@@ -96,6 +99,37 @@ FRAME_TRANSFORMS_SCHEMA: dict[str, Any] = {
         }
     },
     "required": ["transforms"],
+}
+
+#: ``foxglove.Log`` (foxglove-sdk ``schemas/jsonschema/Log.json``): what Foxglove's Log panel
+#: shows. ``level`` is ``foxglove.LogLevel``: these names, 0 to 5.
+LOG_SCHEMA_NAME = "foxglove.Log"
+LOG_LEVELS = {"UNKNOWN": 0, "DEBUG": 1, "INFO": 2, "WARNING": 3, "ERROR": 4, "FATAL": 5}
+LOG_SCHEMA: dict[str, Any] = {
+    "title": LOG_SCHEMA_NAME,
+    "description": "A log message",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "title": "time",
+            "type": "object",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+            },
+            "description": "Timestamp of log message",
+        },
+        "level": {
+            "title": "foxglove.LogLevel",
+            "description": "Log level",
+            "oneOf": [{"title": name, "const": value} for name, value in LOG_LEVELS.items()],
+        },
+        "message": {"type": "string", "description": "Log message"},
+        "name": {"type": "string", "description": "Process or node name"},
+        "file": {"type": "string", "description": "Filename"},
+        "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+    },
+    "required": ["timestamp", "level", "message", "name", "file", "line"],
 }
 
 STRING_SCHEMA: dict[str, Any] = {

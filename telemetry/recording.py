@@ -3,7 +3,8 @@
 One :class:`PassRecording` holds everything the ground kept of a pass: the plan that was
 uplinked (with its prediction), the plan's onboard epoch, the telemetry frames as column
 arrays (row ``k`` is the frame with ``seq[k]``, rows in ascending ``seq``), the commands with
-the time each stage was reached, and the audit events. It is pure data: the server builds one
+the time each stage was reached, the audit events, and the alarms (each its JSON document,
+docs/alarms.md). It is pure data: the server builds one
 from its database, the MCAP reader from a file, tests from an offline flight.
 
 Times follow the storage conventions: ``generation_time_ns`` and the acknowledgement stages
@@ -144,6 +145,9 @@ class PassRecording:
     events: tuple[EventRow, ...] = ()
     #: Free-form facts about the pass (id, state, relay, AOS/LOS, source).
     meta: Mapping[str, Any] = field(default_factory=dict)
+    #: The pass's alarms, oldest raised first: each the alarm's JSON (docs/alarms.md), its
+    #: ``timeline`` of band changes included.
+    alarms: tuple[Mapping[str, Any], ...] = ()
 
     def t_s(self) -> Array:
         """Frame times on the plan's clock: s from the plan's ``t = 0``."""

@@ -6,14 +6,15 @@ version) and ``"type"``. Times are integer nanoseconds of the **onboard clock**
 with the sequencing and acknowledgement rules, is ``docs/protocol.md``.
 
 Ground -> spacecraft: ``command`` (``joints`` or ``acs``), ``schedule_delete``,
-``telemetry_ack``, ``retransmit``, ``ping``, ``command_query``. Spacecraft -> ground:
-``hello``, ``command_ack``, ``verification``, ``telemetry``, ``pong``, ``command_unknown``,
-``error``. The messages are shaped after the ECSS PUS services they mirror (11 time-based
-schedule: ``command``, ``schedule_delete`` and the schedule summary in every frame's
-``buffer``; 1 request verification: ``command_ack``, ``verification``; 3 housekeeping:
-``telemetry``; 17 test: ``ping``/``pong``), so that a binary CCSDS Space Packet encoding is
-only another codec. Version 1 (each command sent once, just in time) is not served: its
-messages get an ``error`` reply naming the version this end speaks.
+``telemetry_ack``, ``retransmit``, ``ping``, ``command_query``, ``safe_exit``. Spacecraft ->
+ground: ``hello``, ``command_ack``, ``verification``, ``telemetry``, ``pong``,
+``command_unknown``, ``safing``, ``error``. The messages are shaped after the ECSS PUS
+services they mirror (11 time-based schedule: ``command``, ``schedule_delete`` and the
+schedule summary in every frame's ``buffer``; 1 request verification: ``command_ack``,
+``verification``; 3 housekeeping: ``telemetry``; 17 test: ``ping``/``pong``), so that a
+binary CCSDS Space Packet encoding is only another codec. Version 1 (each command sent once,
+just in time) is not served: its messages get an ``error`` reply naming the version this end
+speaks.
 
 :func:`decode_ground` and :func:`decode_spacecraft` accept only well-formed messages of this
 version and raise :class:`WireError` (with a reason fit for an ``error`` reply) for anything
@@ -47,6 +48,8 @@ __all__ = [
     "MAX_MESSAGE_BYTES",
     "MAX_WHEELS",
     "PROTOCOL_VERSION",
+    "SPACECRAFT_TYPES",
+    "WIRE_ERROR_CODES",
     "AcsCommandMsg",
     "AcsModeName",
     "BufferState",
@@ -62,6 +65,9 @@ __all__ = [
     "Pong",
     "RejectReason",
     "Retransmit",
+    "SafeExit",
+    "Safing",
+    "SafingTrigger",
     "ScheduleDelete",
     "SpacecraftMessage",
     "TelemetryAck",
@@ -101,14 +107,30 @@ _SUSPECT = re.compile(r"[\\\x7f-\x9f]")
 _SUSPECT_BYTES = re.compile(rb"[\\\x7f]|\xc2[\x80-\x9f]")
 
 
+#: The classes of :class:`WireError`, in the order the decoder checks them.
+WIRE_ERROR_CODES = (
+    "too_large",
+    "not_json",
+    "too_deep",
+    "not_object",
+    "control_character",
+    "version",
+    "no_type",
+    "unknown_type",
+    "invalid",
+)
+
+
 class WireError(ValueError):
     """A message that is not a valid protocol message; the text is the reason (free of
     control characters), ``ref_type`` the message's ``type`` when it could be read (its
-    control characters escaped, at most 64 characters)."""
+    control characters escaped, at most 64 characters), ``code`` the class of the refusal,
+    one of :data:`WIRE_ERROR_CODES` (a receiver counts refusals by it)."""
 
-    def __init__(self, reason: str, ref_type: str | None = None) -> None:
+    def __init__(self, reason: str, ref_type: str | None = None, code: str = "invalid") -> None:
         super().__init__(escape_controls(reason))
         self.ref_type = None if ref_type is None else escape_controls(ref_type)[:64]
+        self.code = code
 
 
 def escape_controls(text: str) -> str:
@@ -252,6 +274,7 @@ class RejectReason(StrEnum):
     LINK_LOST = "link_lost"  # deleted by the LOS policy (no word from the ground): arm holds
     CANCELLED = "cancelled"  # deleted from the schedule by a ``schedule_delete`` (abort)
     SCHEDULE_FULL = "schedule_full"  # the onboard schedule holds its capacity already
+    SAFING = "safing"  # dropped or refused because the vehicle is in SAFE (on-board safing)
 
 
 class CommandAck(_Msg):
@@ -332,6 +355,45 @@ class Verification(_Msg):
     onboard_time_ns: TimeNs
 
 
+class SafeExit(_Msg):
+    """The telecommand that takes the vehicle out of SAFE (on-board safing): only the ground
+    ends it. Answered by a ``safing`` report (``state`` ``nominal``, this ``request_id``);
+    idempotent by ``request_id``, and harmless when the vehicle is not safe."""
+
+    type: Literal["safe_exit"] = "safe_exit"
+    request_id: Seq
+
+
+class SafingTrigger(_Obj):
+    """What made the vehicle safe itself: the monitored quantity (``planner.limits``'s
+    name), its channel (``joint3``, ``x``, ``wheel2``, empty for a scalar), the value it
+    measured and the red limit it crossed."""
+
+    quantity: str = Field(min_length=1, max_length=64)
+    channel: str = Field(default="", max_length=32)
+    value: float
+    limit: float
+    detail: str | None = Field(default=None, max_length=300)
+
+
+class Safing(_Msg):
+    """The vehicle's on-board safing state (docs/protocol.md, "On-board safing"): sent when
+    it enters SAFE, again every second (onboard) while it stays, and when a ``safe_exit``
+    takes it out (``state`` ``nominal`` with that ``exit_request_id``; a copy of the
+    telecommand gets the same report)."""
+
+    type: Literal["safing"] = "safing"
+    state: Literal["safe", "nominal"]
+    #: onboard time SAFE was entered (the one being reported, or left)
+    since_time_ns: TimeNs | None = None
+    trigger: SafingTrigger | None = None
+    #: commands dropped from the schedule on entry (each acknowledged ``rejected``
+    #: ``safing``)
+    cancelled: Annotated[int, Field(ge=0)] = 0
+    exit_request_id: Seq | None = None
+    onboard_time_ns: TimeNs
+
+
 class ErrorMsg(_Msg):
     """The reply to a message that could not be understood; the process carries on."""
 
@@ -349,9 +411,10 @@ GroundMessageT = (
     | Retransmit
     | Ping
     | CommandQuery
+    | SafeExit
 )
 SpacecraftMessageT = (
-    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | ErrorMsg
+    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | Safing | ErrorMsg
 )
 GroundMessage = Annotated[GroundMessageT, Field(discriminator="type")]
 SpacecraftMessage = Annotated[SpacecraftMessageT, Field(discriminator="type")]
@@ -359,11 +422,15 @@ SpacecraftMessage = Annotated[SpacecraftMessageT, Field(discriminator="type")]
 _COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
 _GROUND_OTHER = TypeAdapter(
     Annotated[
-        ScheduleDelete | TelemetryAck | Retransmit | Ping | CommandQuery,
+        ScheduleDelete | TelemetryAck | Retransmit | Ping | CommandQuery | SafeExit,
         Field(discriminator="type"),
     ]
 )
 _SPACECRAFT = TypeAdapter(SpacecraftMessage)
+#: The ``type`` of every spacecraft -> ground message.
+SPACECRAFT_TYPES = frozenset(
+    str(m.model_fields["type"].default) for m in SpacecraftMessageT.__args__
+)
 
 
 #: ``hello`` fields left out of the encoding when None (added after version 2 was fixed).
@@ -390,13 +457,13 @@ def _check_tree(doc: dict[str, object], strings: bool, ref_type: str | None) -> 
     depth = 1
     while level:
         if depth > MAX_DEPTH:
-            raise WireError(f"message nested deeper than {MAX_DEPTH} levels", ref_type)
+            raise WireError(f"message nested deeper than {MAX_DEPTH} levels", ref_type, "too_deep")
         if strings:
             for node in level:
                 values = node.values() if isinstance(node, dict) else node
                 for text in itertools.chain(node if isinstance(node, dict) else (), values):
                     if isinstance(text, str) and _CONTROL.search(text) is not None:
-                        raise WireError(_control_reason(text), ref_type)
+                        raise WireError(_control_reason(text), ref_type, "control_character")
         level = [
             value
             for node in level
@@ -416,15 +483,17 @@ def _control_reason(text: str) -> str:
 def _load(text: str | bytes) -> dict[str, object]:
     size = _size(text)
     if size > MAX_MESSAGE_BYTES:
-        raise WireError(f"message of {size} bytes exceeds {MAX_MESSAGE_BYTES} bytes")
+        raise WireError(
+            f"message of {size} bytes exceeds {MAX_MESSAGE_BYTES} bytes", code="too_large"
+        )
     try:
         doc = json.loads(text)
     except RecursionError:
-        raise WireError(f"message nested deeper than {MAX_DEPTH} levels") from None
+        raise WireError(f"message nested deeper than {MAX_DEPTH} levels", code="too_deep") from None
     except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, int digits limit
-        raise WireError(f"not JSON: {exc}"[:400]) from None
+        raise WireError(f"not JSON: {exc}"[:400], code="not_json") from None
     if not isinstance(doc, dict):
-        raise WireError("a message must be a JSON object")
+        raise WireError("a message must be a JSON object", code="not_object")
     kind = doc.get("type")
     ref_type = kind if isinstance(kind, str) else None
     if kind == "error":
@@ -442,9 +511,10 @@ def _load(text: str | bytes) -> dict[str, object]:
         raise WireError(
             f"protocol version {version!r} is not served: this end speaks {PROTOCOL_VERSION}",
             ref_type,
+            "version",
         )
     if ref_type is None:
-        raise WireError("a message needs a string 'type'")
+        raise WireError("a message needs a string 'type'", code="no_type")
     return doc
 
 
@@ -479,11 +549,12 @@ def decode_ground(text: str | bytes, layout: FrameLayout | None = None) -> Groun
             "retransmit",
             "ping",
             "command_query",
+            "safe_exit",
         ):
             return _GROUND_OTHER.validate_python(doc)
     except ValidationError as exc:
         raise WireError(f"invalid {kind}: {_reason(exc)}", kind) from None
-    raise WireError(f"unknown message type {kind[:64]!r}", kind)
+    raise WireError(f"unknown message type {kind[:64]!r}", kind, "unknown_type")
 
 
 def decode_spacecraft(text: str | bytes, layout: FrameLayout | None = None) -> SpacecraftMessageT:
@@ -495,7 +566,8 @@ def decode_spacecraft(text: str | bytes, layout: FrameLayout | None = None) -> S
     try:
         message = _SPACECRAFT.validate_python(doc)
     except ValidationError as exc:
-        raise WireError(f"invalid {kind[:64]}: {_reason(exc)}", kind) from None
+        code = "invalid" if kind in SPACECRAFT_TYPES else "unknown_type"
+        raise WireError(f"invalid {kind[:64]}: {_reason(exc)}", kind, code) from None
     if layout is not None:
         if isinstance(message, TelemetryMsg):
             for frame in message.frames:

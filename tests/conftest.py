@@ -59,7 +59,23 @@ LEAK_GRACE_S = 10.0
 
 
 def _our_threads() -> set[threading.Thread]:
+    # Not the default executors' ``asyncio_N`` threads: the browser driver's and the test
+    # clients' loops keep theirs for their fixtures' lifetime. The lifespan's own executor
+    # is checked where it is made (tests/server/api/test_app.py).
     return {t for t in threading.enumerate() if t.name in OUR_THREADS and t.is_alive()}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_thread_outlives_the_run() -> Iterator[None]:
+    """Nothing of ours is alive once every test and fixture of the run is done (the check
+    after each test leaves out what was already running before it: a module- or
+    session-scoped fixture's database worker would go unseen)."""
+    yield
+    deadline = time.monotonic() + LEAK_GRACE_S
+    for thread in _our_threads():
+        thread.join(max(0.0, deadline - time.monotonic()))
+    left = sorted(t.name for t in _our_threads())
+    assert not left, f"threads alive at the end of the run: {left}"
 
 
 #: Children that live as long as the interpreter: multiprocessing's forkserver and its

@@ -33,6 +33,7 @@ from planner.description.hashing import content_sha256
 from planner.description.tables import (
     Header,
     experiments_from,
+    limits_from,
     poses_from,
     sensor_noise_from,
     servo_from,
@@ -292,6 +293,7 @@ def build_robot(
         base_box_size_m=urdf.box_size(head.base_link),
         collision=collision,
         flight_rules=rules,
+        limits=limits_from(c, doc.get("limits", {})),
     )
     try:
         description.acs_gains(ws)

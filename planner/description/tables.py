@@ -1,5 +1,6 @@
-"""A description's TOML tables ([[wheels]], [servo], [sensor_noise], [poses], [experiments])
-checked and turned into the values of :mod:`planner.robot`; works on the parsed document."""
+"""A description's TOML tables ([[wheels]], [servo], [sensor_noise], [poses], [experiments],
+[limits]) checked and turned into the values of :mod:`planner.robot`; works on the parsed
+document."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from planner.catalogue import experiments, parameters_from_values
 from planner.description.checks import NAME, WHEEL_NAMES, Checker, frozen
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.limits import Limits
 from planner.model import WheelSpec
 from planner.robot import (
     DEFAULT_SERVO_BANDWIDTH_RADPS,
@@ -35,6 +37,7 @@ __all__ = [
     "Header",
     "experiments_from",
     "head_from",
+    "limits_from",
     "poses_from",
     "sensor_noise_from",
     "servo_from",
@@ -65,6 +68,7 @@ TOP_KEYS = frozenset(
         "poses",
         "experiments",
         "flight_rules",
+        "limits",
     }
 )
 _WHEEL_KEYS = frozenset(
@@ -270,6 +274,17 @@ def experiments_from(c: Checker, value: object, n: int) -> dict[str, Mapping[str
             raise c.fail(where, str(exc)) from None
         out[name] = MappingProxyType(dict(table))
     return out
+
+
+def limits_from(c: Checker, value: object) -> Limits:
+    """The ``[limits]`` table over the built-in bands (planner.limits.DEFAULT_LIMITS for
+    every quantity it leaves out)."""
+    table = c.table("[limits]", value)
+    try:
+        return Limits.from_table(table)
+    except InvalidInput as exc:
+        element, _, problem = str(exc).partition(": ")
+        raise c.fail(element, problem) from None
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,12 @@
 """``/api/passes/{id}/analyses`` and ``/report``: run the post-pass analyses (operator),
 read the newest results, the report as JSON or HTML and its figures (viewer).
 
-Running the analyses and the report routes (JSON, HTML, figures: they decode and
-re-encode every figure of the run) happen in a worker process
-(:mod:`server.services.workers`) on its own database connection; the HTML page comes back
-as a temporary file that is streamed and deleted. A full pool answers 503 ``busy`` with
-``Retry-After``; past ``read_deadline_s`` (the analyses: ``post_pass_deadline_s``), 504."""
+Running the analyses happens in a worker process (:mod:`server.services.workers`) on its
+own database connection. The report (JSON, HTML) and its figures (they decode and
+re-encode every figure of the run) are computed there once per content version, stored
+and served from the file to every viewer (:mod:`server.services.artifacts`; the version is
+the ``ETag``). A full pool answers 503 ``busy`` with ``Retry-After``; past
+``read_deadline_s`` (the analyses: ``post_pass_deadline_s``), 504."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Request
-from fastapi.responses import HTMLResponse, Response, StreamingResponse
+from fastapi.responses import HTMLResponse, Response
 
 from server.api.deps import (
     ClockDep,
+    IdPath,
     OperatorDep,
     PublisherDep,
     SessionDep,
@@ -24,24 +26,19 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
+from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
 from server.schemas import (
     ERROR_RESPONSES,
     AnalysesPublic,
     AnalysisKind,
     AnalysisPublic,
     ReportPublic,
+    SafeLine,
 )
 from server.services import analyses as service
-from server.services import reports
+from server.services.artifacts import ArtifactRef
 from server.services.events import with_written
-from server.services.jobs import (
-    jobs_dir,
-    read_session_file_job,
-    read_session_job,
-    session_job,
-    stream_file,
-    temporary_path,
-)
+from server.services.jobs import session_job
 
 __all__ = ["router"]
 
@@ -61,7 +58,7 @@ _JSON_ERRORS: dict[int | str, dict[str, Any]] = {
 
 @router.post("/{pass_id}/analyses", status_code=201, response_model=AnalysesPublic)
 async def run_analyses(
-    pass_id: str,
+    pass_id: IdPath,
     http: Request,
     settings: SettingsDep,
     who: OperatorDep,
@@ -91,33 +88,29 @@ async def run_analyses(
 
 
 @router.get("/{pass_id}/analyses", response_model=AnalysesPublic)
-def list_analyses(pass_id: str, session: SessionDep, _: ViewerDep) -> AnalysesPublic:
+def list_analyses(pass_id: IdPath, session: SessionDep, _: ViewerDep) -> AnalysesPublic:
     """The newest result of each kind (none before the first run)."""
     return service.list_analyses(session=session, pass_id=pass_id)
 
 
 @router.get("/{pass_id}/analyses/{kind}", response_model=AnalysisPublic)
 def get_analysis(
-    pass_id: str, kind: AnalysisKind, session: SessionDep, _: ViewerDep
+    pass_id: IdPath, kind: AnalysisKind, session: SessionDep, _: ViewerDep
 ) -> AnalysisPublic:
     return service.get_analysis(session=session, pass_id=pass_id, kind=kind)
 
 
-@router.get("/{pass_id}/report", response_model=ReportPublic)
+@router.get(
+    "/{pass_id}/report",
+    response_model=ReportPublic,
+    responses={**NOT_MODIFIED},
+)
 async def get_report(
-    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
-) -> ReportPublic:
+    pass_id: IdPath, http: Request, _: ViewerDep, artifacts: ArtifactsDep
+) -> Response:
     """The newest analyses as tables: predicted against flown, the experiments, the
     identified inertia against the model's, gravity-gradient residuals with and without."""
-    return await workers.run(
-        read_session_job,
-        settings.resolved_database_url(),
-        reports.pass_report,
-        pass_id=pass_id,
-        deadline_s=settings.read_deadline_s,
-        what=f"the report of pass {pass_id}",
-        client=http,
-    )
+    return await serve_artifact(http, artifacts, ArtifactRef("report", pass_id), "application/json")
 
 
 @router.get(
@@ -126,55 +119,34 @@ async def get_report(
     responses={
         **_JSON_ERRORS,
         200: {"content": {"text/html": {}}, "description": "One self-contained page"},
+        **NOT_MODIFIED,
     },
 )
 async def get_report_html(
-    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
+    pass_id: IdPath, http: Request, _: ViewerDep, artifacts: ArtifactsDep
 ) -> Response:
     """The report as one HTML page with its figures inline (data: URIs), so a page fetched
     with a token needs nothing else."""
-    path = temporary_path(jobs_dir(settings.data_dir), ".html")
-    await workers.run(
-        read_session_file_job,
-        settings.resolved_database_url(),
-        str(path),
-        reports.pass_report_html,
-        pass_id=pass_id,
-        deadline_s=settings.read_deadline_s,
-        what=f"the report page of pass {pass_id}",
-        client=http,
-        cleanup=path,
-    )
-    chunks, size = stream_file(path)
-    return StreamingResponse(
-        chunks,
-        media_type="text/html; charset=utf-8",
-        headers={"Content-Security-Policy": _HTML_POLICY, "Content-Length": str(size)},
+    return await serve_artifact(
+        http,
+        artifacts,
+        ArtifactRef("report_html", pass_id),
+        "text/html; charset=utf-8",
+        {"Content-Security-Policy": _HTML_POLICY},
     )
 
 
 @router.get(
     "/{pass_id}/report/figures/{name}.png",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}, "description": "The figure"}},
+    responses={200: {"content": {"image/png": {}}, "description": "The figure"}, **NOT_MODIFIED},
 )
 async def get_figure(
-    pass_id: str,
-    name: Annotated[str, Path(max_length=64)],
+    pass_id: IdPath,
+    name: Annotated[SafeLine, Path(min_length=1, max_length=64)],
     http: Request,
-    settings: SettingsDep,
     _: ViewerDep,
-    workers: WorkersDep,
+    artifacts: ArtifactsDep,
 ) -> Response:
     """One figure of the newest run, PNG."""
-    png = await workers.run(
-        read_session_job,
-        settings.resolved_database_url(),
-        service.figure_png,
-        pass_id=pass_id,
-        name=name,
-        deadline_s=settings.read_deadline_s,
-        what=f"a figure of pass {pass_id}",
-        client=http,
-    )
-    return Response(png, media_type="image/png")
+    return await serve_artifact(http, artifacts, ArtifactRef("figure", pass_id, name), "image/png")

@@ -3,7 +3,16 @@
 - ``POST /api/passes/{pass_id}/start`` (operator), body ``{"confirm": "START <pass name>"}``
 - ``POST /api/passes/{pass_id}/abort`` (operator), body
   ``{"confirm": "ABORT <pass name>", "reason": "..."}``
-- ``GET /api/link/status`` (viewer)
+- ``POST /api/vehicle/safe-exit`` (operator), body ``{"confirm": "EXIT SAFE <vehicle>"}``:
+  the ``safe_exit`` telecommand that takes the vehicle out of on-board safing (202 with the
+  request's id; sent again until the vehicle reports it left SAFE, which the link status
+  and the ``vehicle_safe_exited`` event show). 409 ``vehicle_not_safe`` when it is not in
+  SAFE, 503 ``link_down`` without a link (nothing can reach the vehicle; ``Retry-After``),
+  422 ``confirmation_mismatch`` (audited, ``pass_control_refused``).
+- ``GET /api/link/status`` (viewer): from the link's memory on the event loop, no thread
+  and no database (the live lane, server/api/lanes.py), so that no load delays it
+
+A start is refused 409 ``vehicle_safe`` while the vehicle is in SAFE.
 
 A start is refused 409 ``flight_rule_violation`` when the pass's plan fails a flight rule
 (the failing rows in the error's detail; :mod:`server.services.flight_rules`), before the
@@ -30,6 +39,7 @@ from sqlalchemy.orm import Session
 from server.api.deps import (
     ClockDep,
     DatabaseDep,
+    IdPath,
     LinkDep,
     OperatorDep,
     PublisherDep,
@@ -38,12 +48,13 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import ERROR_RESPONSES, PassControlPublic
+from server.schemas import ERROR_RESPONSES, PassControlPublic, SafeText
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
-from server.services.errors import ConflictError, InvalidRequestError
+from server.services.errors import ConflictError, InvalidRequestError, UnavailableError
+from server.services.events import PassControlRefused, event_job
 from server.services.flight_rules import Refusal, start_gate_job
-from server.services.link import LinkUnavailable
+from server.services.link import LinkUnavailable, SafeExitRefused
 from server.services.passes import check_confirmation, control_state, start_lead_s
 from server.services.runner import PassRunner
 from server.services.workers import WorkerPool
@@ -53,16 +64,30 @@ __all__ = ["router"]
 
 router = APIRouter(tags=["control"], responses=ERROR_RESPONSES)
 
+#: Retry-After (s) of a safe exit refused for want of a link.
+SAFE_EXIT_RETRY_S = 5.0
+
 
 class StartRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    confirm: str = Field(max_length=200, description='"START <pass name>"')
+    confirm: SafeText = Field(max_length=200, description='"START <pass name>"')
+
+
+class SafeExitRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    confirm: SafeText = Field(max_length=200, description='"EXIT SAFE <vehicle name>"')
+
+
+class SafeExitAccepted(BaseModel):
+    request_id: int = Field(description="the safe_exit telecommand's id")
+    vehicle: str | None
+    message: str
 
 
 class AbortRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    confirm: str = Field(max_length=200, description='"ABORT <pass name>"')
-    reason: str = Field(default="operator abort", min_length=1, max_length=300)
+    confirm: SafeText = Field(max_length=200, description='"ABORT <pass name>"')
+    reason: SafeText = Field(default="operator abort", min_length=1, max_length=300)
 
 
 def _confirmation_job(
@@ -147,7 +172,7 @@ GroundDep = Annotated[_Ground, Depends(_ground)]
 
 @router.post("/api/passes/{pass_id}/start")
 async def start_pass(
-    pass_id: str, body: StartRequest, who: OperatorDep, ground: GroundDep
+    pass_id: IdPath, body: StartRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
     key = await _confirmed(ground, pass_id, "START", body.confirm, who.name)
     await _flight_rules_kept(ground, key, who.name)
@@ -160,13 +185,37 @@ async def start_pass(
 
 @router.post("/api/passes/{pass_id}/abort")
 async def abort_pass(
-    pass_id: str, body: AbortRequest, who: OperatorDep, ground: GroundDep
+    pass_id: IdPath, body: AbortRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
     key = await _confirmed(ground, pass_id, "ABORT", body.confirm, who.name)
     await ground.runner.abort(key, who.name, body.reason)
     return await _public(ground.db, key)
 
 
+@router.post("/api/vehicle/safe-exit", status_code=202)
+async def safe_exit(
+    body: SafeExitRequest, who: OperatorDep, link: LinkDep, ground: GroundDep
+) -> SafeExitAccepted:
+    try:
+        request_id = await link.request_safe_exit(who.name, body.confirm)
+    except LinkUnavailable as exc:
+        # nothing can reach the vehicle now: retry once it is back (ping period)
+        raise UnavailableError(str(exc), SAFE_EXIT_RETRY_S, "link_down") from None
+    except SafeExitRefused as exc:
+        if exc.code == "confirmation_mismatch":
+            refused = PassControlRefused(
+                actor=who.name, pass_id=None, action="EXIT SAFE", confirm=body.confirm
+            )
+            await ground.db.write(event_job(refused, ground.clock), control=True)
+            raise InvalidRequestError(exc.code, str(exc)) from None
+        raise ConflictError(exc.code, str(exc)) from None
+    return SafeExitAccepted(
+        request_id=request_id,
+        vehicle=link.vehicle,
+        message="safe_exit sent; it is sent again until the vehicle reports it left SAFE",
+    )
+
+
 @router.get("/api/link/status")
-def link_status(_: ViewerDep, link: LinkDep, runner: RunnerDep) -> dict[str, Any]:
+async def link_status(_: ViewerDep, link: LinkDep, runner: RunnerDep) -> dict[str, Any]:
     return {**asdict(link.status()), "active_pass_id": runner.active_pass_id}

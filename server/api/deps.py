@@ -11,11 +11,14 @@ from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Annotated, TypeVar
 
-from fastapi import Depends, Header, Request, WebSocket
+from fastapi import Depends, Header, Path, Request, WebSocket
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.requests import HTTPConnection
 
 from server.api.errors import HttpError
+from server.api.lanes import Lane, request_lane
+from server.schemas import SafeLine
+from server.services.alarms import AlarmService
 from server.services.clock import Clock
 from server.services.console import ConsoleHub
 from server.services.dbworker import Database, Publisher
@@ -28,10 +31,12 @@ from server.settings import ApiToken, Role, Settings
 T = TypeVar("T")
 
 __all__ = [
+    "AlarmsDep",
     "ClockDep",
     "ConsoleDep",
     "DatabaseDep",
     "DownlinkDep",
+    "IdPath",
     "LinkDep",
     "OperatorDep",
     "Principal",
@@ -43,6 +48,7 @@ __all__ = [
     "WorkersDep",
     "authenticate",
     "find_token",
+    "presented_credential",
     "record_auth_failure",
     "require",
     "websocket_principal",
@@ -66,10 +72,15 @@ get_settings = _state("settings", Settings)
 
 def get_session(request: Request) -> Iterator[Session]:
     """A session for the request: a read-only one for GET and HEAD (they never write, and on
-    SQLite a reader then never waits for the ground's writer)."""
+    SQLite a reader then never waits for the ground's writer); from the operators' own pool
+    for an operator's request, else from the readers' (its lane: server/api/lanes.py)."""
     state = request.app.state
     read_only = request.method in ("GET", "HEAD")
-    factory: sessionmaker[Session] = state.read_sessions if read_only else state.sessions
+    factory: sessionmaker[Session]
+    if request_lane(request) is Lane.OPERATOR:
+        factory = state.operator_read_sessions if read_only else state.operator_sessions
+    else:
+        factory = state.read_sessions if read_only else state.sessions
     with factory() as session:
         yield session
 
@@ -86,6 +97,7 @@ RunnerDep = Annotated[PassRunner, Depends(_state("runner", PassRunner))]
 #: The command path's database worker (its own connections: readers cannot hold it up).
 DatabaseDep = Annotated[Database, Depends(_state("db", Database))]
 ConsoleDep = Annotated[ConsoleHub, Depends(_state("console", ConsoleHub))]
+AlarmsDep = Annotated[AlarmService, Depends(_state("alarms", AlarmService))]
 
 
 @dataclass(frozen=True)
@@ -108,6 +120,16 @@ def find_token(tokens: Mapping[str, ApiToken], presented: str) -> ApiToken | Non
         if hmac.compare_digest(_digest(secret), wanted):
             found = token
     return found
+
+
+def presented_credential(authorization: str | None) -> str | None:
+    """What an ``Authorization`` value presents: the token after ``Bearer``, else the whole
+    value; None without one."""
+    if not authorization:
+        return None
+    if authorization.startswith("Bearer "):
+        return authorization.removeprefix("Bearer ").strip()
+    return authorization
 
 
 def authenticate(settings: Settings, authorization: str | None) -> Principal:
@@ -157,28 +179,43 @@ def websocket_principal(websocket: WebSocket, role: Role) -> Principal:
     """Authenticate a websocket by its Authorization header. Never by a query parameter: a
     token in a URL ends up in access logs (the console, whose browsers cannot set headers
     on a websocket, sends its token in a first message instead: server/api/console.py).
-    A refused token counts towards the address's failed-authentication limit."""
+    A refused token counts towards the address's and the token's failed-authentication
+    limits (:func:`record_auth_failure`); a valid one is never throttled."""
     settings: Settings = websocket.app.state.settings
+    authorization = websocket.headers.get("authorization")
     try:
-        principal = authenticate(settings, websocket.headers.get("authorization"))
+        principal = authenticate(settings, authorization)
     except HttpError as exc:
-        record_auth_failure(websocket, exc.message)
+        record_auth_failure(websocket, exc.message, presented_credential(authorization))
         raise
     if principal.role not in _GRANTS[role]:
         raise HttpError(403, "forbidden", f"role {principal.role.value!r} may not connect here")
     return principal
 
 
-def record_auth_failure(websocket: WebSocket, reason: str) -> None:
-    """Audit a websocket's failed authentication and count it against its address (the
-    edge's guard, when the application has one)."""
+def record_auth_failure(websocket: WebSocket, reason: str, credential: str | None) -> None:
+    """Audit a websocket's failed authentication and count it against its address and the
+    ``credential`` it presented (the edge's guard, server/api/edge.py, when the application
+    has one). Over either's limit: 429 ``too_many_failures`` instead (neither counted nor
+    audited again: the block was, once). Called only for a failed attempt."""
     guard = getattr(websocket.app.state, "auth_guard", None)
-    if guard is not None:
-        client = websocket.client
-        guard.failed(client.host if client else "unknown", websocket.url.path, reason)
+    if guard is None:
+        return
+    client = websocket.client
+    address = client.host if client else "unknown"
+    retry = guard.retry_after(address, credential)
+    if retry is not None:
+        message = f"too many failed authentications: retry in {retry} s"
+        raise HttpError(429, "too_many_failures", message)
+    guard.failed(address, websocket.url.path, reason, credential)
 
 
 get_workers = _state("workers", WorkerPool)
 
 #: The pool of worker processes for CPU-heavy requests (server/services/workers.py).
 WorkersDep = Annotated[WorkerPool, Depends(get_workers)]
+
+
+#: A stored record's id in a path (a pass's, a plan's, an alarm's: a UUID; an unknown one is
+#: 404): text without control characters, as the edge requires (server/schemas.py).
+IdPath = Annotated[SafeLine, Path(min_length=1, max_length=64)]

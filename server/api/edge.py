@@ -4,19 +4,31 @@
 :class:`EdgeMiddleware`, a pure ASGI middleware in front of the application
 (:func:`install_edge`), answers in the one JSON error shape, in this order:
 
-1. 429 ``too_many_failures`` (with ``Retry-After``) to an address that failed to
-   authenticate ``auth_failure_limit`` times within ``auth_failure_window_s``
-   (:class:`AuthGuard`; every failure goes to the ``hikoboshi.audit`` log, never the token);
-2. 400 ``invalid_text`` to a path or query string holding NUL, another C0 control character
+1. 400 ``invalid_text`` to a path or query string holding NUL, another C0 control character
    or DEL, raw or percent-encoded: text the databases refuse (PostgreSQL) or store (SQLite)
    is refused here, the same on both;
-3. 401 ``unauthorized`` to a request for an ``/api`` route (except ``/api/health``) without a
+2. 401 ``unauthorized`` to a request for an ``/api`` route (except ``/api/health``) without a
    known ``Authorization: Bearer`` token, before a byte of its body is read (roles are the
-   routes' dependencies' business: 403 there). The websockets authenticate themselves;
-4. 413 ``request_too_large`` to a body over ``max_request_bytes``: at once for a declared
+   routes' dependencies' business: 403 there); or 429 ``too_many_failures`` (with
+   ``Retry-After``) instead when its address or the credential it presents failed
+   ``auth_failure_limit`` times within ``auth_failure_window_s`` (:class:`AuthGuard`; every
+   counted failure goes to the ``hikoboshi.audit`` log, never the token). Only a failing
+   attempt is throttled: a valid token, and a request to a public path, never are. The
+   websockets authenticate themselves, with the same guard (server/api/deps.py);
+3. ``OPTIONS`` on a path a route serves: 204 with ``Allow`` listing the methods of the
+   route's path as the OpenAPI document groups them, and ``OPTIONS`` (:class:`AllowTable`);
+   a method the path does not serve: 405 ``method_not_allowed`` with the same ``Allow``
+   (the router's own would name only the first route's methods). No route runs, no
+   capacity is taken. There is no CORS here (the console is served from the same origin),
+   so no preflight either;
+4. its lane (:mod:`server.api.lanes`, by route and role) and its share of capacity: 429
+   ``too_many_requests`` past ``heavy_reads_per_token`` heavy reads in flight for the
+   token, 503 ``busy`` past ``viewer_requests_max`` viewer requests in flight, both with
+   ``Retry-After`` and before a byte of the body is read;
+5. 413 ``request_too_large`` to a body over ``max_request_bytes``: at once for a declared
    ``Content-Length``, else as soon as the streamed body grows past it.
    ``POST /api/passes/import`` streams through with its own limit (``max_import_bytes``);
-5. for the authenticated routes, a JSON body (or one without a content type, which FastAPI
+6. for the authenticated routes, a JSON body (or one without a content type, which FastAPI
    reads as JSON) is read (bounded), parsed once and refused with 400 ``invalid_json``,
    ``json_too_deep`` (over ``max_json_depth``) or ``invalid_text`` (a string or key holding a
    control character other than tab, newline and carriage return, or a lone surrogate)
@@ -28,16 +40,21 @@ and ``X-Frame-Options: DENY``; the console's page (``/``, ``/index.html``) a
 
 :func:`uvicorn_config` is how ``hikoboshi serve`` runs it: keep-alive and graceful
 shutdown timeouts, a bounded request head, a request-head timeout
-(:func:`head_timeout_protocol`) and an access log with secrets in query strings redacted.
+(:func:`head_timeout_protocol`), forwarded headers believed from ``trusted_proxies`` only
+(the client address the guard counts is the peer's otherwise), and every log record with
+its secrets redacted (:mod:`server.redaction`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import hashlib
+import hmac
 import json
 import logging
 import math
 import re
+import secrets
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
@@ -45,11 +62,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote_to_bytes
 
-from starlette.routing import Match, Router
+from fastapi.routing import iter_route_contexts
+from starlette.routing import Match, Router, compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.api.deps import authenticate
+from server.api.deps import authenticate, presented_credential
 from server.api.errors import HttpError, error_body
+from server.api.lanes import Admission, Refusal, is_heavy, lane_of, set_lane
+from server.redaction import RedactSecretsFilter, install_redaction
 from server.services.clock import Clock, SystemClock
 from server.services.events import AuthBlocked, record
 from server.settings import Settings
@@ -59,11 +79,13 @@ if TYPE_CHECKING:
     from fastapi import FastAPI
 
 __all__ = [
+    "AllowTable",
     "AuthGuard",
     "EdgeMiddleware",
     "RedactSecretsFilter",
     "check_json",
     "console_csp",
+    "fingerprint",
     "head_timeout_protocol",
     "install_edge",
     "uvicorn_config",
@@ -115,10 +137,66 @@ class _Window:
     failures: int = 0
 
 
+class _Windows:
+    """Fixed windows of failures by key, at most ``max_keys`` (the oldest window goes
+    first)."""
+
+    def __init__(self, window_s: float, max_keys: int) -> None:
+        self.window_s = window_s
+        self.max_keys = max_keys
+        #: key -> its window, in the order the windows started
+        self._windows: OrderedDict[str, _Window] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._windows)
+
+    def get(self, key: str, now: float) -> _Window | None:
+        self._expire(now)
+        return self._windows.get(key)
+
+    def count(self, key: str, now: float) -> _Window:
+        """One more failure for ``key``, in its window (a new one if it has none)."""
+        self._expire(now)
+        window = self._windows.get(key)
+        if window is None:
+            window = self._windows[key] = _Window(start=now)
+            while len(self._windows) > self.max_keys:
+                self._windows.popitem(last=False)
+        window.failures += 1
+        return window
+
+    def _expire(self, now: float) -> None:
+        # Windows are appended as they start, so the expired ones are at the front.
+        while self._windows:
+            first = next(iter(self._windows.values()))
+            if now - first.start < self.window_s:
+                break
+            self._windows.popitem(last=False)
+
+
+#: Drawn once per process: the fingerprints of presented credentials are keyed with it, so
+#: that a logged one cannot be checked against guesses offline (a mistyped password, say).
+_FINGERPRINT_KEY = secrets.token_bytes(32)
+
+
+def fingerprint(credential: str) -> str:
+    """How a presented credential is known to the guard and the audit log: the first 16 hex
+    digits of its HMAC-SHA-256 under a key drawn at start, never the credential itself
+    (the same credential, the same fingerprint, for as long as the process runs)."""
+    data = credential.encode("utf-8", "surrogateescape")
+    digest = hmac.new(_FINGERPRINT_KEY, data, hashlib.sha256).hexdigest()
+    return f"hmac:{digest[:16]}"
+
+
 class AuthGuard:
-    """Failed authentications per client address in fixed windows: after ``limit`` failures
-    within ``window_s`` of the first, the address is refused until the window ends. At most
-    ``max_addresses`` are tracked (the oldest window goes first); ``clock`` is injectable
+    """Failed authentications in fixed windows, counted per client address and per
+    presented credential (its :func:`fingerprint`): after ``limit`` failures within
+    ``window_s`` of the first, a *failing* attempt from that address, or presenting that
+    credential, is refused (429) until the window ends, neither checked further nor audited
+    again. It is asked only about attempts that failed: a valid token is never refused
+    here, and requests without a credential to public paths never meet it
+    (docs/security.md "Failed authentications"). At most ``max_addresses`` addresses and as
+    many credentials are tracked (the oldest window goes first); ``clock`` is injectable
     (tests move it instead of sleeping)."""
 
     def __init__(
@@ -136,34 +214,41 @@ class AuthGuard:
         self.window_s = window_s
         self.max_addresses = max_addresses
         self.clock = clock
-        #: address -> its window, in the order the windows started
-        self._windows: OrderedDict[str, _Window] = OrderedDict()
+        self._addresses = _Windows(window_s, max_addresses)
+        self._credentials = _Windows(window_s, max_addresses)
 
     def __len__(self) -> int:
-        return len(self._windows)
+        """Addresses tracked."""
+        return len(self._addresses)
 
-    def retry_after(self, address: str) -> int | None:
-        """Seconds until ``address`` may try again, or None when it is not blocked."""
-        now = self.clock()
-        self._expire(now)
-        window = self._windows.get(address)
-        if window is None or window.failures < self.limit:
-            return None
-        return max(1, math.ceil(window.start + self.window_s - now))
+    def credentials_tracked(self) -> int:
+        return len(self._credentials)
 
-    def failed(self, address: str, path: str, reason: str) -> None:
-        """Audit one failed authentication and count it against ``address``."""
+    def retry_after(self, address: str, credential: str | None = None) -> int | None:
+        """Seconds until a failing attempt from ``address`` presenting ``credential`` is
+        heard again, or None when neither is over the limit."""
         now = self.clock()
-        self._expire(now)
-        window = self._windows.get(address)
-        if window is None:
-            window = self._windows[address] = _Window(start=now)
-            while len(self._windows) > self.max_addresses:
-                self._windows.popitem(last=False)
-        window.failures += 1
+        keys = [(self._addresses, address)]
+        if credential is not None:
+            keys.append((self._credentials, fingerprint(credential)))
+        left: float | None = None
+        for windows, key in keys:
+            window = windows.get(key, now)
+            if window is not None and window.failures >= self.limit:
+                end = window.start + self.window_s - now
+                left = end if left is None else max(left, end)
+        return None if left is None else max(1, math.ceil(left))
+
+    def failed(self, address: str, path: str, reason: str, credential: str | None = None) -> None:
+        """Audit one failed authentication and count it against ``address`` and the
+        credential presented (if any)."""
+        now = self.clock()
+        window = self._addresses.count(address, now)
+        key = None if credential is None else fingerprint(credential)
         audit.warning(
-            "authentication failed: address=%s path=%r reason=%r (%d in this window)",
+            "authentication failed: address=%s credential=%s path=%r reason=%r (%d in this window)",
             address,
+            key or "none",
             path,
             reason,
             window.failures,
@@ -181,14 +266,15 @@ class AuthGuard:
                     self.on_blocked(address, window.failures, left)
                 except Exception:
                     log.exception("recording the block of %s failed", address)
-
-    def _expire(self, now: float) -> None:
-        # Windows are appended as they start, so the expired ones are at the front.
-        while self._windows:
-            first = next(iter(self._windows.values()))
-            if now - first.start < self.window_s:
-                break
-            self._windows.popitem(last=False)
+        if key is not None:
+            held = self._credentials.count(key, now)
+            if held.failures == self.limit:
+                audit.warning(
+                    "credential %s refused for %.0f s: %d failed authentications",
+                    key,
+                    held.start + self.window_s - now,
+                    held.failures,
+                )
 
 
 def check_json(body: bytes, max_depth: int) -> tuple[str, str, Any] | None:
@@ -243,6 +329,39 @@ def _bad_target(scope: Scope) -> str | None:
     return None
 
 
+class AllowTable:
+    """What ``Allow`` lists for a path: the methods of the first route whose path matches
+    it, in the application's order, and of the other routes with that route's path template
+    (``/api/passes/import`` is not ``/api/passes/{pass_id}``, though the second matches it
+    too), plus ``OPTIONS``; the OpenAPI document groups operations the same way. Read from
+    the router on first use (the routes are added after the edge is installed)."""
+
+    def __init__(self, router: Router) -> None:
+        self.router = router
+        self._routes: list[tuple[re.Pattern[str], str, frozenset[str]]] | None = None
+
+    def _table(self) -> list[tuple[re.Pattern[str], str, frozenset[str]]]:
+        if self._routes is None:
+            routes = []
+            for route in iter_route_contexts(self.router.routes):
+                path, methods = route.path, route.methods
+                if path is None or not methods:
+                    continue  # websockets: no HTTP methods to list
+                regex, path_format, _ = compile_path(path)
+                routes.append((regex, path_format, frozenset(methods)))
+            self._routes = routes
+        return self._routes
+
+    def allowed(self, path: str) -> list[str] | None:
+        """The methods for ``path``, sorted, or None when no route serves it."""
+        table = self._table()
+        template = next((fmt for regex, fmt, _ in table if regex.match(path)), None)
+        if template is None:
+            return None
+        methods = {m for _, fmt, route_methods in table if fmt == template for m in route_methods}
+        return sorted(methods | {"OPTIONS"})
+
+
 def _header(scope: Scope, name: bytes) -> str | None:
     for key, value in scope.get("headers", ()):
         if key.lower() == name:
@@ -283,17 +402,36 @@ async def _respond(
     await send({"type": "http.response.body", "body": body})
 
 
+async def _options(send: Send, allowed: list[str], close: tuple[tuple[bytes, bytes], ...]) -> None:
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 204,
+            "headers": [(b"allow", ", ".join(allowed).encode()), *close],
+        }
+    )
+    await send({"type": "http.response.body", "body": b""})
+
+
 class EdgeMiddleware:
     """See the module's docstring. ``router``: the application's, to tell an ``/api`` route
     (authenticated) from a path no route serves (404 from the application, unread)."""
 
     def __init__(
-        self, app: ASGIApp, *, settings: Settings, guard: AuthGuard, router: Router
+        self,
+        app: ASGIApp,
+        *,
+        settings: Settings,
+        guard: AuthGuard,
+        router: Router,
+        admission: Admission,
     ) -> None:
         self.app = app
         self.settings = settings
         self.guard = guard
         self.router = router
+        self.admission = admission
+        self.allow = AllowTable(router)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http":
@@ -304,8 +442,10 @@ class EdgeMiddleware:
             await self.app(scope, receive, send)
 
     async def _websocket(self, scope: Scope, receive: Receive, send: Send) -> None:
-        # Refused before the handshake (the client sees 403); the routes authenticate.
-        if self.guard.retry_after(_address(scope)) is not None or _bad_target(scope):
+        # Refused before the handshake (the client sees 403). The routes authenticate, and
+        # ask the guard only about a failed attempt (server/api/deps.py): the vehicle's
+        # link with its token connects whoever else failed from its address.
+        if _bad_target(scope):
             await send({"type": "websocket.close", "code": 1008})
             return
         await self.app(scope, receive, send)
@@ -321,28 +461,70 @@ class EdgeMiddleware:
         declared = _content_length(scope)
         has_body = bool(declared) or _header(scope, b"transfer-encoding") is not None
         # A refusal that leaves a body unread closes the connection (nothing more is read).
-        close = ((b"connection", b"close"),) if has_body else ()
+        close: tuple[tuple[bytes, bytes], ...] = ((b"connection", b"close"),) if has_body else ()
 
-        retry = self.guard.retry_after(address)
-        if retry is not None:
-            message = f"too many failed authentications from {address}: retry in {retry} s"
-            headers = ((b"retry-after", str(retry).encode()), *close)
-            await _respond(send, 429, "too_many_failures", message, headers=headers)
-            return
         where = _bad_target(scope)
         if where is not None:
             message = f"the {where} holds a control character"
             await _respond(send, 400, "invalid_text", message, headers=close)
             return
         protected = self._protected(scope)
+        principal = None
         if protected:
+            authorization = _header(scope, b"authorization")
             try:
-                authenticate(self.settings, _header(scope, b"authorization"))
+                principal = authenticate(self.settings, authorization)
             except HttpError as exc:
-                self.guard.failed(address, scope["path"], exc.message)
+                # Only a failed attempt meets the guard: a valid token is never throttled.
+                credential = presented_credential(authorization)
+                retry = self.guard.retry_after(address, credential)
+                if retry is not None:
+                    message = f"too many failed authentications: retry in {retry} s"
+                    headers = ((b"retry-after", str(retry).encode()), *close)
+                    await _respond(send, 429, "too_many_failures", message, headers=headers)
+                    return
+                self.guard.failed(address, scope["path"], exc.message, credential)
                 headers = ((b"www-authenticate", b"Bearer"), *close)
                 await _respond(send, exc.status, exc.code, exc.message, headers=headers)
                 return
+        allowed = self.allow.allowed(scope["path"])
+        if allowed is not None and scope["method"] not in allowed:
+            message = f"{scope['method']} is not allowed here: {', '.join(allowed)}"
+            headers = ((b"allow", ", ".join(allowed).encode()), *close)
+            await _respond(send, 405, "method_not_allowed", message, headers=headers)
+            return
+        if allowed is not None and scope["method"] == "OPTIONS":
+            await _options(send, allowed, close)
+            return
+        # Its lane and share of capacity (server/api/lanes.py), refused unread past it.
+        lane = lane_of(scope["path"], None if principal is None else principal.role)
+        set_lane(scope, lane)
+        ticket = await self.admission.admit(
+            lane,
+            heavy=is_heavy(scope["method"], scope["path"]),
+            holder=None if principal is None else principal.name,
+        )
+        if isinstance(ticket, Refusal):
+            after = ((b"retry-after", str(ticket.retry_after_s).encode()),)
+            detail = {"retry_after_s": ticket.retry_after_s}
+            await _respond(
+                send, ticket.status, ticket.code, ticket.message, detail, (*after, *close)
+            )
+            return
+        try:
+            await self._admitted(scope, receive, send, protected, declared, close)
+        finally:
+            ticket.release()
+
+    async def _admitted(
+        self,
+        scope: Scope,
+        receive: Receive,
+        send: Send,
+        protected: bool,
+        declared: int | None,
+        close: tuple[tuple[bytes, bytes], ...],
+    ) -> None:
         if scope["path"] == IMPORT_PATH:
             await self.app(scope, receive, send)  # streamed; the route enforces its limit
             return
@@ -446,7 +628,7 @@ def _with_security_headers(scope: Scope, send: Send) -> Send:
 def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
     """Put :class:`EdgeMiddleware` in front of ``app``; its :class:`AuthGuard` is also
     ``app.state.auth_guard`` (the websockets count their failures there; tests move its
-    clock)."""
+    clock), its :class:`~server.api.lanes.Admission` ``app.state.admission``."""
     guard = AuthGuard(
         limit=settings.auth_failure_limit,
         window_s=settings.auth_failure_window_s,
@@ -454,7 +636,11 @@ def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
         on_blocked=lambda address, failures, left: _record_block(app, address, failures, left),
     )
     app.state.auth_guard = guard
-    app.add_middleware(EdgeMiddleware, settings=settings, guard=guard, router=app.router)
+    admission = Admission.of(settings)
+    app.state.admission = admission
+    app.add_middleware(
+        EdgeMiddleware, settings=settings, guard=guard, router=app.router, admission=admission
+    )
     return guard
 
 
@@ -489,23 +675,6 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
 
 
 # --- serving: uvicorn's settings ---------------------------------------------------------
-
-
-class RedactSecretsFilter(logging.Filter):
-    """Rewrites ``token=...`` (and the like) in query strings of log records: for the access
-    log, so that a token someone put in a URL is not kept."""
-
-    _SECRET = re.compile(r"(?i)([?&](?:token|access_token|api_key|apikey|key|secret)=)[^&\s\"]*")
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if isinstance(record.args, tuple):
-            record.args = tuple(
-                self._SECRET.sub(r"\1[redacted]", arg) if isinstance(arg, str) else arg
-                for arg in record.args
-            )
-        if isinstance(record.msg, str):
-            record.msg = self._SECRET.sub(r"\1[redacted]", record.msg)
-        return True
 
 
 def head_timeout_protocol(seconds: float) -> type[asyncio.Protocol]:
@@ -563,23 +732,35 @@ def head_timeout_protocol(seconds: float) -> type[asyncio.Protocol]:
     return HeadTimeoutH11Protocol
 
 
-def uvicorn_config(app: ASGIApp, settings: Settings, *, host: str, port: int) -> uvicorn.Config:
-    """How ``hikoboshi serve`` runs ``app``: the edge's timeouts and limits, the access log
-    redacted. Run it with ``uvicorn.Server(config).run()``."""
+def uvicorn_config(
+    app: ASGIApp, settings: Settings, *, host: str, port: int, log_level: str = "info"
+) -> uvicorn.Config:
+    """How ``hikoboshi serve`` (and ``demo``'s ground) runs ``app``: the edge's timeouts and
+    limits; ``X-Forwarded-For`` believed from ``settings.trusted_proxies`` only (uvicorn's
+    own default believes loopback, so that anyone on the host could name any address);
+    every log record redacted (:mod:`server.redaction`). Run it with
+    ``server.app.GroundServer(config, app).run()`` (which stops the worker pool first on
+    SIGTERM)."""
     import uvicorn
 
+    install_redaction()
+    proxies = list(settings.trusted_proxies)
     config = uvicorn.Config(
         app,
         host=host,
         port=port,
-        log_level="info",
+        log_level=log_level,
+        lifespan="on",
         http=head_timeout_protocol(settings.header_timeout_s),
         timeout_keep_alive=math.ceil(settings.keep_alive_timeout_s),
         timeout_graceful_shutdown=3,
         h11_max_incomplete_event_size=settings.max_header_bytes,
         server_header=False,
+        proxy_headers=bool(proxies),
+        forwarded_allow_ips=proxies,
     )
-    # uvicorn.Config has configured logging by now: the filter stays.
+    # uvicorn.Config has configured logging by now: the filter stays (the record factory
+    # redacts already; the filter keeps the access log redacted if another one replaces it).
     access = logging.getLogger("uvicorn.access")
     if not any(isinstance(f, RedactSecretsFilter) for f in access.filters):
         access.addFilter(RedactSecretsFilter())

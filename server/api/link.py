@@ -36,7 +36,15 @@ async def spacecraft_link(websocket: WebSocket, link: LinkDep, clock: ClockDep) 
     async def close(code: int, reason: str) -> None:
         await websocket.close(code=code, reason=reason)
 
-    conn = Connection(actor=principal.name, send_text=websocket.send_text, close=close)
+    peer = websocket.client
+    conn = Connection(
+        actor=principal.name,
+        send_text=websocket.send_text,
+        close=close,
+        peer=f"{peer.host}:{peer.port}" if peer else None,
+        user_agent=websocket.headers.get("user-agent", "")[:256] or None,
+        connected_ns=clock.time_ns(),
+    )
     await link.attach(conn)
     reason = "closed"
     try:

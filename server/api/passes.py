@@ -10,6 +10,7 @@ from fastapi import APIRouter, Query
 from server.api.deps import (
     ClockDep,
     DownlinkDep,
+    IdPath,
     OperatorDep,
     PublisherDep,
     SessionDep,
@@ -67,13 +68,13 @@ def list_passes(
 
 
 @router.get("/{pass_id}", response_model=PassPublic)
-def get_pass(pass_id: str, session: SessionDep, _: ViewerDep) -> PassPublic:
+def get_pass(pass_id: IdPath, session: SessionDep, _: ViewerDep) -> PassPublic:
     return service.get_pass(session=session, pass_id=pass_id)
 
 
 @router.get("/{pass_id}/commands", response_model=CommandsPublic)
 def list_commands(
-    pass_id: str,
+    pass_id: IdPath,
     session: SessionDep,
     _: ViewerDep,
     stage: Annotated[list[CommandStage] | None, Query()] = None,
@@ -88,7 +89,7 @@ def list_commands(
 
 @router.get("/{pass_id}/summary", response_model=PassSummaryPublic)
 def get_summary(
-    pass_id: str, session: SessionDep, _: ViewerDep, downlink: DownlinkDep
+    pass_id: IdPath, session: SessionDep, _: ViewerDep, downlink: DownlinkDep
 ) -> PassSummaryPublic:
     """Frames expected, stored and missing in the pass's telemetry window; its commands by
     outcome (rejected by reason); duplicates dropped and stored."""

@@ -18,6 +18,7 @@ from fastapi import APIRouter, Query, Request, Response
 from planner.errors import PlannerError
 from server.api.deps import (
     ClockDep,
+    IdPath,
     OperatorDep,
     PublisherDep,
     SessionDep,
@@ -25,7 +26,14 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import ERROR_RESPONSES, PlanCreate, PlanPublic, PlansPublic, PlanValidation
+from server.schemas import (
+    ERROR_RESPONSES,
+    PlanCreate,
+    PlanPublic,
+    PlansPublic,
+    PlanValidation,
+    SafeLine,
+)
 from server.services import plans as service
 from server.services.errors import DomainError
 from server.services.events import with_written
@@ -101,7 +109,7 @@ async def validate_plan(
 
 @router.post("/{plan_id}/check", response_model=PlanPublic)
 async def check_plan(
-    plan_id: str,
+    plan_id: IdPath,
     http: Request,
     settings: SettingsDep,
     who: OperatorDep,
@@ -136,7 +144,7 @@ async def check_plan(
 def list_plans(
     session: SessionDep,
     _: ViewerDep,
-    experiment: Annotated[str | None, Query(max_length=64)] = None,
+    experiment: Annotated[SafeLine | None, Query(max_length=64)] = None,
     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> PlansPublic:
@@ -145,7 +153,7 @@ def list_plans(
 
 
 @router.get("/{plan_id}", response_model=PlanPublic)
-def get_plan(plan_id: str, session: SessionDep, _: ViewerDep) -> PlanPublic:
+def get_plan(plan_id: IdPath, session: SessionDep, _: ViewerDep) -> PlanPublic:
     return service.get_plan(session=session, plan_id=plan_id)
 
 
@@ -159,6 +167,6 @@ def get_plan(plan_id: str, session: SessionDep, _: ViewerDep) -> PlanPublic:
         }
     },
 )
-def get_plan_document(plan_id: str, session: SessionDep, _: ViewerDep) -> Response:
+def get_plan_document(plan_id: IdPath, session: SessionDep, _: ViewerDep) -> Response:
     document = service.get_plan_document(session=session, plan_id=plan_id)
     return Response(content=document, media_type="application/json")

@@ -1,20 +1,24 @@
 """``/api/passes/{id}/recording.mcap`` (viewer) and ``/api/passes/import`` (operator): a pass
 as one MCAP file, out and in (docs/mcap.md).
 
-The download is written by a worker process (:mod:`server.services.workers`) on its own
-database connection, to a temporary file that the route streams and deletes: the server's
-memory, threads and connection pool stay the same whatever the pass's size or the number
-of viewers; a full pool answers 503 ``busy`` with ``Retry-After``."""
+The download is written once per content version by a worker process
+(:mod:`server.services.workers`) on its own database connection, stored as a file and
+streamed from it to every viewer (:mod:`server.services.artifacts`): the server's memory,
+threads and connection pool stay the same whatever the pass's size or the number of
+viewers; a full pool answers 503 ``busy`` with ``Retry-After``."""
 
 from __future__ import annotations
 
 import re
+from typing import Annotated
 
-from fastapi import APIRouter, Request
-from fastapi.responses import Response, StreamingResponse
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import Response
+from starlette.requests import HTTPConnection
 
 from server.api.deps import (
     ClockDep,
+    IdPath,
     OperatorDep,
     PublisherDep,
     SettingsDep,
@@ -22,19 +26,24 @@ from server.api.deps import (
     WorkersDep,
 )
 from server.api.errors import HttpError
+from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
 from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
-from server.services import recordings as service
-from server.services.imports import import_file_job
-from server.services.jobs import (
-    jobs_dir,
-    read_session_job,
-    stream_file,
-    temporary_path,
-)
+from server.services.artifacts import ArtifactRef
+from server.services.imports import SpoolBudget, SpoolHold, import_file_job
+from server.services.jobs import jobs_dir, temporary_path
 
 __all__ = ["router"]
 
 router = APIRouter(prefix="/api/passes", tags=["recordings"], responses=ERROR_RESPONSES)
+
+
+async def _spools(connection: HTTPConnection) -> SpoolBudget:
+    """The imports' spool budget (built by the lifespan, :mod:`server.app`)."""
+    spools: SpoolBudget = connection.app.state.import_spools
+    return spools
+
+
+SpoolsDep = Annotated[SpoolBudget, Depends(_spools)]
 
 _BINARY = {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}
 
@@ -47,36 +56,25 @@ def _filename(name: str) -> str:
 @router.get(
     "/{pass_id}/recording.mcap",
     response_class=Response,
-    responses={200: {"content": _BINARY, "description": "The pass as one MCAP file"}},
+    responses={
+        200: {"content": _BINARY, "description": "The pass as one MCAP file"},
+        **NOT_MODIFIED,
+    },
 )
 async def download_recording(
-    pass_id: str, http: Request, settings: SettingsDep, _: ViewerDep, workers: WorkersDep
+    pass_id: IdPath, http: Request, _: ViewerDep, artifacts: ArtifactsDep
 ) -> Response:
     """Everything stored of the flown pass as MCAP: telemetry, plan with prediction,
     commands with their stages, audit events; plus Foxglove transforms and plot channels.
-    Written by a worker process (503 ``busy`` when all are taken, 504 past
-    ``read_deadline_s``) and streamed from a temporary file."""
-    path = temporary_path(jobs_dir(settings.data_dir), ".mcap")
-    name = await workers.run(
-        read_session_job,
-        settings.resolved_database_url(),
-        service.write_recording,
-        pass_id=pass_id,
-        path=str(path),
-        robot_files=tuple(str(p) for p in settings.robot_files),
-        deadline_s=settings.read_deadline_s,
-        what=f"the recording of pass {pass_id}",
-        client=http,
-        cleanup=path,
-    )
-    chunks, size = stream_file(path)
-    return StreamingResponse(
-        chunks,
-        media_type="application/octet-stream",
-        headers={
-            "Content-Disposition": f'attachment; filename="{_filename(name)}"',
-            "Content-Length": str(size),
-        },
+    Written once per content version (the ``ETag``; ``If-None-Match`` answers 304) by a
+    worker process (503 ``busy`` when all are taken, 504 past ``read_deadline_s``) and
+    served from the stored file (server/services/artifacts.py)."""
+    return await serve_artifact(
+        http,
+        artifacts,
+        ArtifactRef("recording", pass_id),
+        "application/octet-stream",
+        lambda served: {"Content-Disposition": f'attachment; filename="{_filename(served.label)}"'},
     )
 
 
@@ -94,6 +92,7 @@ async def import_recording(
     workers: WorkersDep,
     publisher: PublisherDep,
     clock: ClockDep,
+    spools: SpoolsDep,
 ) -> PassImportPublic:
     """Store an MCAP pass recording (the body, as ``hikoboshi mcap export`` or
     ``recording.mcap`` writes it) as a new, finished pass marked imported. A file that is
@@ -101,11 +100,32 @@ async def import_recording(
 
     The body is spooled to a file (never held in the server's memory) up to
     ``max_import_bytes``, then read and stored by a worker process on its own connection
-    (503 ``busy`` when every worker is taken; past ``post_pass_deadline_s``, 504)."""
+    (503 ``busy`` when every worker is taken; past ``post_pass_deadline_s``, 504).
+
+    The spools of all imports in flight hold at most ``import_spool_budget_bytes`` together:
+    an upload that would take them past it is refused with 503 ``busy`` and
+    ``Retry-After``, before its first byte is read when it declares its length, else as
+    soon as it reaches the budget (its partial spool deleted)."""
     limit = settings.max_import_bytes
     declared = request.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > limit:
         raise _too_large(int(declared), limit)
+    with spools.hold() as hold:
+        if declared.isdigit():
+            hold.take(int(declared))  # admitted whole, or refused unread
+        return await _spool_and_import(request, settings, who.name, workers, publisher, clock, hold)
+
+
+async def _spool_and_import(
+    request: Request,
+    settings: SettingsDep,
+    actor: str,
+    workers: WorkersDep,
+    publisher: PublisherDep,
+    clock: ClockDep,
+    hold: SpoolHold,
+) -> PassImportPublic:
+    limit = settings.max_import_bytes
     path = temporary_path(jobs_dir(settings.data_dir), ".mcap")
     try:
         size = 0
@@ -114,12 +134,13 @@ async def import_recording(
                 size += len(chunk)
                 if size > limit:
                     raise _too_large(size, limit)
+                hold.take(size)
                 spool.write(chunk)
         imported, events = await workers.run(
             import_file_job,
             settings.resolved_database_url(),
             str(path),
-            who.name,
+            actor,
             settings.max_import_uncompressed_bytes,
             clock.time_ns(),
             deadline_s=settings.post_pass_deadline_s,

@@ -12,8 +12,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request
 from starlette.concurrency import run_in_threadpool
 
-from server.api.deps import SessionDep, SettingsDep, ViewerDep, WorkersDep
-from server.schemas import ERROR_RESPONSES, MAX_NS, EventsPublic, TelemetryPublic
+from server.api.deps import IdPath, SessionDep, SettingsDep, ViewerDep, WorkersDep
+from server.schemas import ERROR_RESPONSES, MAX_NS, EventsPublic, SafeLine, TelemetryPublic
 from server.services import telemetry as service
 from server.services.jobs import read_session_job
 
@@ -27,7 +27,7 @@ MAX_ROWS = 10_000
 
 @router.get("/passes/{pass_id}/telemetry", response_model=TelemetryPublic, tags=["telemetry"])
 async def get_telemetry(
-    pass_id: str,
+    pass_id: IdPath,
     http: Request,
     session: SessionDep,
     settings: SettingsDep,
@@ -35,7 +35,7 @@ async def get_telemetry(
     workers: WorkersDep,
     t0: Annotated[int, Query(ge=0, le=MAX_NS, description="from, ns (onboard clock)")] = 0,
     t1: Annotated[int, Query(ge=0, le=MAX_NS, description="until, ns, excluded")] = MAX_NS,
-    fields: Annotated[str | None, Query(max_length=2000, description="j1,j2,...")] = None,
+    fields: Annotated[SafeLine | None, Query(max_length=2000, description="j1,j2,...")] = None,
     buckets: Annotated[int | None, Query(ge=1, le=service.MAX_BUCKETS)] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_ROWS, description="raw rows at most")] = 5000,
 ) -> TelemetryPublic:
@@ -72,7 +72,7 @@ async def get_telemetry(
 def list_events(
     session: SessionDep,
     _: ViewerDep,
-    pass_id: Annotated[str | None, Query(max_length=64)] = None,
+    pass_id: Annotated[SafeLine | None, Query(max_length=64)] = None,
     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> EventsPublic:

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 __all__ = [
     "PROTOCOL_VERSION",
     "REPLAY_TYPES",
+    "AckMsg",
     "AsFastAsPossibleSpec",
     "AuthMsg",
     "ClientMsg",
@@ -73,6 +74,16 @@ _PingId = Annotated[int, Field(ge=-(2**53), le=2**53)] | Annotated[str, Field(ma
 class PingMsg(_ClientMsg):
     type: Literal["ping"]
     id: _PingId | None = None
+
+
+class AckMsg(_ClientMsg):
+    """How many messages the console has read on this socket (all of them, every type):
+    from the first, the server keeps what the console has not read within the
+    acknowledgement window in its own queues, where control messages can jump the bulk
+    data and a backlog can be dropped for a resync."""
+
+    type: Literal["ack"]
+    received: Annotated[int, Field(ge=0, le=2**62)]
 
 
 class AuthMsg(_ClientMsg):
@@ -173,7 +184,7 @@ REPLAY_TYPES = (
     "replay_close",
 )
 
-ClientMsg = SubscribeMsg | UnsubscribeMsg | PingMsg | AuthMsg | ReplayMsg
+ClientMsg = SubscribeMsg | UnsubscribeMsg | PingMsg | AckMsg | AuthMsg | ReplayMsg
 _CLIENT: TypeAdapter[ClientMsg] = TypeAdapter(Annotated[ClientMsg, Field(discriminator="type")])
 
 
@@ -192,7 +203,7 @@ def decode_client(raw: str | bytes, max_bytes: int) -> ClientMsg:
     if doc.get("v") != PROTOCOL_VERSION:
         raise ProtocolError(f"version {doc.get('v')!r} is not supported (v: {PROTOCOL_VERSION})")
     kind = doc.get("type")
-    if kind not in ("subscribe", "unsubscribe", "ping", "auth", *REPLAY_TYPES):
+    if kind not in ("subscribe", "unsubscribe", "ping", "ack", "auth", *REPLAY_TYPES):
         raise ProtocolError(f"unknown message type {str(kind)[:64]!r}")
     try:
         return _CLIENT.validate_python(doc)

@@ -76,7 +76,7 @@ class ReplayClient(Protocol):
     actor: str
     replay_bytes: int
 
-    def control(self, message: ServerMsg) -> None: ...
+    def control(self, message: ServerMsg, *, in_order: bool = False) -> None: ...
 
     def queue_replay(self, text: str) -> None: ...
 
@@ -213,7 +213,7 @@ class ReplaySession:
 
     def report(self, reason: str) -> None:
         self._last_report_ns = time.monotonic_ns()
-        self.client.control(self.state(reason))
+        self.client.control(self.state(reason), in_order=True)
 
     # -- control (the hub's handler; the task is woken to notice) --------------------------
 
@@ -313,7 +313,8 @@ class ReplaySession:
             self._on_end(self)
             reason = f"failed: {exc!r}"[:300]
             self.client.control(
-                ReplayClosedMsg(replay_id=self.replay_id, seq=self.seq, reason=reason)
+                ReplayClosedMsg(replay_id=self.replay_id, seq=self.seq, reason=reason),
+                in_order=True,
             )
 
     async def _pace(self) -> None:
@@ -391,7 +392,8 @@ class Replays:
         elif isinstance(message, ReplayCloseMsg):
             self._end(session)
             client.control(
-                ReplayClosedMsg(replay_id=session.replay_id, seq=session.seq, reason="requested")
+                ReplayClosedMsg(replay_id=session.replay_id, seq=session.seq, reason="requested"),
+                in_order=True,
             )
 
     async def _open(self, client: ReplayClient, message: ReplayOpenMsg) -> None:
@@ -428,7 +430,7 @@ class Replays:
         except ValueError as exc:  # an onboard clock that ran backwards
             raise ProtocolError(f"pass {recording.name!r} cannot be replayed: {exc}") from None
         self._by_id[replay_id] = session
-        client.control(session.opened())
+        client.control(session.opened(), in_order=True)
         session.start()
         log.info("console %s replays pass %s as %s", client.actor, session.pass_id, replay_id)
 

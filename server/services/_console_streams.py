@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple, cast
 from server.services._console_protocol import ProtocolError, SubscribeMsg
 from server.services._console_replay import Row, TelemetryRows
 from server.services.console_messages import (
+    AlarmMsg,
+    ConsoleAlarm,
     ConsoleEvent,
     EventMsg,
     EventTopic,
@@ -35,7 +37,9 @@ if TYPE_CHECKING:
     from server.services.console import ConsoleHub, ConsoleLimits
 
 __all__ = [
+    "CONTROL_TOPICS",
     "ConsoleClient",
+    "Lag",
     "LinkReport",
     "Message",
     "Payload",
@@ -56,8 +60,8 @@ class LinkReport(NamedTuple):
     status: LinkStatus
 
 
-#: What a stream's message carries: an event, a link report, or telemetry rows.
-Payload = ConsoleEvent | LinkReport | TelemetryRows
+#: What a stream's message carries: an event, a link report, telemetry rows or an alarm.
+Payload = ConsoleEvent | LinkReport | TelemetryRows | ConsoleAlarm
 
 
 def requested_columns(fields: list[str] | None) -> tuple[str, ...] | None:
@@ -192,6 +196,8 @@ def render(stream: Stream, message: Message, flt: TelemetryFilter | None) -> str
         )
     elif isinstance(payload, LinkReport):
         doc = LinkMsg(seq=message.seq, ground_time_ns=payload.ground_time_ns, status=payload.status)
+    elif isinstance(payload, ConsoleAlarm):
+        doc = AlarmMsg(seq=message.seq, alarm=payload)
     else:
         doc = EventMsg(topic=cast(EventTopic, stream.topic), seq=message.seq, event=payload)
     return doc.encode()
@@ -222,7 +228,7 @@ class Subscription:
         if message.seq <= self.last_seq:
             return  # already queued (a live message that raced a replay)
         text = message.text if self.filter is None else render(self.stream, message, self.filter)
-        if text is not None and not self.client.queue_data(text, live=live):
+        if text is not None and not self.client.queue_data(self, text, live=live):
             self.client.hub.drop(self, "overflow: the console is not keeping up")
             return
         self.last_seq = message.seq
@@ -230,11 +236,42 @@ class Subscription:
 
 # --- clients -------------------------------------------------------------------------------
 
-_CONTROL, _LIVE, _REPLAY = 0, 1, 2  # what a queued text is
+#: Streams whose messages jump the queue (states an operator must see at once); every other
+#: stream's (telemetry, command stages, the audit log) is bulk. A stream is one class or
+#: the other whole, so each subscription's messages stay in seq order.
+CONTROL_TOPICS = frozenset({"passes", "alarms", "link"})
+
+#: What a queued text is: a subscription's message (live, or a resume's replay: dropped
+#: when the client falls behind, and announced), a recorded pass's replay data
+#: (flow-controlled, never dropped), or anything else (never dropped).
+_DATA, _REPLAY, _OTHER = 0, 1, 2
+
+
+@dataclass(slots=True)
+class _Item:
+    text: str
+    kind: int
+    queued_mono: float  # the hub's clock, when queued
+    sub: Subscription | None = None  # _DATA: whose message
+    live: bool = False  # _DATA: counted in live_bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Lag:
+    """How far behind a client is: the age of its oldest unsent message, per class."""
+
+    bulk_s: float  # data of bulk streams (0: none unsent)
+    any_s: float  # anything, the message being sent included
+    queued: int  # messages unsent
 
 
 class ConsoleClient:
-    """One console websocket: its subscriptions, its queue and its send task."""
+    """One console websocket: its subscriptions, its two queues and its send task.
+
+    The control queue (control messages, and the data of :data:`CONTROL_TOPICS`) is sent
+    before the bulk queue (the other streams' data, a recorded pass's replay, and the
+    replies that keep their place among them: ``pong``, ``replay_*``). Each is in order.
+    """
 
     def __init__(
         self,
@@ -246,34 +283,62 @@ class ConsoleClient:
         self.hub = hub
         self.actor = actor
         self.limits = hub.limits
+        self._monotonic = hub.clock.monotonic
         self._send_text = send_text
         self._close = close
         self.subscriptions: dict[tuple[str, str | None], Subscription] = {}
-        # (text, kind): control, live data (may be dropped) or replay data (flow-controlled)
-        self._queue: asyncio.Queue[tuple[str, int] | None] = asyncio.Queue()
+        self._control: deque[_Item] = deque()
+        self._bulk: deque[_Item] = deque()
+        self._wake = asyncio.Event()
+        self._stopped = False
+        #: when the text being sent was taken off a queue (None: not sending)
+        self._sending_since: float | None = None
+        self._undroppable = 0  # queued texts that are not a subscription's data
+        #: Acknowledgements (``ack``), from the console's first: messages handed to the
+        #: socket, and those it has said it read; (queued, sent) times of the rest.
+        self.acks = False
+        self._sent = 0
+        self._acked = 0
+        self._unacked: deque[tuple[float, int]] = deque()  # (queued, bytes) of each
+        self.unacked_bytes = 0
+        self._read: deque[tuple[float, int]] = deque()  # (when acknowledged, bytes)
+        self._read_bytes = 0  # of those within the last ack_window_s
+        self._last_read_bytes = 0  # what the latest ack said was read
         self.live_bytes = 0  # live data queued and not yet handed to the socket
         self.replay_bytes = 0  # replay data queued and not yet handed to the socket
         self._replay_sent = asyncio.Event()
         self.closing = False
+        #: the last ``lag`` sent said the client was behind (a ``behind_s: 0`` follows)
+        self.reported_behind = False
+        self.last_lag_report: float = -float("inf")
+        self.resyncs = 0  # times its bulk backlog was dropped for being behind
         self.sender = asyncio.create_task(self._send_loop(), name=f"console-send-{actor}")
 
     @property
     def queued(self) -> int:
-        return self._queue.qsize()
+        return len(self._control) + len(self._bulk)
 
-    def queue_data(self, text: str, *, live: bool) -> bool:
-        """Queue a data message; False (nothing queued) when the client is too far behind."""
+    def _put(self, item: _Item, *, control: bool) -> None:
+        (self._control if control else self._bulk).append(item)
+        if item.kind != _DATA:
+            self._undroppable += 1
+        self._wake.set()
+
+    def queue_data(self, sub: Subscription, text: str, *, live: bool) -> bool:
+        """Queue a subscription's message; False (nothing queued) when the client is too far
+        behind."""
         if live:
             if self.live_bytes + len(text) > self.limits.queue_bytes:
                 return False
             self.live_bytes += len(text)
-        self._queue.put_nowait((text, _LIVE if live else _CONTROL))
+        item = _Item(text, _DATA, self._monotonic(), sub, live)
+        self._put(item, control=sub.stream.topic in CONTROL_TOPICS)
         return True
 
     def queue_replay(self, text: str) -> None:
         """Queue replay data (never dropped: a replay waits, :meth:`replay_below`)."""
         self.replay_bytes += len(text)
-        self._queue.put_nowait((text, _REPLAY))
+        self._put(_Item(text, _REPLAY, self._monotonic()), control=False)
 
     async def replay_below(self, limit_bytes: int) -> None:
         """Return once at most ``limit_bytes`` of replay data are unsent."""
@@ -281,12 +346,78 @@ class ConsoleClient:
             self._replay_sent.clear()
             await self._replay_sent.wait()
 
-    def control(self, message: ServerMsg) -> None:
-        """Queue a control message (never dropped; a client that lets them pile up goes)."""
-        if self._queue.qsize() >= self.limits.hard_cap:
+    def control(self, message: ServerMsg, *, in_order: bool = False) -> None:
+        """Queue a control message (never dropped; a client that lets them pile up goes):
+        ahead of bulk data, or ``in_order`` after what is queued (a ``pong``, which says
+        that what was queued before the ``ping`` has been sent, and a replay's replies,
+        which keep their place among its data)."""
+        if self._undroppable >= self.limits.hard_cap:
             self.kill(1008, "the console does not read its messages")
             return
-        self._queue.put_nowait((message.encode(), _CONTROL))
+        self._put(_Item(message.encode(), _OTHER, self._monotonic()), control=not in_order)
+
+    def acknowledge(self, received: int) -> None:
+        """The console has read ``received`` messages of this socket."""
+        if received > self._sent:
+            raise ProtocolError(f"ack of {received} messages: {self._sent} sent")
+        if received < self._acked:
+            raise ProtocolError(f"ack of {received} messages after one of {self._acked}")
+        read, self._acked = received - self._acked, received
+        if not self.acks:
+            self.acks = True  # counted from here on: what was sent before is not held
+            self._unacked.clear()
+            self.unacked_bytes = 0
+        now = self._monotonic()
+        self._last_read_bytes = 0
+        for _ in range(min(read, len(self._unacked))):
+            _, size = self._unacked.popleft()
+            self.unacked_bytes -= size
+            self._read.append((now, size))
+            self._read_bytes += size
+            self._last_read_bytes += size
+        self._wake.set()
+
+    def window_bytes(self) -> int:
+        """What may be sent and not yet acknowledged: what the console read in the last
+        ``ack_window_s`` (at least ``ack_window_min_bytes``), so that the socket holds about
+        that long of its reading, whatever its pace; or what its latest ack said it read,
+        if more (a console whose acks come further apart than that, a browser's background
+        tab, is not starved for it)."""
+        since = self._monotonic() - self.limits.ack_window_s
+        while self._read and self._read[0][0] < since:
+            self._read_bytes -= self._read.popleft()[1]
+        return max(self.limits.ack_window_min_bytes, self._read_bytes, self._last_read_bytes)
+
+    def _window_full(self) -> bool:
+        return self.acks and self.unacked_bytes > 0 and self.unacked_bytes >= self.window_bytes()
+
+    def lag(self, now: float) -> Lag:
+        """How far behind the client is at ``now`` (the hub's monotonic clock)."""
+        bulk = next((i for i in self._bulk if i.kind == _DATA), None)
+        bulk_s = now - bulk.queued_mono if bulk is not None else 0.0
+        oldest = [q[0].queued_mono for q in (self._control, self._bulk) if q]
+        if self._sending_since is not None:
+            oldest.append(self._sending_since)
+        if self._unacked:  # sent, not yet read
+            oldest.append(self._unacked[0][0])
+        any_s = now - min(oldest) if oldest else 0.0
+        return Lag(bulk_s=max(0.0, bulk_s), any_s=max(0.0, any_s), queued=self.queued)
+
+    def drop_bulk(self) -> dict[Subscription, int]:
+        """Take every subscription's message off the bulk queue (live or a resume's replay);
+        how many of each subscription's were dropped. A recorded pass's replay and the
+        other replies stay."""
+        dropped: dict[Subscription, int] = {}
+        kept: deque[_Item] = deque()
+        for item in self._bulk:
+            if item.kind == _DATA and item.sub is not None:
+                dropped[item.sub] = dropped.get(item.sub, 0) + 1
+                if item.live:
+                    self.live_bytes -= len(item.text)
+            else:
+                kept.append(item)
+        self._bulk = kept
+        return dropped
 
     def kill(self, code: int, reason: str) -> None:
         if self.closing:
@@ -301,21 +432,40 @@ class ConsoleClient:
         self.hub.background(asyncio.get_running_loop().create_task(close()))
 
     async def _send_loop(self) -> None:
-        while (item := await self._queue.get()) is not None:
-            text, kind = item
-            if kind == _LIVE:
+        while not self._stopped:
+            if self._control:
+                item = self._control.popleft()
+            elif self._bulk and not self._window_full():
+                item = self._bulk.popleft()
+            else:  # nothing to send, or bulk that waits for an ack (which wakes it)
+                self._wake.clear()
+                await self._wake.wait()
+                continue
+            text = item.text
+            if item.kind != _DATA:
+                self._undroppable -= 1
+            if item.live:
                 self.live_bytes -= len(text)
-            elif kind == _REPLAY:
+            elif item.kind == _REPLAY:
                 self.replay_bytes -= len(text)
                 self._replay_sent.set()
+            self._sending_since = item.queued_mono
+            # counted before the send: the console may read it (and say so) before it returns
+            self._sent += 1
+            if self.acks:
+                self._unacked.append((item.queued_mono, len(text)))
+                self.unacked_bytes += len(text)
             try:
                 await self._send_text(text)
             except Exception as exc:  # the socket went away; the receive loop ends it
                 log.info("console %s: send failed: %r", self.actor, exc)
                 return
+            finally:
+                self._sending_since = None
 
     async def stop(self) -> None:
-        self._queue.put_nowait(None)
+        self._stopped = True
+        self._wake.set()
         if not self.sender.done():
             self.sender.cancel()
         with contextlib.suppress(asyncio.CancelledError):

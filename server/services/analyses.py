@@ -12,8 +12,9 @@ three ways and stores one row of each kind, plus the figures:
     flown_clearance          server.services.clearance.flown_clearance: the least clearance
                              between the robot's bodies at the measured joints, beside the
                              one the plan's flight rules predicted
-    report_figures           the PNGs of telemetry.figures.pass_figures (base64), so a report
-                             is a read, never a re-analysis
+    report_figures           the PNGs of telemetry.figures.pass_figures (base64), and the
+                             alarm timeline's when the pass has alarms, so a report is a
+                             read, never a re-analysis
 
 Each row's ``result`` is ``{"status": "ok", "result": NUMBERS}`` or ``{"status": "failed",
 "error": {"type", "message"}}``: an analysis that cannot run on a pass (too little
@@ -56,7 +57,7 @@ from server.storage import repository as repo
 from server.storage.errors import NotFound
 from server.storage.models import AnalysisRecord
 from telemetry.analysis import PassAnalysis, analyse_pass
-from telemetry.figures import pass_figures
+from telemetry.figures import alarm_timeline_figure, pass_figures
 from telemetry.identification import INERTIA_PARAMETER_NAMES, InsufficientData
 from telemetry.identification import identify_base_inertia as identify
 from telemetry.recording import PassRecording
@@ -172,6 +173,15 @@ def compute_analyses(
             figures = pass_figures(analysis)
         except Exception:  # a figure is not worth losing the numbers for
             log.exception("figures of pass %r failed", recording.name)
+    if recording.alarms:
+        t_s = recording.t_s()
+        end_t_s = float(t_s[-1]) if len(t_s) else recording.plan.duration_s
+        try:
+            figures["alarm_timeline"] = alarm_timeline_figure(
+                recording.alarms, recording.epoch_ns, end_t_s
+            )
+        except Exception:
+            log.exception("the alarm timeline of pass %r failed", recording.name)
     return AnalysisRun(
         documents={
             "pass_analysis": pass_doc,

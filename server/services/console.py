@@ -3,25 +3,41 @@
 The API layer owns the websocket: it authenticates, then hands this service each text frame
 (:meth:`ConsoleHub.handle`) and a way to send (``send_text``). The hub:
 
-- **Streams**: one per topic (``commands``, ``passes``, ``events``, ``link``) and one per
-  pass for ``telemetry``. Every message of a stream gets the next ``seq`` (from 1, per
+- **Streams**: one per topic (``commands``, ``passes``, ``events``, ``link``, ``alarms``)
+  and one per pass for ``telemetry``. Every message of a stream gets the next ``seq`` (from 1, per
   server process; the process's random ``epoch`` names the numbering). A stream keeps its
   last :attr:`ConsoleLimits.ring_size` messages in memory (the ring) and, far longer, a
   compact key per message (the index) by which the message is found again in the database.
+  A pass's telemetry stream is let go once the pass has ended and nobody subscribes to it
+  (at that pass's end or a later one's), keeping only its last seq: a stream made again
+  for it goes on counting from there, and what came before is ``resync``.
 - **Sources**: the link's :class:`~server.services.link.Publisher` (committed events,
-  archived frames; called on the event loop, so nothing here blocks or awaits there) and a
-  poll of :meth:`GroundLink.status` for ``link``.
+  archived frames, alarms as written; called on the event loop, so nothing here blocks or
+  awaits there) and a poll of :meth:`GroundLink.status` for ``link``.
 - **Resume**: ``subscribe`` with ``since_seq`` (and the ``epoch`` it belongs to) replays
   ``(since_seq, seq]`` from the ring, or from the database by the index (events by
   ``(time_ns, kind, pass_id)``, frames by ``reception_time_ns``), with their original seqs;
   when neither covers it (another epoch, the index rolled over, a replay too long, rows not
-  found) the client is told ``resync``. Live messages that arrive during a database replay
-  are held and follow it, so each subscription delivers strictly increasing seqs.
-- **Backpressure**: each client has one send task and a queue. Publishing only puts
-  already-encoded text on the queues; a subscription whose client has
-  :attr:`ConsoleLimits.queue_bytes` of live messages unsent is dropped (``unsubscribed`` with
-  reason ``overflow`` and the last seq queued), so a slow console never slows the ingest
-  or the uplink, and it resumes losslessly by subscribing again with ``since_seq``.
+  found) the client is told ``resync``. ``link`` and ``alarms`` are states, replayed from
+  the ring only (``resync``: reload ``GET /api/link/status``, ``GET /api/alarms``). Live
+  messages that arrive during a database replay are held and follow it, so each
+  subscription delivers strictly increasing seqs.
+- **Backpressure**: each client has one send task and two queues, control before bulk
+  (``_console_streams.CONTROL_TOPICS``: pass states, alarms and the link jump telemetry,
+  command stages and the audit log; a topic is one class whole, so each subscription stays
+  in seq order). Publishing only puts already-encoded text on the queues; a subscription
+  whose client has :attr:`ConsoleLimits.queue_bytes` of live messages unsent is dropped
+  (``unsubscribed`` with reason ``overflow`` and the last seq queued), so a slow console
+  never slows the ingest or the uplink, and it resumes losslessly by subscribing again with
+  ``since_seq``.
+- **A console behind** (:meth:`ConsoleHub.check_lag`, every ``lag_check_s`` on the hub's
+  clock): its lag is the age of its oldest unread message: unsent, or (for a console that
+  sends ``ack``, the count of messages it has read) sent and not acknowledged; such a
+  console is handed bulk data only within its window (what it read in the last
+  ``ack_window_s``), so that its backlog stays here, not in the socket's buffers. It is
+  told (``lag``) from ``behind_report_s``; bulk data older than ``behind_resync_s`` is
+  dropped and each of its streams told ``resync`` (reload the snapshot, then live); past
+  ``behind_drop_s`` it is told why (``error``, the close's reason) and closed.
 
 Client messages are parsed in ``_console_protocol``; the messages sent are the models of
 ``console_messages``; streams, subscriptions and clients are ``_console_streams``; the
@@ -40,13 +56,15 @@ import secrets
 import time
 import uuid
 from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.services._console_protocol import (
     PROTOCOL_VERSION,
+    AckMsg,
     AuthMsg,
     PingMsg,
     ProtocolError,
@@ -73,10 +91,13 @@ from server.services._console_streams import (
     TelemetryFilter,
     render,
 )
+from server.services.clock import Clock, SystemClock
 from server.services.console_messages import (
+    ConsoleAlarm,
     ConsoleEvent,
     ConsoleRole,
     ErrorMsg,
+    LagMsg,
     PongMsg,
     ResyncMsg,
     SubscribedMsg,
@@ -103,6 +124,7 @@ __all__ = [
 ]
 
 log = logging.getLogger("hikoboshi.ground.console")
+T = TypeVar("T")
 
 #: Event topics and the event kinds each carries (``None``: every kind).
 EVENT_TOPICS: dict[str, tuple[str, ...] | None] = {
@@ -112,7 +134,13 @@ EVENT_TOPICS: dict[str, tuple[str, ...] | None] = {
     "passes": ("pass_state",),
     "events": None,
 }
-TOPICS = ("telemetry", *EVENT_TOPICS, "link")
+TOPICS = ("telemetry", *EVENT_TOPICS, "link", "alarms")
+#: Topics whose messages are states, not found again in the database (ring only).
+_STATE_TOPICS = ("link", "alarms")
+#: A pass's states after which its telemetry stream may be retired.
+_ENDED_STATES = ("complete", "aborted", "safed")
+#: How many retired telemetry streams' last seqs are remembered (a few ints each).
+RETIRED_KEPT = 10_000
 
 
 @dataclass
@@ -142,10 +170,29 @@ class ConsoleLimits:
     replay_window_bytes: int = 1024 * 1024
     replay_tick_s: float = 0.02  # wall: a real-time replay sends at most this often
     replay_report_s: float = 0.5  # wall: replay_state while frames flow, at most this often
+    # A console behind (docs/console.md, "Backpressure"); times on the hub's clock:
+    lag_check_s: float = 0.25  # how often each console's lag is measured
+    #: A console whose oldest unsent message is older than this is sent ``lag`` (at most
+    #: this often, and once more, ``behind_s: 0``, when it has caught up).
+    behind_report_s: float = 0.5
+    #: Bulk data (telemetry, command stages, the audit log) unsent for longer than this is
+    #: dropped and each of its subscriptions told ``resync``: the console reloads the
+    #: snapshot over REST and goes on live, instead of reading a backlog older than that.
+    behind_resync_s: float = 2.0
+    #: Anything unsent for longer than this (control messages, which jump the queue,
+    #: included): the console is told why (``error``, and the close's reason) and closed.
+    behind_drop_s: float = 30.0
+    #: A console that acknowledges what it reads (``ack``) is handed bulk data only while
+    #: what it has not acknowledged is less than what it read in the last this long (at
+    #: least ``ack_window_min_bytes``): the rest waits in the server's queues, not in the
+    #: socket's buffers, where a control message could not pass it nor a resync drop it.
+    ack_window_s: float = 0.5
+    ack_window_min_bytes: int = 4096
 
     @property
     def hard_cap(self) -> int:
-        """Messages of any kind queued to one client beyond which it is disconnected."""
+        """Messages queued to one client, other than its subscriptions' data (which
+        ``queue_bytes`` and the lag bounds hold), beyond which it is disconnected."""
         return self.max_replay + 1024
 
 
@@ -181,19 +228,33 @@ class ConsoleHub:
         link_status: Callable[[], LinkStatus],
         sessions: sessionmaker[Session],
         limits: ConsoleLimits | None = None,
+        replay_sessions: sessionmaker[Session] | None = None,
+        db_threads: int = 2,
+        clock: Clock | None = None,
     ):
+        """``sessions``: the hub's own reads (a subscription's pass, missed messages), in
+        ``db_threads`` threads of its own; ``replay_sessions`` (default ``sessions``): the
+        replays' loads of whole recordings; ``clock``: what the consoles' lag is measured
+        on (default the system's)."""
         self.limits = limits or ConsoleLimits()
+        self.clock: Clock = clock or SystemClock()
         #: Names this process's numbering: seqs of another epoch mean nothing here.
         self.epoch = f"{time.time_ns() // 10**9:x}-{secrets.token_hex(4)}"
         self._publisher = publisher
         self._link_status = link_status
         self._sessions = sessions
         self._streams: dict[tuple[str, str | None], Stream] = {}
+        #: passes seen ending whose telemetry stream is still held
+        self._ended: set[str] = set()
+        #: the last seq of each retired telemetry stream, by pass (see :meth:`_retire`)
+        self._retired: dict[str, int] = {}
         self._clients: set[ConsoleClient] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._unhook: list[Callable[[], None]] = []
         self._poller: asyncio.Task[None] | None = None
-        self.replays = Replays(sessions=sessions, limits=self.limits)
+        self._lag_watch: asyncio.Task[None] | None = None
+        self._db_threads = ThreadPoolExecutor(db_threads, thread_name_prefix="console-db")
+        self.replays = Replays(sessions=replay_sessions or sessions, limits=self.limits)
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -201,23 +262,32 @@ class ConsoleHub:
         self._unhook = [
             self._publisher.subscribe(self._on_event),
             self._publisher.subscribe_frames(self._on_frames),
+            self._publisher.subscribe_alarms(self._on_alarm),
         ]
         self._poller = asyncio.create_task(self._poll_link(), name="console-link-poll")
+        self._lag_watch = asyncio.create_task(self._watch_lag(), name="console-lag")
 
     async def close(self) -> None:
         for unhook in self._unhook:
             unhook()
         self._unhook = []
-        if self._poller is not None:
-            self._poller.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._poller
+        for task in (self._poller, self._lag_watch):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
         await self.replays.close()
         for client in list(self._clients):
             self.remove(client)
             await client.stop()
         for task in list(self._tasks):
             task.cancel()
+        self._db_threads.shutdown(wait=False, cancel_futures=True)
+
+    async def _in_db_thread(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` in one of the hub's own threads: never behind viewer requests'."""
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._db_threads, fn, *args)
 
     def background(self, task: asyncio.Task[Any]) -> None:
         self._tasks.add(task)
@@ -247,6 +317,10 @@ class ConsoleHub:
                     max_subscriptions=limits.max_subscriptions,
                     max_message_bytes=limits.max_message_bytes,
                     link_heartbeat_s=limits.link_heartbeat_s,
+                    behind_report_s=limits.behind_report_s,
+                    behind_resync_s=limits.behind_resync_s,
+                    behind_drop_s=limits.behind_drop_s,
+                    ack_window_s=limits.ack_window_s,
                     max_replays_per_console=limits.max_replays_per_console,
                     max_replay_factor=limits.max_replay_factor,
                     max_replay_batch_frames=limits.max_replay_batch_frames,
@@ -270,13 +344,38 @@ class ConsoleHub:
     def clients(self) -> int:
         return len(self._clients)
 
+    @property
+    def telemetry_streams(self) -> list[str]:
+        """The passes whose telemetry stream is held (in memory)."""
+        return [p for (topic, p) in self._streams if topic == "telemetry" and p is not None]
+
     # -- sources (event loop; never block) -------------------------------------------------
 
     def _stream(self, topic: str, pass_id: str | None = None) -> Stream:
         stream = self._streams.get((topic, pass_id))
         if stream is None:
             stream = self._streams[(topic, pass_id)] = Stream(topic, pass_id, self.limits)
+            if pass_id is not None and pass_id in self._retired:
+                # a late frame or a new subscription of an ended pass: the numbering goes on
+                # (an earlier seq is no longer held: resync), and it is retired again
+                stream.last_seq = self._retired.pop(pass_id)
+                self._ended.add(pass_id)
         return stream
+
+    def _retire(self) -> None:
+        """Let go of the telemetry streams of ended passes nobody subscribes to: each held a
+        ring of its pass's last messages for good, some megabytes a pass, so a ground flying
+        pass after pass grew without bound. Only the stream's last seq is kept."""
+        for pass_id in list(self._ended):
+            stream = self._streams.get(("telemetry", pass_id))
+            if stream is None:
+                self._ended.discard(pass_id)
+            elif not stream.subscriptions:
+                del self._streams[("telemetry", pass_id)]
+                self._ended.discard(pass_id)
+                self._retired[pass_id] = stream.last_seq
+        while len(self._retired) > RETIRED_KEPT:
+            del self._retired[next(iter(self._retired))]
 
     def _push(self, stream: Stream, key: Any, payload: Payload) -> None:
         message = stream.append(key, payload)
@@ -291,6 +390,10 @@ class ConsoleHub:
         for topic, kinds in EVENT_TOPICS.items():
             if kinds is None or kind in kinds:
                 self._push(self._stream(topic), key, payload)
+        ended = (event.get("detail") or {}).get("to") in _ENDED_STATES
+        if kind == "pass_state" and pass_id is not None and ended:
+            self._ended.add(pass_id)
+            self._retire()
 
     def _on_frames(
         self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
@@ -302,8 +405,79 @@ class ConsoleHub:
         key = (reception_time_ns, rows[0][1], max(r[1] for r in rows), len(rows))
         self._push(self._stream("telemetry", _canonical_pass(pass_id)), key, batch)
 
+    def _on_alarm(self, alarm: dict[str, Any]) -> None:
+        self._push(self._stream("alarms"), None, ConsoleAlarm.model_validate(alarm))
+
     def push_link_status(self, status: LinkStatus) -> None:
         self._push(self._stream("link"), None, LinkReport(time.time_ns(), status))
+
+    # -- consoles behind ------------------------------------------------------------------
+
+    async def _watch_lag(self) -> None:
+        while True:
+            try:
+                self.check_lag()
+            except Exception:
+                log.exception("console lag check failed")
+            await self.clock.sleep_until(self.clock.monotonic() + self.limits.lag_check_s)
+
+    def check_lag(self) -> None:
+        """Measure every console's lag (the age of its oldest unsent message) and act on it:
+        tell it (``lag``), drop its bulk backlog for a ``resync``, or close it."""
+        now = self.clock.monotonic()
+        limits = self.limits
+        for client in list(self._clients):
+            if client.closing:
+                continue
+            lag = client.lag(now)
+            if lag.any_s > limits.behind_drop_s:
+                reason = (
+                    f"behind by {lag.any_s:.0f} s, more than {limits.behind_drop_s:g} s:"
+                    " the console does not keep up"
+                )
+                log.warning("console %s: %s; closed", client.actor, reason)
+                client.control(ErrorMsg(reason=reason, ref_type=None))
+                client.kill(1008, reason)
+                continue
+            dropped = client.drop_bulk() if lag.bulk_s > limits.behind_resync_s else {}
+            behind = lag.any_s >= limits.behind_report_s
+            due = now - client.last_lag_report >= limits.behind_report_s
+            if (behind and due) or dropped or (client.reported_behind and not behind):
+                client.control(
+                    LagMsg(
+                        behind_s=round(lag.any_s, 3) if behind else 0.0,
+                        queued=client.queued,
+                        resync_s=limits.behind_resync_s,
+                        time_ns=self.clock.time_ns(),
+                    )
+                )
+                client.last_lag_report = now
+                client.reported_behind = behind
+            if dropped:
+                client.resyncs += 1
+                log.info(
+                    "console %s: behind by %.1f s, %d messages dropped: resync",
+                    client.actor,
+                    lag.bulk_s,
+                    sum(dropped.values()),
+                )
+            for sub, count in dropped.items():
+                if sub.closed:
+                    continue
+                stream = sub.stream
+                client.control(
+                    ResyncMsg(
+                        topic=stream.topic,
+                        pass_id=stream.pass_id,
+                        epoch=self.epoch,
+                        seq=sub.last_seq,
+                        reason=(
+                            f"behind by {lag.bulk_s:.1f} s, more than"
+                            f" {limits.behind_resync_s:g} s: {count} messages not sent;"
+                            " reload the snapshot"
+                        ),
+                    )
+                )
 
     async def _poll_link(self) -> None:
         previous: dict[str, Any] | None = None
@@ -333,15 +507,21 @@ class ConsoleHub:
                 await self._subscribe(client, message)
             elif isinstance(message, UnsubscribeMsg):
                 self._unsubscribe(client, message)
+            elif isinstance(message, AckMsg):
+                client.acknowledge(message.received)
             elif isinstance(message, PingMsg):
-                client.control(PongMsg(id=message.id, time_ns=time.time_ns()))
+                # in order: the pong says that what was queued before the ping has gone out
+                pong = PongMsg(id=message.id, time_ns=time.time_ns())
+                client.control(pong, in_order=True)
             elif isinstance(message, _REPLAY_MSGS):
                 await self.replays.handle(client, message)
             else:
                 raise ProtocolError("already authenticated")
         except ProtocolError as exc:
             ref_type = ref_type or exc.ref_type
-            client.control(ErrorMsg(reason=str(exc)[:500], ref_type=ref_type))
+            # a replay's refusal keeps its place among the replay's replies and data
+            in_order = ref_type is not None and ref_type.startswith("replay_")
+            client.control(ErrorMsg(reason=str(exc)[:500], ref_type=ref_type), in_order=in_order)
 
     async def _stream_of(self, topic: str, pass_id: str | None) -> Stream:
         if topic not in TOPICS:
@@ -355,7 +535,7 @@ class ConsoleHub:
         key = _canonical_pass(pass_id)
         if ("telemetry", key) not in self._streams:
             try:
-                key = await asyncio.to_thread(self._pass_exists, pass_id)
+                key = await self._in_db_thread(self._pass_exists, pass_id)
             except NotFound as exc:
                 raise ProtocolError(str(exc)) from None
         return self._stream("telemetry", key)
@@ -425,17 +605,17 @@ class ConsoleHub:
         if ring is not None:
             return ring, ""
         entries = stream.indexed(since)
-        if entries is None or stream.topic == "link":
+        if entries is None or stream.topic in _STATE_TOPICS:
             return None, f"seq {since + 1} is no longer held"
         try:
             if stream.topic == "telemetry":
                 assert stream.pass_id is not None
-                found = await asyncio.to_thread(
+                found = await self._in_db_thread(
                     replay_frames, self._sessions, stream.pass_id, entries
                 )
             else:
                 kinds = EVENT_TOPICS[stream.topic]
-                found = await asyncio.to_thread(replay_events, self._sessions, kinds, entries)
+                found = await self._in_db_thread(replay_events, self._sessions, kinds, entries)
         except Exception as exc:
             log.exception("console replay of %s failed", stream.topic)
             return None, f"the database replay failed: {exc!r}"[:300]

@@ -38,12 +38,16 @@ from telemetry.layout import DEFAULT_LAYOUT
 __all__ = [
     "OMIT_IF_NONE",
     "SERVER_MESSAGES",
+    "AlarmMsg",
+    "ConsoleAlarm",
+    "ConsoleAlarmTimelineEntry",
     "ConsoleEvent",
     "ConsoleRole",
     "ErrorMsg",
     "EventMsg",
     "EventTopic",
     "FrameColumns",
+    "LagMsg",
     "LinkMsg",
     "PongMsg",
     "ReplayClosedMsg",
@@ -210,6 +214,64 @@ class EventMsg(ServerMsg):
     event: ConsoleEvent
 
 
+AlarmSeverity = Literal["watch", "warning", "distress", "critical", "severe"]
+
+
+class ConsoleAlarmTimelineEntry(_Doc):
+    """A change of an alarm's band (``severity`` null: back within limits);
+    ``generation_time_ns`` onboard, ``time_ns`` ground."""
+
+    severity: AlarmSeverity | None
+    generation_time_ns: int | None
+    time_ns: int
+    frame_seq: int | None
+    value: Number | None
+
+
+class ConsoleAlarm(_Doc):
+    """An alarm as written (docs/alarms.md; ``GET /api/alarms``'s items)."""
+
+    id: str
+    pass_id: str | None
+    quantity: str
+    channel: str
+    label: str
+    unit: str
+    direction: Literal["high", "low"]
+    source: Literal["limit", "vehicle"]
+    severity: AlarmSeverity
+    current_severity: AlarmSeverity | None
+    state: Literal["triggered", "cleared"]
+    acknowledged: bool
+    acknowledged_by: str | None
+    acknowledged_time_ns: int | None
+    comment: str | None
+    limit: Number | None
+    trigger_value: Number | None
+    worst_value: Number | None
+    last_value: Number | None
+    count: int
+    raised_frame_seq: int | None
+    raised_generation_time_ns: int | None
+    raised_time_ns: int
+    updated_time_ns: int
+    cleared_generation_time_ns: int | None
+    cleared_time_ns: int | None
+    timeline: list[ConsoleAlarmTimelineEntry]
+    detail: str | None
+
+
+class AlarmMsg(ServerMsg):
+    """An alarm raised, changed band, cleared or acknowledged (topic ``alarms``; while it
+    stays in its band, at most once per second). Not replayed from the database: a console
+    that is told ``resync`` reloads ``GET /api/alarms``."""
+
+    topic: Literal["alarms"] = "alarms"
+    type: Literal["alarm"] = "alarm"
+    seq: int
+    alarm: ConsoleAlarm
+
+
 # --- control -------------------------------------------------------------------------------
 
 
@@ -220,6 +282,10 @@ class WelcomeLimits(_Doc):
     max_subscriptions: int
     max_message_bytes: int
     link_heartbeat_s: Number
+    behind_report_s: Number
+    behind_resync_s: Number
+    behind_drop_s: Number
+    ack_window_s: Number
     max_replays_per_console: int
     max_replay_factor: Number
     max_replay_batch_frames: int
@@ -267,6 +333,19 @@ class UnsubscribedMsg(_StreamControl):
     type: Literal["unsubscribed"] = "unsubscribed"
     seq: int
     reason: str
+
+
+class LagMsg(ServerMsg):
+    """How far behind the console is: ``behind_s``, the age (server clock) of its oldest
+    unsent message, ``queued`` of them; sent ahead of the data while it is behind, and once
+    with ``behind_s: 0`` when it has caught up. Past ``resync_s`` its bulk data is dropped
+    and each such stream told ``resync``. ``time_ns``: the ground time it was measured."""
+
+    type: Literal["lag"] = "lag"
+    behind_s: Number
+    queued: int
+    resync_s: Number
+    time_ns: int
 
 
 class PongMsg(ServerMsg):
@@ -374,11 +453,13 @@ SERVER_MESSAGES: tuple[type[ServerMsg], ...] = (
     SubscribedMsg,
     ResyncMsg,
     UnsubscribedMsg,
+    LagMsg,
     PongMsg,
     ErrorMsg,
     TelemetryMsg,
     LinkMsg,
     EventMsg,
+    AlarmMsg,
     ReplayOpenedMsg,
     ReplayStateMsg,
     ReplayClosedMsg,

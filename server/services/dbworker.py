@@ -2,8 +2,8 @@
 
 Every database write of the live path (link, runner) goes through :class:`Database`: one
 worker thread, so writes keep their order and an SQLite commit never stalls the event loop
-(and with it the uplink). :class:`Publisher` hands committed events and newly archived
-telemetry frames to the consoles.
+(and with it the uplink). :class:`Publisher` hands committed events, newly archived
+telemetry frames and the alarms as written to the consoles.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from telemetry.wire import TelemetryFrame
 
-__all__ = ["Database", "FrameCallback", "Publisher", "done_unless"]
+__all__ = ["AlarmCallback", "Database", "FrameCallback", "Publisher", "done_unless"]
 
 log = logging.getLogger("hikoboshi.ground.db")
 
@@ -32,16 +32,20 @@ T = TypeVar("T")
 
 
 FrameCallback = Callable[[str, list[TelemetryFrame], int], None]
+#: Gets an alarm's JSON document (docs/alarms.md) once it is committed.
+AlarmCallback = Callable[[dict[str, Any]], None]
 
 
 class Publisher:
     """An in-process publish hook for the consoles: subscribers get every event dict once it
     is committed, and every newly archived telemetry frame (``pass_id, frames,
-    reception_time_ns``). A subscriber must not block; one that raises is logged and kept."""
+    reception_time_ns``), and every alarm as written (its document). A subscriber must not
+    block; one that raises is logged and kept."""
 
     def __init__(self) -> None:
         self._subscribers: list[Callable[[dict[str, Any]], None]] = []
         self._frame_subscribers: list[FrameCallback] = []
+        self._alarm_subscribers: list[AlarmCallback] = []
 
     def subscribe(self, callback: Callable[[dict[str, Any]], None]) -> Callable[[], None]:
         self._subscribers.append(callback)
@@ -50,6 +54,18 @@ class Publisher:
     def subscribe_frames(self, callback: FrameCallback) -> Callable[[], None]:
         self._frame_subscribers.append(callback)
         return lambda: self._frame_subscribers.remove(callback)
+
+    def subscribe_alarms(self, callback: AlarmCallback) -> Callable[[], None]:
+        self._alarm_subscribers.append(callback)
+        return lambda: self._alarm_subscribers.remove(callback)
+
+    def publish_alarms(self, alarms: list[dict[str, Any]]) -> None:
+        for alarm in alarms:
+            for callback in list(self._alarm_subscribers):
+                try:
+                    callback(alarm)
+                except Exception:
+                    log.exception("alarm subscriber failed on %s", alarm.get("id"))
 
     def publish_frames(
         self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
@@ -222,9 +238,11 @@ class Database:
         or write that someone is waiting for) goes before everything else, alone."""
         return await self._enqueue(job, control=control)
 
-    async def write(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
+    async def write(
+        self, job: Callable[[Session], list[dict[str, Any]]], *, control: bool = False
+    ) -> None:
         """Run ``job`` (which returns the events it wrote) and publish its events."""
-        self._publisher.publish(await self.run(job))
+        self._publisher.publish(await self.run(job, control=control))
 
     def submit(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
         """Queue ``job`` without waiting (the emitter must not wait for a commit); its

@@ -1,7 +1,7 @@
 """Every event of the ground, as a frozen class: the typed link events the link hands the
 runner and the command trackers (:data:`LinkEvent`, in memory), and every event it writes to
-its audit log: the link's, the command stages', the passes', the plans', the analyses' and
-the audit's.
+its audit log: the link's, the command stages', the passes', the alarms', the plans', the
+analyses' and the audit's.
 
 An event is written in one way, :func:`record` (the row stamped by the injected
 :class:`~server.services.clock.Clock` of its writer, never by the process's own clock), and
@@ -25,9 +25,12 @@ from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
 from server.storage import repository as repo
-from telemetry.wire import Hello, Verification
+from telemetry.wire import Hello, Safing, Verification
 
 __all__ = [
+    "AlarmAcknowledged",
+    "AlarmCleared",
+    "AlarmRaised",
     "AnalysesRun",
     "AuthBlocked",
     "CommandAckUnknown",
@@ -37,6 +40,8 @@ __all__ = [
     "CommandsCancelled",
     "CommandsUnknown",
     "Event",
+    "GroundStopped",
+    "LinkClosedMalformed",
     "LinkConnected",
     "LinkDisconnected",
     "LinkDown",
@@ -44,6 +49,7 @@ __all__ = [
     "LinkErrorReplied",
     "LinkEvent",
     "LinkHello",
+    "LinkTakeover",
     "LinkUp",
     "PassControlRefused",
     "PassImported",
@@ -56,8 +62,13 @@ __all__ = [
     "PlanCreated",
     "RequestVerified",
     "RetransmitRequested",
+    "SafingReported",
     "ScheduleDeleteUnverified",
     "ScheduleDeleted",
+    "VehicleSafeExitRequested",
+    "VehicleSafeExitUnverified",
+    "VehicleSafeExited",
+    "VehicleSafed",
     "event_job",
     "published",
     "record",
@@ -188,7 +199,19 @@ class LinkDown:
     reason: str
 
 
-LinkEvent = CommandAcked | CommandsUnknown | RequestVerified | LinkUp | LinkDown
+@dataclass(frozen=True)
+class SafingReported:
+    """A ``safing`` report of the vehicle, read at ``read_mono``: ``entered`` on the first
+    report of a SAFE episode (the 1 s repeats are not), ``exited`` on the report that ends
+    one (:mod:`server.services.safing`)."""
+
+    report: Safing
+    entered: bool
+    exited: bool
+    read_mono: float
+
+
+LinkEvent = CommandAcked | CommandsUnknown | RequestVerified | LinkUp | LinkDown | SafingReported
 
 
 # --- the link ----------------------------------------------------------------------------
@@ -208,21 +231,57 @@ class LinkDisconnected(Event):
 
 
 @dataclass(frozen=True, kw_only=True)
+class LinkTakeover(Event):
+    """A second spacecraft connection superseded the one holding the link (the older is
+    closed): both connections as :meth:`server.services.link.Connection.described` names
+    them (``connection``, ``actor``, ``peer``, ``user_agent``, ``connected_ns``)."""
+
+    kind = "link_takeover"
+    previous: dict[str, Any]
+    current: dict[str, Any]
+
+
+@dataclass(frozen=True, kw_only=True)
 class LinkErrorReceived(Event):
-    """An ``error`` from the vehicle (never answered)."""
+    """``error`` messages from the vehicle (never answered) of one kind within one interval
+    (server/services/malformed.py): how many, the first's reason (``code`` ``received``,
+    or ``unreadable`` for an ``error`` that did not decode)."""
 
     kind = "link_error_received"
     reason: str
     ref_type: str | None
+    code: str = "received"
+    count: int = 1
+    first_time_ns: int | None = None
+    last_time_ns: int | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
 class LinkErrorReplied(Event):
-    """A message that did not decode, answered with ``error``."""
+    """Messages that did not decode, of one kind (the type they claim, the class of the
+    refusal) within one interval (server/services/malformed.py): how many, how many were
+    answered with ``error`` (at a bounded rate), the first's reason."""
 
     kind = "link_error_replied"
     reason: str
     ref_type: str | None
+    code: str = "invalid"
+    count: int = 1
+    replied: int = 1
+    first_time_ns: int | None = None
+    last_time_ns: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkClosedMalformed(Event):
+    """The ground closed the spacecraft's connection (1008): too many malformed messages
+    within one interval (server/services/malformed.py)."""
+
+    kind = "link_closed_malformed"
+    connection: int
+    reason: str
+    count: int
+    interval_s: float
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -347,6 +406,22 @@ class PassResumed(Event):
 
 
 @dataclass(frozen=True, kw_only=True)
+class GroundStopped(Event):
+    """The ground service stopped (a graceful stop) with the pass in flight: the pass is
+    handed to the vehicle, not aborted (``reason`` says so, with the onboard time). Left in
+    ``state`` for the next process to resume; ``loaded``: commands sent and not final (on
+    board, or on their way), ``unsent``: never sent; the vehicle's ``los_policy`` applies."""
+
+    kind = "ground_stopped"
+    state: str
+    reason: str
+    onboard_time_ns: int | None
+    loaded: int
+    unsent: int
+    los_policy: str
+
+
+@dataclass(frozen=True, kw_only=True)
 class ScheduleDeleted(Event):
     kind = "schedule_deleted"
     request_id: int
@@ -385,6 +460,100 @@ class PassImported(Event):
     def detail(self) -> dict[str, Any]:
         out = {k: v for k, v in super().detail().items() if k != "extra"}
         return {**out, **self.extra}
+
+
+# --- alarms ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class AlarmRaised(Event):
+    """An alarm raised (or ``reopened``: its channel entered a band again while the alarm,
+    cleared, was still listed): docs/alarms.md."""
+
+    kind = "alarm_raised"
+    alarm_id: str
+    source: str
+    quantity: str
+    channel: str
+    severity: str
+    value: float | None
+    limit: float | None
+    frame_seq: int | None
+    generation_time_ns: int | None
+    reopened: bool = False
+    detail_text: str | None = None
+    keys: ClassVar[Mapping[str, str]] = {"detail_text": "detail"}
+    optional: ClassVar[tuple[str, ...]] = ("detail_text",)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AlarmCleared(Event):
+    """An alarm's channel back within limits (or no longer watched: ``detail``)."""
+
+    kind = "alarm_cleared"
+    alarm_id: str
+    quantity: str
+    channel: str
+    severity: str
+    value: float | None
+    generation_time_ns: int | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class AlarmAcknowledged(Event):
+    """An operator (the actor) acknowledged an alarm, with an optional comment."""
+
+    kind = "alarm_acknowledged"
+    alarm_id: str
+    quantity: str
+    channel: str
+    severity: str
+    state: str
+    comment: str | None
+
+
+# --- on-board safing ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class VehicleSafed(Event):
+    """The vehicle reported it safed itself (its first report of the episode): the trigger
+    and the onboard time it entered SAFE; ``pass_id`` the pass that was running, if any."""
+
+    kind = "vehicle_safed"
+    since_time_ns: int | None
+    trigger: dict[str, Any] | None
+    cancelled: int
+    #: the report's own onboard time (its first copy the ground read)
+    onboard_time_ns: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class VehicleSafeExitRequested(Event):
+    """An operator (the actor) sent the ``safe_exit`` telecommand."""
+
+    kind = "vehicle_safe_exit_requested"
+    request_id: int
+    vehicle: str | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class VehicleSafeExited(Event):
+    """The vehicle reported it left SAFE (``request_id`` the telecommand that ended it)."""
+
+    kind = "vehicle_safe_exited"
+    request_id: int | None
+    since_time_ns: int | None
+    onboard_time_ns: int
+
+
+@dataclass(frozen=True, kw_only=True)
+class VehicleSafeExitUnverified(Event):
+    """No report of the vehicle leaving SAFE after every copy of a ``safe_exit``."""
+
+    kind = "vehicle_safe_exit_unverified"
+    request_id: int
+    transmissions: int
 
 
 # --- plans, analyses ---------------------------------------------------------------------
@@ -438,7 +607,7 @@ class AuthBlocked(Event):
 
 @dataclass(frozen=True, kw_only=True)
 class PassControlRefused(Event):
-    """A start or abort whose confirmation did not match."""
+    """A start, an abort or a safe exit whose confirmation did not match."""
 
     kind = "pass_control_refused"
     action: str

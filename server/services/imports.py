@@ -1,5 +1,5 @@
 """Import a recorded pass into the database: a new plan, a finished pass, its commands,
-telemetry frames and audit events, in one transaction.
+telemetry frames, audit events and alarms (each under a new id), in one transaction.
 
 The pass is marked imported by the audit event ``pass_imported`` (actor: who imported it;
 detail: the source, the original pass id, counts), the first thing the log says about it
@@ -12,6 +12,14 @@ still refuses is the invalid request ``recording_not_storable``; either way noth
 Before anything is decompressed, a file whose chunks declare more than 64 MiB each, or
 more than ``max_uncompressed_bytes`` together (the setting
 ``max_import_uncompressed_bytes``), is refused as ``invalid_recording`` (docs/mcap.md).
+
+An upload is spooled to a file before it is read; :class:`SpoolBudget` bounds the bytes
+all concurrent imports may hold on disk together (the setting
+``import_spool_budget_bytes``, docs/security.md "Import spools"): an upload is admitted for
+its declared size before its first byte is read, or chunk by chunk when it declares none,
+and one that would take the spools past the budget is refused as unavailable (``busy``,
+with the time to retry after) and its partial spool deleted. What an import holds is given
+back on every path, success, refusal, failure or a client gone.
 """
 
 from __future__ import annotations
@@ -19,28 +27,38 @@ from __future__ import annotations
 import hashlib
 import io
 import time
+import uuid
 from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session
 
-from server.schemas import PassImportPublic
-from server.services.errors import InvalidRequestError
+from server.schemas import AlarmPublic, PassImportPublic
+from server.services.errors import InvalidRequestError, UnavailableError
 from server.services.events import PassImported, with_written
 from server.services.events import record as record_event
 from server.services.passes import public
 from server.settings import Settings
+from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
 from server.storage.errors import Conflict, InvalidArgument
 from server.storage.models import COMMAND_KINDS, COMMAND_STAGES
 from telemetry.mcap import RecordingFileError, read_mcap
 from telemetry.recording import PassRecording
 
-__all__ = ["InvalidRecording", "import_file_job", "import_mcap", "store_recording"]
+__all__ = [
+    "InvalidRecording",
+    "SpoolBudget",
+    "SpoolHold",
+    "import_file_job",
+    "import_mcap",
+    "store_recording",
+]
 
 _INT64 = 2**63
 _FINISHED = ("complete", "aborted")
@@ -52,6 +70,77 @@ class InvalidRecording(InvalidRequestError):
 
     def __init__(self, code: str, message: str) -> None:
         super().__init__(code, message)
+
+
+#: How long a refused import is told to wait before it tries again (s): an import of the
+#: 20-minute demo pass takes about 30 s on a loaded 2-core machine (settings.py).
+SPOOL_RETRY_AFTER_S = 30.0
+
+
+class SpoolBudget:
+    """The bytes every import's spool file may hold on disk together (``budget_bytes``).
+
+    Used from the event loop only (no lock): :meth:`hold` opens an import's share, which it
+    grows with :meth:`SpoolHold.take` as bytes arrive and gives back when closed.
+    """
+
+    def __init__(self, budget_bytes: int) -> None:
+        if budget_bytes < 1:
+            raise ValueError(f"spool budget {budget_bytes} bytes must be >= 1")
+        self.budget_bytes = budget_bytes
+        self.held_bytes = 0
+        self.imports = 0
+
+    def hold(self) -> SpoolHold:
+        return SpoolHold(self)
+
+    def _take(self, nbytes: int, total: int) -> None:
+        if self.held_bytes + nbytes > self.budget_bytes:
+            others = self.held_bytes - (total - nbytes)
+            refusal = UnavailableError(
+                f"an import of {total} bytes would take the import spools past their budget "
+                f"of {self.budget_bytes} bytes ({others} bytes held by {self.imports - 1} "
+                "other imports); try again later",
+                SPOOL_RETRY_AFTER_S,
+                "busy",
+            )
+            refusal.detail.update(
+                budget_bytes=self.budget_bytes, held_bytes=others, upload_bytes=total
+            )
+            raise refusal
+        self.held_bytes += nbytes
+
+
+class SpoolHold:
+    """One import's share of a :class:`SpoolBudget`: a context manager that gives back all
+    it took when it closes, however the import ends."""
+
+    def __init__(self, budget: SpoolBudget) -> None:
+        self._budget = budget
+        self.bytes = 0
+        self._open = False
+
+    def __enter__(self) -> SpoolHold:
+        self._open = True
+        self._budget.imports += 1
+        return self
+
+    def take(self, total_bytes: int) -> None:
+        """Grow this import's share to ``total_bytes`` (never shrinks it); unavailable
+        (``busy``) when the budget cannot hold it, nothing taken."""
+        if not self._open:
+            raise RuntimeError("a spool hold is used inside its with block")
+        more = total_bytes - self.bytes
+        if more > 0:
+            self._budget._take(more, total_bytes)
+            self.bytes = total_bytes
+
+    def __exit__(self, *exc: object) -> None:
+        if self._open:
+            self._budget.held_bytes -= self.bytes
+            self._budget.imports -= 1
+            self.bytes = 0
+            self._open = False
 
 
 def _int(meta: Mapping[str, Any], key: str) -> int | None:
@@ -93,6 +182,35 @@ def _check(recording: PassRecording) -> None:
             raise InvalidRecording(
                 "recording_not_storable", f"event {e.kind[:64]!r}: kind, actor or time too long"
             )
+
+
+#: The alarm columns of bounded length.
+_ALARM_TEXT = {"quantity": 64, "channel": 32, "label": 128, "unit": 16, "acknowledged_by": 128}
+
+
+def _alarms(recording: PassRecording, pass_id: str) -> list[dict[str, Any]]:
+    """The recording's alarms as documents of the new pass (each a new id), or the reason
+    the first one cannot be stored."""
+    out = []
+    for k, raw in enumerate(recording.alarms):
+        try:
+            doc = AlarmPublic.model_validate(raw).model_dump()
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise InvalidRecording(
+                "recording_not_storable", f"alarm {k}: {where}: {first['msg']}"
+            ) from None
+        for name, limit in _ALARM_TEXT.items():
+            if len(doc[name] or "") > limit:
+                raise InvalidRecording(
+                    "recording_not_storable", f"alarm {k}: {name} longer than {limit}"
+                )
+        times = [v for n, v in doc.items() if n.endswith("_ns") or n == "raised_frame_seq"]
+        if any(v is not None and not -_INT64 <= v < _INT64 for v in times):
+            raise InvalidRecording("recording_not_storable", f"alarm {k}: a time beyond int64")
+        out.append({**doc, "id": str(uuid.uuid4()), "pass_id": pass_id})
+    return out
 
 
 def _window(recording: PassRecording, now_ns: int) -> tuple[int, int]:
@@ -162,6 +280,7 @@ def store_recording(
         repo.add_event_rows(session=session, pass_id=record.id, events=recording.events)
         repo.add_command_rows(session=session, pass_id=record.id, commands=recording.commands)
         frames = repo.add_frame_arrays(session=session, pass_id=record.id, frames=recording.frames)
+        alarm_repo.save_alarms(session=session, documents=_alarms(recording, record.id))
         original = meta.get("pass_id")
         imported = PassImported(
             actor=actor,

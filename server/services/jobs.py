@@ -19,7 +19,11 @@ import contextlib
 import os
 import pickle
 import resource
+import select
+import signal
 import tempfile
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
@@ -64,15 +68,59 @@ def _sendable(exc: BaseException) -> BaseException:
     return JobFailedError("worker_failed", f"the job failed: {type(exc).__name__}: {exc}")
 
 
+#: How often a job whose platform has no pidfd checks that the server is still there (s).
+_WATCH_POLL_S = 1.0
+
+
+def _end_with_server(server_pid: int | None) -> None:
+    """End this job (SIGKILL itself) as soon as the server process ``server_pid`` has
+    ended, however it ended: a daemon thread waits on a pidfd of the server (Linux), else
+    polls. The pool kills and reaps its jobs when it stops; this is for a server killed
+    without its shutdown, or one that ended while a job's start was under way, whose job
+    would otherwise run on (and keep the pool's forkserver alive: it ends when its last
+    client has) (docs/operations.md "Stopping with requests in flight")."""
+    if server_pid is None:
+        return
+    try:
+        pidfd: int | None = os.pidfd_open(server_pid)
+    except (AttributeError, OSError):  # no pidfd here, or the server is gone already
+        pidfd = None
+        if not _alive(server_pid):
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    def watch() -> None:
+        if pidfd is not None:
+            select.select([pidfd], [], [])  # readable once the server has ended
+        else:
+            while _alive(server_pid):
+                time.sleep(_WATCH_POLL_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="hikoboshi-job-watch", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def run_job(
     conn: Connection,
     memory_bytes: int | None,
     fn: Callable[..., Any],
     args: tuple[Any, ...],
     kwargs: dict[str, Any],
+    server_pid: int | None = None,
 ) -> None:
-    """The job process: lower its CPU priority, limit the address space, run ``fn``, send
-    ``("ok", result)`` or ``("error", exc)`` (see the module doc)."""
+    """The job process: end with the server (``server_pid``), lower its CPU priority,
+    limit the address space, run ``fn``, send ``("ok", result)`` or ``("error", exc)`` (see
+    the module doc)."""
+    _end_with_server(server_pid)
     # Below the server and the link: on a machine with few cores a download or a plan must
     # take the CPU the live pass leaves, not share it evenly (at equal priority two jobs
     # made an operator's abort wait seconds for the link's database worker).

@@ -52,17 +52,26 @@ from server.services.events import (
     CommandAckUnknown,
     CommandDeferred,
     CommandsUnknown,
+    LinkClosedMalformed,
     LinkConnected,
     LinkDisconnected,
     LinkDown,
-    LinkErrorReceived,
-    LinkErrorReplied,
     LinkEvent,
     LinkHello,
+    LinkTakeover,
     LinkUp,
     RequestVerified,
+    SafingReported,
+    VehicleSafeExitRequested,
     event_job,
     record,
+)
+from server.services.malformed import MalformedGuard, MalformedPolicy, tally_events
+from server.services.safing import (
+    RESEND_MARGIN_S,
+    SafeExitSender,
+    VehicleSafingState,
+    exit_confirmation,
 )
 from server.services.vehicle import (
     ETS7_ROBOT,
@@ -85,6 +94,7 @@ from telemetry.wire import (
     JointCommandMsg,
     Ping,
     Pong,
+    Safing,
     ScheduleDelete,
     TelemetryMsg,
     Verification,
@@ -106,6 +116,8 @@ __all__ = [
     "LinkUp",
     "RequestVerified",
     "RobotIdentity",
+    "SafeExitRefused",
+    "SafingReported",
     "ScheduleStatus",
     "TelemetryWindow",
     "robot_mismatch",
@@ -123,6 +135,15 @@ class LinkUnavailable(Exception):
     """No spacecraft is connected, or its clock is not known yet."""
 
 
+class SafeExitRefused(Exception):
+    """A ``safe_exit`` the ground will not send: ``code`` says why (``vehicle_not_safe``,
+    ``confirmation_mismatch``)."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
 # --- connection and status -----------------------------------------------------------------
 
 
@@ -136,6 +157,22 @@ class Connection:
     id: int = field(default_factory=itertools.count(1).__next__)
     greeted: bool = False  # its hello has arrived
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    #: who is at the other end, for the takeover audit: the peer's ``host:port`` and
+    #: ``User-Agent`` header (None: unknown), and when it connected (ground ns, the
+    #: link's clock; stamped by :meth:`GroundLink.attach` when not given)
+    peer: str | None = None
+    user_agent: str | None = None
+    connected_ns: int | None = None
+
+    def described(self) -> dict[str, Any]:
+        """This connection as the takeover event names it."""
+        return {
+            "connection": self.id,
+            "actor": self.actor,
+            "peer": self.peer,
+            "user_agent": self.user_agent,
+            "connected_ns": self.connected_ns,
+        }
 
 
 # --- the link ------------------------------------------------------------------------------
@@ -149,6 +186,7 @@ class GroundLink:
         downlink: GroundDownlink,
         clock: Clock,
         one_way_delay_s: float = 3.0,
+        malformed: MalformedPolicy | None = None,
     ) -> None:
         self._db = db
         #: telemetry goes there (it sends its acknowledgements through :meth:`send`)
@@ -168,12 +206,21 @@ class GroundLink:
         self.round_trip_s: float | None = None
         self._pings: dict[int, float] = {}
         self._ping_ids = itertools.count()
-        self.errors_replied = 0
         self.errors_received = 0
+        #: messages that did not decode: counted, audited per kind per interval, answered
+        #: at a bounded rate, the connection closed past a threshold (malformed.py)
+        self.malformed = MalformedGuard(malformed or MalformedPolicy())
+        self._auditor: asyncio.Task[None] | None = None
+        self._noise_actor = "spacecraft"
         #: seq -> pass, for acknowledgements (registered by the runner)
         self._command_pass: dict[int, str] = {}
         self._listeners: list[Callable[[LinkEvent], None]] = []
         self._uplink_status: Callable[[], dict[str, Any] | None] | None = None
+        #: the vehicle's on-board safing, from its reports (server.services.safing)
+        self.safing = VehicleSafingState()
+        self._safe_exits = SafeExitSender(
+            clock=clock, db=db, send=self.send, answer_wait_s=self._answer_wait_s
+        )
 
     # -- what the runner asks for --------------------------------------------------------
 
@@ -230,12 +277,27 @@ class GroundLink:
 
     async def attach(self, conn: Connection) -> None:
         """A new spacecraft connection; it supersedes an older one (a half-open socket must
-        not keep a reconnecting spacecraft out)."""
+        not keep a reconnecting spacecraft out). Every takeover is audited
+        (``link_takeover``, both connections' details): the superseded connection's own
+        detach finds the link already taken and writes nothing, so this is its one record."""
+        if conn.connected_ns is None:
+            conn.connected_ns = self.clock.time_ns()
         old, self._conn = self._conn, conn
+        # Not awaited: the hello behind it must be read (and timed) at once.
         if old is not None:
+            takeover = LinkTakeover(
+                actor=conn.actor, previous=old.described(), current=conn.described()
+            )
+            self._db.submit(event_job(takeover, self.clock))
+            log.warning(
+                "link takeover: connection %d (%s) supersedes %d (%s)",
+                conn.id,
+                conn.peer,
+                old.id,
+                old.peer,
+            )
             with contextlib.suppress(Exception):
                 await old.close(1000, "superseded by a new spacecraft connection")
-        # Not awaited: the hello behind it must be read (and timed) at once.
         self._db.submit(event_job(LinkConnected(actor=conn.actor, connection=conn.id), self.clock))
 
     async def detach(self, conn: Connection, reason: str) -> None:
@@ -277,9 +339,43 @@ class GroundLink:
             ok = await self.send(encode(CommandQuery(seqs=seqs[lo : lo + 1000]))) and ok
         return ok
 
+    def _answer_wait_s(self) -> float:
+        """Wall s to wait for the vehicle's answer to a request (a round trip and margin)."""
+        if self._onboard is None:
+            return 2 * self.one_way_delay_s + RESEND_MARGIN_S
+        round_trip_s = self.round_trip_s or 2 * self.one_way_delay_s * self._onboard.scale
+        return (round_trip_s + RESEND_MARGIN_S) / self._onboard.scale
+
+    async def request_safe_exit(self, actor: str, confirm: str) -> int:
+        """Send ``safe_exit`` (and again until the vehicle reports it left SAFE): the
+        request's id. Refused (:class:`SafeExitRefused`) when the vehicle is not safe or
+        ``confirm`` is not ``EXIT SAFE <vehicle>``; :class:`LinkUnavailable` without a link."""
+        if not self.connected:
+            raise LinkUnavailable("no spacecraft is connected: safe_exit needs the link")
+        expected = exit_confirmation(self.vehicle)
+        if confirm != expected:
+            raise SafeExitRefused(
+                "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
+            )
+        if self.safing.mode != "safe":
+            raise SafeExitRefused(
+                "vehicle_not_safe", f"the vehicle {self.vehicle!r} is not in SAFE"
+            )
+        request_id = self._safe_exits.new_request_id()
+        event = VehicleSafeExitRequested(
+            actor=actor, pass_id=self.safing.pass_id, request_id=request_id, vehicle=self.vehicle
+        )
+        await self._db.write(event_job(event, self.clock), control=True)
+        self._safe_exits.start(request_id)
+        return request_id
+
     async def close(self) -> None:
+        await self._safe_exits.close()
         if self._pinger is not None:
             self._pinger.cancel()
+        if self._auditor is not None:
+            self._auditor.cancel()
+        self._audit_interval()  # what the open interval counted so far
         conn, self._conn = self._conn, None
         if conn is not None:
             with contextlib.suppress(Exception):
@@ -297,17 +393,15 @@ class GroundLink:
         try:
             message = decode_spacecraft(raw)
         except WireError as exc:
-            await self._refuse(conn, exc)
+            await self._refuse(conn, exc, received)
             return
         if conn is not self._conn:
             return  # a superseded connection
         if isinstance(message, ErrorMsg):
             # Never answered (not even before the hello); its text arrives escaped.
             self.errors_received += 1
-            info = LinkErrorReceived(
-                actor=conn.actor, reason=message.reason, ref_type=message.ref_type
-            )
-            await self._db.write(event_job(info, self.clock))
+            self._noisy(conn, received)
+            self.malformed.error_received(message.reason, message.ref_type, received)
         elif isinstance(message, Hello):
             await self._on_hello(conn, message, received)
         elif not conn.greeted:
@@ -325,27 +419,77 @@ class GroundLink:
         elif isinstance(message, CommandUnknown):
             self._observe(message.onboard_time_ns, received)
             await self._on_command_unknown(message)
+        elif isinstance(message, Safing):
+            self._observe(message.onboard_time_ns, received)
+            if message.state == "nominal":
+                # the answer to a safe_exit ends its resends, whatever the ground thought
+                self._safe_exits.answered(message.exit_request_id)
+            filed = self.safing.on_report(message)
+            if filed is not None:  # None: stale (an older report the relay delivered late)
+                entered, exited = filed
+                self._emit(SafingReported(message, entered, exited, received))
         elif isinstance(message, Pong):
             self._observe(message.onboard_time_ns, received)
             sent = self._pings.pop(message.ping_id, None)
             if sent is not None:
                 self.round_trip_s = (received - sent) * self.time_scale
 
-    async def _refuse(self, conn: Connection, exc: WireError) -> None:
-        """A message that did not decode: an ``error`` reply naming the reason (the wire's
-        reasons hold no control character), and a ``link_error_replied`` event; the session
-        carries on. A broken ``error`` from the vehicle is counted, never answered."""
+    @property
+    def errors_replied(self) -> int:
+        return self.malformed.replied
+
+    async def _refuse(self, conn: Connection, exc: WireError, received: float) -> None:
+        """A message that did not decode: counted, audited with its kind once per
+        interval, answered with ``error`` (naming the reason; the wire's reasons hold no
+        control character) at a bounded rate, the connection closed past the threshold
+        (:mod:`server.services.malformed`). Nothing here waits for the database, and the
+        loop is let go after each: the uplink and the acknowledgements go first. A broken
+        ``error`` from the vehicle is counted, never answered."""
         reason = str(exc)[:500]
         if exc.ref_type == "error":
             self.errors_received += 1
-            text = f"unreadable error message: {reason}"[:500]
-            info = LinkErrorReceived(actor=conn.actor, reason=text, ref_type=None)
-            await self._db.write(event_job(info, self.clock))
-            return
-        self.errors_replied += 1
-        await self.send(encode(ErrorMsg(reason=reason, ref_type=exc.ref_type)))
-        replied = LinkErrorReplied(actor=conn.actor, reason=reason, ref_type=exc.ref_type)
-        await self._db.write(event_job(replied, self.clock))
+            reason = f"unreadable error message: {reason}"[:500]
+        self._noisy(conn, received)
+        verdict = self.malformed.refused(conn.id, exc, reason, received)
+        if verdict.reply is not None and conn is self._conn:
+            await self.send(encode(ErrorMsg(reason=verdict.reply, ref_type=exc.ref_type)))
+        if verdict.close is not None:
+            count = self.malformed.policy.close_after + 1
+            log.warning("closing the spacecraft's link: %s", verdict.close)
+            closed = LinkClosedMalformed(
+                actor=conn.actor,
+                connection=conn.id,
+                reason=verdict.close,
+                count=count,
+                interval_s=self.malformed.policy.interval_s,
+            )
+            self._db.submit(event_job(closed, self.clock))
+            with contextlib.suppress(Exception):
+                await conn.close(1008, verdict.close)
+        await asyncio.sleep(0)
+
+    def _noisy(self, conn: Connection, now: float) -> None:
+        """Before tallying a message of ``conn`` at ``now``: the interval it ends is
+        audited, and an auditor waits for the end of the one it opens."""
+        self._noise_actor = conn.actor
+        end = self.malformed.interval_end()
+        if end is not None and now >= end:
+            self._audit_interval()
+        if self._auditor is None or self._auditor.done():
+            self._auditor = asyncio.create_task(self._audit_intervals(), name="link-noise")
+
+    async def _audit_intervals(self) -> None:
+        await asyncio.sleep(0)  # the message that started it is tallied first
+        while (end := self.malformed.interval_end()) is not None:
+            await self.clock.sleep_until(end)
+            if self.malformed.interval_end() == end:
+                self._audit_interval()
+
+    def _audit_interval(self) -> None:
+        """One audit row per kind of the open interval (queued, not waited for)."""
+        events = tally_events(self.malformed.take_interval(), self._noise_actor, self.clock)
+        if events:
+            self._db.submit(lambda s: [record(s, e, self.clock.time_ns()) for e in events])
 
     async def _on_hello(self, conn: Connection, hello: Hello, received_mono: float) -> None:
         # Timed when read off the socket: at 20x, 50 ms of queueing would put the ground's
@@ -358,6 +502,7 @@ class GroundLink:
             jitter_allowance_s=JITTER_ALLOWANCE_S,
         )
         conn.greeted = True
+        self.safing.on_hello()  # a safe vehicle reports so right after its hello
         self.vehicle = hello.vehicle
         self.robot = RobotIdentity.of_hello(hello)
         self.last_command_seq = hello.last_command_seq
@@ -494,4 +639,10 @@ class GroundLink:
             robot=None if self.robot is None else self.robot.name,
             robot_hash=None if self.robot is None else self.robot.hash,
             n_joints=None if self.robot is None else self.robot.n_joints,
+            vehicle_mode=self.safing.mode,
+            safing=self.safing.status(),
+            malformed_received=self.malformed.malformed,
+            malformed_by_kind=dict(self.malformed.by_kind),
+            errors_unanswered=self.malformed.unanswered,
+            malformed_closes=self.malformed.closes,
         )

@@ -80,6 +80,7 @@ TRANSITIONS = {
     "los": {"running"},
     "complete": {"los"},
     "aborted": {"scheduled", "aos", "running", "los"},
+    "safed": {"aos", "running", "los"},
 }
 #: Wall s allowed for the start transaction itself (its first use of a fresh PostgreSQL
 #: connection can take a few hundred ms: at 20x that is seconds onboard).
@@ -255,10 +256,12 @@ def abort_job(
     cancel: list[int] | None,
     from_ns: int | None,
     end_ns: int | None,
+    to: str = "aborted",
 ) -> Job:
     """The abort transaction: ``cancel`` (None: a pass not running here, after a restart:
     every command not sent) becomes ``cancelled`` (one ``commands_cancelled`` event), then
-    ``aborted`` (the telemetry window ending at ``end_ns``)."""
+    ``to`` (``aborted``, or ``safed`` when the vehicle safed itself; the telemetry window
+    ending at ``end_ns``)."""
     why = reason if from_ns is None else f"{reason} (deleted from the schedule)"
 
     def job(session: Session) -> list[dict[str, Any]]:
@@ -282,7 +285,7 @@ def abort_job(
                 from_time_ns=from_ns,
             )
         events.append(
-            transition(session, clock, key, "aborted", actor, reason, now, telemetry_end_ns=end_ns)
+            transition(session, clock, key, to, actor, reason, now, telemetry_end_ns=end_ns)
         )
         return events
 
@@ -324,6 +327,8 @@ class ActivePass:
     max_seq: int
     #: The robot the pass's plan was made for.
     robot: RobotIdentity
+    #: The first command's tag (the plan's t = 0 on board).
+    first_tag_ns: int | None = None
     stop: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
     refusals: RefusalStreak = field(default_factory=RefusalStreak)
@@ -347,5 +352,6 @@ class ActivePass:
         """The pass's running state (``tags``: seq -> tag of all its commands)."""
         last_tag_ns, max_seq = max(tags.values()), max(tags)
         return cls(
-            pass_id, name, uplink, window, tracker, last_tag_ns, max_seq, robot, resumed=resumed
-        )
+            pass_id, name, uplink, window, tracker, last_tag_ns, max_seq, robot,
+            first_tag_ns=min(tags.values()), resumed=resumed,
+        )  # fmt: skip

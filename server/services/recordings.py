@@ -3,7 +3,7 @@ recorder, reports and replay work from.
 
 :func:`load_recording` reads the plan, the telemetry frames (one query, into the column
 arrays of the pass's robot's :class:`telemetry.layout.FrameLayout`), the commands with their
-stage times and the pass's audit events. A pass that has not started yet (no epoch) has
+stage times, the pass's audit events and its alarms. A pass that has not started yet (no epoch) has
 nothing to analyse: :class:`NotFlown`.
 """
 
@@ -18,12 +18,14 @@ from sqlalchemy.orm import Session
 from planner.plan import Plan
 from server.services.errors import ConflictError
 from server.services.robots import model_for_plan, urdf_for_plan
+from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
+from server.storage._common import MAX_LIMIT
 from server.storage.models import COMMAND_STAGES, EventRecord, TelemetryFrameRecord
 from telemetry.mcap import write_mcap
 from telemetry.recording import CommandRow, EventRow, FrameArrays, PassRecording
 
-__all__ = ["NotFlown", "load_recording", "recording_mcap", "write_recording"]
+__all__ = ["NotFlown", "load_recording", "not_flown", "recording_mcap", "write_recording"]
 
 _TABLE = TelemetryFrameRecord.__table__
 
@@ -33,6 +35,11 @@ class NotFlown(ConflictError):
 
     def __init__(self, message: str) -> None:
         super().__init__("pass_not_flown", message)
+
+
+def not_flown(name: str, state: str) -> NotFlown:
+    """The refusal for a pass named ``name`` in ``state`` that has no epoch yet."""
+    return NotFlown(f"pass {name!r} is {state}: it has not flown")
 
 
 def _frames(session: Session, pass_id: str) -> FrameArrays:
@@ -58,7 +65,7 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
     """Everything stored of one pass (``NotFound`` unknown, :class:`NotFlown` never started)."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     if record.epoch_ns is None:
-        raise NotFlown(f"pass {record.name!r} is {record.state}: it has not flown")
+        raise not_flown(record.name, record.state)
     plan = Plan.from_json(repo.get_plan(session=session, plan_id=record.plan_id).document)
     commands = tuple(
         CommandRow(
@@ -91,6 +98,7 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
         "telemetry_end_ns": record.telemetry_end_ns,
         "plan_id": record.plan_id,
     }
+    alarms = alarm_repo.list_alarms(session=session, pass_id=record.id, limit=MAX_LIMIT).items
     return PassRecording(
         name=record.name,
         plan=plan,
@@ -99,6 +107,7 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
         commands=commands,
         events=events,
         meta=meta,
+        alarms=tuple(alarm_repo.alarm_document(a) for a in reversed(alarms)),
     )
 
 

@@ -3,7 +3,10 @@ no files), so the command line builds them from a recording file too.
 
 :func:`build_report` gives the :class:`~server.schemas.ReportPublic` that
 :mod:`server.services.reports` serves as JSON and renders as HTML; :data:`FIGURE_CAPTIONS`
-orders and captions the figures.
+orders and captions the figures. A pass's alarms (their documents, docs/alarms.md) make two
+tables: the alarms, and their timeline (every change of band and every acknowledgement).
+A pass's command outcome (:class:`server.services.summary.CommandOutcome`, as a mapping)
+makes the ``commands`` table, after the paper's: ``nominal`` or ``degraded`` and the counts.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ FIGURE_CAPTIONS = {
     "phase_plane": "Experiment 3 (paper Fig. 9): base pitch against pitch rate, side by side: "
     "(a) feedback, (b) feedforward, (c) offset; first dip and peak marked.",
     "endpoint": "Experiment 4 (Fig. 11): non-holonomic motion and its end-point errors.",
+    "alarm_timeline": "Alarms: the band each alarm was in over the pass (plan clock), "
+    "coloured by severity (watch, warning, distress, critical, severe).",
 }
 _RPY = ("roll", "pitch", "yaw")
 
@@ -387,6 +392,97 @@ _TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
 }
 
 
+def _t_s(time_ns: Any, epoch_ns: int | None) -> float | None:
+    """An onboard time on the plan's clock (s from its ``t = 0``)."""
+    if time_ns is None or epoch_ns is None:
+        return None
+    return (int(time_ns) - epoch_ns) / 1e9
+
+
+def _alarm_tables(
+    alarms: Sequence[Mapping[str, Any]], epoch_ns: int | None
+) -> list[ReportTablePublic]:
+    """The alarms (oldest raised first) and their timeline."""
+    rows, timeline = [], []
+    for k, a in enumerate(alarms, start=1):
+        name = f"{k}: {a.get('quantity')}{' ' + a['channel'] if a.get('channel') else ''}"
+        rows.append(
+            [
+                name,
+                a.get("source"),
+                a.get("severity"),
+                a.get("state"),
+                a.get("acknowledged_by"),
+                a.get("comment"),
+                _t_s(a.get("raised_generation_time_ns"), epoch_ns),
+                a.get("raised_frame_seq"),
+                _t_s(a.get("cleared_generation_time_ns"), epoch_ns),
+                a.get("trigger_value"),
+                a.get("worst_value"),
+                a.get("limit"),
+                a.get("unit"),
+                a.get("count"),
+            ]
+        )
+        for entry in a.get("timeline") or ():
+            timeline.append(
+                [
+                    name,
+                    entry.get("severity") or "within limits",
+                    _t_s(entry.get("generation_time_ns"), epoch_ns),
+                    entry.get("frame_seq"),
+                    entry.get("value"),
+                    a.get("unit"),
+                    entry.get("time_ns"),
+                ]
+            )
+        if a.get("acknowledged"):
+            ack = f"acknowledged by {a.get('acknowledged_by')}"
+            comment = a.get("comment")
+            timeline.append(
+                [name, ack + (f": {comment}" if comment else ""), None, None, None, None,
+                 a.get("acknowledged_time_ns")]
+            )  # fmt: skip
+    by_severity = {s: sum(a.get("severity") == s for a in alarms) for s in _SEVERITIES}
+    counts = ", ".join(f"{n} {s}" for s, n in by_severity.items() if n) or "none"
+    return [
+        _table(
+            "alarms",
+            "Alarms: the worst band each reached (latching: listed until acknowledged)",
+            [
+                "alarm",
+                "source",
+                "severity",
+                "state",
+                "acknowledged_by",
+                "comment",
+                "raised_t_s",
+                "raised_frame_seq",
+                "cleared_t_s",
+                "trigger_value",
+                "worst_value",
+                "limit",
+                "unit",
+                "frames",
+            ],
+            rows,
+            [
+                f"{len(alarms)} alarms: {counts}; t_s on the plan's clock (onboard), the "
+                "link's health timed on the ground has none"
+            ],
+        ),
+        _table(
+            "alarm_timeline",
+            "Alarm timeline: every change of band, and the acknowledgements",
+            ["alarm", "band", "t_s", "frame_seq", "value", "unit", "ground_time_ns"],
+            timeline,
+        ),
+    ]
+
+
+_SEVERITIES = ("watch", "warning", "distress", "critical", "severe")
+
+
 def _flight_table(
     documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
 ) -> ReportTablePublic:
@@ -415,6 +511,30 @@ def _flight_table(
     )
 
 
+#: The command outcome's columns (CommandOutcome.document's keys).
+_OUTCOME_COLUMNS = (
+    "outcome",
+    "total",
+    "executed_at_tag",
+    "late",
+    "expired",
+    "rejected",
+    "cancelled",
+    "unresolved",
+)
+
+
+def _commands_table(outcome: Mapping[str, Any]) -> ReportTablePublic:
+    return _table(
+        "commands",
+        f"Commands: {outcome.get('outcome')} (nominal only when every command executed on "
+        "board at its time tag)",
+        _OUTCOME_COLUMNS,
+        [_get(outcome, *_OUTCOME_COLUMNS)],
+        [str(outcome.get("text", ""))],
+    )
+
+
 def build_report(
     *,
     pass_id: str | None,
@@ -424,9 +544,14 @@ def build_report(
     imported: bool,
     documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
     figure_names: Sequence[str],
+    alarms: Sequence[Mapping[str, Any]] = (),
+    epoch_ns: int | None = None,
+    commands: Mapping[str, Any] | None = None,
 ) -> ReportPublic:
     """The report of stored documents (``kind -> (document, created_at_ns)``, as
-    :mod:`server.services.analyses` stores them)."""
+    :mod:`server.services.analyses` stores them), of the pass's ``alarms`` (oldest
+    raised first; ``epoch_ns``: the plan's ``t = 0`` onboard, for their times) and of its
+    ``commands``' outcome (None: not known, as for a recording file)."""
     statuses, tables = [], []
     for kind in KINDS:
         if kind not in documents:
@@ -444,6 +569,9 @@ def build_report(
                 ReportAnalysisPublic(kind=kind, status="failed", created_at=created, error=reason)
             )
     tables.insert(0, _flight_table(documents))
+    if commands is not None:
+        tables.insert(1, _commands_table(commands))
+    tables += _alarm_tables(alarms, epoch_ns)
     order = list(FIGURE_CAPTIONS)
     names = sorted(figure_names, key=lambda n: (order.index(n) if n in order else len(order), n))
     return ReportPublic(

@@ -1,4 +1,5 @@
-"""Pass reports: the newest stored analyses as tables, as JSON and as one HTML page.
+"""Pass reports: the newest stored analyses and the pass's alarms as tables, as JSON and as
+one HTML page.
 
 :func:`build_report` (its tables: :mod:`server.services.report_tables`) and
 :func:`render_html` are pure (the command line uses them on a recording file, without a
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import base64
 import html
+import json
 from collections.abc import Mapping
 
 from sqlalchemy.orm import Session
@@ -25,13 +27,18 @@ from server.schemas import ReportCell, ReportPublic
 from server.services import analyses
 from server.services.errors import NotFoundError
 from server.services.report_tables import FIGURE_CAPTIONS, build_report
+from server.services.summary import command_outcome
+from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
+from server.storage._common import MAX_LIMIT
 
 __all__ = [
     "FIGURE_CAPTIONS",
+    "analyses_not_run",
     "build_report",
     "pass_report",
     "pass_report_html",
+    "pass_report_json",
     "render_html",
     "stored_report",
 ]
@@ -104,20 +111,26 @@ def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
     return "\n".join(parts)
 
 
+def analyses_not_run(pass_id: str) -> NotFoundError:
+    """The refusal for a report of a pass whose analyses have not run."""
+    return NotFoundError(
+        "analysis_not_run",
+        f"pass {pass_id} has no analyses yet: POST /api/passes/{pass_id}/analyses",
+    )
+
+
 def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[str, bytes]]:
     """The report of the pass's newest analyses and their figures (PNG bytes by name);
     ``NotFoundError`` ``analysis_not_run`` before the first run."""
     record = repo.get_pass(session=session, pass_id=pass_id)
     rows = analyses.newest_documents(session=session, pass_id=record.id)
     if not rows:
-        raise NotFoundError(
-            "analysis_not_run",
-            f"pass {record.id} has no analyses yet: POST /api/passes/{record.id}/analyses",
-        )
+        raise analyses_not_run(record.id)
     figures = analyses.figures(session=session, pass_id=record.id)
     imported = repo.list_events(
         session=session, pass_id=record.id, kinds=["pass_imported"], limit=1
     ).count
+    alarms = alarm_repo.list_alarms(session=session, pass_id=record.id, limit=MAX_LIMIT).items
     report = build_report(
         pass_id=record.id,
         name=record.name,
@@ -126,6 +139,10 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
         imported=imported > 0,
         documents={kind: (r.result, r.created_at_ns) for kind, r in rows.items()},
         figure_names=list(figures),
+        alarms=[alarm_repo.alarm_document(a) for a in reversed(alarms)],
+        epoch_ns=record.epoch_ns,
+        # a pass flown here (an imported one's report is its recording's, as from the file)
+        commands=None if imported else command_outcome(session, record.id).document(),
     )
     return report, figures
 
@@ -133,6 +150,14 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
 def pass_report(*, session: Session, pass_id: str) -> ReportPublic:
     """The report of the pass's newest analyses (see :func:`stored_report`)."""
     return stored_report(session, pass_id)[0]
+
+
+def pass_report_json(*, session: Session, pass_id: str) -> bytes:
+    """The report as the JSON the API answers (FastAPI's rendering of :class:`ReportPublic`:
+    compact, UTF-8, no NaN)."""
+    document = pass_report(session=session, pass_id=pass_id).model_dump(mode="json", by_alias=True)
+    text = json.dumps(document, ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+    return text.encode("utf-8")
 
 
 def pass_report_html(*, session: Session, pass_id: str) -> str:

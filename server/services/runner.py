@@ -2,6 +2,7 @@
 
     scheduled -> aos -> running -> los -> complete
     scheduled | aos | running | los -> aborted
+    aos | running | los -> safed
 
 All timing reads the injected :class:`~server.services.clock.Clock` (``SystemClock`` in the
 service, a ``ManualClock`` in the unit tests), so the rules below are tested in simulated
@@ -28,7 +29,10 @@ telemetry window closes there); the tracker resolves the commands whose tag has 
 without a final acknowledgement (``command_query``, up to
 :data:`~server.services.tracker.MAX_COMMAND_QUERIES` times: acks lost on the downlink come
 again, commands lost on the uplink come back ``command_unknown`` and expire); once no
-command is left ``sent`` or ``received`` (or the queries are used up) it is ``complete``.
+command is left ``sent`` or ``received`` (or the queries are used up) it is ``complete``,
+its reason the outcome (:func:`~server.services.summary.command_outcome`: "complete,
+nominal: all 400 commands executed at their tags", or "complete, degraded: 393 of 6190
+commands expired").
 
 **Abort**: the uplink stops. With something sent, a ``schedule_delete`` from the next grid
 tag ``T`` at least (delay + margin) ahead goes up (:mod:`server.services.schedule_delete`);
@@ -40,9 +44,27 @@ commands before ``T`` are resolved in the background as their tags pass.
 **Another robot mid-pass** (a new ``hello`` naming another robot than the plan's): the
 uplink stops at once and the pass is aborted with that reason; a resumed pass is checked too.
 
+**The vehicle safes itself** (its ``safing`` report, state ``safe``: docs/alarms.md): the
+uplink stops at once, the vehicle's own protection having already emptied its schedule and
+holding the arm; no ``schedule_delete`` goes up (the vehicle refuses every command while
+safe, each ``rejected`` ``safing``, filed ``cancelled``). The commands never sent are
+``cancelled`` on the ground, the telemetry window stays open :data:`SAFED_TAIL_S` onboard
+past the safing (the report shows the hold), and the pass goes ``safed`` with the trigger as
+its reason. The alarms raise the ``critical`` ``vehicle_safing`` alarm; the tracker
+resolves the fates of the commands sent. No pass starts while the vehicle is safe (409
+``vehicle_safe``); an operator's ``safe_exit`` ends it (:mod:`server.services.safing`).
+
+**Graceful stop** (:meth:`PassRunner.shutdown`, SIGTERM): a handover, not an abort. The
+uplink and the pass's task stop, the stage writes already made are flushed, a
+``ground_stopped`` event says what the vehicle holds, and the pass stays ``running`` (or
+``los``) with its telemetry window open: nothing is cancelled, the vehicle flies what it
+holds under its LOS policy, and the next process resumes the pass exactly as after a crash.
+
 **Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the passes
 and carries out the decisions of :mod:`server.services.recovery` (resume a pass left
-``running`` or ``los`` by a process that did not shut down, abort the others).
+``running`` or ``los``, abort the others; a ``safed`` pass is final and stays so), hands the
+link the vehicle's last safing episode, and asks the vehicle, once it is back, about the
+commands of ended passes still ``sent`` or ``received`` (and of a pass it aborts after all).
 """
 
 from __future__ import annotations
@@ -51,7 +73,8 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Coroutine
-from typing import Any
+from datetime import UTC, datetime
+from typing import Any, Protocol
 
 from sqlalchemy.orm import Session
 
@@ -59,7 +82,15 @@ from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError
-from server.services.events import PassResumed, event_job
+from server.services.events import (
+    GroundStopped,
+    PassResumed,
+    SafingReported,
+    VehicleSafed,
+    VehicleSafeExited,
+    event_job,
+    record,
+)
 from server.services.link import (
     CommandAcked,
     GroundLink,
@@ -88,22 +119,42 @@ from server.services.recovery import (
 )
 from server.services.recovery import load as load_recovery
 from server.services.schedule_delete import Deletion, ScheduleDeletes
-from server.services.tracker import LINK_DOWN_POLL_S, Trackers
+from server.services.summary import command_outcome
+from server.services.tracker import LINK_DOWN_POLL_S, CommandTracker, Trackers
 from server.services.uplink import RttEstimator, UplinkCommand
 from server.settings import Settings
+from server.storage import repository as repo
 from server.storage._common import canonical_id
 from server.storage.errors import Conflict
 from telemetry.uplink import plan_commands
-from telemetry.wire import JointCommandMsg
+from telemetry.wire import JointCommandMsg, Safing
 
-__all__ = ["TRANSITIONS", "PassRunner", "plan_commands"]
+__all__ = [
+    "SAFED_TAIL_S",
+    "TRANSITIONS",
+    "PassRunner",
+    "SafingAlarms",
+    "handover_reason",
+    "plan_commands",
+    "safed_reason",
+]
 
 log = logging.getLogger("hikoboshi.ground.runner")
 
 SETTLE_S = 2.0  # onboard s after the last tag before LOS
+#: Onboard s of telemetry a safed pass keeps after the vehicle safed itself.
+SAFED_TAIL_S = 60.0
 #: A pass starts late enough for its first command to go up this many times (the first
 #: timeout, before any round-trip sample) before its last chance.
 START_TRANSMISSIONS = 3
+
+
+class SafingAlarms(Protocol):
+    """What the runner tells the alarms of the vehicle's safing (server.services.alarms)."""
+
+    def vehicle_safed(self, pass_id: str | None, report: Safing) -> None: ...
+
+    def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None: ...
 
 
 class PassRunner:
@@ -117,8 +168,10 @@ class PassRunner:
         trackers: Trackers,
         settings: Settings,
         clock: Clock,
+        alarms: SafingAlarms | None = None,
     ):
         self._link = link
+        self._alarms = alarms
         self._downlink = downlink
         self._db = db
         self._publisher = publisher
@@ -132,6 +185,7 @@ class PassRunner:
         self._lock = asyncio.Lock()
         self._wake = asyncio.Event()
         self._diverged: asyncio.Task[None] | None = None
+        self._safing: asyncio.Task[None] | None = None
         self._background: set[asyncio.Task[Any]] = set()
         self._deletes = ScheduleDeletes(
             link=link,
@@ -167,12 +221,74 @@ class PassRunner:
                     self._abort_soon(active, reason)
             if first or event.reason == "schedule_full":
                 self._wake.set()
+        elif isinstance(event, SafingReported):
+            self._on_safing(event)
         elif isinstance(event, LinkUp):
             if active is not None and not active.stop.is_set():
                 refusal = robot_mismatch(active.robot, RobotIdentity.of_hello(event.hello))
                 if refusal is not None:
                     self._foreign_vehicle(active, refusal)
             self._wake.set()
+
+    def _on_safing(self, event: SafingReported) -> None:
+        """The vehicle's ``safing`` report. Any ``safe`` report stops a running pass's
+        uplink at once and makes the pass ``safed`` (the first of an episode, or one that
+        reaches a pass started or resumed meanwhile); the first of an episode is audited
+        (``vehicle_safed``), and every one goes to the alarms (the 1 s repeats update the
+        alarm). The report ending an episode is audited and clears the alarm."""
+        report, state = event.report, self._link.safing
+        actor = self._link.vehicle or "spacecraft"
+        if report.state == "safe":
+            active = self._active
+            running = active is not None and not active.stop.is_set()
+            if event.entered or running:
+                state.pass_id = None if active is None else active.pass_id
+            if active is not None and running:
+                active.uplink.stop()  # before the runner can wake: nothing more goes up
+                if self._safing is None:
+                    self._safing = asyncio.get_running_loop().create_task(
+                        self._safe_pass(active, report)
+                    )
+            if event.entered:
+                safed = VehicleSafed(
+                    actor=actor,
+                    pass_id=state.pass_id,
+                    since_time_ns=report.since_time_ns,
+                    trigger=None if report.trigger is None else report.trigger.model_dump(),
+                    cancelled=report.cancelled,
+                    onboard_time_ns=report.onboard_time_ns,
+                )
+                self._db.submit(event_job(safed, self._clock))
+            if self._alarms is not None:
+                self._alarms.vehicle_safed(state.pass_id, report)
+        elif event.exited:
+            exited = VehicleSafeExited(
+                actor=actor,
+                pass_id=state.pass_id,
+                request_id=report.exit_request_id,
+                since_time_ns=report.since_time_ns,
+                onboard_time_ns=report.onboard_time_ns,
+            )
+            self._db.submit(event_job(exited, self._clock))
+            if self._alarms is not None:
+                self._alarms.vehicle_nominal(state.pass_id, report)
+
+    async def _safe_pass(self, active: ActivePass, report: Safing) -> None:
+        try:
+            async with self._lock:
+                if self._active is not active or active.stop.is_set():
+                    return  # aborted meanwhile: it stays so
+                since = report.since_time_ns or report.onboard_time_ns
+                await self._abort_locked(
+                    active.pass_id,
+                    self._link.vehicle or "spacecraft",
+                    safed_reason(report, active.first_tag_ns),
+                    safed_at_ns=since,
+                )
+        except Exception:
+            log.exception("pass %s: marking it safed failed", active.pass_id)
+        finally:
+            self._safing = None
 
     def _foreign_vehicle(self, active: ActivePass, refusal: str) -> None:
         """The vehicle now connected flies another robot: nothing more of the plan goes up
@@ -220,6 +336,13 @@ class PassRunner:
             link = self._link
             if not link.connected:
                 raise LinkUnavailable("no spacecraft is connected: a pass needs the link")
+            if link.safing.mode == "safe":
+                raise ConflictError(
+                    "vehicle_safe",
+                    f"the vehicle {link.vehicle!r} is in SAFE (on-board safing): an operator's "
+                    "safe exit must end it before a pass can start",
+                    link.safing.status(),
+                )
             # The window opens before the start transaction: storing thousands of commands
             # takes longer than the relay delay at high time scales, and the frames
             # generated meanwhile must already find their pass.
@@ -344,8 +467,17 @@ class PassRunner:
         left = await active.tracker.resolve(active.stop, ask_expired=active.resumed)
         if active.stop.is_set():
             return  # the abort has the tracker now
-        reason = "every command acknowledged" if not left else f"{left} unacknowledged"
-        await self._db.write(self._ground_transition(active.pass_id, "complete", reason))
+        if left:
+            log.warning("pass %s: %d commands still unacknowledged", active.pass_id, left)
+        # The reason says the outcome (server.services.summary), counted in the transition's
+        # own transaction, after the stage writes queued before it.
+        now_ns, clock, pass_id = self._clock.time_ns(), self._clock, active.pass_id
+
+        def complete(session: Session) -> list[dict[str, Any]]:
+            reason = f"complete, {command_outcome(session, pass_id).sentence()}"
+            return [transition(session, clock, pass_id, "complete", "ground", reason, now_ns)]
+
+        await self._db.write(complete)
         active.tracker.close()
         if self._active is active:
             self._active = None
@@ -371,10 +503,15 @@ class PassRunner:
         abort, or resume once the spacecraft is back (see the module docstring)."""
         link = self._link
         found = await self._db.run(load_recovery)
+        if found.safing is not None and link.safing.last is None:
+            link.safing.restore(found.safing.report, found.safing.pass_id)
         opened = {
             w.pass_id: self._downlink.open_window(w.pass_id, w.start_ns, w.end_ns)
             for w in found.windows
         }
+        for ended in found.unresolved:
+            log.info("pass %s: %d commands to ask about", ended.id, ended.unresolved)
+            self._background_task(self._resolve(self._trackers.stored(ended.id, ended.commands)))
         for decision in decide(found.unfinished, running=self._active is not None):
             if isinstance(decision, AbortPass):
                 await self._abort_locked(decision.pass_id, "ground", decision.reason)
@@ -399,22 +536,38 @@ class PassRunner:
         async with self._lock:
             running = self._active is not None
             refusal = late or resume_refusal(p, running=running, vehicle=link.robot)
-            if self._closing.is_set() or refusal is not None:
+            if self._closing.is_set():
                 tracker.close()
-                if refusal is not None and not self._closing.is_set():
-                    await self._abort_locked(p.id, "ground", refusal)
                 return
-            uplink = new_uplink([command_from_record(r) for r in p.pending], self._settings, link)
-            uplink.restore(p.transmitted)
-            tags = {r.seq: r.execute_time_ns for r in p.commands}
-            active = ActivePass.of(
-                p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True
-            )
-            if p.state == "los":
-                uplink.stop()
-                self._begin(active, self._finish(active))
-            else:
-                self._begin(active, self._run(active))
+            if refusal is None:
+                self._begin_resumed(p, window, tracker)
+                return
+            await self._abort_locked(p.id, "ground", refusal)
+        # what the vehicle did with the commands sent before the restart
+        await self._resolve(tracker)
+
+    def _begin_resumed(
+        self, p: UnfinishedPass, window: TelemetryWindow, tracker: CommandTracker
+    ) -> None:
+        link = self._link
+        uplink = new_uplink([command_from_record(r) for r in p.pending], self._settings, link)
+        uplink.restore(p.transmitted)
+        tags = {r.seq: r.execute_time_ns for r in p.commands}
+        active = ActivePass.of(p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True)
+        if p.state == "los":
+            uplink.stop()
+            self._begin(active, self._finish(active))
+        else:
+            self._begin(active, self._run(active))
+
+    async def _resolve(self, tracker: CommandTracker) -> None:
+        """The fates of a pass's commands left ``sent`` or ``received`` when it ended (or
+        was aborted after a restart): asked about once the vehicle is back and their tags
+        have passed (:meth:`CommandTracker.resolve`), until the service stops."""
+        try:
+            await tracker.resolve(self._closing)
+        finally:
+            tracker.close()
 
     # -- abort ---------------------------------------------------------------------------
 
@@ -422,21 +575,21 @@ class PassRunner:
         async with self._lock:
             await self._abort_locked(pass_id, actor, reason)
 
-    async def _abort_locked(self, pass_id: str, actor: str, reason: str) -> None:
+    async def _abort_locked(
+        self, pass_id: str, actor: str, reason: str, *, safed_at_ns: int | None = None
+    ) -> None:
+        """Abort ``pass_id``, or, with ``safed_at_ns`` (the onboard time the vehicle safed
+        itself), make it ``safed``: no ``schedule_delete`` then (the vehicle emptied its
+        schedule), the window kept :data:`SAFED_TAIL_S` past the safing."""
         link = self._link
         active = self._active if self._active and self._active.pass_id == pass_id else None
         if active is None:  # a pass not running here (restart): every command not sent
             await self._abort_write(pass_id, actor, reason, None, None, None)
             return
-        active.stop.set()
-        active.uplink.stop()
-        self._wake.set()
-        if active.task is not None and active.task is not asyncio.current_task():
-            with contextlib.suppress(Exception, asyncio.CancelledError):
-                await active.task
+        await self._stop_pass_task(active)
         up = active.uplink
         deletion: Deletion | None = None
-        if up.sent_commands():
+        if safed_at_ns is None and up.sent_commands():
             commands = tuple((c.seq, c.tag_ns) for c in up.commands)
             deletion = Deletion(
                 active.tracker, active.window, active.last_tag_ns, commands, active.max_seq,
@@ -449,18 +602,23 @@ class PassRunner:
             end = from_ns + self._settle_ns
         elif deletion is None and link.connected:
             end = link.onboard_now_ns()
+        if safed_at_ns is not None:
+            end = safed_at_ns + round(SAFED_TAIL_S * 1e9)
         self._downlink.close_window(active.window, end)
         # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
         cancel = [c.seq for c in up.commands if c.transmissions == 0]
         if from_ns is not None:
             cancel += [c.seq for c in up.commands if c.transmissions and c.tag_ns >= from_ns]
-        await self._abort_write(pass_id, actor, reason, cancel, from_ns, end)
+        to = "aborted" if safed_at_ns is None else "safed"
+        await self._abort_write(pass_id, actor, reason, cancel, from_ns, end, to)
         active.tracker.cancelled(cancel)
         if self._active is active:
             self._active = None
         if deletion is not None or link.connected:
             self._background_task(
-                self._deletes.after_abort(active.tracker, deletion, self._closing)
+                self._deletes.after_abort(
+                    active.tracker, deletion, self._closing, safed=safed_at_ns is not None
+                )
             )
         else:
             active.tracker.close()
@@ -473,23 +631,108 @@ class PassRunner:
         cancel: list[int] | None,
         from_ns: int | None,
         end_ns: int | None,
+        to: str = "aborted",
     ) -> None:
         """The abort's transaction, ahead of the stage writes still queued: the operator waits
         for it, and none of them can undo it (the vehicle's own word still overrules)."""
         job = abort_job(
             pass_id=pass_id, actor=actor, reason=reason, clock=self._clock, cancel=cancel,
-            from_ns=from_ns, end_ns=end_ns,
+            from_ns=from_ns, end_ns=end_ns, to=to,
         )  # fmt: skip
         self._publisher.publish(await self._db.run(job, control=True))
 
     async def shutdown(self) -> None:
-        """The service stops: a running pass is aborted (its schedule deleted)."""
-        active = self._active
-        if active is not None:
-            with contextlib.suppress(Exception):
-                await self.abort(active.pass_id, "ground", "ground service stopped")
-        self._closing.set()
+        """The service stops (a graceful stop): an abort or a safing in progress ends first;
+        a pass in flight is handed to the vehicle, not aborted (:meth:`_hand_over`); the
+        background resolutions stop where they are; the stage writes made are flushed."""
+        for pending in (self._safing, self._diverged):
+            if pending is not None:
+                with contextlib.suppress(Exception, asyncio.CancelledError):
+                    await pending
+        async with self._lock:  # no start, abort or resume from here
+            self._closing.set()
+            active = self._active
+            if active is not None:
+                try:
+                    await self._hand_over(active)
+                except Exception:
+                    log.exception("pass %s: the handover failed", active.pass_id)
         for task in list(self._background):
             with contextlib.suppress(Exception, asyncio.CancelledError):
                 await task
         await self._db.drain()
+
+    async def _stop_pass_task(self, active: ActivePass) -> None:
+        """Stop the pass's uplink and wait for its task (an abort or a handover; not the
+        task itself, when it is the one stopping)."""
+        active.stop.set()
+        active.uplink.stop()
+        self._wake.set()
+        if active.task is not None and active.task is not asyncio.current_task():
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await active.task
+
+    async def _hand_over(self, active: ActivePass) -> None:
+        """The graceful stop of a pass in flight: the uplink and the pass's task stop, the
+        stage writes already made are flushed, and a ``ground_stopped`` event says what the
+        vehicle holds. The pass stays in its state (``running`` or ``los``), its telemetry
+        window open, no command cancelled: the vehicle flies what it holds under its LOS
+        policy, and the next process resumes the pass as after a crash
+        (:mod:`server.services.recovery`)."""
+        await self._stop_pass_task(active)
+        onboard: int | None = None
+        with contextlib.suppress(LinkUnavailable):
+            onboard = self._link.onboard_now_ns()  # the clock outlives the socket
+        tracker = active.tracker
+        loaded, unsent = len(tracker.outstanding()), len(tracker.in_stage("queued"))
+        policy = self._link.los_policy
+        reason = handover_reason(onboard, active.first_tag_ns, loaded, unsent, policy)
+        pass_id, clock = active.pass_id, self._clock
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            state = repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
+            stopped = GroundStopped(
+                actor="ground", pass_id=pass_id, state=state, reason=reason,
+                onboard_time_ns=onboard, loaded=loaded, unsent=unsent, los_policy=policy,
+            )  # fmt: skip
+            return [record(session, stopped, clock.time_ns())]
+
+        # after the stage writes queued so far (one worker, in order)
+        await self._db.write(job)
+        tracker.close()
+        if self._active is active:
+            self._active = None
+        log.info("pass %s: %s", pass_id, reason)
+
+
+def handover_reason(
+    onboard_ns: int | None, first_tag_ns: int | None, loaded: int, unsent: int, policy: str
+) -> str:
+    """The ``ground_stopped`` event's sentence: when the pass was handed to the vehicle,
+    what it holds, and the policy it flies under."""
+    at = "an unknown onboard time"
+    if onboard_ns is not None:
+        at = datetime.fromtimestamp(onboard_ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
+        at = f"onboard {at[:-4]} UTC"
+        if first_tag_ns is not None:
+            at += f" (t = {(onboard_ns - first_tag_ns) / 1e9:.1f} s into the pass)"
+    return (
+        f"ground service stopped: pass handed to the vehicle at {at}; {loaded} commands "
+        f"loaded or on their way, {unsent} not sent; the vehicle's LOS policy {policy!r} "
+        "applies until the ground resumes the pass"
+    )
+
+
+def safed_reason(report: Safing, first_tag_ns: int | None = None) -> str:
+    """A safed pass's reason: the trigger and the onboard time (and, given the pass's first
+    command's tag, the time into the pass)."""
+    since = report.since_time_ns if report.since_time_ns is not None else report.onboard_time_ns
+    at = datetime.fromtimestamp(since / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4]
+    text = f"the vehicle safed itself at onboard {at} UTC"
+    if first_tag_ns is not None:
+        text += f" (t = {(since - first_tag_ns) / 1e9:.2f} s into the pass)"
+    trigger = report.trigger
+    if trigger is not None:
+        where = f"{trigger.quantity} {trigger.channel}".strip()
+        text += f": {where} {trigger.value:.4g} beyond its red limit {trigger.limit:.4g}"
+    return text[:300]

@@ -190,13 +190,19 @@ class ScheduleDeletes:
         return job
 
     async def after_abort(
-        self, tracker: CommandTracker, deletion: Deletion | None, closing: asyncio.Event
+        self,
+        tracker: CommandTracker,
+        deletion: Deletion | None,
+        closing: asyncio.Event,
+        *,
+        safed: bool = False,
     ) -> None:
         """In the background after an abort: the ``schedule_delete`` (if any) to its end,
-        then the stages of the commands before ``T`` as their tags pass."""
+        then the stages of the commands before ``T`` as their tags pass (``safed``: the
+        vehicle safed itself, so every command not final is asked about at once)."""
         try:
             if deletion is not None:
                 await self.complete(deletion, closing)
-            await tracker.resolve(closing)
+            await tracker.resolve(closing, any_tag=safed)
         finally:
             tracker.close()

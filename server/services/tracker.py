@@ -10,10 +10,10 @@ ground times, at a command's first transmission, the count of transmissions with
 after retransmissions; ``expired``), never its mailbox: nothing here reads a stage back.
 
 **Resolution after LOS** (:meth:`CommandTracker.resolve`): commands whose tag has passed
-without a final acknowledgement are asked about (``command_query``, up to
-:data:`MAX_COMMAND_QUERIES` times: acks lost on the downlink come again, commands lost on
-the uplink come back ``command_unknown`` and expire) until none is left ``sent`` or
-``received`` (or the queries are used up). It waits on its own state changing (an
+(after on-board safing: every one) without a final acknowledgement are asked about
+(``command_query``, up to :data:`MAX_COMMAND_QUERIES` times: acks lost on the downlink come
+again, commands lost on the uplink come back ``command_unknown`` and expire) until none is
+left ``sent`` or ``received`` (or the queries are used up). It waits on its own state changing (an
 acknowledgement, the link back) and on the query timer of the injected clock. A pass resumed
 after a restart first asks, :data:`EXPIRED_QUERIES` times, about the commands taken as
 ``expired``: the vehicle's own word (``executed``) replaces the guess.
@@ -229,10 +229,14 @@ class CommandTracker:
 
     # -- resolution after LOS ------------------------------------------------------------
 
-    async def resolve(self, stop: asyncio.Event, *, ask_expired: bool = False) -> int:
+    async def resolve(
+        self, stop: asyncio.Event, *, ask_expired: bool = False, any_tag: bool = False
+    ) -> int:
         """Ask the vehicle about the commands still ``sent`` or ``received`` once their tag
-        has passed, up to :data:`MAX_COMMAND_QUERIES` times, until none is left or ``stop``
-        is set; how many are left unresolved (see the module docstring)."""
+        has passed (``any_tag``: at once, whatever their tag: after on-board safing, when
+        the vehicle has dropped or refused every one it did not execute), up to
+        :data:`MAX_COMMAND_QUERIES` times, until none is left or ``stop`` is set; how many
+        are left unresolved (see the module docstring)."""
         link, clock = self._link, self._clock
         watch = asyncio.ensure_future(stop.wait())
         watch.add_done_callback(lambda _: self._changed.set())
@@ -249,7 +253,8 @@ class CommandTracker:
                 wake_at = clock.monotonic() + LINK_DOWN_POLL_S
                 if link.connected:
                     if clock.monotonic() >= next_query:
-                        due = [seq for seq, tag in left if tag < link.onboard_now_ns()]
+                        now_ns = link.onboard_now_ns()
+                        due = [seq for seq, tag in left if any_tag or tag < now_ns]
                         if due and await link.query_commands(due):
                             queries += 1
                         next_query = link.mono_at_onboard(link.onboard_now_ns() + self._period_ns)

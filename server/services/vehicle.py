@@ -5,8 +5,8 @@ API and the consoles show it (:class:`LinkStatus`, :class:`ScheduleStatus`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 from planner.plan import ETS7_ROBOT_HASH, ETS7_ROBOT_NAME
 from telemetry.wire import Hello, TelemetryFrame
@@ -75,6 +75,17 @@ class LinkStatus:
     robot: str | None = None
     robot_hash: str | None = None
     n_joints: int | None = None
+    #: on-board safing: ``safe`` from the vehicle's ``safing`` report until it reports
+    #: ``nominal`` (server.services.safing); the last report, with the pass it stopped
+    vehicle_mode: Literal["nominal", "safe"] = "nominal"
+    safing: dict[str, Any] | None = None
+    #: messages that did not decode (an unreadable ``error`` included), by kind
+    #: (``type:code``, server/services/malformed.py); those left unanswered by the bound on
+    #: ``error`` replies; connections closed for too many of them
+    malformed_received: int = 0
+    malformed_by_kind: dict[str, int] = field(default_factory=dict)
+    errors_unanswered: int = 0
+    malformed_closes: int = 0
 
 
 @dataclass(frozen=True)

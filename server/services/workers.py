@@ -24,7 +24,12 @@ The limits (see :class:`~server.settings.Settings`):
 - A job's address space is limited (``worker_memory_bytes``, ``RLIMIT_AS``): a job that
   exceeds it fails as unavailable with ``out_of_memory``; one killed by a signal with
   ``worker_crashed``. Either way the next request gets a fresh process.
-- Closing the pool (the app's lifespan) kills running jobs.
+- Stopping the pool (:meth:`WorkerPool.close`: on SIGTERM, before the HTTP server waits
+  for its requests, and again in the app's lifespan) answers every admitted request, waiting
+  or running, as unavailable with ``shutting_down`` at once, and kills and reaps every job
+  process (one still starting: its request, once it has started); and a job ends by itself
+  once the server process has ended, however it ended (:func:`~server.services.jobs.run_job`):
+  none outlives the server (docs/operations.md "Stopping with requests in flight").
 
 The job's side (what runs in the process, the session jobs, the result files) is
 :mod:`server.services.jobs`. Errors raised by a job keep their meaning: they reach the
@@ -58,6 +63,7 @@ from server.services.jobs import run_job
 __all__ = [
     "POLL_S",
     "PRELOAD",
+    "STOPPING_RETRY_AFTER_S",
     "WorkerPool",
     "busy",
 ]
@@ -124,16 +130,22 @@ class WorkerPool:
             self._ctx.set_forkserver_preload(list(preload))
         self._slots = asyncio.Semaphore(workers)
         self._admitted = 0
+        #: job processes from before their start until they are reaped
         self._running: set[BaseProcess] = set()
         self._closed = False
+        #: set when the pool stops: wakes every admitted request (see :meth:`close`)
+        self._stopping: asyncio.Event | None = None
         self._warm_up: asyncio.Task[None] | None = None
+        #: reaping of job processes whose request was cancelled (kept from the collector)
+        self._reapers: set[asyncio.Task[None]] = set()
         #: Jobs started, and the start latency of the last one (s): process up to running.
         self.started = 0
         self.last_start_s = 0.0
 
     @property
     def running(self) -> int:
-        return len(self._running)
+        """Job processes started and not yet reaped."""
+        return sum(_started(p) for p in self._running)
 
     @property
     def admitted(self) -> int:
@@ -154,14 +166,41 @@ class WorkerPool:
         with contextlib.suppress(Exception):
             await self.run(os.getpid, deadline_s=60.0, what="warm-up")
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _stop_event(self) -> asyncio.Event:
+        if self._stopping is None:
+            self._stopping = asyncio.Event()
+            if self._closed:
+                self._stopping.set()
+        return self._stopping
+
     async def close(self) -> None:
-        """Refuse new jobs and kill the running ones."""
+        """Refuse new jobs, answer every admitted request (waiting for a worker or running)
+        as unavailable, ``shutting_down``, and kill and reap every job process. Idempotent;
+        returns once the processes are gone (or :data:`_REAP_S` has passed for one that
+        will not go)."""
         self._closed = True
+        self._stop_event().set()
         if self._warm_up is not None:
             self._warm_up.cancel()
         for process in list(self._running):
             with contextlib.suppress(Exception):
-                process.kill()
+                if process.is_alive():
+                    process.kill()
+        # The requests woken above reap their own; wait (bounded) until they have, then
+        # reap whatever a request did not (its task gone without its cleanup). A process
+        # still starting is not waited for (a first start waits for the forkserver's
+        # imports): its request kills it once started, and a job ends by itself once the
+        # server has ended (:func:`server.services.jobs.run_job`).
+        deadline = time.monotonic() + _REAP_S
+        while any(map(_started, self._running)) and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        for process in [p for p in self._running if _started(p)]:
+            await _kill_and_reap(process)
+            self._running.discard(process)
 
     async def run(
         self,
@@ -196,7 +235,7 @@ class WorkerPool:
         request: _Disconnectable | None,
     ) -> T:
         if self._closed:
-            raise busy(f"{what}: the service is stopping", 5.0)
+            raise _stopping(what)
         if self._admitted >= self.workers + self.queue:
             raise busy(
                 f"{what}: all {self.workers} workers are busy and {self.queue} requests "
@@ -206,8 +245,14 @@ class WorkerPool:
         self._admitted += 1
         try:
             acquired = await _race(
-                self._slots.acquire(), deadline_s, request, lost=self._slots.release
+                self._slots.acquire(),
+                deadline_s,
+                request,
+                lost=self._slots.release,
+                stop=self._stop_event(),
             )
+            if acquired is _STOPPED:
+                raise _stopping(what)
             if acquired is _GONE:
                 raise _client_gone(what)
             if acquired is _LATE:
@@ -229,26 +274,37 @@ class WorkerPool:
         request: _Disconnectable | None,
     ) -> T:
         if self._closed:
-            raise busy(f"{what}: the service is stopping", 5.0)
+            raise _stopping(what)
         loop = asyncio.get_running_loop()
         receiver, sender = self._ctx.Pipe(duplex=False)
         process: BaseProcess = self._ctx.Process(  # type: ignore[attr-defined]
             target=run_job,
-            args=(sender, self.memory_bytes, fn, args, kwargs),
+            args=(sender, self.memory_bytes, fn, args, kwargs, os.getpid()),
             name=f"hikoboshi-job: {what}",
             daemon=True,
         )
         t0 = time.perf_counter()
+        # Known before it starts: a pool that stops while it starts kills it all the same.
+        self._running.add(process)
+        starting = asyncio.ensure_future(asyncio.to_thread(process.start))
         try:
-            await asyncio.to_thread(process.start)
+            await asyncio.shield(starting)
         except BaseException:
+            # Cancelled (the server stopping, the client gone) while the thread still starts
+            # the process: once started, it is killed and reaped outside this request (a
+            # cancelled request may not await again: anyio cancels every later await).
             sender.close()
             receiver.close()
+            self._reap_later(process, starting)
             raise
         self.last_start_s = time.perf_counter() - t0
         self.started += 1
         sender.close()
-        self._running.add(process)
+        if self._closed:
+            receiver.close()
+            await _kill_and_reap(process)
+            self._running.discard(process)
+            raise _stopping(what)
         ready: asyncio.Future[None] = loop.create_future()
 
         def wake() -> None:
@@ -259,9 +315,13 @@ class WorkerPool:
         loop.add_reader(process.sentinel, wake)
         outcome: Any = None
         try:
-            outcome = await _race(asyncio.shield(ready), deadline_s, request)
+            outcome = await _race(
+                asyncio.shield(ready), deadline_s, request, stop=self._stop_event()
+            )
             loop.remove_reader(receiver.fileno())
             loop.remove_reader(process.sentinel)
+            if outcome is _STOPPED:
+                raise _stopping(what)
             if outcome is _GONE:
                 raise _client_gone(what)
             if outcome is _LATE:
@@ -282,10 +342,12 @@ class WorkerPool:
                 loop.remove_reader(receiver.fileno())
                 loop.remove_reader(process.sentinel)
             receiver.close()
+            try:
+                await _kill_and_reap(process)  # killed before its first await
+            except BaseException:
+                self._reap_later(process)  # cancelled while reaping: reaped all the same
+                raise
             self._running.discard(process)
-            if process.is_alive():
-                process.kill()
-            await _reap(process)
         kind, value = message
         if kind == "ok":
             result: T = value
@@ -296,9 +358,29 @@ class WorkerPool:
             raise busy(f"{what} needs more than {limit} of memory", 10.0, "out_of_memory")
         raise error
 
+    def _reap_later(
+        self, process: BaseProcess, starting: asyncio.Future[Any] | None = None
+    ) -> None:
+        """Kill and reap ``process`` (once ``starting`` is done) in a task of its own, and
+        only then forget it: :attr:`running` and :meth:`close` count it until then."""
+
+        async def reap() -> None:
+            if starting is not None:
+                with contextlib.suppress(BaseException):
+                    await starting
+            try:
+                await _kill_and_reap(process)
+            finally:
+                self._running.discard(process)
+
+        task = asyncio.ensure_future(reap())
+        self._reapers.add(task)
+        task.add_done_callback(self._reapers.discard)
+
 
 _GONE = object()
 _LATE = object()
+_STOPPED = object()
 
 
 async def _race(
@@ -306,11 +388,14 @@ async def _race(
     timeout_s: float,
     request: _Disconnectable | None,
     lost: Callable[[], None] | None = None,
+    stop: asyncio.Event | None = None,
 ) -> Any:
     """``awaitable``'s result, or :data:`_LATE` after ``timeout_s``, or :data:`_GONE` once
-    ``request``'s client has disconnected; the awaitable is cancelled if it lost (and
-    ``lost()`` called if it had completed all the same)."""
+    ``request``'s client has disconnected, or :data:`_STOPPED` once ``stop`` is set; the
+    awaitable is cancelled if it lost (and ``lost()`` called if it had completed all the
+    same)."""
     task = asyncio.ensure_future(awaitable)
+    stopped = asyncio.ensure_future(stop.wait()) if stop is not None else None
     deadline = time.monotonic() + timeout_s
     won = False
     try:
@@ -318,13 +403,20 @@ async def _race(
             left = deadline - time.monotonic()
             if left <= 0:
                 return _LATE
-            done, _ = await asyncio.wait({task}, timeout=min(POLL_S, left))
-            if done:
+            waiting = {task} if stopped is None else {task, stopped}
+            done, _ = await asyncio.wait(
+                waiting, timeout=min(POLL_S, left), return_when=asyncio.FIRST_COMPLETED
+            )
+            if stopped is not None and stopped in done:
+                return _STOPPED
+            if task in done:
                 won = True
                 return task.result()
             if request is not None and await request.is_disconnected():
                 return _GONE
     finally:
+        if stopped is not None and not stopped.done():
+            stopped.cancel()
         if not task.done():
             task.cancel()
             with contextlib.suppress(BaseException):
@@ -339,6 +431,19 @@ def _client_gone(what: str) -> ClientGoneError:
     return ClientGoneError("client_closed", f"{what}: the client went away; the job was stopped")
 
 
+#: How long a client refused because the service is stopping is told to wait (s): about a
+#: restart of ``hikoboshi serve``.
+STOPPING_RETRY_AFTER_S = 10.0
+
+
+def _stopping(what: str) -> UnavailableError:
+    return busy(
+        f"{what}: the service is shutting down; the work was stopped, try again after it restarts",
+        STOPPING_RETRY_AFTER_S,
+        "shutting_down",
+    )
+
+
 def _crashed(what: str, exitcode: int | None) -> UnavailableError:
     how = f"signal {-exitcode}" if exitcode is not None and exitcode < 0 else f"exit {exitcode}"
     return busy(
@@ -346,9 +451,24 @@ def _crashed(what: str, exitcode: int | None) -> UnavailableError:
     )
 
 
+def _started(process: BaseProcess) -> bool:
+    try:
+        return process.pid is not None
+    except ValueError:  # closed: started, and reaped
+        return False
+
+
+async def _kill_and_reap(process: BaseProcess) -> None:
+    """Kill ``process`` if it runs, and reap it (a process never started: nothing)."""
+    with contextlib.suppress(Exception):
+        if process.is_alive():
+            process.kill()
+    await _reap(process)
+
+
 async def _reap(process: BaseProcess) -> None:
     with contextlib.suppress(Exception):
         await asyncio.to_thread(process.join, _REAP_S)
-    if process.exitcode is not None:
-        with contextlib.suppress(ValueError):
+    with contextlib.suppress(ValueError):  # closed already
+        if process.exitcode is not None:
             process.close()

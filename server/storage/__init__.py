@@ -3,6 +3,7 @@
     models.py      the tables (typed ORM) and their conventions: clocks, ids, keys
     db.py          make_engine (SQLite WAL file or PostgreSQL), session_factory, upgrade
     repository.py  keyword-only read/write functions over a Session; they never commit
+    alarms.py      the same for the alarms table (save, list, acknowledge)
     errors.py      StorageError and its subclasses
     migrations/    Alembic environment and revisions (run through db.upgrade)
 

@@ -7,6 +7,7 @@
     telemetry_frames  one row per telemetry frame, one column per value (wide, not EAV)
     events            the audit log: who did what, when, to which pass
     analysis_results  post-pass analysis documents
+    alarms            limit alarms and the vehicle's safing alarms, with their timeline
 
 Conventions:
 
@@ -49,6 +50,10 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from telemetry.layout import FrameLayout
 
 __all__ = [
+    "ALARM_DIRECTIONS",
+    "ALARM_SEVERITIES",
+    "ALARM_SOURCES",
+    "ALARM_STATES",
     "BUCKET_FIELDS",
     "COMMAND_KINDS",
     "COMMAND_STAGES",
@@ -58,6 +63,7 @@ __all__ = [
     "STORED_WHEELS",
     "TELEMETRY_FIELDS",
     "TELEMETRY_FLOAT_FIELDS",
+    "AlarmRecord",
     "AnalysisRecord",
     "Base",
     "CommandRecord",
@@ -77,7 +83,8 @@ NAMING_CONVENTION = {
     "pk": "pk_%(table_name)s",
 }
 
-PASS_STATES = ("scheduled", "aos", "running", "los", "complete", "aborted")
+#: ``safed``: the vehicle safed itself during the pass (terminal, like ``aborted``).
+PASS_STATES = ("scheduled", "aos", "running", "los", "complete", "aborted", "safed")
 COMMAND_KINDS = ("joints", "acs")
 #: In the order a command normally goes through them; the last four end it.
 COMMAND_STAGES = (
@@ -90,6 +97,13 @@ COMMAND_STAGES = (
     "expired",
     "cancelled",
 )
+
+#: Yamcs's five levels, lowest first (planner.limits.Severity; storage imports no planner).
+ALARM_SEVERITIES = ("watch", "warning", "distress", "critical", "severe")
+#: ``limit``: the ground's limit check of a quantity; ``vehicle``: the vehicle's safing.
+ALARM_SOURCES = ("limit", "vehicle")
+ALARM_STATES = ("triggered", "cleared")
+ALARM_DIRECTIONS = ("high", "low")
 
 #: An int64 key that autoincrements: on SQLite only ``INTEGER PRIMARY KEY`` aliases the rowid.
 BigIntKey = BigInteger().with_variant(sqlite.INTEGER(), "sqlite")
@@ -350,4 +364,65 @@ class AnalysisRecord(Base):
 
     __table_args__ = (
         Index("ix_analysis_results_pass_id_kind_created_at_ns", "pass_id", "kind", "created_at_ns"),
+    )
+
+
+class AlarmRecord(Base):
+    """An alarm: a quantity's channel in a band of its limits (``source`` ``limit``), or the
+    vehicle's safing (``vehicle``), for one pass (``pass_id`` NULL: no pass was running).
+
+    ``severity`` is the worst band reached, ``current_severity`` the band now (NULL: back
+    within limits, ``state`` ``cleared``). ``limit_value`` is the threshold of the worst
+    band (the ``limit`` of the alarm's JSON). ``timeline`` lists every change of band:
+    ``[{"severity": str | None, "generation_time_ns", "time_ns", "frame_seq", "value"}]``
+    (``generation_time_ns`` onboard, ``time_ns`` ground). ``raised_generation_time_ns`` and
+    ``cleared_generation_time_ns`` are onboard times (the frame's); every other ``*_ns``
+    is ground time. docs/alarms.md.
+    """
+
+    __tablename__ = "alarms"
+
+    id: Mapped[str] = mapped_column(UUIDString, primary_key=True)
+    pass_id: Mapped[str | None] = mapped_column(UUIDString, ForeignKey("passes.id"))
+    quantity: Mapped[str] = mapped_column(String(64))
+    channel: Mapped[str] = mapped_column(String(32))
+    label: Mapped[str] = mapped_column(String(128))
+    unit: Mapped[str] = mapped_column(String(16))
+    direction: Mapped[str] = mapped_column(String(8))
+    source: Mapped[str] = mapped_column(String(16))
+    severity: Mapped[str] = mapped_column(String(16))
+    current_severity: Mapped[str | None] = mapped_column(String(16))
+    state: Mapped[str] = mapped_column(String(16))
+    acknowledged: Mapped[bool] = mapped_column(Boolean)
+    acknowledged_by: Mapped[str | None] = mapped_column(String(128))
+    acknowledged_time_ns: Mapped[int | None]
+    comment: Mapped[str | None] = mapped_column(Text)
+    limit_value: Mapped[float | None]
+    trigger_value: Mapped[float | None]
+    worst_value: Mapped[float | None]
+    last_value: Mapped[float | None]
+    #: Frames (or reports) in a band since the alarm was raised.
+    count: Mapped[int]
+    raised_frame_seq: Mapped[int | None]
+    raised_generation_time_ns: Mapped[int | None]
+    raised_time_ns: Mapped[int]
+    updated_time_ns: Mapped[int]
+    cleared_generation_time_ns: Mapped[int | None]
+    cleared_time_ns: Mapped[int | None]
+    timeline: Mapped[list[dict[str, Any]]] = mapped_column(JSONDocument)
+    detail: Mapped[str | None] = mapped_column(Text)
+
+    __table_args__ = (
+        CheckConstraint(_one_of("severity", ALARM_SEVERITIES), name="severity"),
+        CheckConstraint(
+            f"current_severity IS NULL OR {_one_of('current_severity', ALARM_SEVERITIES)}",
+            name="current_severity",
+        ),
+        CheckConstraint(_one_of("source", ALARM_SOURCES), name="source"),
+        CheckConstraint(_one_of("state", ALARM_STATES), name="state"),
+        CheckConstraint(_one_of("direction", ALARM_DIRECTIONS), name="direction"),
+        Index("ix_alarms_raised_time_ns", "raised_time_ns"),
+        Index("ix_alarms_pass_id_raised_time_ns", "pass_id", "raised_time_ns"),
+        # the active ones: triggered, or cleared and not yet acknowledged
+        Index("ix_alarms_acknowledged_state", "acknowledged", "state"),
     )

@@ -2,7 +2,8 @@ r"""The stage rules of a command, defined once (docs/protocol.md).
 
     queued -> released -> sent -> received -> executed
                                           \-> rejected (reason)
-    queued | released | sent | received -> cancelled (abort: deleted from the schedule)
+    queued | released | sent | received -> cancelled (abort: deleted from the schedule;
+                                              on-board safing: dropped, reason safing)
     queued | released | sent -> expired (could not reach the vehicle before its tag)
 
 A stage only moves to a higher rank (:data:`STAGE_RANK`): acknowledgements cross on the
@@ -72,11 +73,12 @@ def moves(current: str, stage: str) -> bool:
 
 def acked_stage(stage: str, reason: str | None) -> str | None:
     """The stage a ``command_ack`` files (``stage``, its ``reason``): ``cancelled`` when a
-    ``schedule_delete`` removed the command; None for a ``schedule_full`` refusal, which is
+    ``schedule_delete`` removed the command or the vehicle's on-board safing dropped or
+    refused it (reason ``safing``); None for a ``schedule_full`` refusal, which is
     transient (the vehicle did not keep the command; the runner sends it again)."""
     if reason == "schedule_full":
         return None
-    return "cancelled" if reason == "cancelled" else stage
+    return "cancelled" if reason in ("cancelled", "safing") else stage
 
 
 def expires_unknown(stage: str, tag_ns: int, onboard_time_ns: int) -> bool:

@@ -28,9 +28,13 @@ Derived channels (for viewing; not read back)::
     /plot/joints, /plot/base, /plot/wheels          flat numbers per frame, degrees; onboard
     /plot/prediction                                the plan's prediction; onboard
                                                     (epoch_ns + t_s)
+    /alarms               foxglove.Log              the pass's alarms: each change of band and
+                                                    each acknowledgement; onboard (only when
+                                                    the pass has alarms)
 
 The metadata record ``hikoboshi.recording`` marks the file as ours and holds the name,
-``epoch_ns``, ``meta`` (as JSON) and the message counts; the URDF of the model is also the
+``epoch_ns``, ``meta`` (as JSON), the message counts and, when the pass has alarms, the
+alarms (``alarms_json``: their documents, read back exactly); the URDF of the model is also the
 attachment ``<robot>.urdf``, named after the plan's robot (``ets7.urdf``, ``orihime.urdf``;
 :func:`read_urdf` finds it, and ``ets7.urdf`` in recordings written before). Chunks are
 zstd-compressed, with chunk and message indexes.
@@ -55,12 +59,13 @@ from telemetry.mcap._schemas import (
     URDF_ATTACHMENT,
     urdf_attachment_name,
 )
-from telemetry.mcap._write import TOPIC_ROBOT_DESCRIPTION, TOPIC_TF, write_mcap
+from telemetry.mcap._write import TOPIC_ALARMS, TOPIC_ROBOT_DESCRIPTION, TOPIC_TF, write_mcap
 
 __all__ = [
     "METADATA_NAME",
     "OWN_SCHEMAS",
     "PLOT_TOPICS",
+    "TOPIC_ALARMS",
     "TOPIC_COMMANDS",
     "TOPIC_EVENTS",
     "TOPIC_PLAN",

@@ -343,6 +343,7 @@ def _build(
         raise RecordingFileError(f"metadata {METADATA_NAME!r}: {exc}") from None
     if not isinstance(extra, dict):
         raise RecordingFileError(f"metadata {METADATA_NAME!r}: meta_json is not an object")
+    alarms = _alarms(meta)
     try:
         frames = _frames(messages[TOPIC_TELEMETRY], _string_dtype(meta), layout)
     except (ValueError, OverflowError) as exc:
@@ -355,7 +356,27 @@ def _build(
         commands=tuple(CommandRow(**d) for d in messages[TOPIC_COMMANDS]),
         events=tuple(EventRow(**d) for d in messages[TOPIC_EVENTS]),
         meta=extra,
+        alarms=alarms,
     )
+
+
+def _alarms(meta: Mapping[str, str]) -> tuple[dict[str, Any], ...]:
+    """The alarms of the metadata's ``alarms_json`` (none in a file written before alarms,
+    or of a pass without any)."""
+    try:
+        alarms = json.loads(meta.get("alarms_json", "[]"))
+    except ValueError as exc:
+        raise RecordingFileError(f"metadata {METADATA_NAME!r}: alarms_json: {exc}") from None
+    if not isinstance(alarms, list) or not all(isinstance(a, dict) for a in alarms):
+        raise RecordingFileError(
+            f"metadata {METADATA_NAME!r}: alarms_json is not a list of objects"
+        )
+    if "alarms" in meta and meta["alarms"] != str(len(alarms)):
+        raise RecordingFileError(
+            f"metadata {METADATA_NAME!r} says {meta['alarms']} alarms, alarms_json holds "
+            f"{len(alarms)}"
+        )
+    return tuple(alarms)
 
 
 def read_mcap(

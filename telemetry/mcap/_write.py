@@ -17,10 +17,13 @@ from planner.urdf import urdf_xml
 from telemetry.foxglove import (
     FRAME_TRANSFORMS_SCHEMA,
     FRAME_TRANSFORMS_SCHEMA_NAME,
+    LOG_SCHEMA,
+    LOG_SCHEMA_NAME,
     STRING_SCHEMA,
     STRING_SCHEMA_NAME,
     frame_transforms,
 )
+from telemetry.mcap._alarms import TOPIC_ALARMS, alarm_logs
 from telemetry.mcap._errors import RecordingFileError
 from telemetry.mcap._plots import plot_messages
 from telemetry.mcap._schemas import (
@@ -41,7 +44,7 @@ from telemetry.mcap._schemas import (
 )
 from telemetry.recording import CommandRow, EventRow, PassRecording
 
-__all__ = ["TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
+__all__ = ["TOPIC_ALARMS", "TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
 
 TOPIC_TF = "/tf"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
@@ -112,6 +115,13 @@ def _binary_output(target: PathOrStream) -> Iterator[IO[bytes]]:
 
 
 def _metadata(recording: PassRecording) -> dict[str, str]:
+    # the alarms only where there are some: a recording without keeps the bytes of before
+    alarms = {}
+    if recording.alarms:
+        alarms = {
+            "alarms": str(len(recording.alarms)),
+            "alarms_json": json.dumps([dict(a) for a in recording.alarms], allow_nan=False),
+        }
     return {
         "format": FORMAT,
         "format_version": str(FORMAT_VERSION),
@@ -124,6 +134,7 @@ def _metadata(recording: PassRecording) -> dict[str, str]:
         "commands": str(len(recording.commands)),
         "events": str(len(recording.events)),
         "urdf_attachment": urdf_attachment_name(recording.plan.robot),
+        **alarms,
     }
 
 
@@ -201,6 +212,14 @@ def write_mcap(
             ),
         ),
     }
+    if recording.alarms:
+        alarm_ns, logs = alarm_logs(recording.alarms, frames, recording.epoch_ns)
+        derived[TOPIC_ALARMS] = (
+            LOG_SCHEMA_NAME,
+            LOG_SCHEMA,
+            "onboard",
+            (alarm_ns, [_dumps(m) for m in logs]),
+        )
     for topic, (schema, log_ns, data) in plot_messages(
         frames, recording.t_s(), recording.plan, recording.epoch_ns
     ).items():

@@ -7,6 +7,7 @@ In-process (the same code the CLI runs) except for the last test, which starts t
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import os
 import signal
@@ -14,17 +15,23 @@ import subprocess
 import sys
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from spacecraft.faults import parse_fault
 from spacecraft.link import LinkConfig, Outage
 from spacecraft.process import ProcessConfig, SpacecraftProcess
+from spacecraft.vehicle import VehicleConfig
+from telemetry.limits import attitude_error_deg
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     CommandStage,
     JointCommandMsg,
     RejectReason,
+    SafeExit,
+    Safing,
     ScheduleDelete,
 )
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
@@ -33,27 +40,37 @@ SCALE = 20.0
 PERIOD_NS = 250_000_000
 
 
-def _config(stub: GroundStub, **link: object) -> ProcessConfig:
+def _config(
+    stub: GroundStub,
+    vehicle: VehicleConfig | None = None,
+    truth_log: Path | None = None,
+    **link: object,
+) -> ProcessConfig:
     return ProcessConfig(
         ground_url=stub.url,
         token=TOKEN,
         time_scale=SCALE,
+        vehicle=vehicle or VehicleConfig(),
         uplink=LinkConfig(seed=11, **link),  # type: ignore[arg-type]
         downlink=LinkConfig(seed=12, **link),  # type: ignore[arg-type]
         seed=3,
         backoff_initial_s=0.05,
         backoff_max_s=0.5,
         drain_timeout_s=20.0,
+        truth_log=truth_log,
     )
 
 
 def run_session(
-    scenario: Callable[[GroundStub, SpacecraftProcess], Awaitable[None]], **link: object
+    scenario: Callable[[GroundStub, SpacecraftProcess], Awaitable[None]],
+    vehicle: VehicleConfig | None = None,
+    truth_log: Path | None = None,
+    **link: object,
 ) -> tuple[GroundStub, SpacecraftProcess]:
     async def main() -> tuple[GroundStub, SpacecraftProcess]:
         stub = GroundStub()
         await stub.start()
-        process = SpacecraftProcess(_config(stub, **link))
+        process = SpacecraftProcess(_config(stub, vehicle, truth_log, **link))
         stop = asyncio.Event()
         runner = asyncio.create_task(process.run(stop))
         try:
@@ -293,3 +310,141 @@ def test_the_real_process_stops_cleanly_on_sigterm_with_nothing_lost() -> None:
     assert code == 0, stderr
     assert "spacecraft stopped: 0 frames unacknowledged" in stderr
     assert sorted(stub.frames) == list(range(max(stub.frames) + 1))
+
+
+def test_safing_goes_down_the_relay_and_safe_exit_brings_the_vehicle_back(tmp_path: Path) -> None:
+    """An attitude-sensor bias at 20 s onboard: the vehicle safes itself, drops its loaded
+    commands (acknowledged safing), and its ``safing`` reports reach the ground over the
+    relay, again after a reconnection; a command sent then is refused safing, and a
+    ``safe_exit`` (sent twice) is answered nominal with its request_id, twice. The truth log
+    has the fault and SAFE's entry and exit; the ground never hears of the fault itself."""
+    truth = tmp_path / "truth.jsonl"
+    tags: list[int] = []
+    at_hello: list[int] = []
+
+    def safing(stub: GroundStub) -> list[Safing]:
+        return [m for m in stub.other if isinstance(m, Safing)]
+
+    async def scenario(stub: GroundStub, process: SpacecraftProcess) -> None:
+        tag0 = _next_tag(stub, 40.0)  # well after the fault: still queued at 20 s
+        for k in range(6):
+            tags.append(tag0 + k * PERIOD_NS)
+            q = np.radians([0.5 * k, 0, 0, 0, 0, 0])
+            await stub.send(JointCommandMsg(seq=k, execute_time_ns=tags[-1], joints_rad=list(q)))
+        await stub.wait_for(lambda: len(stub.acks) >= 6, 10.0)
+        assert all(a.stage is CommandStage.RECEIVED for a in stub.acks)
+        assert not safing(stub)  # loaded before the fault
+        await stub.wait_for(lambda: len(safing(stub)) >= 3, 20.0)  # entry + two repeats
+        assert stub.connection is not None
+        reports_before = len(safing(stub))
+        await stub.connection.close()
+        await stub.wait_for(lambda: len(stub.hellos) >= 2, 10.0)
+        at_hello.append(len(safing(stub)))  # the report after hello is 3 s down the relay
+        await stub.wait_for(lambda: len(safing(stub)) > reports_before, 10.0)
+        late = JointCommandMsg(seq=10, execute_time_ns=_next_tag(stub, 20.0), joints_rad=[0.0] * 6)
+        await stub.send(late)
+        await stub.send(SafeExit(request_id=1))
+        await stub.send(SafeExit(request_id=1))
+        await stub.wait_for(
+            lambda: (
+                sum(s.exit_request_id == 1 for s in safing(stub)) >= 2
+                and any(a.seq == 10 for a in stub.acks)
+            ),
+            10.0,
+        )
+        await asyncio.sleep(3.0 / SCALE)  # no more reports once nominal
+
+    stub, process = run_session(
+        scenario,
+        vehicle=VehicleConfig(faults=(parse_fault("attitude-bias@20,deg=5,axis=y"),)),
+        truth_log=truth,
+    )
+    reports = safing(stub)
+    safe = [r for r in reports if r.state == "safe"]
+    since = safe[0].since_time_ns
+    assert since == process.epoch_ns + 20 * 10**9  # the onset tick
+    assert safe[0].trigger is not None and safe[0].trigger.quantity == "attitude_error_deg"
+    assert safe[0].trigger.channel == "y" and safe[0].cancelled == 6
+    assert all(r.since_time_ns == since and r.cancelled == 6 for r in safe)
+    # repeated every onboard second from the entry while connected (none kept for later),
+    # and sent right after the second hello
+    assert [r.onboard_time_ns for r in safe[:3]] == [since, since + 10**9, since + 2 * 10**9]
+    after_hello = reports[at_hello[0]]
+    assert after_hello.state == "safe"
+    # the first on the new connection: at the hello's time (the vehicle's clock stands on
+    # its 10 ms grid, the hello's on the wall clock; the report follows the hello's send)
+    delta_ns = after_hello.onboard_time_ns - stub.hellos[1].onboard_time_ns
+    assert -0.01e9 <= delta_ns < 1e9
+    exits = [r for r in reports if r.state == "nominal"]
+    assert len(exits) == 2 and exits[0] == exits[1] and exits[0].exit_request_id == 1
+    assert reports[-2:] == exits  # nothing after the exit
+    acks = {a.seq: a for a in stub.acks if a.stage is CommandStage.REJECTED}
+    assert [acks[k].reason for k in range(6)] == [RejectReason.SAFING] * 6
+    assert acks[10].reason is RejectReason.SAFING
+    assert not [a for a in stub.acks if a.stage is CommandStage.EXECUTED]
+    assert not process.vehicle.safe
+    records = [json.loads(line) for line in truth.read_text().splitlines()]
+    assert [r["event"] for r in records] == ["start", "fault", "safing_entry", "safing_exit"]
+    assert records[0]["faults"] == ["attitude-bias@20,deg=5,axis=y"]
+    assert records[0]["onboard_time_ns"] == process.epoch_ns and records[0]["safing"] is True
+    assert records[1]["onboard_time_ns"] == since and records[2]["onboard_time_ns"] == since
+    assert records[3]["request_id"] == 1
+    # the fault itself never went down: only what the telemetry shows
+    sent = [type(m).__name__ for m in stub.other]
+    assert set(sent) == {"Safing"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("safing", [True, False])
+def test_the_real_process_takes_faults_and_writes_the_truth_log(
+    tmp_path: Path, safing: bool
+) -> None:
+    """``hikoboshi spacecraft --fault ... --truth-log ...`` (and ``--no-safing``): the bias
+    at 2 s safes the vehicle, whose report reaches the ground, or, without safing, only the
+    telemetry shows it; either way the truth log has the fault."""
+    truth = tmp_path / "truth.jsonl"
+
+    async def main() -> GroundStub:
+        stub = GroundStub()
+        await stub.start()
+        args = ["--fault", "attitude-bias@2,deg=5", "--truth-log", str(truth)]
+        if not safing:
+            args.append("--no-safing")
+        proc = await asyncio.create_subprocess_exec(
+            *[sys.executable, "-m", "hikoboshi", "spacecraft", "--ground", stub.url],
+            *["--token", TOKEN, "--time-scale", str(SCALE), *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+
+        def seen() -> bool:
+            last = max((f.generation_time_ns for f in stub.frames.values()), default=0)
+            return bool(stub.hellos) and last > stub.hellos[0].onboard_time_ns + 6 * 10**9
+
+        await stub.wait_for(seen, timeout_s=30.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = await asyncio.wait_for(proc.communicate(), timeout=40.0)
+        assert proc.returncode == 0, err.decode()
+        await stub.stop()
+        return stub
+
+    stub = asyncio.run(main())
+    records = [json.loads(line) for line in truth.read_text().splitlines()]
+    start = records[0]
+    assert start["event"] == "start" and start["safing"] is safing
+    assert start["faults"] == ["attitude-bias@2,deg=5,axis=x"]
+    assert records[1]["event"] == "fault"
+    assert records[1]["onboard_time_ns"] == start["onboard_time_ns"] + 2 * 10**9
+    reports = [m for m in stub.other if isinstance(m, Safing)]
+    if safing:
+        assert records[2]["event"] == "safing_entry"
+        assert reports and reports[0].since_time_ns == records[2]["onboard_time_ns"]
+    else:
+        assert len(records) == 2 and not reports
+        frames = [
+            f for f in stub.frames.values() if f.generation_time_ns > records[1]["onboard_time_ns"]
+        ]
+        quat = np.array([f.quat_orbit_from_base_xyzw for f in frames])
+        target = np.array([f.acs_target_quat_xyzw for f in frames])
+        assert np.max(np.abs(attitude_error_deg(quat, target))) > 4.5  # seen, not acted on

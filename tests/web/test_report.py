@@ -93,6 +93,11 @@ def test_report_overlays_and_replays_a_flown_pass(
 
     frames = int(dataset()["frames"])
     assert frames > 50
+    # the outcome the summary gives: every command executed at its tag
+    outcome = page.locator("[data-test=pass-outcome]")
+    assert outcome.get_attribute("data-outcome") == "nominal"
+    summary = httpx.get(f"{ground.url}/api/passes/{pass_id}/summary", headers=VIEWER).json()
+    assert outcome.text_content() == "NOMINAL " + summary["outcome_text"].removeprefix("nominal: ")
     assert frames == len(times)
     assert points() == frames  # every archived frame is on the plot (the overlay)
     openapi = httpx.get(f"{ground.url}/openapi.json").json()["paths"]

@@ -1,5 +1,7 @@
 // Time plots (uPlot) with the plan's prediction drawn underneath as dashed grey lines, a
-// marker for "now" or the replay time, and the pitch phase plane (a plain canvas).
+// marker for "now" or the replay time, the alarms of what a plot shows (the time in a band
+// shaded, the trace coloured there, the thresholds as bands, a tag naming the alarm), and
+// the pitch phase plane (a plain canvas).
 
 import uPlot from "uplot";
 import "uplot/dist/uPlot.min.css";
@@ -19,6 +21,31 @@ export interface SeriesSpec {
   width?: number;
 }
 
+/** A threshold drawn on a plot: the region beyond it shaded (``above`` or ``below``). */
+export interface LimitLevel {
+  at: number;
+  side: "above" | "below";
+}
+
+/** An alarm drawn on a plot (see :func:`timePlot`'s ``setAlarms``). */
+export interface AlarmMark {
+  /** The series in alarm (0: the first after x); null: the plot as a whole. */
+  series: number | null;
+  /** Its colour (the worst severity's). */
+  color: string;
+  /** What the tag over the plot says (short), and its tooltip (the alarm in full). */
+  label: string;
+  title: string;
+  /** For the tests: the alarm's severity and channel. */
+  severity: string;
+  channel: string;
+  /** Plan-time spans in a band (``t1`` null: still in it), each in its band's colour. */
+  spans: { t0: number; t1: number | null; color: string }[];
+  /** The threshold as a band: ``around`` a reference series (``ref ± halfWidth``: a value
+   * that is a distance from it), or levels of the plotted value itself. */
+  band?: { kind: "around"; ref: number; halfWidth: number } | { kind: "levels"; levels: LimitLevel[] };
+}
+
 export interface TimePlot {
   plot: uPlot;
   el: HTMLElement;
@@ -28,6 +55,120 @@ export interface TimePlot {
   setPrediction(lines: PredLine[]): void;
   setMarker(t: number | null): void;
   setXRange(range: [number, number] | null): void;
+  /** The alarms of what this plot shows (empty: none): redrawn with them. */
+  setAlarms(marks: AlarmMark[]): void;
+}
+
+/** ``#rrggbb`` at opacity ``alpha``. */
+function withAlpha(color: string, alpha: number): string {
+  const m = /^#([0-9a-f]{2})([0-9a-f]{2})([0-9a-f]{2})$/i.exec(color);
+  if (!m) return color;
+  return `rgba(${parseInt(m[1], 16)}, ${parseInt(m[2], 16)}, ${parseInt(m[3], 16)}, ${alpha})`;
+}
+
+/** Shade an alarm's time in a band, and its threshold band, under the traces. */
+function drawAlarmUnder(u: uPlot, mark: AlarmMark): void {
+  const ctx = u.ctx;
+  const { left, top, width, height } = u.bbox;
+  const xs = u.data[0] as ArrayLike<number>;
+  const lastX = xs.length ? xs[xs.length - 1] : (u.scales.x.max ?? 0);
+  for (const span of mark.spans) {
+    const a = u.valToPos(span.t0, "x", true);
+    const b = u.valToPos(span.t1 ?? lastX, "x", true);
+    const x0 = Math.max(left, Math.min(a, b));
+    const x1 = Math.min(left + width, Math.max(a, b, a + 2 * devicePixelRatio));
+    if (x1 <= x0) continue;
+    ctx.fillStyle = withAlpha(span.color, 0.13);
+    ctx.fillRect(x0, top, x1 - x0, height);
+  }
+  const band = mark.band;
+  if (!band) return;
+  ctx.strokeStyle = withAlpha(mark.color, 0.8);
+  ctx.lineWidth = devicePixelRatio;
+  ctx.setLineDash([3 * devicePixelRatio, 3 * devicePixelRatio]);
+  if (band.kind === "levels") {
+    for (const level of band.levels) {
+      const y = u.valToPos(level.at, "y", true);
+      const y0 = level.side === "above" ? top : y;
+      const y1 = level.side === "above" ? y : top + height;
+      const c0 = Math.max(top, y0);
+      const c1 = Math.min(top + height, y1);
+      if (c1 > c0) {
+        ctx.fillStyle = withAlpha(mark.color, 0.12);
+        ctx.fillRect(left, c0, width, c1 - c0);
+      }
+      if (y >= top && y <= top + height) {
+        ctx.beginPath();
+        ctx.moveTo(left, y);
+        ctx.lineTo(left + width, y);
+        ctx.stroke();
+      }
+    }
+  } else {
+    // ref ± halfWidth along the reference trace, broken where it is.
+    const ys = u.data[band.ref + 1] as ArrayLike<number | null> | undefined;
+    if (!ys) return;
+    const step = Math.max(1, Math.floor(xs.length / (width / devicePixelRatio)));
+    const runs: [number, number][][] = [];
+    let run: [number, number][] = [];
+    for (let k = 0; k < xs.length; k += step) {
+      const y = ys[k];
+      if (y === null || !Number.isFinite(y)) {
+        if (run.length) runs.push(run);
+        run = [];
+      } else run.push([xs[k], y]);
+    }
+    if (run.length) runs.push(run);
+    ctx.fillStyle = withAlpha(mark.color, 0.16);
+    for (const r of runs) {
+      const px = (x: number): number => u.valToPos(x, "x", true);
+      const hi = r.map(([x, y]) => [px(x), u.valToPos(y + band.halfWidth, "y", true)]);
+      const lo = r.map(([x, y]) => [px(x), u.valToPos(y - band.halfWidth, "y", true)]);
+      ctx.beginPath();
+      hi.forEach(([x, y], i) => (i ? ctx.lineTo(x, y) : ctx.moveTo(x, y)));
+      for (let i = lo.length - 1; i >= 0; i--) ctx.lineTo(lo[i][0], lo[i][1]);
+      ctx.closePath();
+      ctx.fill();
+      for (const edge of [hi, lo]) {
+        ctx.beginPath();
+        edge.forEach(([x, y], i) => (i ? ctx.lineTo(x, y) : ctx.moveTo(x, y)));
+        ctx.stroke();
+      }
+    }
+  }
+  ctx.setLineDash([]);
+}
+
+/** The alarming series' trace again, thicker and in its band's colour, where it was in one. */
+function drawAlarmOver(u: uPlot, mark: AlarmMark): void {
+  if (mark.series === null) return;
+  const xs = u.data[0] as ArrayLike<number>;
+  const ys = u.data[mark.series + 1] as ArrayLike<number | null> | undefined;
+  if (!ys || xs.length === 0) return;
+  const ctx = u.ctx;
+  ctx.lineWidth = 2.5 * devicePixelRatio;
+  for (const span of mark.spans) {
+    const t1 = span.t1 ?? Infinity;
+    ctx.strokeStyle = span.color;
+    ctx.beginPath();
+    let pen = false;
+    for (let k = 0; k < xs.length; k++) {
+      const x = xs[k];
+      if (x < span.t0) continue;
+      if (x > t1) break;
+      const y = ys[k];
+      if (y === null || !Number.isFinite(y)) {
+        pen = false;
+        continue;
+      }
+      const px = u.valToPos(x, "x", true);
+      const py = u.valToPos(y, "y", true);
+      if (pen) ctx.lineTo(px, py);
+      else ctx.moveTo(px, py);
+      pen = true;
+    }
+    ctx.stroke();
+  }
 }
 
 export function timePlot(
@@ -48,6 +189,27 @@ export function timePlot(
   let pointCount = 0;
   let predMin = Infinity;
   let predMax = -Infinity;
+  let alarms: AlarmMark[] = [];
+  const tag = document.createElement("div");
+  tag.className = "alarm-tag";
+  tag.hidden = true;
+  el.appendChild(tag);
+
+  // Each alarm mark drawn by `draw`, clipped to the plotting area.
+  const drawAlarms =
+    (draw: (u: uPlot, mark: AlarmMark) => void) =>
+    (u: uPlot): void => {
+      if (alarms.length === 0) return;
+      const { left, top, width, height: h } = u.bbox;
+      u.ctx.save();
+      u.ctx.beginPath();
+      u.ctx.rect(left, top, width, h);
+      u.ctx.clip();
+      for (const mark of alarms) draw(u, mark);
+      u.ctx.restore();
+    };
+  const drawAlarmsUnder = drawAlarms(drawAlarmUnder);
+  const drawAlarmsOver = drawAlarms(drawAlarmOver);
 
   const drawPrediction = (u: uPlot): void => {
     if (prediction.length === 0) return;
@@ -141,7 +303,7 @@ export function timePlot(
         points: { show: false },
       })),
     ],
-    hooks: { drawAxes: [drawPrediction], draw: [drawMarker] },
+    hooks: { drawAxes: [drawAlarmsUnder, drawPrediction], draw: [drawAlarmsOver, drawMarker] },
   };
   const empty: uPlot.AlignedData = [[], ...series.map(() => [])];
   const plot = new uPlot(opts, empty, el);
@@ -185,6 +347,19 @@ export function timePlot(
     setXRange(range) {
       xRange = range;
       plot.setScale("x", { min: range?.[0] ?? 0, max: range?.[1] ?? 0 });
+    },
+    setAlarms(marks) {
+      alarms = marks;
+      const worst = marks[0] ?? null; // the caller orders them worst first
+      el.classList.toggle("in-alarm", worst !== null);
+      el.style.setProperty("--alarm", worst?.color ?? "transparent");
+      el.dataset.alarmSeverity = worst?.severity ?? "";
+      el.dataset.alarmChannels = marks.map((m) => m.channel).join(",");
+      tag.hidden = worst === null;
+      tag.textContent = marks.map((m) => m.label).join(" · ");
+      tag.title = marks.map((m) => m.title).join("\n");
+      tag.style.color = worst?.color ?? "";
+      plot.redraw(false, false);
     },
   };
 }

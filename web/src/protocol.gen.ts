@@ -6,10 +6,60 @@ export const PROTOCOL_VERSION = 1;
 
 // --- server -> console messages (server/services/console_messages.py) ---
 
+/** An alarm raised, changed band, cleared or acknowledged (topic `alarms`; while it stays in its band, at most once per second). Not replayed from the database: a console that is told `resync` reloads `GET /api/alarms`. */
+export interface AlarmMsg {
+  v: 1;
+  topic: "alarms";
+  type: "alarm";
+  seq: number;
+  alarm: ConsoleAlarm;
+}
+
 /** As fast as the console takes it, `batch_frames` frames a message. */
 export interface AsFastAsPossibleSpec {
   mode: "as_fast_as_possible";
   batch_frames: number;
+}
+
+/** An alarm as written (docs/alarms.md; `GET /api/alarms`'s items). */
+export interface ConsoleAlarm {
+  id: string;
+  pass_id: string | null;
+  quantity: string;
+  channel: string;
+  label: string;
+  unit: string;
+  direction: "high" | "low";
+  source: "limit" | "vehicle";
+  severity: "watch" | "warning" | "distress" | "critical" | "severe";
+  current_severity: "watch" | "warning" | "distress" | "critical" | "severe" | null;
+  state: "triggered" | "cleared";
+  acknowledged: boolean;
+  acknowledged_by: string | null;
+  acknowledged_time_ns: number | null;
+  comment: string | null;
+  limit: number | null;
+  trigger_value: number | null;
+  worst_value: number | null;
+  last_value: number | null;
+  count: number;
+  raised_frame_seq: number | null;
+  raised_generation_time_ns: number | null;
+  raised_time_ns: number;
+  updated_time_ns: number;
+  cleared_generation_time_ns: number | null;
+  cleared_time_ns: number | null;
+  timeline: ConsoleAlarmTimelineEntry[];
+  detail: string | null;
+}
+
+/** A change of an alarm's band (`severity` null: back within limits); `generation_time_ns` onboard, `time_ns` ground. */
+export interface ConsoleAlarmTimelineEntry {
+  severity: "watch" | "warning" | "distress" | "critical" | "severe" | null;
+  generation_time_ns: number | null;
+  time_ns: number;
+  frame_seq: number | null;
+  value: number | null;
 }
 
 /** A committed event as the publisher delivers it (`pass_id` in canonical form). */
@@ -52,6 +102,16 @@ export interface FrameColumns {
   [name: string]: number[] | string[] | boolean[] | (number | null)[] | undefined;
 }
 
+/** How far behind the console is: `behind_s`, the age (server clock) of its oldest unsent message, `queued` of them; sent ahead of the data while it is behind, and once with `behind_s: 0` when it has caught up. Past `resync_s` its bulk data is dropped and each such stream told `resync`. `time_ns`: the ground time it was measured. */
+export interface LagMsg {
+  v: 1;
+  type: "lag";
+  behind_s: number;
+  queued: number;
+  resync_s: number;
+  time_ns: number;
+}
+
 /** The link status (`GET /api/link/status`'s document), on change and as a heartbeat. */
 export interface LinkMsg {
   v: 1;
@@ -85,6 +145,12 @@ export interface LinkStatus {
   robot: string | null;
   robot_hash: string | null;
   n_joints: number | null;
+  vehicle_mode: "nominal" | "safe";
+  safing: Record<string, unknown> | null;
+  malformed_received: number;
+  malformed_by_kind: Record<string, number>;
+  errors_unanswered: number;
+  malformed_closes: number;
 }
 
 /** The answer to `ping`: its `id` and the ground time. */
@@ -240,6 +306,10 @@ export interface WelcomeLimits {
   max_subscriptions: number;
   max_message_bytes: number;
   link_heartbeat_s: number;
+  behind_report_s: number;
+  behind_resync_s: number;
+  behind_drop_s: number;
+  ack_window_s: number;
   max_replays_per_console: number;
   max_replay_factor: number;
   max_replay_batch_frames: number;
@@ -262,11 +332,13 @@ export type ServerMessage =
   | SubscribedMsg
   | ResyncMsg
   | UnsubscribedMsg
+  | LagMsg
   | PongMsg
   | ErrorMsg
   | TelemetryMsg
   | LinkMsg
   | EventMsg
+  | AlarmMsg
   | ReplayOpenedMsg
   | ReplayStateMsg
   | ReplayClosedMsg

@@ -1,17 +1,18 @@
 // The console websocket (docs/console.md): auth as the first message, one subscription per
 // stream, the dedupe rule (per stream: epoch and highest seq accepted), resume after a
-// reconnect, resync (the caller reloads from REST), and a ping for the clock offset.
+// reconnect, resync (the caller reloads from REST), the server's word that this console is
+// behind (``lag``), and a ping for the clock offset.
 
 import type {
-  EventMsg, LinkMsg, ReplayCommandsMsg, ReplayOpenedMsg, ReplayStateMsg, ReplayTelemetryMsg,
+  AlarmMsg, EventMsg, LagMsg, LinkMsg, ReplayCommandsMsg, ReplayOpenedMsg, ReplayStateMsg, ReplayTelemetryMsg,
   ServerMessage, TelemetryMsg, WelcomeMsg,
 } from "./protocol.gen";
 
 /** The server's first message (generated from server/services/console_messages.py). */
 export type Welcome = WelcomeMsg;
 
-/** A message of a subscribed stream: ``telemetry``, ``link`` or ``event``. */
-export type Message = TelemetryMsg | LinkMsg | EventMsg;
+/** A message of a subscribed stream: ``telemetry``, ``link``, ``event`` or ``alarm``. */
+export type Message = TelemetryMsg | LinkMsg | EventMsg | AlarmMsg;
 
 /** A replay's data message (``topic: "replay"``). */
 export type ReplayData = ReplayTelemetryMsg | ReplayCommandsMsg;
@@ -20,8 +21,11 @@ export interface SocketHandlers {
   welcome(w: Welcome): void;
   /** A message of a stream, after the dedupe rule. */
   message(m: Message): void;
-  /** Nothing up to the stream's current seq will be replayed: reload it from REST. */
-  resync(topic: string, passId: string | null): void;
+  /** Nothing up to the stream's current seq will be replayed: reload it from REST (the
+   * ``reason`` says why: a reconnect to another epoch, or ``behind by ...``). */
+  resync(topic: string, passId: string | null, reason: string): void;
+  /** How far behind the server measures this console (``behind_s`` 0: caught up). */
+  lag(m: LagMsg): void;
   /** The token was refused (close 1008): sign out. */
   refused(reason: string): void;
   state(connected: boolean): void;
@@ -87,6 +91,13 @@ export class ConsoleSocket {
   private backoffMs = 250;
   private closed = false;
   private pingTimer: number | undefined;
+  /** Messages read on this socket, and the count last acknowledged (``ack``, every 0.25 s):
+   * the server then keeps what this console has not read in its own queues, where the
+   * control messages jump the bulk data and a backlog can be dropped for a resync. */
+  private received = 0;
+  private acked = 0;
+  private ackedAtMs = 0;
+  private ackTimer: number | undefined;
   private pings = new Map<number, number>();
   private pingId = 0;
   /** Replays this console opened, by replay_id; and the opens awaiting their answer, in order. */
@@ -99,6 +110,8 @@ export class ConsoleSocket {
   socketRttMs: number | null = null;
   connected = false;
   welcome: Welcome | null = null;
+  /** The server's latest word on how far behind this console is (null: none yet). */
+  lag: LagMsg | null = null;
 
   constructor(
     private readonly token: string,
@@ -111,16 +124,29 @@ export class ConsoleSocket {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
     const ws = new WebSocket(`${scheme}://${location.host}/api/console`);
     this.ws = ws;
+    this.received = 0;
+    this.acked = 0;
     ws.onopen = () => ws.send(JSON.stringify({ v: 1, type: "auth", token: this.token }));
     ws.onmessage = (ev) => {
       // The server's messages are the generated types (tests/server/console hold them).
-      if (typeof ev.data === "string") this.receive(JSON.parse(ev.data));
+      if (typeof ev.data !== "string") return;
+      this.received += 1;
+      this.receive(JSON.parse(ev.data));
+      // As it reads (timers are slowed in a background tab; messages are not), at most
+      // every 0.25 s; the timer acknowledges the rest once messages stop.
+      if (performance.now() - this.ackedAtMs >= 250) this.ack();
     };
     ws.onclose = (ev) => {
       this.ws = null;
+      if (this.lag !== null && this.lag.behind_s > 0) {
+        // A new connection starts with an empty queue: behind no longer.
+        this.lag = { ...this.lag, behind_s: 0, queued: 0 };
+        this.handlers.lag(this.lag);
+      }
       this.setConnected(false);
       this.dropReplays();
       window.clearInterval(this.pingTimer);
+      window.clearInterval(this.ackTimer);
       if (ev.code === 1008 && this.welcome === null) {
         this.closed = true;
         this.handlers.refused(ev.reason || "the token was refused");
@@ -135,6 +161,7 @@ export class ConsoleSocket {
   close(): void {
     this.closed = true;
     window.clearInterval(this.pingTimer);
+    window.clearInterval(this.ackTimer);
     this.ws?.close(1000, "console closed");
   }
 
@@ -267,6 +294,13 @@ export class ConsoleSocket {
     return Date.now() + this.clockOffsetMs;
   }
 
+  private ack(): void {
+    if (this.received === this.acked || this.welcome === null) return;
+    this.acked = this.received;
+    this.ackedAtMs = performance.now();
+    this.send({ type: "ack", received: this.received });
+  }
+
   private ping(): void {
     const id = ++this.pingId;
     this.pings.set(id, performance.now());
@@ -279,6 +313,11 @@ export class ConsoleSocket {
         this.backoffMs = 250;
         this.welcome = m;
         this.epoch = m.epoch;
+        // Acknowledge from the start (before any data), then on a timer while messages come.
+        this.send({ type: "ack", received: this.received });
+        this.acked = this.received;
+        window.clearInterval(this.ackTimer);
+        this.ackTimer = window.setInterval(() => this.ack(), 250);
         this.setConnected(true);
         this.handlers.welcome(m);
         // Resume every stream: with the old seq and epoch (a new epoch answers resync).
@@ -289,6 +328,10 @@ export class ConsoleSocket {
         this.pingTimer = window.setInterval(() => this.ping(), 5000);
         return;
       }
+      case "lag":
+        this.lag = m;
+        this.handlers.lag(m);
+        return;
       case "pong": {
         if (typeof m.id !== "number") return;
         const sent = this.pings.get(m.id);
@@ -320,7 +363,7 @@ export class ConsoleSocket {
         if (!s) return;
         s.epoch = m.epoch;
         s.seq = m.seq;
-        this.handlers.resync(s.topic, passId);
+        this.handlers.resync(s.topic, passId, m.reason);
         return;
       }
       case "unsubscribed": {
@@ -356,6 +399,7 @@ export class ConsoleSocket {
         return;
       case "link":
       case "event":
+      case "alarm":
         this.streamMessage(m);
         return;
     }

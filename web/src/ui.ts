@@ -54,12 +54,16 @@ export function utc(iso: string): string {
 }
 
 /**
- * The confirmation of a critical action: the operator types the pass name. Resolves with
+ * The confirmation of a critical action: the operator types the pass name (or another
+ * ``noun``'s: the vehicle's for leaving SAFE). Resolves with
  * the extra field's value (e.g. the abort reason) when confirmed, null when cancelled.
  */
 export function confirmAction(opts: {
   action: string;
+  /** The name to type: the pass's (or, with ``noun``, the vehicle's). */
   passName: string;
+  /** What is named (``pass`` unless given). */
+  noun?: string;
   danger?: boolean;
   reason?: { label: string; value: string };
   run: (reason: string) => Promise<void>;
@@ -75,12 +79,13 @@ export function confirmAction(opts: {
     `${opts.action} ${opts.passName}`,
   );
   const cancel = h("button", { type: "button", "data-test": "confirm-cancel" }, "Cancel");
+  const noun = opts.noun ?? "pass";
   const form = h(
     "form.dialog",
     {},
-    h("h2", {}, `${opts.action} pass`),
-    h("p", {}, "Type the pass name ", h("code", {}, opts.passName), " to confirm."),
-    h("label", {}, "Pass name", input),
+    h("h2", {}, `${opts.action} ${noun}`),
+    h("p", {}, `Type the ${noun} name `, h("code", {}, opts.passName), " to confirm."),
+    h("label", {}, `${noun[0].toUpperCase()}${noun.slice(1)} name`, input),
     reason ? h("label", {}, opts.reason!.label, reason) : null,
     error,
     h("div.actions", {}, cancel, go),
@@ -103,10 +108,16 @@ export function confirmAction(opts: {
       .run(reason?.value.trim() || opts.reason?.value || "")
       .then(close)
       .catch((e: Error) => {
-        error.textContent = e.message;
+        error.textContent = refusal(e);
         go.disabled = false;
       });
   });
   document.body.appendChild(backdrop);
   input.focus();
+}
+
+/** A refused request in words: the server's message and its error code (``ApiError``'s). */
+export function refusal(e: Error): string {
+  const code = (e as Error & { code?: unknown }).code;
+  return typeof code === "string" && code && !e.message.includes(code) ? `${e.message} (${code})` : e.message;
 }

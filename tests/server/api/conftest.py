@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session, sessionmaker
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from planner.catalogue import parameters_from_values, plan_experiment
 from planner.experiments import PtpParams
@@ -66,3 +67,19 @@ def add_pass(client: TestClient, name: str) -> str:
         )
         session.commit()
         return str(record.id)
+
+
+class ClientAddress:
+    """Puts the ``x-test-client`` header's address (else ``default``) in the scope as the
+    client's: the test client has one address, the edge counts by address."""
+
+    def __init__(self, app: ASGIApp, default: str) -> None:
+        self.app = app
+        self.default = default
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            headers = dict(scope["headers"])
+            address = headers.get(b"x-test-client", self.default.encode()).decode()
+            scope = {**scope, "client": (address, 5555)}
+        await self.app(scope, receive, send)

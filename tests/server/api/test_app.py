@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import get_args
@@ -87,3 +88,30 @@ def test_the_api_s_stage_and_state_names_are_the_archive_s() -> None:
     (mypy needs them written out; this holds the two spellings to one list)."""
     assert get_args(CommandStage) == COMMAND_STAGES
     assert get_args(PassState) == PASS_STATES
+
+
+def _pool_threads() -> set[threading.Thread]:
+    """The database worker's threads and the event loops' default executors' threads."""
+    return {
+        t for t in threading.enumerate() if t.name == "ground-db" or t.name.startswith("asyncio_")
+    }
+
+
+def test_the_lifespan_leaves_no_thread_and_no_connection_behind(
+    database_url: str, tmp_path: Path
+) -> None:
+    """Once the lifespan has exited: the database worker's thread is joined, the loop's
+    executor threads are gone and neither engine holds a connection (dozens of idle
+    ``ground-db`` threads outlived their tests before the fixtures closed what they
+    opened)."""
+    before = _pool_threads()
+    app = create_app(Settings(data_dir=tmp_path, database_url=database_url, tokens=TOKENS))
+    with TestClient(app) as client:
+        # the readers' pool, a route in a worker thread, the link's database worker
+        assert client.get("/api/passes", headers={"Authorization": "Bearer v-token"}).is_success
+        engines = (app.state.engine, app.state.link_engine)
+        assert [t.name for t in _pool_threads() - before].count("ground-db") == 1
+        assert all(engine.pool.checkedin() >= 1 for engine in engines)
+    assert _pool_threads() - before == set()  # at once: joined, not left to end
+    for engine in engines:
+        assert engine.pool.checkedin() == 0 and engine.pool.checkedout() == 0

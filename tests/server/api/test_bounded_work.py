@@ -32,6 +32,9 @@ from tests.server.reports.conftest import short_mcap, short_recording  # noqa: F
 
 #: Generous: a loaded 2-core machine may be slow; nothing here should take near this.
 PATIENCE_S = 60.0
+#: Health and an abort answer in a fraction of a second beside the planning jobs; past this
+#: they were locked out (a guard, not a timing: speed is measured in bench/).
+LOCKED_OUT_S = 5.0
 
 
 def _wait_for(condition: Callable[[], bool], what: str) -> None:
@@ -348,9 +351,11 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
         _wait_for(lambda: len(_descendants(proc.pid)) > baseline, "jobs to start")
         for _ in range(5):
             t0 = time.monotonic()
-            health = httpx.get(f"{base}/api/health", timeout=5.0)
+            health = httpx.get(f"{base}/api/health", timeout=10.0)
             assert health.status_code == 200
-            assert time.monotonic() - t0 < 1.0
+            # a lock-out guard, not a timing (a health answered by a busy thread pool had
+            # waited for the planning jobs: tens of seconds)
+            assert time.monotonic() - t0 < LOCKED_OUT_S
             time.sleep(0.2)
         # the operator's abort is not held up by the planning either
         t0 = time.monotonic()
@@ -358,11 +363,11 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
             f"{base}/api/passes/{created.json()['id']}/abort",
             json={"confirm": "ABORT to-abort", "reason": "planning load"},
             headers=operator,
-            timeout=5.0,
+            timeout=10.0,
         )
         assert aborted.status_code == 200, aborted.text
         assert aborted.json()["state"] == "aborted"
-        assert time.monotonic() - t0 < 1.0
+        assert time.monotonic() - t0 < LOCKED_OUT_S
         for s in sockets:
             s.close()
         _wait_for(lambda: len(_descendants(proc.pid)) <= baseline, "the jobs to be killed")

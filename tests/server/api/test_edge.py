@@ -5,6 +5,7 @@ limit, the security headers, constant-time tokens, and how ``serve`` runs uvicor
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import inspect
 import json
@@ -16,12 +17,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 import uvicorn
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy.exc import DataError
-from starlette.types import Message, Receive, Scope, Send
+from starlette.types import Message, Scope
 from starlette.websockets import WebSocketDisconnect
 from typer.testing import CliRunner
 
@@ -30,7 +32,7 @@ from server.api.edge import AuthGuard, RedactSecretsFilter, check_json, uvicorn_
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass, sessions
+from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, ClientAddress, add_pass, sessions
 from tests.server.storage.factories import make_plan
 
 MIB = 1024 * 1024
@@ -297,20 +299,6 @@ def test_an_unexpected_error_is_500_in_the_shape(
 # --- failed authentication: audit and limit -------------------------------------------------
 
 
-class _Address:
-    """Puts the ``x-test-client`` header's address in the scope (the test client has one)."""
-
-    def __init__(self, app: FastAPI) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] in ("http", "websocket"):
-            headers = dict(scope["headers"])
-            address = headers.get(b"x-test-client", b"203.0.113.1").decode()
-            scope = {**scope, "client": (address, 5555)}
-        await self.app(scope, receive, send)
-
-
 @pytest.fixture()
 def limited(tmp_path: Path) -> Iterator[tuple[TestClient, list[float]]]:
     """An application allowing 3 failures a minute, and its guard's clock (settable)."""
@@ -320,8 +308,11 @@ def limited(tmp_path: Path) -> Iterator[tuple[TestClient, list[float]]]:
     app = create_app(settings)
     now = [1000.0]
     app.state.auth_guard.clock = lambda: now[0]
-    with TestClient(_Address(app)) as c:
+    with TestClient(ClientAddress(app, "203.0.113.1")) as c:
         yield c, now
+
+
+SPACECRAFT = {"Authorization": "Bearer s-token"}
 
 
 def test_failed_authentication_is_audited_and_limited_per_address(
@@ -337,27 +328,93 @@ def test_failed_authentication_is_audited_and_limited_per_address(
             "/api/passes", headers={**attacker, "Authorization": "Bearer wrong-secret-3"}
         )
         assert (response.status_code, response.headers["www-authenticate"]) == (401, "Bearer")
-        # The limit is reached: everything from there is 429, a good token too, and first.
-        for path in ("/api/passes", "/api/health", "/assets/a%00.js"):
-            response = client.get(path, headers={**attacker, **VIEWER})
+        # The limit is reached: a failing attempt from there is 429, whatever it presents,
+        # neither checked further nor audited again...
+        for headers in ({"Authorization": "Bearer wrong-secret-4"}, {}):
+            response = client.get("/api/passes", headers={**attacker, **headers})
             assert (response.status_code, _error(response)) == (429, "too_many_failures")
             assert response.headers["retry-after"] == "60"
+        # ... but a valid token, the health check and the console's files are answered.
+        assert client.get("/api/passes", headers={**attacker, **VIEWER}).status_code == 200
+        assert client.get("/api/health", headers=attacker).status_code == 200
+        assert client.get("/", headers=attacker).status_code in (200, 503)  # 503: unbuilt
+        response = client.get("/assets/a%00.js", headers=attacker)
+        assert (response.status_code, _error(response)) == (400, "invalid_text")
     audited = [r.getMessage() for r in caplog.records if r.name == "hikoboshi.audit"]
     assert len(audited) == 4  # three failures, one "refused"
     assert all("198.51.100.7" in line for line in audited)
     assert "path='/api/passes'" in audited[0] and "an API token is required" in audited[0]
-    assert "unknown API token" in audited[2]
+    assert "unknown API token" in audited[2] and "credential=hmac:" in audited[2]
     assert not any("wrong-secret" in line for line in audited)
 
     # Another address is not affected.
-    other = {"x-test-client": "198.51.100.8", **VIEWER}
-    assert client.get("/api/passes", headers=other).status_code == 200
+    other = {"x-test-client": "198.51.100.8", "Authorization": "Bearer other-wrong"}
+    assert client.get("/api/passes", headers=other).status_code == 401
     # The window runs out.
+    bad = {**attacker, "Authorization": "Bearer wrong-secret-5"}
     now[0] += 30.0
-    response = client.get("/api/passes", headers={**attacker, **VIEWER})
+    response = client.get("/api/passes", headers=bad)
     assert (response.status_code, response.headers["retry-after"]) == (429, "30")
     now[0] += 30.0
-    assert client.get("/api/passes", headers={**attacker, **VIEWER}).status_code == 200
+    assert client.get("/api/passes", headers=bad).status_code == 401
+
+
+def test_200_wrong_tokens_never_keep_out_the_operator_health_or_the_vehicle(
+    limited: tuple[TestClient, list[float]],
+) -> None:
+    """The issue's must-show, in process: 200 wrong tokens from one address (the limit is
+    3 here), then an operator's abort, the health check and the vehicle's link from the
+    same address: all answered as from anywhere else, none 429 or refused at the handshake.
+    (Over a real server and a real spacecraft: test_the_vehicle_reconnects_...)."""
+    client, _ = limited
+    shared = "198.51.100.30"  # a reverse proxy's address, say: everyone's
+    for i in range(200):
+        headers = {"x-test-client": shared, "Authorization": f"Bearer wrong-{i}"}
+        assert client.get("/api/passes", headers=headers).status_code in (401, 429)
+    wrong = {"x-test-client": shared, "Authorization": "Bearer wrong-201"}
+    assert client.get("/api/passes", headers=wrong).status_code == 429
+    here = {"x-test-client": shared}
+    # The operator's abort reaches its route (no such pass: 404, not the edge's 401/429).
+    response = client.post(
+        "/api/passes/p-none/abort",
+        json={"confirm": "ABORT p-none", "reason": "test"},
+        headers={**here, **OPERATOR},
+    )
+    assert (response.status_code, _error(response)) == (404, "not_found"), response.text
+    assert client.get("/api/health", headers=here).status_code == 200
+    # The vehicle's link with its token connects: the ground reads what it sends (and
+    # answers a message it cannot read with ``error``, where a refused link is closed).
+    with client.websocket_connect("/api/link", headers={**here, **SPACECRAFT}) as ws:
+        ws.send_text("not a message")
+        assert ws.receive_json()["type"] == "error"
+    # ... while a wrong token on the link is refused, with the reason.
+    with (
+        client.websocket_connect("/api/link", headers=wrong) as ws,
+        pytest.raises(WebSocketDisconnect) as closed,
+    ):
+        ws.receive_text()
+    assert closed.value.code == 1008
+    assert "too many failed authentications" in (closed.value.reason or "")
+
+
+def test_failures_are_counted_per_credential_too(
+    limited: tuple[TestClient, list[float]],
+) -> None:
+    """One wrong token tried from many addresses (a client behind rotating addresses, a
+    stale token everywhere) is refused once over the limit, from a fresh address too; a
+    different wrong token from that fresh address is still heard (401)."""
+    client, _ = limited
+    stale = {"Authorization": "Bearer stale-token"}
+    for i in range(3):
+        headers = {"x-test-client": f"198.51.100.{40 + i}", **stale}
+        assert client.get("/api/passes", headers=headers).status_code == 401
+    fresh = {"x-test-client": "198.51.100.99"}
+    response = client.get("/api/passes", headers={**fresh, **stale})
+    assert (response.status_code, _error(response)) == (429, "too_many_failures")
+    other = {**fresh, "Authorization": "Bearer another-wrong"}
+    assert client.get("/api/passes", headers=other).status_code == 401
+    guard = client.app.app.state.auth_guard  # type: ignore[attr-defined]  # inside ClientAddress
+    assert guard.credentials_tracked() == 2 and len(guard) == 4
 
 
 def test_a_blocked_address_is_one_event_in_the_audit_log(
@@ -366,11 +423,11 @@ def test_a_blocked_address_is_one_event_in_the_audit_log(
     """The events table (what consoles and ``GET /api/events`` show) gets one
     ``auth_blocked`` per blocked window and address, however many failures follow."""
     client, now = limited
-    attacker = {"x-test-client": "198.51.100.20", "Authorization": "Bearer nope"}
-    for _ in range(10):
-        client.get("/api/passes", headers=attacker)
+    attacker = {"x-test-client": "198.51.100.20"}
+    for i in range(10):
+        client.get("/api/passes", headers={**attacker, "Authorization": f"Bearer nope-{i}"})
 
-    factory = client.app.app.state.sessions  # type: ignore[attr-defined]  # inside _Address
+    factory = client.app.app.state.sessions  # type: ignore[attr-defined]  # inside ClientAddress
 
     def blocked() -> list[Any]:
         with factory() as session:
@@ -384,8 +441,8 @@ def test_a_blocked_address_is_one_event_in_the_audit_log(
     assert event.actor == "edge" and event.pass_id is None
     assert event.detail == {"address": "198.51.100.20", "failures": 3, "blocked_s": 60.0}
     now[0] += 61.0  # a new window, blocked again: a second event
-    for _ in range(3):
-        client.get("/api/passes", headers=attacker)
+    for i in range(3):
+        client.get("/api/passes", headers={**attacker, "Authorization": f"Bearer again-{i}"})
     deadline = time.monotonic() + 30.0
     while len(blocked()) < 2:
         assert time.monotonic() < deadline, "no second auth_blocked event"
@@ -396,28 +453,47 @@ def test_a_blocked_address_is_one_event_in_the_audit_log(
 
 def test_websocket_failures_count_too(limited: tuple[TestClient, list[float]]) -> None:
     client, _ = limited
-    bad = {"x-test-client": "198.51.100.9", "Authorization": "Bearer nope"}
-    for path in ("/api/link", "/api/console", "/api/link"):
+    here = {"x-test-client": "198.51.100.9"}
+    for i, path in enumerate(("/api/link", "/api/console", "/api/link")):
+        bad = {**here, "Authorization": f"Bearer nope-{i}"}
         with client.websocket_connect(path, headers=bad) as ws, pytest.raises(WebSocketDisconnect):
             ws.receive_text()
-    # Refused at the handshake from now on, whatever the token.
-    good = {"x-test-client": "198.51.100.9", **VIEWER}
-    with pytest.raises(WebSocketDisconnect), client.websocket_connect("/api/console", headers=good):
-        pass
-    assert client.get("/api/passes", headers=good).status_code == 429
+    # Over the limit: a failing attempt is refused with the reason, on HTTP too...
+    bad = {**here, "Authorization": "Bearer nope-3"}
+    with (
+        client.websocket_connect("/api/console", headers=bad) as ws,
+        pytest.raises(WebSocketDisconnect) as closed,
+    ):
+        ws.receive_text()
+    assert "too many failed authentications" in (closed.value.reason or "")
+    assert client.get("/api/passes", headers=bad).status_code == 429
+    # ... a console's first-message token too; a valid token is never refused.
+    with client.websocket_connect("/api/console", headers=here) as ws:
+        ws.send_text(json.dumps({"v": 1, "type": "auth", "token": "nope-4"}))
+        with pytest.raises(WebSocketDisconnect) as closed:
+            ws.receive_text()
+    assert "too many failed authentications" in (closed.value.reason or "")
+    with client.websocket_connect("/api/console", headers={**here, **VIEWER}) as ws:
+        assert ws.receive_json()["type"]
+    assert client.get("/api/passes", headers={**here, **VIEWER}).status_code == 200
 
 
-def test_the_guard_tracks_a_bounded_number_of_addresses() -> None:
+def test_the_guard_tracks_a_bounded_number_of_addresses_and_credentials() -> None:
     now = [0.0]
     guard = AuthGuard(limit=2, window_s=10.0, max_addresses=3, clock=lambda: now[0])
     for i in range(5):
-        guard.failed(f"10.0.0.{i}", "/api/x", "unknown API token")
+        guard.failed(f"10.0.0.{i}", "/api/x", "unknown API token", f"wrong-{i}")
         now[0] += 1.0
-    assert len(guard) == 3  # the oldest two went
+    assert len(guard) == 3 and guard.credentials_tracked() == 3  # the oldest two went
     guard.failed("10.0.0.4", "/api/x", "unknown API token")
     assert guard.retry_after("10.0.0.4") == 9  # its window started at 4 s, it is 5 s now
+    assert guard.retry_after("10.0.0.5", "wrong-4") is None  # once for this credential
+    guard.failed("10.0.0.5", "/api/x", "unknown API token", "wrong-4")
+    assert guard.retry_after("10.0.0.6", "wrong-4") == 9  # from any address
+    assert guard.retry_after("10.0.0.6", "wrong-3") is None
     now[0] = 100.0
-    assert guard.retry_after("10.0.0.4") is None and len(guard) == 0
+    assert guard.retry_after("10.0.0.4", "wrong-4") is None and len(guard) == 0
+    assert guard.credentials_tracked() == 0
 
 
 # --- tokens ---------------------------------------------------------------------------------
@@ -504,13 +580,14 @@ def _free_port() -> int:
         return port
 
 
-@pytest.fixture()
-def served(tmp_path: Path) -> Iterator[int]:
-    """The service as ``serve`` runs it (head timeout 0.5 s), on a free loopback port."""
-    settings = Settings(data_dir=tmp_path, tokens=TOKENS, header_timeout_s=0.5)
+@contextlib.contextmanager
+def _serving(settings: Settings) -> Iterator[int]:
+    """``settings``' service as ``serve`` runs it (:func:`uvicorn_config`), on a free
+    loopback port, in a thread."""
     port = _free_port()
-    config = uvicorn_config(create_app(settings), settings, host="127.0.0.1", port=port)
-    config.log_level = logging.WARNING
+    config = uvicorn_config(
+        create_app(settings), settings, host="127.0.0.1", port=port, log_level="warning"
+    )
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, name="uvicorn-edge", daemon=True)
     thread.start()
@@ -523,6 +600,13 @@ def served(tmp_path: Path) -> Iterator[int]:
     finally:
         server.should_exit = True
         thread.join(timeout=30.0)
+
+
+@pytest.fixture()
+def served(tmp_path: Path) -> Iterator[int]:
+    """The service as ``serve`` runs it (head timeout 0.5 s), on a free loopback port."""
+    with _serving(Settings(data_dir=tmp_path, tokens=TOKENS, header_timeout_s=0.5)) as port:
+        yield port
 
 
 def _read_all(sock: socket.socket) -> bytes:
@@ -611,3 +695,166 @@ def test_the_console_files_refuse_control_characters_behind_the_edge(tmp_path: P
         with pytest.raises(HttpError) as refused:
             _file(tmp_path, name, "no-cache")
         assert refused.value.status == 404
+
+
+# --- forwarded headers and the failed-authentication limit over a real server -------------
+
+
+def _audited(caplog: pytest.LogCaptureFixture) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.name == "hikoboshi.audit"]
+
+
+def test_serve_believes_forwarded_headers_from_no_one_by_default() -> None:
+    settings = Settings(tokens=TOKENS)
+    config = uvicorn_config(FastAPI(), settings, host="127.0.0.1", port=1)
+    assert config.proxy_headers is False  # uvicorn's default believes loopback
+    trusted = Settings(tokens=TOKENS, trusted_proxies=("10.0.0.2", "172.16.0.0/12"))
+    config = uvicorn_config(FastAPI(), trusted, host="127.0.0.1", port=1)
+    assert config.proxy_headers is True
+    assert config.forwarded_allow_ips == ["10.0.0.2", "172.16.0.0/12"]
+
+
+def test_trusted_proxies_are_addresses_from_the_environment(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("HIKOBOSHI_TRUSTED_PROXIES", " 10.0.0.2, fd00::/8 ,")
+    assert Settings.from_env().trusted_proxies == ("10.0.0.2", "fd00::/8")
+    monkeypatch.delenv("HIKOBOSHI_TRUSTED_PROXIES")
+    assert Settings.from_env().trusted_proxies == ()
+    with pytest.raises(ValueError, match=r"'proxy\.example' is not an IP address"):
+        Settings(trusted_proxies=("proxy.example",))
+
+
+def test_a_spoofed_forwarded_for_from_an_untrusted_peer_changes_nothing(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """From loopback, which uvicorn's default believes: wrong tokens with a new
+    ``X-Forwarded-For`` each are all the peer's (429 past the limit), and an address named
+    in one is neither counted nor blocked."""
+    settings = Settings(data_dir=tmp_path, tokens=TOKENS, auth_failure_limit=5)
+    with (
+        caplog.at_level(logging.WARNING, logger="hikoboshi.audit"),
+        _serving(settings) as port,
+        httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=20.0) as http,
+    ):
+        statuses = [
+            http.get(
+                "/api/passes",
+                headers={"Authorization": f"Bearer wrong-{i}", "X-Forwarded-For": f"203.0.113.{i}"},
+            ).status_code
+            for i in range(12)
+        ]
+        assert statuses == [401] * 5 + [429] * 7
+        forged = {"X-Forwarded-For": "198.51.100.77"}
+        assert http.get("/api/passes", headers={**forged, **VIEWER}).status_code == 200
+        assert http.get("/api/health", headers=forged).status_code == 200
+    audited = _audited(caplog)
+    assert len(audited) == 6  # five failures, one "refused", all the peer's
+    assert all("address=127.0.0.1 " in a or "address 127.0.0.1 " in a for a in audited)
+    assert not any("203.0.113." in a or "198.51.100.77" in a for a in audited)
+
+
+def test_forwarded_for_is_believed_from_a_trusted_proxy(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Behind the reverse proxy (named in ``trusted_proxies``) each client is counted as
+    itself: one over the limit leaves the others heard."""
+    settings = Settings(
+        data_dir=tmp_path, tokens=TOKENS, auth_failure_limit=2, trusted_proxies=("127.0.0.1",)
+    )
+    with (
+        caplog.at_level(logging.WARNING, logger="hikoboshi.audit"),
+        _serving(settings) as port,
+        httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=20.0) as http,
+    ):
+
+        def get(client: str, token: str) -> int:
+            headers = {"Authorization": f"Bearer {token}", "X-Forwarded-For": client}
+            return http.get("/api/passes", headers=headers).status_code
+
+        assert [get("203.0.113.1", f"wrong-{i}") for i in range(3)] == [401, 401, 429]
+        assert get("203.0.113.2", "wrong-x") == 401
+        assert get("203.0.113.1", "v-token") == 200
+    audited = _audited(caplog)
+    assert sum("address=203.0.113.1 " in a for a in audited) == 2
+    assert sum("address=203.0.113.2 " in a for a in audited) == 1
+    assert not any("127.0.0.1" in a for a in audited)
+
+
+@pytest.mark.slow
+def test_the_vehicle_reconnects_after_200_wrong_tokens_from_its_address(tmp_path: Path) -> None:
+    """The issue's must-show over a real server (as ``serve`` runs it) and the real
+    spacecraft process: 200 wrong tokens from loopback, the vehicle's own address, on REST
+    and on the link; then the operator's abort, the health check and the vehicle's
+    reconnection (its link dropped) are all answered. SQLite only: nothing here is about the
+    database (the edge counts in memory, before any route)."""
+    from spacecraft.link import LinkConfig
+    from spacecraft.process import ProcessConfig, SpacecraftProcess
+
+    settings = Settings(data_dir=tmp_path, tokens=TOKENS)  # the default limit: 20 a minute
+    processes: list[SpacecraftProcess] = []
+
+    async def connected(
+        http: httpx.AsyncClient, process: SpacecraftProcess, connections: int
+    ) -> None:
+        deadline = time.monotonic() + 60.0  # a guard, not a timing assertion
+        while True:
+            status = (await http.get("/api/link/status", headers=VIEWER)).json()
+            if status["connected"] and process.connections >= connections:
+                return
+            assert time.monotonic() < deadline, f"not connected ({process.connections})"
+            await asyncio.sleep(0.05)
+
+    async def scenario(port: int) -> None:
+        import websockets
+
+        process = SpacecraftProcess(
+            ProcessConfig(
+                ground_url=f"ws://127.0.0.1:{port}/api/link",
+                token="s-token",
+                time_scale=10.0,
+                uplink=LinkConfig(seed=1),
+                downlink=LinkConfig(seed=2),
+                seed=3,
+                backoff_initial_s=0.05,
+                backoff_max_s=0.5,
+                drain_timeout_s=5.0,
+            )
+        )
+        processes.append(process)
+        stop = asyncio.Event()
+        flying = asyncio.create_task(process.run(stop))
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=20.0) as http:
+            try:
+                await connected(http, process, 1)
+                for i in range(200):
+                    headers = {"Authorization": f"Bearer wrong-{i}"}
+                    response = await http.get("/api/passes", headers=headers)
+                    assert response.status_code in (401, 429)
+                wrong = {"Authorization": "Bearer wrong-link"}
+                async with websockets.connect(
+                    f"ws://127.0.0.1:{port}/api/link", additional_headers=wrong
+                ) as ws:
+                    with pytest.raises(websockets.ConnectionClosed) as closed:
+                        await ws.recv()
+                assert closed.value.rcvd is not None
+                assert "too many failed" in closed.value.rcvd.reason
+                assert response.status_code == 429  # the address is over the limit
+                response = await http.post(
+                    "/api/passes/p-none/abort",
+                    json={"confirm": "ABORT p-none", "reason": "test"},
+                    headers=OPERATOR,
+                )
+                assert (response.status_code, _error(response)) == (404, "not_found")
+                assert (await http.get("/api/health")).status_code == 200
+                # The link drops; the vehicle reconnects from the same address.
+                assert process._ws is not None
+                await process._ws.close()
+                await connected(http, process, 2)
+            finally:
+                stop.set()
+                await asyncio.wait_for(flying, 60.0)  # a guard against a hang
+
+    with _serving(settings) as port:
+        asyncio.run(scenario(port))
+    assert [p.connections for p in processes] == [2]

@@ -137,11 +137,14 @@ def _emitted(kind: str) -> type[_Emitted]:
 
 
 def emit_events(
-    client: TestClient, kinds: list[str], pass_id: str | None = None
+    client: TestClient,
+    kinds: list[str],
+    pass_id: str | None = None,
+    detail: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Write one event of each kind (committed, in order) and publish them as the link does;
-    each carries a unique ``detail.n``."""
-    details = [{"n": next(_numbers), "seq": 7, "stage": "sent"} for _ in kinds]
+    each carries a unique ``detail.n`` (and ``detail``'s items, if given)."""
+    details = [{"n": next(_numbers), "seq": 7, "stage": "sent", **(detail or {})} for _ in kinds]
 
     db: Database = client.app.state.db  # type: ignore[attr-defined]
     clock: Clock = client.app.state.clock  # type: ignore[attr-defined]

@@ -20,6 +20,7 @@ from server.services.console_messages import (
     ErrorMsg,
     EventMsg,
     FrameColumns,
+    LagMsg,
     LinkMsg,
     PongMsg,
     ReplayCommand,
@@ -67,6 +68,10 @@ def test_messages_are_the_text_the_protocol_has_always_sent() -> None:
     assert ConsoleEvent.model_validate({**event, "id": 7}).model_dump()["id"] == 7
     assert PongMsg(id=None, time_ns=5).encode() == '{"v":1,"type":"pong","id":null,"time_ns":5}'
     assert (
+        LagMsg(behind_s=2.5, queued=40, resync_s=5.0, time_ns=9).encode()
+        == '{"v":1,"type":"lag","behind_s":2.5,"queued":40,"resync_s":5.0,"time_ns":9}'
+    )
+    assert (
         ErrorMsg(reason="r", ref_type=None).encode()
         == '{"v":1,"type":"error","reason":"r","ref_type":null}'
     )
@@ -77,6 +82,10 @@ def test_messages_are_the_text_the_protocol_has_always_sent() -> None:
         max_subscriptions=4,
         max_message_bytes=5,
         link_heartbeat_s=6,
+        behind_report_s=0.5,
+        behind_resync_s=5,
+        behind_drop_s=30.0,
+        ack_window_s=1.0,
         max_replays_per_console=7,
         max_replay_factor=8.5,
         max_replay_batch_frames=9,
@@ -85,7 +94,8 @@ def test_messages_are_the_text_the_protocol_has_always_sent() -> None:
     assert text == (
         '{"v":1,"type":"welcome","epoch":"e","actor":"vera","role":"viewer","topics":["a"],'
         '"limits":{"queue_bytes":1,"ring_size":2,"max_replay":3,"max_subscriptions":4,'
-        '"max_message_bytes":5,"link_heartbeat_s":6,"max_replays_per_console":7,'
+        '"max_message_bytes":5,"link_heartbeat_s":6,"behind_report_s":0.5,'
+        '"behind_resync_s":5,"behind_drop_s":30.0,"ack_window_s":1.0,"max_replays_per_console":7,'
         '"max_replay_factor":8.5,"max_replay_batch_frames":9}}'
     )
     columns = FrameColumns({"seq": [1], "generation_time_ns": [2], "j1": [0.5]})

@@ -45,7 +45,14 @@ def test_viewers_and_operators_connect(
             ws.send_json(first)
         hello = welcome(ws)
         assert hello["actor"] == actor and hello["epoch"] == hub(client).epoch
-        assert set(hello["topics"]) == {"telemetry", "commands", "passes", "events", "link"}
+        assert set(hello["topics"]) == {
+            "telemetry",
+            "commands",
+            "passes",
+            "events",
+            "link",
+            "alarms",
+        }
         assert subscribe(ws, topic="commands")["seq"] == 0
 
 

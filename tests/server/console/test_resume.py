@@ -202,3 +202,40 @@ def test_live_messages_wait_for_a_database_replay_and_follow_it(
     assert replaying.is_set() and reply["seq"] == 5
     assert seqs(messages) == list(range(1, 9))
     assert [m["event"]["detail"]["n"] for m in messages] == [d["n"] for d in sent + published]
+
+
+def test_an_ended_passs_telemetry_stream_is_let_go_and_counts_on(client: TestClient) -> None:
+    """A ground flying pass after pass held every pass's telemetry ring for good (about
+    2 MB a pass in bench/bench_soak.py); an ended pass's stream nobody subscribes to is let
+    go, keeping only its last seq."""
+    console = hub(client)
+    flown, other = add_pass(client, "flown"), add_pass(client, "other")
+    spacecraft = FakeSpacecraft(client, flown)
+    ended = {"to": "complete"}
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
+        epoch = welcome(ws)["epoch"]
+        subscribe(ws, topic="telemetry", pass_id=flown)
+        for lo in range(0, 15, 5):
+            spacecraft.send(make_frames(range(lo, lo + 5)))
+        assert seqs(drain(ws), "telemetry") == [1, 2, 3]
+        emit_events(client, ["pass_state"], flown, ended)
+        assert console.telemetry_streams == [flown]  # subscribed: held
+    emit_events(client, ["pass_state"], other, {"to": "running"})
+    assert console.telemetry_streams == [flown]  # a pass that has not ended lets none go
+    emit_events(client, ["pass_state"], other, ended)
+    assert console.telemetry_streams == []
+    # a late frame of the ended pass: its stream again, counting on from its last seq
+    spacecraft.send(make_frames(range(15, 16)))
+    assert console.telemetry_streams == [flown]
+    with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
+        welcome(ws)
+        assert subscribe(ws, topic="telemetry", pass_id=flown)["seq"] == 4
+        # seqs 2..3 went with the stream: told to resync, not given a gap
+        ws.send_json(
+            {"v": 1, "type": "subscribe", "topic": "telemetry", "pass_id": flown}
+            | {"since_seq": 1, "epoch": epoch}
+        )
+        [resync] = [m for m in drain(ws) if m["type"] == "resync"]
+        assert resync["seq"] == 4
+    emit_events(client, ["pass_state"], other, {"to": "aborted"})
+    assert console.telemetry_streams == []

@@ -34,6 +34,7 @@ from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
+from spacecraft.vehicle import VehicleConfig
 from telemetry.wire import TelemetryFrame
 
 TOKENS = {
@@ -70,11 +71,12 @@ def _free_port() -> int:
 
 
 @contextmanager
-def running_ground(database_url: str) -> Iterator[Ground]:
-    # The flight defaults: the ground and the spacecraft share one process and its GIL
-    # here, and the windowed uplink loads every command up to 120 s onboard ahead and sends
-    # it again until acknowledged, so a stalled ground event loop delays nothing.
-    settings = Settings(database_url=database_url, tokens=TOKENS)
+def running_ground(database_url: str, **overrides: Any) -> Iterator[Ground]:
+    # The flight defaults (but for ``overrides``, settings): the ground and the spacecraft
+    # share one process and its GIL here, and the windowed uplink loads every command up to
+    # 120 s onboard ahead and sends it again until acknowledged, so a stalled ground event
+    # loop delays nothing.
+    settings = Settings(database_url=database_url, tokens=TOKENS, **overrides)
     app = create_app(settings)
     port = _free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
@@ -185,13 +187,23 @@ def add_plan_and_pass(sessions: Any, plan: Plan, name: str, *, now_ns: int, wind
         return str(record.id)
 
 
-def spacecraft(ground: Ground, **link: Any) -> tuple[SpacecraftProcess, list[TelemetryFrame]]:
-    """The spacecraft process at SCALE, and the list every frame it generates is added to."""
+def spacecraft(
+    ground: Ground,
+    *,
+    vehicle: VehicleConfig | None = None,
+    truth_log: Path | None = None,
+    **link: Any,
+) -> tuple[SpacecraftProcess, list[TelemetryFrame]]:
+    """The spacecraft process at SCALE (flying ``vehicle``, faults included, and writing its
+    truth log to ``truth_log`` if given), and the list every frame it generates is added
+    to."""
     process = SpacecraftProcess(
         ProcessConfig(
             ground_url=ground.ws_url,
             token="s-token",
             time_scale=SCALE,
+            vehicle=vehicle or VehicleConfig(),
+            truth_log=truth_log,
             uplink=LinkConfig(seed=11, **link),
             downlink=LinkConfig(seed=12, **link),
             seed=3,
@@ -265,7 +277,7 @@ def settled(ground: Ground, pass_id: str) -> bool:
     runner = ground.app.state.runner
     resolved = not outstanding or (runner.active_pass_id is None and not runner.resolving)
     return (
-        record.state in ("complete", "aborted")
+        record.state in ("complete", "aborted", "safed")
         and record.telemetry_end_ns is not None
         and newest is not None
         and newest[1] >= record.telemetry_end_ns

@@ -23,6 +23,7 @@ from typing import Any
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.app import build_live_path
+from server.services.alarms import AlarmService
 from server.services.clock import ManualClock
 from server.services.dbworker import Database
 from server.services.downlink import GroundDownlink
@@ -42,6 +43,9 @@ from telemetry.wire import (
     Ping,
     Pong,
     RejectReason,
+    SafeExit,
+    Safing,
+    SafingTrigger,
     ScheduleDelete,
     Verification,
     decode_ground,
@@ -71,6 +75,13 @@ class Vehicle:
     copies_received: int = 0
     max_queued: int = 0
     schedule_full: int = 0
+    #: on-board safing: the onboard time SAFE was entered (None: nominal)
+    safe_since_ns: int | None = None
+    trigger: SafingTrigger | None = None
+    cancelled_on_safing: int = 0
+    #: request_id -> the report each safe_exit got
+    exits: dict[int, Safing] = field(default_factory=dict)
+    safe_exits_received: int = 0
 
 
 class SimulatedSpacecraft:
@@ -163,12 +174,63 @@ class SimulatedSpacecraft:
 
     # -- the vehicle -----------------------------------------------------------------------
 
-    def _ack(self, ack: CommandAck | Verification | CommandUnknown | Pong) -> None:
+    def _ack(self, ack: CommandAck | Verification | CommandUnknown | Pong | Safing) -> None:
         self._relay("ground", encode(ack))
+
+    def safe(self, trigger: SafingTrigger | None = None) -> None:
+        """On-board safing now (docs/protocol.md): every queued command dropped and
+        acknowledged ``rejected`` ``safing``, then the ``safing`` report."""
+        v = self.vehicle
+        now_ns = self.onboard_ns()
+        self._execute_until(now_ns)
+        v.safe_since_ns, v.trigger = now_ns, trigger
+        dropped = sorted(v.schedule)
+        v.schedule.clear()
+        for seq in dropped:
+            ack = CommandAck(
+                seq=seq,
+                stage=CommandStage.REJECTED,
+                reason=RejectReason.SAFING,
+                detail="dropped: the vehicle entered SAFE",
+                onboard_time_ns=now_ns,
+            )
+            v.outcomes[seq] = ack
+            self._ack(ack)
+        v.cancelled_on_safing = len(dropped)
+        self.report_safing()
+
+    def report_safing(self) -> None:
+        """The ``safing`` report (the vehicle's 1 s repeat, when called again)."""
+        v = self.vehicle
+        if v.safe_since_ns is None:
+            return
+        self._ack(
+            Safing(
+                state="safe",
+                since_time_ns=v.safe_since_ns,
+                trigger=v.trigger,
+                cancelled=v.cancelled_on_safing,
+                onboard_time_ns=self.onboard_ns(),
+            )
+        )
 
     def _receive(self, text: str, now_ns: int) -> None:
         v = self.vehicle
         message = decode_ground(text)
+        if isinstance(message, SafeExit):
+            v.safe_exits_received += 1
+            answer = v.exits.get(message.request_id)
+            if answer is None:
+                answer = Safing(
+                    state="nominal",
+                    since_time_ns=v.safe_since_ns,
+                    exit_request_id=message.request_id,
+                    onboard_time_ns=now_ns,
+                )
+                v.exits[message.request_id] = answer
+                v.safe_since_ns = None
+            self._ack(answer)
+            return
         if isinstance(message, (JointCommandMsg, AcsCommandMsg)):
             content = message.model_dump()
             seq = message.seq
@@ -199,8 +261,10 @@ class SimulatedSpacecraft:
                 return
             v.contents[seq] = content
             tag = message.execute_time_ns
-            if v.barrier is not None and tag >= v.barrier[0] and seq <= v.barrier[1]:
-                reason: RejectReason | None = RejectReason.CANCELLED
+            if v.safe_since_ns is not None:
+                reason: RejectReason | None = RejectReason.SAFING
+            elif v.barrier is not None and tag >= v.barrier[0] and seq <= v.barrier[1]:
+                reason = RejectReason.CANCELLED
             elif tag <= now_ns:
                 reason = RejectReason.LATE
             else:
@@ -350,6 +414,14 @@ class Ground:
     sessions: sessionmaker[Session]
     db: Database
     downlink: GroundDownlink
+    alarms: AlarmService | None = None
+
+    async def restarted(self) -> None:
+        """What the service does once it has started (server/app.py's lifespan): take over
+        the vehicle's alarms still listed, then recover the passes."""
+        if self.alarms is not None:
+            await self.alarms.load_vehicle_alarms()
+        await self.runner.recover()
 
 
 def make_sessions(tmp_path: Path) -> sessionmaker[Session]:
@@ -367,7 +439,7 @@ def ground(sessions: sessionmaker[Session], clock: ManualClock, **settings: Any)
     :func:`close_grounds` (tests/server/link/conftest.py, after every test)."""
     live = build_live_path(sessions=sessions, settings=Settings(**settings), clock=clock)
     _OPEN.append(live.db)
-    return Ground(live.link, live.runner, sessions, live.db, live.downlink)
+    return Ground(live.link, live.runner, sessions, live.db, live.downlink, live.alarms)
 
 
 def close_grounds() -> None:

@@ -17,6 +17,8 @@ from server.storage import repository as repo
 from telemetry.wire import MAX_DEPTH, Hello, Pong, encode
 from tests.server.link.harness import VIEWER, Ground, running_ground
 
+#: ground s: the malformed messages' audit interval (5 s by default), short for the test
+INTERVAL_S = 0.5
 HELLO = Hello(vehicle="ETS-VII", onboard_time_ns=10**18, time_scale=20.0, next_telemetry_seq=0)
 
 
@@ -70,15 +72,27 @@ def _deep(depth: int) -> list[Any]:
     return value
 
 
-def test_hostile_frames_get_error_replies_and_the_link_stays_up(database_url: str) -> None:
-    with running_ground(database_url) as ground:
-        got = asyncio.run(_session(ground))
+def _audited(ground: Ground) -> list[Any]:
+    """The link's error events once the interval's rows are written (at its end: one row
+    per kind with its count, server/services/malformed.py)."""
+    deadline = time.monotonic() + 20.0  # a guard: the interval is INTERVAL_S
+    while True:
         with ground.readers() as session:
             events = repo.list_events(
                 session=session,
                 kinds=["link_error_replied", "link_error_received", "link_hello"],
                 limit=1000,
             ).items
+        counted = sum(e.detail.get("count", 0) for e in events)
+        if counted == 8 or time.monotonic() > deadline:
+            return list(events)
+        time.sleep(0.1)
+
+
+def test_hostile_frames_get_error_replies_and_the_link_stays_up(database_url: str) -> None:
+    with running_ground(database_url, malformed_interval_s=INTERVAL_S) as ground:
+        got = asyncio.run(_session(ground))
+        events = _audited(ground)
         link = ground.app.state.link
         assert link.vehicle == "ETS-VII"
     nested = f"nested deeper than {MAX_DEPTH} levels"
@@ -96,11 +110,27 @@ def test_hostile_frames_get_error_replies_and_the_link_stays_up(database_url: st
     by_kind: dict[str, list[dict[str, Any]]] = {}
     for event in events:
         by_kind.setdefault(event.kind, []).append(dict(event.detail))
-    assert len(by_kind["link_error_replied"]) == 6
+    # one row per kind (the type claimed, the class of the refusal) and interval, with its
+    # count and how many were answered (all: far under the bound on replies)
+    replied: dict[tuple[str | None, str], list[int]] = {}
+    for e in by_kind["link_error_replied"]:
+        counts = replied.setdefault((e["ref_type"], e["code"]), [0, 0])
+        counts[0] += e["count"]
+        counts[1] += e["replied"]
+    assert replied == {
+        (None, "too_deep"): [1, 1],
+        ("hello", "too_deep"): [1, 1],
+        ("hello", "control_character"): [2, 2],
+        (None, "not_json"): [1, 1],
+        ("pong", "control_character"): [1, 1],
+    }
     assert [e["vehicle"] for e in by_kind["link_hello"]] == ["ETS-VII"]
-    received = [e["reason"] for e in by_kind["link_error_received"]]
-    assert received[0] == "bad\\x00byte\\ud800"  # stored, escaped, the same on both databases
-    assert "unreadable error message" in received[1] and nested in received[1]
+    received = {e["code"]: e for e in by_kind["link_error_received"]}
+    # stored, escaped, the same on both databases
+    assert received["received"]["reason"] == "bad\\x00byte\\ud800"
+    unreadable = received["unreadable"]["reason"]
+    assert "unreadable error message" in unreadable and nested in unreadable
+    assert status["malformed_received"] == 7 and status["errors_unanswered"] == 0
     for detail in (e for details in by_kind.values() for e in details):
         text = json.dumps(detail, ensure_ascii=False)
         assert not any(ord(c) < 0x20 for c in text), text

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from alembic import command
 from sqlalchemy import CheckConstraint, Engine, inspect, text
+from sqlalchemy.exc import IntegrityError
 
 from server.storage.db import alembic_config, schema_diff, upgrade
 from server.storage.models import Base
@@ -16,6 +17,7 @@ TABLES = {
     "telemetry_frames",
     "events",
     "analysis_results",
+    "alarms",
 }
 
 
@@ -25,7 +27,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0004"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0005"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
@@ -163,3 +165,117 @@ def test_0004_adds_joints_7_to_12_and_counts_six_joints_for_older_plans(
         command.downgrade(alembic_config(conn), "0003")
     assert "j7" not in {c["name"] for c in inspect(empty_engine).get_columns("telemetry_frames")}
     assert "n_joints" not in {c["name"] for c in inspect(empty_engine).get_columns("plans")}
+
+
+def _insert_children(engine: Engine, pass_id: str) -> None:
+    """A command, a telemetry frame, an event and an analysis of the pass (revision 0004)."""
+    floats = [f"j{i}" for i in range(1, 7)] + [f"t{i}" for i in range(1, 7)]
+    floats += ["qx", "qy", "qz", "qw", "wx", "wy", "wz", "ws1", "ws2", "ws3"]
+    floats += ["hw1", "hw2", "hw3", "tqx", "tqy", "tqz", "tqw"]
+    with engine.begin() as conn:
+        conn.execute(
+            text(
+                "INSERT INTO commands (pass_id, seq, kind, execute_time_ns, payload, stage, "
+                "queued_at_ns, transmissions) VALUES "
+                "(:pass, 7, 'joints', 100, '{}', 'executed', 1, 1)"
+            ),
+            {"pass": pass_id},
+        )
+        conn.execute(
+            text(
+                f"INSERT INTO telemetry_frames (pass_id, seq, generation_time_ns, "
+                f"reception_time_ns, {', '.join(floats)}, acs_mode, acs_feedforward, "
+                f"buffer_queued, buffer_last_executed_seq) VALUES (:pass, 3, 50, 60, "
+                f"{', '.join('0.5' for _ in floats)}, 'feedback', false, 0, -1)"
+            ),
+            {"pass": pass_id},
+        )
+        conn.execute(
+            text(
+                "INSERT INTO events (pass_id, time_ns, kind, actor, detail) VALUES "
+                "(:pass, 5, 'pass_state', 'op', '{}')"
+            ),
+            {"pass": pass_id},
+        )
+        conn.execute(
+            text(
+                "INSERT INTO analysis_results (pass_id, kind, created_at_ns, result) VALUES "
+                "(:pass, 'pass_analysis', 5, '{}')"
+            ),
+            {"pass": pass_id},
+        )
+
+
+def _children(engine: Engine) -> list[tuple[object, ...]]:
+    with engine.connect() as conn:
+        return [
+            tuple(conn.execute(text(q)).one())
+            for q in (
+                "SELECT seq, stage, transmissions FROM commands",
+                "SELECT seq, generation_time_ns, j1 FROM telemetry_frames",
+                "SELECT kind, actor FROM events",
+                "SELECT kind, created_at_ns FROM analysis_results",
+            )
+        ]
+
+
+def test_0005_keeps_passes_and_what_refers_to_them_and_allows_safed(
+    empty_engine: Engine,
+) -> None:
+    upgrade(empty_engine, "0004")
+    pass_id = _insert_plan_and_pass(empty_engine)
+    _insert_children(empty_engine, pass_id)
+    before = _children(empty_engine)
+    upgrade(empty_engine)
+    assert schema_diff(empty_engine) == []
+    assert _children(empty_engine) == before
+    with empty_engine.connect() as conn:
+        row = conn.execute(text("SELECT name, state, version FROM passes")).one()
+        assert tuple(row) == ("p1", "complete", 1)
+        assert conn.execute(text("SELECT count(*) FROM alarms")).scalar_one() == 0
+    with empty_engine.begin() as conn:
+        conn.execute(text("UPDATE passes SET state = 'safed', state_reason = 'joint3'"))
+    # the foreign keys still hold after the rebuild: a command of no pass is refused
+    with pytest.raises(IntegrityError), empty_engine.begin() as conn:
+        conn.execute(
+            text(
+                "INSERT INTO commands (pass_id, seq, kind, execute_time_ns, payload, stage, "
+                "queued_at_ns) VALUES (:pass, 8, 'joints', 1, '{}', 'queued', 1)"
+            ),
+            {"pass": "0" * 31 + "9"},
+        )
+    with pytest.raises(IntegrityError), empty_engine.begin() as conn:
+        conn.execute(text("UPDATE passes SET state = 'lost'"))
+
+
+def test_0005_downgrades_a_safed_pass_to_aborted_and_keeps_the_rest(
+    empty_engine: Engine,
+) -> None:
+    upgrade(empty_engine, "0004")
+    pass_id = _insert_plan_and_pass(empty_engine)
+    _insert_children(empty_engine, pass_id)
+    before = _children(empty_engine)
+    upgrade(empty_engine)
+    with empty_engine.begin() as conn:
+        conn.execute(text("UPDATE passes SET state = 'safed', state_reason = 'joint3 red'"))
+        conn.execute(
+            text(
+                "INSERT INTO alarms (id, pass_id, quantity, channel, label, unit, direction, "
+                "source, severity, state, acknowledged, count, raised_time_ns, "
+                "updated_time_ns, timeline) VALUES ('" + "0" * 31 + "5', :pass, "
+                "'vehicle_safing', '', 'vehicle safing', '', 'high', 'vehicle', 'critical', "
+                "'triggered', false, 1, 1, 1, '[]')"
+            ),
+            {"pass": pass_id},
+        )
+    with empty_engine.begin() as conn:
+        command.downgrade(alembic_config(conn), "0004")
+    assert "alarms" not in inspect(empty_engine).get_table_names()
+    assert _children(empty_engine) == before
+    with empty_engine.connect() as conn:
+        row = conn.execute(text("SELECT state, state_reason FROM passes")).one()
+    assert tuple(row) == ("aborted", "safed: joint3 red")
+    with pytest.raises(IntegrityError), empty_engine.begin() as conn:
+        conn.execute(text("UPDATE passes SET state = 'safed'"))
+    upgrade(empty_engine)
+    assert schema_diff(empty_engine) == []

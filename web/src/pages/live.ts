@@ -1,8 +1,9 @@
 // The live pass view: what is happening now (pass state, link, latest values, plots, 3D),
 // what comes next (AOS/LOS countdown, the plan's next segment, queued commands), and
 // whether the spacecraft does what the plan predicted (the prediction under every plot),
-// and how far ahead the uplink has loaded the onboard schedule (its fill, lead and
-// retransmissions, from the link status).
+// how far ahead the uplink has loaded the onboard schedule (its fill, lead and
+// retransmissions, from the link status), and the pass's active alarms (on the plot of what
+// they watch; the link's health and the schedule's occupancy in the link panel).
 // Stale data is shown as stale (no telemetry for 2 s: a STALE badge and greyed values; no
 // link status for two heartbeats: the link is stale); missing frames are gaps.
 
@@ -10,12 +11,13 @@ import {
   ApiError, get, getAll, passRawFields, planRobot, planRules,
   type CommandPublic, type LinkStatus, type PassPublic, type PlanDocument, type Segment,
 } from "../api";
+import { SEVERITY_COLORS, alarmLimit, alarmSubject, alarmValue, isActive } from "../alarms";
 import type { Ctx } from "../main";
 import { COMMAND_STAGES, FINAL_STAGES, STAGE_RANK, type CommandStage } from "../protocol.gen";
 import type { Message } from "../socket";
 import { frameJoints, frameMomentum, frameTargets, TelemetryStore } from "../store";
 import { clear, clock, fmt, h, utc } from "../ui";
-import { passControls } from "./control";
+import { passControls, stateReason } from "./control";
 import { PassView, predictionColumns } from "./passview";
 
 /** No telemetry for this long (wall s) while the pass is live: STALE. */
@@ -23,6 +25,8 @@ export const TELEMETRY_STALE_S = 2.0;
 /** No link message for two heartbeats: the link status is stale (docs/console.md). */
 const LINK_STALE_S = 10.0;
 const LIVE_STATES = new Set(["aos", "running", "los"]);
+/** The alarms the link panel shows (no plot shows what they watch). */
+const LINK_PANEL_QUANTITIES = new Set(["frames_behind", "frame_age_s", "schedule_occupancy"]);
 const STAGE_COLORS: Record<CommandStage, string> = {
   queued: "#5a6272",
   released: "#7e8aa3",
@@ -94,6 +98,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   // --- layout -------------------------------------------------------------------------
   const title = h("h1.passname", { "data-test": "pass-name" });
   const stateBadge = h("span.badge", { "data-test": "pass-state" });
+  const stateWhy = h("span.state-reason", { "data-test": "state-reason", hidden: true });
   const countdown = h("span.countdown", { "data-test": "countdown" });
   const segmentNow = h("span.segment", { "data-test": "segment" });
   const controls = h("span");
@@ -108,7 +113,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   });
   const reportLink = h("a", { href: `#/report/${pass.id}` }, "Report");
   const top = h("section.passbar", {},
-    title, stateBadge, countdown, segmentNow, staleBadge, h("span.spacer"),
+    title, stateBadge, stateWhy, countdown, segmentNow, staleBadge, h("span.spacer"),
     h("label.inline", {}, "Plots: ", windowSel), reportLink, controls);
 
   const linkPanel = h("div.panel.link", { "data-test": "link" });
@@ -190,6 +195,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       renderedVersion = -1;
       void loadTelemetry();
     }
+    view.setAlarms(passAlarms(), store.epochNs);
     renderPass();
   };
 
@@ -240,6 +246,13 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     }, 300);
   }
   const offMessage = ctx.on(onMessage);
+  // The pass's active alarms: on its plots, and the link's in the link panel.
+  const passAlarms = () => ctx.alarms.list().filter((a) => a.pass_id === pass.id && isActive(a));
+  const offAlarms = ctx.alarms.onChange(() => {
+    view.setAlarms(passAlarms(), store.epochNs);
+    renderLink();
+  });
+  view.setAlarms(passAlarms(), store.epochNs);
   const offResync = ctx.onResync((topic, passId) => {
     if (topic === "telemetry" && passId === pass.id) void loadTelemetry();
     if (topic === "commands") void loadCommands();
@@ -265,6 +278,9 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     stateBadge.textContent = pass.state.toUpperCase();
     stateBadge.className = `badge state-${pass.state}`;
     stateBadge.title = pass.state_reason ?? "";
+    const why = stateReason(pass);
+    stateWhy.hidden = why === null;
+    stateWhy.textContent = why?.textContent ?? "";
     clear(controls);
     controls.append(passControls(ctx, pass, () => void refreshPass()));
   }
@@ -290,6 +306,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     const gaps = s.open_gaps ?? [];
     linkPanel.append(
       row("spacecraft", h(`b.${s.connected ? "ok" : "bad"}`, {}, s.connected ? `connected (${s.vehicle ?? "?"})` : "NOT CONNECTED"), "link-connected"),
+      row("vehicle mode", s.vehicle_mode === "safe" ? h("b.bad", {}, "SAFE") : (s.vehicle_mode ?? "—"), "link-mode"),
       row("round trip", s.round_trip_s === null ? "—" : `${fmt(s.round_trip_s, 2)} s`, "link-rtt"),
       row("frames behind", s.frames_behind === null ? "—" : String(s.frames_behind), "link-behind"),
       row("open gaps", gaps.length ? gaps.slice(0, 4).map(([a, b]) => `${a}–${b}`).join(", ") + (gaps.length > 4 ? ` +${gaps.length - 4}` : "") : "none", "link-gaps"),
@@ -297,6 +314,13 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
       row("time scale", s.time_scale === null ? "—" : `${s.time_scale}×`),
       row("console socket", ctx.socket.socketRttMs === null ? "—" : `${fmt(ctx.socket.socketRttMs, 0)} ms`),
     );
+    for (const a of passAlarms()) {
+      if (!LINK_PANEL_QUANTITIES.has(a.quantity)) continue;
+      const severity = a.current_severity ?? a.severity;
+      linkPanel.append(h("div.kv.alarm-row", { "data-test": "link-alarm", "data-quantity": a.quantity, "data-severity": severity, style: `--c:${SEVERITY_COLORS[severity]}` },
+        h("span.k", {}, `${severity.toUpperCase()} ${alarmSubject(a)}`),
+        h("span.v", {}, `${a.state === "cleared" ? "cleared, " : ""}last ${alarmValue(a.last_value, a.unit)} (${alarmLimit(a)})`)));
+    }
   }
 
   // The onboard schedule's fill and lead (from the newest frame's buffer, via the link
@@ -525,6 +549,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     offMessage();
     offResync();
     ctx.socket.unsubscribe("telemetry", pass.id);
+    offAlarms();
     view.dispose();
     delete (window as unknown as { hikoboshiLive?: unknown }).hikoboshiLive;
   };

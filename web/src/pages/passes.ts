@@ -1,10 +1,10 @@
-// Every pass, newest AOS last, with its state and the ways into it: live view, report, and
-// (operators) start and abort.
+// Every pass, newest AOS last, with its state (an aborted or safed pass with its reason)
+// and the ways into it: live view, report, and (operators) start and abort.
 
 import { getAll, type PassPublic } from "../api";
 import type { Ctx } from "../main";
 import { clear, h, utc } from "../ui";
-import { passControls } from "./control";
+import { passControls, stateBadge, stateReason } from "./control";
 
 export function passesPage(root: HTMLElement, ctx: Ctx): () => void {
   const table = h("table.list", { "data-test": "passes" });
@@ -21,7 +21,7 @@ export function passesPage(root: HTMLElement, ctx: Ctx): () => void {
           table.append(
             h("tr", { "data-pass": p.id, "data-name": p.name },
               h("td", {}, h("a", { href: `#/live/${p.id}` }, p.name)),
-              h("td", {}, h(`span.badge.state-${p.state}`, { title: p.state_reason ?? "" }, p.state.toUpperCase())),
+              h("td", {}, stateBadge(p, "pass-state"), stateReason(p)),
               h("td", {}, utc(p.aos_time)),
               h("td", {}, utc(p.los_time)),
               h("td", {}, p.relay),

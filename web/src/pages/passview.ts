@@ -2,12 +2,16 @@
 // (measured, servo target, plan), base attitude, base rates, wheel momentum, the pitch
 // phase plane and the 3D view. Fed by a TelemetryStore (flown) and a plan document
 // (prediction, drawn dashed underneath). Above them, the plan's flight rules (table and
-// clearance plot); the 3D view shows their worst pair of bodies at its worst moment.
+// clearance plot); the 3D view shows their worst pair of bodies at its worst moment. The
+// pass's alarms mark the plot of what they watch (setAlarms).
 
+import {
+  SEVERITY_COLORS, SEVERITY_RANK, alarmLimit, alarmSpans, alarmSubject, alarmValue, type Alarm,
+} from "../alarms";
 import type { PlanDocument } from "../api";
 import { worstPair, type FlightRulesReport, type WorstPair } from "../flightrules";
 import { fetchUrdf, SatelliteView, type RobotRef } from "../model3d";
-import { COLORS, PhasePlane, timePlot, type PredLine, type TimePlot } from "../plots";
+import { COLORS, PhasePlane, timePlot, type AlarmMark, type PredLine, type TimePlot } from "../plots";
 import {
   DEFAULT_JOINTS, frameJoints, frameQuat, frameRates, frameTargets, rpyFromQuat,
   type Column, type Frame, type TelemetryStore,
@@ -84,6 +88,9 @@ export class PassView {
   private readonly paths: Set<string>;
   private robotKey: string | null = null;
   private disposed = false;
+  private alarms: Alarm[] = [];
+  private alarmEpochNs: number | null = null;
+  private alarmKey = "";
 
   /** The 3D view waits for :meth:`setRobot` (the plan's robot). */
   constructor(parent: HTMLElement, paths: Set<string>) {
@@ -171,6 +178,92 @@ export class PassView {
     }
     const pred = this.pred;
     this.joints.forEach((p, i) => p.setPrediction(pred?.joints[i] ? [{ x: pred.t, y: pred.joints[i] }] : []));
+    if (this.bodyPlots) {
+      // (not while constructing: the other plots come after the joints')
+      this.alarmKey = "";
+      this.markAlarms();
+    }
+  }
+
+  /** The pass's alarms (``epochNs``: its plan clock's zero, onboard): each marks the plot of
+   * what it watches, worst first: its time in a band shaded and the trace coloured there, its
+   * threshold as a band where the plot shows it (a joint's tracking error around the
+   * commanded trace, the body rate's and the clearance's levels), a tag naming it. */
+  setAlarms(alarms: Alarm[], epochNs: number | null): void {
+    this.alarms = alarms;
+    this.alarmEpochNs = epochNs;
+    this.markAlarms();
+  }
+
+  private markAlarms(): void {
+    const key = JSON.stringify([this.alarmEpochNs, this.joints.length, this.alarms.map((a) => [a.id, a.updated_time_ns])]);
+    if (key === this.alarmKey) return;
+    this.alarmKey = key;
+    const marks = new Map<TimePlot, AlarmMark[]>();
+    for (const p of [...this.plots, this.rules.plot]) marks.set(p, []);
+    const rank = (a: Alarm): number => SEVERITY_RANK[a.current_severity ?? a.severity];
+    for (const a of [...this.alarms].sort((x, y) => rank(y) - rank(x))) {
+      const target = this.alarmTarget(a);
+      if (!target) continue;
+      const spans = this.alarmEpochNs === null ? [] : alarmSpans(a, this.alarmEpochNs);
+      marks.get(target.plot)!.push({
+        series: target.series,
+        color: SEVERITY_COLORS[a.current_severity ?? a.severity],
+        severity: a.current_severity ?? a.severity,
+        channel: a.channel,
+        label: `${(a.current_severity ?? a.severity).toUpperCase()} ${a.channel || a.quantity}`
+          + `${a.state === "cleared" ? " (cleared)" : ""}: ${alarmValue(a.worst_value, a.unit)} ${alarmLimit(a)}`,
+        title: `${a.severity} alarm: ${alarmSubject(a)}, worst ${alarmValue(a.worst_value, a.unit)}, last `
+          + `${alarmValue(a.last_value, a.unit)}, limit ${alarmLimit(a)}, ${a.state}`
+          + `${a.acknowledged ? `, acknowledged by ${a.acknowledged_by ?? "?"}` : ", not acknowledged"}`,
+        spans: spans.map((s) => ({ t0: s.t0, t1: s.t1, color: SEVERITY_COLORS[s.severity] })),
+        band: target.band,
+      });
+    }
+    for (const [plot, list] of marks) plot.setAlarms(list);
+  }
+
+  /** The plot (and series) that shows what alarm ``a`` watches; null when none does (the
+   * link's health, the schedule's occupancy: the live view's panels show those). */
+  private alarmTarget(a: Alarm): { plot: TimePlot; series: number | null; band?: AlarmMark["band"] } | null {
+    const index = (prefix: string): number => {
+      const m = new RegExp(`^${prefix}([0-9]+)$`).exec(a.channel);
+      return m ? Number(m[1]) - 1 : -1;
+    };
+    const limit = a.limit;
+    switch (a.quantity) {
+      case "joint_tracking_error_deg":
+      case "joint_limit_distance_deg": {
+        const plot = this.joints[index("joint")];
+        if (!plot) return null;
+        // The tracking error is the commanded target less the measured angle: the band
+        // around the commanded trace is where the measured one stays within the limit.
+        const band = a.quantity === "joint_tracking_error_deg" && limit !== null
+          ? { kind: "around" as const, ref: 1, halfWidth: limit } : undefined;
+        return { plot, series: 0, band };
+      }
+      case "attitude_error_deg": {
+        const axis = AXES.indexOf(a.channel);
+        return axis < 0 ? { plot: this.attitude, series: null } : { plot: this.attitude, series: axis };
+      }
+      case "body_rate_degps":
+        return {
+          plot: this.rates, series: null,
+          band: limit === null ? undefined : { kind: "levels", levels: [{ at: limit, side: "above" }, { at: -limit, side: "below" }] },
+        };
+      case "wheel_momentum_fraction":
+      case "wheel_speed_rpm": {
+        const wheel = index("wheel");
+        return { plot: this.momentum, series: wheel >= 0 && wheel < 3 ? wheel : null };
+      }
+      case "clearance_m":
+        return {
+          plot: this.rules.plot, series: 0,
+          band: limit === null ? undefined : { kind: "levels", levels: [{ at: limit, side: "below" }] },
+        };
+      default:
+        return null;
+    }
   }
 
   setPrediction(pred: PredictionColumns | null): void {

@@ -2,8 +2,10 @@
 // this server offers them (its OpenAPI document lists them; otherwise "not available"),
 // predicted-vs-flown overlays of the whole archive, downloads (JSON of the archive, PNG of
 // every plot), and replay: the server's replay over the console websocket (play, pause,
-// speed, step and seek; docs/console.md), its telemetry drawn on the same plots.
+// speed, step and seek; docs/console.md), its telemetry drawn on the same plots, and the
+// pass's alarms (all of them: a review) marked on the plots of what they watch.
 
+import { AlarmBook } from "../alarms";
 import {
   get, getAll, passRawFields, planRobot, planRules, post, storedToken,
   type CommandPublic, type PassPublic, type PlanDocument,
@@ -12,6 +14,7 @@ import type { Ctx } from "../main";
 import type { ReplayOpenedMsg, ReplayStateMsg } from "../protocol.gen";
 import { RAW_FIELDS, TelemetryStore } from "../store";
 import { clear, fmt, h, utc } from "../ui";
+import { stateBadge, stateReason } from "./control";
 import { PassView, predictionColumns } from "./passview";
 
 const OPTIONAL = [
@@ -76,6 +79,12 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
   );
   const view = new PassView(root, ctx.paths);
   let disposed = false;
+  const alarms = new AlarmBook({ passId, activeOnly: false });
+  let alarmEpochNs: number | null = null;
+  const offAlarms = alarms.onChange(() => view.setAlarms(alarms.list(), alarmEpochNs));
+  const offAlarmMessages = ctx.on((m) => {
+    if (m.type === "alarm") alarms.apply(m.alarm);
+  });
   /** The whole archive (REST): the predicted-vs-flown overlay, and the history before a seek. */
   let archive: TelemetryStore | null = null;
   /** What the replay has shown: the archive before the seek point, then the replay's frames. */
@@ -215,13 +224,16 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
   const load = async (): Promise<void> => {
     const pass = await get<PassPublic>(`/api/passes/${passId}`);
     title.textContent = `Pass report: ${pass.name}`;
+    alarmEpochNs = pass.epoch_ns ?? 0;
+    if (ctx.paths.has("/api/alarms")) void alarms.load();
     const [sum, commands, doc] = await Promise.all([
       get<Record<string, unknown>>(`/api/passes/${passId}/summary`),
       getAll<CommandPublic>(`/api/passes/${passId}/commands`),
       get<PlanDocument>(`/api/plans/${pass.plan_id}/document`).catch(() => null),
     ]);
     clear(summary);
-    summary.append(h("h3", {}, `${pass.state.toUpperCase()} · AOS ${utc(pass.aos_time)} · LOS ${utc(pass.los_time)}`),
+    summary.append(h("h3", {}, stateBadge(pass, "pass-state"), ` AOS ${utc(pass.aos_time)} · LOS ${utc(pass.los_time)} `, stateReason(pass)),
+      outcomeLine(sum),
       h("table.list", {}, ...Object.entries(sum).filter(([k]) => !["pass_id", "name"].includes(k)).map(([k, v]) =>
         h("tr", {}, h("th", {}, k), h("td", {}, typeof v === "object" && v !== null ? JSON.stringify(v) : String(v ?? "—"))))));
     if (doc) view.setPrediction(predictionColumns(doc));
@@ -282,6 +294,8 @@ export function reportPage(root: HTMLElement, ctx: Ctx, params: string[]): () =>
     disposed = true;
     cancelAnimationFrame(redraw);
     replay.close();
+    offAlarms();
+    offAlarmMessages();
     view.dispose();
   };
 }
@@ -312,7 +326,7 @@ async function serverReportSection(box: HTMLElement, ctx: Ctx, pass: PassPublic)
     const analyses = await get<{ count: number }>(`/api/passes/${pass.id}/analyses`);
     if (analyses.count === 0) {
       box.append(h("p.unavailable", { "data-test": "report-none" }, "No analyses have been run for this pass yet."));
-      if (ctx.canCommand && ["complete", "aborted", "los"].includes(pass.state)) {
+      if (ctx.canCommand && ["complete", "aborted", "safed", "los"].includes(pass.state)) {
         const run = h("button.primary", { type: "button", "data-test": "run-analyses" }, "Run the analyses");
         run.addEventListener("click", () => {
           run.disabled = true;
@@ -350,4 +364,14 @@ async function serverReportSection(box: HTMLElement, ctx: Ctx, pass: PassPublic)
       .then((b) => figures.append(h("figure", {}, h("img", { src: URL.createObjectURL(b), alt: name }), h("figcaption.muted.small", {}, name))))
       .catch((e: Error) => figures.append(h("p.unavailable", {}, `figure ${name}: ${e.message}`)));
   }
+}
+
+/** The pass's outcome once it has ended (server/services/summary.py): ``nominal`` only when
+ * every command executed at its tag, ``degraded`` with the counts otherwise. */
+function outcomeLine(sum: Record<string, unknown>): HTMLElement | string {
+  const outcome = sum.outcome;
+  if (outcome !== "nominal" && outcome !== "degraded") return "";
+  return h("p.outcome", { "data-test": "pass-outcome", "data-outcome": outcome },
+    h(`span.badge.${outcome === "nominal" ? "pass" : "fail"}`, {}, outcome.toUpperCase()), " ",
+    String(sum.outcome_text ?? "").replace(/^(nominal|degraded): /, ""));
 }

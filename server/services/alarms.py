@@ -1,0 +1,690 @@
+"""Alarms on the ground: every archived frame checked against its pass's limits, the link's
+health on a timer, the vehicle's safing, and the operator's acknowledgement (docs/alarms.md).
+
+:class:`AlarmService` is built by the composition root beside the downlink and fed by the
+consoles' :class:`~server.services.dbworker.Publisher`: its frames (each batch as it is
+committed, before the consoles get it) and its events (``pass_state`` and ``pass_resumed``
+say which pass runs). Nothing of the link, the downlink or the runner was changed for it.
+
+- **Per pass** a monitor: the pass's :class:`telemetry.limits.FrameEvaluator` (its robot's
+  description and ``[limits]``; the commanded joint targets interpolated from the pass's
+  stored joint commands while it runs, the frame's own targets once it no longer does) and
+  its :class:`~server.services.alarm_book.AlarmBook`. It is loaded on the first frame or
+  the pass's start (a database read, then the evaluator built in a thread); frames that
+  arrive meanwhile wait for it. A batch is evaluated at once, vectorised, on the event loop;
+  frames older than the newest evaluated (a resent gap) are not evaluated again.
+- **Writes** go through the command path's database worker: a raise, a change of band, a
+  clear at once (one job per batch, with their events), an in-band update at most once per
+  second per alarm. Each alarm is published to the consoles (topic ``alarms``) when its
+  write has committed.
+- **Link health** (``frames_behind``, ``frame_age_s``) every :data:`LINK_PERIOD_S` of the
+  injected clock while a pass is ``running``; their alarms clear when it leaves that state
+  (LOS, an abort, safing: its telemetry window closes, no frame of it is expected).
+- **The vehicle's safing**: :meth:`AlarmService.vehicle_safed` raises the ``critical``
+  alarm of source ``vehicle``, quantity ``vehicle_safing`` (reports repeated while the
+  vehicle stays safe update it), :meth:`AlarmService.vehicle_nominal` clears it.
+- **Acknowledgement** (:meth:`AlarmService.acknowledge`, operators only at the API): a
+  control job of the database worker; 404 ``alarm_not_found``, 409
+  ``already_acknowledged``.
+
+``Settings.limit_checking`` False turns the frames' and the link's checks off (the vehicle's
+alarms and acknowledgements stay).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy.orm import Session
+
+from planner.limits import QUANTITIES, Limits, Severity
+from planner.plan import Plan
+from server.schemas import AlarmPublic, AlarmsPublic
+from server.services.alarm_book import (
+    Alarm,
+    AlarmBook,
+    Change,
+    Observation,
+    QuantityInfo,
+)
+from server.services.clock import Clock
+from server.services.dbworker import Database, Publisher
+from server.services.downlink import GroundDownlink
+from server.services.errors import ConflictError, NotFoundError
+from server.services.events import (
+    AlarmAcknowledged,
+    AlarmCleared,
+    AlarmRaised,
+    Event,
+    record,
+)
+from server.services.link import GroundLink, LinkUnavailable
+from server.services.robots import description_for_plan
+from server.settings import Settings
+from server.storage import alarms as alarm_repo
+from server.storage import repository as repo
+from server.storage.errors import Conflict, NotFound
+from telemetry.limits import (
+    CommandedFn,
+    FrameEvaluator,
+    Reading,
+    for_description,
+    interpolated_commands,
+    link_readings,
+)
+from telemetry.wire import Safing, TelemetryFrame
+
+__all__ = [
+    "IN_BAND_PERIOD_S",
+    "LINK_PERIOD_S",
+    "LINK_QUANTITIES",
+    "VEHICLE_SAFING",
+    "AlarmService",
+    "list_alarms",
+]
+
+log = logging.getLogger("hikoboshi.ground.alarms")
+
+#: Ground s between two link-health checks while a pass runs (injected clock).
+LINK_PERIOD_S = 1.0
+#: An alarm staying in its band is written (and published) at most this often (ground s).
+IN_BAND_PERIOD_S = 1.0
+#: The quantities checked on the ground's timer, not per frame.
+LINK_QUANTITIES = ("frames_behind", "frame_age_s")
+#: The quantity of the vehicle's safing alarm.
+VEHICLE_SAFING = "vehicle_safing"
+#: Frames held for a monitor still loading, at most (the newest kept).
+MAX_PENDING_FRAMES = 100_000
+
+
+def _info(limits: Limits) -> Callable[[str], QuantityInfo | None]:
+    """A book's quantities: the catalogue's label, unit and direction, the limits' bands."""
+
+    def info(quantity: str) -> QuantityInfo | None:
+        spec, bands = QUANTITIES.get(quantity), limits.bands.get(quantity)
+        if spec is None or bands is None:
+            return None
+        return QuantityInfo(
+            spec.label, spec.unit, spec.direction, lambda s: bands.threshold(Severity(s))
+        )
+
+    return info
+
+
+def _observation(r: Reading) -> Observation:
+    severity = None if r.severity is None else str(r.severity)
+    return Observation(r.quantity, r.channel, r.value, severity, r.frame_seq, r.generation_time_ns)
+
+
+@dataclass
+class _Monitor:
+    """One pass's limit checking (see the module docstring)."""
+
+    pass_id: str
+    book: AlarmBook | None = None
+    evaluator: FrameEvaluator | None = None
+    limits: Limits | None = None
+    commanded: CommandedFn | None = None
+    #: the pass's state as the events last said (None: none seen yet)
+    state: str | None = None
+    loading: asyncio.Task[None] | None = None
+    pending: list[TelemetryFrame] = field(default_factory=list)
+    last_seq: int = -1
+    #: ground ns: the newest frame's reception, else when the pass started running
+    last_frame_ns: int | None = None
+    #: the evaluator could not be built (its robot unknown here): frames are not checked
+    disabled: bool = False
+
+    @property
+    def running(self) -> bool:
+        """Flying the plan: its commands are the commanded targets."""
+        return self.state in ("aos", "running", "los")
+
+    @property
+    def watched(self) -> bool:
+        """The link's health is watched for it: from its start to its LOS (its telemetry
+        window closes there, and no frame of it is expected after)."""
+        return self.state == "running"
+
+    def commanded_at(self, times_ns: NDArray[np.int64]) -> NDArray[np.float64] | None:
+        if self.commanded is None or not self.running:
+            return None
+        return self.commanded(times_ns)
+
+
+@dataclass(frozen=True)
+class _Loaded:
+    state: str
+    plan_document: str
+    tags_ns: list[int]
+    targets_rad: list[list[float]]
+    alarms: list[dict[str, Any]]
+
+
+class AlarmService:
+    """The ground's alarms (see the module docstring); :meth:`start` subscribes it."""
+
+    def __init__(
+        self,
+        *,
+        db: Database,
+        publisher: Publisher,
+        clock: Clock,
+        downlink: GroundDownlink,
+        link: GroundLink,
+        settings: Settings,
+    ) -> None:
+        self._db = db
+        self._publisher = publisher
+        self._clock = clock
+        self._downlink = downlink
+        self._link = link
+        self._settings = settings
+        self.checking = settings.limit_checking
+        self._monitors: dict[str, _Monitor] = {}
+        #: the vehicle's safing alarms, by pass (None: of no pass)
+        self._vehicle: dict[str | None, AlarmBook] = {}
+        self._unhook: list[Callable[[], None]] = []
+        self._link_task: asyncio.Task[None] | None = None
+        self._flusher: asyncio.Task[None] | None = None
+        self._writes: set[asyncio.Future[Any]] = set()
+        self._closed = False
+        #: frames not evaluated: older than the newest evaluated of their pass
+        self.frames_late = 0
+        self.frames_evaluated = 0
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._unhook = [
+            self._publisher.subscribe(self._on_event),
+            self._publisher.subscribe_frames(self._on_frames),
+        ]
+
+    async def load_vehicle_alarms(self) -> None:
+        """Take over the vehicle's alarms still listed (after a restart)."""
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            page = alarm_repo.list_alarms(session=session, active=True, limit=1000)
+            return [alarm_repo.alarm_document(r) for r in page.items if r.source == "vehicle"]
+
+        for doc in await self._db.run(job):
+            self._vehicle_book(doc["pass_id"]).restore([Alarm.of_document(doc)])
+
+    async def close(self) -> None:
+        """Stop watching; what is left to write is written."""
+        self._closed = True
+        for unhook in self._unhook:
+            unhook()
+        self._unhook = []
+        for task in (self._link_task, self._flusher, *self._loads()):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+        self._flush(force=True)
+        await self.settled()
+
+    def _loads(self) -> list[asyncio.Task[None]]:
+        return [m.loading for m in self._monitors.values() if m.loading is not None]
+
+    async def settled(self) -> None:
+        """Wait until every monitor has loaded and every alarm write has committed (tests,
+        shutdown)."""
+        while True:
+            loads = [t for t in self._loads() if not t.done()]
+            if loads:
+                await asyncio.gather(*loads, return_exceptions=True)
+                continue
+            if self._writes:
+                await asyncio.gather(*list(self._writes), return_exceptions=True)
+                await asyncio.sleep(0)
+                continue
+            return
+
+    # -- passes --------------------------------------------------------------------------
+
+    def _on_event(self, event: dict[str, Any]) -> None:
+        kind, pass_id = event.get("kind"), event.get("pass_id")
+        if pass_id is None or kind not in ("pass_state", "pass_resumed"):
+            return
+        detail = event.get("detail") or {}
+        state = detail.get("to") if kind == "pass_state" else detail.get("state")
+        if not isinstance(state, str):
+            return
+        pass_id = str(pass_id)
+        monitor = self._monitors.get(pass_id)
+        if monitor is None:
+            if state not in ("running", "los") or not self.checking:
+                return
+            monitor = self._monitor(pass_id)
+        was_watched = monitor.watched
+        monitor.state = state
+        if state == "running" and monitor.last_frame_ns is None:
+            monitor.last_frame_ns = int(event.get("time_ns") or self._clock.time_ns())
+        if monitor.watched and self.checking:
+            self._watch_link()
+        elif was_watched and not monitor.watched and monitor.book is not None:
+            why = f"the pass is {state}: the link is no longer watched for it"
+            changes = monitor.book.clear_all(self._clock.time_ns(), why, LINK_QUANTITIES)
+            self._apply(changes, self._clock.monotonic())
+
+    def _monitor(self, pass_id: str) -> _Monitor:
+        monitor = self._monitors.get(pass_id)
+        if monitor is None:
+            monitor = self._monitors[pass_id] = _Monitor(pass_id)
+            monitor.loading = asyncio.get_running_loop().create_task(
+                self._load(monitor), name=f"alarms-load-{pass_id}"
+            )
+        return monitor
+
+    async def _load(self, monitor: _Monitor) -> None:
+        pass_id = monitor.pass_id
+
+        def job(session: Session) -> _Loaded:
+            record = repo.get_pass(session=session, pass_id=pass_id)
+            document = repo.get_plan(session=session, plan_id=record.plan_id).document
+            # by tag (the listing's order): the interpolation needs them increasing
+            joints = [
+                c for c in repo.list_commands(session=session, pass_id=record.id)
+                if c.kind == "joints"
+            ]  # fmt: skip
+            listed = alarm_repo.listed_alarms(session=session, pass_id=record.id)
+            return _Loaded(
+                record.state,
+                document,
+                [c.execute_time_ns for c in joints],
+                [list(c.payload["joints_rad"]) for c in joints],
+                [alarm_repo.alarm_document(r) for r in listed if r.source == "limit"],
+            )
+
+        try:
+            loaded = await self._db.run(job)
+            robot_files = self._settings.robot_files
+
+            def build() -> tuple[FrameEvaluator, Limits, CommandedFn | None]:
+                plan = Plan.from_json(loaded.plan_document)
+                description = description_for_plan(plan, robot_files)
+                commanded = None
+                if loaded.tags_ns:
+                    commanded = interpolated_commands(
+                        np.asarray(loaded.tags_ns, dtype=np.int64),
+                        np.asarray(loaded.targets_rad, dtype=np.float64).reshape(
+                            len(loaded.tags_ns), -1
+                        ),
+                    )
+                evaluator = for_description(description, commanded=monitor.commanded_at)
+                return evaluator, description.limits, commanded
+
+            evaluator, limits, commanded = await asyncio.to_thread(build)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            log.warning("pass %s: its frames are not checked against limits: %s", pass_id, exc)
+            monitor.disabled = True
+            monitor.pending = []
+            return
+        if monitor.state is None:
+            monitor.state = loaded.state
+        monitor.limits, monitor.commanded = limits, commanded
+        monitor.book = AlarmBook(pass_id, _info(limits))
+        monitor.book.restore(Alarm.of_document(doc) for doc in loaded.alarms)
+        monitor.evaluator = evaluator
+        pending, monitor.pending = monitor.pending, []
+        if pending:
+            self._evaluate(monitor, pending)
+        if monitor.watched and self.checking:
+            self._watch_link()
+
+    # -- frames --------------------------------------------------------------------------
+
+    def _on_frames(
+        self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
+    ) -> None:
+        if not self.checking or self._closed or not frames:
+            return
+        monitor = self._monitor(str(pass_id))
+        monitor.last_frame_ns = max(monitor.last_frame_ns or 0, reception_time_ns)
+        if monitor.disabled:
+            return
+        if monitor.evaluator is None:
+            monitor.pending.extend(frames)
+            del monitor.pending[:-MAX_PENDING_FRAMES]
+            return
+        self._evaluate(monitor, frames)
+
+    def _evaluate(self, monitor: _Monitor, frames: list[TelemetryFrame]) -> None:
+        last = monitor.last_seq
+        fresh = [f for f in frames if f.seq > last]
+        self.frames_late += len(frames) - len(fresh)
+        if not fresh:
+            return
+        if any(fresh[k].seq > fresh[k + 1].seq for k in range(len(fresh) - 1)):
+            fresh.sort(key=lambda f: f.seq)
+        monitor.last_seq = fresh[-1].seq
+        self.frames_evaluated += len(fresh)
+        assert monitor.evaluator is not None and monitor.book is not None
+        try:
+            readings = monitor.evaluator.evaluate(fresh)
+        except ValueError as exc:  # frames of another robot than the pass's plan's
+            log.warning(
+                "pass %s: frames no longer checked against limits: %s", monitor.pass_id, exc
+            )
+            monitor.disabled = True
+            return
+        if not readings:
+            return
+        changes = monitor.book.observe([_observation(r) for r in readings], self._clock.time_ns())
+        self._apply(changes, self._clock.monotonic())
+
+    # -- the link's health -----------------------------------------------------------------
+
+    def _watch_link(self) -> None:
+        if self._link_task is None or self._link_task.done():
+            self._link_task = asyncio.get_running_loop().create_task(
+                self._link_loop(), name="alarms-link-health"
+            )
+
+    def _watched(self) -> _Monitor | None:
+        watched = [m for m in self._monitors.values() if m.watched and m.book is not None]
+        return watched[-1] if watched else None
+
+    async def _link_loop(self) -> None:
+        clock = self._clock
+        while not self._closed:
+            monitor = self._watched()
+            if monitor is None:
+                if not any(m.watched for m in self._monitors.values()):
+                    return  # a pass still loading starts the loop again once loaded
+            else:
+                self.check_link(monitor.pass_id)
+            await clock.sleep_until(clock.monotonic() + LINK_PERIOD_S)
+
+    def check_link(self, pass_id: str) -> None:
+        """One check of the link's health for the pass ``pass_id`` (running)."""
+        monitor = self._monitors.get(pass_id)
+        if monitor is None or monitor.book is None or monitor.limits is None:
+            return
+        now_ns = self._clock.time_ns()
+        try:
+            onboard: int | None = self._link.onboard_now_ns()
+        except LinkUnavailable:
+            onboard = None
+        behind = self._downlink.frames_behind(onboard)
+        try:  # onboard seconds: a demo at 20x ages its frames as a real pass would
+            scale = self._link.time_scale
+        except LinkUnavailable:
+            scale = 1.0
+        age_s = (
+            None
+            if monitor.last_frame_ns is None
+            else (now_ns - monitor.last_frame_ns) / 1e9 * scale
+        )
+        values: dict[str, float | None] = {
+            "frames_behind": None if behind is None else float(behind),
+            "frame_age_s": age_s,
+        }
+        readings = link_readings(monitor.limits, frames_behind=behind, frame_age_s=age_s)
+        found = {(r.quantity, r.channel) for r in readings}
+        # a sample of the ground's, not of a frame: no seq, no onboard time
+        observations = [
+            _observation(r)._replace(frame_seq=None, generation_time_ns=None) for r in readings
+        ]
+        for quantity, value in values.items():
+            if (quantity, "") not in found:
+                observations.append(Observation(quantity, "", value, None, None, None))
+        changes = monitor.book.observe(observations, now_ns)
+        self._apply(changes, self._clock.monotonic())
+
+    # -- the vehicle's safing --------------------------------------------------------------
+
+    def _vehicle_book(self, pass_id: str | None) -> AlarmBook:
+        book = self._vehicle.get(pass_id)
+        if book is None:
+            book = self._vehicle[pass_id] = AlarmBook(
+                pass_id, lambda quantity: None, source="vehicle"
+            )
+        return book
+
+    def vehicle_safed(self, pass_id: str | None, report: Safing) -> None:
+        """The vehicle reports it is safe (``report.state`` ``safe``), during pass
+        ``pass_id`` (None: no pass ran): the ``critical`` alarm of source ``vehicle``,
+        quantity ``vehicle_safing``, raised (a report repeated while it stays safe updates
+        it; after an exit it is raised again, or reopened while still listed)."""
+        pass_id = _canonical(pass_id)
+        trigger = report.trigger
+        spec = None if trigger is None else QUANTITIES.get(trigger.quantity)
+        if trigger is None:
+            text = "the vehicle safed itself (no trigger reported)"
+            value = limit = None
+        else:
+            where = f"{trigger.quantity} {trigger.channel}".strip()
+            unit = "" if spec is None else f" {spec.unit}"
+            text = (
+                f"the vehicle safed itself: {where} at {trigger.value:.4g}{unit} beyond its "
+                f"red limit {trigger.limit:.4g}{unit}"
+            )
+            if trigger.detail:
+                text += f" ({trigger.detail})"
+            value, limit = trigger.value, trigger.limit
+        label = "vehicle safing" + ("" if spec is None else f": {spec.label}")
+        info = QuantityInfo(
+            label[:128],
+            "" if spec is None else spec.unit[:16],
+            "high" if spec is None else spec.direction,
+            lambda _severity: limit,
+        )
+        observation = Observation(
+            VEHICLE_SAFING, "", value, str(Severity.CRITICAL), None, report.since_time_ns
+        )
+        now_ns = self._clock.time_ns()
+        changes = self._vehicle_book(pass_id).observe([observation], now_ns, text, info)
+        self._apply(changes, self._clock.monotonic())
+
+    def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None:
+        """The vehicle left SAFE (``report.state`` ``nominal``): its safing alarm of that
+        pass clears (it stays listed until acknowledged)."""
+        book = self._vehicle.get(_canonical(pass_id))
+        if book is None:
+            return
+        observation = Observation(VEHICLE_SAFING, "", None, None, None, report.onboard_time_ns)
+        changes = book.observe([observation], self._clock.time_ns())
+        self._apply(changes, self._clock.monotonic())
+
+    # -- writes --------------------------------------------------------------------------
+
+    def _books(self) -> list[AlarmBook]:
+        books = [m.book for m in self._monitors.values() if m.book is not None]
+        return books + list(self._vehicle.values())
+
+    def _apply(self, changes: list[Change], mono: float) -> None:
+        """Write the prompt changes now, the in-band updates once their second is up."""
+        due: list[Alarm] = []
+        events: list[Event] = []
+        waiting = False
+        for change in changes:
+            alarm = change.alarm
+            if change.kind == "updated" and mono - alarm.written_mono < IN_BAND_PERIOD_S:
+                waiting = True
+                continue
+            due.append(alarm)
+            event = _event(change)
+            if event is not None:
+                events.append(event)
+        if due:
+            self._write(due, events, mono)
+        if waiting:
+            self._flush_soon()
+
+    def _write(self, alarms: list[Alarm], events: list[Event], mono: float) -> None:
+        docs = [a.document() for a in alarms]
+        for alarm in alarms:
+            alarm.written_mono, alarm.dirty = mono, False
+        clock = self._clock
+
+        def job(session: Session) -> list[dict[str, Any]]:
+            alarm_repo.save_alarms(session=session, documents=docs)
+            return [record(session, e, clock.time_ns()) for e in events]
+
+        future = asyncio.ensure_future(self._db.run(job))
+        self._writes.add(future)
+
+        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
+            self._writes.discard(future)
+            if f.cancelled():
+                return
+            if (exc := f.exception()) is not None:
+                log.error("alarms not written: %r", exc)
+                for alarm in alarms:
+                    alarm.dirty = True  # written again with the next flush
+                return
+            self._publisher.publish(f.result())
+            self._publisher.publish_alarms(docs)
+
+        future.add_done_callback(done)
+
+    def _flush_soon(self) -> None:
+        if self._flusher is None or self._flusher.done():
+            self._flusher = asyncio.get_running_loop().create_task(
+                self._flush_loop(), name="alarms-flush"
+            )
+
+    async def _flush_loop(self) -> None:
+        clock = self._clock
+        while not self._closed:
+            dirty = [a for b in self._books() for a in b.listed.values() if a.dirty]
+            if not dirty:
+                return
+            due_at = min(a.written_mono for a in dirty) + IN_BAND_PERIOD_S
+            await clock.sleep_until(due_at)
+            self._flush()
+
+    def _flush(self, *, force: bool = False) -> None:
+        """Write the alarms changed since their last write whose second is up."""
+        mono = self._clock.monotonic()
+        due = [
+            a
+            for b in self._books()
+            for a in b.listed.values()
+            if a.dirty and (force or mono - a.written_mono >= IN_BAND_PERIOD_S)
+        ]
+        if due:
+            self._write(due, [], mono)
+
+    # -- acknowledgement -------------------------------------------------------------------
+
+    async def acknowledge(self, alarm_id: str, actor: str, comment: str | None) -> AlarmPublic:
+        """An operator acknowledges the alarm (with ``comment``); the alarm as it now is.
+        ``NotFoundError`` ``alarm_not_found``; ``ConflictError`` ``already_acknowledged``."""
+        clock = self._clock
+        now_ns = clock.time_ns()
+
+        def job(session: Session) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+            try:
+                stored = alarm_repo.acknowledge(
+                    session=session, alarm_id=alarm_id, actor=actor, time_ns=now_ns,
+                    comment=comment,
+                )  # fmt: skip
+            except NotFound as exc:
+                raise NotFoundError("alarm_not_found", str(exc)) from None
+            except Conflict as exc:
+                raise ConflictError("already_acknowledged", str(exc)) from None
+            event = AlarmAcknowledged(
+                actor=actor,
+                pass_id=stored.pass_id,
+                alarm_id=stored.id,
+                quantity=stored.quantity,
+                channel=stored.channel,
+                severity=stored.severity,
+                state=stored.state,
+                comment=comment,
+            )
+            return alarm_repo.alarm_document(stored), [record(session, event, clock.time_ns())]
+
+        doc, events = await self._db.run(job, control=True)
+        for book in self._books():
+            held = book.holds(doc["id"])
+            if held is not None:
+                book.acknowledged(doc["id"], actor, now_ns, comment)
+                # what the monitor knows beyond the stored row (an in-band update not yet
+                # written), with the acknowledgement
+                doc = {**held.document(), **_ack_fields(doc)}
+        self._publisher.publish(events)
+        self._publisher.publish_alarms([doc])
+        return AlarmPublic.model_validate(doc)
+
+
+def _canonical(pass_id: str | None) -> str | None:
+    if pass_id is None:
+        return None
+    try:
+        return str(uuid.UUID(pass_id))
+    except ValueError:
+        return pass_id
+
+
+def _ack_fields(doc: dict[str, Any]) -> dict[str, Any]:
+    keys = ("acknowledged", "acknowledged_by", "acknowledged_time_ns", "comment")
+    return {k: doc[k] for k in keys}
+
+
+def _event(change: Change) -> Event | None:
+    """The audit event of a change (none for a change of band or an in-band update)."""
+    a = change.alarm
+    actor = "vehicle" if a.source == "vehicle" else "ground"
+    last = a.timeline[-1] if a.timeline else {}
+    if change.kind in ("raised", "reopened"):
+        return AlarmRaised(
+            actor=actor,
+            pass_id=a.pass_id,
+            alarm_id=a.id,
+            source=a.source,
+            quantity=a.quantity,
+            channel=a.channel,
+            severity=a.current_severity or a.severity,
+            value=last.get("value"),
+            limit=a.limit,
+            frame_seq=last.get("frame_seq"),
+            generation_time_ns=last.get("generation_time_ns"),
+            reopened=change.kind == "reopened",
+            detail_text=a.detail,
+        )
+    if change.kind == "cleared":
+        return AlarmCleared(
+            actor=actor,
+            pass_id=a.pass_id,
+            alarm_id=a.id,
+            quantity=a.quantity,
+            channel=a.channel,
+            severity=a.severity,
+            value=a.last_value,
+            generation_time_ns=a.cleared_generation_time_ns,
+        )
+    return None
+
+
+def list_alarms(
+    *,
+    session: Session,
+    pass_id: str | None = None,
+    active: bool | None = None,
+    offset: int = 0,
+    limit: int = 100,
+) -> AlarmsPublic:
+    """Alarms newest first (of ``pass_id``; active or not), as the REST serves them; an
+    unknown pass is ``NotFound``."""
+    if pass_id is not None:
+        pass_id = repo.get_pass(session=session, pass_id=pass_id).id
+    page = alarm_repo.list_alarms(
+        session=session, pass_id=pass_id, active=active, offset=offset, limit=limit
+    )
+    alarms = [AlarmPublic.model_validate(alarm_repo.alarm_document(r)) for r in page.items]
+    return AlarmsPublic(alarms=alarms, count=page.count)

@@ -1,0 +1,1 @@
+"""The alarm tests use the server's database fixtures (tests/server/conftest.py)."""

@@ -1,0 +1,247 @@
+"""The OpenAPI document states the rules the server enforces on a request (docs/security.md,
+*The OpenAPI document*): every free-text string a client sends carries the text rule as a
+``pattern`` and a ``maxLength``; the patterns mean the same to Python, to ECMA-262 (the
+dialect JSON Schema names) and to schemathesis's generator; ``OPTIONS`` answers ``Allow``.
+
+The whole API against its document is tests/server/api/test_schemathesis.py."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import schemathesis
+from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, given, settings
+from schemathesis.python.asgi import shutdown_lifespans
+
+from server.app import create_app
+from server.schemas import LINE_PATTERN, TEXT_PATTERN
+from server.settings import Settings
+from tests.server.api.conftest import OPERATOR, TOKENS
+
+#: Strings that probe the patterns: each C0 control, DEL, C1, and text that must pass.
+PROBES = [
+    *(chr(c) for c in range(0x20)),
+    "\x7f",
+    "\x85",
+    "a\tb",
+    "line\nbreak",
+    "cr\r",
+    "trailing\n",
+    "START pass 1",
+    "Ünïcödé",
+    "軌道",
+    "🛰 satellite",
+    "",
+]
+#: What the edge refuses in a JSON body's strings, and in a path or query string.
+_BODY_REFUSED = [chr(c) for c in [*range(0x09), 0x0B, 0x0C, *range(0x0E, 0x20), 0x7F]]
+_LINE_REFUSED = [chr(c) for c in [*range(0x20), 0x7F]]
+
+
+def _matches(pattern: str, text: str) -> bool:
+    """Whether ``pattern`` matches ``text`` as ECMA-262 (and pydantic's Rust engine) read it:
+    a final ``$`` is the end of the text, where Python's also matches before a final
+    newline."""
+    return re.search(pattern.removesuffix("$") + r"\Z", text) is not None
+
+
+@pytest.fixture(scope="module")
+def document(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    app = create_app(Settings(data_dir=tmp_path_factory.mktemp("openapi")))
+    schema: dict[str, Any] = app.openapi()
+    return schema
+
+
+def _resolve(document: dict[str, Any], schema: dict[str, Any]) -> dict[str, Any]:
+    while "$ref" in schema:
+        name = schema["$ref"].rsplit("/", 1)[-1]
+        schema = document["components"]["schemas"][name]
+    return schema
+
+
+def _strings(
+    document: dict[str, Any], schema: dict[str, Any], where: str, seen: set[str]
+) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Every string schema a request may hold under ``schema``: (where, schema)."""
+    ref = schema.get("$ref")
+    if ref is not None:
+        if ref in seen:
+            return
+        seen = {*seen, ref}
+    schema = _resolve(document, schema)
+    if schema.get("type") == "string":
+        yield where, schema
+    for key in ("anyOf", "oneOf", "allOf"):
+        for i, sub in enumerate(schema.get(key, ())):
+            yield from _strings(document, sub, f"{where}|{i}", seen)
+    for name, sub in schema.get("properties", {}).items():
+        yield from _strings(document, sub, f"{where}.{name}", seen)
+    for key in ("items", "additionalProperties"):
+        if isinstance(schema.get(key), dict):
+            yield from _strings(document, schema[key], f"{where}[{key}]", seen)
+    if schema.get("type") == "object" and "propertyNames" in schema:
+        yield f"{where}{{keys}}", {"type": "string", **schema["propertyNames"]}
+
+
+def _request_strings(document: dict[str, Any]) -> Iterator[tuple[str, str, dict[str, Any]]]:
+    """(operation, where, string schema) of every parameter and JSON body string."""
+    for path, item in document["paths"].items():
+        for method, operation in item.items():
+            label = f"{method.upper()} {path}"
+            for parameter in operation.get("parameters", ()):
+                if parameter["in"] == "header":
+                    continue  # Authorization: HTTP itself (h11) refuses control characters
+                where = f"{parameter['in']} {parameter['name']}"
+                for at, schema in _strings(document, parameter["schema"], where, set()):
+                    yield label, at, schema
+            body = operation.get("requestBody", {}).get("content", {})
+            if "application/json" in body:
+                for at, schema in _strings(document, body["application/json"]["schema"], "", set()):
+                    yield label, f"body{at}", schema
+
+
+def test_every_free_text_string_a_client_sends_states_the_text_rule_and_a_length(
+    document: dict[str, Any],
+) -> None:
+    strings = list(_request_strings(document))
+    assert len(strings) > 20
+    unruled = []
+    for label, where, schema in strings:
+        if "enum" in schema or "const" in schema or schema.get("format") in ("date-time",):
+            continue  # a closed vocabulary or a format: no free text
+        refused = _BODY_REFUSED if where.startswith("body") else _LINE_REFUSED
+        pattern = schema.get("pattern")
+        # the shared pattern, or a stricter one of its own (a robot's name, a hash)
+        keeps_rule = pattern is not None and not any(
+            _matches(pattern, text) for c in refused for text in (c, f"a{c}b", f"a{c}")
+        )
+        bounded = "maxLength" in schema or pattern == r"^[0-9a-f]{64}$"
+        if not (keeps_rule and bounded):
+            unruled.append(f"{label} {where}: {schema}")
+    assert not unruled, "\n".join(unruled)
+
+
+def test_request_bodies_take_no_keys_they_do_not_declare(document: dict[str, Any]) -> None:
+    bodies = {
+        f"{method.upper()} {path}": _resolve(
+            document, operation["requestBody"]["content"]["application/json"]["schema"]
+        )
+        for path, item in document["paths"].items()
+        for method, operation in item.items()
+        if "application/json" in operation.get("requestBody", {}).get("content", {})
+    }
+    assert len(bodies) >= 6
+    closed = {label for label, body in bodies.items() if body.get("additionalProperties") is False}
+    assert set(bodies) - closed == set()
+
+
+@pytest.mark.parametrize("pattern", [TEXT_PATTERN, LINE_PATTERN], ids=["text", "line"])
+def test_the_patterns_mean_the_same_in_python_and_ecma_262(pattern: str) -> None:
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node (an ECMA-262 engine) is not installed")
+    script = (
+        "const [pattern, probes] = JSON.parse(require('fs').readFileSync(0, 'utf8'));"
+        "const plain = new RegExp(pattern), unicode = new RegExp(pattern, 'u');"
+        "console.log(JSON.stringify(probes.map((s) => [plain.test(s), unicode.test(s)])));"
+    )
+    out = subprocess.run(
+        [node, "-e", script],
+        input=json.dumps([pattern, PROBES]),
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,  # a guard, not a timing assertion
+    ).stdout
+    ecma = json.loads(out)
+    python = [_matches(pattern, s) for s in PROBES]
+    assert [plain for plain, _ in ecma] == python
+    assert [unicode for _, unicode in ecma] == python
+    # and what they mean: tab, newline, CR in body text only; no other C0, no DEL
+    allowed = {s for s, ok in zip(PROBES, python, strict=True) if ok}
+    body_controls = {"\t", "\n", "\r", "a\tb", "line\nbreak", "cr\r", "trailing\n"}
+    assert {"\x00", "\x1b", "\x7f"} & allowed == set()
+    assert {"軌道", "🛰 satellite", "\x85", ""} <= allowed
+    if pattern == TEXT_PATTERN:
+        assert body_controls <= allowed
+    else:
+        assert body_controls & allowed == set()
+
+
+def test_schemathesis_generates_from_the_patterns(tmp_path: Path) -> None:
+    """Generation from the ECMA patterns works: the strings drawn for a path parameter and a
+    body's text match the server's own rule, and are not only ASCII."""
+    app = create_app(Settings(data_dir=tmp_path, tokens=TOKENS))
+    try:
+        schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+    finally:
+        shutdown_lifespans()
+    abort = schema["/api/passes/{pass_id}/abort"]["POST"]
+    drawn: list[str] = []
+
+    @settings(
+        max_examples=60,
+        derandomize=True,
+        database=None,
+        deadline=None,
+        suppress_health_check=list(HealthCheck),
+    )
+    @given(case=abort.as_strategy())
+    def draw(case: Any) -> None:
+        pass_id = case.path_parameters["pass_id"]
+        assert _matches(LINE_PATTERN, pass_id), repr(pass_id)
+        for text in (case.body["confirm"], case.body.get("reason", "")):
+            assert _matches(TEXT_PATTERN, text), repr(text)
+        drawn.extend([pass_id, case.body["confirm"]])
+
+    draw()
+    assert drawn
+    assert any(not s.isascii() for s in drawn), drawn[:10]
+
+
+@pytest.fixture()
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    with TestClient(create_app(Settings(data_dir=tmp_path, tokens=TOKENS))) as c:
+        yield c
+
+
+@pytest.mark.parametrize(
+    ("path", "allow"),
+    [
+        ("/api/passes", "GET, OPTIONS, POST"),
+        ("/api/passes/some-id", "GET, OPTIONS"),
+        ("/api/passes/import", "OPTIONS, POST"),  # not /api/passes/{pass_id}'s GET
+        ("/api/passes/some-id/report/figures/a.png", "GET, OPTIONS"),
+        ("/api/alarms/some-id/acknowledge", "OPTIONS, POST"),
+        ("/api/health", "GET, OPTIONS"),
+        ("/openapi.json", "GET, HEAD, OPTIONS"),
+    ],
+)
+def test_options_answers_204_with_the_paths_methods(
+    client: TestClient, path: str, allow: str
+) -> None:
+    response = client.options(path, headers=OPERATOR)
+    assert response.status_code == 204
+    assert response.headers["allow"] == allow
+    assert response.content == b""
+
+
+def test_options_on_an_api_route_needs_a_token_and_an_unknown_path_is_404(
+    client: TestClient,
+) -> None:
+    assert client.options("/api/passes").status_code == 401
+    assert client.options("/api/nothing-here", headers=OPERATOR).status_code == 404
+
+
+def test_a_405_still_names_the_methods(client: TestClient) -> None:
+    response = client.delete("/api/passes", headers=OPERATOR)
+    assert response.status_code == 405
+    assert set(response.headers["allow"].replace(" ", "").split(",")) >= {"GET", "POST"}

@@ -1,0 +1,193 @@
+"""Malformed messages on the spacecraft link cost bounded work (server/services/malformed.py):
+the ground's link on the simulated clock, fed a flood of the spacecraft's rehearsal garbage
+(spacecraft/garbage.py). Replies at a bounded rate, one audit row per kind per interval
+with its count, the connection closed past the threshold with its reason, and the
+well-formed messages between the garbage still handled."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+from typing import Any
+
+from server.services.clock import ManualClock
+from server.services.link import Connection, GroundLink
+from server.storage import repository as repo
+from spacecraft.garbage import GarbageMaker
+from telemetry.wire import Hello, Pong, encode
+from tests.server.link.simulated import ground, make_sessions
+
+HELLO = Hello(vehicle="ETS-VII", onboard_time_ns=10**18, time_scale=20.0, next_telemetry_seq=0)
+#: the kinds the garbage's four makes fall in, as the ground counts them (type:code)
+GARBAGE_KINDS = {"-:not_json", "other:unknown_type", "telemetry:version", "telemetry:invalid"}
+
+
+class Socket:
+    """What the ground sent on one connection, and how it was closed."""
+
+    def __init__(self) -> None:
+        self.sent: list[dict[str, Any]] = []
+        self.closed: tuple[int, str] | None = None
+
+    def connection(self) -> Connection:
+        async def send_text(text: str) -> None:
+            self.sent.append(json.loads(text))
+
+        async def close(code: int, reason: str) -> None:
+            self.closed = (code, reason)
+
+        return Connection(actor="ets7", send_text=send_text, close=close)
+
+    def errors(self) -> list[dict[str, Any]]:
+        return [m for m in self.sent if m["type"] == "error"]
+
+
+async def _connect(link: GroundLink, socket: Socket) -> Connection:
+    conn = socket.connection()
+    await link.attach(conn)
+    await link.handle(conn, encode(HELLO))
+    assert link.connected
+    return conn
+
+
+def _events(sessions: Any, *kinds: str) -> list[Any]:
+    with sessions() as session:
+        return list(repo.list_events(session=session, kinds=list(kinds), limit=1000).items)
+
+
+def test_replies_are_bounded_and_each_kind_is_one_audit_row_per_interval(tmp_path: Path) -> None:
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(
+        sessions,
+        clock,
+        malformed_interval_s=5.0,
+        malformed_replies_per_s=10.0,
+        malformed_close_after=5000,
+    )
+    garbage = GarbageMaker(seed=1)
+    socket = Socket()
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, socket)
+        # 400 a second for 3 s, in steps of 10 ms; a pong between every 40 (its round trip
+        # is taken: the link still reads what it understands)
+        for step in range(300):
+            for _ in range(4):
+                await g.link.handle(conn, garbage.next(), clock.monotonic())
+            if step % 10 == 0:
+                pong = Pong(ping_id=step, ground_time_ns=1, onboard_time_ns=10**18 + step)
+                await g.link.handle(conn, encode(pong), clock.monotonic())
+            await clock.advance(0.01)
+        await clock.advance(5.0)  # past the interval's end: its rows are written
+        await g.db.drain()
+        assert socket.closed is None  # 1,200 in one interval: under this threshold
+
+    asyncio.run(scenario())
+    status = g.link.status()
+    errors = socket.errors()
+    # at most 10 a second, and a burst of 10: 3 s of flood get 10 + 3 x 10 at most
+    assert 30 <= len(errors) <= 40, len(errors)
+    assert status.malformed_received == 1200
+    assert status.errors_replied == len(errors)
+    assert status.errors_unanswered == 1200 - len(errors)
+    assert set(status.malformed_by_kind) == GARBAGE_KINDS
+    assert all(n == 300 for n in status.malformed_by_kind.values())
+    # each reply after unanswered ones says how many were passed over since the last
+    skipped = [e for e in errors if "unanswered before this one" in e["reason"]]
+    assert len(skipped) == len(errors) - 10
+    assert all(len(e["reason"]) <= 500 for e in errors)
+    # one row per kind for the one interval the flood fell in, with its count
+    rows = _events(sessions, "link_error_replied")
+    assert len(rows) == 4
+    counted = {(r.detail["ref_type"] is None, r.detail["code"]): r.detail for r in rows}
+    assert set(counted) == {
+        (True, "not_json"),
+        (False, "unknown_type"),
+        (False, "version"),
+        (False, "invalid"),
+    }
+    assert all(d["count"] == 300 for d in counted.values())
+    assert sum(d["replied"] for d in counted.values()) == len(errors)
+    assert "not JSON" in counted[(True, "not_json")]["reason"]
+    assert counted[(False, "version")]["ref_type"] == "telemetry"
+    for detail in counted.values():
+        assert detail["first_time_ns"] < detail["last_time_ns"]
+    assert g.link.round_trip_s is not None  # the pongs between the garbage were read
+
+
+def test_a_second_interval_gets_rows_of_its_own(tmp_path: Path) -> None:
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(sessions, clock, malformed_interval_s=2.0)
+    garbage = GarbageMaker(seed=2)
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, Socket())
+        for burst in (8, 12):  # two intervals, 2 s apart
+            for _ in range(burst):
+                await g.link.handle(conn, garbage.next(), clock.monotonic())
+            await clock.advance(2.5)
+        await g.db.drain()
+
+    asyncio.run(scenario())
+    rows = _events(sessions, "link_error_replied")
+    assert len(rows) == 8
+    assert sorted(r.detail["count"] for r in rows) == [2] * 4 + [3] * 4
+
+
+def test_past_the_threshold_the_link_is_closed_with_the_reason(tmp_path: Path) -> None:
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(sessions, clock, malformed_interval_s=5.0, malformed_close_after=100)
+    garbage = GarbageMaker(seed=3)
+    first, second = Socket(), Socket()
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, first)
+        for _ in range(100):  # at the threshold: kept
+            await g.link.handle(conn, garbage.next(), clock.monotonic())
+            await clock.advance(0.01)
+        assert first.closed is None
+        await g.link.handle(conn, garbage.next(), clock.monotonic())
+        assert first.closed == (1008, "too many malformed messages: 101 in 5 s")
+        await g.link.detach(conn, "closed by the ground (1008)")
+        # the vehicle reconnects: a new connection starts its own count
+        conn = await _connect(g.link, second)
+        for _ in range(100):
+            await g.link.handle(conn, garbage.next(), clock.monotonic())
+        assert second.closed is None and g.link.connected
+        await clock.advance(6.0)
+        await g.db.drain()
+
+    asyncio.run(scenario())
+    [closed] = _events(sessions, "link_closed_malformed")
+    assert closed.detail["reason"] == "too many malformed messages: 101 in 5 s"
+    assert closed.detail["count"] == 101 and closed.detail["interval_s"] == 5.0
+    assert g.link.status().malformed_closes == 1
+    rows = _events(sessions, "link_error_replied")
+    assert sum(r.detail["count"] for r in rows) == 201
+    assert len(rows) == 4  # one interval, four kinds, across both connections
+
+
+def test_error_messages_from_the_vehicle_are_tallied_never_answered(tmp_path: Path) -> None:
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(sessions, clock, malformed_interval_s=1.0, malformed_close_after=10)
+    socket = Socket()
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, socket)
+        error = json.dumps({"v": 2, "type": "error", "reason": "cannot read", "ref_type": "ping"})
+        for _ in range(50):  # well-formed: never toward the threshold
+            await g.link.handle(conn, error, clock.monotonic())
+        await clock.advance(1.5)
+        await g.db.drain()
+
+    asyncio.run(scenario())
+    assert socket.errors() == [] and socket.closed is None
+    [row] = _events(sessions, "link_error_received")
+    assert row.detail["count"] == 50 and row.detail["code"] == "received"
+    assert row.detail["reason"] == "cannot read" and row.detail["ref_type"] == "ping"
+    assert g.link.status().errors_received == 50

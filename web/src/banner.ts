@@ -1,0 +1,78 @@
+// The alarm banner under the header of every page: the active alarms counted by severity
+// (worst first, each severity its colour; a click opens the alarm list), and, while the
+// vehicle is SAFE (the link status's vehicle_mode), a red strip saying so with its trigger
+// and, for operators, the way out (Exit SAFE, behind the vehicle's name).
+
+import {
+  SEVERITIES_WORST_FIRST, SEVERITY_COLORS, isActive, timeOfDay, triggerText,
+  type AlarmBook, type LinkWithMode,
+} from "./alarms";
+import type { Ctx } from "./main";
+import { safeExitButton } from "./pages/control";
+import { clear, h } from "./ui";
+
+export class AlarmBanner {
+  readonly el: HTMLElement;
+  private readonly safe: HTMLElement;
+  private readonly summary: HTMLAnchorElement;
+  private safeKey = "";
+
+  constructor(
+    private readonly ctx: Ctx,
+    private readonly book: AlarmBook,
+  ) {
+    this.safe = h("div.safe-banner", { "data-test": "vehicle-safe", role: "alert", hidden: true });
+    this.summary = h("a.alarm-summary", { href: "#/alarms", "data-test": "alarm-summary", title: "Open the alarm list" });
+    this.el = h("div.alarm-banner", { "data-test": "alarm-banner" }, this.safe, this.summary);
+    book.onChange(() => this.renderAlarms());
+    this.renderAlarms();
+  }
+
+  renderAlarms(): void {
+    const counts = this.book.counts();
+    const listed = this.book.list().filter(isActive);
+    const unacked = listed.filter((a) => !a.acknowledged).length;
+    const total = listed.length;
+    const worst = SEVERITIES_WORST_FIRST.find((s) => counts[s] > 0) ?? null;
+    clear(this.summary);
+    this.summary.dataset.total = String(total);
+    this.summary.dataset.worst = worst ?? "";
+    this.summary.dataset.loaded = String(this.book.loaded > 0);
+    this.el.classList.toggle("has-alarms", total > 0);
+    this.summary.style.setProperty("--worst", worst ? SEVERITY_COLORS[worst] : "transparent");
+    this.summary.append(h("span.alarm-title", {}, total ? "ALARMS" : "Alarms"));
+    for (const s of SEVERITIES_WORST_FIRST) {
+      const n = counts[s];
+      this.summary.append(h(`span.sev.sev-${s}${n ? "" : ".zero"}`,
+        { "data-severity": s, "data-count": n, style: `--c:${SEVERITY_COLORS[s]}` },
+        h("b", {}, String(n)), ` ${s.toUpperCase()}`));
+    }
+    let note: string;
+    if (this.book.error !== null && this.book.loaded === 0) note = `alarms not available: ${this.book.error}`;
+    else if (total === 0) note = "no active alarms";
+    else note = unacked ? `${unacked} unacknowledged` : "all acknowledged";
+    this.summary.append(h("span.alarm-note", { "data-test": "alarm-unacked", "data-count": unacked }, note));
+  }
+
+  /** The vehicle's mode from a link status (its ``vehicle_mode`` and last ``safing``). */
+  setLink(status: LinkWithMode | null): void {
+    const safe = status?.vehicle_mode === "safe";
+    const report = status?.safing ?? null;
+    const vehicle = status?.vehicle ?? null;
+    const key = safe ? JSON.stringify([vehicle, report?.since_time_ns, report?.trigger, report?.cancelled]) : "";
+    if (key === this.safeKey) return;
+    this.safeKey = key;
+    this.safe.hidden = !safe;
+    document.body.classList.toggle("vehicle-safe", safe);
+    clear(this.safe);
+    if (!safe) return;
+    const text = h("div.safe-text", {},
+      h("b.safe-title", {}, `VEHICLE SAFE${vehicle ? ` (${vehicle})` : ""}`),
+      ` since ${timeOfDay(report?.since_time_ns)} onboard`,
+      h("span.safe-trigger", { "data-test": "safe-trigger" }, ` · trigger: ${triggerText(report)}`),
+      report?.cancelled ? ` · ${report.cancelled} commands dropped` : "",
+      h("div.small", {}, "Holding: joints at their measured angles, attitude in feedback; commands refused until the ground sends the exit."));
+    const parts: (Node | null)[] = [text, vehicle ? safeExitButton(this.ctx, vehicle) : null];
+    for (const part of parts) if (part !== null) this.safe.append(part);
+  }
+}
