@@ -48,6 +48,21 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: item.path not in slow)  # stable: the order within stays
 
 
+#: ``HIKOBOSHI_TEST_TIMELINE=path``: each test's wall start and end, its worker and outcome
+#: appended to that file (what ran beside what, when a run on a loaded machine fails).
+TIMELINE = os.environ.get("HIKOBOSHI_TEST_TIMELINE")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
+    start = time.time()
+    yield
+    if TIMELINE:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(TIMELINE, "a") as out:
+            out.write(f"{start:.1f} {time.time():.1f} {worker} {item.nodeid}\n")
+
+
 # --- no test leaves a thread or a process of ours behind --------------------------------------
 
 #: Threads our code and our test harnesses name; one still alive after its test is a leak
