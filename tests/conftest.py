@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import os
-import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -44,25 +41,31 @@ def demo_recording(model: RobotModel) -> PassRecording:
 
 
 #: Tests that fly a vehicle or serve a live link in wall time (a spacecraft process, a
-#: server with its link, a browser on a live pass): their margins are onboard seconds
-#: divided by the time scale, tens of milliseconds of wall at 10x. Marked ``realtime`` at
-#: collection (by their module, or by the marker itself).
+#: server with its link, a browser on a live pass, the console hub's pacing): their margins
+#: are onboard seconds divided by the time scale, tens of milliseconds of wall at 10x.
+#: Marked ``realtime`` at collection and run one after the other on one worker (the
+#: ``xdist_group`` of pyproject's ``--dist loadgroup``), beside at most one test of the
+#: other kind: the one busy core they are written for. Two of them side by side on a slow
+#: machine starved each other (the 200-viewer load beside the live console).
 REALTIME_MODULES = (
     "tests/web/",
+    "tests/server/console/",
+    "tests/server/link/test_abort_consoles.py",
     "tests/server/link/test_api.py",
     "tests/server/link/test_e2e.py",
     "tests/server/link/test_hostile.py",
-    "tests/server/link/test_malformed.py",
+    "tests/server/link/test_load.py",
     "tests/server/link/test_noise_e2e.py",
     "tests/server/link/test_restart.py",
+    "tests/server/link/test_safing_e2e.py",
     "tests/server/link/test_soak.py",
     "tests/server/link/test_takeover.py",
     "tests/server/api/test_edge.py",
-    "tests/server/api/test_safe_exit.py",
+    "tests/server/api/test_import_budget.py",
     "tests/server/api/test_shutdown.py",
-    "tests/server/console/",
-    "tests/spacecraft/test_process.py",
     "tests/spacecraft/test_hostile.py",
+    "tests/spacecraft/test_process.py",
+    "tests/spacecraft/test_robot.py",
     "tests/test_cli_demo.py",
 )
 
@@ -73,56 +76,16 @@ def pytest_collection_modifyitems(
     """Modules with a slow test run first, each module's tests in their own order: with the
     suite spread over workers (pyproject's ``-n``), a minute-long test started last keeps one
     worker busy after the other has run out of work. Tests of :data:`REALTIME_MODULES` are
-    marked ``realtime``."""
+    marked ``realtime`` and grouped on one worker."""
     root = Path(str(config.rootpath))
     for item in items:
         relative = item.path.relative_to(root).as_posix()
         if relative.startswith(REALTIME_MODULES):
             item.add_marker(pytest.mark.realtime)
+        if item.get_closest_marker("realtime") is not None:
+            item.add_marker(pytest.mark.xdist_group("realtime"))
     slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
     items.sort(key=lambda item: item.path not in slow)  # stable: the order within stays
-
-
-# --- a test that loads the machine on purpose runs with no real-time test beside it -----------
-
-
-class _MachineLock:
-    """A readers-writer lock between the xdist workers of one run (``flock`` on two files
-    named by the run's id): ``realtime`` tests hold it shared, ``machine_load`` tests
-    exclusive. A load test waiting for it holds the gate, so the real-time tests that would
-    start meanwhile wait behind it instead of starving it."""
-
-    def __init__(self, run_id: str) -> None:
-        folder = Path(tempfile.gettempdir()) / f"hikoboshi-tests-{run_id}"
-        folder.mkdir(exist_ok=True)
-        self._gate = os.open(folder / "gate", os.O_RDWR | os.O_CREAT, 0o600)
-        self._lock = os.open(folder / "lock", os.O_RDWR | os.O_CREAT, 0o600)
-
-    @contextlib.contextmanager
-    def hold(self, exclusive: bool) -> Iterator[None]:
-        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
-        fcntl.flock(self._gate, mode)
-        try:
-            fcntl.flock(self._lock, mode)
-        finally:
-            fcntl.flock(self._gate, fcntl.LOCK_UN)
-        try:
-            yield
-        finally:
-            fcntl.flock(self._lock, fcntl.LOCK_UN)
-
-
-_RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers only
-_MACHINE = _MachineLock(_RUN_ID) if _RUN_ID else None
-
-
-def _machine_hold(item: pytest.Item) -> contextlib.AbstractContextManager[None]:
-    if _MACHINE is not None:
-        if item.get_closest_marker("machine_load") is not None:
-            return _MACHINE.hold(exclusive=True)
-        if item.get_closest_marker("realtime") is not None:
-            return _MACHINE.hold(exclusive=False)
-    return contextlib.nullcontext()
 
 
 #: ``HIKOBOSHI_TEST_TIMELINE=path``: each test's wall start and end, its worker and outcome
@@ -132,11 +95,8 @@ TIMELINE = os.environ.get("HIKOBOSHI_TEST_TIMELINE")
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
-    """Each test under the machine lock its markers ask for (setup to teardown); its times
-    to the timeline."""
-    with _machine_hold(item):
-        start = time.time()
-        yield
+    start = time.time()
+    yield
     if TIMELINE:
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(TIMELINE, "a") as out:

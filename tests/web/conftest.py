@@ -115,7 +115,7 @@ class Console:
         self.page.click("[data-test=signin]")
         self.page.wait_for_selector("[data-test=role]")
 
-    def wait(self, expression: str, what: str, timeout_ms: float = 20_000) -> None:
+    def wait(self, expression: str, what: str, timeout_ms: float = 60_000) -> None:
         """Wait for a JS condition; on timeout fail with a screenshot and the page's state."""
         from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
@@ -145,7 +145,7 @@ class Console:
 def console(browser: Any, ground: Ground) -> Iterator[Console]:
     context = browser.new_context(viewport={"width": 1600, "height": 1000})
     page = context.new_page()
-    page.set_default_timeout(20_000)
+    page.set_default_timeout(60_000)  # a guard: planning in a worker on a slow machine
     tab = Console(page, ground.url)
     page.on(
         "console",

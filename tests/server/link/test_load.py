@@ -15,8 +15,8 @@ the server's memory bounded) and, on latencies, only a lock-out guard (:data:`LO
 the defect was health and the link status at 12-15 s and a console that could not connect).
 What they are under this load against no load: ``bench/bench_load.py``.
 
-The load saturates both cores on purpose, so no other real-time test runs beside it
-(``machine_load``, tests/conftest.py): their margins are tens of milliseconds of wall.
+The load saturates both cores on purpose; no other real-time test runs beside it (the
+``realtime`` group, tests/conftest.py): their margins are tens of milliseconds of wall.
 """
 
 from __future__ import annotations
@@ -67,7 +67,6 @@ SERVER_RSS_BOUND = 768 * 1024 * 1024
 
 
 @pytest.mark.slow
-@pytest.mark.machine_load
 def test_a_pass_flies_and_its_operators_keep_control_under_200_concurrent_viewer_reads(
     database_url: str, tmp_path: Path, demo_recording: PassRecording
 ) -> None:
