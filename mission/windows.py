@@ -14,7 +14,9 @@ The Earth-fixed frame takes the IAU 2000B nutation, as skyfield's almanac search
 (within a milliarcsecond of 2000A: 0.2 m at the relay's distance).
 
 The windows listed are those whose acquisition falls in ``[start, start + hours)``; the
-scan runs two orbits either side so that each listed window is whole. Nothing is
+scan runs at least two orbits either side so that each listed window is whole, over whole
+2 h chunks counted from the elements' epoch, so that a window's times do not depend on
+the span that found it. Nothing is
 downloaded: time scales are skyfield's builtin tables (``load.timescale(builtin=True)``)
 and no planetary ephemeris is needed.
 """
@@ -58,8 +60,9 @@ MAX_HOURS = 744.0
 #: Mean elements are not propagated further than this from their epoch: SGP4's error grows
 #: by kilometres a day, and our own elements carry no drag (docs/missions.md).
 MAX_EPOCH_DISTANCE_DAYS = 60.0
-#: The scan is cut in pieces this long so that a caller can show progress.
-_CHUNK_S = 6 * 3600.0
+#: The scan is cut in pieces this long, counted from the elements' epoch (a caller shows
+#: progress by them).
+_CHUNK_S = 2 * 3600.0
 
 ProgressFn = Callable[[float, float], None]
 
@@ -179,8 +182,13 @@ def compute_windows(
     satrec = mission.orbit.satrec()
     sat = EarthSatellite.from_satrec(satrec, ts)
     period_s = 2.0 * math.pi / satrec.no_kozai * 60.0
-    scan_from = start_utc - timedelta(seconds=2.0 * period_s)
-    scan_to = end_utc + timedelta(seconds=2.0 * period_s)
+    # The scan runs over whole chunks counted from the elements' epoch, so that a window is
+    # bracketed on the same samples whatever span asked for it (GET /api/windows and a pass
+    # naming the window agree to the nanosecond).
+    first = math.floor(((start_utc - epoch).total_seconds() - 2.0 * period_s) / _CHUNK_S)
+    last = math.ceil(((end_utc - epoch).total_seconds() + 2.0 * period_s) / _CHUNK_S)
+    scan_from = epoch + timedelta(seconds=first * _CHUNK_S)
+    scan_to = epoch + timedelta(seconds=last * _CHUNK_S)
     clearance_km = mission.visibility.clearance_radius_km
     relays_km = [np.array(r.position_itrs_km()) for r in mission.relays]
 

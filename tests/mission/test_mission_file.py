@@ -5,7 +5,7 @@ as the mean elements it was written from."""
 from __future__ import annotations
 
 import re
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
@@ -161,3 +161,11 @@ def test_a_tle_gives_the_windows_of_its_elements(tmp_path: Path) -> None:
     bad = line2[:68] + str((int(line2[68]) + 1) % 10)
     with pytest.raises(InvalidMission, match=r"vehicle\.tle\.line2: checksum"):
         load_mission(_tle_mission(tmp_path, line1, bad))
+
+
+def test_a_window_does_not_depend_on_the_span_that_found_it() -> None:
+    m = load_mission(ETS7)
+    day = compute_windows(m, datetime(1999, 9, 30, tzinfo=UTC), 24.0)
+    for w in (day[0], day[13], day[-1]):
+        around = compute_windows(m, w.aos_utc - timedelta(seconds=90), 0.05)
+        assert [x for x in around if x.relay == w.relay] == [w]
