@@ -45,7 +45,7 @@ __all__ = [
     "windows_job",
 ]
 
-#: The longest span ``GET /api/windows`` computes: a week (0.7 s on this machine,
+#: The longest span ``GET /api/windows`` computes: a week (0.9 s on this machine,
 #: bench/bench_windows.py).
 MAX_WINDOW_HOURS = 168.0
 #: A pass names a window by its acquisition time, to within this much.

@@ -139,6 +139,7 @@ def test_request_bodies_take_no_keys_they_do_not_declare(document: dict[str, Any
         if "application/json" in operation.get("requestBody", {}).get("content", {})
     }
     assert len(bodies) >= 6
+
     def is_closed(body: dict[str, Any]) -> bool:
         # a body of alternatives (POST /api/passes: times, or a named window) is closed when
         # each alternative is
