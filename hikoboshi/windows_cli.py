@@ -49,7 +49,7 @@ def windows(
         with Progress(
             TextColumn(f"[bold]windows of {escape(mission.name)}"),
             BarColumn(),
-            TextColumn("{task.fields[hours_done]:.0f}/{task.fields[hours_total]:.0f} h"),
+            TextColumn("{task.fields[hours_done]:.0f}/{task.fields[hours_total]:.0f} h scanned"),
             TimeRemainingColumn(),
             console=err_console,
             disable=as_json or not err_console.is_terminal,

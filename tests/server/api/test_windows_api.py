@@ -200,3 +200,21 @@ def test_times_and_a_window_together_are_refused(client: TestClient, ptp_plan: P
     response = client.post("/api/passes", json=body, headers=OPERATOR)
     assert response.status_code == 422
     assert response.json()["error"]["code"] == "invalid_request"
+
+
+def test_the_server_s_folder_comes_from_the_environment_and_shadows_a_shipped_mission(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from server.services.missions import known_missions
+
+    monkeypatch.setenv("HIKOBOSHI_MISSIONS_DIR", str(tmp_path))
+    settings = Settings.from_env()
+    assert settings.missions_dir == tmp_path
+    (tmp_path / "ets7-1999.toml").write_text(ETS7.read_text())
+    (tmp_path / "not a name.toml").write_text(ETS7.read_text())
+    known = known_missions(settings)
+    assert known["ets7-1999"] == (tmp_path / "ets7-1999.toml").resolve()
+    assert "not a name" not in known
+    monkeypatch.delenv("HIKOBOSHI_MISSIONS_DIR")
+    assert Settings.from_env().missions_dir is None
+    assert known_missions(Settings())["ets7-1999"] == ETS7.resolve()
