@@ -17,6 +17,7 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -245,8 +246,8 @@ class _Checker:
         key: str,
         value: object,
         *,
-        required: set[str] = frozenset(),  # type: ignore[assignment]
-        optional: set[str] = frozenset(),  # type: ignore[assignment]
+        required: AbstractSet[str] = frozenset(),
+        optional: AbstractSet[str] = frozenset(),
     ) -> Mapping[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table, got {type(value).__name__}")

@@ -128,7 +128,10 @@ def parse_utc(text: str) -> datetime:
         raise InvalidSpan(f"start {text!r} is not an ISO 8601 time") from None
     if moment.tzinfo is None:
         raise InvalidSpan(f"start {text!r} has no UTC offset (write e.g. 1999-09-30T00:00:00Z)")
-    return moment.astimezone(UTC)
+    try:
+        return moment.astimezone(UTC)
+    except OverflowError:
+        raise InvalidSpan(f"start {text!r} is outside the years 1 to 9999 in UTC") from None
 
 
 def segment_clearance_km(
@@ -167,16 +170,20 @@ def compute_windows(
         raise InvalidSpan("start has no UTC offset")
     if not (math.isfinite(hours) and 0.0 < hours <= MAX_HOURS):
         raise InvalidSpan(f"hours {hours:g} is outside (0, {MAX_HOURS:g}]")
+    epoch = mission.orbit.epoch_utc
+    # Aware datetimes subtract without overflow whatever their offsets; the span's end is
+    # made only once its start is known to be near the epoch (years 1 and 9999 are safe).
+    start_days = (start_utc - epoch).total_seconds() / 86400.0
+    end_days = start_days + hours / 24.0
+    for days in (start_days, end_days):
+        if abs(days) > MAX_EPOCH_DISTANCE_DAYS:
+            raise InvalidSpan(
+                f"{start_utc.isoformat()} + {hours:g} h reaches {abs(days):.1f} days from the "
+                f"elements' epoch {format_utc(epoch)}, over the {MAX_EPOCH_DISTANCE_DAYS:g} "
+                "day limit"
+            )
     start_utc = start_utc.astimezone(UTC)
     end_utc = start_utc + timedelta(hours=hours)
-    epoch = mission.orbit.epoch_utc
-    for moment in (start_utc, end_utc):
-        days = abs((moment - epoch).total_seconds()) / 86400.0
-        if days > MAX_EPOCH_DISTANCE_DAYS:
-            raise InvalidSpan(
-                f"{format_utc(moment)} is {days:.1f} days from the elements' epoch "
-                f"{format_utc(epoch)}, over the {MAX_EPOCH_DISTANCE_DAYS:g} day limit"
-            )
 
     ts = _timescale()
     satrec = mission.orbit.satrec()

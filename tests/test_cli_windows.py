@@ -96,6 +96,8 @@ def test_the_table() -> None:
         (["--start", "1999-09-30T00:00:00Z", "--hours", "0"], "--hours 0 is outside (0, 744]"),
         (["--start", "1999-09-30T00:00:00Z", "--hours", "nan"], "--hours nan is outside"),
         (["--start", "2001-01-01T00:00:00Z"], "over the 60 day limit"),
+        (["--start", "0001-01-01T00:00:00+05:00"], "outside the years 1 to 9999 in UTC"),
+        (["--start", "9999-12-31T23:00:00Z"], "over the 60 day limit"),
     ],
 )
 def test_bad_input_is_refused_with_the_reason(args: list[str], reason: str) -> None:

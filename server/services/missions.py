@@ -12,8 +12,9 @@ request needs them, never at import.
     window_for_pass(settings, ref) -> (name, window)     POST /api/passes naming a window
 
 Refusals: 404 ``unknown_mission`` (naming the known ones), 404 ``unknown_relay``, 404
-``no_such_window``; 422 ``invalid_mission`` (the file does not load: file, key, reason) and
-``span_outside_elements`` (a time too far from the elements' epoch).
+``no_such_window``; 422 ``invalid_mission`` (the file does not load: file, key, reason),
+``span_outside_elements`` (a time too far from the elements' epoch) and, for a pass,
+``time_out_of_range`` (outside 1970..2200, as a hand-given window's).
 """
 
 from __future__ import annotations
@@ -32,7 +33,14 @@ from mission import (
     compute_windows,
     load_mission,
 )
-from server.schemas import WindowPublic, WindowRef, WindowsPublic, ns_from_datetime
+from server.schemas import (
+    EARLIEST,
+    LATEST,
+    WindowPublic,
+    WindowRef,
+    WindowsPublic,
+    ns_from_datetime,
+)
 from server.services.errors import InvalidRequestError, NotFoundError
 from server.settings import Settings
 
@@ -139,6 +147,10 @@ def windows_job(path: str, start: Any, hours: float) -> WindowsPublic:
 def window_for_pass(settings: Settings, ref: WindowRef) -> tuple[Window, dict[str, Any]]:
     """The computed window ``ref`` names (its relay's window acquiring within
     ``WINDOW_MATCH_S`` of ``ref.aos_time``) and the document stored with the pass."""
+    if not EARLIEST <= ref.aos_time < LATEST:
+        raise InvalidRequestError(
+            "time_out_of_range", f"window.aos_time {ref.aos_time.isoformat()} is outside 1970..2200"
+        )
     mission = _load(resolve_mission(settings, ref.mission))
     if ref.relay not in {r.name for r in mission.relays}:
         raise NotFoundError(

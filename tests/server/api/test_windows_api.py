@@ -84,6 +84,9 @@ def test_a_mission_in_the_server_s_folder_is_found_by_name(client: TestClient) -
         ({"hours": 0}, 422, "invalid_request", "hours"),
         ({"hours": 169}, 422, "invalid_request", "hours"),
         ({"start": "2005-01-01T00:00:00Z"}, 422, "span_outside_elements", "over the 60 day"),
+        # the ends of Python's datetimes, an offset away from overflowing
+        ({"start": "0001-01-01T00:00:00+05:00"}, 422, "span_outside_elements", "60 day"),
+        ({"start": "9999-12-31T23:59:00Z"}, 422, "span_outside_elements", "60 day"),
         ({"mission": "broken"}, 422, "invalid_mission", "vehicle.elements: missing"),
     ],
 )
@@ -172,6 +175,8 @@ def test_a_plan_longer_than_the_net_time_is_a_conflict(client: TestClient, ptp_p
         # TDRS-West acquires at 00:25:14; nothing near 00:05
         ("ets7-1999", "TDRS-West", START + timedelta(minutes=5), 404, "no_such_window"),
         ("ets7-1999", "TDRS-West", datetime(2010, 1, 1, tzinfo=UTC), 422, "span_outside_elements"),
+        ("ets7-1999", "TDRS-West", datetime(1, 1, 1, 0, 1, tzinfo=UTC), 422, "time_out_of_range"),
+        ("ets7-1999", "TDRS-West", datetime(9999, 12, 31, tzinfo=UTC), 422, "time_out_of_range"),
     ],
 )
 def test_a_window_that_is_not_there_is_refused(
