@@ -10,11 +10,13 @@ FROM python:3.11-slim
 WORKDIR /app
 COPY requirements.lock pyproject.toml README.md ./
 COPY planner planner
+COPY mission mission
 COPY spacecraft spacecraft
 COPY telemetry telemetry
 COPY server server
 COPY hikoboshi hikoboshi
-# The robot descriptions (ETS-VII and Orihime): planner.description finds them here.
+# The robot descriptions (ETS-VII and Orihime) and the missions: planner.description and
+# mission find them here.
 COPY examples examples
 # Editable, as scripts/setup.sh does: the server finds the console at /app/web/dist.
 RUN pip install --no-cache-dir -r requirements.lock && pip install --no-cache-dir --no-deps -e .

@@ -33,6 +33,7 @@ from server.api import recordings as recordings_api
 from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
 from server.api import web as web_api
+from server.api import windows as windows_api
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
 from server.api.stopping import AnswerWhenStopping
@@ -270,6 +271,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(telemetry_api.router)
     app.include_router(model_api.router)
     app.include_router(robots_api.router)
+    app.include_router(windows_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])

@@ -57,8 +57,10 @@ __all__ = [
     "ParameterValue",
     "PassControlPublic",
     "PassCreate",
+    "PassCreateFromWindow",
     "PassImportPublic",
     "PassPublic",
+    "PassWindowPublic",
     "PassesPublic",
     "PlanBrief",
     "PlanCreate",
@@ -79,6 +81,9 @@ __all__ = [
     "TelemetryPublic",
     "TelemetryRowPublic",
     "ValidationIssue",
+    "WindowPublic",
+    "WindowRef",
+    "WindowsPublic",
     "iso_from_ns",
     "ns_from_datetime",
 ]
@@ -100,6 +105,9 @@ LINE_PATTERN = r"^[^\x00-\x1f\x7f]*$"
 SafeText = Annotated[str, StringConstraints(pattern=TEXT_PATTERN)]
 #: Free text in a path or query parameter; give it its ``max_length`` where it is used.
 SafeLine = Annotated[str, StringConstraints(pattern=LINE_PATTERN)]
+#: A mission's or a relay's name (``mission.file.NAME``): a request names one, never a file.
+NAME_PATTERN = r"^[A-Za-z0-9_.\-]+$"
+Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN, min_length=1, max_length=64)]
 
 PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted", "safed"]
 CommandStage = Literal[
@@ -333,6 +341,8 @@ class RobotsPublic(BaseModel):
 
 
 class PassCreate(BaseModel):
+    """A pass in a window given by hand (``aos_time``, ``los_time``)."""
+
     model_config = ConfigDict(extra="forbid")
 
     plan_id: SafeText = Field(max_length=64)
@@ -341,6 +351,46 @@ class PassCreate(BaseModel):
     aos_time: AwareDatetime
     los_time: AwareDatetime
     relay: SafeText = Field(default="TDRS", min_length=1, max_length=64)
+
+
+class WindowRef(BaseModel):
+    """A computed contact window, named: the mission, the relay and its acquisition time
+    (within ``WINDOW_MATCH_S`` of the computed one, docs/missions.md)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mission: Name
+    relay: Name
+    aos_time: AwareDatetime
+
+
+class PassCreateFromWindow(BaseModel):
+    """A pass in a computed window: its AOS and LOS are the window's net time (less the
+    mission's margins), and the window is stored with the pass."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    plan_id: SafeText = Field(max_length=64)
+    name: SafeText = Field(min_length=1, max_length=128)
+    window: WindowRef
+
+
+class PassWindowPublic(BaseModel):
+    """The computed window a pass was scheduled in, as it was computed then."""
+
+    mission: str
+    mission_sha256: str
+    relay: str
+    aos_time: datetime
+    los_time: datetime
+    aos_margin_s: float
+    los_margin_s: float
+    net_s: float
+    min_range_km: float
+    max_range_km: float
+    light_time_min_s: float
+    light_time_max_s: float
+    processing_delay_s: float
 
 
 class PassPublic(_Out):
@@ -357,6 +407,9 @@ class PassPublic(_Out):
     created_at: datetime
     updated_at: datetime
     version: int
+    #: The computed window, when the pass was scheduled in one (``aos_time`` and
+    #: ``los_time`` are then its net time).
+    window: PassWindowPublic | None = None
 
 
 class PassesPublic(BaseModel):
@@ -372,6 +425,43 @@ class PassControlPublic(BaseModel):
     state_reason: str | None
     version: int
     epoch_ns: int | None
+
+
+# --- contact windows -----------------------------------------------------------------------
+
+
+class WindowPublic(BaseModel):
+    """A contact window (docs/missions.md): the vehicle sees ``relay`` from ``aos_time`` to
+    ``los_time``; a pass may use ``net_start_time`` to ``net_end_time``. Ranges are vehicle
+    to relay; light times one way, vehicle -> relay -> the relay's ground terminal; the
+    one-way delay adds the mission's ``processing_delay_s``."""
+
+    relay: str
+    aos_time: datetime
+    los_time: datetime
+    duration_s: float
+    net_start_time: datetime
+    net_end_time: datetime
+    net_s: float
+    min_range_km: float
+    max_range_km: float
+    light_time_min_s: float
+    light_time_max_s: float
+
+
+class WindowsPublic(BaseModel):
+    """The windows whose acquisition falls in ``[start, start + hours)``, by AOS."""
+
+    mission: str
+    mission_sha256: str
+    vehicle: str
+    start: datetime
+    hours: float
+    processing_delay_s: float
+    aos_margin_s: float
+    los_margin_s: float
+    data: list[WindowPublic]
+    count: int
 
 
 # --- commands ------------------------------------------------------------------------------

@@ -141,6 +141,10 @@ class Settings(BaseModel):
     #: ``examples/robots/`` (``hikoboshi serve --robot FILE``, ``HIKOBOSHI_ROBOTS``): a plan
     #: request names a robot, never a file (server/services/robots.py).
     robot_files: tuple[Path, ...] = ()
+    #: A folder of mission files (``NAME.toml``, docs/missions.md) the server knows besides
+    #: those shipped under ``examples/missions/`` (``HIKOBOSHI_MISSIONS_DIR``): a windows or
+    #: pass request names a mission, never a file (server/services/missions.py).
+    missions_dir: Path | None = None
     #: Check every archived frame and the link's health against the pass's limits and raise
     #: alarms (server/services/alarms.py, docs/alarms.md). Off: no limit alarms (the
     #: vehicle's safing alarm still comes); bench/bench_downlink.py measures the cost.
@@ -180,7 +184,8 @@ class Settings(BaseModel):
         (``token=name:role,...``), ``HIKOBOSHI_UPLINK_LEAD_WINDOW_S`` (onboard s) and
         ``HIKOBOSHI_ROBOTS`` (robot description files, separated by ``os.pathsep``) and
         ``HIKOBOSHI_LIMIT_CHECKING`` (``0`` turns it off) and ``HIKOBOSHI_TRUSTED_PROXIES``
-        (addresses or networks, comma-separated)."""
+        (addresses or networks, comma-separated) and ``HIKOBOSHI_MISSIONS_DIR`` (a folder of
+        mission files)."""
         tokens: dict[str, ApiToken] = {}
         for item in filter(None, os.environ.get("HIKOBOSHI_TOKENS", "").split(",")):
             token, _, holder = item.partition("=")
@@ -227,6 +232,9 @@ class Settings(BaseModel):
                 for p in os.environ.get("HIKOBOSHI_TRUSTED_PROXIES", "").split(",")
                 if p.strip()
             ),
+            missions_dir=Path(os.environ["HIKOBOSHI_MISSIONS_DIR"])
+            if os.environ.get("HIKOBOSHI_MISSIONS_DIR")
+            else None,
             limit_checking=os.environ.get("HIKOBOSHI_LIMIT_CHECKING", "1").strip().lower()
             not in ("0", "false", "no", "off"),
         )

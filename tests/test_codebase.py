@@ -26,7 +26,9 @@ def test_ruff_is_clean() -> None:
 
 @pytest.mark.slow
 def test_mypy_is_clean() -> None:
-    result = _run(str(BIN / "mypy"), "planner", "telemetry", "spacecraft", "server", "hikoboshi")
+    result = _run(
+        str(BIN / "mypy"), "planner", "mission", "telemetry", "spacecraft", "server", "hikoboshi"
+    )
     assert result.returncode == 0, result.stdout + result.stderr
 
 

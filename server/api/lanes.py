@@ -22,7 +22,7 @@ by its route and its caller's role (:func:`lane_of`), puts the lane in the ASGI 
   costs nothing, where refusing at once had 200 viewers retrying every second.
 
 Whatever the lane, a heavy read (:data:`HEAVY_ROUTES`: a recording, the report, its page
-and figures, raw telemetry, an analyses run) is limited per token holder: past
+and figures, raw telemetry, an analyses run, contact windows) is limited per token holder: past
 ``heavy_reads_per_token`` in flight, 429 ``too_many_requests`` with ``Retry-After``.
 
 The counters live on the event loop (the edge admits and releases there): no locks.
@@ -84,6 +84,7 @@ HEAVY_ROUTES = frozenset(
         ("GET", "/api/passes/{pass_id}/report/figures/{name}.png"),
         ("GET", "/api/passes/{pass_id}/telemetry"),
         ("POST", "/api/passes/{pass_id}/analyses"),
+        ("GET", "/api/windows"),  # contact windows, computed in a worker process
     }
 )
 _HEAVY = tuple((method, compile_path(template)[0]) for method, template in HEAVY_ROUTES)

@@ -22,6 +22,7 @@ from server.schemas import (
     CommandsPublic,
     CommandStage,
     PassCreate,
+    PassCreateFromWindow,
     PassesPublic,
     PassPublic,
     PassState,
@@ -38,14 +39,18 @@ router = APIRouter(prefix="/api/passes", tags=["passes"], responses=ERROR_RESPON
 
 @router.post("", status_code=201, response_model=PassPublic)
 def schedule_pass(
-    request: PassCreate,
+    request: PassCreate | PassCreateFromWindow,
     session: SessionDep,
     settings: SettingsDep,
     who: OperatorDep,
     clock: ClockDep,
     publisher: PublisherDep,
 ) -> PassPublic:
-    """Schedule a pass of a stored plan; its window must hold the plan and the uplink lead."""
+    """Schedule a pass of a stored plan in a window given by hand (``aos_time``,
+    ``los_time``) or named (``window``: mission, relay, AOS time; the pass then runs in the
+    window's net time, and the window is stored with it). The window must hold the plan and
+    the uplink lead: 422 ``window_too_short`` by hand, 409 ``plan_exceeds_window`` named;
+    404 ``unknown_mission``, ``unknown_relay``, ``no_such_window``."""
     scheduled = service.schedule_pass(
         session=session, settings=settings, request=request, actor=who.name, now_ns=clock.time_ns()
     )

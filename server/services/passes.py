@@ -4,6 +4,11 @@ A window must hold the whole plan and the start lead before its first command: t
 first command is tagged ``uplink_start_lead_s`` (at least one-way delay + margin, SPEC 6)
 after the start, so that it too can be sent again if the relay loses it, and nothing can be
 sent before AOS.
+
+A window is given by hand (``aos_time``, ``los_time``) or named (mission, relay, AOS time:
+:mod:`server.services.missions` computes it); a named window's pass runs in its net time
+(the window less the mission's margins), the window is stored with the pass, and a plan
+that does not fit the net time is the conflict ``plan_exceeds_window`` (docs/missions.md).
 """
 
 from __future__ import annotations
@@ -21,12 +26,14 @@ from server.schemas import (
     CommandsPublic,
     PassControlPublic,
     PassCreate,
+    PassCreateFromWindow,
     PassesPublic,
     PassPublic,
+    PassWindowPublic,
     iso_from_ns,
     ns_from_datetime,
 )
-from server.services.errors import InvalidRequestError
+from server.services.errors import ConflictError, InvalidRequestError
 from server.services.events import PassControlRefused, PassScheduled
 from server.services.events import record as record_event
 from server.settings import Settings
@@ -55,6 +62,27 @@ def start_lead_s(settings: Settings) -> float:
     )
 
 
+def _window(record: PassRecord) -> PassWindowPublic | None:
+    doc = record.window_detail
+    if record.window_mission is None or doc is None:
+        return None
+    return PassWindowPublic(
+        mission=record.window_mission,
+        mission_sha256=doc["mission_sha256"],
+        relay=doc["relay"],
+        aos_time=iso_from_ns(doc["aos_time_ns"]),
+        los_time=iso_from_ns(doc["los_time_ns"]),
+        aos_margin_s=doc["aos_margin_s"],
+        los_margin_s=doc["los_margin_s"],
+        net_s=doc["net_s"],
+        min_range_km=doc["min_range_km"],
+        max_range_km=doc["max_range_km"],
+        light_time_min_s=doc["light_time_min_s"],
+        light_time_max_s=doc["light_time_max_s"],
+        processing_delay_s=doc["processing_delay_s"],
+    )
+
+
 def public(record: PassRecord) -> PassPublic:
     return PassPublic(
         id=record.id,
@@ -69,17 +97,28 @@ def public(record: PassRecord) -> PassPublic:
         created_at=iso_from_ns(record.created_at_ns),
         updated_at=iso_from_ns(record.updated_at_ns),
         version=record.version,
+        window=_window(record),
     )
 
 
 def schedule_pass(
-    *, session: Session, settings: Settings, request: PassCreate, actor: str, now_ns: int
+    *,
+    session: Session,
+    settings: Settings,
+    request: PassCreate | PassCreateFromWindow,
+    actor: str,
+    now_ns: int,
 ) -> PassPublic:
     """Store a ``scheduled`` pass and the audit event ``pass_scheduled`` in one transaction.
 
     Storage's ``NotFound`` for an unknown plan; an invalid request for a window that is
-    reversed, outside 1970..2200 or too short for the plan.
+    reversed, outside 1970..2200 or too short for the plan; for a named window, the
+    refusals of :mod:`server.services.missions` and the conflict ``plan_exceeds_window``.
     """
+    if isinstance(request, PassCreateFromWindow):
+        return _schedule_in_window(
+            session=session, settings=settings, request=request, actor=actor, now_ns=now_ns
+        )
     for label, value in (("aos_time", request.aos_time), ("los_time", request.los_time)):
         if not EARLIEST <= value < LATEST:
             raise InvalidRequestError(
@@ -111,6 +150,60 @@ def schedule_pass(
             los_time_ns=los_ns,
             relay=request.relay,
             created_at_ns=now_ns,
+        )
+        scheduled = PassScheduled(
+            actor=actor,
+            pass_id=record.id,
+            plan_id=plan.id,
+            name=record.name,
+            aos_time_ns=aos_ns,
+            los_time_ns=los_ns,
+            relay=record.relay,
+        )
+        record_event(session, scheduled, now_ns)
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    return public(record)
+
+
+def _schedule_in_window(
+    *,
+    session: Session,
+    settings: Settings,
+    request: PassCreateFromWindow,
+    actor: str,
+    now_ns: int,
+) -> PassPublic:
+    from server.services.missions import window_for_pass
+
+    window, document = window_for_pass(settings, request.window)
+    aos_ns = ns_from_datetime(window.net_start_utc)
+    los_ns = ns_from_datetime(window.net_end_utc)
+    try:
+        plan = repo.get_plan(session=session, plan_id=request.plan_id)
+        lead_s = start_lead_s(settings)
+        if window.net_s < plan.duration_s + lead_s:
+            raise ConflictError(
+                "plan_exceeds_window",
+                f"plan {plan.id} needs {plan.duration_s + lead_s:.3f} s ({plan.duration_s:.3f} s "
+                f"and the {lead_s:.3f} s start lead); {window.relay}'s window at "
+                f"{window.aos_utc.isoformat()} holds {window.net_s:.3f} s net "
+                f"({window.duration_s:.3f} s less {window.aos_margin_s:g} s after AOS and "
+                f"{window.los_margin_s:g} s before LOS)",
+                {"needed_s": plan.duration_s + lead_s, "net_s": window.net_s},
+            )
+        record = repo.add_pass(
+            session=session,
+            name=request.name,
+            plan_id=plan.id,
+            aos_time_ns=aos_ns,
+            los_time_ns=los_ns,
+            relay=window.relay,
+            created_at_ns=now_ns,
+            window_mission=document["mission"],
+            window_detail=document,
         )
         scheduled = PassScheduled(
             actor=actor,

@@ -87,6 +87,9 @@ PRELOAD = (
     "server.storage.db",
     "server.services.workers",
     "telemetry.mcap",
+    "skyfield.api",  # contact windows (server.services.missions; about 0.17 s to import)
+    "skyfield.searchlib",
+    "mission.windows",
     "hikoboshi.cli",
 )
 

@@ -170,6 +170,11 @@ class PassRecord(Base):
     #: Onboard times: frames generated in [start, end) belong to the pass (end NULL: open).
     telemetry_start_ns: Mapped[int | None]
     telemetry_end_ns: Mapped[int | None]
+    #: The computed contact window the pass was scheduled in (docs/missions.md): the
+    #: mission's name and the window as computed then (relay, AOS and LOS in ns of UTC,
+    #: margins, ranges, light times, the mission file's hash); NULL for a hand-given window.
+    window_mission: Mapped[str | None] = mapped_column(String(64))
+    window_detail: Mapped[dict[str, Any] | None] = mapped_column(JSONDocument)
     created_at_ns: Mapped[int]
     updated_at_ns: Mapped[int]
     version: Mapped[int] = mapped_column()

@@ -204,8 +204,11 @@ def add_pass(
     relay: str,
     created_at_ns: int,
     pass_id: str | None = None,
+    window_mission: str | None = None,
+    window_detail: dict[str, Any] | None = None,
 ) -> PassRecord:
-    """A new pass of ``plan_id`` in state ``scheduled``, version 1."""
+    """A new pass of ``plan_id`` in state ``scheduled``, version 1; ``window_mission`` and
+    ``window_detail``: the computed window it was scheduled in, if any."""
     plan_key = get_plan(session=session, plan_id=plan_id).id
     if los_time_ns < aos_time_ns:
         raise InvalidArgument(f"pass LOS {los_time_ns} ns is before its AOS {aos_time_ns} ns")
@@ -222,6 +225,8 @@ def add_pass(
         state="scheduled",
         state_reason=None,
         epoch_ns=None,
+        window_mission=window_mission,
+        window_detail=window_detail,
         created_at_ns=created_at_ns,
         updated_at_ns=created_at_ns,
     )

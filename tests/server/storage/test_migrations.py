@@ -27,7 +27,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0005"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0006"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
@@ -277,5 +277,34 @@ def test_0005_downgrades_a_safed_pass_to_aborted_and_keeps_the_rest(
     assert tuple(row) == ("aborted", "safed: joint3 red")
     with pytest.raises(IntegrityError), empty_engine.begin() as conn:
         conn.execute(text("UPDATE passes SET state = 'safed'"))
+    upgrade(empty_engine)
+    assert schema_diff(empty_engine) == []
+
+
+def test_0006_gives_passes_an_empty_window_and_keeps_what_refers_to_them(
+    empty_engine: Engine,
+) -> None:
+    upgrade(empty_engine, "0005")
+    pass_id = _insert_plan_and_pass(empty_engine)
+    _insert_children(empty_engine, pass_id)
+    before = _children(empty_engine)
+    upgrade(empty_engine)
+    assert schema_diff(empty_engine) == []
+    assert _children(empty_engine) == before
+    with empty_engine.connect() as conn:
+        row = conn.execute(
+            text("SELECT name, state, window_mission, window_detail FROM passes")
+        ).one()
+    assert tuple(row) == ("p1", "complete", None, None)
+    with empty_engine.begin() as conn:
+        conn.execute(
+            text("UPDATE passes SET window_mission = 'ets7-1999', window_detail = :doc"),
+            {"doc": '{"relay": "TDRS-East"}'},
+        )
+    with empty_engine.begin() as conn:
+        command.downgrade(alembic_config(conn), "0005")
+    columns = {c["name"] for c in inspect(empty_engine).get_columns("passes")}
+    assert "window_detail" not in columns and "window_mission" not in columns
+    assert _children(empty_engine) == before
     upgrade(empty_engine)
     assert schema_diff(empty_engine) == []
