@@ -32,7 +32,7 @@ err_console = Console(stderr=True)
 
 def _fail(reason: str) -> NoReturn:
     """One line on stderr, exit status 2."""
-    err_console.print(f"error: {reason}", highlight=False, soft_wrap=True)
+    err_console.print(f"error: {reason}", markup=False, highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 

@@ -133,6 +133,20 @@ class RobotDescription:
     flight_rules: FlightRules = field(default_factory=FlightRules)
     #: the live limits: the [limits] table over planner.limits.DEFAULT_LIMITS
     limits: Limits = DEFAULT_LIMITS
+    #: the URDF's joint limits (model.joint_limit_rad and its rates are the mission's,
+    #: inside these; the same where [mission_limits] leaves a joint out)
+    vendor_joint_limit_rad: Array | None = None
+    vendor_joint_rate_limit_radps: Array | None = None
+    #: the arm joints' URDF names, the hand frame's link and the reference pose's name
+    joint_names: tuple[str, ...] = ()
+    hand_link: str = "hand"
+    reference_pose: str | None = None
+    #: what loading did to the URDF's tree (planner.description.reduce): links lumped into a
+    #: body (link, body), tool joints locked (joint, type, position in m or rad), arm links
+    #: renamed (link, name)
+    lumped: tuple[tuple[str, str], ...] = ()
+    locked: tuple[tuple[str, str, float], ...] = ()
+    renamed: tuple[tuple[str, str], ...] = ()
 
     @property
     def n_joints(self) -> int:
@@ -169,7 +183,8 @@ class RobotDescription:
         inertia ``H_m[i, i]`` at the all-zero pose (:class:`planner.flight_rules.ServoModel`)."""
         workspace = ws if ws is not None else DynamicsWorkspace(self.model)
         zeros = np.zeros(self.n_joints)
-        inertia = np.diag(workspace.evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+        reference = self.model.reference_joints
+        inertia = np.diag(workspace.evaluate(State(reference, joint_rates_radps=zeros)).H_m)
         gains = self.servo_gains()
         return ServoModel(
             stiffness=np.asarray(gains.kp_nm_per_rad) / inertia,

@@ -106,7 +106,10 @@ def default_servo_gains(
     if not (np.all(np.isfinite(lag)) and np.all(lag >= 0.0)):
         raise InvalidInput(f"servo lag_s must be >= 0 on every joint, got {lag}")
     zeros = np.zeros(n)
-    inertia = np.diag(DynamicsWorkspace(model).evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+    reference = model.reference_joints
+    inertia = np.diag(
+        DynamicsWorkspace(model).evaluate(State(reference, joint_rates_radps=zeros)).H_m
+    )
     kp = inertia * bandwidth**2
     return ServoGains(kp_nm_per_rad=kp, kd_nms_per_rad=lag * kp)
 
