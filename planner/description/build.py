@@ -19,18 +19,18 @@ a single rounding: sums of the origins' offsets only, so the model loaded from
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from types import MappingProxyType
 from dataclasses import replace
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.description.checks import NAME, WHEEL_NAMES, Checker, InvalidRobotDescription, frozen
+from planner.description.checks import Checker, InvalidRobotDescription, frozen
 from planner.description.collision_xml import collision_model_from, flight_rules_from
 from planner.description.hashing import content_sha256
+from planner.description.reduce import CONTINUOUS_LIMIT_RAD, Mount, Reduction, reduce_tree
 from planner.description.tables import (
     Header,
     experiments_from,
@@ -39,7 +39,6 @@ from planner.description.tables import (
     sensor_noise_from,
     servo_from,
 )
-from planner.description.reduce import CONTINUOUS_LIMIT_RAD, Mount, Reduction, reduce_tree
 from planner.description.urdf_xml import Frame, Urdf
 from planner.description.vendor import locked_from, mission_limits_from, mount_from
 from planner.dynamics import DynamicsWorkspace
