@@ -44,7 +44,8 @@ from planner.description.vendor import locked_from, mission_limits_from, mount_f
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.model import LinkSpec, RobotModel, WheelSpec, base_body_inertial
-from planner.robot import NamedPose, RobotDescription
+from planner.robot import NamedPose, RobotDescription, ServoSpec, servo_gains_of
+from planner.servo_check import servo_modes
 
 __all__ = [
     "CONTINUOUS_LIMIT_RAD",
@@ -183,6 +184,8 @@ def build_robot(
     poses = poses_from(c, doc.get("poses", {}), ws)
     model = _with_reference(c, doc, model, red, poses)
     ws = DynamicsWorkspace(model)
+    servo = servo_from(c, doc.get("servo", {}), model.n_joints)
+    _check_servos(c, ws, servo, poses)
     description = RobotDescription(
         name=head.name,
         description=c.text("description", doc.get("description", "")),
@@ -193,7 +196,7 @@ def build_robot(
         model=model,
         wheel_limits=head.wheel_limits,
         acs_config=MappingProxyType(dict(acs)),
-        servo=servo_from(c, doc.get("servo", {}), model.n_joints),
+        servo=servo,
         sensor_noise=sensor_noise_from(c, doc.get("sensor_noise", {})),
         poses=MappingProxyType(poses),
         experiments=MappingProxyType(
@@ -246,3 +249,34 @@ def _with_reference(
             f"{name!r} must be a pose of [poses] with joints_deg (poses: {sorted(poses)})",
         )
     return replace(model, reference_joints_rad=frozen(pose.joints_rad))
+
+
+def _check_servos(
+    c: Checker, ws: DynamicsWorkspace, servo: ServoSpec, poses: Mapping[str, NamedPose]
+) -> None:
+    """Refuse servos whose fastest mode at the reference or a named pose the simulator's
+    integrator cannot hold (:mod:`planner.servo_check`), proposing the damping that fits."""
+    try:
+        gains = servo_gains_of(servo, ws.model)
+    except InvalidInput as exc:
+        raise c.fail("[servo]", str(exc)) from None
+    flown = {name: p.joints_rad for name, p in poses.items() if p.joints_rad is not None}
+    modes = servo_modes(ws, gains, poses=flown, samples=0)
+    if modes.stable:
+        return
+    scale = 0.9 * modes.limit_per_s / modes.fastest_per_s  # kd scales every mode linearly
+    if servo.kd_nms_per_rad is not None:
+        kd = np.asarray(servo.kd_nms_per_rad) * scale
+        proposal = "kd_nms_per_rad = [" + ", ".join(f"{v:.4g}" for v in kd) + "]"
+    else:
+        lag = np.atleast_1d(np.asarray(servo.lag_s, dtype=np.float64)) * scale
+        proposal = (
+            f"lag_s = {lag[0]:.3g}"
+            if lag.size == 1
+            else "lag_s = [" + ", ".join(f"{v:.3g}" for v in lag) + "]"
+        )
+    raise c.fail(
+        "[servo]",
+        f"{modes.describe()}: the simulation would diverge; lower the damping, e.g. "
+        f"{proposal} (a smaller bandwidth_radps lowers kp and kd together)",
+    )

@@ -299,9 +299,10 @@ def reduce_tree(
         turned = [(m, com, Frame(rot, com).rotate_tensor(t)) for m, com, t, rot in parts]
         if k == 0 and mount is not None:
             turned.append((mount.mass_kg, np.zeros(3), box_inertia(mount.mass_kg, mount.size_m)))
-        lumped.extend(
-            (link, name) for link in groups[k] if link != name or (k == 0 and mount is not None)
-        )
+        if k == 0 and mount is not None:
+            lumped.extend((link, "[base]") for link in groups[k])
+        else:
+            lumped.extend((link, name) for link in groups[k] if link != name)
         mass, com, tensor = _combine(turned)
         return Body(mass, com, tensor, None, tuple(groups[k]))
 
