@@ -16,7 +16,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hikoboshi import limits_cli, post_cli
+from hikoboshi import limits_cli, post_cli, robot_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
 model_app = typer.Typer(
@@ -25,6 +25,7 @@ model_app = typer.Typer(
 app.add_typer(model_app, name="model")
 limits_cli.register(model_app)  # model limits
 post_cli.register(app)  # report, mcap export|import
+robot_cli.register(app)  # robot check
 
 console = Console()
 err_console = Console(stderr=True)
