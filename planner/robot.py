@@ -175,12 +175,12 @@ class RobotDescription:
 
     def servo_gains(self) -> ServoGains:
         """The joint servos' PD gains (``planner.mjcf.ServoGains``): explicit, or the design
-        (``kp = H_m[i, i] wn^2`` at the all-zero pose, ``kd = lag kp``), per joint."""
+        (``kp = H_m[i, i] wn^2`` at the reference pose, ``kd = lag kp``), per joint."""
         return servo_gains_of(self.servo, self.model)
 
     def servo_model(self, ws: DynamicsWorkspace | None = None) -> ServoModel:
         """The servos as the flight rules model them: each joint's PD gains on its own
-        inertia ``H_m[i, i]`` at the all-zero pose (:class:`planner.flight_rules.ServoModel`)."""
+        inertia ``H_m[i, i]`` at the reference pose (:class:`planner.flight_rules.ServoModel`)."""
         workspace = ws if ws is not None else DynamicsWorkspace(self.model)
         zeros = np.zeros(self.n_joints)
         reference = self.model.reference_joints
@@ -223,7 +223,7 @@ class RobotDescription:
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose
-        nearest the all-zero pose (:func:`planner.ik.solve_ik`)."""
+        nearest the reference pose (:func:`planner.ik.solve_ik`)."""
         if name not in self.poses:
             raise InvalidInput(
                 f"robot {self.name!r} has no pose {name!r}; it has {sorted(self.poses)}"
@@ -239,7 +239,7 @@ class RobotDescription:
         """Joint angles for the named pose as an experiment's start or goal.
 
         A pose with a hand pose is that hand pose exactly: the IK solution nearest the pose's
-        written joints (nearest the all-zero pose when none are written), so ETS-VII's B is
+        written joints (nearest the reference pose when none are written), so ETS-VII's B is
         the grapple approach of SPEC 1.2, not the paper's joints rounded to 0.1 deg, and a
         redundant arm keeps the configuration its joints name. A pose of joints alone is
         those joints. Refused (:class:`~planner.errors.InvalidInput`) with the reason when

@@ -87,9 +87,10 @@ def default_servo_gains(
     lag_s: PerJoint | None = None,
 ) -> ServoGains:
     """PD gains ``kp = I wn^2`` and ``kd = lag kp`` per joint, ``I`` the joint's own inertia
-    ``H_m[i, i]`` at the all-zero pose. ``bandwidth_radps`` and ``lag_s``: one value for
-    every joint or one per joint; ``None``: ETS-VII's per-joint values for a 6-joint arm (the
-    built-in robot, :data:`ETS7_SERVO_LAG_S`), else :data:`DEFAULT_SERVO_LAG_S` and
+    ``H_m[i, i]`` at the reference pose (all zeros unless the model names one).
+    ``bandwidth_radps`` and ``lag_s``: one value for every joint or one per joint; ``None``:
+    ETS-VII's per-joint values for a 6-joint arm (the built-in robot,
+    :data:`ETS7_SERVO_LAG_S`), else :data:`DEFAULT_SERVO_LAG_S` and
     :data:`DEFAULT_SERVO_BANDWIDTH_RADPS` on every joint."""
     from planner.dynamics import DynamicsWorkspace
 
