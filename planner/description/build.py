@@ -158,7 +158,9 @@ def build_robot(
             allowed,
             meshes or {},
             c,
-            frames=red.frames,
+            # the tree's own frames unless loading moved something (a mount, a locked
+            # tool): ETS-VII's shapes keep their numbers to the last bit
+            frames=red.frames if mount is not None or red.locked else None,
         )
         if urdf_collision
         else None

@@ -90,7 +90,9 @@ class Reduction:
     pos_j1_m: Array  # joint 1 in base reference coordinates
     hand_pos_robot_m: Array
     rot_robot_from_hand: Array | None  # None: parallel to the robot frame
-    frames: Mapping[str, Frame]  # every link: base reference coordinates, arm at zero
+    #: every link's frame at the all-zero pose, tool joints locked: base reference
+    #: coordinates (the mount's centre, or the base link's frame)
+    frames: Mapping[str, Frame]
     lumped: tuple[tuple[str, str], ...]  # (URDF link, the body it was lumped into)
     locked: tuple[tuple[str, str, float], ...]  # (joint, type, position: m or rad)
     renamed: tuple[tuple[str, str], ...]  # (URDF link, model name)
@@ -363,7 +365,10 @@ def reduce_tree(
         pos_j1_m=pos_j1,
         hand_pos_robot_m=hand_frame.pos,
         rot_robot_from_hand=hand_rot,
-        frames=frames,
+        frames={
+            link: frame if owner[link] == 0 else Frame(frame.rot, frame.pos + pos_j1)
+            for link, frame in frames.items()
+        },
         lumped=tuple(lumped),
         locked=tuple(sorted(locked_out)),
         renamed=tuple(renamed),
