@@ -56,7 +56,7 @@ def main() -> None:
         base = robot.servo_gains()
         rate0 = fastest_mode_at(ws, base, robot.model.reference_joints)
 
-        def gains(scale: float) -> ServoGains:
+        def gains(scale: float, base: ServoGains = base) -> ServoGains:
             return ServoGains(base.kp_nm_per_rad, np.asarray(base.kd_nms_per_rad) * scale)
 
         lo, hi = 1.0, 6.0 / (rate0 * args.step)  # rate*step from ~0 to 6: holds, diverges

@@ -283,9 +283,10 @@ def vehicle_config_for(
     """The vehicle of a robot description (``planner.description.load_robot``): its model,
     joint servos, attitude-control law (the ``[acs]`` table with the wheels' torque and
     momentum limits, which the truth simulation enforces), sensor noise, its live limits and
-    collision shapes (on-board safing's red limits and live clearance), the reference pose
-    as the initial pose (all zeros unless the description names one) and its name, hash and joint count for ``hello``. ``acs_overrides`` (an ``[acs]``
-    table, e.g. of ``--acs-config``) replaces keys of the description's law; ``fields`` set
+    collision shapes (on-board safing's red limits and live clearance), the reference pose as
+    the initial pose (all zeros unless the description names one) and its name, hash and
+    joint count for ``hello``. ``acs_overrides`` (an ``[acs]`` table, e.g. of
+    ``--acs-config``) replaces keys of the description's law; ``fields`` set
     any other :class:`VehicleConfig` field (telemetry period, LOS policy, faults, ...)."""
     sim = fields.pop("sim", None) or _default_sim()
     sim = replace(sim, servo=description.servo_gains())
