@@ -194,6 +194,31 @@ def test_hand_frame_of_any_orientation_agrees_with_mujoco(
     assert description.model.rot_robot_from_hand is not None  # neither hand is parallel
 
 
+def test_the_export_carries_the_turned_hand_to_another_parser(
+    loaded: tuple[str, Path, RobotDescription], tmp_path: Path
+) -> None:
+    """``hikoboshi model urdf`` of the loaded arm (planner.urdf) read by yourdfpy: mass and
+    the hand's pose (its turned axes included) at pose B as our dynamics give them."""
+    import yourdfpy
+
+    from planner.urdf import urdf_xml
+
+    _, _, description = loaded
+    path = tmp_path / "export.urdf"
+    path.write_text(urdf_xml(description.model, name=description.name))
+    urdf = yourdfpy.URDF.load(
+        str(path), build_scene_graph=True, load_meshes=False, load_collision_meshes=False
+    )
+    joints = description.pose_joints_rad("B")
+    urdf.update_cfg(joints)
+    q = DynamicsWorkspace(description.model).evaluate(State(joints))
+    hand = urdf.get_transform("hand", "base_link")
+    np.testing.assert_allclose(hand[:3, 3], q.hand.pos_base_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(hand[:3, :3], q.hand.rot_base_from_hand, rtol=0, atol=1e-12)
+    total = sum(link.inertial.mass for link in urdf.robot.links if link.inertial is not None)
+    assert total == pytest.approx(q.total_mass_kg, rel=1e-12)
+
+
 def test_reference_pose_inside_limits_that_exclude_zero(
     loaded: tuple[str, Path, RobotDescription],
 ) -> None:
