@@ -173,6 +173,38 @@ def test_lumped_bodies_agree_with_mujoco_s_compiler(
     assert model.total_mass_kg == pytest.approx(total, rel=1e-14)
 
 
+def test_whole_system_at_the_reference_pose_agrees_with_mujoco(
+    loaded: tuple[str, Path, RobotDescription],
+) -> None:
+    """Total mass, CoM and inertia about it of the whole robot at its reference pose: our
+    dynamics (lumped bodies on MuJoCo's model of ours) against every URDF link MuJoCo
+    compiles from the vendor's file, fingers locked, plus the cube, summed here."""
+    _, _, description = loaded
+    model = description.model
+    mj = mujoco_of(vendor_urdf(description.name))
+    data = mujoco.MjData(mj)
+    for name, _, position in description.locked:
+        data.qpos[mj.jnt_qposadr[mj.joint(name).id]] = position
+    for name, q in zip(description.joint_names, model.reference_joints, strict=True):
+        data.qpos[mj.jnt_qposadr[mj.joint(name).id]] = q
+    mujoco.mj_kinematics(mj, data)
+    mount = np.array([0.0, 0.0, MOUNT_Z_M])
+    parts = [(CUBE_KG, np.zeros(3), np.eye(3) * CUBE_KG * (2 * CUBE_M**2) / 12.0)]
+    for b in range(1, mj.nbody):
+        if mj.body_mass[b] > 0.0:
+            rot = data.ximat[b].reshape(3, 3)
+            inertia = rot @ np.diag(mj.body_inertia[b]) @ rot.T
+            parts.append((float(mj.body_mass[b]), data.xipos[b] + mount, inertia))
+    mass, com, inertia = composite(parts)
+    q = DynamicsWorkspace(model).evaluate(State(model.reference_joints))
+    assert q.total_mass_kg == pytest.approx(mass, rel=1e-14)
+    # ours: base at the orbit origin (its CoM), cube axes; theirs: from the cube's centre
+    base_com = data.xpos[mj.joint(description.joint_names[0]).bodyid[0]] + mount
+    base_com = base_com - model.pos_base_from_robot_m
+    np.testing.assert_allclose(q.com_orbit_m, com - base_com, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(q.inertia_com_base_kgm2, inertia, rtol=1e-13, atol=1e-12)
+
+
 def test_hand_frame_of_any_orientation_agrees_with_mujoco(
     loaded: tuple[str, Path, RobotDescription],
 ) -> None:
