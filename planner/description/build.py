@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.collision import AllowedContact, CollisionModel
+from planner.collision_segments import segment_collision_model
 from planner.description.checks import Checker, InvalidRobotDescription, frozen
 from planner.description.collision_xml import collision_model_from, flight_rules_from
 from planner.description.hashing import content_sha256
@@ -43,6 +45,7 @@ from planner.description.urdf_xml import Frame, Urdf
 from planner.description.vendor import locked_from, mission_limits_from, mount_from
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.flight_rules import FlightRules
 from planner.model import LinkSpec, RobotModel, WheelSpec, base_body_inertial
 from planner.robot import NamedPose, RobotDescription, ServoSpec, servo_gains_of
 from planner.servo_check import servo_modes
@@ -186,6 +189,17 @@ def build_robot(
     poses = poses_from(c, doc.get("poses", {}), ws)
     model = _with_reference(c, doc, model, red, poses)
     ws = DynamicsWorkspace(model)
+    box = mount.size_m if mount is not None else urdf.box_size(head.base_link)
+    if "generated_collision" in doc:
+        if urdf_collision:
+            raise c.fail(
+                "[generated_collision]",
+                "generates the collision bodies in place of the URDF's: set urdf_collision = "
+                "false with it",
+            )
+        collision = _generated_collision(
+            c, doc["generated_collision"], model, head.base_link, box, red, rules, allowed
+        )
     servo = servo_from(c, doc.get("servo", {}), model.n_joints)
     _check_servos(c, ws, servo, poses)
     description = RobotDescription(
@@ -204,7 +218,7 @@ def build_robot(
         experiments=MappingProxyType(
             experiments_from(c, doc.get("experiments", {}), model.n_joints)
         ),
-        base_box_size_m=mount.size_m if mount is not None else urdf.box_size(head.base_link),
+        base_box_size_m=box,
         collision=collision,
         flight_rules=rules,
         limits=limits_from(c, doc.get("limits", {})),
@@ -282,3 +296,36 @@ def _check_servos(
         f"{modes.describe()}: the simulation would diverge; lower the damping, e.g. "
         f"{proposal} (a smaller bandwidth_radps lowers kp and kd together)",
     )
+
+
+def _generated_collision(
+    c: Checker,
+    value: object,
+    model: RobotModel,
+    base_link: str,
+    box: tuple[float, float, float] | None,
+    red: Reduction,
+    rules: FlightRules,
+    allowed: tuple[AllowedContact, ...],
+) -> CollisionModel:
+    """``[generated_collision]``: capsules along the links, a hand sphere and the base box
+    (:mod:`planner.collision_segments`)."""
+    table = c.table("[generated_collision]", value)
+    c.keys("[generated_collision]", table, frozenset({"radius_m", "hand_radius_m"}))
+    radius = c.number("[generated_collision] radius_m", table.get("radius_m", 0.06), positive=True)
+    hand = c.number(
+        "[generated_collision] hand_radius_m", table.get("hand_radius_m", 0.08), positive=True
+    )
+    try:
+        return segment_collision_model(
+            model,
+            base_name=base_link,
+            radius_m=radius,
+            hand_radius_m=hand,
+            clearance_m=rules.min_clearance_m,
+            base_box_size_m=box,
+            base_box_centre_robot_m=None if box is None else -red.pos_j1_m,
+            allowed=allowed,
+        )
+    except InvalidInput as exc:
+        raise c.fail("[[flight_rules.allowed_contact]]", str(exc)) from None

@@ -75,6 +75,7 @@ TOP_KEYS = frozenset(
         "locked_joints",
         "mission_limits",
         "urdf_collision",
+        "generated_collision",
     }
 )
 _WHEEL_KEYS = frozenset(

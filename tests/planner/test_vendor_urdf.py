@@ -12,6 +12,7 @@ model's body to round-off; the hand frame (any orientation) agrees at a pose awa
 from __future__ import annotations
 
 import importlib.metadata
+import itertools
 import re
 import shutil
 from pathlib import Path
@@ -364,3 +365,44 @@ def test_unstable_servos_are_refused_with_numbers_and_a_proposal(tmp_path: Path)
     assert proposed is not None and float(proposed.group(1)) < 3.0
     _edit_toml(toml, "lag_s = 3.0", f"lag_s = {proposed.group(1)}")
     load_robot(toml)
+
+
+def test_generated_collision_bodies_stand_in_for_the_vendor_s_meshes(
+    loaded: tuple[str, Path, RobotDescription],
+) -> None:
+    """``[generated_collision]``: the cube, a capsule per link, the hand sphere; each
+    joint's two bodies may touch, and so may the pairs the design joins at the reference
+    pose (nearer than the clearance rule there); every other pair is checked."""
+    _, _, description = loaded
+    collision = description.collision
+    assert collision is not None
+    names = [b.name for b in collision.bodies]
+    links = [link.name for link in description.model.links]
+    assert names == [description.base_link, *links, "hand"]
+    reasons = {frozenset(a.bodies): a.reason for a in collision.allowed}
+    for a, b in itertools.pairwise(names):
+        assert reasons[frozenset((a, b))] == "generated: the two bodies of one joint"
+    assert collision.pairs  # not everything allowed
+    from planner.collision import ShapeSet, body_poses
+
+    shapes = ShapeSet(collision)
+    rots, trans = body_poses(description.model, description.model.reference_joints)
+    for i, j in collision.pairs:  # the checked pairs are clear at the reference pose
+        a, b = collision.bodies[i].joint, collision.bodies[j].joint
+        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
+        assert d.distance_m >= description.flight_rules.min_clearance_m
+
+
+def test_the_ur5_reaches_the_planners_and_its_coordination_plan_passes_the_rules(
+    tmp_path: Path,
+) -> None:
+    """From the vendor's file unchanged to a plan the flight rules pass: the coordination
+    experiment flown from the UR5's reference pose (issue 28, part 3 does the rest)."""
+    from planner.schedule import plan_coordination_for
+
+    description = load_robot(copy_robot(tmp_path, "ur5"))
+    ws = DynamicsWorkspace(description.model)
+    plan = plan_coordination_for(ws, robot=description)
+    np.testing.assert_allclose(plan.initial_joints_rad, description.model.reference_joints)
+    report = description.check_plan(plan, ws=ws)
+    assert report.passed, [row.rule for row in report.failing]
