@@ -180,6 +180,17 @@ class FreeFloatingSimulator:
     def step_count(self) -> int:
         return self._steps
 
+    @property
+    def instability_warnings(self) -> int:
+        """How many times MuJoCo found the state non-finite or huge and reset it ("the
+        simulation is unstable": bad qacc, qvel or qpos) since the simulator was built."""
+        w = self._mjd.warning
+        return int(
+            w[mujoco.mjtWarning.mjWARN_BADQACC].number
+            + w[mujoco.mjtWarning.mjWARN_BADQVEL].number
+            + w[mujoco.mjtWarning.mjWARN_BADQPOS].number
+        )
+
     def state(self) -> State:
         return read_state(self._mjd, self._layout)
 
