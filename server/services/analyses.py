@@ -134,6 +134,21 @@ def _attempt(kind: str, run: Callable[[], Any]) -> tuple[Any, dict[str, Any]]:
     return value, {"status": "ok", "result": result}
 
 
+def _diverged(recording: PassRecording) -> UnphysicalTelemetry | None:
+    """The vehicle's own word that its truth simulation diverged during the pass (a
+    ``vehicle_safed`` event with the trigger ``simulation_diverged``): nothing of the pass
+    is a flight to analyse."""
+    for event in recording.events:
+        trigger = event.detail.get("trigger") if event.kind == "vehicle_safed" else None
+        if isinstance(trigger, Mapping) and trigger.get("quantity") == "simulation_diverged":
+            return UnphysicalTelemetry(
+                f"the vehicle reported its simulation diverged (safed at onboard "
+                f"{event.detail.get('since_time_ns')}: {trigger.get('detail')}): a diverged "
+                "simulation is not analysed"
+            )
+    return None
+
+
 def compute_analyses(
     recording: PassRecording,
     model: RobotModel | None = None,
@@ -146,7 +161,7 @@ def compute_analyses(
     n = len(recording.frames)
     try:
         check_physical(recording.frames)
-        unphysical: UnphysicalTelemetry | None = None
+        unphysical: UnphysicalTelemetry | None = _diverged(recording)
     except UnphysicalTelemetry as exc:
         unphysical = exc
 

@@ -56,3 +56,32 @@ def test_a_negative_identified_inertia_is_a_failed_analysis(
     assert "principal moments [-" in doc["error"]["message"]
     # the same recording with the model flown: ok
     assert compute_analyses(flown, model).documents["inertia_identification"]["status"] == "ok"
+
+
+def test_a_pass_whose_vehicle_reported_divergence_is_not_analysed(
+    flown: PassRecording, model: RobotModel
+) -> None:
+    """The vehicle safes with ``simulation_diverged`` (tests/spacecraft/test_safing.py) and
+    the ground records it as ``vehicle_safed``: whatever frames came before, no analysis of
+    the pass is ``ok``."""
+    from telemetry.recording import EventRow
+
+    safed = EventRow(
+        time_ns=1,
+        kind="vehicle_safed",
+        actor="ets7",
+        detail={
+            "since_time_ns": 200_000_000,
+            "trigger": {
+                "quantity": "simulation_diverged",
+                "value": 1.0,
+                "limit": 0.0,
+                "detail": "MuJoCo reset its non-finite or huge state 1 time(s)",
+            },
+            "cancelled": 3,
+        },
+    )
+    run = compute_analyses(replace(flown, events=(safed,)), model)
+    for kind, doc in run.documents.items():
+        assert doc["status"] == "failed", kind
+        assert "the vehicle reported its simulation diverged" in doc["error"]["message"]
