@@ -201,10 +201,12 @@ def reduce_tree(
         if name in locked:
             value = locked[name]
             if not lo - 1e-12 <= value <= hi + 1e-12:
-                unit = "m" if kind == "prismatic" else "rad"
+                # in the unit the description writes: m, or deg for a turning joint
+                scale, unit = (1.0, "m") if kind == "prismatic" else (180.0 / math.pi, "deg")
                 raise c.fail(
                     f"[locked_joints.{name}]",
-                    f"{value:.6g} {unit} is outside the joint's limits [{lo:.6g}, {hi:.6g}] {unit}",
+                    f"{value * scale:.6g} {unit} is outside the joint's limits "
+                    f"[{lo * scale:.6g}, {hi * scale:.6g}] {unit}",
                 )
         elif mimic is not None and mimic.get("joint") in urdf.joints and name not in seen:
             other = mimic.get("joint", "")
