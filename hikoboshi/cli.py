@@ -16,7 +16,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hikoboshi import limits_cli, post_cli, windows_cli
+from hikoboshi import limits_cli, post_cli, robot_cli, windows_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
 model_app = typer.Typer(
@@ -26,6 +26,7 @@ app.add_typer(model_app, name="model")
 limits_cli.register(model_app)  # model limits
 post_cli.register(app)  # report, mcap export|import
 windows_cli.register(app)  # windows
+robot_cli.register(app)  # robot check
 
 console = Console()
 err_console = Console(stderr=True)
@@ -33,7 +34,7 @@ err_console = Console(stderr=True)
 
 def _fail(reason: str) -> NoReturn:
     """One line on stderr, exit status 2."""
-    err_console.print(f"error: {reason}", highlight=False, soft_wrap=True)
+    err_console.print(f"error: {reason}", markup=False, highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 

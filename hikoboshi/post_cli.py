@@ -33,7 +33,7 @@ err_console = Console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:
-    err_console.print(f"error: {reason}", highlight=False, soft_wrap=True)
+    err_console.print(f"error: {reason}", markup=False, highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 

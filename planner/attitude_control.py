@@ -208,7 +208,7 @@ def default_acs_gains(
         raise InvalidInput(f"damping_ratio = {damping_ratio!r} must be > 0")
     if integral_time_s is not None and not (math.isfinite(integral_time_s) and integral_time_s > 0):
         raise InvalidInput(f"integral_time_s = {integral_time_s!r} s must be > 0 (or none)")
-    inertia = np.diag(ws.momentum_blocks(np.zeros(ws.model.n_joints))[0])
+    inertia = np.diag(ws.momentum_blocks(ws.model.reference_joints)[0])
     kp = inertia * bandwidth_radps**2
     return AcsGains(
         kp_nm_per_rad=kp,

@@ -246,7 +246,7 @@ def plan_coordination(
     params.check()
     model = ws.model
     gains = gains or default_acs_gains(ws)
-    start = np.zeros(model.n_joints)
+    start = model.reference_joints
     forward, back, _ = _variant_block(ws, params, start)
     if not np.allclose(back[-1], start, atol=np.radians(0.05)):
         raise InfeasibleGoal("the backward leg did not return to the reference pose")

@@ -9,7 +9,7 @@ bodies and their nearest points).
 What is checked is what the vehicle will fly, not only the 4 Hz commands:
 
 * **The joints as the servos follow them.** Each joint's PD servo on its own inertia at the
-  all-zero pose, ``H_ii q'' = kp (q_c - q) - kd q'`` (the vehicle's servo law, decoupled),
+  reference pose, ``H_ii q'' = kp (q_c - q) - kd q'`` (the vehicle's servo law, decoupled),
   driven by the commands linear between their times (as on board), solved exactly on a
   fine grid (:func:`servo_response`, scipy's ``lsim`` with first-order hold).
 * **A fine grid.** The step ``h`` divides the 0.25 s command period so that no point of the
@@ -321,7 +321,7 @@ def sample_step_s(model: RobotModel, collision: CollisionModel, min_clearance_m:
 @dataclass(frozen=True)
 class ServoModel:
     """Each joint's servo as a decoupled second-order system: ``q'' = a (q_c - q) - b q'``
-    with ``a = kp / H_ii`` and ``b = kd / H_ii`` (H at the all-zero pose)."""
+    with ``a = kp / H_ii`` and ``b = kd / H_ii`` (H at the reference pose)."""
 
     stiffness: Array  # a, 1/s^2
     damping: Array  # b, 1/s

@@ -102,7 +102,7 @@ def solve_ik(
     if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
         raise InvalidInput("IK target orientation is not a rotation matrix")
     reference = (
-        np.zeros(model.n_joints)
+        model.reference_joints
         if reference_joints_rad is None
         else model.check_joints(reference_joints_rad)
     )

@@ -29,7 +29,9 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.frames import quat_xyzw_from_matrix
 from planner.model import RobotModel, base_body_inertial
+from planner.mujoco_conventions import quat_wxyz_from_xyzw
 
 __all__ = ["MjcfOptions", "ServoGains", "compile_model", "mjcf_xml"]
 
@@ -112,7 +114,12 @@ def mjcf_xml(model: RobotModel, options: MjcfOptions | None = None, *, name: str
         ]
         parent_pos = link.joint_pos_robot_m
         indent += "  "
-    lines.append(f'{indent}<site name="hand" pos="{_vec(model.hand_pos_robot_m - parent_pos)}"/>')
+    hand_pos = _vec(model.hand_pos_robot_m - parent_pos)
+    if model.rot_robot_from_hand is None:
+        lines.append(f'{indent}<site name="hand" pos="{hand_pos}"/>')
+    else:
+        quat = quat_wxyz_from_xyzw(quat_xyzw_from_matrix(model.rot_robot_from_hand))
+        lines.append(f'{indent}<site name="hand" pos="{hand_pos}" quat="{_vec(quat)}"/>')
     for _ in model.links:
         indent = indent[:-2]
         lines.append(f"{indent}</body>")

@@ -12,7 +12,8 @@ Frames (SPEC section 7):
   and is parallel to the robot frame at the all-zero pose. Table 1 gives each link's inertia
   in its *inertia frame* (z along joint i's axis, x along the part of joint i -> joint i+1
   perpendicular to z); :attr:`LinkSpec.rot_robot_from_inertia` holds that frame.
-- *hand*: origin at the hand point, parallel to the robot frame at the all-zero pose, on link 6.
+- *hand*: origin at the hand point, parallel to the robot frame at the all-zero pose, on link 6
+  (another robot's hand may be turned: :attr:`RobotModel.rot_robot_from_hand`).
 
 Reaction wheels are three rotors at the base centre of mass with axes along base x, y, z.
 Their masses are inside Table 1's base numbers: the *locked* base (wheels not spinning
@@ -112,10 +113,22 @@ class RobotModel:
     wheels: tuple[WheelSpec, ...]
     joint_limit_rad: Array  # (n, 2): lower, upper
     joint_rate_limit_radps: Array  # (n,)
+    #: the hand frame's axes in the robot frame at the all-zero pose (None: parallel to it)
+    rot_robot_from_hand: Array | None = None
+    #: the planners' reference pose (None: all zeros); inside the joint limits
+    reference_joints_rad: Array | None = None
 
     @property
     def n_joints(self) -> int:
         return len(self.links)
+
+    @property
+    def reference_joints(self) -> Array:
+        """The planners' reference pose: ``reference_joints_rad``, or all zeros (ETS-VII's
+        and every robot's whose limits contain 0 and that names no other)."""
+        if self.reference_joints_rad is None:
+            return np.zeros(self.n_joints)
+        return np.array(self.reference_joints_rad, dtype=np.float64)
 
     @property
     def total_mass_kg(self) -> float:

@@ -133,6 +133,20 @@ class RobotDescription:
     flight_rules: FlightRules = field(default_factory=FlightRules)
     #: the live limits: the [limits] table over planner.limits.DEFAULT_LIMITS
     limits: Limits = DEFAULT_LIMITS
+    #: the URDF's joint limits (model.joint_limit_rad and its rates are the mission's,
+    #: inside these; the same where [mission_limits] leaves a joint out)
+    vendor_joint_limit_rad: Array | None = None
+    vendor_joint_rate_limit_radps: Array | None = None
+    #: the arm joints' URDF names, the hand frame's link and the reference pose's name
+    joint_names: tuple[str, ...] = ()
+    hand_link: str = "hand"
+    reference_pose: str | None = None
+    #: what loading did to the URDF's tree (planner.description.reduce): links lumped into a
+    #: body (link, body), tool joints locked (joint, type, position in m or rad), arm links
+    #: renamed (link, name)
+    lumped: tuple[tuple[str, str], ...] = ()
+    locked: tuple[tuple[str, str, float], ...] = ()
+    renamed: tuple[tuple[str, str], ...] = ()
 
     @property
     def n_joints(self) -> int:
@@ -161,15 +175,16 @@ class RobotDescription:
 
     def servo_gains(self) -> ServoGains:
         """The joint servos' PD gains (``planner.mjcf.ServoGains``): explicit, or the design
-        (``kp = H_m[i, i] wn^2`` at the all-zero pose, ``kd = lag kp``), per joint."""
+        (``kp = H_m[i, i] wn^2`` at the reference pose, ``kd = lag kp``), per joint."""
         return servo_gains_of(self.servo, self.model)
 
     def servo_model(self, ws: DynamicsWorkspace | None = None) -> ServoModel:
         """The servos as the flight rules model them: each joint's PD gains on its own
-        inertia ``H_m[i, i]`` at the all-zero pose (:class:`planner.flight_rules.ServoModel`)."""
+        inertia ``H_m[i, i]`` at the reference pose (:class:`planner.flight_rules.ServoModel`)."""
         workspace = ws if ws is not None else DynamicsWorkspace(self.model)
         zeros = np.zeros(self.n_joints)
-        inertia = np.diag(workspace.evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+        reference = self.model.reference_joints
+        inertia = np.diag(workspace.evaluate(State(reference, joint_rates_radps=zeros)).H_m)
         gains = self.servo_gains()
         return ServoModel(
             stiffness=np.asarray(gains.kp_nm_per_rad) / inertia,
@@ -208,7 +223,7 @@ class RobotDescription:
 
     def pose_joints_rad(self, name: str, ws: DynamicsWorkspace | None = None) -> Array:
         """Joint angles of the named pose: as written, or the IK solution of its hand pose
-        nearest the all-zero pose (:func:`planner.ik.solve_ik`)."""
+        nearest the reference pose (:func:`planner.ik.solve_ik`)."""
         if name not in self.poses:
             raise InvalidInput(
                 f"robot {self.name!r} has no pose {name!r}; it has {sorted(self.poses)}"
@@ -224,7 +239,7 @@ class RobotDescription:
         """Joint angles for the named pose as an experiment's start or goal.
 
         A pose with a hand pose is that hand pose exactly: the IK solution nearest the pose's
-        written joints (nearest the all-zero pose when none are written), so ETS-VII's B is
+        written joints (nearest the reference pose when none are written), so ETS-VII's B is
         the grapple approach of SPEC 1.2, not the paper's joints rounded to 0.1 deg, and a
         redundant arm keeps the configuration its joints name. A pose of joints alone is
         those joints. Refused (:class:`~planner.errors.InvalidInput`) with the reason when

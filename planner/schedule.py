@@ -68,16 +68,20 @@ def plan_coordination_for(
     robot: RobotDescription | None = None,
 ) -> Plan:
     """:func:`planner.coordination.plan_coordination` for ``robot`` (``None``: ETS-VII): its
-    wheel law, and the plan stamped with it. The experiment flies from the all-zero pose,
-    which must be the robot's pose A."""
+    wheel law, and the plan stamped with it. The experiment flies from the reference pose
+    (all zeros unless the description names one), which must be the robot's pose A."""
     check_robot(ws, robot)
     if robot is not None:
         if "A" in robot.poses:
             pose_a = robot.target_joints_rad("A", ws, experiment="coordination")
-            if np.any(pose_a != 0.0):
+            reference = ws.model.reference_joints
+            if np.any(pose_a != reference):
                 raise InvalidInput(
-                    f"coordination: flies from the all-zero pose, and robot {robot.name!r}'s "
-                    f"pose A is not all zero ({np.round(np.degrees(pose_a), 3).tolist()} deg)"
+                    f"coordination: flies from the reference pose "
+                    f"({np.round(np.degrees(reference), 3).tolist()} deg), and robot "
+                    f"{robot.name!r}'s pose A is not it "
+                    f"({np.round(np.degrees(pose_a), 3).tolist()} deg): name A as the "
+                    "description's reference_pose"
                 )
         gains = gains or robot.acs_gains(ws)
     return plan_for_robot(plan_coordination(ws, params or CoordinationParams(), gains), robot)

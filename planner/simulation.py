@@ -87,9 +87,10 @@ def default_servo_gains(
     lag_s: PerJoint | None = None,
 ) -> ServoGains:
     """PD gains ``kp = I wn^2`` and ``kd = lag kp`` per joint, ``I`` the joint's own inertia
-    ``H_m[i, i]`` at the all-zero pose. ``bandwidth_radps`` and ``lag_s``: one value for
-    every joint or one per joint; ``None``: ETS-VII's per-joint values for a 6-joint arm (the
-    built-in robot, :data:`ETS7_SERVO_LAG_S`), else :data:`DEFAULT_SERVO_LAG_S` and
+    ``H_m[i, i]`` at the reference pose (all zeros unless the model names one).
+    ``bandwidth_radps`` and ``lag_s``: one value for every joint or one per joint; ``None``:
+    ETS-VII's per-joint values for a 6-joint arm (the built-in robot,
+    :data:`ETS7_SERVO_LAG_S`), else :data:`DEFAULT_SERVO_LAG_S` and
     :data:`DEFAULT_SERVO_BANDWIDTH_RADPS` on every joint."""
     from planner.dynamics import DynamicsWorkspace
 
@@ -106,7 +107,10 @@ def default_servo_gains(
     if not (np.all(np.isfinite(lag)) and np.all(lag >= 0.0)):
         raise InvalidInput(f"servo lag_s must be >= 0 on every joint, got {lag}")
     zeros = np.zeros(n)
-    inertia = np.diag(DynamicsWorkspace(model).evaluate(State(zeros, joint_rates_radps=zeros)).H_m)
+    reference = model.reference_joints
+    inertia = np.diag(
+        DynamicsWorkspace(model).evaluate(State(reference, joint_rates_radps=zeros)).H_m
+    )
     kp = inertia * bandwidth**2
     return ServoGains(kp_nm_per_rad=kp, kd_nms_per_rad=lag * kp)
 
@@ -175,6 +179,17 @@ class FreeFloatingSimulator:
     @property
     def step_count(self) -> int:
         return self._steps
+
+    @property
+    def instability_warnings(self) -> int:
+        """How many times MuJoCo found the state non-finite or huge and reset it ("the
+        simulation is unstable": bad qacc, qvel or qpos) since the simulator was built."""
+        w = self._mjd.warning
+        return int(
+            w[mujoco.mjtWarning.mjWARN_BADQACC].number
+            + w[mujoco.mjtWarning.mjWARN_BADQVEL].number
+            + w[mujoco.mjtWarning.mjWARN_BADQPOS].number
+        )
 
     def state(self) -> State:
         return read_state(self._mjd, self._layout)

@@ -248,7 +248,7 @@ def urdf_xml(
         _HAND_RGBA,
         radius=_num(_HAND_RADIUS_M),
     )
-    _joint(
+    hand_joint = _joint(
         robot,
         "hand_joint",
         "fixed",
@@ -256,6 +256,10 @@ def urdf_xml(
         "hand",
         model.hand_pos_robot_m - parent_pos_robot_m,
     )
+    if model.rot_robot_from_hand is not None:  # a turned hand frame (a vendor's flange)
+        origin = hand_joint.find("origin")
+        assert origin is not None
+        origin.set("rpy", _vec(rpy_from_matrix(model.rot_robot_from_hand)))
 
     for body in equipment:
         _equipment(robot, body, model.pos_base_from_robot_m)

@@ -69,6 +69,13 @@ sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked comma
   servos' hardware applies (the software's target, in telemetry, is unchanged), the wheel
   torques, the attitude sensor, the base's momentum. Their onsets and SAFE's entries and exits
   are the truth log's records (:meth:`~Vehicle.take_truth_events`), never sent down.
+- **A diverged simulation** (servos the integrator cannot hold, docs/robots.md "Servo
+  stability"): after every step of the truth, MuJoCo's instability warnings (it found the
+  state non-finite or huge and reset it) and the state itself against the wire's bounds
+  (``telemetry.wire``'s ``MAX_*``). On the first sign the vehicle is SAFE with the trigger
+  ``simulation_diverged`` (even when it flies without safing), the schedule dropped as
+  above, and from then on it generates **no telemetry frame**: nonsense is never streamed.
+  The truth log records the divergence.
 """
 
 from __future__ import annotations
@@ -102,6 +109,9 @@ from spacecraft.faults import Fault, FaultInjector, FaultSpecError, check_faults
 from spacecraft.safing import OnboardSafing, monitor_for
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
+    MAX_BASE_RATE_RADPS,
+    MAX_JOINT_ABS_RAD,
+    MAX_WHEEL_SPEED_RADPS,
     AcsCommandMsg,
     AcsModeName,
     BufferState,
@@ -283,9 +293,10 @@ def vehicle_config_for(
     """The vehicle of a robot description (``planner.description.load_robot``): its model,
     joint servos, attitude-control law (the ``[acs]`` table with the wheels' torque and
     momentum limits, which the truth simulation enforces), sensor noise, its live limits and
-    collision shapes (on-board safing's red limits and live clearance), the all-zero initial
-    pose and its name, hash and joint count for ``hello``. ``acs_overrides`` (an ``[acs]``
-    table, e.g. of ``--acs-config``) replaces keys of the description's law; ``fields`` set
+    collision shapes (on-board safing's red limits and live clearance), the reference pose as
+    the initial pose (all zeros unless the description names one) and its name, hash and
+    joint count for ``hello``. ``acs_overrides`` (an ``[acs]`` table, e.g. of
+    ``--acs-config``) replaces keys of the description's law; ``fields`` set
     any other :class:`VehicleConfig` field (telemetry period, LOS policy, faults, ...)."""
     sim = fields.pop("sim", None) or _default_sim()
     sim = replace(sim, servo=description.servo_gains())
@@ -305,7 +316,7 @@ def vehicle_config_for(
         "sim": sim,
         "acs_gains": gains,
         "noise": SensorNoise(**asdict(description.sensor_noise)),
-        "initial_joints_rad": (0.0,) * model.n_joints,
+        "initial_joints_rad": tuple(float(x) for x in model.reference_joints),
         "vehicle_name": description.name,
         "robot": description.name,
         "robot_hash": description.content_sha256,
@@ -391,6 +402,8 @@ class Vehicle:
         self._faults = FaultInjector(config.faults, epoch_ns=epoch_ns, step_ns=self._step_ns)
         self._truth: list[dict[str, Any]] = []
         self._safing = OnboardSafing(epoch_ns=epoch_ns)
+        #: onboard ns of the divergence of the truth simulation (None: it holds)
+        self._diverged_ns: int | None = None
         self._monitor = (
             monitor_for(
                 config.model,
@@ -761,6 +774,10 @@ class Vehicle:
             if t > end:
                 break
             self._step_to(t)
+            if self._diverged_ns is None:
+                diverged = self._divergence(t)
+                if diverged is not None:
+                    acks += self._enter_diverged(t, diverged)
             if fault == t:  # the truth changes first: what is measured at t shows it
                 self._truth += self._faults.begin(t, self._sim)
                 self._apply_servo(t)
@@ -768,7 +785,8 @@ class Vehicle:
             if trigger is not None:  # before the commands due at t: none executes
                 # the frame of the sample that tripped, as it stood (the ground sees the
                 # value), then SAFE: the regular frame at t, if any, is this one
-                frames.append(self._frame(t))
+                if self._diverged_ns is None:
+                    frames.append(self._frame(t))
                 if t == self._next_frame_ns:
                     self._next_frame_ns += self._telemetry_ns
                 acks += self._enter_safe(t, trigger)
@@ -787,10 +805,69 @@ class Vehicle:
             if report == t:
                 self._safing.tick(t)
             if t == self._next_frame_ns:
-                frames.append(self._frame(t))
+                if self._diverged_ns is None:  # a diverged truth is never streamed
+                    frames.append(self._frame(t))
                 self._next_frame_ns += self._telemetry_ns
         self._step_to(end)
+        if self._diverged_ns is None:
+            diverged = self._divergence(end)
+            if diverged is not None:
+                acks += self._enter_diverged(end, diverged)
         return acks, frames
+
+    @property
+    def diverged_ns(self) -> int | None:
+        """When the truth simulation diverged (onboard ns), None while it holds."""
+        return self._diverged_ns
+
+    def _divergence(self, t: int) -> SafingTrigger | None:
+        """The sign that the truth simulation has diverged by ``t``, or None."""
+        warnings = self._sim.instability_warnings
+        if warnings:
+            return SafingTrigger(
+                quantity="simulation_diverged",
+                channel="",
+                value=float(warnings),
+                limit=0.0,
+                detail=f"the truth simulation diverged by onboard {t}: MuJoCo reset its "
+                f"non-finite or huge state {warnings} time(s) (servos faster than the "
+                "integrator holds?)",
+            )
+        state = self._sim.state()
+        checks = (
+            ("joints", np.abs(state.joints_rad), MAX_JOINT_ABS_RAD, "rad"),
+            ("base rate", np.abs(state.omega_base_orbit_radps), MAX_BASE_RATE_RADPS, "rad/s"),
+            ("wheel speed", np.abs(state.wheel_rates_radps), MAX_WHEEL_SPEED_RADPS, "rad/s"),
+        )
+        for name, values, bound, unit in checks:
+            bad = ~np.isfinite(values) | (np.nan_to_num(values, nan=np.inf) > bound)
+            if np.any(bad):
+                worst = float(values[int(np.argmax(bad))])
+                return SafingTrigger(
+                    quantity="simulation_diverged",
+                    channel=name.replace(" ", "_"),
+                    value=worst if math.isfinite(worst) else 1e308,
+                    limit=bound,
+                    detail=f"the truth simulation diverged by onboard {t}: {name} {worst:.6g} "
+                    f"{unit} (beyond {bound:g} {unit} or not finite)",
+                )
+        return None
+
+    def _enter_diverged(self, t: int, trigger: SafingTrigger) -> list[CommandAck]:
+        """The truth has diverged at ``t``: SAFE with that trigger (already SAFE: the
+        divergence is logged), and no frame from now on."""
+        self._diverged_ns = t
+        self._truth.append(
+            {
+                "event": "simulation_diverged",
+                "onboard_time_ns": t,
+                "onboard_s": (t - self._epoch_ns) / 1e9,
+                **trigger.model_dump(),
+            }
+        )
+        if self._safing.safe:
+            return []
+        return self._enter_safe(t, trigger)
 
     def _step_to(self, t: int) -> None:
         steps = (t - self.onboard_time_ns) // self._step_ns

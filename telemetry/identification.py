@@ -74,6 +74,7 @@ __all__ = [
     "METHODS",
     "InertiaIdentification",
     "InsufficientData",
+    "NotPositiveDefinite",
     "find_motion_segments",
     "identify_base_inertia",
     "split_at_gaps",
@@ -274,6 +275,11 @@ def _weighted_fit(
     return sol, cov, resid, wx
 
 
+class NotPositiveDefinite(ValueError):
+    """An identified inertia no rigid body can have (a principal moment <= 0, or not
+    finite): refused, never reported as a result."""
+
+
 def identify_base_inertia(
     recording: PassRecording,
     model: RobotModel | None = None,
@@ -287,7 +293,8 @@ def identify_base_inertia(
     ``model`` gives the arm's link parameters, the base mass and the orbit (its base inertia
     is not used); ``segments`` are plan-clock intervals ``(t_start_s, t_end_s)``, by default
     :func:`find_motion_segments`. Raises :class:`InsufficientData` when fewer blocks remain
-    than unknowns.
+    than unknowns, :class:`NotPositiveDefinite` when the estimate is not a positive definite
+    inertia.
     """
     if method not in METHODS:
         raise ValueError(f"method {method!r} is not one of {METHODS}")
@@ -343,12 +350,20 @@ def identify_base_inertia(
     eig, vec = np.linalg.eigh(inertia_from_parameters(theta))
     basis = parameter_basis()
     grad = np.array([[vec[:, i] @ basis[j] @ vec[:, i] for j in range(6)] for i in range(3)])
+    principal_se = np.sqrt(np.einsum("ij,jk,ik->i", grad, cov_theta, grad))
+    if not (np.all(np.isfinite(theta)) and eig[0] > 0.0):
+        moments = ", ".join(f"{m:.6g} +- {e:.3g}" for m, e in zip(eig, principal_se, strict=True))
+        raise NotPositiveDefinite(
+            f"the identified base inertia is not positive definite: principal moments "
+            f"[{moments}] kg m^2 (no body has these; the telemetry cannot support an "
+            "identification)"
+        )
     return InertiaIdentification(
         parameters_kgm2=theta,
         standard_error_kgm2=np.sqrt(np.diag(cov_theta)),
         covariance_kgm4=cov_theta,
         principal_moments_kgm2=eig,
-        principal_standard_error_kgm2=np.sqrt(np.einsum("ij,jk,ik->i", grad, cov_theta, grad)),
+        principal_standard_error_kgm2=principal_se,
         initial_momentum_orbit_nms=sol[6:].reshape(n_seg, 3),
         residual_rms_nms=np.sqrt(np.mean(resid**2, axis=0)),
         segments=tuple(used),

@@ -23,7 +23,12 @@ from numpy.typing import NDArray
 
 from planner.plan import Plan
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
-from telemetry.wire import TelemetryFrame
+from telemetry.wire import (
+    MAX_BASE_RATE_RADPS,
+    MAX_JOINT_ABS_RAD,
+    MAX_WHEEL_SPEED_RADPS,
+    TelemetryFrame,
+)
 
 __all__ = [
     "FRAME_ARRAYS",
@@ -31,6 +36,8 @@ __all__ = [
     "EventRow",
     "FrameArrays",
     "PassRecording",
+    "UnphysicalTelemetry",
+    "check_physical",
     "frames_to_arrays",
 ]
 
@@ -163,3 +170,38 @@ class PassRecording:
         **kwargs: Any,
     ) -> PassRecording:
         return cls(name, plan, epoch_ns, frames_to_arrays(list(frames)), **kwargs)
+
+
+class UnphysicalTelemetry(ValueError):
+    """A recording whose frames no real vehicle can have sent (a diverged simulation, an
+    imported file): no analysis may call it a result. The message names the first such
+    frame and the quantity."""
+
+
+def check_physical(frames: FrameArrays) -> None:
+    """Raise :class:`UnphysicalTelemetry` when any frame is non-finite or beyond the wire's
+    bounds (``telemetry.wire``'s ``MAX_*``, which the ground already refuses at reception:
+    this catches recordings that came another way)."""
+    columns = {
+        "joints_rad": (frames.joints_rad, MAX_JOINT_ABS_RAD, "rad"),
+        "joint_targets_rad": (frames.joint_targets_rad, MAX_JOINT_ABS_RAD, "rad"),
+        "omega_base_in_base_radps": (frames.omega_base_in_base_radps, MAX_BASE_RATE_RADPS, "rad/s"),
+        "wheel_speeds_radps": (frames.wheel_speeds_radps, MAX_WHEEL_SPEED_RADPS, "rad/s"),
+        "quat_orbit_from_base_xyzw": (frames.quat_orbit_from_base_xyzw, 1.1, ""),
+    }
+    for name, (values, bound, unit) in columns.items():
+        values = np.asarray(values, dtype=np.float64)
+        bad = ~np.isfinite(values) | (np.abs(np.nan_to_num(values, nan=np.inf)) > bound)
+        rows = np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))
+        if rows.size:
+            k = int(rows[0])
+            worst = (
+                values[k][np.argmax(bad.reshape(len(values), -1)[k])]
+                if values.ndim > 1
+                else values[k]
+            )
+            raise UnphysicalTelemetry(
+                f"{rows.size} of {len(values)} frames are not physical, the first seq "
+                f"{int(frames.seq[k])}: {name} {float(worst):.6g} {unit} (beyond {bound:.6g} "
+                f"{unit} or not finite): a diverged simulation is not analysed".replace("  ", " ")
+            )

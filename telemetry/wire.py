@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import re
 from enum import StrEnum
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -43,10 +44,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_SCHEDULE_CAPACITY",
+    "MAX_BASE_RATE_RADPS",
     "MAX_DEPTH",
     "MAX_JOINTS",
+    "MAX_JOINT_ABS_RAD",
     "MAX_MESSAGE_BYTES",
     "MAX_WHEELS",
+    "MAX_WHEEL_SPEED_RADPS",
     "PROTOCOL_VERSION",
     "SPACECRAFT_TYPES",
     "WIRE_ERROR_CODES",
@@ -96,6 +100,17 @@ MAX_DEPTH = 16
 #: robot has is its :class:`telemetry.layout.FrameLayout` (ETS-VII: 6 joints, 3 wheels).
 MAX_JOINTS = 32
 MAX_WHEELS = 16
+#: What no telemetry frame of a real vehicle can hold (our choice, far outside every robot's
+#: envelope): a frame beyond them is a diverged simulation or broken software, refused
+#: ``unphysical`` and never archived. Joints: continuous joints turn +-2 pi, so 4 pi is past
+#: any measured angle or target; the base: 10 rad/s (ETS-VII's attitude rates are
+#: 1e-3 rad/s); wheels: 1e4 rad/s (about 95,000 rpm) and 1e4 N m s; the quaternion's norm
+#: within 0.1 of 1.
+MAX_JOINT_ABS_RAD = 4.0 * math.pi
+MAX_BASE_RATE_RADPS = 10.0
+MAX_WHEEL_SPEED_RADPS = 1e4
+_MAX_WHEEL_MOMENTUM_NMS = 1e4
+_QUAT_NORM_TOLERANCE = 0.1
 
 #: What no string of a message may hold: C0 controls (tab, newline and carriage return
 #: included: no field of the protocol is multi-line text), DEL, C1 controls, and lone
@@ -118,6 +133,7 @@ WIRE_ERROR_CODES = (
     "no_type",
     "unknown_type",
     "invalid",
+    "unphysical",
 )
 
 
@@ -518,6 +534,31 @@ def _load(text: str | bytes) -> dict[str, object]:
     return doc
 
 
+def _unphysical(frame: TelemetryFrame) -> str | None:
+    """Why a frame cannot be a real vehicle's (the bounds above), or None."""
+    for name in ("joints_rad", "joint_targets_rad"):
+        values: list[float] = getattr(frame, name)
+        worst = max(range(len(values)), key=lambda i: abs(values[i]))
+        if abs(values[worst]) > MAX_JOINT_ABS_RAD:
+            return (
+                f"{name}[{worst}] = {values[worst]:.6g} rad is beyond "
+                f"{MAX_JOINT_ABS_RAD:.6g} rad (a diverged simulation?)"
+            )
+    rate = math.sqrt(sum(w * w for w in frame.omega_base_in_base_radps))
+    if rate > MAX_BASE_RATE_RADPS:
+        return f"base rate {rate:.6g} rad/s is beyond {MAX_BASE_RATE_RADPS:g} rad/s"
+    norm = math.sqrt(sum(x * x for x in frame.quat_orbit_from_base_xyzw))
+    if abs(norm - 1.0) > _QUAT_NORM_TOLERANCE:
+        return f"attitude quaternion of norm {norm:.6g}, not 1"
+    speed = max(abs(w) for w in frame.wheel_speeds_radps)
+    if speed > MAX_WHEEL_SPEED_RADPS:
+        return f"wheel speed {speed:.6g} rad/s is beyond {MAX_WHEEL_SPEED_RADPS:g} rad/s"
+    momentum = max(abs(h) for h in frame.wheel_momentum_nms)
+    if momentum > _MAX_WHEEL_MOMENTUM_NMS:
+        return f"wheel momentum {momentum:.6g} N m s is beyond {_MAX_WHEEL_MOMENTUM_NMS:g} N m s"
+    return None
+
+
 def _reason(exc: ValidationError) -> str:
     first = exc.errors()[0]
     where = ".".join(str(p) for p in first["loc"]) or "message"
@@ -568,6 +609,15 @@ def decode_spacecraft(text: str | bytes, layout: FrameLayout | None = None) -> S
     except ValidationError as exc:
         code = "invalid" if kind in SPACECRAFT_TYPES else "unknown_type"
         raise WireError(f"invalid {kind[:64]}: {_reason(exc)}", kind, code) from None
+    if isinstance(message, TelemetryMsg):
+        for k, frame in enumerate(message.frames):
+            problem = _unphysical(frame)
+            if problem is not None:
+                raise WireError(
+                    f"unphysical telemetry: frame {k} (seq {frame.seq}): {problem}",
+                    kind,
+                    "unphysical",
+                )
     if layout is not None:
         if isinstance(message, TelemetryMsg):
             for frame in message.frames:

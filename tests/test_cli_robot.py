@@ -4,6 +4,7 @@ as a real subprocess, and the printed URDF read by another URDF parser (yourdfpy
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -184,3 +185,65 @@ def test_yourdfpy_sees_our_mass_com_and_inertia(
     np.testing.assert_allclose(hand[:3, 3], q.hand.pos_base_m, rtol=0, atol=1e-12)
     np.testing.assert_allclose(hand[:3, :3], q.hand.rot_base_from_hand, rtol=0, atol=1e-12)
     assert pose == "A" or np.abs(joints).max() > 0.1  # B really moves the arm
+
+
+# --- robot check ---------------------------------------------------------------------------
+
+
+def test_robot_check_prints_what_a_vendor_urdf_became(tmp_path: Path) -> None:
+    """The Panda from example-robot-data, unchanged (tests/planner/test_vendor_urdf.py)."""
+    from tests.planner.test_vendor_urdf import copy_robot
+
+    toml = copy_robot(tmp_path, "panda")
+    result = run("robot", "check", str(toml))
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    for line in (
+        "link panda_hand into panda_link7",
+        "link panda_leftfinger into panda_link7",
+        "link panda_link0 into [base]",
+        "joint panda_finger_joint2 (prismatic) at 0.02 m",
+        "renamed: none",
+        "reference pose: ready (0, -45, 0, -135, 0, 90, 45 deg)",
+        "hand: link panda_hand_tcp, rpy at the all-zero pose (180, ",
+        "panda_joint4 -> panda_link4: mission [-170, -10] deg, 3 deg/s (vendor [-176.001, ",
+    ):
+        assert line in out, out
+    report = json.loads(run("robot", "check", str(toml), "--json").stdout)
+    assert report["servo"]["holds_at_poses"] is True
+    assert report["servo"]["limit_per_s"] == pytest.approx(250.0)
+    assert [row["into"] for row in report["lumped"]] == ["[base]", *["panda_link7"] * 3]
+
+
+def test_robot_check_warns_of_ets7_s_fast_corners_and_names_renames(tmp_path: Path) -> None:
+    """ETS-VII loads unchanged (its flown poses' fastest mode is under the bound) and the
+    check warns of the corners of its +-170 deg box where it is not; an arm link called
+    'base' is renamed and said so."""
+    result = run("robot", "check", str(ETS7_DESCRIPTION), "--json")
+    assert result.returncode == 0, result.stderr
+    servo = json.loads(result.stdout)["servo"]
+    assert servo["fastest_at_poses_per_s"] < 250.0 < servo["fastest_over_range_per_s"]
+    assert (
+        "warning: somewhere inside the limits"
+        in run("robot", "check", str(ETS7_DESCRIPTION)).stdout
+    )
+    target = tmp_path / "ets7"
+    shutil.copytree(ETS7_DESCRIPTION.parent, target)
+    for name in ("ets7.urdf", "ets7.toml"):  # the link and its allowed contacts
+        path = target / name
+        path.write_text(path.read_text().replace('"link2"', '"base"'))
+    out = run("robot", "check", str(target / "ets7.toml")).stdout
+    assert "link base is link2" in out, out
+
+
+def test_robot_check_refusal_is_one_line_naming_the_element(tmp_path: Path) -> None:
+    """A pose's error names the pose (the TOML table is no longer eaten as console markup)."""
+    target = tmp_path / "ets7"
+    shutil.copytree(ETS7_DESCRIPTION.parent, target)
+    toml = target / "ets7.toml"
+    text = toml.read_text()
+    toml.write_text(text.replace("[1.170, 0.407, 0.490]", "[1.170, 0.407, 0.540]"))
+    result = run("robot", "check", str(toml))
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1
+    assert f"error: {toml}: [poses.B]: joints_deg put the hand" in result.stderr, result.stderr

@@ -17,6 +17,9 @@ imports nothing of it (an import contract in pyproject.toml says so). In order:
     files      size-limited bytes and the TOML document; where the URDF is
     tables     the TOML's tables checked into planner.robot's values
     urdf_xml   the URDF's XML parsed and checked as a tree
+    reduce     the tree reduced to the model's bodies: fixed links and tool branches
+               lumped, tool joints locked, reserved arm link names renamed, a mount
+    vendor     a vendor URDF's keys: hand, [base], [locked_joints], [mission_limits]
     build      the pure build: parsed URDF -> RobotModel, everything -> RobotDescription
     hashing    the content hash (canonical TOML and URDF)
     checks     InvalidRobotDescription and the small validators every module uses

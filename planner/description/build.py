@@ -19,17 +19,20 @@ a single rounding: sums of the origins' offsets only, so the model loaded from
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping
+from dataclasses import replace
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.description.checks import NAME, WHEEL_NAMES, Checker, InvalidRobotDescription, frozen
+from planner.collision import AllowedContact, CollisionModel
+from planner.collision_segments import segment_collision_model
+from planner.description.checks import Checker, InvalidRobotDescription, frozen
 from planner.description.collision_xml import collision_model_from, flight_rules_from
 from planner.description.hashing import content_sha256
+from planner.description.reduce import CONTINUOUS_LIMIT_RAD, Mount, Reduction, reduce_tree
 from planner.description.tables import (
     Header,
     experiments_from,
@@ -39,194 +42,78 @@ from planner.description.tables import (
     servo_from,
 )
 from planner.description.urdf_xml import Frame, Urdf
+from planner.description.vendor import locked_from, mission_limits_from, mount_from
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.flight_rules import FlightRules
 from planner.model import LinkSpec, RobotModel, WheelSpec, base_body_inertial
-from planner.robot import RobotDescription
+from planner.robot import NamedPose, RobotDescription, ServoSpec, servo_gains_of
+from planner.servo_check import servo_modes
 
 __all__ = [
     "CONTINUOUS_LIMIT_RAD",
+    "HAND",
     "MIN_ARM_JOINTS",
-    "arm_chain",
     "build_robot",
     "model_from_urdf",
 ]
 
 #: A reaction null space (n - 3 dimensions) needs at least 4 arm joints.
 MIN_ARM_JOINTS = 4
-#: Continuous joints get these limits (rad): a turn each way, so that check_joints has a range.
-CONTINUOUS_LIMIT_RAD = 2.0 * math.pi
-_ARM_JOINT_TYPES = frozenset({"revolute", "continuous"})
-_HAND = "hand"
+#: The hand frame's link where a description names none.
+HAND = "hand"
 
 Array = NDArray[np.float64]
 
 
-def arm_chain(urdf: Urdf, base_link: str) -> list[ET.Element]:
-    """The joints from the base link to the hand, in order."""
+def model_from_urdf(
+    urdf: Urdf,
+    base_link: str,
+    wheels: tuple[WheelSpec, ...],
+    *,
+    hand: str = HAND,
+    locked: Mapping[str, float] | None = None,
+    mount: Mount | None = None,
+) -> tuple[RobotModel, Reduction]:
+    """The model of the checked tree (:func:`planner.description.reduce.reduce_tree`) with the
+    vendor's joint limits, and the reduction it came from."""
     c = urdf.c
-    if _HAND not in urdf.links:
-        raise c.fail(f"link {_HAND!r}", "missing: the hand frame must be a link named 'hand'")
-    chain: list[ET.Element] = []
-    link = _HAND
-    while link != base_link:
-        joint = urdf.parent_joint[link]  # check_tree: every link but the base has one
-        chain.append(joint)
-        link = urdf.link_ref(joint, "parent")
-    chain.reverse()
-    on_chain = {base_link, *(urdf.link_ref(j, "child") for j in chain)}
-    for name in urdf.links:
-        if name in on_chain:
-            continue
-        joint = urdf.parent_joint[name]
-        if joint.get("type") != "fixed" or urdf.inertial(name) is not None:
-            raise c.fail(
-                f"link {name!r}",
-                "is off the chain from the base to the hand: only massless frames on fixed "
-                "joints may branch off (a serial arm)",
-            )
-    return chain
-
-
-def model_from_urdf(urdf: Urdf, base_link: str, wheels: tuple[WheelSpec, ...]) -> RobotModel:
-    c = urdf.c
-    chain = arm_chain(urdf, base_link)
-    kinds = []
-    for joint in chain:
-        kind = joint.get("type", "")
-        name = joint.get("name")
-        if kind not in _ARM_JOINT_TYPES and kind != "fixed":
-            raise c.fail(
-                f"joint {name!r}",
-                f"type {kind!r} cannot be flown: arm joints must be revolute or continuous, "
-                "the base and hand attached by fixed joints",
-            )
-        kinds.append(kind)
-    movable = [i for i, k in enumerate(kinds) if k != "fixed"]
-    if len(movable) < MIN_ARM_JOINTS:
+    red = reduce_tree(urdf, base_link, hand, locked or {}, mount)
+    if len(red.arm) < MIN_ARM_JOINTS:
         raise c.fail(
-            f"link {_HAND!r}",
-            f"the chain from {base_link!r} has {len(movable)} arm joint(s); at least "
+            f"link {hand!r}",
+            f"the chain from {base_link!r} has {len(red.arm)} arm joint(s); at least "
             f"{MIN_ARM_JOINTS} are needed for a reaction null space (n - 3 > 0)",
         )
-    first, last = movable[0], movable[-1]
-    for i in range(first, last + 1):
-        if kinds[i] == "fixed":
-            raise c.fail(
-                f"joint {chain[i].get('name')!r}",
-                "a fixed joint between arm joints is not supported: merge the two links",
-            )
-    for i in [*range(first), *range(last + 1, len(chain))]:
-        child = urdf.link_ref(chain[i], "child")
-        if urdf.inertial(child) is not None:
-            raise c.fail(
-                f"link {child!r}",
-                "has mass but is not moved by an arm joint: only massless frames may sit "
-                "between the base and joint 1 or beyond the last joint",
-            )
-
-    base = urdf.inertial(base_link)
-    if base is None:
-        raise c.fail(f"link {base_link!r} <inertial>", "missing: the base needs mass and inertia")
-    base_rot, base_com = base.origin
-    base_inertia = Frame(base_rot, np.zeros(3)).rotate_tensor(base.inertia_kgm2)
-
-    # Base link frame -> the first arm joint's frame.
-    frame = Frame(None, np.zeros(3))
-    for joint in chain[:first]:
-        frame = frame.then(*urdf.origin(joint, f"joint {joint.get('name')!r}"))
-    j1_rot, j1_pos = urdf.origin(chain[first], f"joint {chain[first].get('name')!r}")
-    frame = frame.then(j1_rot, j1_pos)
-    pos_base_from_robot = frame.pos - base_com
-    # From here on positions are relative to the robot origin (joint 1), base axes.
-    frame = Frame(frame.rot, np.zeros(3))
-
-    links: list[LinkSpec] = []
-    limits: list[tuple[float, float]] = []
-    rates: list[float] = []
-    for k, i in enumerate(movable):
-        joint = chain[i]
-        name = joint.get("name")
-        where = f"joint {name!r}"
-        if k > 0:
-            frame = frame.then(*urdf.origin(joint, where))
-        axis_elem = joint.find("axis")
-        axis_local = urdf.floats(
-            f"{where} <axis xyz>", None if axis_elem is None else axis_elem.get("xyz"), 3, "1 0 0"
-        )
-        norm = float(np.linalg.norm(axis_local))
-        if not 0.999 < norm < 1.001:
-            raise c.fail(f"{where} <axis>", f"must be a unit vector, has length {norm:.6g}")
-        axis = frame.apply(axis_local / norm)
-        limit = joint.find("limit")
-        if limit is None:
-            raise c.fail(where, "missing <limit> (the planners need a rate limit)")
-        velocity = urdf.attr_float(limit, "velocity", f"{where} <limit>")
-        if velocity <= 0.0:
-            raise c.fail(f"{where} <limit>", f"velocity must be > 0 rad/s, got {velocity!r}")
-        if joint.get("type") == "continuous":
-            lo, hi = -CONTINUOUS_LIMIT_RAD, CONTINUOUS_LIMIT_RAD
-        else:
-            lo = urdf.attr_float(limit, "lower", f"{where} <limit>")
-            hi = urdf.attr_float(limit, "upper", f"{where} <limit>")
-            if not lo < hi:
-                raise c.fail(f"{where} <limit>", f"lower {lo!r} must be below upper {hi!r}")
-            if not lo <= 0.0 <= hi:
-                raise c.fail(
-                    f"{where} <limit>",
-                    f"[{lo!r}, {hi!r}] must contain 0 (the all-zero pose is the model's reference)",
-                )
-        child = urdf.link_ref(joint, "child")
-        if not NAME.match(child):
-            raise c.fail(
-                f"link {child!r}", "an arm link's name is letters, digits, '_', '-' or '.'"
-            )
-        inertial = urdf.inertial(child)
-        if inertial is None:
-            raise c.fail(
-                f"link {child!r} <inertial>", "missing: every arm link needs mass and inertia"
-            )
-        in_rot, in_pos = inertial.origin
-        inertia_frame = frame.then(in_rot, in_pos)
+    base = red.base
+    base_inertia = Frame(base.rot, np.zeros(3)).rotate_tensor(base.inertia_kgm2)
+    links = []
+    for k, arm_body in enumerate(red.arm):
         links.append(
             LinkSpec(
-                name=child,
-                joint_pos_robot_m=frozen(frame.pos),
-                joint_axis_robot=frozen(axis),
-                mass_kg=inertial.mass_kg,
-                com_robot_m=frozen(inertia_frame.pos),
-                inertia_com_inertia_frame_kgm2=frozen(inertial.inertia_kgm2),
-                rot_robot_from_inertia=frozen(inertia_frame.rot_matrix),
+                name=red.link_names[k],
+                joint_pos_robot_m=frozen(red.joint_pos_robot_m[k]),
+                joint_axis_robot=frozen(red.joint_axis_robot[k]),
+                mass_kg=arm_body.mass_kg,
+                com_robot_m=frozen(arm_body.com_m),
+                inertia_com_inertia_frame_kgm2=frozen(arm_body.inertia_kgm2),
+                rot_robot_from_inertia=frozen(np.eye(3) if arm_body.rot is None else arm_body.rot),
             )
         )
-        limits.append((lo, hi))
-        rates.append(velocity)
-
-    for joint in chain[last + 1 :]:
-        frame = frame.then(*urdf.origin(joint, f"joint {joint.get('name')!r}"))
-    if frame.rot is not None and not np.allclose(frame.rot, np.eye(3), rtol=0.0, atol=1e-12):
-        raise c.fail(
-            f"link {_HAND!r}",
-            "at the all-zero pose the hand frame must be parallel to the base frame "
-            "(the planners take it so); move the rotation into a frame beyond the hand",
-        )
-    names = [spec.name for spec in links]
-    reserved = {*WHEEL_NAMES, "base"}  # the MuJoCo model's own bodies
-    if reserved & set(names):
-        raise c.fail(
-            f"link {sorted(reserved & set(names))[0]!r}",
-            f"arm links may not be called {sorted(reserved)} (the MuJoCo model's own bodies)",
-        )
-    return RobotModel(
+    model = RobotModel(
         base_mass_kg=base.mass_kg,
         base_inertia_kgm2=frozen(base_inertia),
-        pos_base_from_robot_m=frozen(pos_base_from_robot),
+        pos_base_from_robot_m=frozen(red.pos_j1_m - base.com_m),
         links=tuple(links),
-        hand_pos_robot_m=frozen(frame.pos),
+        hand_pos_robot_m=frozen(red.hand_pos_robot_m),
         wheels=wheels,
-        joint_limit_rad=frozen(np.array(limits)),
-        joint_rate_limit_radps=frozen(np.array(rates)),
+        joint_limit_rad=frozen(red.vendor_limit_rad),
+        joint_rate_limit_radps=frozen(red.vendor_rate_radps),
+        rot_robot_from_hand=(
+            None if red.rot_robot_from_hand is None else frozen(red.rot_robot_from_hand)
+        ),
     )
+    return model, red
 
 
 def build_robot(
@@ -242,19 +129,44 @@ def build_robot(
     :func:`planner.description.load_robot` has read them."""
     urdf_path = head.urdf_path
     urdf.check_tree(head.base_link)
-    model = model_from_urdf(urdf, head.base_link, head.wheels)
-    chain = arm_chain(urdf, head.base_link)
-    arm_joints = [j.get("name", "") for j in chain if j.get("type") in _ARM_JOINT_TYPES]
-    first = next(j for j in chain if j.get("type") in _ARM_JOINT_TYPES)
-    rules, allowed = flight_rules_from(c, doc.get("flight_rules", {}))
-    collision = collision_model_from(
+    hand = c.text("hand", doc.get("hand", HAND))
+    model, red = model_from_urdf(
         urdf,
         head.base_link,
-        arm_joints,
-        urdf.link_ref(first, "child"),
-        allowed,
-        meshes or {},
+        head.wheels,
+        hand=hand,
+        locked=locked_from(c, doc.get("locked_joints", {}), urdf),
+        mount=(mount := mount_from(c, doc.get("base"))),
+    )
+    mission_limit, mission_rate = mission_limits_from(
         c,
+        doc.get("mission_limits", {}),
+        red.joint_names,
+        red.vendor_limit_rad,
+        red.vendor_rate_radps,
+    )
+    model = replace(
+        model, joint_limit_rad=frozen(mission_limit), joint_rate_limit_radps=frozen(mission_rate)
+    )
+    rules, allowed = flight_rules_from(c, doc.get("flight_rules", {}))
+    urdf_collision = doc.get("urdf_collision", True)
+    if not isinstance(urdf_collision, bool):
+        raise c.fail("urdf_collision", f"must be true or false, got {urdf_collision!r}")
+    collision = (
+        collision_model_from(
+            urdf,
+            head.base_link,
+            list(red.joint_names),
+            urdf.link_ref(urdf.joints[red.joint_names[0]], "child"),
+            allowed,
+            meshes or {},
+            c,
+            # the tree's own frames unless loading moved something (a mount, a locked
+            # tool): ETS-VII's shapes keep their numbers to the last bit
+            frames=red.frames if mount is not None or red.locked else None,
+        )
+        if urdf_collision
+        else None
     )
 
     rotor_mass, rotor_free_inertia = base_body_inertial(model)
@@ -274,6 +186,22 @@ def build_robot(
     for key in ("torque_limit_nm", "momentum_limit_nms"):
         if key in acs:
             raise c.fail(f"[acs] {key}", "set the wheels' limits on each [[wheels]] entry")
+    poses = poses_from(c, doc.get("poses", {}), ws)
+    model = _with_reference(c, doc, model, red, poses)
+    ws = DynamicsWorkspace(model)
+    box = mount.size_m if mount is not None else urdf.box_size(head.base_link)
+    if "generated_collision" in doc:
+        if urdf_collision:
+            raise c.fail(
+                "[generated_collision]",
+                "generates the collision bodies in place of the URDF's: set urdf_collision = "
+                "false with it",
+            )
+        collision = _generated_collision(
+            c, doc["generated_collision"], model, head.base_link, box, red, rules, allowed
+        )
+    servo = servo_from(c, doc.get("servo", {}), model.n_joints)
+    _check_servos(c, ws, servo, poses)
     description = RobotDescription(
         name=head.name,
         description=c.text("description", doc.get("description", "")),
@@ -284,19 +212,120 @@ def build_robot(
         model=model,
         wheel_limits=head.wheel_limits,
         acs_config=MappingProxyType(dict(acs)),
-        servo=servo_from(c, doc.get("servo", {}), model.n_joints),
+        servo=servo,
         sensor_noise=sensor_noise_from(c, doc.get("sensor_noise", {})),
-        poses=MappingProxyType(poses_from(c, doc.get("poses", {}), ws)),
+        poses=MappingProxyType(poses),
         experiments=MappingProxyType(
             experiments_from(c, doc.get("experiments", {}), model.n_joints)
         ),
-        base_box_size_m=urdf.box_size(head.base_link),
+        base_box_size_m=box,
         collision=collision,
         flight_rules=rules,
         limits=limits_from(c, doc.get("limits", {})),
+        vendor_joint_limit_rad=frozen(red.vendor_limit_rad),
+        vendor_joint_rate_limit_radps=frozen(red.vendor_rate_radps),
+        joint_names=red.joint_names,
+        hand_link=hand,
+        reference_pose=doc.get("reference_pose"),
+        lumped=red.lumped,
+        locked=red.locked,
+        renamed=red.renamed,
     )
     try:
         description.acs_gains(ws)
     except InvalidInput as exc:
         raise c.fail("[acs]", str(exc)) from None
     return description
+
+
+def _with_reference(
+    c: Checker,
+    doc: Mapping[str, Any],
+    model: RobotModel,
+    red: Reduction,
+    poses: Mapping[str, NamedPose],
+) -> RobotModel:
+    """The model with its reference pose: the description's ``reference_pose`` (a named pose
+    with joints inside the limits), or all zeros, which every joint's limits must then hold."""
+    if "reference_pose" not in doc:
+        for i, (lo, hi) in enumerate(model.joint_limit_rad):
+            if not lo <= 0.0 <= hi:
+                raise c.fail(
+                    f"joint {red.joint_names[i]!r} <limit>",
+                    f"[{math.degrees(lo):.6g}, {math.degrees(hi):.6g}] deg excludes 0: name a "
+                    "pose inside every joint's limits as the description's reference_pose "
+                    "(the planners' reference, all zeros otherwise)",
+                )
+        return model
+    name = c.text("reference_pose", doc["reference_pose"])
+    pose = poses.get(name)
+    if pose is None or pose.joints_rad is None:
+        raise c.fail(
+            "reference_pose",
+            f"{name!r} must be a pose of [poses] with joints_deg (poses: {sorted(poses)})",
+        )
+    return replace(model, reference_joints_rad=frozen(pose.joints_rad))
+
+
+def _check_servos(
+    c: Checker, ws: DynamicsWorkspace, servo: ServoSpec, poses: Mapping[str, NamedPose]
+) -> None:
+    """Refuse servos whose fastest mode at the reference or a named pose the simulator's
+    integrator cannot hold (:mod:`planner.servo_check`), proposing the damping that fits."""
+    try:
+        gains = servo_gains_of(servo, ws.model)
+    except InvalidInput as exc:
+        raise c.fail("[servo]", str(exc)) from None
+    flown = {name: p.joints_rad for name, p in poses.items() if p.joints_rad is not None}
+    modes = servo_modes(ws, gains, poses=flown, samples=0)
+    if modes.stable:
+        return
+    scale = 0.9 * modes.limit_per_s / modes.fastest_per_s  # kd scales every mode linearly
+    if servo.kd_nms_per_rad is not None:
+        kd = np.asarray(servo.kd_nms_per_rad) * scale
+        proposal = "kd_nms_per_rad = [" + ", ".join(f"{v:.4g}" for v in kd) + "]"
+    else:
+        lag = np.atleast_1d(np.asarray(servo.lag_s, dtype=np.float64)) * scale
+        proposal = (
+            f"lag_s = {lag[0]:.3g}"
+            if lag.size == 1
+            else "lag_s = [" + ", ".join(f"{v:.3g}" for v in lag) + "]"
+        )
+    raise c.fail(
+        "[servo]",
+        f"{modes.describe()}: the simulation would diverge; lower the damping, e.g. "
+        f"{proposal} (a smaller bandwidth_radps lowers kp and kd together)",
+    )
+
+
+def _generated_collision(
+    c: Checker,
+    value: object,
+    model: RobotModel,
+    base_link: str,
+    box: tuple[float, float, float] | None,
+    red: Reduction,
+    rules: FlightRules,
+    allowed: tuple[AllowedContact, ...],
+) -> CollisionModel:
+    """``[generated_collision]``: capsules along the links, a hand sphere and the base box
+    (:mod:`planner.collision_segments`)."""
+    table = c.table("[generated_collision]", value)
+    c.keys("[generated_collision]", table, frozenset({"radius_m", "hand_radius_m"}))
+    radius = c.number("[generated_collision] radius_m", table.get("radius_m", 0.06), positive=True)
+    hand = c.number(
+        "[generated_collision] hand_radius_m", table.get("hand_radius_m", 0.08), positive=True
+    )
+    try:
+        return segment_collision_model(
+            model,
+            base_name=base_link,
+            radius_m=radius,
+            hand_radius_m=hand,
+            clearance_m=rules.min_clearance_m,
+            base_box_size_m=box,
+            base_box_centre_robot_m=None if box is None else -red.pos_j1_m,
+            allowed=allowed,
+        )
+    except InvalidInput as exc:
+        raise c.fail("[[flight_rules.allowed_contact]]", str(exc)) from None

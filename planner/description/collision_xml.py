@@ -152,10 +152,14 @@ def collision_model_from(
     allowed: Sequence[AllowedContact],
     meshes: Mapping[str, Array],
     toml: Checker,
+    *,
+    frames: Mapping[str, Frame] | None = None,
 ) -> CollisionModel | None:
     """The URDF's collision bodies (None when it has no ``<collision>`` at all: the rules
-    step refuses such a robot, :func:`planner.collision.check_collision_model`)."""
-    frames = _zero_pose_frames(urdf, base_link)
+    step refuses such a robot, :func:`planner.collision.check_collision_model`). ``frames``:
+    every link's frame at the reference, tool joints locked (default: the all-zero pose, in
+    the base link's frame)."""
+    frames = _zero_pose_frames(urdf, base_link) if frames is None else frames
     robot_origin = frames[first_link].pos  # joint 1's position: its child link's origin
     bodies = []
     for name, link in urdf.links.items():

@@ -34,7 +34,11 @@ def load_robot(path: str | Path) -> RobotDescription:
     c, doc = read_toml(toml_path, "description")
     head = head_from(c, doc, lambda urdf_name: urdf_path_of(c, toml_path, urdf_name))
     urdf = Urdf(head.urdf_path, read_limited(head.urdf_path, "URDF"))
-    meshes = {name: read_mesh_points(head.urdf_path, name) for name in mesh_filenames(urdf)}
+    meshes = (
+        {name: read_mesh_points(head.urdf_path, name) for name in mesh_filenames(urdf)}
+        if doc.get("urdf_collision", True) is not False  # false: <collision> is not read
+        else {}
+    )
     return build_robot(c, doc, head, urdf, meshes)
 
 

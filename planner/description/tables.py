@@ -69,6 +69,13 @@ TOP_KEYS = frozenset(
         "experiments",
         "flight_rules",
         "limits",
+        "hand",
+        "reference_pose",
+        "base",
+        "locked_joints",
+        "mission_limits",
+        "urdf_collision",
+        "generated_collision",
     }
 )
 _WHEEL_KEYS = frozenset(

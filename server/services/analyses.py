@@ -58,9 +58,13 @@ from server.storage.errors import NotFound
 from server.storage.models import AnalysisRecord
 from telemetry.analysis import PassAnalysis, analyse_pass
 from telemetry.figures import alarm_timeline_figure, pass_figures
-from telemetry.identification import INERTIA_PARAMETER_NAMES, InsufficientData
+from telemetry.identification import (
+    INERTIA_PARAMETER_NAMES,
+    InsufficientData,
+    NotPositiveDefinite,
+)
 from telemetry.identification import identify_base_inertia as identify
-from telemetry.recording import PassRecording
+from telemetry.recording import PassRecording, UnphysicalTelemetry, check_physical
 from telemetry.resim import resimulate_free_drift
 
 __all__ = [
@@ -123,10 +127,26 @@ def _attempt(kind: str, run: Callable[[], Any]) -> tuple[Any, dict[str, Any]]:
         result = numbers_only(value.to_dict())
         json.dumps(result, allow_nan=False)  # NaN or infinity: not storable JSON
     except Exception as exc:
-        log.warning("analysis %s failed", kind, exc_info=not isinstance(exc, InsufficientData))
+        expected = (InsufficientData, UnphysicalTelemetry, NotPositiveDefinite)
+        log.warning("analysis %s failed", kind, exc_info=not isinstance(exc, expected))
         error = {"type": type(exc).__name__, "message": str(exc) or repr(exc)}
         return None, {"status": "failed", "error": error}
     return value, {"status": "ok", "result": result}
+
+
+def _diverged(recording: PassRecording) -> UnphysicalTelemetry | None:
+    """The vehicle's own word that its truth simulation diverged during the pass (a
+    ``vehicle_safed`` event with the trigger ``simulation_diverged``): nothing of the pass
+    is a flight to analyse."""
+    for event in recording.events:
+        trigger = event.detail.get("trigger") if event.kind == "vehicle_safed" else None
+        if isinstance(trigger, Mapping) and trigger.get("quantity") == "simulation_diverged":
+            return UnphysicalTelemetry(
+                f"the vehicle reported its simulation diverged (safed at onboard "
+                f"{event.detail.get('since_time_ns')}: {trigger.get('detail')}): a diverged "
+                "simulation is not analysed"
+            )
+    return None
 
 
 def compute_analyses(
@@ -139,8 +159,19 @@ def compute_analyses(
     by its hash among the shipped ones and ``robot_files``)."""
     model = model or default_model()
     n = len(recording.frames)
+    try:
+        check_physical(recording.frames)
+        unphysical: UnphysicalTelemetry | None = _diverged(recording)
+    except UnphysicalTelemetry as exc:
+        unphysical = exc
+
+    def physical() -> None:
+        """Every analysis fails, with the reason, on a recording no vehicle can have made."""
+        if unphysical is not None:
+            raise unphysical
 
     def enough() -> None:
+        physical()
         if n < 3:
             raise InsufficientData(f"the pass has {n} telemetry frames (need 3 or more)")
 
@@ -153,7 +184,12 @@ def compute_analyses(
         return resimulate_free_drift(recording, model)
 
     ws = DynamicsWorkspace(model)
-    analysis, pass_doc = _attempt("pass_analysis", lambda: analyse_pass(recording, ws))
+
+    def passes() -> Any:
+        physical()
+        return analyse_pass(recording, ws)
+
+    analysis, pass_doc = _attempt("pass_analysis", passes)
     _, ident_doc = _attempt("inertia_identification", identification)
     if ident_doc["status"] == "ok":
         ident_doc["result"]["reference"] = {
@@ -163,6 +199,7 @@ def compute_analyses(
     _, resim_doc = _attempt("gravity_gradient_resim", resim)
 
     def clearance() -> Any:
+        physical()
         description = description_for_plan(recording.plan, [Path(p) for p in robot_files])
         return flown_clearance(recording, description)
 

@@ -533,3 +533,36 @@ def test_the_vehicle_measures_the_attitude_error_as_the_ground_does() -> None:
     ours = np.array([onboard(q, t) for q, t in zip(quats, targets, strict=True)])
     np.testing.assert_allclose(ours, ground, rtol=0, atol=1e-10)
     assert np.max(np.abs(ground)) > 60.0 and np.max(np.abs(ours[1])) < 1e-12
+
+
+@pytest.mark.parametrize("safing", [True, False])
+def test_a_diverging_simulation_safes_the_vehicle_and_streams_nothing(safing: bool) -> None:
+    """Servos made unstable on purpose (ETS-VII's damping x10: past what RK4 at 10 ms holds,
+    planner.servo_check), flown anyway through the vehicle's own config (a description
+    with them is refused at load): the vehicle safes with ``simulation_diverged`` at the
+    first instability, even flying without safing, drops its schedule, and generates no
+    frame from then on (issue 28: 2,087 frames of a diverged Panda were archived)."""
+    from planner.mjcf import ServoGains
+    from planner.simulation import SimConfig, default_servo_gains
+
+    model = default_robot().model
+    gains = default_servo_gains(model)
+    unstable = ServoGains(gains.kp_nm_per_rad, np.asarray(gains.kd_nms_per_rad) * 10.0)
+    v = _vehicle(sim=SimConfig(servo=unstable), safing=safing)
+    _received(v, _ramp(1, 2.0, 5.0, 5.0))
+    acks, frames = v.advance_to(EPOCH + 20 * SECOND)  # MuJoCo warns on stderr, C side
+    assert v.safe and v.diverged_ns is not None
+    trigger = v.onboard_safing.trigger
+    assert trigger is not None and trigger.quantity == "simulation_diverged"
+    assert "diverged" in (trigger.detail or "")
+    # the frames before the divergence only, every one of them physical
+    assert v.diverged_ns - EPOCH == 200_000_000  # the first instability, 0.2 s in
+    assert [f.generation_time_ns - EPOCH for f in frames] == [0, 100_000_000]
+    assert all(max(abs(x) for x in f.joints_rad) < 1.0 for f in frames)
+    # every queued command dropped, none executed
+    assert {a.stage for a in acks} == {CommandStage.REJECTED}
+    assert {a.reason for a in acks} == {RejectReason.SAFING}
+    _, later = v.advance_to(EPOCH + 30 * SECOND)
+    assert later == []
+    truth = [e["event"] for e in v.take_truth_events()]
+    assert "simulation_diverged" in truth and "safing_entry" in truth

@@ -22,6 +22,7 @@ from telemetry._momentum import central_rates, momentum_samples, rotations_from_
 from telemetry.identification import (
     InertiaIdentification,
     InsufficientData,
+    NotPositiveDefinite,
     find_motion_segments,
     identify_base_inertia,
 )
@@ -251,3 +252,20 @@ def test_to_dict_is_deterministic_json(noise_free: PassRecording, model: RobotMo
     assert set(doc["parameters_kgm2"]) == {"Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"}
     assert doc["n_samples"] > 1000
     assert len(doc["principal_moments_kgm2"]) == 3
+
+
+def test_a_non_positive_definite_inertia_is_refused(
+    noise_free: PassRecording, model: RobotModel
+) -> None:
+    """With the arm's centres of mass three times as far out as flown, the momentum balance
+    puts a negative principal moment on the base (-7,600 kg m^2, measured): refused with the
+    principal moments, never a result (issue 28's diverged Panda identified -59.6 +- 18,164
+    kg m^2)."""
+    from dataclasses import replace
+
+    wrong = replace(
+        model,
+        links=tuple(replace(link, com_robot_m=link.com_robot_m * 3.0) for link in model.links),
+    )
+    with pytest.raises(NotPositiveDefinite, match=r"not positive definite: principal moments \[-"):
+        identify_base_inertia(noise_free, wrong)

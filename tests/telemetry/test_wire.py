@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import pytest
@@ -299,3 +300,45 @@ def test_hello_names_the_robot_optionally_and_ets7s_hello_is_unchanged() -> None
     for bad in ({"n_joints": 0}, {"n_joints": 33}, {"robot": ""}, {"robot_hash": "x" * 129}):
         with pytest.raises(WireError, match="invalid hello"):
             decode_spacecraft(json.dumps({**HELLO, **bad}))
+
+
+def _telemetry_text(**changes: Any) -> str:
+    doc = json.loads(encode(TelemetryMsg(frames=[_frame(0), _frame(1)])))
+    for key, value in changes.items():
+        doc["frames"][1][key] = value
+    return json.dumps(doc)
+
+
+@pytest.mark.parametrize(
+    ("changes", "code", "reason"),
+    [
+        ({"joints_rad": [0.0, 0.0, float("nan"), 0.0, 0.0, 0.0]}, "invalid", "finite number"),
+        ({"omega_base_in_base_radps": [float("inf"), 0.0, 0.0]}, "invalid", "finite number"),
+        ({"joints_rad": [0.0, 0.0, 1e15, 0.0, 0.0, 0.0]}, "unphysical", "joints_rad[2] = 1e+15"),
+        ({"joint_targets_rad": [0.0, -13.0, 0.0, 0.0, 0.0, 0.0]}, "unphysical", "-13 rad"),
+        ({"omega_base_in_base_radps": [0.0, 1e30, 0.0]}, "unphysical", "base rate 1e+30"),
+        ({"quat_orbit_from_base_xyzw": [0.0, 0.0, 0.0, 2.0]}, "unphysical", "norm 2"),
+        ({"wheel_speeds_radps": [1.0, 2e5, 3.0]}, "unphysical", "wheel speed 200000"),
+        ({"wheel_momentum_nms": [0.0, 0.0, -3e4]}, "unphysical", "wheel momentum 30000"),
+    ],
+)
+def test_nonsense_telemetry_is_refused_with_a_counted_code(
+    changes: dict[str, Any], code: str, reason: str
+) -> None:
+    """A diverged simulation's frames (non-finite, or finite but beyond any real vehicle:
+    telemetry.wire's MAX_* bounds) never reach the archive: the message is refused with a
+    code the ground counts (server/services/malformed.py) and the frame named."""
+    with pytest.raises(WireError) as info:
+        decode_spacecraft(_telemetry_text(**changes))
+    assert info.value.code == code
+    assert info.value.ref_type == "telemetry"
+    assert reason in str(info.value), str(info.value)
+    if code == "unphysical":
+        assert "frame 1 (seq 1)" in str(info.value)
+    # the bounds leave every real frame alone: a joint at 2 pi, a base turning at 1 rad/s
+    decode_spacecraft(
+        _telemetry_text(
+            joints_rad=[2 * math.pi, 0.0, 0.0, 0.0, 0.0, -2 * math.pi],
+            omega_base_in_base_radps=[1.0, 0.0, 0.0],
+        )
+    )

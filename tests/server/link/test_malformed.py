@@ -191,3 +191,36 @@ def test_error_messages_from_the_vehicle_are_tallied_never_answered(tmp_path: Pa
     assert row.detail["count"] == 50 and row.detail["code"] == "received"
     assert row.detail["reason"] == "cannot read" and row.detail["ref_type"] == "ping"
     assert g.link.status().errors_received == 50
+
+
+def test_a_diverged_vehicle_s_frames_are_refused_and_counted_by_their_reason(
+    tmp_path: Path,
+) -> None:
+    """Frames no real vehicle can send (a joint at 1e15 rad, a base turning at 1e30 rad/s:
+    issue 28's diverged Panda) are refused before the archive, answered with the reason and
+    counted as ``telemetry:unphysical``; a NaN stays ``telemetry:invalid``."""
+    from tests.telemetry.test_wire import _telemetry_text
+
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(sessions, clock, malformed_interval_s=5.0)
+    socket = Socket()
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, socket)
+        diverged = _telemetry_text(joints_rad=[0.0, 0.0, 1e15, 0.0, 0.0, 0.0])
+        await g.link.handle(conn, diverged, clock.monotonic())
+        spinning = _telemetry_text(omega_base_in_base_radps=[0.0, 1e30, 0.0])
+        await g.link.handle(conn, spinning, clock.monotonic())
+        nan = _telemetry_text(joints_rad=[0.0, float("nan"), 0.0, 0.0, 0.0, 0.0])
+        await g.link.handle(conn, nan, clock.monotonic())
+        await clock.advance(6.0)
+        await g.db.drain()
+
+    asyncio.run(scenario())
+    assert g.link.status().malformed_by_kind == {"telemetry:unphysical": 2, "telemetry:invalid": 1}
+    reasons = [e["reason"] for e in socket.errors()]
+    assert any("joints_rad[2] = 1e+15 rad" in r for r in reasons), reasons
+    assert any("base rate 1e+30 rad/s" in r for r in reasons), reasons
+    rows = {r.detail["code"]: r.detail for r in _events(sessions, "link_error_replied")}
+    assert rows["unphysical"]["count"] == 2

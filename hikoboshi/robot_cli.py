@@ -1,0 +1,204 @@
+"""``hikoboshi robot check FILE``: load a robot description and say what loading did to its
+URDF (links lumped, tool joints locked, arm links renamed), its joints' vendor and mission
+limits, the reference pose and hand frame, and the servos' fastest mode against what the
+simulator holds (docs/robots.md, "A vendor's URDF" and "Servo stability")."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
+import numpy as np
+import typer
+from rich.console import Console
+
+__all__ = ["register"]
+
+robot_app = typer.Typer(
+    no_args_is_help=True, help="Robot descriptions: check what a description loads to."
+)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True)
+
+
+def _fail(reason: str) -> NoReturn:
+    err_console.print(f"error: {reason}", markup=False, highlight=False, soft_wrap=True)
+    raise typer.Exit(code=2)
+
+
+def check_report(description: Any) -> dict[str, Any]:
+    """What ``robot check`` prints, as one JSON-able dict."""
+    from planner.dynamics import DynamicsWorkspace
+    from planner.errors import PlannerError
+    from planner.frames import rpy_from_matrix
+    from planner.servo_check import servo_modes
+
+    model = description.model
+    ws = DynamicsWorkspace(model)
+    gains = description.servo_gains()
+    flown = {}
+    for name in description.poses:  # hand poses solved by IK, as the planners take them
+        try:
+            flown[name] = description.pose_joints_rad(name, ws)
+        except PlannerError:
+            continue
+    at_poses = servo_modes(ws, gains, poses=flown, samples=0)
+    over_range = servo_modes(ws, gains, poses=flown)
+    vendor = description.vendor_joint_limit_rad
+    vendor_rate = description.vendor_joint_rate_limit_radps
+    joints = []
+    for i, link in enumerate(model.links):
+        joints.append(
+            {
+                "joint": description.joint_names[i] if description.joint_names else f"joint{i + 1}",
+                "link": link.name,
+                "mission_limits_deg": np.degrees(model.joint_limit_rad[i]).tolist(),
+                "mission_rate_degps": math.degrees(model.joint_rate_limit_radps[i]),
+                "vendor_limits_deg": (None if vendor is None else np.degrees(vendor[i]).tolist()),
+                "vendor_rate_degps": (
+                    None if vendor_rate is None else math.degrees(vendor_rate[i])
+                ),
+            }
+        )
+    rot = model.rot_robot_from_hand
+    return {
+        "robot": description.name,
+        "file": str(description.path),
+        "urdf": str(description.urdf_path),
+        "n_joints": model.n_joints,
+        "total_mass_kg": model.total_mass_kg,
+        "base_mass_kg": model.base_mass_kg,
+        "joints": joints,
+        "lumped": [{"link": link, "into": body} for link, body in description.lumped],
+        "locked": [
+            {
+                "joint": name,
+                "type": kind,
+                "position": position if kind == "prismatic" else math.degrees(position),
+                "unit": "m" if kind == "prismatic" else "deg",
+            }
+            for name, kind, position in description.locked
+        ],
+        "renamed": [{"link": old, "name": new} for old, new in description.renamed],
+        "hand": {
+            "link": description.hand_link,
+            "rpy_deg_at_zero": np.degrees(rpy_from_matrix(rot)).tolist()
+            if rot is not None
+            else [0.0, 0.0, 0.0],
+        },
+        "reference_pose": {
+            "name": description.reference_pose or "all zeros",
+            "joints_deg": np.degrees(model.reference_joints).tolist(),
+        },
+        "collision_bodies": (
+            0 if description.collision is None else len(description.collision.bodies)
+        ),
+        "servo": {
+            "fastest_at_poses_per_s": at_poses.fastest_per_s,
+            "at": at_poses.at,
+            "fastest_over_range_per_s": over_range.fastest_per_s,
+            "over_range_at": over_range.at,
+            "over_range_joints_deg": np.degrees(over_range.at_joints_rad).tolist(),
+            "samples": over_range.samples,
+            "limit_per_s": at_poses.limit_per_s,
+            "timestep_s": at_poses.timestep_s,
+            "holds_at_poses": at_poses.stable,
+            "holds_over_range": over_range.stable,
+        },
+    }
+
+
+@robot_app.command("check")
+def robot_check(
+    file: Annotated[Path, typer.Argument(help="Robot description (TOML, docs/robots.md).")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Load FILE and print what was lumped, locked and renamed, the limits, the reference
+    pose, the hand frame and the servos' fastest mode. Exit 2 with the reason when it does
+    not load (a servo the integrator cannot hold at the reference or a named pose is one)."""
+    from planner.description import load_robot
+    from planner.errors import PlannerError
+
+    try:
+        description = load_robot(file)
+    except PlannerError as exc:
+        _fail(str(exc))
+    report = check_report(description)
+    if as_json:
+        print(json.dumps(report))
+        return
+    out = console.print
+    out(
+        f"{report['robot']}: {report['n_joints']} arm joints, {report['total_mass_kg']:.6g} kg "
+        f"(base {report['base_mass_kg']:.6g} kg), from {report['urdf']}",
+        markup=False,
+        highlight=False,
+    )
+    for row in report["joints"]:
+        vendor = row["vendor_limits_deg"]
+        text = (
+            f"  {row['joint']} -> {row['link']}: mission [{row['mission_limits_deg'][0]:.6g}, "
+            f"{row['mission_limits_deg'][1]:.6g}] deg, {row['mission_rate_degps']:.6g} deg/s"
+        )
+        if vendor is not None:
+            text += (
+                f" (vendor [{vendor[0]:.6g}, {vendor[1]:.6g}] deg, "
+                f"{row['vendor_rate_degps']:.6g} deg/s)"
+            )
+        out(text, markup=False, highlight=False)
+    for key, title in (("lumped", "lumped"), ("locked", "locked"), ("renamed", "renamed")):
+        rows = report[key]
+        if not rows:
+            out(f"{title}: none", markup=False, highlight=False)
+            continue
+        out(f"{title}:", markup=False, highlight=False)
+        for row in rows:
+            if key == "lumped":
+                text = f"  link {row['link']} into {row['into']}"
+            elif key == "locked":
+                text = (
+                    f"  joint {row['joint']} ({row['type']}) at {row['position']:.6g} {row['unit']}"
+                )
+            else:
+                text = f"  link {row['link']} is {row['name']}"
+            out(text, markup=False, highlight=False)
+    ref = report["reference_pose"]
+    out(
+        f"reference pose: {ref['name']} ({', '.join(f'{v:.6g}' for v in ref['joints_deg'])} deg)",
+        markup=False,
+        highlight=False,
+    )
+    hand = report["hand"]
+    out(
+        f"hand: link {hand['link']}, rpy at the all-zero pose "
+        f"({', '.join(f'{v:.6g}' for v in hand['rpy_deg_at_zero'])}) deg",
+        markup=False,
+        highlight=False,
+    )
+    out(f"collision bodies: {report['collision_bodies']}", markup=False, highlight=False)
+    servo = report["servo"]
+    out(
+        f"servos: fastest mode {servo['fastest_at_poses_per_s']:.4g} 1/s at the reference and "
+        f"named poses ({servo['at']}), {servo['fastest_over_range_per_s']:.4g} 1/s over "
+        f"{servo['samples']} poses inside the limits ({servo['over_range_at']}); the "
+        f"integrator holds {servo['limit_per_s']:.4g} 1/s at a "
+        f"{servo['timestep_s'] * 1e3:.4g} ms step",
+        markup=False,
+        highlight=False,
+    )
+    if not servo["holds_over_range"]:
+        out(
+            "warning: somewhere inside the limits the servos are faster than the integrator "
+            "holds (at "
+            f"{', '.join(f'{v:.4g}' for v in servo['over_range_joints_deg'])} deg); plans "
+            "must keep away, or lower [servo] lag_s / bandwidth_radps",
+            markup=False,
+            highlight=False,
+        )
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``robot`` (``check``) to ``hikoboshi``."""
+    app.add_typer(robot_app, name="robot")
