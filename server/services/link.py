@@ -196,6 +196,9 @@ class GroundLink:
         self._conn: Connection | None = None
         self._pinger: asyncio.Task[None] | None = None
         self._onboard: OnboardClock | None = None
+        #: a relayed onboard stamp has been read since the latest hello (see
+        #: :attr:`clock_confirmed`)
+        self._confirmed = False
         self.vehicle: str | None = None
         #: the robot of the latest hello (None before the first)
         self.robot: RobotIdentity | None = None
@@ -269,9 +272,22 @@ class GroundLink:
         """The ground monotonic instant at which the onboard clock reads ``onboard_ns``."""
         return self.onboard_clock.mono_at(onboard_ns)
 
+    @property
+    def clock_confirmed(self) -> bool:
+        """Whether a relayed onboard stamp has been read since the latest hello. The hello
+        alone places the onboard clock where it stood when the hello was *read*: a ground
+        that read it late (a process still starting after a restart, a stalled loop)
+        believes the vehicle's clock behind where it is until the first relayed stamp
+        (telemetry, the pong of the ping sent at the hello) corrects it, and a command it
+        sends meanwhile near its last chance may reach the vehicle after its tag. The
+        runner does not count such a ``late`` refusal as the vehicle no longer following
+        the plan (:class:`~server.services.pass_states.RefusalStreak`)."""
+        return self._confirmed and self.connected
+
     def _observe(self, stamp_ns: int, read_mono: float) -> None:
         if self._onboard is not None:
             self._onboard.observe(stamp_ns, self.one_way_delay_s, read_mono)
+            self._confirmed = True
 
     # -- connections ---------------------------------------------------------------------
 
@@ -501,6 +517,7 @@ class GroundLink:
             hello.time_scale,
             jitter_allowance_s=JITTER_ALLOWANCE_S,
         )
+        self._confirmed = False
         conn.greeted = True
         self.safing.on_hello()  # a safe vehicle reports so right after its hello
         self.vehicle = hello.vehicle

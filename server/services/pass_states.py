@@ -295,12 +295,27 @@ def abort_job(
 @dataclass
 class RefusalStreak:
     """Joint commands the vehicle refused in a row (``out_of_limits`` or ``late``): at
-    :data:`MAX_REFUSED_IN_A_ROW` the arm no longer follows the plan."""
+    :data:`MAX_REFUSED_IN_A_ROW` the arm no longer follows the plan.
+
+    A ``late`` refusal of a command first sent before the onboard clock was confirmed after
+    a (re)connection (:attr:`~server.services.link.GroundLink.clock_confirmed`) is not
+    counted: it says the hello was read late, which the refusal's own stamp corrects, not
+    that the vehicle no longer follows the plan. It does not end a streak either."""
 
     count: int = 0
+    #: seqs first sent on an unconfirmed onboard clock
+    unconfirmed: set[int] = field(default_factory=set)
+    #: ``late`` refusals not counted for that reason
+    excused: int = 0
+
+    def sent_unconfirmed(self, seq: int) -> None:
+        self.unconfirmed.add(seq)
 
     def observe(self, stage: str, reason: str | None, seq: int) -> str | None:
         """One acknowledgement of a joint command; why the pass must stop, or None."""
+        if stage == "rejected" and reason == "late" and seq in self.unconfirmed:
+            self.excused += 1
+            return None
         if stage == "executed":
             self.count = 0
         elif stage == "rejected" and reason in REFUSALS:

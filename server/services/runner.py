@@ -457,6 +457,8 @@ class PassRunner:
                 again.append(cmd)
             else:
                 first.append((cmd.seq, clock.time_ns()))
+                if not link.clock_confirmed:
+                    active.refusals.sent_unconfirmed(cmd.seq)
         if first or again:
             counts = [(c.seq, c.transmissions) for c in again]
             active.tracker.record_sent(released_ns, first, counts)

@@ -19,6 +19,7 @@ import pytest
 from sqlalchemy import select
 
 from server.services.clock import ManualClock
+from server.services.pass_states import MAX_REFUSED_IN_A_ROW
 from server.services.uplink import RttEstimator, Uplink
 from server.storage.models import EventRecord
 from telemetry.wire import JointCommandMsg
@@ -360,6 +361,52 @@ async def test_after_a_restart_the_pass_resumes_and_a_late_hello_is_corrected(
     assert pass_state(sessions, pass_id) == "complete"
     assert _stages(sessions, pass_id) == {"executed": len(rows)}
     _every_command_executed_once_at_its_tag(sc, rows)
+
+
+@simulated
+async def test_late_refusals_of_commands_sent_on_a_late_hello_do_not_end_the_pass(
+    tmp_path: Path,
+) -> None:
+    """A ground killed mid-pass comes back after more than its lead window, and reads the
+    hello 3 s after it was sent (a process still starting): it believes the onboard clock 3 s
+    behind, so the commands at the edge of their last chance go up too late, and the vehicle
+    refuses them ``late``, as many as end a pass otherwise. That says the hello was read late,
+    not that the arm no longer follows the plan: the pass goes on, and every command sent
+    once a relayed stamp had confirmed the clock executes at its tag."""
+    clock = ManualClock()
+    sessions = make_sessions(tmp_path)
+    first = ground(sessions, clock, uplink_lead_window_s=10.0)
+    sc = SimulatedSpacecraft(clock)
+    await sc.connect(first)
+    pass_id = store_pass(sessions, 400, clock)
+    await first.runner.start(pass_id, "otto")
+    await sc.run(40.0)
+    active_task = first.runner._active.task  # type: ignore[union-attr]
+    assert active_task is not None
+    active_task.cancel()  # killed: nothing more from this process
+    await asyncio.gather(active_task, return_exceptions=True)
+    await first.db.drain()
+    first.db.close()
+    sc.lose_ground()
+    await sc.run(20.0)  # longer than the lead window: the vehicle runs out of commands
+    second = ground(sessions, clock, uplink_lead_window_s=10.0)
+    await second.runner.recover()
+    await sc.connect(second, hello_read_late_s=3.0)
+    assert not second.link.clock_confirmed
+    await sc.run(120.0)
+    assert second.link.clock_confirmed
+    rows = commands(sessions, pass_id)
+    refused = [r for r in rows if r.stage == "rejected"]
+    # as many as the streak ends a pass at, all late, none executed
+    assert len(refused) >= MAX_REFUSED_IN_A_ROW, _stages(sessions, pass_id)
+    assert {r.reject_reason for r in refused} == {"late"}
+    assert not any(r.seq in sc.vehicle.executed for r in refused)
+    assert pass_state(sessions, pass_id) == "complete"
+    # after them, everything went up in time: every later command executed at its tag
+    last_refused = max(r.seq for r in refused)
+    later = [r for r in rows if r.seq > last_refused]
+    assert later and all(r.stage == "executed" for r in later)
+    assert all(sc.vehicle.executed[r.seq] == [r.execute_time_ns] for r in later)
 
 
 @simulated

@@ -78,6 +78,12 @@ def make_frame(
     when ``rng`` is given, else values from seq."""
     rng = rng if rng is not None else np.random.default_rng(seq)
     v = rng.normal(size=len(layout.float_fields)).tolist()
+    # a unit attitude quaternion, as every real frame has (the link refuses others)
+    fields = layout.float_fields
+    quat = [fields.index(name) for name in ("qx", "qy", "qz", "qw")]
+    norm = sum(v[k] ** 2 for k in quat) ** 0.5
+    for k in quat:
+        v[k] /= norm
     row = (
         seq,
         T0_NS + seq * FRAME_PERIOD_NS,
