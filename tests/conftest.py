@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -43,10 +46,11 @@ def demo_recording(model: RobotModel) -> PassRecording:
 #: Tests that fly a vehicle or serve a live link in wall time (a spacecraft process, a
 #: server with its link, a browser on a live pass, the console hub's pacing): their margins
 #: are onboard seconds divided by the time scale, tens of milliseconds of wall at 10x.
-#: Marked ``realtime`` at collection and run one after the other on one worker (the
-#: ``xdist_group`` of pyproject's ``--dist loadgroup``), beside at most one test of the
-#: other kind: the one busy core they are written for. Two of them side by side on a slow
-#: machine starved each other (the 200-viewer load beside the live console).
+#: Marked ``realtime`` at collection; they run one at a time across the workers (a
+#: ``flock`` held from setup to teardown), beside at most one test of the other kind: the
+#: one busy core they are written for. Two of them side by side on a slow machine starved
+#: each other (the 200-viewer load beside the live console). (xdist's ``loadgroup`` would
+#: put them on one worker, but xdist 3.8 cannot rename the node ids of pytest 9.)
 REALTIME_MODULES = (
     "tests/web/",
     "tests/server/console/",
@@ -60,9 +64,6 @@ REALTIME_MODULES = (
     "tests/server/link/test_safing_e2e.py",
     "tests/server/link/test_soak.py",
     "tests/server/link/test_takeover.py",
-    "tests/server/api/test_edge.py",
-    "tests/server/api/test_import_budget.py",
-    "tests/server/api/test_shutdown.py",
     "tests/spacecraft/test_hostile.py",
     "tests/spacecraft/test_process.py",
     "tests/spacecraft/test_robot.py",
@@ -70,22 +71,47 @@ REALTIME_MODULES = (
 )
 
 
-def pytest_collection_modifyitems(
-    session: pytest.Session, config: pytest.Config, items: list[pytest.Item]
-) -> None:
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """Tests of :data:`REALTIME_MODULES` are marked ``realtime``."""
+    relative = item.path.relative_to(Path(str(item.config.rootpath))).as_posix()
+    if relative.startswith(REALTIME_MODULES):
+        item.add_marker(pytest.mark.realtime)
+
+
+def _realtime(item: pytest.Item) -> bool:
+    return item.get_closest_marker("realtime") is not None
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Modules with a slow test run first, each module's tests in their own order: with the
     suite spread over workers (pyproject's ``-n``), a minute-long test started last keeps one
-    worker busy after the other has run out of work. Tests of :data:`REALTIME_MODULES` are
-    marked ``realtime`` and grouped on one worker."""
-    root = Path(str(config.rootpath))
-    for item in items:
-        relative = item.path.relative_to(root).as_posix()
-        if relative.startswith(REALTIME_MODULES):
-            item.add_marker(pytest.mark.realtime)
-        if item.get_closest_marker("realtime") is not None:
-            item.add_marker(pytest.mark.xdist_group("realtime"))
+    worker busy after the other has run out of work. Within that, the real-time tests come
+    first: xdist's worksteal hands the first half of the list to one worker and the second
+    to the other, so one worker starts on the real-time tests and the other on the rest."""
     slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
-    items.sort(key=lambda item: item.path not in slow)  # stable: the order within stays
+    items.sort(key=lambda item: (not _realtime(item), item.path not in slow))  # stable
+
+
+class _RealtimeLock:
+    """An exclusive ``flock`` shared by the xdist workers of one run (a file named by the
+    run's id): held by each ``realtime`` test from its setup to its teardown."""
+
+    def __init__(self, run_id: str) -> None:
+        folder = Path(tempfile.gettempdir()) / f"hikoboshi-tests-{run_id}"
+        folder.mkdir(exist_ok=True)
+        self._fd = os.open(folder / "realtime.lock", os.O_RDWR | os.O_CREAT, 0o600)
+
+    @contextlib.contextmanager
+    def hold(self) -> Iterator[None]:
+        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+
+_RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers only
+_REALTIME = _RealtimeLock(_RUN_ID) if _RUN_ID else None
 
 
 #: ``HIKOBOSHI_TEST_TIMELINE=path``: each test's wall start and end, its worker and outcome
@@ -95,8 +121,12 @@ TIMELINE = os.environ.get("HIKOBOSHI_TEST_TIMELINE")
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
-    start = time.time()
-    yield
+    """A ``realtime`` test holds the real-time lock from setup to teardown; each test's
+    times go to the timeline."""
+    held = _REALTIME.hold() if _REALTIME is not None and _realtime(item) else None
+    with held or contextlib.nullcontext():
+        start = time.time()
+        yield
     if TIMELINE:
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(TIMELINE, "a") as out:

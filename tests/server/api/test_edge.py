@@ -782,6 +782,7 @@ def test_forwarded_for_is_believed_from_a_trusted_proxy(
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_the_vehicle_reconnects_after_200_wrong_tokens_from_its_address(tmp_path: Path) -> None:
     """The issue's must-show over a real server (as ``serve`` runs it) and the real
     spacecraft process: 200 wrong tokens from loopback, the vehicle's own address, on REST
