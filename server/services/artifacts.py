@@ -45,6 +45,7 @@ import itertools
 import json
 import os
 import shutil
+import weakref
 from collections import OrderedDict
 from collections.abc import Awaitable, Callable, Hashable, Iterator
 from dataclasses import dataclass, field
@@ -123,9 +124,29 @@ class Served:
     label: str
 
     def chunks(self, chunk_bytes: int = 256 * 1024) -> Iterator[bytes]:
-        with self.handle:
-            while chunk := self.handle.read(chunk_bytes):
-                yield chunk
+        """The file's bytes; the handle is closed at its end, and also if the response
+        never reads it to the end or never starts (a client gone before its first byte)."""
+        return _Chunks(self.handle, chunk_bytes)
+
+
+class _Chunks:
+    """An open file as chunks, closed at its end or when the iterator is dropped (a
+    generator that never started would leave its file for the garbage collector)."""
+
+    def __init__(self, handle: BinaryIO, chunk_bytes: int) -> None:
+        self._handle = handle
+        self._chunk_bytes = chunk_bytes
+        weakref.finalize(self, handle.close)
+
+    def __iter__(self) -> _Chunks:
+        return self
+
+    def __next__(self) -> bytes:
+        chunk = self._handle.read(self._chunk_bytes) if not self._handle.closed else b""
+        if not chunk:
+            self._handle.close()
+            raise StopIteration
+        return chunk
 
 
 @dataclass

@@ -11,6 +11,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -76,6 +77,10 @@ def running_ground(database_url: str, **overrides: Any) -> Iterator[Ground]:
     # share one process and its GIL here, and the windowed uplink loads every command up to
     # 120 s onboard ahead and sends it again until acknowledged, so a stalled ground event
     # loop delays nothing.
+    scratch = None
+    if "data_dir" not in overrides:  # its artifact cache, never the checkout's data/
+        scratch = tempfile.TemporaryDirectory(prefix="hikoboshi-ground-")
+        overrides["data_dir"] = Path(scratch.name)
     settings = Settings(database_url=database_url, tokens=TOKENS, **overrides)
     app = create_app(settings)
     port = _free_port()
@@ -99,6 +104,8 @@ def running_ground(database_url: str, **overrides: Any) -> Iterator[Ground]:
         server.should_exit = True
         thread.join(timeout=30.0)
         engine.dispose()
+        if scratch is not None:
+            scratch.cleanup()
 
 
 @contextmanager
