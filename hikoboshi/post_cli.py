@@ -8,14 +8,17 @@ exit with status 2.
 
 from __future__ import annotations
 
+import json
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
-from rich.console import Console
+
+from hikoboshi.output import HELP_MARKUP, make_console
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -27,14 +30,23 @@ __all__ = ["mcap_app", "register"]
 #: Who the audit log names for what the command line does.
 ACTOR = "hikoboshi-cli"
 
-mcap_app = typer.Typer(no_args_is_help=True, help="Pass recordings as MCAP: export, import.")
-console = Console()
-err_console = Console(stderr=True)
+mcap_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="Pass recordings as MCAP: export, import.",
+)
+console = make_console()
+err_console = make_console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:
     err_console.print(f"error: {reason}", markup=False, highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def _print_json(doc: dict[str, Any]) -> None:
+    """One JSON object on one line of stdout (--json)."""
+    sys.stdout.write(json.dumps(doc) + "\n")
 
 
 @contextmanager
@@ -108,6 +120,10 @@ def report(
     recompute: Annotated[
         bool, typer.Option(help="Analyse the stored pass again even if it has results.")
     ] = False,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print one JSON object: what was written, each analysis."),
+    ] = False,
 ) -> None:
     """Write a pass report: report.json (the numbers in tables), report.html and the
     figures. A stored pass's newest analyses are used (run and stored first if it has none,
@@ -125,6 +141,20 @@ def report(
             found = stored_report(session, target)
     report_doc, figures = found
     _write_report(out, report_doc, figures)
+    if as_json:
+        _print_json(
+            {
+                "pass_id": report_doc.pass_id,
+                "report_html": str(out / "report.html"),
+                "report_json": str(out / "report.json"),
+                "figures": [str(out / f"{name}.png") for name in figures],
+                "analyses": [
+                    {"kind": a.kind, "status": a.status, "error": a.error}
+                    for a in report_doc.analyses
+                ],
+            }
+        )
+        return
     for status in report_doc.analyses:
         line = f"{status.kind}: {status.status}"
         console.print(line + (f" ({status.error})" if status.error else ""), highlight=False)
@@ -135,6 +165,9 @@ def report(
 def mcap_export(
     target: Annotated[str, typer.Argument(metavar="PASS", help="Pass id in the database.")],
     out: Annotated[Path, typer.Option(help="The .mcap file to write.")],
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object: the pass, file and size.")
+    ] = False,
 ) -> None:
     """Write a stored pass as one MCAP file (docs/mcap.md)."""
     from server.services.recordings import recording_mcap
@@ -146,14 +179,22 @@ def mcap_export(
         out.write_bytes(data)
     except OSError as exc:
         _fail(f"{out}: {exc}")
+    if as_json:
+        _print_json({"pass_id": target, "name": name, "path": str(out), "bytes": len(data)})
+        return
     console.print(f"wrote pass {name!r} to {out} ({len(data)} bytes)", highlight=False)
 
 
 @mcap_app.command("import")
 def mcap_import(
     path: Annotated[Path, typer.Argument(metavar="FILE", help="An .mcap pass recording.")],
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print one JSON object: the id, name, state and counts."),
+    ] = False,
 ) -> None:
-    """Store an MCAP recording as a new, finished pass marked imported; prints its id."""
+    """Store an MCAP recording as a new, finished pass marked imported; prints its id (alone
+    on stdout, for PASS=$(hikoboshi mcap import FILE)); what was stored goes to stderr."""
     from server.services.imports import import_mcap
 
     try:
@@ -163,12 +204,26 @@ def mcap_import(
     with _session() as session:
         result = import_mcap(session, data, ACTOR, source=path.name)
     p = result.imported
-    console.print(
+    if as_json:
+        _print_json(
+            {
+                "id": p.id,
+                "name": p.name,
+                "state": p.state,
+                "frames": result.frames,
+                "commands": result.commands,
+                "events": result.events,
+            }
+        )
+        return
+    err_console.print(
         f"imported pass {p.id} ({p.name!r}, {p.state}): {result.frames} frames, "
         f"{result.commands} commands, {result.events} events",
+        markup=False,
         highlight=False,
         soft_wrap=True,
     )
+    sys.stdout.write(f"{p.id}\n")
 
 
 def register(app: typer.Typer) -> None:

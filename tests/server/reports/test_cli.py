@@ -97,3 +97,49 @@ def test_importing_a_file_that_is_not_a_recording_fails_with_the_reason(env: Pat
     bad.write_bytes(b"hello")
     result = runner.invoke(app, ["mcap", "import", str(bad)])
     assert result.exit_code == 2 and "not an MCAP file" in result.output
+
+
+def test_import_prints_the_id_alone_on_stdout_and_json_on_request(
+    env: Path, short_mcap: bytes
+) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    result = runner.invoke(app, ["mcap", "import", str(source)])
+    assert result.exit_code == 0, result.output
+    # stdout is the id and nothing else (PASS=$(hikoboshi mcap import FILE)); the sentence
+    # for a person goes to stderr
+    assert re.fullmatch(r"[0-9a-f-]{36}\n", result.stdout), result.stdout
+    pass_id = result.stdout.strip()
+    assert f"imported pass {pass_id} " in result.stderr
+
+    result = runner.invoke(app, ["mcap", "import", str(source), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["id"] != pass_id and re.fullmatch(r"[0-9a-f-]{36}", doc["id"])
+    assert (doc["frames"], doc["commands"], doc["events"]) == (571, 12, 2)
+    assert doc["state"] == "aborted" and doc["name"]  # as the recording says
+
+
+def test_report_and_export_print_json_on_request(env: Path, short_mcap: bytes) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    pass_id = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+    result = runner.invoke(app, ["report", pass_id, "--out", str(env / "r"), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["pass_id"] == pass_id
+    assert doc["report_html"] == str(env / "r" / "report.html")
+    assert [a["status"] for a in doc["analyses"]] == ["ok", "ok", "failed", "ok"]
+    assert doc["analyses"][2]["error"].startswith("InsufficientData")
+    assert all(Path(f).read_bytes()[:4] == b"\x89PNG" for f in doc["figures"]) and doc["figures"]
+
+    out = env / "again.mcap"
+    result = runner.invoke(app, ["mcap", "export", pass_id, "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc == {
+        "pass_id": pass_id,
+        "name": read_mcap(out).name,
+        "path": str(out),
+        "bytes": out.stat().st_size,
+    }
