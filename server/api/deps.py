@@ -11,7 +11,8 @@ from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Annotated, TypeVar
 
-from fastapi import Depends, Header, Path, Request, WebSocket
+from fastapi import Depends, Path, Request, Security, WebSocket
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.requests import HTTPConnection
 
@@ -31,6 +32,7 @@ from server.settings import ApiToken, Role, Settings
 T = TypeVar("T")
 
 __all__ = [
+    "BEARER",
     "AlarmsDep",
     "ClockDep",
     "ConsoleDep",
@@ -142,6 +144,17 @@ def authenticate(settings: Settings, authorization: str | None) -> Principal:
     return Principal(token.name, token.role)
 
 
+#: The API's security scheme in the OpenAPI document (``bearerAuth``: Swagger UI's
+#: Authorize button, generated clients' token). Declared only: ``auto_error=False``, so
+#: :func:`authenticate` alone decides, with the same 401 reasons as before.
+BEARER = HTTPBearer(
+    scheme_name="bearerAuth",
+    description="An API token (HIKOBOSHI_TOKENS) as Authorization: Bearer TOKEN; its role "
+    "(viewer, operator, spacecraft) decides what it may do (docs/security.md).",
+    auto_error=False,
+)
+
+
 #: Which roles may act as which: an operator may do what a viewer does.
 _GRANTS = {
     Role.VIEWER: {Role.VIEWER, Role.OPERATOR},
@@ -156,10 +169,11 @@ def require(role: Role) -> Callable[..., Awaitable[Principal]]:
     thread (the edge, server/api/edge.py, has already refused unknown tokens)."""
 
     async def dependency(
-        request: Request, authorization: Annotated[str | None, Header()] = None
+        request: Request,
+        _: Annotated[HTTPAuthorizationCredentials | None, Security(BEARER)],
     ) -> Principal:
         settings: Settings = request.app.state.settings
-        principal = authenticate(settings, authorization)
+        principal = authenticate(settings, request.headers.get("authorization"))
         if principal.role not in _GRANTS[role]:
             raise HttpError(
                 403,
