@@ -35,7 +35,7 @@ model_app = typer.Typer(
 )
 app.add_typer(model_app, name="model")
 limits_cli.register(model_app)  # model limits
-post_cli.register(app)  # report, mcap export|import
+post_cli.register(app)  # report, mcap export|import, export telemetry
 windows_cli.register(app)  # windows
 robot_cli.register(app)  # robot check
 

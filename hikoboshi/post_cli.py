@@ -1,4 +1,5 @@
-"""Post-pass commands: ``hikoboshi report`` and ``hikoboshi mcap export|import``.
+"""Post-pass commands: ``hikoboshi report``, ``hikoboshi mcap export|import`` and
+``hikoboshi export telemetry``.
 
 A PASS is a pass id in the configured database (``DATABASE_URL``, else SQLite under
 ``HIKOBOSHI_DATA_DIR``, as for ``hikoboshi serve``; migrated to the current schema first) or,
@@ -9,6 +10,7 @@ exit with status 2.
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 from collections.abc import Iterator
@@ -21,11 +23,11 @@ import typer
 from hikoboshi.output import HELP_MARKUP, make_console
 
 if TYPE_CHECKING:
-    from sqlalchemy.orm import Session
+    from sqlalchemy.orm import Session, sessionmaker
 
     from server.schemas import ReportPublic
 
-__all__ = ["mcap_app", "register"]
+__all__ = ["export_app", "mcap_app", "register"]
 
 #: Who the audit log names for what the command line does.
 ACTOR = "hikoboshi-cli"
@@ -34,6 +36,11 @@ mcap_app = typer.Typer(
     rich_markup_mode=HELP_MARKUP,
     no_args_is_help=True,
     help="Pass recordings as MCAP: export, import.",
+)
+export_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="Data out of the database: a pass's telemetry as CSV or Parquet.",
 )
 console = make_console()
 err_console = make_console(stderr=True)
@@ -50,8 +57,8 @@ def _print_json(doc: dict[str, Any]) -> None:
 
 
 @contextmanager
-def _session() -> Iterator[Session]:
-    """A session on the configured database, migrated to head; errors become one line."""
+def _sessions() -> Iterator[sessionmaker[Session]]:
+    """Sessions on the configured database, migrated to head; errors become one line."""
     from server.services.errors import DomainError
     from server.settings import Settings
     from server.storage.db import make_engine, session_factory, upgrade
@@ -64,14 +71,20 @@ def _session() -> Iterator[Session]:
         _fail(f"bad settings in the environment: {exc}")
     try:
         upgrade(engine)
-        with session_factory(engine)() as session:
-            yield session
+        yield session_factory(engine)
     except DomainError as exc:
         _fail(exc.message)
     except StorageError as exc:
         _fail(str(exc))
     finally:
         engine.dispose()
+
+
+@contextmanager
+def _session() -> Iterator[Session]:
+    """A session on the configured database, migrated to head; errors become one line."""
+    with _sessions() as sessions, sessions() as session:
+        yield session
 
 
 def _is_file(target: str) -> bool:
@@ -226,7 +239,78 @@ def mcap_import(
     sys.stdout.write(f"{p.id}\n")
 
 
+@export_app.command("telemetry")
+def export_telemetry(
+    target: Annotated[str, typer.Argument(metavar="PASS", help="Pass id in the database.")],
+    out: Annotated[
+        Path, typer.Option(help="The file to write (.csv or .parquet); - for stdout (CSV).")
+    ],
+    format_: Annotated[
+        str | None,
+        typer.Option("--format", help="csv or parquet; default: from the --out suffix."),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object: the file, format and rows.")
+    ] = False,
+) -> None:
+    """Write every stored frame of a pass as CSV (units in the header) or Parquet (units in
+    the schema metadata), as GET /api/passes/ID/telemetry.csv and .parquet do."""
+    from server.services import exports
+
+    to_stdout = str(out) == "-"
+    chosen = format_ or ("csv" if to_stdout else out.suffix.removeprefix(".").lower())
+    if chosen not in exports.FORMATS:
+        _fail(
+            f"--format {chosen!r} is not one of {sorted(exports.FORMATS)} (or give --out a "
+            ".csv or .parquet suffix)"
+        )
+    if to_stdout and chosen != "csv":
+        _fail("--out - writes CSV only: give a file for Parquet")
+    rows = 0
+    with _sessions() as sessions:
+        with sessions() as session:
+            export = exports.open_export(session, target)
+        try:
+            if to_stdout:
+                stream = sys.stdout.buffer
+                for chunk in exports.csv_chunks(sessions, export):
+                    stream.write(chunk)
+                stream.flush()
+                return
+            out.parent.mkdir(parents=True, exist_ok=True)
+            with out.open("wb") as file:
+                if chosen == "csv":
+                    file.write(exports.csv_header(export))
+                    for page in exports.pages(sessions, export):
+                        file.write(exports.csv_rows(page))
+                        rows += len(page)
+                else:
+                    spooled, _, rows = exports.parquet_file(sessions, export)
+                    with spooled:
+                        shutil.copyfileobj(spooled, file)
+        except OSError as exc:
+            _fail(f"{out}: {exc}")
+    size = out.stat().st_size
+    if as_json:
+        _print_json(
+            {
+                "pass_id": export.pass_id,
+                "path": str(out),
+                "format": chosen,
+                "rows": rows,
+                "bytes": size,
+            }
+        )
+        return
+    console.print(
+        f"wrote {rows} frames of pass {export.name!r} to {out} ({chosen}, {size} bytes)",
+        markup=False,
+        highlight=False,
+    )
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``report`` and ``mcap`` to the main command line."""
+    """Add ``report``, ``mcap`` and ``export`` to the main command line."""
     app.command("report")(report)
     app.add_typer(mcap_app, name="mcap")
+    app.add_typer(export_app, name="export")

@@ -43,6 +43,7 @@ __all__ = [
     "OperatorDep",
     "Principal",
     "PublisherDep",
+    "ReadSessionsDep",
     "RunnerDep",
     "SessionDep",
     "SettingsDep",
@@ -72,23 +73,35 @@ def _state(name: str, kind: type[T]) -> Callable[[HTTPConnection], Awaitable[T]]
 get_settings = _state("settings", Settings)
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """A session for the request: a read-only one for GET and HEAD (they never write, and on
-    SQLite a reader then never waits for the ground's writer); from the operators' own pool
-    for an operator's request, else from the readers' (its lane: server/api/lanes.py)."""
+def _session_factory(request: Request, *, read_only: bool) -> sessionmaker[Session]:
     state = request.app.state
-    read_only = request.method in ("GET", "HEAD")
     factory: sessionmaker[Session]
     if request_lane(request) is Lane.OPERATOR:
         factory = state.operator_read_sessions if read_only else state.operator_sessions
     else:
         factory = state.read_sessions if read_only else state.sessions
-    with factory() as session:
+    return factory
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """A session for the request: a read-only one for GET and HEAD (they never write, and on
+    SQLite a reader then never waits for the ground's writer); from the operators' own pool
+    for an operator's request, else from the readers' (its lane: server/api/lanes.py)."""
+    read_only = request.method in ("GET", "HEAD")
+    with _session_factory(request, read_only=read_only)() as session:
         yield session
+
+
+async def get_read_sessions(request: Request) -> sessionmaker[Session]:
+    """The read-only session factory of the request's lane, for a route that reads in
+    several short sessions (a streamed export) rather than one for the whole request."""
+    return _session_factory(request, read_only=True)
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SessionDep = Annotated[Session, Depends(get_session)]
+#: The read-only sessions of the request's lane (as SessionDep picks them), as a factory.
+ReadSessionsDep = Annotated[sessionmaker[Session], Depends(get_read_sessions)]
 #: The injected clock every event and arrival is timed on.
 ClockDep = Annotated[Clock, Depends(_state("clock", Clock))]
 #: The consoles' publish hook.

@@ -264,9 +264,7 @@ def test_operations_declare_the_bearer_scheme_instead_of_a_header_parameter(
         "scheme": "bearer",
         "description": document["components"]["securitySchemes"]["bearerAuth"]["description"],
     }
-    operations = [
-        (path, op) for path, item in document["paths"].items() for op in item.values()
-    ]
+    operations = [(path, op) for path, item in document["paths"].items() for op in item.values()]
     secured = [path for path, op in operations if op.get("security") == [{"bearerAuth": []}]]
     open_ = [path for path, op in operations if "security" not in op]
     assert open_ == ["/api/health"]
