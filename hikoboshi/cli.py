@@ -11,25 +11,36 @@ from typing import Annotated, Any, NoReturn
 import numpy as np
 import typer
 from rich import box
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from hikoboshi import limits_cli, post_cli, robot_cli, windows_cli
+from hikoboshi.output import HELP_MARKUP, make_console
 
-app = typer.Typer(no_args_is_help=True, add_completion=False, help=__doc__)
+#: The top-level help (the module docstring is for readers of the code).
+HELP = (
+    "Hikoboshi, the ground system for the ETS-VII space robot: plan experiments, fly them "
+    "against the simulated spacecraft through the ground service, and analyse, report and "
+    "export the passes. Commands that report something take --json."
+)
+
+app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP, no_args_is_help=True, add_completion=False, help=HELP
+)
 model_app = typer.Typer(
-    no_args_is_help=True, help="The robot model (ETS-VII or --robot FILE): export and quantities."
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="The robot model (ETS-VII or --robot FILE): export and quantities.",
 )
 app.add_typer(model_app, name="model")
 limits_cli.register(model_app)  # model limits
-post_cli.register(app)  # report, mcap export|import
+post_cli.register(app)  # report, mcap export|import, export telemetry
 windows_cli.register(app)  # windows
 robot_cli.register(app)  # robot check
 
-console = Console()
-err_console = Console(stderr=True)
+console = make_console()
+err_console = make_console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:
@@ -990,6 +1001,12 @@ def calibrate(
             "(a robot description's keys; hikoboshi spacecraft --vehicle-config reads it)."
         ),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json", help="Print one JSON object: the report's fields and the files written."
+        ),
+    ] = False,
 ) -> None:
     """Fit the attitude-control law's parameters (SciPy least squares) to the paper's targets
     or to a recorded pass; write the [acs] configuration and a report of every target. From
@@ -1088,6 +1105,10 @@ def calibrate(
             write_vehicle_config(vehicle_out, result.servo, result.sensor_noise)
     except OSError as exc:
         _fail(str(exc))
+    if as_json:
+        written = [str(p) for p in (out, report, vehicle_out) if p is not None]
+        sys.stdout.write(json.dumps({**result.to_dict(), "wrote": written}) + "\n")
+        return
     _print_calibration(result)
     console.print(f"wrote {out}" + ("" if report is None else f" and {report}"), highlight=False)
     if vehicle_out is not None:

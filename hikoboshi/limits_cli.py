@@ -9,11 +9,12 @@ from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import typer
-from rich.console import Console
+
+from hikoboshi.output import make_console
 
 __all__ = ["register"]
 
-err_console = Console(stderr=True)
+err_console = make_console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:

@@ -1,4 +1,5 @@
-"""Post-pass commands: ``hikoboshi report`` and ``hikoboshi mcap export|import``.
+"""Post-pass commands: ``hikoboshi report``, ``hikoboshi mcap export|import`` and
+``hikoboshi export telemetry``.
 
 A PASS is a pass id in the configured database (``DATABASE_URL``, else SQLite under
 ``HIKOBOSHI_DATA_DIR``, as for ``hikoboshi serve``; migrated to the current schema first) or,
@@ -8,28 +9,41 @@ exit with status 2.
 
 from __future__ import annotations
 
+import json
+import shutil
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
-from rich.console import Console
+
+from hikoboshi.output import HELP_MARKUP, make_console
 
 if TYPE_CHECKING:
-    from sqlalchemy.orm import Session
+    from sqlalchemy.orm import Session, sessionmaker
 
     from server.schemas import ReportPublic
 
-__all__ = ["mcap_app", "register"]
+__all__ = ["export_app", "mcap_app", "register"]
 
 #: Who the audit log names for what the command line does.
 ACTOR = "hikoboshi-cli"
 
-mcap_app = typer.Typer(no_args_is_help=True, help="Pass recordings as MCAP: export, import.")
-console = Console()
-err_console = Console(stderr=True)
+mcap_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="Pass recordings as MCAP: export, import.",
+)
+export_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="Data out of the database: a pass's telemetry as CSV or Parquet.",
+)
+console = make_console()
+err_console = make_console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:
@@ -37,9 +51,14 @@ def _fail(reason: str) -> NoReturn:
     raise typer.Exit(code=2)
 
 
+def _print_json(doc: dict[str, Any]) -> None:
+    """One JSON object on one line of stdout (--json)."""
+    sys.stdout.write(json.dumps(doc) + "\n")
+
+
 @contextmanager
-def _session() -> Iterator[Session]:
-    """A session on the configured database, migrated to head; errors become one line."""
+def _sessions() -> Iterator[sessionmaker[Session]]:
+    """Sessions on the configured database, migrated to head; errors become one line."""
     from server.services.errors import DomainError
     from server.settings import Settings
     from server.storage.db import make_engine, session_factory, upgrade
@@ -52,14 +71,20 @@ def _session() -> Iterator[Session]:
         _fail(f"bad settings in the environment: {exc}")
     try:
         upgrade(engine)
-        with session_factory(engine)() as session:
-            yield session
+        yield session_factory(engine)
     except DomainError as exc:
         _fail(exc.message)
     except StorageError as exc:
         _fail(str(exc))
     finally:
         engine.dispose()
+
+
+@contextmanager
+def _session() -> Iterator[Session]:
+    """A session on the configured database, migrated to head; errors become one line."""
+    with _sessions() as sessions, sessions() as session:
+        yield session
 
 
 def _is_file(target: str) -> bool:
@@ -108,6 +133,10 @@ def report(
     recompute: Annotated[
         bool, typer.Option(help="Analyse the stored pass again even if it has results.")
     ] = False,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print one JSON object: what was written, each analysis."),
+    ] = False,
 ) -> None:
     """Write a pass report: report.json (the numbers in tables), report.html and the
     figures. A stored pass's newest analyses are used (run and stored first if it has none,
@@ -125,6 +154,20 @@ def report(
             found = stored_report(session, target)
     report_doc, figures = found
     _write_report(out, report_doc, figures)
+    if as_json:
+        _print_json(
+            {
+                "pass_id": report_doc.pass_id,
+                "report_html": str(out / "report.html"),
+                "report_json": str(out / "report.json"),
+                "figures": [str(out / f"{name}.png") for name in figures],
+                "analyses": [
+                    {"kind": a.kind, "status": a.status, "error": a.error}
+                    for a in report_doc.analyses
+                ],
+            }
+        )
+        return
     for status in report_doc.analyses:
         line = f"{status.kind}: {status.status}"
         console.print(line + (f" ({status.error})" if status.error else ""), highlight=False)
@@ -135,6 +178,9 @@ def report(
 def mcap_export(
     target: Annotated[str, typer.Argument(metavar="PASS", help="Pass id in the database.")],
     out: Annotated[Path, typer.Option(help="The .mcap file to write.")],
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object: the pass, file and size.")
+    ] = False,
 ) -> None:
     """Write a stored pass as one MCAP file (docs/mcap.md)."""
     from server.services.recordings import recording_mcap
@@ -146,14 +192,22 @@ def mcap_export(
         out.write_bytes(data)
     except OSError as exc:
         _fail(f"{out}: {exc}")
+    if as_json:
+        _print_json({"pass_id": target, "name": name, "path": str(out), "bytes": len(data)})
+        return
     console.print(f"wrote pass {name!r} to {out} ({len(data)} bytes)", highlight=False)
 
 
 @mcap_app.command("import")
 def mcap_import(
     path: Annotated[Path, typer.Argument(metavar="FILE", help="An .mcap pass recording.")],
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print one JSON object: the id, name, state and counts."),
+    ] = False,
 ) -> None:
-    """Store an MCAP recording as a new, finished pass marked imported; prints its id."""
+    """Store an MCAP recording as a new, finished pass marked imported; prints its id (alone
+    on stdout, for PASS=$(hikoboshi mcap import FILE)); what was stored goes to stderr."""
     from server.services.imports import import_mcap
 
     try:
@@ -163,15 +217,100 @@ def mcap_import(
     with _session() as session:
         result = import_mcap(session, data, ACTOR, source=path.name)
     p = result.imported
-    console.print(
+    if as_json:
+        _print_json(
+            {
+                "id": p.id,
+                "name": p.name,
+                "state": p.state,
+                "frames": result.frames,
+                "commands": result.commands,
+                "events": result.events,
+            }
+        )
+        return
+    err_console.print(
         f"imported pass {p.id} ({p.name!r}, {p.state}): {result.frames} frames, "
         f"{result.commands} commands, {result.events} events",
+        markup=False,
         highlight=False,
         soft_wrap=True,
+    )
+    sys.stdout.write(f"{p.id}\n")
+
+
+@export_app.command("telemetry")
+def export_telemetry(
+    target: Annotated[str, typer.Argument(metavar="PASS", help="Pass id in the database.")],
+    out: Annotated[
+        Path, typer.Option(help="The file to write (.csv or .parquet); - for stdout (CSV).")
+    ],
+    format_: Annotated[
+        str | None,
+        typer.Option("--format", help="csv or parquet; default: from the --out suffix."),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object: the file, format and rows.")
+    ] = False,
+) -> None:
+    """Write every stored frame of a pass as CSV (units in the header) or Parquet (units in
+    the schema metadata), as GET /api/passes/ID/telemetry.csv and .parquet do."""
+    from server.services import exports
+
+    to_stdout = str(out) == "-"
+    chosen = format_ or ("csv" if to_stdout else out.suffix.removeprefix(".").lower())
+    if chosen not in exports.FORMATS:
+        _fail(
+            f"--format {chosen!r} is not one of {sorted(exports.FORMATS)} (or give --out a "
+            ".csv or .parquet suffix)"
+        )
+    if to_stdout and chosen != "csv":
+        _fail("--out - writes CSV only: give a file for Parquet")
+    rows = 0
+    with _sessions() as sessions:
+        with sessions() as session:
+            export = exports.open_export(session, target)
+        try:
+            if to_stdout:
+                stream = sys.stdout.buffer
+                for chunk in exports.csv_chunks(sessions, export):
+                    stream.write(chunk)
+                stream.flush()
+                return
+            out.parent.mkdir(parents=True, exist_ok=True)
+            with out.open("wb") as file:
+                if chosen == "csv":
+                    file.write(exports.csv_header(export))
+                    for page in exports.pages(sessions, export):
+                        file.write(exports.csv_rows(page))
+                        rows += len(page)
+                else:
+                    spooled, _, rows = exports.parquet_file(sessions, export)
+                    with spooled:
+                        shutil.copyfileobj(spooled, file)
+        except OSError as exc:
+            _fail(f"{out}: {exc}")
+    size = out.stat().st_size
+    if as_json:
+        _print_json(
+            {
+                "pass_id": export.pass_id,
+                "path": str(out),
+                "format": chosen,
+                "rows": rows,
+                "bytes": size,
+            }
+        )
+        return
+    console.print(
+        f"wrote {rows} frames of pass {export.name!r} to {out} ({chosen}, {size} bytes)",
+        markup=False,
+        highlight=False,
     )
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``report`` and ``mcap`` to the main command line."""
+    """Add ``report``, ``mcap`` and ``export`` to the main command line."""
     app.command("report")(report)
     app.add_typer(mcap_app, name="mcap")
+    app.add_typer(export_app, name="export")

@@ -12,15 +12,18 @@ from typing import Annotated, Any, NoReturn
 
 import numpy as np
 import typer
-from rich.console import Console
+
+from hikoboshi.output import HELP_MARKUP, make_console
 
 __all__ = ["register"]
 
 robot_app = typer.Typer(
-    no_args_is_help=True, help="Robot descriptions: check what a description loads to."
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="Robot descriptions: check what a description loads to.",
 )
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True)
+console = make_console(soft_wrap=True)
+err_console = make_console(stderr=True)
 
 
 def _fail(reason: str) -> NoReturn:

@@ -34,8 +34,10 @@ from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
 from server.api import web as web_api
 from server.api import windows as windows_api
+from server.api.compression import Compression
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
 from server.services.alarms import AlarmService
 from server.services.artifacts import ArtifactStore
@@ -256,9 +258,11 @@ def create_app(settings: Settings) -> FastAPI:
         version="0.1.0",
         description="Plans, passes, the 4 Hz uplink, the telemetry archive and the link.",
         lifespan=lifespan,
+        generate_unique_id_function=operation_id,  # start_pass, list_passes, ...
     )
     install_error_handlers(app)
     install_edge(app, settings)  # auth, limits and text checks before any route
+    app.add_middleware(Compression)  # gzip over 1 KB when accepted (server/api/compression.py)
     app.add_middleware(AnswerWhenStopping)  # outermost: a request cut short answers JSON
     app.include_router(link_api.router)
     app.include_router(console_api.router)

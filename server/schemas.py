@@ -113,6 +113,10 @@ PassState = Literal["scheduled", "aos", "running", "los", "complete", "aborted",
 CommandStage = Literal[
     "queued", "released", "sent", "received", "executed", "rejected", "expired", "cancelled"
 ]
+#: What a command moves (server/storage/models.py ``COMMAND_KINDS``).
+CommandKind = Literal["joints", "acs"]
+#: An audit-log event's kind as a filter: a snake_case name (server/services/events.py).
+EventKind = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]*$", max_length=64)]
 
 
 def iso_from_ns(time_ns: int) -> datetime:

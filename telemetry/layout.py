@@ -73,6 +73,16 @@ _QUAT = ("qx", "qy", "qz", "qw")
 _OMEGA = ("wx", "wy", "wz")
 _MOMENTUM = ("hw1", "hw2", "hw3")
 _TARGET_QUAT = ("tqx", "tqy", "tqz", "tqw")
+#: The unit of each vector's values.
+_VECTOR_UNITS = {
+    "joints_rad": "rad",
+    "joint_targets_rad": "rad",
+    "quat_orbit_from_base_xyzw": "1",
+    "omega_base_in_base_radps": "rad/s",
+    "wheel_speeds_radps": "rad/s",
+    "wheel_momentum_nms": "N m s",
+    "acs_target_quat_xyzw": "1",
+}
 
 
 @dataclass(frozen=True)
@@ -131,6 +141,17 @@ class FrameLayout:
     def columns(self) -> tuple[str, ...]:
         """A row's values, in order: ``seq``, ``generation_time_ns`` and :attr:`fields`."""
         return ("seq", "generation_time_ns", *self.fields)
+
+    @cached_property
+    def units(self) -> dict[str, str]:
+        """Column of :attr:`columns` -> its unit (``"1"``: a quaternion's components; ``""``:
+        a count, a sequence number, a mode or a flag)."""
+        out = dict.fromkeys(self.columns, "")
+        for array, names in self.vectors:
+            out.update(dict.fromkeys(names, _VECTOR_UNITS[array]))
+        for name in ("generation_time_ns", "buffer_next_execute_time_ns", "reception_time_ns"):
+            out[name] = "ns"
+        return out
 
     @cached_property
     def arrays(self) -> dict[str, int]:

@@ -11,7 +11,8 @@ from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Annotated, TypeVar
 
-from fastapi import Depends, Header, Path, Request, WebSocket
+from fastapi import Depends, Path, Request, Security, WebSocket
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.requests import HTTPConnection
 
@@ -31,6 +32,7 @@ from server.settings import ApiToken, Role, Settings
 T = TypeVar("T")
 
 __all__ = [
+    "BEARER",
     "AlarmsDep",
     "ClockDep",
     "ConsoleDep",
@@ -41,6 +43,7 @@ __all__ = [
     "OperatorDep",
     "Principal",
     "PublisherDep",
+    "ReadSessionsDep",
     "RunnerDep",
     "SessionDep",
     "SettingsDep",
@@ -70,23 +73,35 @@ def _state(name: str, kind: type[T]) -> Callable[[HTTPConnection], Awaitable[T]]
 get_settings = _state("settings", Settings)
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """A session for the request: a read-only one for GET and HEAD (they never write, and on
-    SQLite a reader then never waits for the ground's writer); from the operators' own pool
-    for an operator's request, else from the readers' (its lane: server/api/lanes.py)."""
+def _session_factory(request: Request, *, read_only: bool) -> sessionmaker[Session]:
     state = request.app.state
-    read_only = request.method in ("GET", "HEAD")
     factory: sessionmaker[Session]
     if request_lane(request) is Lane.OPERATOR:
         factory = state.operator_read_sessions if read_only else state.operator_sessions
     else:
         factory = state.read_sessions if read_only else state.sessions
-    with factory() as session:
+    return factory
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """A session for the request: a read-only one for GET and HEAD (they never write, and on
+    SQLite a reader then never waits for the ground's writer); from the operators' own pool
+    for an operator's request, else from the readers' (its lane: server/api/lanes.py)."""
+    read_only = request.method in ("GET", "HEAD")
+    with _session_factory(request, read_only=read_only)() as session:
         yield session
+
+
+async def get_read_sessions(request: Request) -> sessionmaker[Session]:
+    """The read-only session factory of the request's lane, for a route that reads in
+    several short sessions (a streamed export) rather than one for the whole request."""
+    return _session_factory(request, read_only=True)
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SessionDep = Annotated[Session, Depends(get_session)]
+#: The read-only sessions of the request's lane (as SessionDep picks them), as a factory.
+ReadSessionsDep = Annotated[sessionmaker[Session], Depends(get_read_sessions)]
 #: The injected clock every event and arrival is timed on.
 ClockDep = Annotated[Clock, Depends(_state("clock", Clock))]
 #: The consoles' publish hook.
@@ -142,6 +157,17 @@ def authenticate(settings: Settings, authorization: str | None) -> Principal:
     return Principal(token.name, token.role)
 
 
+#: The API's security scheme in the OpenAPI document (``bearerAuth``: Swagger UI's
+#: Authorize button, generated clients' token). Declared only: ``auto_error=False``, so
+#: :func:`authenticate` alone decides, with the same 401 reasons as before.
+BEARER = HTTPBearer(
+    scheme_name="bearerAuth",
+    description="An API token (HIKOBOSHI_TOKENS) as Authorization: Bearer TOKEN; its role "
+    "(viewer, operator, spacecraft) decides what it may do (docs/security.md).",
+    auto_error=False,
+)
+
+
 #: Which roles may act as which: an operator may do what a viewer does.
 _GRANTS = {
     Role.VIEWER: {Role.VIEWER, Role.OPERATOR},
@@ -156,10 +182,11 @@ def require(role: Role) -> Callable[..., Awaitable[Principal]]:
     thread (the edge, server/api/edge.py, has already refused unknown tokens)."""
 
     async def dependency(
-        request: Request, authorization: Annotated[str | None, Header()] = None
+        request: Request,
+        _: Annotated[HTTPAuthorizationCredentials | None, Security(BEARER)],
     ) -> Principal:
         settings: Settings = request.app.state.settings
-        principal = authenticate(settings, authorization)
+        principal = authenticate(settings, request.headers.get("authorization"))
         if principal.role not in _GRANTS[role]:
             raise HttpError(
                 403,

@@ -22,7 +22,8 @@ by its route and its caller's role (:func:`lane_of`), puts the lane in the ASGI 
   costs nothing, where refusing at once had 200 viewers retrying every second.
 
 Whatever the lane, a heavy read (:data:`HEAVY_ROUTES`: a recording, the report, its page
-and figures, raw telemetry, an analyses run, contact windows) is limited per token holder: past
+and figures, raw telemetry and its CSV and Parquet exports, an analyses run, contact
+windows) is limited per token holder: past
 ``heavy_reads_per_token`` in flight, 429 ``too_many_requests`` with ``Retry-After``.
 
 The counters live on the event loop (the edge admits and releases there): no locks.
@@ -83,6 +84,8 @@ HEAVY_ROUTES = frozenset(
         ("GET", "/api/passes/{pass_id}/report.html"),
         ("GET", "/api/passes/{pass_id}/report/figures/{name}.png"),
         ("GET", "/api/passes/{pass_id}/telemetry"),
+        ("GET", "/api/passes/{pass_id}/telemetry.csv"),  # the whole pass, streamed
+        ("GET", "/api/passes/{pass_id}/telemetry.parquet"),  # the whole pass, built whole
         ("POST", "/api/passes/{pass_id}/analyses"),
         ("GET", "/api/windows"),  # contact windows, computed in a worker process
     }

@@ -19,6 +19,8 @@ from server.api.deps import (
 )
 from server.schemas import (
     ERROR_RESPONSES,
+    MAX_NS,
+    CommandKind,
     CommandsPublic,
     CommandStage,
     PassCreate,
@@ -85,10 +87,24 @@ def list_commands(
     stage: Annotated[list[CommandStage] | None, Query()] = None,
     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    kind: Annotated[list[CommandKind] | None, Query()] = None,
+    t0: Annotated[
+        int | None, Query(ge=0, le=MAX_NS, description="time tags from, ns (onboard clock)")
+    ] = None,
+    t1: Annotated[int | None, Query(ge=0, le=MAX_NS, description="until, ns, excluded")] = None,
 ) -> CommandsPublic:
-    """The pass's commands by time tag, only those at ``stage`` (repeatable) if given."""
+    """The pass's commands by time tag: only those at ``stage`` and of ``kind`` (each
+    repeatable), with a time tag in ``[t0, t1)``, where given (422 ``empty_range`` when
+    ``t1 <= t0``)."""
     return service.list_commands(
-        session=session, pass_id=pass_id, stages=stage, offset=offset, limit=limit
+        session=session,
+        pass_id=pass_id,
+        stages=stage,
+        kinds=kind,
+        t0_ns=t0,
+        t1_ns=t1,
+        offset=offset,
+        limit=limit,
     )
 
 

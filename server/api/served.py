@@ -11,6 +11,7 @@ from fastapi import Depends, Request
 from fastapi.responses import Response, StreamingResponse
 from starlette.requests import HTTPConnection
 
+from server.api.compression import send_as_stored
 from server.services.artifacts import ArtifactRef, ArtifactStore, Served
 
 __all__ = ["NOT_MODIFIED", "ArtifactsDep", "serve_artifact"]
@@ -60,6 +61,7 @@ async def serve_artifact(
             headers={"ETag": f'"{version.key}"', "Cache-Control": _CACHE_CONTROL},
         )
     served = await store.fetch(ref, version, client=http)
+    send_as_stored(http)  # its length and ETag as stored, never gzip'd on the way
     extra = headers(served) if callable(headers) else headers
     return StreamingResponse(
         served.chunks(),

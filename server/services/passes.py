@@ -258,18 +258,42 @@ def _command(record: CommandRecord) -> CommandPublic:
 
 
 def list_commands(
-    *, session: Session, pass_id: str, stages: Sequence[str] | None, offset: int, limit: int
+    *,
+    session: Session,
+    pass_id: str,
+    stages: Sequence[str] | None,
+    offset: int,
+    limit: int,
+    kinds: Sequence[str] | None = None,
+    t0_ns: int | None = None,
+    t1_ns: int | None = None,
 ) -> CommandsPublic:
-    """The pass's commands by time tag, one page of them, and how many match.
+    """The pass's commands by time tag, one page of them, and how many match: only those
+    at ``stages``, of ``kinds`` and with a time tag in ``[t0_ns, t1_ns)``, where given.
 
     The repository lists a pass's commands without an offset or a count, so the page is
     cut here; a pass holds a few thousand commands at most (one window at 4 Hz).
     """
+    check_range(t0_ns, t1_ns)
     repo.get_pass(session=session, pass_id=pass_id)  # NotFound for an unknown pass
-    records = repo.list_commands(session=session, pass_id=pass_id, stages=stages)
+    records = repo.list_commands(
+        session=session,
+        pass_id=pass_id,
+        stages=stages,
+        kinds=kinds,
+        execute_from_ns=t0_ns,
+        execute_to_ns=t1_ns,
+    )
     return CommandsPublic(
         data=[_command(r) for r in records[offset : offset + limit]], count=len(records)
     )
+
+
+def check_range(t0_ns: int | None, t1_ns: int | None) -> None:
+    """``InvalidRequestError`` (422 ``empty_range``) when both bounds are given and
+    ``[t0_ns, t1_ns)`` holds nothing."""
+    if t0_ns is not None and t1_ns is not None and t1_ns <= t0_ns:
+        raise InvalidRequestError("empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
 
 
 def check_confirmation(

@@ -7,6 +7,8 @@ it (the storage would refuse it too, as an ``InvalidArgument``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from sqlalchemy.orm import Session
 
 from server.schemas import (
@@ -18,6 +20,7 @@ from server.schemas import (
     iso_from_ns,
 )
 from server.services.errors import InvalidRequestError
+from server.services.passes import check_range
 from server.storage import repository as repo
 from server.storage._telemetry import MAX_BUCKETS
 from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
@@ -122,11 +125,33 @@ def telemetry(
     )
 
 
-def list_events(*, session: Session, pass_id: str | None, offset: int, limit: int) -> EventsPublic:
-    """The audit log in time order, of one pass if given (``NotFound`` for an unknown pass)."""
+def list_events(
+    *,
+    session: Session,
+    pass_id: str | None,
+    offset: int,
+    limit: int,
+    kinds: Sequence[str] | None = None,
+    actors: Sequence[str] | None = None,
+    t0_ns: int | None = None,
+    t1_ns: int | None = None,
+) -> EventsPublic:
+    """The audit log in time order: of one pass, of ``kinds``, by ``actors`` and stamped in
+    ``[t0_ns, t1_ns)``, where given (``NotFound`` for an unknown pass, ``empty_range`` for
+    an empty range)."""
+    check_range(t0_ns, t1_ns)
     if pass_id is not None:
         pass_id = repo.get_pass(session=session, pass_id=pass_id).id
-    page = repo.list_events(session=session, pass_id=pass_id, offset=offset, limit=limit)
+    page = repo.list_events(
+        session=session,
+        pass_id=pass_id,
+        kinds=kinds,
+        actors=actors,
+        t0_ns=t0_ns,
+        t1_ns=t1_ns,
+        offset=offset,
+        limit=limit,
+    )
     return EventsPublic(
         data=[
             EventPublic(

@@ -52,6 +52,7 @@ from server.storage._telemetry import (
 )
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 from server.storage.models import (
+    COMMAND_KINDS,
     COMMAND_STAGES,
     PASS_STATES,
     AnalysisRecord,
@@ -424,14 +425,19 @@ def list_commands(
     execute_from_ns: int | None = None,
     execute_to_ns: int | None = None,
     limit: int | None = None,
+    kinds: Collection[str] | None = None,
 ) -> list[CommandRecord]:
-    """The pass's commands by time tag (then seq): only ``stages`` if given, and only tags
-    in ``[execute_from_ns, execute_to_ns)`` for the bounds given."""
+    """The pass's commands by time tag (then seq): only ``stages`` and ``kinds`` if given,
+    and only tags in ``[execute_from_ns, execute_to_ns)`` for the bounds given."""
     where: list[ColumnElement[bool]] = [CommandRecord.pass_id == canonical_id(pass_id, what="pass")]
     if stages is not None:
         for stage in stages:
             check_one_of(stage, COMMAND_STAGES, what="command stage")
         where.append(CommandRecord.stage.in_(list(stages)))
+    if kinds is not None:
+        for kind in kinds:
+            check_one_of(kind, COMMAND_KINDS, what="command kind")
+        where.append(CommandRecord.kind.in_(list(kinds)))
     if execute_from_ns is not None:
         where.append(CommandRecord.execute_time_ns >= execute_from_ns)
     if execute_to_ns is not None:
@@ -481,14 +487,18 @@ def list_events(
     t1_ns: int | None = None,
     offset: int = 0,
     limit: int = 100,
+    actors: Collection[str] | None = None,
 ) -> Page[EventRecord]:
-    """Events in time order (then id), filtered by pass, kinds and ``[t0_ns, t1_ns)``."""
+    """Events in time order (then id), filtered by pass, kinds, actors and
+    ``[t0_ns, t1_ns)``."""
     check_page(offset, limit)
     where: list[ColumnElement[bool]] = []
     if pass_id is not None:
         where.append(EventRecord.pass_id == canonical_id(pass_id, what="pass"))
     if kinds is not None:
         where.append(EventRecord.kind.in_(list(kinds)))
+    if actors is not None:
+        where.append(EventRecord.actor.in_(list(actors)))
     if t0_ns is not None and t1_ns is not None:
         check_time_range(t0_ns, t1_ns)
     if t0_ns is not None:

@@ -164,10 +164,15 @@ def test_cli_calibrates_to_a_recorded_pass(
             str(out),
             "--report",
             str(report),
+            "--json",
         ],
     )
     assert result.exit_code == 0, result.output
     doc = json.loads(report.read_text())
+    # --json: the report's fields and the files written, on stdout (progress is on stderr)
+    printed = json.loads(result.stdout)
+    assert printed.pop("wrote") == [str(out), str(report)]
+    assert printed == doc
     assert doc["kind"] == "recording" and doc["evaluations"] <= 4
     loaded = load_acs_config(workspace, out)
     fitted = gains_from_parameters(workspace, doc["parameters"])

@@ -254,3 +254,55 @@ def test_a_405_still_names_the_methods(client: TestClient) -> None:
     response = client.delete("/api/passes", headers=OPERATOR)
     assert response.status_code == 405
     assert set(response.headers["allow"].replace(" ", "").split(",")) >= {"GET", "POST"}
+
+
+def test_operations_declare_the_bearer_scheme_instead_of_a_header_parameter(
+    document: dict[str, Any],
+) -> None:
+    assert document["components"]["securitySchemes"]["bearerAuth"] == {
+        "type": "http",
+        "scheme": "bearer",
+        "description": document["components"]["securitySchemes"]["bearerAuth"]["description"],
+    }
+    operations = [(path, op) for path, item in document["paths"].items() for op in item.values()]
+    secured = [path for path, op in operations if op.get("security") == [{"bearerAuth": []}]]
+    open_ = [path for path, op in operations if "security" not in op]
+    assert open_ == ["/api/health"]
+    assert len(secured) == len(operations) - 1 >= 27
+    headers = [
+        (path, p["name"])
+        for path, op in operations
+        for p in op.get("parameters", [])
+        if p["in"] == "header"
+    ]
+    assert headers == []  # no optional `authorization` parameter left anywhere
+
+
+def test_operation_ids_are_the_route_names(document: dict[str, Any]) -> None:
+    ids = {
+        (method, path): op["operationId"]
+        for path, item in document["paths"].items()
+        for method, op in item.items()
+    }
+    assert len(set(ids.values())) == len(ids)
+    assert ids["post", "/api/passes/{pass_id}/start"] == "start_pass"
+    assert ids["get", "/api/passes"] == "list_passes"
+    assert ids["get", "/api/passes/{pass_id}/recording.mcap"] == "download_recording"
+    assert all(re.fullmatch(r"[a-z][a-z0-9_]*", i) and "_api_" not in i for i in ids.values())
+
+
+@pytest.mark.parametrize(
+    ("headers", "status", "message"),
+    [
+        ({}, 401, "an API token is required (Authorization: Bearer)"),
+        ({"Authorization": "Basic o-token"}, 401, "an API token is required"),
+        ({"Authorization": "Bearer nope"}, 401, "unknown API token"),
+        ({"Authorization": "Bearer v-token"}, 403, "role 'viewer' may not do this"),
+    ],
+)
+def test_auth_answers_as_before_behind_the_declared_scheme(
+    client: TestClient, headers: dict[str, str], status: int, message: str
+) -> None:
+    response = client.post("/api/passes/x/start", headers=headers, json={})
+    assert response.status_code == status, response.text
+    assert response.json()["error"]["message"].startswith(message)

@@ -97,3 +97,107 @@ def test_importing_a_file_that_is_not_a_recording_fails_with_the_reason(env: Pat
     bad.write_bytes(b"hello")
     result = runner.invoke(app, ["mcap", "import", str(bad)])
     assert result.exit_code == 2 and "not an MCAP file" in result.output
+
+
+def test_import_prints_the_id_alone_on_stdout_and_json_on_request(
+    env: Path, short_mcap: bytes
+) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    result = runner.invoke(app, ["mcap", "import", str(source)])
+    assert result.exit_code == 0, result.output
+    # stdout is the id and nothing else (PASS=$(hikoboshi mcap import FILE)); the sentence
+    # for a person goes to stderr
+    assert re.fullmatch(r"[0-9a-f-]{36}\n", result.stdout), result.stdout
+    pass_id = result.stdout.strip()
+    assert f"imported pass {pass_id} " in result.stderr
+
+    result = runner.invoke(app, ["mcap", "import", str(source), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["id"] != pass_id and re.fullmatch(r"[0-9a-f-]{36}", doc["id"])
+    assert (doc["frames"], doc["commands"], doc["events"]) == (571, 12, 2)
+    assert doc["state"] == "aborted" and doc["name"]  # as the recording says
+
+
+def test_report_and_export_print_json_on_request(env: Path, short_mcap: bytes) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    pass_id = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+    result = runner.invoke(app, ["report", pass_id, "--out", str(env / "r"), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["pass_id"] == pass_id
+    assert doc["report_html"] == str(env / "r" / "report.html")
+    assert [a["status"] for a in doc["analyses"]] == ["ok", "ok", "failed", "ok"]
+    assert doc["analyses"][2]["error"].startswith("InsufficientData")
+    assert all(Path(f).read_bytes()[:4] == b"\x89PNG" for f in doc["figures"]) and doc["figures"]
+
+    out = env / "again.mcap"
+    result = runner.invoke(app, ["mcap", "export", pass_id, "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc == {
+        "pass_id": pass_id,
+        "name": read_mcap(out).name,
+        "path": str(out),
+        "bytes": out.stat().st_size,
+    }
+
+
+def test_export_telemetry_as_csv_and_parquet(env: Path, short_mcap: bytes) -> None:
+    import csv
+
+    from arro3.io import read_parquet
+
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    pass_id = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+
+    result = runner.invoke(
+        app, ["export", "telemetry", pass_id, "--out", str(env / "t.csv"), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc == {
+        "pass_id": pass_id,
+        "path": str(env / "t.csv"),
+        "format": "csv",
+        "rows": 571,
+        "bytes": (env / "t.csv").stat().st_size,
+    }
+    with (env / "t.csv").open(newline="") as file:
+        lines = list(csv.reader(file))
+    header, rows = lines[0], lines[1:]
+    assert header[2] == "j1 [rad]" and len(rows) == 571
+
+    run("export", "telemetry", pass_id, "--out", str(env / "t.parquet"))
+    table = read_parquet(str(env / "t.parquet")).read_all()
+    assert table.num_rows == 571
+    # the same numbers in both files: the CSV's text is each float's shortest round trip
+    j1 = table["j1"].to_pylist()
+    assert [float(r[2]) for r in rows] == j1
+    assert [int(r[0]) for r in rows] == table["seq"].to_pylist()
+
+    piped = runner.invoke(app, ["export", "telemetry", pass_id, "--out", "-"])
+    assert piped.exit_code == 0 and piped.stdout == (env / "t.csv").read_text()
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (("--out", "t.txt"), "--format 'txt' is not one of ['csv', 'parquet']"),
+        (("--out", "-", "--format", "parquet"), "--out - writes CSV only"),
+    ],
+)
+def test_export_refuses_what_it_cannot_write(env: Path, args: tuple[str, ...], reason: str) -> None:
+    result = runner.invoke(app, ["export", "telemetry", "some-pass", *args])
+    assert result.exit_code == 2 and result.output.startswith("error: ")
+    assert reason in result.output
+
+
+def test_export_of_an_unknown_pass_is_one_line_and_status_2(env: Path) -> None:
+    missing = "00000000-0000-4000-8000-000000000000"
+    result = runner.invoke(app, ["export", "telemetry", missing, "--out", str(env / "x.csv")])
+    assert result.exit_code == 2 and "not found" in result.output
+    assert not (env / "x.csv").exists()
