@@ -675,7 +675,23 @@ def ptp_demo(
 @app.command()
 def spacecraft(
     ground: Annotated[str, typer.Option(help="Ground link endpoint, ws://HOST:PORT/PATH")],
-    token: Annotated[str, typer.Option(help="API token with the spacecraft role")],
+    token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="HIKOBOSHI_SPACECRAFT_TOKEN",
+            show_envvar=True,
+            help="API token with the spacecraft role (better from the environment or "
+            "--token-file: a command line is visible to every user of the host)",
+        ),
+    ] = None,
+    token_file: Annotated[
+        Path | None,
+        typer.Option(
+            envvar="HIKOBOSHI_SPACECRAFT_TOKEN_FILE",
+            show_envvar=True,
+            help="A file holding the token (a container secret)",
+        ),
+    ] = None,
     time_scale: Annotated[float, typer.Option(help="Onboard seconds per wall second")] = 1.0,
     delay: Annotated[float | None, typer.Option(help="One-way delay, s (both directions)")] = None,
     jitter: Annotated[float | None, typer.Option(help="Delay jitter, s (1 sigma)")] = None,
@@ -768,6 +784,7 @@ def spacecraft(
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     install_redaction()  # its token never in its log (docs/security.md "Logs")
+    token = _spacecraft_token(token, token_file)
     try:
         if link_config is not None:
             up, down = load_link_config(link_config)
@@ -841,6 +858,25 @@ def spacecraft(
         )
 
     asyncio.run(main_async())
+
+
+def _spacecraft_token(token: str | None, token_file: Path | None) -> str:
+    """The spacecraft's token: given, else read from ``token_file``; one error line when
+    there is none (docs/operations.md "Settings")."""
+    if token and token.strip():
+        return token.strip()
+    if token_file is not None:
+        try:
+            text = token_file.read_text().strip()
+        except OSError as exc:
+            _fail(f"--token-file {token_file}: {exc.strerror or exc}")
+        if not text:
+            _fail(f"--token-file {token_file} is empty")
+        return text
+    _fail(
+        "no spacecraft token: give --token-file FILE or set HIKOBOSHI_SPACECRAFT_TOKEN "
+        "(or HIKOBOSHI_SPACECRAFT_TOKEN_FILE)"
+    )
 
 
 def _with_vehicle_tables(vehicle: Any, path: Path) -> Any:
