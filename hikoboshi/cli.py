@@ -38,6 +38,31 @@ def _fail(reason: str) -> NoReturn:
     raise typer.Exit(code=2)
 
 
+LogFormatOption = Annotated[
+    str,
+    typer.Option(
+        envvar="HIKOBOSHI_LOG_FORMAT",
+        help="Log lines as text or json (one object a line); docs/operations.md, Logs",
+    ),
+]
+LogLevelOption = Annotated[
+    str,
+    typer.Option(
+        envvar="HIKOBOSHI_LOG_LEVEL", help="Least level logged: debug, info, warning, error"
+    ),
+]
+
+
+def _configure_logging(log_format: str, log_level: str, stream: Any = None) -> None:
+    """The one logging configuration (server/logs.py), or one error line and status 2."""
+    from server.logs import configure_logging
+
+    try:
+        configure_logging(log_format, log_level, stream=stream)
+    except ValueError as exc:
+        _fail(str(exc))
+
+
 RobotOption = Annotated[
     Path | None,
     typer.Option(
@@ -434,6 +459,8 @@ def demo(
             "(docs/spacecraft.md)"
         ),
     ] = None,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
     process, and the whole ETS-VII pass (all four experiments) at --speed times real time.
@@ -450,6 +477,12 @@ def demo(
     from spacecraft.link import parse_outage
 
     install_redaction()  # no token in any log of the demo (docs/security.md "Logs")
+    from server.logs import check_log_options
+
+    try:
+        check_log_options(log_format, log_level)
+    except ValueError as exc:
+        _fail(str(exc))
 
     if not 0 < speed <= 1000:
         _fail(f"--speed {speed} must lie in (0, 1000]")
@@ -479,7 +512,12 @@ def demo(
         experiments=chosen,
         serve_after=serve_after,
         on_ready=None if as_json else _announce,
+        log_format=log_format,
+        log_level=log_level.lower(),
     )
+    out.mkdir(parents=True, exist_ok=True)
+    ground_log = (out / "ground.log").open("a", encoding="utf-8")  # open until the exit
+    _configure_logging(log_format, log_level, stream=ground_log)
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -766,6 +804,8 @@ def spacecraft(
             "protection)",
         ),
     ] = False,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link. With
     --robot it flies that robot description (model, servos, attitude control, wheel limits,
@@ -773,7 +813,6 @@ def spacecraft(
     vehicle safes itself on a red limit unless --no-safing; --fault injects faults."""
     import asyncio
     import dataclasses
-    import logging
     import signal
 
     from server.redaction import install_redaction
@@ -782,8 +821,8 @@ def spacecraft(
     from spacecraft.process import ProcessConfig, SpacecraftProcess
     from spacecraft.vehicle import VehicleConfig, vehicle_config_for
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     install_redaction()  # its token never in its log (docs/security.md "Logs")
+    _configure_logging(log_format, log_level)
     token = _spacecraft_token(token, token_file)
     try:
         if link_config is not None:
@@ -934,6 +973,8 @@ def serve(
             "under examples/robots/; plan requests name it by its name. Repeatable.",
         ),
     ] = None,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
     under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
@@ -947,6 +988,7 @@ def serve(
     from server.settings import Settings
 
     install_redaction()  # before anything logs (uvicorn_config installs it too)
+    _configure_logging(log_format, log_level)
 
     try:
         settings = Settings.from_env()
@@ -970,7 +1012,7 @@ def serve(
     if weak:
         err_console.print(f"warning: short (guessable) tokens for {', '.join(weak)}")
     ground = create_app(settings)
-    config = uvicorn_config(ground, settings, host=host, port=port)
+    config = uvicorn_config(ground, settings, host=host, port=port, log_level=log_level.lower())
     # On SIGTERM it stops the worker pool first: requests waiting answer JSON 503
     # shutting_down and no job process outlives it (docs/operations.md "Stopping").
     GroundServer(config, ground).run()

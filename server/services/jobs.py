@@ -137,6 +137,10 @@ def run_job(
         conn.send(("error", _sendable(MemoryError())))
     except pickle.PicklingError as exc:  # a result or a detail that does not pickle
         conn.send(("error", _sendable(exc)))
+    except (BrokenPipeError, ConnectionResetError):
+        # The server stopped waiting (it closed the pool: shutting down): no one to tell,
+        # and no traceback on its log (a JSON log takes one object a line).
+        pass
     finally:
         conn.close()
 
