@@ -29,6 +29,7 @@ from server.api import link as link_api
 from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
+from server.api import ready as ready_api
 from server.api import recordings as recordings_api
 from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
@@ -47,6 +48,7 @@ from server.services.downlink import GroundDownlink
 from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
 from server.services.malformed import MalformedPolicy
+from server.services.readiness import ReadinessProbe
 from server.services.runner import PassRunner
 from server.services.tracker import Trackers
 from server.services.workers import WorkerPool
@@ -239,9 +241,11 @@ def create_app(settings: Settings) -> FastAPI:
         )
         app.state.artifacts.start()
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
+        app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
         try:
             yield
         finally:
+            app.state.readiness.close()
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
@@ -272,6 +276,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(model_api.router)
     app.include_router(robots_api.router)
     app.include_router(windows_api.router)
+    app.include_router(ready_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])

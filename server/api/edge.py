@@ -95,7 +95,7 @@ audit = logging.getLogger("hikoboshi.audit")
 log = logging.getLogger("hikoboshi.ground.edge")
 
 #: ``/api`` routes that need no token (the websockets authenticate themselves).
-PUBLIC_PATHS = frozenset({"/api/health"})
+PUBLIC_PATHS = frozenset({"/api/health", "/api/ready"})
 #: Streams its body through with its own, larger limit (server/api/recordings.py).
 IMPORT_PATH = "/api/passes/import"
 #: The console's HTML pages: they get the Content-Security-Policy.
