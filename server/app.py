@@ -37,6 +37,7 @@ from server.api import web as web_api
 from server.api import windows as windows_api
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.metrics import connect_metrics, install_metrics
 from server.api.stopping import AnswerWhenStopping
 from server.services.alarms import AlarmService
 from server.services.artifacts import ArtifactStore
@@ -242,6 +243,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.artifacts.start()
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
         app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
+        connect_metrics(app.state)  # GET /metrics reads the services (server/api/metrics.py)
         try:
             yield
         finally:
@@ -263,6 +265,7 @@ def create_app(settings: Settings) -> FastAPI:
     )
     install_error_handlers(app)
     install_edge(app, settings)  # auth, limits and text checks before any route
+    install_metrics(app)  # times every request, refused ones too; GET /metrics
     app.add_middleware(AnswerWhenStopping)  # outermost: a request cut short answers JSON
     app.include_router(link_api.router)
     app.include_router(console_api.router)

@@ -96,6 +96,8 @@ log = logging.getLogger("hikoboshi.ground.edge")
 
 #: ``/api`` routes that need no token (the websockets authenticate themselves).
 PUBLIC_PATHS = frozenset({"/api/health", "/api/ready"})
+#: Outside /api, yet authenticated here like it (a viewer's token: docs/security.md).
+PROTECTED_PATHS = frozenset({"/metrics"})
 #: Streams its body through with its own, larger limit (server/api/recordings.py).
 IMPORT_PATH = "/api/passes/import"
 #: The console's HTML pages: they get the Content-Security-Policy.
@@ -478,6 +480,8 @@ class EdgeMiddleware:
 
     def _protected(self, scope: Scope) -> bool:
         path: str = scope["path"]
+        if path in PROTECTED_PATHS:
+            return True
         if not (path == "/api" or path.startswith("/api/")) or path in PUBLIC_PATHS:
             return False
         return any(route.matches(scope)[0] is not Match.NONE for route in self.router.routes)

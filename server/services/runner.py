@@ -328,6 +328,18 @@ class PassRunner:
         onboard = self._link.onboard_now_ns() if self._link.connected else None
         return {"pass_id": active.pass_id, **active.uplink.status(onboard)}
 
+    def command_stages(self) -> dict[str, int]:
+        """The running pass's commands by stage now (none without a pass): for /metrics."""
+        active = self._active
+        return {} if active is None else active.tracker.counts()
+
+    def uplink_leads_s(self) -> list[float]:
+        """The running pass's uplink leads so far: onboard s between each acknowledged
+        command's arrival on board and its tag (:meth:`Uplink.fill_margins_s`): for
+        /metrics."""
+        active = self._active
+        return [] if active is None else active.uplink.fill_margins_s()
+
     # -- start ---------------------------------------------------------------------------
 
     async def start(self, pass_id: str, actor: str) -> None:
