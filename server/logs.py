@@ -35,6 +35,7 @@ __all__ = [
     "TextFormatter",
     "check_log_options",
     "configure_logging",
+    "current_log_config",
     "current_pass",
 ]
 
@@ -48,6 +49,14 @@ current_pass: contextvars.ContextVar[str | None] = contextvars.ContextVar(
 
 #: The handler :func:`configure_logging` put on the root logger (replaced on a second call).
 _HANDLER_NAME = "hikoboshi"
+#: (format, level) of the last :func:`configure_logging` in this process: handed to the
+#: worker pool's job processes, which log the same way (server/services/jobs.py).
+_configured: tuple[str, str] | None = None
+
+
+def current_log_config() -> tuple[str, str] | None:
+    """``(format, level)`` as :func:`configure_logging` last set them here, or None."""
+    return _configured
 
 
 def _timestamp(record: logging.LogRecord) -> str:
@@ -136,7 +145,9 @@ def configure_logging(
     """Send every logger's records (ours, uvicorn's, websockets') at ``level`` and above to
     ``stream`` (stderr) in ``log_format``, redacted; the handler it installed (a second call
     replaces it). ``ValueError`` for an unknown format or level."""
+    global _configured
     check_log_options(log_format, level)
+    _configured = (log_format, level.lower())
     install_redaction()
     handler = logging.StreamHandler(sys.stderr if stream is None else stream)
     handler.set_name(_HANDLER_NAME)

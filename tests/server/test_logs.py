@@ -193,3 +193,34 @@ def test_a_real_serve_logs_its_start_and_a_failed_authentication(
             r"\(1 in this window\) event=authentication_failed failures=1",
             failed_lines[0],
         ), failed_lines[0]
+
+
+def _warn_from_a_job() -> int:
+    logging.getLogger("hikoboshi.ground.analyses").warning("analysis %s failed", "resim")
+    return 7
+
+
+def test_a_job_process_logs_as_the_server_does(capfd: pytest.CaptureFixture[str]) -> None:
+    """The worker pool hands its job processes the server's log configuration
+    (``current_log_config``): a job's warning is a JSON line, not the bare message of
+    Python's last-resort handler."""
+    import multiprocessing
+
+    from server.services.jobs import run_job
+
+    ctx = multiprocessing.get_context("fork")
+    receiver, sender = ctx.Pipe(duplex=False)
+    process = ctx.Process(
+        target=run_job,
+        args=(sender, None, _warn_from_a_job, (), {}, None, ("json", "info")),
+    )
+    process.start()
+    sender.close()
+    assert receiver.poll(60.0)  # a guard, not a timing assertion
+    assert receiver.recv() == ("ok", 7)
+    process.join(60.0)
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("{")]
+    (record,) = [json.loads(line) for line in lines]
+    assert record["message"] == "analysis resim failed"
+    assert (record["level"], record["logger"]) == ("WARNING", "hikoboshi.ground.analyses")
+    assert re.fullmatch(STAMP, record["time"])
