@@ -26,6 +26,10 @@ METRICS_PATH = "/metrics"
 
 router = APIRouter()
 
+#: The methods named in the latency's labels; any other is ``other`` (a client chooses the
+#: method: its labels must not grow without bound).
+_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
+
 
 @router.get(METRICS_PATH, include_in_schema=False)
 async def metrics(request: Request, _viewer: ViewerDep) -> Response:
@@ -39,7 +43,7 @@ class RequestTimer:
     """Times each HTTP request (wall s, to the end of its response) into
     ``hikoboshi_http_request_duration_seconds`` by method, route template (``/api/passes/
     {pass_id}``; ``unmatched`` when no route took it: refused at the edge, or no such
-    path) and status class (``2xx``)."""
+    path) and status class (``2xx``); every label from a bounded set."""
 
     def __init__(self, app: ASGIApp, metrics: GroundMetrics) -> None:
         self.app = app
@@ -64,7 +68,8 @@ class RequestTimer:
             route = scope.get("route")
             template = getattr(route, "path", None) or "unmatched"
             label = f"{status // 100}xx" if status else "none"
-            self.metrics.request_seconds.labels(scope["method"], template, label).observe(
+            method = scope["method"] if scope["method"] in _METHODS else "other"
+            self.metrics.request_seconds.labels(method, template, label).observe(
                 time.perf_counter() - began
             )
 

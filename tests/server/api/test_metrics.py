@@ -53,6 +53,8 @@ def test_requests_are_timed_by_route_and_commits_by_the_database_worker(
         assert client.get("/api/passes", headers=VIEWER).status_code == 200
     assert client.get("/api/passes/nope", headers=VIEWER).status_code == 404
     assert client.get("/api/passes").status_code == 401  # refused at the edge
+    for method in ("BREW", "WHEN"):  # a client's own methods: one label for them all
+        client.request(method, "/api/passes", headers=VIEWER)
     client.portal.call(state.db.run, lambda session: None)  # type: ignore[union-attr]
     samples = _samples(client.get("/metrics", headers=VIEWER).text)
     name = "hikoboshi_http_request_duration_seconds_count"
@@ -62,6 +64,8 @@ def test_requests_are_timed_by_route_and_commits_by_the_database_worker(
     assert samples[(name, missing)] == 1.0
     refused = (("method", "GET"), ("route", "unmatched"), ("status", "4xx"))
     assert samples[(name, refused)] == 1.0
+    methods = {dict(labels)["method"] for (n, labels) in samples if n == name}
+    assert methods == {"GET", "other"}
     assert samples[("hikoboshi_db_commit_seconds_count", ())] >= 1.0
 
 
