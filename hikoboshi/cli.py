@@ -49,6 +49,31 @@ def _fail(reason: str) -> NoReturn:
     raise typer.Exit(code=2)
 
 
+LogFormatOption = Annotated[
+    str,
+    typer.Option(
+        envvar="HIKOBOSHI_LOG_FORMAT",
+        help="Log lines as text or json (one object a line); docs/operations.md, Logs",
+    ),
+]
+LogLevelOption = Annotated[
+    str,
+    typer.Option(
+        envvar="HIKOBOSHI_LOG_LEVEL", help="Least level logged: debug, info, warning, error"
+    ),
+]
+
+
+def _configure_logging(log_format: str, log_level: str, stream: Any = None) -> None:
+    """The one logging configuration (server/logs.py), or one error line and status 2."""
+    from server.logs import configure_logging
+
+    try:
+        configure_logging(log_format, log_level, stream=stream)
+    except ValueError as exc:
+        _fail(str(exc))
+
+
 RobotOption = Annotated[
     Path | None,
     typer.Option(
@@ -445,6 +470,8 @@ def demo(
             "(docs/spacecraft.md)"
         ),
     ] = None,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
     process, and the whole ETS-VII pass (all four experiments) at --speed times real time.
@@ -461,6 +488,12 @@ def demo(
     from spacecraft.link import parse_outage
 
     install_redaction()  # no token in any log of the demo (docs/security.md "Logs")
+    from server.logs import check_log_options
+
+    try:
+        check_log_options(log_format, log_level)
+    except ValueError as exc:
+        _fail(str(exc))
 
     if not 0 < speed <= 1000:
         _fail(f"--speed {speed} must lie in (0, 1000]")
@@ -490,7 +523,12 @@ def demo(
         experiments=chosen,
         serve_after=serve_after,
         on_ready=None if as_json else _announce,
+        log_format=log_format,
+        log_level=log_level.lower(),
     )
+    out.mkdir(parents=True, exist_ok=True)
+    ground_log = (out / "ground.log").open("a", encoding="utf-8")  # open until the exit
+    _configure_logging(log_format, log_level, stream=ground_log)
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -686,7 +724,23 @@ def ptp_demo(
 @app.command()
 def spacecraft(
     ground: Annotated[str, typer.Option(help="Ground link endpoint, ws://HOST:PORT/PATH")],
-    token: Annotated[str, typer.Option(help="API token with the spacecraft role")],
+    token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="HIKOBOSHI_SPACECRAFT_TOKEN",
+            show_envvar=True,
+            help="API token with the spacecraft role (better from the environment or "
+            "--token-file: a command line is visible to every user of the host)",
+        ),
+    ] = None,
+    token_file: Annotated[
+        Path | None,
+        typer.Option(
+            envvar="HIKOBOSHI_SPACECRAFT_TOKEN_FILE",
+            show_envvar=True,
+            help="A file holding the token (a container secret)",
+        ),
+    ] = None,
     time_scale: Annotated[float, typer.Option(help="Onboard seconds per wall second")] = 1.0,
     delay: Annotated[float | None, typer.Option(help="One-way delay, s (both directions)")] = None,
     jitter: Annotated[float | None, typer.Option(help="Delay jitter, s (1 sigma)")] = None,
@@ -761,6 +815,8 @@ def spacecraft(
             "protection)",
         ),
     ] = False,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """Run the simulated spacecraft: the vehicle behind an emulated TDRS relay link. With
     --robot it flies that robot description (model, servos, attitude control, wheel limits,
@@ -768,7 +824,6 @@ def spacecraft(
     vehicle safes itself on a red limit unless --no-safing; --fault injects faults."""
     import asyncio
     import dataclasses
-    import logging
     import signal
 
     from server.redaction import install_redaction
@@ -777,8 +832,9 @@ def spacecraft(
     from spacecraft.process import ProcessConfig, SpacecraftProcess
     from spacecraft.vehicle import VehicleConfig, vehicle_config_for
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     install_redaction()  # its token never in its log (docs/security.md "Logs")
+    _configure_logging(log_format, log_level)
+    token = _spacecraft_token(token, token_file)
     try:
         if link_config is not None:
             up, down = load_link_config(link_config)
@@ -854,6 +910,25 @@ def spacecraft(
     asyncio.run(main_async())
 
 
+def _spacecraft_token(token: str | None, token_file: Path | None) -> str:
+    """The spacecraft's token: given, else read from ``token_file``; one error line when
+    there is none (docs/operations.md "Settings")."""
+    if token and token.strip():
+        return token.strip()
+    if token_file is not None:
+        try:
+            text = token_file.read_text().strip()
+        except OSError as exc:
+            _fail(f"--token-file {token_file}: {exc.strerror or exc}")
+        if not text:
+            _fail(f"--token-file {token_file} is empty")
+        return text
+    _fail(
+        "no spacecraft token: give --token-file FILE or set HIKOBOSHI_SPACECRAFT_TOKEN "
+        "(or HIKOBOSHI_SPACECRAFT_TOKEN_FILE)"
+    )
+
+
 def _with_vehicle_tables(vehicle: Any, path: Path) -> Any:
     """``vehicle`` (a VehicleConfig) with the servos and sensor noise of ``path``'s
     ``[servo]`` and ``[sensor_noise]`` tables (planner.description.load_vehicle_tables)."""
@@ -909,6 +984,8 @@ def serve(
             "under examples/robots/; plan requests name it by its name. Repeatable.",
         ),
     ] = None,
+    log_format: LogFormatOption = "text",
+    log_level: LogLevelOption = "info",
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
     under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
@@ -922,6 +999,7 @@ def serve(
     from server.settings import Settings
 
     install_redaction()  # before anything logs (uvicorn_config installs it too)
+    _configure_logging(log_format, log_level)
 
     try:
         settings = Settings.from_env()
@@ -945,7 +1023,7 @@ def serve(
     if weak:
         err_console.print(f"warning: short (guessable) tokens for {', '.join(weak)}")
     ground = create_app(settings)
-    config = uvicorn_config(ground, settings, host=host, port=port)
+    config = uvicorn_config(ground, settings, host=host, port=port, log_level=log_level.lower())
     # On SIGTERM it stops the worker pool first: requests waiting answer JSON 503
     # shutting_down and no job process outlives it (docs/operations.md "Stopping").
     GroundServer(config, ground).run()

@@ -112,6 +112,10 @@ class DemoOptions:
     robot: Path | None = None
     #: Faults for the spacecraft (``--fault`` specs, spacecraft/faults.py's grammar).
     faults: tuple[str, ...] = ()
+    #: The logs' format and least level (server/logs.py): the ground's in OUT/ground.log,
+    #: the spacecraft's in OUT/spacecraft.log.
+    log_format: str = "text"
+    log_level: str = "info"
 
 
 class _Api:
@@ -174,9 +178,13 @@ def _ground(settings: Settings, port: int) -> Iterator[None]:
 
 
 @contextmanager
-def _spacecraft(args: list[str], log_path: Path) -> Iterator[subprocess.Popen[bytes]]:
+def _spacecraft(
+    args: list[str], log_path: Path, env: dict[str, str]
+) -> Iterator[subprocess.Popen[bytes]]:
     with log_path.open("wb") as log:
-        proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            args, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **env}
+        )
     try:
         yield proc
     finally:
@@ -281,8 +289,10 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             "spacecraft",
             "--ground",
             f"ws://127.0.0.1:{port}/api/link",
-            "--token",
-            _token_of(tokens, Role.SPACECRAFT),
+            "--log-format",
+            options.log_format,
+            "--log-level",
+            options.log_level,
             "--time-scale",
             repr(options.speed),
             "--loss",
@@ -297,7 +307,9 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             *options.extra_spacecraft_args,
         ]
         sampler = _ClockSampler()
-        with _spacecraft(args, out / "spacecraft.log") as proc:
+        # Its token in its environment, not on its command line (where ps shows it).
+        token_env = {"HIKOBOSHI_SPACECRAFT_TOKEN": _token_of(tokens, Role.SPACECRAFT)}
+        with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             _wait_connected(api, proc)
             started_pass = api.call(
                 "POST", f"/api/passes/{pass_id}/start", {"confirm": f"START {name}"}

@@ -29,6 +29,7 @@ from server.api import link as link_api
 from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
+from server.api import ready as ready_api
 from server.api import recordings as recordings_api
 from server.api import robots as robots_api
 from server.api import telemetry as telemetry_api
@@ -37,6 +38,7 @@ from server.api import windows as windows_api
 from server.api.compression import Compression
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.metrics import connect_metrics, install_metrics
 from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
 from server.services.alarms import AlarmService
@@ -49,6 +51,7 @@ from server.services.downlink import GroundDownlink
 from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
 from server.services.malformed import MalformedPolicy
+from server.services.readiness import ReadinessProbe
 from server.services.runner import PassRunner
 from server.services.tracker import Trackers
 from server.services.workers import WorkerPool
@@ -241,9 +244,12 @@ def create_app(settings: Settings) -> FastAPI:
         )
         app.state.artifacts.start()
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
+        app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
+        connect_metrics(app.state)  # GET /metrics reads the services (server/api/metrics.py)
         try:
             yield
         finally:
+            app.state.readiness.close()
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
@@ -263,6 +269,7 @@ def create_app(settings: Settings) -> FastAPI:
     install_error_handlers(app)
     install_edge(app, settings)  # auth, limits and text checks before any route
     app.add_middleware(Compression)  # gzip over 1 KB when accepted (server/api/compression.py)
+    install_metrics(app)  # times every request, refused ones too; GET /metrics
     app.add_middleware(AnswerWhenStopping)  # outermost: a request cut short answers JSON
     app.include_router(link_api.router)
     app.include_router(console_api.router)
@@ -276,6 +283,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(model_api.router)
     app.include_router(robots_api.router)
     app.include_router(windows_api.router)
+    app.include_router(ready_api.router)
     app.include_router(web_api.make_router())
 
     @app.get("/api/health", tags=["service"])

@@ -32,9 +32,11 @@ __all__ = ["REDACTED", "RedactSecretsFilter", "install_redaction", "redact", "re
 
 REDACTED = "[redacted]"
 
-#: ``?token=...`` and the like: the value up to the next ``&``, space, quote or bracket.
+#: ``?token=...`` and the like: the value up to the next ``&``, space, quote or bracket
+#: (a value already redacted, and whatever follows it, too: redacting twice changes nothing).
 _QUERY = re.compile(
-    r"(?i)([?&;](?:token|access_token|api_key|apikey|key|secret|password)=)[^&;\s\"'<>)\]]*"
+    r"(?i)([?&;](?:token|access_token|api_key|apikey|key|secret|password)=)"
+    r"(?:\[redacted\])?[^&;\s\"'<>)\]]*"
 )
 #: ``Bearer X`` (an Authorization value, wherever it is written; X of 6 characters or
 #: more, so that "bearer of" stays prose); ``Basic X`` after ``Authorization`` only

@@ -19,6 +19,11 @@ from planner.schedule import plan_pass
 from spacecraft.offline import fly_offline
 from telemetry.recording import PassRecording
 
+# No test (nor a server it starts) reads a developer's ./.env or /run/secrets: every
+# setting a test wants it passes itself (server/settings.py).
+os.environ["HIKOBOSHI_ENV_FILE"] = os.devnull
+os.environ["HIKOBOSHI_SECRETS_DIR"] = os.devnull
+
 
 @pytest.fixture(scope="session")
 def model() -> RobotModel:

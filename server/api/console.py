@@ -116,6 +116,16 @@ async def console(
             address,
             exc.cap,
             exc.message,
+            extra={
+                "fields": {
+                    "event": "console_refused",
+                    "holder": principal.name,
+                    "role": principal.role.value,
+                    "address": address,
+                    "cap": exc.cap,
+                    "reason": exc.message,
+                }
+            },
         )
         reason = f"too many consoles: {exc.message}"
         await websocket.close(code=CLOSE_OVER_CAP, reason=_fit(reason, 123))

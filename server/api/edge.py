@@ -95,7 +95,9 @@ audit = logging.getLogger("hikoboshi.audit")
 log = logging.getLogger("hikoboshi.ground.edge")
 
 #: ``/api`` routes that need no token (the websockets authenticate themselves).
-PUBLIC_PATHS = frozenset({"/api/health"})
+PUBLIC_PATHS = frozenset({"/api/health", "/api/ready"})
+#: Outside /api, yet authenticated here like it (a viewer's token: docs/security.md).
+PROTECTED_PATHS = frozenset({"/metrics"})
 #: Streams its body through with its own, larger limit (server/api/recordings.py).
 IMPORT_PATH = "/api/passes/import"
 #: The console's HTML pages: they get the Content-Security-Policy.
@@ -252,6 +254,16 @@ class AuthGuard:
             path,
             reason,
             window.failures,
+            extra={
+                "fields": {
+                    "event": "authentication_failed",
+                    "address": address,
+                    "credential": key,
+                    "path": path,
+                    "reason": reason,
+                    "failures": window.failures,
+                }
+            },
         )
         if window.failures == self.limit:
             left = window.start + self.window_s - now
@@ -260,6 +272,14 @@ class AuthGuard:
                 address,
                 left,
                 window.failures,
+                extra={
+                    "fields": {
+                        "event": "address_refused",
+                        "address": address,
+                        "refused_s": round(left, 1),
+                        "failures": window.failures,
+                    }
+                },
             )
             if self.on_blocked is not None:
                 try:
@@ -274,6 +294,14 @@ class AuthGuard:
                     key,
                     held.start + self.window_s - now,
                     held.failures,
+                    extra={
+                        "fields": {
+                            "event": "credential_refused",
+                            "credential": key,
+                            "refused_s": round(held.start + self.window_s - now, 1),
+                            "failures": held.failures,
+                        }
+                    },
                 )
 
 
@@ -452,6 +480,8 @@ class EdgeMiddleware:
 
     def _protected(self, scope: Scope) -> bool:
         path: str = scope["path"]
+        if path in PROTECTED_PATHS:
+            return True
         if not (path == "/api" or path.startswith("/api/")) or path in PUBLIC_PATHS:
             return False
         return any(route.matches(scope)[0] is not Match.NONE for route in self.router.routes)
@@ -750,6 +780,9 @@ def uvicorn_config(
         host=host,
         port=port,
         log_level=log_level,
+        # uvicorn's records go to the root logger, as configured by server.logs (one
+        # format for every line), not through uvicorn's own handlers.
+        log_config=None,
         lifespan="on",
         http=head_timeout_protocol(settings.header_timeout_s),
         timeout_keep_alive=math.ceil(settings.keep_alive_timeout_s),
@@ -759,8 +792,8 @@ def uvicorn_config(
         proxy_headers=bool(proxies),
         forwarded_allow_ips=proxies,
     )
-    # uvicorn.Config has configured logging by now: the filter stays (the record factory
-    # redacts already; the filter keeps the access log redacted if another one replaces it).
+    # The filter stays (the record factory redacts already; the filter keeps the access log
+    # redacted if another one replaces it).
     access = logging.getLogger("uvicorn.access")
     if not any(isinstance(f, RedactSecretsFilter) for f in access.filters):
         access.addFilter(RedactSecretsFilter())

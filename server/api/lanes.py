@@ -72,7 +72,9 @@ class Lane(StrEnum):
 
 
 #: Paths of the live lane: ``async``, no thread, no pooled connection.
-LIVE_PATHS = frozenset({"/api/health", "/api/link/status", "/api/console", "/api/link"})
+LIVE_PATHS = frozenset(
+    {"/api/health", "/api/ready", "/api/link/status", "/api/console", "/api/link"}
+)
 
 #: ``(method, path template)`` of the heavy reads: each runs a worker process or streams a
 #: file; limited per token holder. Matched on the request's path (no router involved), so

@@ -16,6 +16,7 @@ import logging
 import queue
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -125,16 +126,25 @@ class Database:
         self._closed = False
         self.groups = 0
         self.jobs = 0
+        #: Told each commit's duration (wall s, measured, not the injected clock: it is a
+        #: latency): the metrics' histogram (server/services/metrics.py), or no one.
+        self.on_commit: Callable[[float], None] | None = None
 
     def _transaction(self, job: Callable[[Session], T]) -> T:
         with self._sessions() as session:
             try:
                 result = job(session)
-                session.commit()
+                self._commit(session)
             except BaseException:
                 session.rollback()
                 raise
             return result
+
+    def _commit(self, session: Session) -> None:
+        began = time.perf_counter()
+        session.commit()
+        if self.on_commit is not None:
+            self.on_commit(time.perf_counter() - began)
 
     @staticmethod
     def _take(jobs: collections.deque[_Job]) -> list[_Job]:
@@ -194,7 +204,7 @@ class Database:
                         results.append(job.fn(session))
                         if yield_to_control and self._control:
                             break
-                    session.commit()
+                    self._commit(session)
                 except BaseException:
                     session.rollback()
                     raise

@@ -30,6 +30,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, TypeVar
 
+from server.logs import configure_logging
 from server.services.errors import InvalidRequestError, JobFailedError, UnavailableError
 
 __all__ = [
@@ -116,11 +117,15 @@ def run_job(
     args: tuple[Any, ...],
     kwargs: dict[str, Any],
     server_pid: int | None = None,
+    log_config: tuple[str, str] | None = None,
 ) -> None:
-    """The job process: end with the server (``server_pid``), lower its CPU priority,
+    """The job process: end with the server (``server_pid``), log as the server does
+    (``log_config``: :func:`server.logs.current_log_config`), lower its CPU priority,
     limit the address space, run ``fn``, send ``("ok", result)`` or ``("error", exc)`` (see
     the module doc)."""
     _end_with_server(server_pid)
+    if log_config is not None:
+        configure_logging(*log_config)
     # Below the server and the link: on a machine with few cores a download or a plan must
     # take the CPU the live pass leaves, not share it evenly (at equal priority two jobs
     # made an operator's abort wait seconds for the link's database worker).
@@ -137,6 +142,10 @@ def run_job(
         conn.send(("error", _sendable(MemoryError())))
     except pickle.PicklingError as exc:  # a result or a detail that does not pickle
         conn.send(("error", _sendable(exc)))
+    except (BrokenPipeError, ConnectionResetError):
+        # The server stopped waiting (it closed the pool: shutting down): no one to tell,
+        # and no traceback on its log (a JSON log takes one object a line).
+        pass
     finally:
         conn.close()
 

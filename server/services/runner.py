@@ -78,6 +78,7 @@ from typing import Any, Protocol
 
 from sqlalchemy.orm import Session
 
+from server.logs import current_pass
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
@@ -327,6 +328,18 @@ class PassRunner:
         onboard = self._link.onboard_now_ns() if self._link.connected else None
         return {"pass_id": active.pass_id, **active.uplink.status(onboard)}
 
+    def command_stages(self) -> dict[str, int]:
+        """The running pass's commands by stage now (none without a pass): for /metrics."""
+        active = self._active
+        return {} if active is None else active.tracker.counts()
+
+    def uplink_leads_s(self) -> list[float]:
+        """The running pass's uplink leads so far: onboard s between each acknowledged
+        command's arrival on board and its tag (:meth:`Uplink.fill_margins_s`): for
+        /metrics."""
+        active = self._active
+        return [] if active is None else active.uplink.fill_margins_s()
+
     # -- start ---------------------------------------------------------------------------
 
     async def start(self, pass_id: str, actor: str) -> None:
@@ -388,11 +401,26 @@ class PassRunner:
                 started.robot,
             )
             self._begin(active, self._run(active))
+            log.info(
+                "pass %s started by %s: %d commands",
+                started.name,
+                actor,
+                len(commands),
+                extra={
+                    "pass_id": started.pass_id,
+                    "fields": {"event": "pass_started", "actor": actor, "commands": len(commands)},
+                },
+            )
 
     def _begin(self, active: ActivePass, body: Coroutine[Any, Any, None]) -> None:
         self._active = active
         self.fill_margins_s = []
-        active.task = asyncio.create_task(body, name=f"pass-{active.pass_id}")
+        # The task copies the context: whatever it logs names its pass (server/logs.py).
+        named = current_pass.set(active.pass_id)
+        try:
+            active.task = asyncio.create_task(body, name=f"pass-{active.pass_id}")
+        finally:
+            current_pass.reset(named)
 
     # -- the uplink loop -----------------------------------------------------------------
 
@@ -576,6 +604,15 @@ class PassRunner:
     async def abort(self, pass_id: str, actor: str, reason: str) -> None:
         async with self._lock:
             await self._abort_locked(pass_id, actor, reason)
+        log.info(
+            "pass aborted by %s: %s",
+            actor,
+            reason,
+            extra={
+                "pass_id": pass_id,
+                "fields": {"event": "pass_aborted", "actor": actor, "reason": reason},
+            },
+        )
 
     async def _abort_locked(
         self, pass_id: str, actor: str, reason: str, *, safed_at_ns: int | None = None

@@ -120,6 +120,13 @@ class CommandTracker:
             if f.stage in AWAITING_ACK_STAGES
         ]
 
+    def counts(self) -> dict[str, int]:
+        """How many commands are in each stage now (stages with none left out)."""
+        counts: dict[str, int] = {}
+        for fate in self._fates.values():
+            counts[fate.stage] = counts.get(fate.stage, 0) + 1
+        return counts
+
     def in_stage(self, stage: str) -> list[int]:
         return sorted(seq for seq, f in self._fates.items() if f.stage == stage)
 

@@ -52,6 +52,7 @@ from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
+from server.logs import current_log_config
 from server.services.errors import (
     ClientGoneError,
     DeadlineExceededError,
@@ -282,7 +283,7 @@ class WorkerPool:
         receiver, sender = self._ctx.Pipe(duplex=False)
         process: BaseProcess = self._ctx.Process(  # type: ignore[attr-defined]
             target=run_job,
-            args=(sender, self.memory_bytes, fn, args, kwargs, os.getpid()),
+            args=(sender, self.memory_bytes, fn, args, kwargs, os.getpid(), current_log_config()),
             name=f"hikoboshi-job: {what}",
             daemon=True,
         )

@@ -52,6 +52,8 @@ __all__ = [
     "SQLITE_FILENAME",
     "PoolSizes",
     "alembic_config",
+    "current_revisions",
+    "head_revisions",
     "make_engine",
     "read_session_factory",
     "schema_diff",
@@ -202,6 +204,18 @@ def upgrade(engine: Engine, revision: str = "head") -> None:
     """Migrate the database to ``revision`` in one transaction (DDL included, both backends)."""
     with engine.begin() as connection:
         command.upgrade(alembic_config(connection), revision)
+
+
+def head_revisions() -> tuple[str, ...]:
+    """The head migration(s) of our Alembic scripts (one, unless a branch is left open)."""
+    from alembic.script import ScriptDirectory
+
+    return tuple(sorted(ScriptDirectory.from_config(alembic_config()).get_heads()))
+
+
+def current_revisions(connection: Connection) -> tuple[str, ...]:
+    """The migration(s) the database at ``connection`` is at (none: never migrated)."""
+    return tuple(sorted(MigrationContext.configure(connection).get_current_heads()))
 
 
 def schema_diff(engine: Engine) -> list[Any]:

@@ -296,6 +296,40 @@ async def test_abort_deletes_the_schedule_from_the_next_grid_tag_and_cancels_the
 
 
 @simulated
+async def test_a_pass_logs_its_start_and_its_abort_with_its_id(tmp_path: Path) -> None:
+    """The runner's start and abort lines name the pass and carry their fields
+    (server/logs.py, docs/operations.md "Logs")."""
+    import json
+    import logging
+
+    from server.logs import JsonFormatter
+
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    runner_log = logging.getLogger("hikoboshi.ground.runner")
+    keep, level = Keep(level=logging.INFO), runner_log.level
+    runner_log.addHandler(keep)
+    runner_log.setLevel(logging.INFO)
+    try:
+        _, g, pass_id = await _run_pass(tmp_path, 100, seconds=60, abort_at_s=20.0)
+    finally:
+        runner_log.removeHandler(keep)
+        runner_log.setLevel(level)
+    lines = [json.loads(JsonFormatter().format(r)) for r in records]
+    by_event = {line.get("event"): line for line in lines}
+    started, aborted = by_event["pass_started"], by_event["pass_aborted"]
+    assert started["pass_id"] == aborted["pass_id"] == pass_id
+    stored = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
+    assert started["commands"] == len(stored) and started["level"] == "INFO"
+    assert aborted["reason"] == "operator abort" and aborted["actor"] == "otto"
+    assert aborted["message"] == "pass aborted by otto: operator abort"
+
+
+@simulated
 async def test_a_dropped_socket_leaves_the_loaded_schedule_running(tmp_path: Path) -> None:
     """LOS policy ``continue``: what was loaded ahead executes while the ground is away;
     the rest goes up when the link is back."""

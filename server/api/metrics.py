@@ -1,0 +1,98 @@
+"""``GET /metrics``: the ground's Prometheus metrics (:mod:`server.services.metrics`), for
+a viewer's token (docs/security.md "Metrics"); and the middleware that times each HTTP
+request by route.
+
+:func:`install_metrics` is all the application does: it makes the registry
+(``app.state.metrics``), adds the middleware and the route, and, once the application has
+started, points the collector at the services (:func:`connect_metrics`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from fastapi import APIRouter, FastAPI, Request
+from fastapi.responses import Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from server.api.deps import ViewerDep
+from server.services.metrics import GroundMetrics
+
+__all__ = ["METRICS_PATH", "RequestTimer", "connect_metrics", "install_metrics"]
+
+METRICS_PATH = "/metrics"
+
+router = APIRouter()
+
+#: The methods named in the latency's labels; any other is ``other`` (a client chooses the
+#: method: its labels must not grow without bound).
+_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
+
+
+@router.get(METRICS_PATH, include_in_schema=False)
+async def metrics(request: Request, _viewer: ViewerDep) -> Response:
+    """The Prometheus text exposition; its gauges are computed now, on the event loop,
+    from what the services hold (no database, no thread)."""
+    registry = request.app.state.metrics.registry
+    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+
+
+class RequestTimer:
+    """Times each HTTP request (wall s, to the end of its response) into
+    ``hikoboshi_http_request_duration_seconds`` by method, route template (``/api/passes/
+    {pass_id}``; ``unmatched`` when no route took it: refused at the edge, or no such
+    path) and status class (``2xx``); every label from a bounded set."""
+
+    def __init__(self, app: ASGIApp, metrics: GroundMetrics) -> None:
+        self.app = app
+        self.metrics = metrics
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        began = time.perf_counter()
+        status = 0
+
+        async def timed_send(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = int(message["status"])
+            await send(message)
+
+        try:
+            await self.app(scope, receive, timed_send)
+        finally:
+            route = scope.get("route")
+            template = getattr(route, "path", None) or "unmatched"
+            label = f"{status // 100}xx" if status else "none"
+            method = scope["method"] if scope["method"] in _METHODS else "other"
+            self.metrics.request_seconds.labels(method, template, label).observe(
+                time.perf_counter() - began
+            )
+
+
+def install_metrics(app: FastAPI) -> GroundMetrics:
+    """The registry, the request timer (outermost: every request, refused ones too) and
+    ``GET /metrics``."""
+    metrics = GroundMetrics()
+    app.state.metrics = metrics
+    app.add_middleware(RequestTimer, metrics=metrics)
+    app.include_router(router)
+    return metrics
+
+
+def connect_metrics(state: Any) -> None:
+    """Point the collector at the started application's services (``app.state``), and the
+    link's database worker's commits at their histogram."""
+    metrics: GroundMetrics = state.metrics
+    sources = metrics.sources
+    sources.link_status = state.link.status
+    sources.command_stages = state.runner.command_stages
+    sources.uplink_leads_s = state.runner.uplink_leads_s
+    workers = state.workers
+    sources.workers = lambda: (workers.running, workers.admitted, workers.queue)
+    sources.consoles = lambda: state.console.clients
+    state.db.on_commit = metrics.db_commit_seconds.observe

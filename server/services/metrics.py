@@ -1,0 +1,177 @@
+"""The ground's Prometheus metrics (``GET /metrics``, docs/operations.md "Metrics").
+
+Nothing on the live path is counted twice: the figures the console shows (the link's state,
+the downlink's counts, the running pass's uplink and commands by stage, the worker pool's
+and the consoles' numbers) are read at scrape time from the services that already hold
+them, by :class:`GroundCollector`; only what no service keeps is observed as it happens,
+into prometheus-client's own histograms: each HTTP request's latency by route
+(``server/api/metrics.py``) and each database commit's (the link's database worker,
+``server/services/dbworker.py``). One registry per application (tests build many).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from prometheus_client import CollectorRegistry, Histogram
+from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from server.services.command_stages import STAGE_RANK
+
+__all__ = ["LEAD_BUCKETS_S", "GroundCollector", "GroundMetrics", "Sources"]
+
+log = logging.getLogger("hikoboshi.ground.metrics")
+
+#: Onboard s: the uplink lead's histogram buckets (the lead window is 120 s by default).
+LEAD_BUCKETS_S = (1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0, 90.0, 120.0, 180.0, 300.0)
+
+
+@dataclass
+class Sources:
+    """Where the figures are read at scrape time: each a callable, None before the
+    application has started (then its metrics are left out)."""
+
+    link_status: Callable[[], Any] | None = None
+    command_stages: Callable[[], dict[str, int]] | None = None
+    uplink_leads_s: Callable[[], list[float]] | None = None
+    workers: Callable[[], tuple[int, int, int]] | None = None  # running, admitted, queue
+    consoles: Callable[[], int] | None = None
+
+
+def _gauge(name: str, doc: str, value: float | None) -> Iterator[Metric]:
+    if value is not None:
+        yield GaugeMetricFamily(name, doc, value=float(value))
+
+
+class GroundCollector(Collector):
+    """The figures the services hold, read when Prometheus scrapes."""
+
+    def __init__(self, sources: Sources) -> None:
+        self.sources = sources
+
+    def collect(self) -> Iterator[Metric]:
+        try:
+            yield from self._collect()
+        except Exception:  # a scrape never takes the service down, nor answers 500
+            log.exception("collecting the metrics failed")
+
+    def _collect(self) -> Iterator[Metric]:
+        s = self.sources
+        if s.link_status is not None:
+            st = s.link_status()
+            yield from _gauge(
+                "hikoboshi_link_connected",
+                "1 when the spacecraft's link is connected",
+                st.connected,
+            )
+            yield from _gauge(
+                "hikoboshi_vehicle_safe",
+                "1 when the vehicle reports on-board safing (SAFE)",
+                st.vehicle_mode == "safe",
+            )
+            yield from _gauge(
+                "hikoboshi_link_round_trip_seconds",
+                "The link's measured round trip (wall s)",
+                st.round_trip_s,
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_frames_received",
+                "Telemetry frames held by the ground (since the service started)",
+                st.frames_received,
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_duplicates",
+                "Telemetry frames received again and dropped",
+                st.duplicates,
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_frames_behind",
+                "Frames the vehicle has made that the ground does not hold yet (estimated)",
+                st.frames_behind,
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_open_gaps", "Gaps in the frames held", len(st.open_gaps)
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_frames_missing",
+                "Frames inside the gaps in the frames held",
+                st.frames_missing,
+            )
+            yield from _gauge(
+                "hikoboshi_downlink_retransmit_requests",
+                "Retransmit requests sent to the vehicle",
+                st.retransmit_requests,
+            )
+            uplink = st.uplink or {}
+            yield from _gauge(
+                "hikoboshi_uplink_retransmissions",
+                "Commands sent again in the running pass",
+                uplink.get("retransmissions"),
+            )
+            yield from _gauge(
+                "hikoboshi_uplink_lead_min_seconds",
+                "The running pass's smallest uplink lead (onboard s before its tag)",
+                uplink.get("min_fill_margin_s"),
+            )
+        if s.command_stages is not None:
+            stages = s.command_stages()
+            family = GaugeMetricFamily(
+                "hikoboshi_commands",
+                "The running pass's commands by stage",
+                labels=["stage"],
+            )
+            for stage in sorted(STAGE_RANK, key=STAGE_RANK.__getitem__):
+                family.add_metric([stage], float(stages.get(stage, 0)))
+            yield family
+        if s.uplink_leads_s is not None:
+            leads = s.uplink_leads_s()
+            buckets = [(str(b), float(sum(1 for x in leads if x <= b))) for b in LEAD_BUCKETS_S]
+            buckets.append(("+Inf", float(len(leads))))
+            yield HistogramMetricFamily(
+                "hikoboshi_uplink_lead_seconds",
+                "The running pass's uplink leads: onboard s between each acknowledged "
+                "command's arrival on board and its tag",
+                buckets=buckets,
+                sum_value=float(sum(leads)),
+            )
+        if s.workers is not None:
+            running, admitted, queue = s.workers()
+            yield from _gauge(
+                "hikoboshi_worker_jobs_running", "Job processes running (planning, reads)", running
+            )
+            yield from _gauge(
+                "hikoboshi_worker_queue_depth",
+                "Jobs admitted and waiting for a worker process",
+                max(0, admitted - running),
+            )
+            yield from _gauge(
+                "hikoboshi_worker_queue_capacity", "Jobs that may wait (worker_queue)", queue
+            )
+        if s.consoles is not None:
+            yield from _gauge("hikoboshi_consoles", "Console websockets connected", s.consoles())
+
+
+class GroundMetrics:
+    """One application's registry: the collector, and the histograms observed as things
+    happen."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=False)
+        self.sources = Sources()
+        self.registry.register(GroundCollector(self.sources))
+        self.request_seconds = Histogram(
+            "hikoboshi_http_request_duration_seconds",
+            "HTTP requests' latency (wall s) by method, route and status class",
+            ["method", "route", "status"],
+            registry=self.registry,
+        )
+        self.db_commit_seconds = Histogram(
+            "hikoboshi_db_commit_seconds",
+            "The link's database worker: each transaction's commit (wall s)",
+            buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0),
+            registry=self.registry,
+        )

@@ -1,0 +1,130 @@
+"""``GET /metrics``: a viewer's token reads it; its gauges are the figures the services
+hold (the console's), read at scrape time; requests and database commits are timed."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+from fastapi.testclient import TestClient
+from prometheus_client.parser import text_string_to_metric_families
+
+from server.services.metrics import LEAD_BUCKETS_S, GroundMetrics
+from tests.server.api.conftest import OPERATOR, VIEWER
+
+
+def _samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
+
+
+def test_metrics_need_a_viewers_token(client: TestClient) -> None:
+    assert client.get("/metrics").status_code == 401
+    wrong = client.get("/metrics", headers={"Authorization": "Bearer nope-nope"})
+    assert wrong.status_code == 401 and wrong.json()["error"]["code"] == "unauthorized"
+    for headers in (VIEWER, OPERATOR):
+        response = client.get("/metrics", headers=headers)
+        assert response.status_code == 200
+        assert response.headers["content-type"].startswith("text/plain; version=")
+    assert "/metrics" not in client.get("/openapi.json").json()["paths"]
+
+
+def test_the_gauges_are_the_services_figures(client: TestClient) -> None:
+    state: Any = client.app.state  # type: ignore[attr-defined]
+    status = state.link.status()  # what the console shows
+    samples = _samples(client.get("/metrics", headers=VIEWER).text)
+    assert samples[("hikoboshi_link_connected", ())] == float(status.connected) == 0.0
+    assert samples[("hikoboshi_downlink_frames_received", ())] == status.frames_received
+    assert samples[("hikoboshi_downlink_duplicates", ())] == status.duplicates
+    assert samples[("hikoboshi_downlink_open_gaps", ())] == len(status.open_gaps)
+    assert samples[("hikoboshi_worker_queue_capacity", ())] == state.workers.queue
+    assert samples[("hikoboshi_consoles", ())] == state.console.clients == 0
+    assert samples[("hikoboshi_commands", (("stage", "queued"),))] == 0.0  # no pass running
+
+
+def test_requests_are_timed_by_route_and_commits_by_the_database_worker(
+    client: TestClient,
+) -> None:
+    state: Any = client.app.state  # type: ignore[attr-defined]
+    for _ in range(3):
+        assert client.get("/api/passes", headers=VIEWER).status_code == 200
+    assert client.get("/api/passes/nope", headers=VIEWER).status_code == 404
+    assert client.get("/api/passes").status_code == 401  # refused at the edge
+    for method in ("BREW", "WHEN"):  # a client's own methods: one label for them all
+        client.request(method, "/api/passes", headers=VIEWER)
+    client.portal.call(state.db.run, lambda session: None)  # type: ignore[union-attr]
+    samples = _samples(client.get("/metrics", headers=VIEWER).text)
+    name = "hikoboshi_http_request_duration_seconds_count"
+    ok = (("method", "GET"), ("route", "/api/passes"), ("status", "2xx"))
+    assert samples[(name, ok)] == 3.0
+    missing = (("method", "GET"), ("route", "/api/passes/{pass_id}"), ("status", "4xx"))
+    assert samples[(name, missing)] == 1.0
+    refused = (("method", "GET"), ("route", "unmatched"), ("status", "4xx"))
+    assert samples[(name, refused)] == 1.0
+    methods = {dict(labels)["method"] for (n, labels) in samples if n == name}
+    assert methods == {"GET", "other"}
+    assert samples[("hikoboshi_db_commit_seconds_count", ())] >= 1.0
+
+
+def _status(**changes: Any) -> SimpleNamespace:
+    base: dict[str, Any] = {
+        "connected": True,
+        "vehicle_mode": "nominal",
+        "round_trip_s": 0.6,
+        "frames_received": 1200,
+        "duplicates": 7,
+        "frames_behind": 3,
+        "open_gaps": [(10, 12), (40, 40)],
+        "frames_missing": 4,
+        "retransmit_requests": 2,
+        "uplink": {"retransmissions": 5, "min_fill_margin_s": 41.5},
+    }
+    return SimpleNamespace(**{**base, **changes})
+
+
+def test_a_running_pass_as_the_collector_reads_it() -> None:
+    metrics = GroundMetrics()
+    metrics.sources.link_status = _status
+    metrics.sources.command_stages = lambda: {"queued": 10, "sent": 4, "executed": 6}
+    leads = [0.5, 3.0, 45.0, 110.0, 400.0]
+    metrics.sources.uplink_leads_s = lambda: leads
+    metrics.sources.workers = lambda: (2, 5, 8)
+    metrics.sources.consoles = lambda: 3
+    from prometheus_client import generate_latest
+
+    samples = _samples(generate_latest(metrics.registry).decode())
+    assert samples[("hikoboshi_link_connected", ())] == 1.0
+    assert samples[("hikoboshi_downlink_frames_behind", ())] == 3.0
+    assert samples[("hikoboshi_downlink_open_gaps", ())] == 2.0
+    assert samples[("hikoboshi_downlink_frames_missing", ())] == 4.0
+    assert samples[("hikoboshi_uplink_retransmissions", ())] == 5.0
+    assert samples[("hikoboshi_uplink_lead_min_seconds", ())] == 41.5
+    assert samples[("hikoboshi_commands", (("stage", "queued"),))] == 10.0
+    assert samples[("hikoboshi_commands", (("stage", "executed"),))] == 6.0
+    assert samples[("hikoboshi_worker_queue_depth", ())] == 3.0
+    assert samples[("hikoboshi_consoles", ())] == 3.0
+    bucket = "hikoboshi_uplink_lead_seconds_bucket"
+    assert samples[(bucket, (("le", "1.0"),))] == 1.0
+    assert samples[(bucket, (("le", "60.0"),))] == 3.0
+    assert samples[(bucket, (("le", "+Inf"),))] == 5.0
+    assert samples[("hikoboshi_uplink_lead_seconds_count", ())] == 5.0
+    assert samples[("hikoboshi_uplink_lead_seconds_sum", ())] == sum(leads)
+    assert max(LEAD_BUCKETS_S) < 400.0  # the last lead is counted only under +Inf
+
+
+def test_a_failing_source_leaves_the_scrape_answered() -> None:
+    metrics = GroundMetrics()
+
+    def broken() -> SimpleNamespace:
+        raise RuntimeError("link gone")
+
+    metrics.sources.link_status = broken
+    metrics.sources.consoles = lambda: 1
+    from prometheus_client import generate_latest
+
+    text = generate_latest(metrics.registry).decode()
+    assert "hikoboshi_link_connected" not in text
+    assert "hikoboshi_http_request_duration_seconds" in text
