@@ -142,30 +142,37 @@ def schedule_pass(
                 f"window of {window_s:.3f} s is shorter than plan {plan.id}'s "
                 f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s start lead",
             )
-        record = repo.add_pass(
-            session=session,
+        record = _add_scheduled(
+            session,
+            actor,
+            now_ns,
             name=request.name,
             plan_id=plan.id,
             aos_time_ns=aos_ns,
             los_time_ns=los_ns,
             relay=request.relay,
-            created_at_ns=now_ns,
         )
-        scheduled = PassScheduled(
-            actor=actor,
-            pass_id=record.id,
-            plan_id=plan.id,
-            name=record.name,
-            aos_time_ns=aos_ns,
-            los_time_ns=los_ns,
-            relay=record.relay,
-        )
-        record_event(session, scheduled, now_ns)
-        session.commit()
     except BaseException:
         session.rollback()
         raise
     return public(record)
+
+
+def _add_scheduled(session: Session, actor: str, now_ns: int, **fields: Any) -> PassRecord:
+    """The pass row of ``fields`` and its ``pass_scheduled`` event, committed together."""
+    record = repo.add_pass(session=session, created_at_ns=now_ns, **fields)
+    scheduled = PassScheduled(
+        actor=actor,
+        pass_id=record.id,
+        plan_id=record.plan_id,
+        name=record.name,
+        aos_time_ns=record.aos_time_ns,
+        los_time_ns=record.los_time_ns,
+        relay=record.relay,
+    )
+    record_event(session, scheduled, now_ns)
+    session.commit()
+    return record
 
 
 def _schedule_in_window(
@@ -194,28 +201,18 @@ def _schedule_in_window(
                 f"{window.los_margin_s:g} s before LOS)",
                 {"needed_s": plan.duration_s + lead_s, "net_s": window.net_s},
             )
-        record = repo.add_pass(
-            session=session,
+        record = _add_scheduled(
+            session,
+            actor,
+            now_ns,
             name=request.name,
             plan_id=plan.id,
             aos_time_ns=aos_ns,
             los_time_ns=los_ns,
             relay=window.relay,
-            created_at_ns=now_ns,
             window_mission=document["mission"],
             window_detail=document,
         )
-        scheduled = PassScheduled(
-            actor=actor,
-            pass_id=record.id,
-            plan_id=plan.id,
-            name=record.name,
-            aos_time_ns=aos_ns,
-            los_time_ns=los_ns,
-            relay=record.relay,
-        )
-        record_event(session, scheduled, now_ns)
-        session.commit()
     except BaseException:
         session.rollback()
         raise

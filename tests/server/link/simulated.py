@@ -13,6 +13,7 @@ vehicle and spacecraft process are exercised by ``test_e2e.py``.
 
 from __future__ import annotations
 
+import asyncio
 import heapq
 import itertools
 import random
@@ -467,3 +468,14 @@ def commands(sessions: sessionmaker[Session], pass_id: str) -> list[Any]:
 def pass_state(sessions: sessionmaker[Session], pass_id: str) -> str:
     with sessions() as session:
         return repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
+
+
+async def kill_ground(g: Ground, sc: SimulatedSpacecraft) -> None:
+    """``g``'s process dies mid-pass: no shutdown, nothing more from it."""
+    task = g.runner._active.task  # type: ignore[union-attr]
+    assert task is not None
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    await g.db.drain()
+    g.db.close()
+    sc.lose_ground()

@@ -25,6 +25,7 @@ from tests.server.link.simulated import (
     SimulatedSpacecraft,
     commands,
     ground,
+    kill_ground,
     make_sessions,
     pass_state,
     store_pass,
@@ -67,17 +68,6 @@ def _as_the_vehicle_did(sc: SimulatedSpacecraft, rows: list[Any]) -> None:
 def _events(g: Ground, pass_id: str, kind: str) -> list[Any]:
     with g.sessions() as session:
         return list(repo.list_events(session=session, pass_id=pass_id, kinds=[kind]).items)
-
-
-async def _killed(first: Ground, sc: SimulatedSpacecraft) -> None:
-    """The process dies: no shutdown, nothing more from it."""
-    task = first.runner._active.task  # type: ignore[union-attr]
-    assert task is not None
-    task.cancel()
-    await asyncio.gather(task, return_exceptions=True)
-    await first.db.drain()
-    first.db.close()
-    sc.lose_ground()
 
 
 @simulated
@@ -140,7 +130,7 @@ async def test_a_ground_down_longer_than_the_lead_window_ends_the_pass_degraded_
     pass_id = store_pass(sessions, 400, clock)
     await first.runner.start(pass_id, "otto")
     await sc.run(40.0)
-    await _killed(first, sc)
+    await kill_ground(first, sc)
     await sc.run(30.0)  # three lead windows without a ground
     second = ground(sessions, clock, uplink_lead_window_s=10.0)
     await second.restarted()
@@ -178,7 +168,7 @@ async def test_commands_left_unresolved_by_an_aborted_pass_are_asked_about_when_
     )
     await first.runner.start(pass_id, "otto")
     await sc.run(30.0)
-    await _killed(first, sc)
+    await kill_ground(first, sc)
     await sc.run(160.0)  # past the pass's LOS: the vehicle flew what it held
     second = ground(sessions, clock)
     await second.restarted()

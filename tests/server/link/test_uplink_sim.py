@@ -28,6 +28,7 @@ from tests.server.link.simulated import (
     SimulatedSpacecraft,
     commands,
     ground,
+    kill_ground,
     make_sessions,
     pass_state,
     store_pass,
@@ -371,14 +372,7 @@ async def test_after_a_restart_the_pass_resumes_and_a_late_hello_is_corrected(
     pass_id = store_pass(sessions, 400, clock)
     await first.runner.start(pass_id, "otto")
     await sc.run(40.0)
-    # killed: no shutdown, nothing more from this process
-    active_task = first.runner._active.task  # type: ignore[union-attr]
-    assert active_task is not None
-    active_task.cancel()
-    await asyncio.gather(active_task, return_exceptions=True)
-    await first.db.drain()
-    first.db.close()
-    sc.lose_ground()
+    await kill_ground(first, sc)  # no shutdown, nothing more from this process
     await sc.run(3.0)
     second = ground(sessions, clock)
     await second.runner.recover()
@@ -415,13 +409,7 @@ async def test_late_refusals_of_commands_sent_on_a_late_hello_do_not_end_the_pas
     pass_id = store_pass(sessions, 400, clock)
     await first.runner.start(pass_id, "otto")
     await sc.run(40.0)
-    active_task = first.runner._active.task  # type: ignore[union-attr]
-    assert active_task is not None
-    active_task.cancel()  # killed: nothing more from this process
-    await asyncio.gather(active_task, return_exceptions=True)
-    await first.db.drain()
-    first.db.close()
-    sc.lose_ground()
+    await kill_ground(first, sc)  # no shutdown, nothing more from this process
     await sc.run(20.0)  # longer than the lead window: the vehicle runs out of commands
     second = ground(sessions, clock, uplink_lead_window_s=10.0)
     await second.runner.recover()
