@@ -46,8 +46,14 @@ __all__ = [
 
 #: A mission file is refused by its size before it is read.
 MAX_FILE_BYTES = 256 * 1024
-#: The shipped missions (a source checkout; not installed with the package).
-MISSIONS_DIR = Path(__file__).resolve().parents[1] / "examples" / "missions"
+#: The shipped missions: in an installed wheel beside this package (``missions``, setup.py
+#: copies them there), else the checkout's ``examples/missions`` (an editable install).
+_PACKAGED = Path(__file__).resolve().parent / "missions"
+MISSIONS_DIR = (
+    _PACKAGED
+    if _PACKAGED.is_dir()
+    else Path(__file__).resolve().parents[1] / "examples" / "missions"
+)
 #: A mission's, a relay's or a station's name: what a request may use to name it.
 NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 #: WGS-72's gravitational parameter, the one SGP4 uses (period <-> semi-major axis).

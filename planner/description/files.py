@@ -27,8 +27,12 @@ __all__ = [
 
 #: Neither the TOML nor the URDF may be larger (checked by size before reading).
 MAX_FILE_BYTES = 16 * 1024 * 1024
-#: The shipped descriptions (a source checkout; not installed with the package).
-EXAMPLES_DIR = Path(__file__).resolve().parents[2] / "examples" / "robots"
+#: The shipped descriptions: in an installed wheel beside this module (``robots``, setup.py
+#: copies them there), else the checkout's ``examples/robots`` (an editable install).
+_PACKAGED = Path(__file__).resolve().parent / "robots"
+EXAMPLES_DIR = (
+    _PACKAGED if _PACKAGED.is_dir() else Path(__file__).resolve().parents[2] / "examples" / "robots"
+)
 ETS7_DESCRIPTION = EXAMPLES_DIR / "ets7" / "ets7.toml"
 
 

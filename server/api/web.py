@@ -1,5 +1,6 @@
 """The operator console: the static files ``web/`` builds into ``web/dist`` (``npm ci &&
-npm run build``, which ``scripts/setup.sh`` runs), served at ``/``.
+npm run build``, which ``scripts/setup.sh`` runs), served at ``/``; an installed wheel
+carries them as package data (setup.py).
 
 ``/`` (and ``/index.html``) is the console's page; ``/assets/...`` its content-hashed
 bundles (cached for good); ``/model/...`` the model files the setup script exports next to
@@ -20,8 +21,12 @@ from server.api.errors import HttpError
 
 __all__ = ["DEFAULT_DIST", "make_router"]
 
-#: ``web/dist`` of the checkout this package runs from (an editable install).
-DEFAULT_DIST = Path(__file__).resolve().parents[2] / "web" / "dist"
+#: The console's build: in an installed wheel beside this module (``console``, setup.py
+#: copies ``web/dist`` there), else ``web/dist`` of the checkout (an editable install).
+_PACKAGED = Path(__file__).resolve().parent / "console"
+DEFAULT_DIST = (
+    _PACKAGED if _PACKAGED.is_dir() else Path(__file__).resolve().parents[2] / "web" / "dist"
+)
 
 _NOT_BUILT = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>Hikoboshi: console not built</title>

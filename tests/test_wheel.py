@@ -1,0 +1,161 @@
+"""The wheel: built from a copy of the source, installed into a fresh venv outside the
+checkout, it carries the console's build, the shipped robots and missions (setup.py), and
+``hikoboshi serve`` from it serves the console and lists the robots."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import sysconfig
+import time
+import zipfile
+from pathlib import Path
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: What the wheel is built from (the rest of the checkout is not needed for it).
+SOURCES = [
+    "pyproject.toml",
+    "setup.py",
+    "README.md",
+    "LICENSE",
+    "planner",
+    "mission",
+    "spacecraft",
+    "telemetry",
+    "server",
+    "hikoboshi",
+    "examples",
+]
+#: Files the wheel must carry, as package data, beside the code that reads them.
+CARRIED = [
+    "planner/description/robots/ets7/ets7.toml",
+    "planner/description/robots/ets7/ets7.urdf",
+    "planner/description/robots/orihime/orihime.toml",
+    "mission/missions/ets7-1999.toml",
+    "server/api/console/index.html",
+    "server/storage/migrations/env.py",
+]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _source(tmp_path: Path) -> Path:
+    """A copy of the sources, with the checkout's console build (or, where none is built, a
+    stand-in page: what is tested is that the build travels, not the build itself)."""
+    src = tmp_path / "src"
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in SOURCES:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, src / name, ignore=ignore)
+        else:
+            src.mkdir(exist_ok=True)
+            shutil.copy2(ROOT / name, src / name)
+    dist = ROOT / "web" / "dist"
+    if (dist / "index.html").is_file():
+        shutil.copytree(dist, src / "web" / "dist")
+    else:
+        (src / "web" / "dist").mkdir(parents=True)
+        (src / "web" / "dist" / "index.html").write_text("<!doctype html><p>stand-in console")
+    return src
+
+
+@pytest.mark.slow
+def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: Path) -> None:
+    src = _source(tmp_path)
+    wheels = tmp_path / "wheels"
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--no-input"]
+    build = [*pip, "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", wheels]
+    subprocess.run([*build, src], check=True, capture_output=True, timeout=300)  # a guard
+    (wheel,) = wheels.glob("hikoboshi-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    missing = [name for name in CARRIED if name not in names]
+    assert not missing, f"the wheel lacks {missing}"
+    assert any(name.endswith(".dist-info/LICENSE") for name in names), sorted(names)[-8:]
+    assert not any(name.startswith(("examples/", "web/", "tests/")) for name in names)
+
+    # A fresh venv outside the checkout; the dependencies are this environment's, added as a
+    # site directory after the venv's own (so the wheel's packages, not the checkout's
+    # editable install, are the ones imported).
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", venv], check=True)
+    purelib = subprocess.run(
+        [
+            venv / "bin" / "python",
+            "-c",
+            "import sysconfig; print(sysconfig.get_paths()['purelib'])",
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    deps = sysconfig.get_paths()["purelib"]
+    (Path(purelib) / "zz_deps.pth").write_text(f"import site; site.addsitedir({deps!r})\n")
+    install = [*pip, "--python", venv / "bin" / "python", "install", "--no-deps", "--no-index"]
+    subprocess.run([*install, wheel], check=True, capture_output=True, timeout=300)  # a guard
+
+    work = tmp_path / "run"
+    work.mkdir()
+    env = {**os.environ, "HIKOBOSHI_DATA_DIR": str(work / "data"), "HIKOBOSHI_TOKENS": "v=v:viewer"}
+    for name in ("DATABASE_URL", "PYTHONPATH"):
+        env.pop(name, None)
+    where = subprocess.run(
+        [
+            venv / "bin" / "python",
+            "-c",
+            "import planner.description as d, mission, server.api.web as w; "
+            "print(d.EXAMPLES_DIR); print(mission.MISSIONS_DIR); print(w.DEFAULT_DIST)",
+        ],
+        cwd=work,
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    assert [Path(p) for p in where] == [
+        Path(purelib) / "planner" / "description" / "robots",
+        Path(purelib) / "mission" / "missions",
+        Path(purelib) / "server" / "api" / "console",
+    ]
+
+    port = _free_port()
+    proc = subprocess.Popen(
+        [venv / "bin" / "hikoboshi", "serve", "--port", str(port)],
+        cwd=work,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60.0  # a guard, not a timing assertion
+        while True:
+            try:
+                httpx.get(f"{base}/api/health", timeout=2.0)
+                break
+            except httpx.TransportError:
+                assert time.monotonic() < deadline, "the server did not come up"
+                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+                time.sleep(0.2)
+        page = httpx.get(f"{base}/", timeout=10.0)
+        assert page.status_code == 200
+        assert page.content == (src / "web" / "dist" / "index.html").read_bytes()
+        robots = httpx.get(
+            f"{base}/api/robots", headers={"Authorization": "Bearer v"}, timeout=30.0
+        )
+        assert robots.status_code == 200, robots.text
+        assert {"ets7", "orihime"} <= {r["name"] for r in robots.json()["data"]}
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+        if proc.stderr is not None:
+            proc.stderr.close()
