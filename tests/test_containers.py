@@ -1,0 +1,135 @@
+"""docker-compose.yml and the Dockerfile keep the deployment's rules (docs/operations.md
+"Containers"): a named volume for PostgreSQL, healthchecks on the database and the server,
+each service started once the one it needs is healthy, restart policies, tokens never on a
+command line; an unprivileged user, the dependencies' layer before the source's, a supported
+Node LTS. The images cannot be built here (no registry for them); these read the files."""
+
+from __future__ import annotations
+
+import http.server
+import re
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+COMPOSE: dict[str, Any] = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+SERVICES: dict[str, Any] = COMPOSE["services"]
+DOCKERFILE = (ROOT / "Dockerfile").read_text()
+#: The Node LTS lines in support (22 to April 2027, 24 to April 2028).
+SUPPORTED_NODE = {"22", "24"}
+
+
+def _instructions() -> list[tuple[str, str]]:
+    """The Dockerfile's instructions, continuation lines joined: (keyword, arguments)."""
+    text = re.sub(r"\\\n", " ", DOCKERFILE)
+    lines = [line.strip() for line in text.splitlines()]
+    return [
+        (line.split(None, 1)[0].upper(), line.split(None, 1)[1])
+        for line in lines
+        if line and not line.startswith("#")
+    ]
+
+
+def _final_stage() -> list[tuple[str, str]]:
+    steps = _instructions()
+    last_from = max(i for i, (keyword, _) in enumerate(steps) if keyword == "FROM")
+    return steps[last_from:]
+
+
+def test_postgres_keeps_its_data_in_a_named_volume() -> None:
+    mounts = [str(m) for m in SERVICES["postgres"]["volumes"]]
+    named = [m.split(":")[0] for m in mounts if m.endswith(":/var/lib/postgresql/data")]
+    assert named, mounts
+    assert named[0] in COMPOSE["volumes"], "the volume is not declared: it would be a bind mount"
+
+
+def test_the_database_and_the_server_have_healthchecks() -> None:
+    assert "pg_isready" in " ".join(SERVICES["postgres"]["healthcheck"]["test"])
+    server_check = " ".join(SERVICES["server"]["healthcheck"]["test"])
+    port = SERVICES["server"]["command"][SERVICES["server"]["command"].index("--port") + 1]
+    assert f"http://127.0.0.1:{port}/api/ready" in server_check
+
+
+def test_each_service_waits_for_a_healthy_one_before_it() -> None:
+    assert SERVICES["server"]["depends_on"] == {"postgres": {"condition": "service_healthy"}}
+    assert SERVICES["spacecraft"]["depends_on"] == {"server": {"condition": "service_healthy"}}
+
+
+def test_every_service_restarts() -> None:
+    policies = {name: service.get("restart") for name, service in SERVICES.items()}
+    assert all(p in {"always", "unless-stopped", "on-failure"} for p in policies.values()), policies
+
+
+def test_no_token_is_on_a_command_line_or_written_in_the_file() -> None:
+    for name, service in SERVICES.items():
+        command = " ".join(service.get("command", []))
+        assert "--token" not in command, f"{name}: {command}"
+        for var, value in service.get("environment", {}).items():
+            if "TOKEN" in var:
+                # From the host's environment (.env), required: never a literal.
+                assert re.fullmatch(r"\$\{" + var + r":\?[^}]+\}", value), f"{name}: {var}"
+    spacecraft_env = SERVICES["spacecraft"]["environment"]
+    assert "HIKOBOSHI_SPACECRAFT_TOKEN" in spacecraft_env
+
+
+def test_the_image_runs_as_an_unprivileged_user() -> None:
+    users = [args for keyword, args in _final_stage() if keyword == "USER"]
+    assert users, "no USER: the service would run as root"
+    assert users[-1].split(":")[0] not in {"root", "0"}
+
+
+def test_the_dependencies_are_installed_before_the_source_is_copied() -> None:
+    steps = _final_stage()
+    install = next(i for i, (k, a) in enumerate(steps) if k == "RUN" and "pip install -r" in a)
+    copied_before = [a for k, a in steps[:install] if k == "COPY"]
+    assert copied_before and all("requirements.lock" in a for a in copied_before), copied_before
+    source = [i for i, (k, a) in enumerate(steps) if k == "COPY" and a.split()[0] == "server"]
+    assert source and source[0] > install
+
+
+def test_the_console_is_built_on_a_supported_node_lts() -> None:
+    images = [a.split()[0] for k, a in _instructions() if k == "FROM" and "node" in a]
+    assert images, "no Node stage"
+    for image in images:
+        match = re.fullmatch(r"node:(\d+)(?:[.-].*)?", image)
+        assert match and match.group(1) in SUPPORTED_NODE, image
+
+
+class _Ready(http.server.BaseHTTPRequestHandler):
+    status = 200
+
+    def do_GET(self) -> None:
+        self.send_response(self.status if self.path == "/api/ready" else 404)
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+@pytest.mark.parametrize(("status", "healthy"), [(200, True), (503, False)])
+def test_the_servers_healthcheck_passes_on_ready_only(status: int, healthy: bool) -> None:
+    """The healthcheck's own command, pointed at a stand-in answering 200 or 503."""
+    handler = type("Handler", (_Ready,), {"status": status})
+    with http.server.HTTPServer(("127.0.0.1", 0), handler) as httpd:
+        thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+        thread.start()
+        try:
+            test = SERVICES["server"]["healthcheck"]["test"]
+            assert test[:2] == ["CMD", "python"]
+            port = httpd.server_address[1]
+            script = test[3].replace("127.0.0.1:8000", f"127.0.0.1:{port}")
+            result = subprocess.run(
+                [sys.executable, "-c", script],
+                capture_output=True,
+                timeout=60,  # a guard
+            )
+        finally:
+            httpd.shutdown()
+    assert (result.returncode == 0) is healthy, result.stderr
