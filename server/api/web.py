@@ -35,7 +35,7 @@ margin:10vh auto;max-width:640px}}code,pre{{background:#151a23;padding:2px 6px}}
 </head><body><h1>The operator console is not built</h1>
 <p>The ground service is running (the API is at <a href="/docs" style="color:#4fc3f7">/docs</a>),
 but there is no console in <code>{dist}</code>.</p>
-<p>Build it (Node 20 and npm), then reload this page:</p>
+<p>Build it (Node.js 22 or 24 LTS and npm), then reload this page:</p>
 <pre>bash scripts/setup.sh          # or: cd web &amp;&amp; npm ci &amp;&amp; npm run build</pre>
 </body></html>
 """
