@@ -4,6 +4,7 @@ checkout, it carries the console's build, the shipped robots and missions (setup
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import socket
@@ -49,6 +50,15 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _run(*args: str | Path, env: dict[str, str] | None = None, cwd: Path | None = None) -> str:
+    """The command's stdout; a failure shows its output."""
+    result = subprocess.run(
+        [str(a) for a in args], capture_output=True, text=True, env=env, cwd=cwd, timeout=300
+    )  # the timeout: a guard, not a timing assertion
+    assert result.returncode == 0, f"{args[:6]}...: {result.stdout[-2000:]}{result.stderr[-2000:]}"
+    return result.stdout
+
+
 def _source(tmp_path: Path) -> Path:
     """A copy of the sources, with the checkout's console build (or, where none is built, a
     stand-in page: what is tested is that the build travels, not the build itself)."""
@@ -75,7 +85,11 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
     wheels = tmp_path / "wheels"
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--no-input"]
     build = [*pip, "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", wheels]
-    subprocess.run([*build, src], check=True, capture_output=True, timeout=300)  # a guard
+    # Without isolation, the venv's setuptools (65) builds, and needs the wheel package.
+    assert importlib.util.find_spec("wheel") is not None, (
+        "the wheel package is missing (requirements-dev.lock pins it): bash scripts/setup.sh --test"
+    )
+    _run(*build, src)
     (wheel,) = wheels.glob("hikoboshi-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     missing = [name for name in CARRIED if name not in names]
@@ -87,40 +101,28 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
     # site directory after the venv's own (so the wheel's packages, not the checkout's
     # editable install, are the ones imported).
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", venv], check=True)
-    purelib = subprocess.run(
-        [
-            venv / "bin" / "python",
-            "-c",
-            "import sysconfig; print(sysconfig.get_paths()['purelib'])",
-        ],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
+    _run(sys.executable, "-m", "venv", "--without-pip", venv)
+    purelib = _run(
+        venv / "bin" / "python", "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"
+    ).strip()
     deps = sysconfig.get_paths()["purelib"]
     (Path(purelib) / "zz_deps.pth").write_text(f"import site; site.addsitedir({deps!r})\n")
     install = [*pip, "--python", venv / "bin" / "python", "install", "--no-deps", "--no-index"]
-    subprocess.run([*install, wheel], check=True, capture_output=True, timeout=300)  # a guard
+    _run(*install, wheel)
 
     work = tmp_path / "run"
     work.mkdir()
     env = {**os.environ, "HIKOBOSHI_DATA_DIR": str(work / "data"), "HIKOBOSHI_TOKENS": "v=v:viewer"}
     for name in ("DATABASE_URL", "PYTHONPATH"):
         env.pop(name, None)
-    where = subprocess.run(
-        [
-            venv / "bin" / "python",
-            "-c",
-            "import planner.description as d, mission, server.api.web as w; "
-            "print(d.EXAMPLES_DIR); print(mission.MISSIONS_DIR); print(w.DEFAULT_DIST)",
-        ],
-        cwd=work,
+    where = _run(
+        venv / "bin" / "python",
+        "-c",
+        "import planner.description as d, mission, server.api.web as w; "
+        "print(d.EXAMPLES_DIR); print(mission.MISSIONS_DIR); print(w.DEFAULT_DIST)",
         env=env,
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.split()
+        cwd=work,
+    ).split()
     assert [Path(p) for p in where] == [
         Path(purelib) / "planner" / "description" / "robots",
         Path(purelib) / "mission" / "missions",
