@@ -152,7 +152,9 @@ class Probes:
         return [asyncio.create_task(self._health()), asyncio.create_task(self._link())]
 
     async def _sample(self, path: str, headers: dict[str, str], into: list[float]) -> Any:
-        async with httpx.AsyncClient(base_url=self.base, timeout=60.0, headers=headers) as c:
+        async with httpx.AsyncClient(
+            base_url=self.base, timeout=60.0, headers=headers, limits=OPERATOR_LIMITS
+        ) as c:  # with httpx's default 5 s expiry, a probe stalled 5 s met the server's close
             while not self.stop.is_set():
                 t0 = time.perf_counter()
                 response = await c.get(path)
