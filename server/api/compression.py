@@ -21,6 +21,11 @@ __all__ = ["MINIMUM_BYTES", "Compression", "send_as_stored"]
 #: and the CPU cost outweigh the bytes saved).
 MINIMUM_BYTES: Final = 1024
 
+#: zlib's own default, not Starlette's 9 (our choice): on 5,000 telemetry rows as JSON
+#: (4.2 MB), level 9 took 2.8x the CPU of level 6 (468 against 170 ms) for 1.9 % fewer bytes,
+#: on two cores shared with the live path.
+COMPRESS_LEVEL: Final = 6
+
 #: Content types sent as they are: Starlette's list, and the binary formats we serve that
 #: are compressed already.
 EXCLUDED_TYPES: Final = (
@@ -71,7 +76,12 @@ class Compression(GZipMiddleware):
     :func:`send_as_stored`."""
 
     def __init__(self, app: ASGIApp, minimum_size: int = MINIMUM_BYTES) -> None:
-        super().__init__(app, minimum_size=minimum_size, exclude_content_types=EXCLUDED_TYPES)
+        super().__init__(
+            app,
+            minimum_size=minimum_size,
+            compresslevel=COMPRESS_LEVEL,
+            exclude_content_types=EXCLUDED_TYPES,
+        )
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or "gzip" not in Headers(scope=scope).get("Accept-Encoding", ""):

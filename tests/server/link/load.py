@@ -100,7 +100,9 @@ async def _read(client: httpx.AsyncClient, path: str, load: ViewerLoad) -> float
     async with client.stream("GET", path) as response:
         body = bytearray()
         n = 0
-        async for chunk in response.aiter_bytes():
+        # the bytes as sent (gzip'd JSON over 1 KB), which Content-Length counts; an error's
+        # body is under the compression threshold
+        async for chunk in response.aiter_raw():
             n += len(chunk)
             if response.status_code != 200:
                 body += chunk
