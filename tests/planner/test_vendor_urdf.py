@@ -348,7 +348,9 @@ def test_panda_refusals_name_the_element(
 ) -> None:
     toml = copy_robot(tmp_path, "panda")
     _edit_toml(toml, old, new)
-    _refused(toml, *fragments)
+    message = _refused(toml, *fragments)
+    # one line naming the element, not a traceback or a list of unrelated complaints
+    assert "\n" not in message.strip() and all(f in message for f in fragments), message
 
 
 def test_unstable_servos_are_refused_with_numbers_and_a_proposal(tmp_path: Path) -> None:
