@@ -1,5 +1,5 @@
 """Post-pass commands: ``hikoboshi report``, ``hikoboshi mcap export|import`` and
-``hikoboshi export telemetry``.
+``hikoboshi export telemetry|quantity``.
 
 A PASS is a pass id in the configured database (``DATABASE_URL``, else SQLite under
 ``HIKOBOSHI_DATA_DIR``, as for ``hikoboshi serve``; migrated to the current schema first) or,
@@ -40,7 +40,8 @@ mcap_app = typer.Typer(
 export_app = typer.Typer(
     rich_markup_mode=HELP_MARKUP,
     no_args_is_help=True,
-    help="Data out of the database: a pass's telemetry as CSV or Parquet.",
+    help="Data out of the database: a pass's telemetry as CSV or Parquet, one quantity "
+    "across passes.",
 )
 console = make_console()
 err_console = make_console(stderr=True)
@@ -307,6 +308,86 @@ def export_telemetry(
         markup=False,
         highlight=False,
     )
+
+
+@export_app.command("quantity")
+def export_quantity(
+    field: Annotated[str, typer.Argument(help="One numeric telemetry field, e.g. hw1 or qz.")],
+    passes: Annotated[
+        list[str],
+        typer.Option("--pass", help="A pass id in the database; repeatable (at most 20)."),
+    ],
+    buckets: Annotated[
+        int, typer.Option(help="Equal spans of each pass's own duration.", min=1)
+    ] = 200,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Write the spans as CSV: pass_id, name, t_s, count, min, max, mean."),
+    ] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="Plot the passes on one time axis (PNG).")
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the result as GET /api/telemetry/across does.")
+    ] = False,
+) -> None:
+    """Compare one quantity across passes, each on its own time axis from its first frame,
+    as GET /api/telemetry/across does: a table of each pass's frames, duration, min, max and
+    mean, and optionally the spans as CSV and a plot."""
+    from server.services import telemetry as service
+    from telemetry.figures import quantity_across_figure
+
+    with _session() as session:
+        result = service.across_passes(
+            session=session, field=field, pass_ids=passes, buckets=buckets
+        )
+    try:
+        if out is not None:
+            lines = ["pass_id,name,t_s,count,min,max,mean"]
+            for p in result.passes:
+                name = p.name.replace('"', '""')
+                lines += [
+                    f'{p.pass_id},"{name}",{b.t_s!r},{b.count},{b.min!r},{b.max!r},{b.mean!r}'
+                    for b in p.buckets
+                ]
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        if plot is not None:
+            plot.parent.mkdir(parents=True, exist_ok=True)
+            plot.write_bytes(
+                quantity_across_figure(
+                    result.field,
+                    result.unit,
+                    [
+                        (
+                            p.name,
+                            [b.t_s for b in p.buckets],
+                            [b.mean for b in p.buckets],
+                            [b.min for b in p.buckets],
+                            [b.max for b in p.buckets],
+                        )
+                        for p in result.passes
+                        if p.buckets
+                    ],
+                )
+            )
+    except OSError as exc:
+        _fail(str(exc))
+    if as_json:
+        _print_json(result.model_dump(mode="json"))
+        return
+    from rich.markup import escape
+    from rich.table import Table
+
+    unit = f" [{result.unit}]" if result.unit else ""
+    table = Table(title=escape(f"{result.field}{unit} across {len(result.passes)} passes"))
+    for column in ("pass", "name", "state", "frames", "duration s", "min", "max", "mean"):
+        table.add_column(column, justify="left" if column in ("pass", "name", "state") else "right")
+    for p in result.passes:
+        shown = [f"{v:.6g}" if v is not None else "-" for v in (p.min, p.max, p.mean)]
+        duration = f"{p.duration_s:.1f}" if p.duration_s is not None else "-"
+        table.add_row(p.pass_id, escape(p.name), p.state, str(p.count), duration, *shown)
+    console.print(table)
 
 
 def register(app: typer.Typer) -> None:

@@ -68,6 +68,9 @@ __all__ = [
     "PlanSummary",
     "PlanValidation",
     "PlansPublic",
+    "QuantityAcrossPublic",
+    "QuantityBucketPublic",
+    "QuantityPassPublic",
     "ReportAnalysisPublic",
     "ReportPublic",
     "ReportTablePublic",
@@ -535,6 +538,44 @@ class TelemetryPublic(BaseModel):
     width_ns: int | None = None
     rows: list[TelemetryRowPublic] | None = None
     buckets: list[TelemetryBucketPublic] | None = None
+
+
+class QuantityBucketPublic(BaseModel):
+    """Frames of one pass generated in ``[t_s, t_s + width_s)`` after its first frame."""
+
+    t_s: float
+    count: int
+    min: float
+    max: float
+    mean: float
+
+
+class QuantityPassPublic(BaseModel):
+    """One pass's series of the quantity, on a time axis from its own first frame."""
+
+    pass_id: str
+    name: str
+    state: str
+    #: Frames stored (0: the pass has none, and no statistics).
+    count: int
+    first_ns: int | None = None
+    first: datetime | None = None
+    duration_s: float | None = None
+    width_s: float | None = None
+    min: float | None = None
+    max: float | None = None
+    mean: float | None = None
+    buckets: list[QuantityBucketPublic] = []
+
+
+class QuantityAcrossPublic(BaseModel):
+    """One telemetry quantity across several passes, each decimated into ``buckets``
+    equal spans of its own stored duration (``GET /api/telemetry/across``)."""
+
+    field: str
+    unit: str
+    buckets: int
+    passes: list[QuantityPassPublic]
 
 
 # --- events --------------------------------------------------------------------------------

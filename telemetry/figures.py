@@ -42,6 +42,7 @@ __all__ = [
     "pass_figures",
     "phase_plane_figure",
     "predicted_vs_flown_figure",
+    "quantity_across_figure",
     "reaction_figure",
 ]
 
@@ -354,3 +355,28 @@ def alarm_timeline_figure(
         fig.suptitle("Alarms: the band of each alarm over the pass")
 
     return _png(draw, (9, 1.8 + 0.35 * max(len(rows), 1)))
+
+
+def quantity_across_figure(
+    field: str,
+    unit: str,
+    series: Sequence[
+        tuple[str, Sequence[float], Sequence[float], Sequence[float], Sequence[float]]
+    ],
+) -> bytes:
+    """One quantity across passes: per pass ``(label, t_s, mean, min, max)``, the mean as a
+    line over the band between min and max, each on its own time from its first frame."""
+
+    def draw(fig: Figure) -> None:
+        ax = fig.add_subplot()
+        for label, t_s, mean, low, high in series:
+            (line,) = ax.plot(t_s, mean, label=label, linewidth=1.2)
+            ax.fill_between(t_s, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+        ax.set_xlabel("time from the pass's first frame (s)")
+        ax.set_ylabel(f"{field} ({unit})" if unit else field)
+        ax.set_title(f"{field} across {len(series)} passes (mean, band: min to max)")
+        ax.grid(True, alpha=0.3)
+        if series:
+            ax.legend(loc="best", fontsize="small")
+
+    return _png(draw, (8.0, 4.0))

@@ -22,8 +22,8 @@ by its route and its caller's role (:func:`lane_of`), puts the lane in the ASGI 
   costs nothing, where refusing at once had 200 viewers retrying every second.
 
 Whatever the lane, a heavy read (:data:`HEAVY_ROUTES`: a recording, the report, its page
-and figures, raw telemetry and its CSV and Parquet exports, an analyses run, contact
-windows) is limited per token holder: past
+and figures, raw telemetry and its CSV and Parquet exports, a quantity across passes, an
+analyses run, contact windows) is limited per token holder: past
 ``heavy_reads_per_token`` in flight, 429 ``too_many_requests`` with ``Retry-After``.
 
 The counters live on the event loop (the edge admits and releases there): no locks.
@@ -90,6 +90,7 @@ HEAVY_ROUTES = frozenset(
         ("GET", "/api/passes/{pass_id}/telemetry.parquet"),  # the whole pass, built whole
         ("POST", "/api/passes/{pass_id}/analyses"),
         ("GET", "/api/windows"),  # contact windows, computed in a worker process
+        ("GET", "/api/telemetry/across"),  # up to 20 passes' aggregates
     }
 )
 _HEAVY = tuple((method, compile_path(template)[0]) for method, template in HEAVY_ROUTES)

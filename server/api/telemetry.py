@@ -32,6 +32,7 @@ from server.schemas import (
     MAX_NS,
     EventKind,
     EventsPublic,
+    QuantityAcrossPublic,
     SafeLine,
     TelemetryPublic,
 )
@@ -87,6 +88,27 @@ async def get_telemetry(
         deadline_s=settings.read_deadline_s,
         what=f"telemetry of pass {pass_id}",
         client=http,
+    )
+
+
+@router.get("/telemetry/across", response_model=QuantityAcrossPublic, tags=["telemetry"])
+async def quantity_across_passes(
+    session: SessionDep,
+    _: ViewerDep,
+    field: Annotated[
+        SafeLine, Query(max_length=40, description="one numeric field, e.g. hw1 or qz")
+    ],
+    pass_id: Annotated[
+        list[Annotated[SafeLine, StringConstraints(min_length=1, max_length=64)]],
+        Query(description=f"repeatable, at most {service.MAX_ACROSS_PASSES}"),
+    ],
+    buckets: Annotated[int, Query(ge=1, le=service.MAX_BUCKETS)] = 200,
+) -> QuantityAcrossPublic:
+    """One quantity across several passes: each pass's stored frames of ``field``
+    decimated into ``buckets`` equal spans from its own first frame (min / max / mean, in
+    the database), with its whole-pass min / max / mean, in the order the passes are named."""
+    return await run_in_threadpool(
+        service.across_passes, session=session, field=field, pass_ids=pass_id, buckets=buckets
     )
 
 

@@ -14,6 +14,9 @@ from sqlalchemy.orm import Session
 from server.schemas import (
     EventPublic,
     EventsPublic,
+    QuantityAcrossPublic,
+    QuantityBucketPublic,
+    QuantityPassPublic,
     TelemetryBucketPublic,
     TelemetryPublic,
     TelemetryRowPublic,
@@ -25,7 +28,10 @@ from server.storage import repository as repo
 from server.storage._telemetry import MAX_BUCKETS
 from server.storage.models import BUCKET_FIELDS, TELEMETRY_FIELDS
 
-__all__ = ["MAX_BUCKETS", "list_events", "telemetry"]
+__all__ = ["MAX_ACROSS_PASSES", "MAX_BUCKETS", "across_passes", "list_events", "telemetry"]
+
+#: The most passes one cross-pass query compares.
+MAX_ACROSS_PASSES = 20
 
 _WHAT = {False: "telemetry", True: "numeric (bucketable)"}
 
@@ -123,6 +129,82 @@ def telemetry(
             for b in result
         ],
     )
+
+
+def across_passes(
+    *, session: Session, field: str, pass_ids: Sequence[str], buckets: int
+) -> QuantityAcrossPublic:
+    """One numeric telemetry field of each pass in ``pass_ids`` (in that order), each
+    decimated into ``buckets`` equal spans of its own stored duration, on a time axis from
+    its first frame, with its whole-pass min / max / mean: the same quantity compared across
+    passes (a pass with no frames is listed with ``count`` 0)."""
+    if not pass_ids:
+        raise InvalidRequestError("no_passes", "name at least one pass (pass_id=...)")
+    if len(pass_ids) > MAX_ACROSS_PASSES:
+        raise InvalidRequestError(
+            "too_many_passes",
+            f"{len(pass_ids)} passes: compare at most {MAX_ACROSS_PASSES} at once",
+        )
+    if len(set(pass_ids)) != len(pass_ids):
+        raise InvalidRequestError("repeated_pass", f"passes {list(pass_ids)} repeat an id")
+    if not 1 <= buckets <= MAX_BUCKETS:
+        raise InvalidRequestError("bad_buckets", f"{buckets} buckets is outside 1..{MAX_BUCKETS}")
+    names = parse_fields(field, allowed=BUCKET_FIELDS, what=_WHAT[True])
+    if len(names) != 1:
+        raise InvalidRequestError("one_field", f"compare one field at a time, not {names}")
+    (name,) = names
+    unit = ""
+    out: list[QuantityPassPublic] = []
+    for pass_id in pass_ids:
+        record = repo.get_pass(session=session, pass_id=pass_id)
+        layout = repo.get_pass_layout(session=session, pass_id=pass_id)
+        if name not in layout.bucket_fields:
+            raise InvalidRequestError(
+                "unknown_field",
+                f"pass {record.id} ({layout}) has no telemetry field {name!r}",
+                {"field": name, "pass_id": record.id},
+            )
+        unit = layout.units[name]
+        extent = repo.telemetry_extent(session=session, pass_id=record.id)
+        if extent is None:
+            out.append(
+                QuantityPassPublic(pass_id=record.id, name=record.name, state=record.state, count=0)
+            )
+            continue
+        t0, t1 = extent.first_ns, extent.last_ns + 1
+        width = -(-(t1 - t0) // buckets)
+        spans = repo.telemetry_buckets(
+            session=session, pass_id=record.id, t0_ns=t0, t1_ns=t1, fields=[name], buckets=buckets
+        )
+        whole = repo.telemetry_buckets(
+            session=session, pass_id=record.id, t0_ns=t0, t1_ns=t1, fields=[name], buckets=1
+        )[0]
+        out.append(
+            QuantityPassPublic(
+                pass_id=record.id,
+                name=record.name,
+                state=record.state,
+                count=extent.count,
+                first_ns=t0,
+                first=iso_from_ns(t0),
+                duration_s=(extent.last_ns - t0) / 1e9,
+                width_s=width / 1e9,
+                min=whole.min[name],
+                max=whole.max[name],
+                mean=whole.mean[name],
+                buckets=[
+                    QuantityBucketPublic(
+                        t_s=(b.t_start_ns - t0) / 1e9,
+                        count=b.count,
+                        min=b.min[name],
+                        max=b.max[name],
+                        mean=b.mean[name],
+                    )
+                    for b in spans
+                ],
+            )
+        )
+    return QuantityAcrossPublic(field=name, unit=unit, buckets=buckets, passes=out)
 
 
 def list_events(

@@ -44,6 +44,7 @@ from telemetry.wire import TelemetryFrame
 __all__ = [
     "MAX_BUCKETS",
     "Bucket",
+    "Extent",
     "IngestResult",
     "count_frames",
     "frame_seqs",
@@ -52,6 +53,7 @@ __all__ = [
     "missing_seqs",
     "pass_layout",
     "telemetry_buckets",
+    "telemetry_extent",
     "telemetry_range",
 ]
 
@@ -287,6 +289,27 @@ def telemetry_range(
     if limit is not None:
         query = query.limit(limit)
     return list(session.execute(query))
+
+
+@dataclass(frozen=True)
+class Extent:
+    """A pass's stored frames: how many, and the first and last generation times."""
+
+    count: int
+    first_ns: int
+    last_ns: int
+
+
+def telemetry_extent(*, session: Session, pass_id: str) -> Extent | None:
+    """The stored frames' count and generation-time span of a pass; None when it has none."""
+    key = require_pass(session, pass_id)
+    gen = _FRAME.generation_time_ns
+    count, first, last = session.execute(
+        select(func.count(), func.min(gen), func.max(gen)).where(_FRAME.pass_id == key)
+    ).one()
+    if not count:
+        return None
+    return Extent(count=int(count), first_ns=int(first), last_ns=int(last))
 
 
 def telemetry_buckets(

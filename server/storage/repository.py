@@ -14,7 +14,7 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
     import     add_frame_arrays, add_command_rows, add_event_rows: a whole recorded pass
                (from ``_import``)
     telemetry  ingest_frames, ingest_messages, frame_seqs, missing_seqs, count_frames,
-               telemetry_range, telemetry_buckets (from ``_telemetry``)
+               telemetry_range, telemetry_buckets, telemetry_extent (from ``_telemetry``)
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from server.storage._telemetry import (
     missing_seqs,
     pass_layout,
     telemetry_buckets,
+    telemetry_extent,
     telemetry_range,
 )
 from server.storage.errors import Conflict, InvalidArgument, NotFound
@@ -95,6 +96,7 @@ __all__ = [
     "missing_seqs",
     "set_plan_document",
     "telemetry_buckets",
+    "telemetry_extent",
     "telemetry_range",
     "update_command_stage",
     "update_pass_state",

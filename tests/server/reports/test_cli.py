@@ -201,3 +201,46 @@ def test_export_of_an_unknown_pass_is_one_line_and_status_2(env: Path) -> None:
     result = runner.invoke(app, ["export", "telemetry", missing, "--out", str(env / "x.csv")])
     assert result.exit_code == 2 and "not found" in result.output
     assert not (env / "x.csv").exists()
+
+
+def test_export_quantity_across_two_imported_passes(env: Path, short_mcap: bytes) -> None:
+    import csv
+
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    first = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+    second = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+    args = ["export", "quantity", "hw3", "--pass", first, "--pass", second, "--buckets", "8"]
+    result = runner.invoke(
+        app, [*args, "--out", str(env / "q.csv"), "--plot", str(env / "q.png"), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["field"] == "hw3" and doc["unit"] == "N m s"
+    assert [p["pass_id"] for p in doc["passes"]] == [first, second]
+    # the same recording twice: the same series, whole-pass and per span
+    one, two = doc["passes"]
+    assert one["count"] == two["count"] == 571
+    assert (one["min"], one["max"], one["mean"]) == (two["min"], two["max"], two["mean"])
+    assert one["buckets"] == two["buckets"] and sum(b["count"] for b in one["buckets"]) == 571
+    recording = read_mcap(io.BytesIO(short_mcap))
+    hw3 = recording.frames.wheel_momentum_nms[:, 2]
+    assert one["min"] == hw3.min() and one["max"] == hw3.max()
+    with (env / "q.csv").open(newline="") as file:
+        rows = list(csv.DictReader(file))
+    assert len(rows) == 2 * len(one["buckets"])
+    assert [float(r["mean"]) for r in rows[: len(one["buckets"])]] == [
+        b["mean"] for b in one["buckets"]
+    ]
+    assert (env / "q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    table = run(*args)
+    assert "hw3 [N m s] across 2 passes" in table and first in table
+
+
+def test_export_quantity_refuses_a_field_with_one_line(env: Path, short_mcap: bytes) -> None:
+    source = env / "short.mcap"
+    source.write_bytes(short_mcap)
+    pass_id = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+    result = runner.invoke(app, ["export", "quantity", "j9", "--pass", pass_id])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert result.output.startswith("error: ") and "'j9'" in result.output
