@@ -41,6 +41,24 @@ if [ "${#apt_packages[@]}" -gt 0 ]; then
   fi
 fi
 
+# --- Node.js: the console is built on a supported LTS ------------------------------------
+# Node 20's support ended on 2026-04-30. Where the system's node is older than 22 (Debian 12
+# ships 18; this project's machines have 20), the pinned Node 22 LTS comes from the npm
+# registry (tools/node: package-lock.json, for linux x64 and arm64) and builds the console.
+if command -v npm >/dev/null 2>&1; then
+  major=$(node --version 2>/dev/null | sed -E 's/^v([0-9]+).*/\1/')
+  if [ "${major:-0}" -lt 22 ]; then
+    stamp=tools/node/node_modules/.hikoboshi-lock.sha256
+    want=$(sha256sum tools/node/package-lock.json | cut -d' ' -f1)
+    if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+      (cd tools/node && npm ci --no-audit --no-fund --loglevel=error)
+      echo "$want" > "$stamp"
+    fi
+    export PATH="$PWD/tools/node/node_modules/.bin:$PATH"
+  fi
+  echo "setup: the console is built with Node $(node --version)"
+fi
+
 # --- the operator console: locked npm packages, then the build into web/dist -----------
 if command -v npm >/dev/null 2>&1; then
   stamp=web/node_modules/.hikoboshi-lock.sha256

