@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -1000,6 +1001,7 @@ def serve(
 
     install_redaction()  # before anything logs (uvicorn_config installs it too)
     _configure_logging(log_format, log_level)
+    startup_log = logging.getLogger("hikoboshi.ground.settings")
 
     try:
         settings = Settings.from_env()
@@ -1018,10 +1020,15 @@ def serve(
                 "serve a network with no tokens. Set HIKOBOSHI_TOKENS=token=name:role,... "
                 '(strong tokens: python -c "import secrets; print(secrets.token_urlsafe(32))")'
             )
-        err_console.print("warning: HIKOBOSHI_TOKENS is empty: every API call will be refused")
+        # through the log (its format: a JSON collector reads every line), not a bare print
+        startup_log.warning("HIKOBOSHI_TOKENS is empty: every API call will be refused")
     weak = sorted({t.name for secret, t in settings.tokens.items() if len(secret) < 16})
     if weak:
-        err_console.print(f"warning: short (guessable) tokens for {', '.join(weak)}")
+        startup_log.warning(
+            "short (guessable) tokens for %s",
+            ", ".join(weak),
+            extra={"fields": {"event": "weak_tokens", "names": weak}},
+        )
     ground = create_app(settings)
     config = uvicorn_config(ground, settings, host=host, port=port, log_level=log_level.lower())
     # On SIGTERM it stops the worker pool first: requests waiting answer JSON 503

@@ -141,10 +141,15 @@ async def begin_shutdown(app: FastAPI) -> None:
     """The server is stopping (SIGTERM): before the HTTP server waits for the requests in
     flight, stop the worker pool, so that every request waiting for a worker or running in
     one is answered 503 ``shutting_down`` at once and no job process is left running
-    (docs/operations.md "Stopping"). The lifespan's shutdown does the rest."""
+    (docs/operations.md "Stopping"); and close the spacecraft's link (1001), which its
+    handler records, rather than leave it to be cancelled. The lifespan's shutdown does the
+    rest."""
     workers: WorkerPool | None = getattr(app.state, "workers", None)
     if workers is not None:
         await workers.close()
+    link: GroundLink | None = getattr(app.state, "link", None)
+    if link is not None:
+        await link.going_away()
 
 
 class GroundServer(uvicorn.Server):

@@ -67,6 +67,7 @@ REALTIME_MODULES = (
     "tests/server/link/test_noise_e2e.py",
     "tests/server/link/test_restart.py",
     "tests/server/link/test_safing_e2e.py",
+    "tests/server/link/test_serve_logs.py",
     "tests/server/link/test_soak.py",
     "tests/server/link/test_takeover.py",
     "tests/spacecraft/test_hostile.py",

@@ -9,6 +9,7 @@ handling one message (a bug, a database failure) is logged and the next message 
 
 from __future__ import annotations
 
+import asyncio
 import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -69,5 +70,8 @@ async def spacecraft_link(websocket: WebSocket, link: LinkDep, clock: ClockDep) 
                 log.exception("handling a message from the spacecraft failed")
     except WebSocketDisconnect as exc:
         reason = f"closed by the spacecraft ({exc.code})"
-    finally:
-        await link.detach(conn, reason)
+    except asyncio.CancelledError:
+        # The server's shutdown cancels a handler still open past its graceful timeout: a
+        # routine stop, not an error (the vehicle reconnects to the next ground).
+        reason = "the ground service is stopping"
+    await link.detach(conn, reason)

@@ -325,7 +325,10 @@ class GroundLink:
             self._pinger = None
         self._emit(LinkDown(reason))
         event = LinkDisconnected(actor=conn.actor, connection=conn.id, reason=reason)
-        await self._db.write(event_job(event, self.clock))
+        # queued in order behind the link's other writes, not awaited (as attach's): a
+        # handler ending at shutdown is not held past the server's graceful timeout by a
+        # busy database
+        self._db.submit(event_job(event, self.clock))
 
     async def send(self, text: str) -> bool:
         """Send one message to the spacecraft; False when there is no link or it failed."""
@@ -384,6 +387,16 @@ class GroundLink:
         await self._db.write(event_job(event, self.clock), control=True)
         self._safe_exits.start(request_id)
         return request_id
+
+    async def going_away(self) -> None:
+        """The server is stopping: close the spacecraft's websocket now (1001), so that its
+        handler ends and records the detach while the database worker still runs, instead
+        of being cancelled past the server's graceful timeout. The vehicle keeps its loaded
+        commands and reconnects to the next ground, as after a crash."""
+        conn = self._conn
+        if conn is not None:
+            with contextlib.suppress(Exception):
+                await conn.close(1001, "ground service stopping")
 
     async def close(self) -> None:
         await self._safe_exits.close()
