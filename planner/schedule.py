@@ -28,10 +28,12 @@ from planner.experiments import (
     plan_reactionless,
 )
 from planner.gjm import GjmParams, plan_gjm
+from planner.gravity_gradient import Orbit
 from planner.parameters import parameters_from_values
 from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import ptp_commands
+from planner.state import VehicleState
 
 if TYPE_CHECKING:
     from planner.robot import RobotDescription
@@ -138,9 +140,19 @@ def plan_pass(
     gains: AcsGains | None = None,
     *,
     robot: RobotDescription | None = None,
+    initial_state: VehicleState | None = None,
+    orbit: Orbit | None = None,
 ) -> Plan:
     """The experiments of ``params`` in order, from pose A, as one plan: ``robot``'s
-    experiments with its poses and default parameters (``None``: ETS-VII's built-in ones)."""
+    experiments with its poses and default parameters (``None``: ETS-VII's built-in ones).
+
+    ``initial_state`` starts the pass where another left the vehicle (a campaign's previous
+    pass and the gap after it): the arm at rest at its joints (a PTP transfer takes it to the
+    first experiment's start), the base at its attitude and rate, the wheels holding its
+    momentum; the whole pass is predicted from there (the flight rules then see the carried
+    momentum). ``None``: pose A, the orbit frame's attitude at rest, wheels empty.
+    ``orbit`` adds the gravity-gradient torque on that orbit to the prediction (eq. 11; the
+    default, ``None``, leaves it out as every planner's prediction does)."""
     params.check()
     check_robot(ws, robot)
     model = ws.model
@@ -150,6 +162,14 @@ def plan_pass(
     else:
         gains = gains or robot.acs_gains(ws)
         start = robot.target_joints_rad("A", ws, experiment="pass")
+    if initial_state is not None:
+        if initial_state.joints_rad.shape != (model.n_joints,):
+            raise InvalidInput(
+                f"initial_state has {initial_state.joints_rad.size} joints, the robot "
+                f"{model.n_joints}"
+            )
+        model.check_joints(initial_state.joints_rad)
+        start = initial_state.joints_rad.copy()
     pieces = _experiment_plans(ws, params, gains, robot)
     builder = CommandBuilder(start)
     acs: list[AcsCommand] = [AcsCommand(0.0, AcsMode.FEEDBACK)]
@@ -198,9 +218,27 @@ def plan_pass(
             f"the pass needs {times[-1]:.1f} s, more than the {params.window_s:.1f} s window: "
             "drop an experiment or shorten the settling waits"
         )
-    prediction = predict(ws, times, joints, acs_commands=acs, acs_gains=gains)
+    prediction = predict(
+        ws,
+        times,
+        joints,
+        acs_commands=acs,
+        acs_gains=gains,
+        initial_quat_orbit_from_base_xyzw=(
+            None if initial_state is None else initial_state.quat_orbit_from_base_xyzw
+        ),
+        initial_wheel_momentum_nms=(
+            None if initial_state is None else initial_state.wheel_momentum_nms
+        ),
+        initial_omega_base_orbit_radps=(
+            None if initial_state is None else initial_state.omega_base_orbit_radps
+        ),
+        orbit=orbit,
+    )
     metrics["duration_s"] = float(times[-1])
     metrics["window_margin_s"] = float(params.window_s - times[-1])
+    if orbit is not None:
+        metrics["gravity_gradient_orbit_radius_m"] = orbit.radius_m
     plan = Plan(
         experiment="pass",
         parameters={**asdict(params), "experiments": list(params.experiments)},
@@ -211,6 +249,11 @@ def plan_pass(
         prediction=prediction,
         metrics=metrics,
         acs_commands=tuple(sorted(acs, key=lambda c: c.t_s)),
+        initial_quat_orbit_from_base_xyzw=(
+            np.array([0.0, 0.0, 0.0, 1.0])
+            if initial_state is None
+            else initial_state.quat_orbit_from_base_xyzw.copy()
+        ),
     )
     check_plan_limits(model, plan)
     return plan_for_robot(plan, robot)
