@@ -65,7 +65,6 @@ from mission.windows import Window, compute_windows, format_utc
 if TYPE_CHECKING:
     from planner.dynamics import DynamicsWorkspace
     from planner.flight_rules import FlightRulesReport
-    from planner.gravity_gradient import Orbit
     from planner.plan import Plan
     from planner.robot import RobotDescription
     from planner.state import VehicleState
@@ -266,21 +265,13 @@ def gap_transition(
     return start, loaded
 
 
-def _pass_orbit(mission: Mission, start_utc: datetime, end_utc: datetime) -> Orbit:
-    """The planner's circular orbit at the vehicle's mean SGP4 radius over a pass's usable
-    time: the pass's own gravity-gradient torque (eq. 11, the orbit frame inertial over a
-    pass, SPEC 2); the radius varies by parts in a thousand over a pass."""
-    from planner.gravity_gradient import Orbit
-
+def _pass_radius_m(mission: Mission, start_utc: datetime, end_utc: datetime) -> float:
+    """The vehicle's mean SGP4 radius over a pass's usable time: the circular orbit of the
+    pass's own gravity-gradient torque (eq. 11, the orbit frame inertial over a pass, SPEC
+    2); the radius varies by parts in a thousand over a pass."""
     span_s = (end_utc - start_utc).total_seconds()
     samples = [start_utc + timedelta(seconds=s) for s in np.linspace(0.0, span_s, 61)]
-    radius_m = float(np.mean(orbit_radius_m(mission, samples)))
-    nominal = Orbit()
-    return Orbit(
-        altitude_m=radius_m - nominal.earth_radius_m,
-        earth_radius_m=nominal.earth_radius_m,
-        mu_m3ps2=GRAVITY_MU_M3PS2,
-    )
+    return float(np.mean(orbit_radius_m(mission, samples)))
 
 
 def _held_attitude(plan: Plan, index: int) -> Array:
@@ -373,14 +364,20 @@ def plan_campaign(
         else:
             start_state = None
         step(f"planning pass {k}: {', '.join(experiments)}")
+        # The start and the orbit go in as parameters, so that the plan records them and the
+        # ground re-plans the same pass from them (POST /api/plans, experiment "pass").
+        others: dict[str, Any] = {
+            "window_s": min(usable_s, 3600.0),
+            "experiments": experiments,
+            "gravity_gradient_radius_m": _pass_radius_m(mission, plan_start, window.net_end_utc),
+        }
         try:
-            plan = plan_pass(
-                ws,
-                PassParams(window_s=min(usable_s, 3600.0), experiments=experiments),
-                robot=robot,
-                initial_state=start_state,
-                orbit=_pass_orbit(mission, plan_start, window.net_end_utc),
+            params = (
+                PassParams(**others)
+                if start_state is None
+                else PassParams.starting_at(start_state, **others)
             )
+            plan = plan_pass(ws, params, robot=robot)
         except PlannerError as exc:
             if "window" in str(exc):
                 raise CampaignInfeasible(

@@ -223,3 +223,25 @@ def test_a_plan_longer_than_its_window_is_refused_naming_pass_and_times(tmp_path
     with pytest.raises(CampaignInfeasible, match=r"pass 1 \(TDRS-West, AOS .*\): the plan") as e:
         plan_campaign(load_mission(path), START, assignment=[["ptp"]], check_rules=False)
     assert "start lead" in str(e.value) and " s" in str(e.value)
+
+
+@pytest.mark.slow
+def test_the_ground_replans_a_pass_from_its_plan_s_parameters_alone(campaign: Campaign) -> None:
+    """POST /api/plans with experiment "pass" and the plan file's parameters: the start
+    state and the orbit travel in them, so the ground's plan is the campaign's."""
+    from server.schemas import PlanCreate
+    from server.services.plans import plan as ground_plan
+
+    mine = campaign.passes[1].plan
+    parameters = json.loads(json.dumps(mine.parameters))
+    assert parameters["start_wheel_momentum_nms"] != [0.0, 0.0, 0.0]
+    assert parameters["gravity_gradient_radius_m"] > 6.9e6
+    theirs, _ = ground_plan(PlanCreate(experiment="pass", parameters=parameters))
+    np.testing.assert_array_equal(theirs.command_joints_rad, mine.command_joints_rad)
+    np.testing.assert_allclose(
+        theirs.prediction.wheel_momentum_nms, mine.prediction.wheel_momentum_nms, atol=1e-12
+    )
+    np.testing.assert_array_equal(
+        theirs.prediction.wheel_momentum_nms[0], campaign.passes[1].start_state.wheel_momentum_nms
+    )
+    assert theirs.flight_rules is not None and theirs.flight_rules["passed"]

@@ -133,3 +133,22 @@ def test_a_vehicle_state_round_trips_and_refuses_nonsense() -> None:
         VehicleState(JOINTS, quat_orbit_from_base_xyzw=np.zeros(4))
     with pytest.raises(InvalidInput, match="malformed vehicle state"):
         VehicleState.from_dict({"joints_rad": [0.0]})
+
+
+@pytest.mark.slow
+def test_the_start_given_as_parameters_is_the_start_given_as_a_state(
+    from_state: Plan, workspace: DynamicsWorkspace
+) -> None:
+    params = PassParams.starting_at(START, experiments=("ptp",))
+    again = plan_pass(workspace, params)
+    np.testing.assert_array_equal(again.command_joints_rad, from_state.command_joints_rad)
+    np.testing.assert_array_equal(
+        again.prediction.wheel_momentum_nms, from_state.prediction.wheel_momentum_nms
+    )
+    assert again.parameters["start_wheel_momentum_nms"] == tuple(WHEELS)
+    with pytest.raises(InvalidInput, match="given twice"):
+        plan_pass(workspace, params, initial_state=START)
+    with pytest.raises(InvalidInput, match="must hold 3 numbers"):
+        PassParams(start_wheel_momentum_nms=(1.0, 2.0)).check()
+    with pytest.raises(InvalidInput, match="gravity_gradient_radius_m"):
+        PassParams(gravity_gradient_radius_m=100.0).check()
