@@ -1,6 +1,6 @@
 """A campaign: the experiments flown over consecutive contact windows, one plan per pass,
 each pass starting where the one before left the vehicle (docs/missions.md, Campaigns;
-SPEC sections 3, 5 and 8; issue 26, part 4).
+SPEC sections 3, 5 and 8).
 
     plan_campaign(mission, start_utc, robot=None, assignment=None, on_progress=None)
         -> Campaign
