@@ -271,6 +271,8 @@ def plan_command(
 
         if file is not None:
             _fail(f"unexpected argument {str(file)!r} (plan campaign takes no FILE)")
+        if assignments or optimise_offset_flag:
+            _fail("plan campaign takes no --set or --optimise-offset (it plans the defaults)")
         run_campaign(
             mission_file=mission_file,
             start=start,

@@ -115,6 +115,10 @@ def test_json_names_the_files_and_an_assignment_of_one_pass(tmp_path: Path) -> N
             ["--mission", ETS7, "--start", "2001-01-01T00:00:00Z"],
             "over the 60 day limit",
         ),
+        (
+            ["--mission", ETS7, "--start", "1999-09-30T00:00:00Z", "--set", "window_s=10"],
+            "takes no --set",
+        ),
     ],
 )
 def test_bad_input_exits_2_with_one_line(args: list[str], reason: str, tmp_path: Path) -> None:
