@@ -1,8 +1,9 @@
 """Experiment 3: base-attitude coordination (SPEC section 3, paper section 2.4, Fig. 9).
 
-The hand moves 0.2 m forward along the robot frame's x axis and back at 0.006 m/s from the
-reference pose A (orientation held, fixed-base resolved rates: the wheels hold the base),
-under three attitude-control variants flown one after the other:
+The hand moves 0.2 m forward along ``direction_robot`` (the robot frame's x axis by default)
+and back at 0.006 m/s from the reference pose A (orientation held, fixed-base resolved rates:
+the wheels hold the base; every command within the joint limits), under three
+attitude-control variants flown one after the other:
 
 (a) ``feedback``: wheel feedback to the nominal attitude only;
 (b) ``feedforward``: feedback plus momentum feedforward of eq. (9);

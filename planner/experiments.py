@@ -107,8 +107,10 @@ def attitude_metrics(plan_t_s: Array, quats_xyzw: Array, *, band_deg: float) -> 
 
 @dataclass(frozen=True)
 class PtpParams:
-    #: None: pose A (ETS-VII's all-zero pose; a robot's [poses.A]), as the goal is pose B.
-    start_joints_deg: tuple[float, ...] | None = None
+    #: ETS-VII's pose A; a robot of another joint count sets its own (its description's
+    #: [experiments.ptp] table), or the plan is refused. None: the robot's pose A (what a
+    #: description without one gets: docs/robots.md, "Experiment defaults").
+    start_joints_deg: tuple[float, ...] | None = (0.0,) * 6
     goal_joints_deg: tuple[float, ...] | None = None  # None: pose B (ETS-VII: by IK)
     rate_fraction: float = 0.9
     settle_s: float = 120.0

@@ -14,10 +14,13 @@ singularity, for a redundant arm) moves the hand along a line fixed in
 the orbit frame while its orientation stays fixed there, whatever the base does.
 
 The motion (our layout of the flight's): from pose A's hand point with the hand pitched
-``hand_pitch_deg`` (rpy (0, pitch, 0) in the robot frame, by :func:`planner.ik.solve_ik`
-near the all-zero joints), a hold, then the hand approaches a virtual target fixed in the
-orbit frame on its approach axis (hand x) at ``approach_distance_m``, on the quintic time
+``hand_pitch_deg`` about the robot's y axis from pose A's orientation (ETS-VII: rpy (0, pitch,
+0) in the robot frame, by :func:`planner.ik.solve_ik` near pose A's joints), a hold, then the
+hand approaches a virtual target fixed in the orbit frame on its approach axis
+(``approach_axis_hand``, hand x by default) at ``approach_distance_m``, on the quintic time
 scaling of :func:`planner.ptp.quintic`; a pause; the retreat back along the same line; a hold.
+Where the line cannot be followed (a singularity, the end of the reach), the failure says how
+far along it the hand got.
 
 Commands are solved on the prediction's own discrete model, so that
 :func:`planner.prediction.predict` (joints linear between the 4 Hz commands, base attitude by
@@ -254,8 +257,10 @@ def _follow_line(
             )
         try:
             ws.model.check_joints(q_next)
-        except JointLimitExceeded as exc:
-            exc.args = (f"gjm: {exc.args[0]} {where}: shorten approach_distance_m or move pose A",)
+        except JointLimitExceeded as limit_exc:
+            limit_exc.args = (
+                f"gjm: {limit_exc.args[0]} {where}: shorten approach_distance_m or move pose A",
+            )
             raise
         exc = _rate_exceeded(ws, q_next - q, where)
         if exc is not None:

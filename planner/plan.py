@@ -305,8 +305,8 @@ def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 
     for k, q in enumerate(plan.command_joints_rad):
         try:
             model.check_joints(q)
-        except JointLimitExceeded as exc:
-            exc.args = (f"{exc.args[0]} {_when(plan, k)}",)
+        except JointLimitExceeded as angle_exc:
+            angle_exc.args = (f"{angle_exc.args[0]} {_when(plan, k)}",)
             raise
     if plan.command_times_s.size < 2:
         return

@@ -229,8 +229,9 @@ def plan_pass(
     times, joints = builder.arrays()
     if times[-1] > params.window_s:
         raise InfeasibleGoal(
-            f"the pass needs {times[-1]:.1f} s, more than the {params.window_s:.1f} s window: "
-            "drop an experiment or shorten the settling waits"
+            f"pass: the pass needs {times[-1]:.1f} s (it ends at t = {times[-1]:.1f} s), more "
+            f"than the {params.window_s:.1f} s window (window_s): drop an experiment from "
+            "experiments or shorten the settling waits"
         )
     prediction = predict(ws, times, joints, acs_commands=acs, acs_gains=gains)
     metrics["duration_s"] = float(times[-1])
