@@ -270,6 +270,6 @@ def default_model(
 def arm_reach_m(model: RobotModel) -> float:
     """The arm's reach: the lengths of the segments from joint 2 to the hand point at the
     all-zero pose (as :func:`planner.ik.solve_ik` bounds a target; ETS-VII 2.649 m, the
-    test UR5 1.104 m and Panda 1.090 m: ``tests/planner/test_vendor_planners.py``)."""
+    test UR5 1.104 m and Panda 1.090 m, as loaded from tests/planner/vendor/)."""
     points = [link.joint_pos_robot_m for link in model.links] + [model.hand_pos_robot_m]
     return sum(float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(points[1:]))
