@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from planner.coordination import CoordinationParams, optimise_offset
 from planner.dynamics import DynamicsWorkspace
-from planner.errors import InvalidInput
+from planner.errors import InvalidInput, PlannerError, name_failure
 from planner.experiments import PtpParams, ReactionlessParams, plan_ptp, plan_reactionless
 from planner.gjm import GjmParams, plan_gjm
 from planner.model import default_model
@@ -84,7 +84,21 @@ def plan_experiment(
     ``optimise_offset_flag`` (coordination only) first optimises the offset size and switch
     times in the closed loop and records the optimum in the metrics.
     """
-    _, planner_fn = resolve(experiment)
+    params_type, planner_fn = resolve(experiment)
+    try:
+        return _plan(experiment, params, planner_fn, optimise_offset_flag, robot)
+    except PlannerError as exc:
+        names = [f.name for f in dataclasses.fields(params_type)]
+        raise name_failure(exc, experiment, names) from None
+
+
+def _plan(
+    experiment: str,
+    params: Any,
+    planner_fn: Callable[..., Plan],
+    optimise_offset_flag: bool,
+    robot: RobotDescription | None,
+) -> Plan:
     if optimise_offset_flag and experiment != "coordination":
         raise InvalidInput("--optimise-offset applies to the coordination experiment only")
     ws = DynamicsWorkspace(default_model() if robot is None else robot.model)

@@ -1,8 +1,9 @@
 """Experiment 3: base-attitude coordination (SPEC section 3, paper section 2.4, Fig. 9).
 
-The hand moves 0.2 m forward along the robot frame's x axis and back at 0.006 m/s from the
-reference pose A (orientation held, fixed-base resolved rates: the wheels hold the base),
-under three attitude-control variants flown one after the other:
+The hand moves 0.2 m forward along ``direction_robot`` (the robot frame's x axis by default)
+and back at 0.006 m/s from the reference pose A (orientation held, fixed-base resolved rates:
+the wheels hold the base; every command within the joint limits), under three
+attitude-control variants flown one after the other:
 
 (a) ``feedback``: wheel feedback to the nominal attitude only;
 (b) ``feedforward``: feedback plus momentum feedforward of eq. (9);
@@ -41,7 +42,7 @@ from planner._builder import CommandBuilder
 from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
 from planner.closed_loop import fly
 from planner.dynamics import DynamicsWorkspace
-from planner.errors import InfeasibleGoal, InvalidInput
+from planner.errors import InfeasibleGoal, InvalidInput, JointLimitExceeded
 from planner.free_drift import predict_base_attitude
 from planner.mjcf import ServoGains
 from planner.plan import AcsCommand, Plan
@@ -94,8 +95,19 @@ class CoordinationParams:
     offset_off_delay_s: float = 0.5  # (c): after the motion (or the leg) stops
     offset_window: str = "motion"  # (c): OFFSET_WINDOWS
     settle_band_deg: float = REPORT_SETTLE_BAND_DEG
+    #: the hand's line in the robot frame (ETS-VII's: robot +x)
+    direction_robot: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
     def check(self) -> None:
+        direction = np.asarray(self.direction_robot, dtype=np.float64)
+        if (
+            direction.shape != (3,)
+            or not np.all(np.isfinite(direction))
+            or not np.linalg.norm(direction) > 0
+        ):
+            raise InvalidInput(
+                f"direction_robot must be a non-zero 3-vector, got {self.direction_robot!r}"
+            )
         for name in ("pause_s", "settle_s"):
             value = getattr(self, name)
             n = round(value / COMMAND_PERIOD_S)
@@ -129,7 +141,9 @@ def cartesian_line(
     ramp_s: float,
 ) -> Array:
     """Joint commands on the 4 Hz grid for a straight hand line in the robot frame with the
-    orientation held (fixed-base resolved rates, damped, with pose-error feedback)."""
+    orientation held (fixed-base resolved rates, damped, with pose-error feedback). Every
+    command is checked against the joint limits: :class:`JointLimitExceeded` names the joint,
+    the time and how far along the line the hand was."""
     from planner.reactionless import _speed_profile  # the same trapezoid as experiment 1
 
     q = ws.model.check_joints(start_joints_rad).copy()
@@ -155,6 +169,15 @@ def cartesian_line(
             ).as_rotvec()
             twist = np.concatenate([speed * direction + e_pos / dt, e_rot / dt])
             q = q + dt * J_m.T @ np.linalg.solve(J_m @ J_m.T + 1e-6 * np.eye(6), twist)
+        try:
+            ws.model.check_joints(q)
+        except JointLimitExceeded as exc:
+            exc.args = (
+                f"coordination: {exc.args[0]} at t = {(k + 1) * COMMAND_PERIOD_S:.2f} s of a "
+                f"leg, {travelled:.3f} m along the {distance_m:.3f} m line: shorten distance_m, "
+                "change direction_robot or the reference pose",
+            )
+            raise
         rows.append(q.copy())
     return np.array(rows)
 
@@ -173,10 +196,11 @@ def _scaled(quat: Array, scale: float) -> Array:
 def _variant_block(
     ws: DynamicsWorkspace, params: CoordinationParams, start: Array
 ) -> tuple[Array, Array, Array]:
+    direction = np.array(params.direction_robot, dtype=np.float64)
     forward = cartesian_line(
         ws,
         start,
-        direction_robot=np.array([1.0, 0.0, 0.0]),
+        direction_robot=direction,
         distance_m=params.distance_m,
         speed_mps=params.speed_mps,
         ramp_s=params.ramp_s,
@@ -184,7 +208,7 @@ def _variant_block(
     back = cartesian_line(
         ws,
         forward[-1],
-        direction_robot=np.array([-1.0, 0.0, 0.0]),
+        direction_robot=-direction,
         distance_m=params.distance_m,
         speed_mps=params.speed_mps,
         ramp_s=params.ramp_s,
@@ -249,7 +273,21 @@ def plan_coordination(
     start = model.reference_joints
     forward, back, _ = _variant_block(ws, params, start)
     if not np.allclose(back[-1], start, atol=np.radians(0.05)):
-        raise InfeasibleGoal("the backward leg did not return to the reference pose")
+        gap = np.abs(back[-1] - start)
+        joint = int(np.argmax(gap))
+        hand_gap_m = float(
+            np.linalg.norm(
+                ws.hand_pose(State(joints_rad=back[-1])).pos_robot_m
+                - ws.hand_pose(State(joints_rad=start)).pos_robot_m
+            )
+        )
+        raise InfeasibleGoal(
+            f"coordination: at t = {2 * (back.shape[0] - 1) * COMMAND_PERIOD_S:.2f} s the "
+            f"backward leg ends {np.degrees(gap[joint]):.3f} deg from the reference pose at "
+            f"joint {joint + 1} (hand {hand_gap_m:.4f} m from its start; at most 0.05 deg "
+            "allowed): the line passes near a singularity or a limit; shorten distance_m, "
+            "change direction_robot or the reference pose"
+        )
     back[-1] = start  # close the loop exactly (the error is below 0.05 deg)
     omega_fwd, omega_back = _leg_offset(ws, forward), _leg_offset(ws, back)
     builder = CommandBuilder(start)
@@ -288,7 +326,11 @@ def plan_coordination(
     return builder.plan(
         model,
         experiment="coordination",
-        parameters={**asdict(params), "variants": list(params.variants)},
+        parameters={
+            **asdict(params),
+            "variants": list(params.variants),
+            "direction_robot": list(params.direction_robot),
+        },
         prediction=prediction,
         metrics=metrics,
         acs_commands=acs,

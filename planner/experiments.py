@@ -19,7 +19,7 @@ from planner._builder import CommandBuilder
 from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
 from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.dynamics import DynamicsWorkspace
-from planner.errors import InvalidInput
+from planner.errors import InfeasibleGoal, InvalidInput
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.plan import AcsCommand, Plan, plan_for_robot
@@ -108,7 +108,8 @@ def attitude_metrics(plan_t_s: Array, quats_xyzw: Array, *, band_deg: float) -> 
 @dataclass(frozen=True)
 class PtpParams:
     #: ETS-VII's pose A; a robot of another joint count sets its own (its description's
-    #: [experiments.ptp] table), or the plan is refused. None: the robot's pose A.
+    #: [experiments.ptp] table), or the plan is refused. None: the robot's pose A (what a
+    #: description without one gets: docs/robots.md, "Experiment defaults").
     start_joints_deg: tuple[float, ...] | None = (0.0,) * 6
     goal_joints_deg: tuple[float, ...] | None = None  # None: pose B (ETS-VII: by IK)
     rate_fraction: float = 0.9
@@ -168,6 +169,32 @@ def plan_ptp(
     return plan_for_robot(plan, robot)
 
 
+def _check_hand_on_line(
+    params: ReactionlessParams, t_s: Array, off_line_m: Array, turned_rad: Array
+) -> None:
+    """The B -> C leg within its tolerances: the hand's distance from its line and its turn."""
+    lateral_limit_m = (
+        0.3 * params.distance_m if params.max_hand_lateral_m is None else params.max_hand_lateral_m
+    )
+    k = int(np.argmax(off_line_m))
+    if off_line_m[k] > lateral_limit_m:
+        raise InfeasibleGoal(
+            f"reactionless: at t = {t_s[k]:.2f} s of the B->C leg the hand is "
+            f"{off_line_m[k]:.3f} m off its line, more than max_hand_lateral_m = "
+            f"{lateral_limit_m:.3f} m: lower orientation_weight_m (the line held tighter, the "
+            "hand turned more), shorten distance_m or change direction_robot"
+        )
+    k = int(np.argmax(turned_rad))
+    turned_deg = float(np.degrees(turned_rad[k]))
+    if turned_deg > params.max_hand_orientation_change_deg:
+        raise InfeasibleGoal(
+            f"reactionless: at t = {t_s[k]:.2f} s of the B->C leg the hand has turned "
+            f"{turned_deg:.1f} deg, more than max_hand_orientation_change_deg = "
+            f"{params.max_hand_orientation_change_deg:g} deg: raise orientation_weight_m (the "
+            "hand held steadier, the line looser), shorten distance_m or change direction_robot"
+        )
+
+
 @dataclass(frozen=True)
 class ReactionlessParams:
     start_joints_deg: tuple[float, ...] | None = None  # None: pose B
@@ -181,6 +208,10 @@ class ReactionlessParams:
     tail_s: float = 30.0
     compensate_servo_lag: bool = False
     settle_band_deg: float = REPORT_SETTLE_BAND_DEG
+    #: how far the hand may leave its line (m; None: 0.3 of distance_m) and turn (deg) on
+    #: the way out (ETS-VII's: 0.090 m and 14.7 deg)
+    max_hand_lateral_m: float | None = None
+    max_hand_orientation_change_deg: float = 30.0
 
 
 def plan_reactionless(
@@ -202,6 +233,15 @@ def plan_reactionless(
         )
     for name in ("pause_s", "tail_s"):
         _check_period(name, getattr(params, name))
+    if params.max_hand_lateral_m is not None and not params.max_hand_lateral_m > 0:
+        raise InvalidInput(
+            f"max_hand_lateral_m = {params.max_hand_lateral_m} m must be positive (or none)"
+        )
+    if not params.max_hand_orientation_change_deg > 0:
+        raise InvalidInput(
+            f"max_hand_orientation_change_deg = {params.max_hand_orientation_change_deg} deg "
+            "must be positive"
+        )
     if not (params.out_speed_mps > 0 and params.back_speed_mps > 0):
         raise InvalidInput(
             f"speeds must be positive, got {params.out_speed_mps} and {params.back_speed_mps} m/s"
@@ -241,6 +281,8 @@ def plan_reactionless(
     metrics = attitude_metrics(
         times, prediction.quat_orbit_from_base_xyzw, band_deg=params.settle_band_deg
     )
+    off_line_m = np.linalg.norm(lateral, axis=1)
+    _check_hand_on_line(params, path.t_s, off_line_m, path.hand_orientation_change_rad)
     metrics.update(
         {
             "hand_travel_m": float(hand[-1] @ direction),

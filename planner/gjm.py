@@ -14,10 +14,13 @@ singularity, for a redundant arm) moves the hand along a line fixed in
 the orbit frame while its orientation stays fixed there, whatever the base does.
 
 The motion (our layout of the flight's): from pose A's hand point with the hand pitched
-``hand_pitch_deg`` (rpy (0, pitch, 0) in the robot frame, by :func:`planner.ik.solve_ik`
-near the all-zero joints), a hold, then the hand approaches a virtual target fixed in the
-orbit frame on its approach axis (hand x) at ``approach_distance_m``, on the quintic time
+``hand_pitch_deg`` about the robot's y axis from pose A's orientation (ETS-VII: rpy (0, pitch,
+0) in the robot frame, by :func:`planner.ik.solve_ik` near pose A's joints), a hold, then the
+hand approaches a virtual target fixed in the orbit frame on its approach axis
+(``approach_axis_hand``, hand x by default) at ``approach_distance_m``, on the quintic time
 scaling of :func:`planner.ptp.quintic`; a pause; the retreat back along the same line; a hold.
+Where the line cannot be followed (a singularity, the end of the reach), the failure says how
+far along it the hand got.
 
 Commands are solved on the prediction's own discrete model, so that
 :func:`planner.prediction.predict` (joints linear between the 4 Hz commands, base attitude by
@@ -40,6 +43,7 @@ At 0.24 m the 20 s approach exceeds the rate limit; the elbow straightens at abo
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -54,6 +58,7 @@ from planner.errors import DidNotConverge, InfeasibleGoal, InvalidInput, JointLi
 from planner.frames import IDENTITY_QUAT_XYZW, matrix_from_rpy
 from planner.gravity_gradient import Orbit
 from planner.ik import solve_ik
+from planner.model import arm_reach_m, default_model
 from planner.plan import AcsCommand, Plan, Prediction, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import COMMAND_PERIOD_S, quintic
@@ -72,6 +77,8 @@ MAX_APPROACH_DISTANCE_M = 1.0
 _MAX_HAND_PITCH_DEG = 90.0
 
 # Newton on each command: stop below 1e-11 (m and rad); fail above 1e-7 after the last try.
+# The acceptance and the damping threshold are ETS-VII's, scaled for another arm by its reach
+# over ETS-VII's (:func:`_robot_scale`): J_g's position rows and the hand's errors scale with it.
 _NEWTON_TOL = 1e-11
 _NEWTON_ACCEPT = 1e-7
 _NEWTON_MAX_ITER = 8
@@ -79,6 +86,16 @@ _NEWTON_MAX_ITER = 8
 # m/rad, mixed rows) falls below the threshold (0.29 at the default target).
 _SINGULAR_THRESHOLD = 0.05
 _MAX_DAMPING = 0.05
+
+
+@functools.cache
+def _ets7_reach_m() -> float:
+    return arm_reach_m(default_model())
+
+
+def _robot_scale(ws: DynamicsWorkspace) -> float:
+    """The arm's reach over ETS-VII's (exactly 1 for ETS-VII)."""
+    return arm_reach_m(ws.model) / _ets7_reach_m()
 
 
 @dataclass(frozen=True)
@@ -97,10 +114,20 @@ class GjmParams:
     lead_s: float = 5.0
     tail_s: float = 10.0
     gravity_gradient: bool = False
+    #: the approach direction in the hand frame (ETS-VII's: hand x; a vendor tool's
+    #: approach is usually its z)
+    approach_axis_hand: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
+        axis = np.asarray(self.approach_axis_hand, dtype=np.float64)
+        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or not np.linalg.norm(axis) > 0:
+            raise InvalidInput(
+                f"approach_axis_hand must be a non-zero 3-vector, got {self.approach_axis_hand!r}"
+            )
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
+            if f.name == "approach_axis_hand":
+                continue
             if f.name == "gravity_gradient":
                 if not isinstance(value, bool):
                     raise InvalidInput(f"gravity_gradient must be a bool, got {value!r}")
@@ -132,7 +159,9 @@ class GjmParams:
             )
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        out["approach_axis_hand"] = list(self.approach_axis_hand)
+        return out
 
 
 def _periods(duration_s: float) -> int:
@@ -150,12 +179,13 @@ def _hand_error(
     return np.concatenate([pos_goal - pos, rot_err]), quant
 
 
-def _dls_step(J: Array, e: Array) -> tuple[Array, float]:
-    """``J^+ e`` by damped least squares, and J's smallest singular value."""
+def _dls_step(J: Array, e: Array, scale: float = 1.0) -> tuple[Array, float]:
+    """``J^+ e`` by damped least squares, and J's smallest singular value (``scale``: the
+    arm's reach over ETS-VII's)."""
     u, sing, vt = np.linalg.svd(J)
     sigma = float(sing[-1])
-    ratio = min(sigma / _SINGULAR_THRESHOLD, 1.0)
-    damping2 = _MAX_DAMPING**2 * (1.0 - ratio**2)
+    ratio = min(sigma / (_SINGULAR_THRESHOLD * scale), 1.0)
+    damping2 = (_MAX_DAMPING * scale) ** 2 * (1.0 - ratio**2)
     # J is 6 x n: for a redundant arm (n > 6) the minimum-norm step, rows of vt past the
     # sixth (J's null space) do not take part.
     return vt[: sing.size].T @ (sing / (sing**2 + damping2) * (u.T @ e)), sigma
@@ -172,7 +202,10 @@ def _rate_exceeded(ws: DynamicsWorkspace, step: Array, where: str) -> JointLimit
         i + 1, math.degrees(rate[i]), math.degrees(limit[i]), "deg/s", what="moves at"
     )
     # JointLimitExceeded formats its own message; say where and what to change after it.
-    exc.args = (f"{exc.args[0]} {where}: shorten approach_distance_m or lengthen the motion",)
+    exc.args = (
+        f"gjm: {exc.args[0]} {where}: shorten approach_distance_m or lengthen approach_s and "
+        "retreat_s",
+    )
     return exc
 
 
@@ -188,8 +221,11 @@ def _follow_line(
 ) -> tuple[list[Array], list[Array]]:
     """Commands (and predicted base attitudes) that put the hand at ``goals_orbit_m[k]`` with
     orientation ``rot_goal`` at each command after the current one."""
+    scale = _robot_scale(ws)
+    tol, accept = _NEWTON_TOL, _NEWTON_ACCEPT * scale
+    line_start = goals_orbit_m[0] if name == "approach" else goals_orbit_m[-1]
     joints, quats = [], []
-    goal_prev = goals_orbit_m[0]
+    goal_prev = goal_prev_ok = goals_orbit_m[0]
     e, quant = _hand_error(ws, q, quat, goal_prev, rot_goal, com0)
     pair = np.zeros((2, ws.model.n_joints))
     for k, goal in enumerate(goals_orbit_m):
@@ -198,7 +234,7 @@ def _follow_line(
         goal_prev = goal
         q_next = q.copy()
         for _ in range(_NEWTON_MAX_ITER):
-            step, sigma = _dls_step(quant.J_g, e)
+            step, sigma = _dls_step(quant.J_g, e, scale)
             q_next = q_next + step
             pair[0], pair[1] = q, q_next
             # The base attitude at t[k+1] exactly as predict() integrates it (eq. 9).
@@ -206,20 +242,31 @@ def _follow_line(
                 ws, np.array([0.0, COMMAND_PERIOD_S]), pair, initial_quat_orbit_from_base_xyzw=quat
             ).quat_orbit_from_base_xyzw[1]
             e, quant = _hand_error(ws, q_next, quat_next, goal, rot_goal, com0)
-            if np.max(np.abs(e)) < _NEWTON_TOL:
+            if np.max(np.abs(e)) < tol:
                 break
         where = f"during the {name} at t = {t_s:.2f} s"
-        if np.max(np.abs(e)) > _NEWTON_ACCEPT:
+        if np.max(np.abs(e)) > accept:
+            reached = float(np.linalg.norm(goal_prev_ok - line_start))
             raise InfeasibleGoal(
-                f"{where}, the hand cannot follow its line: pose error {np.max(np.abs(e)):.2e} "
-                f"(m, rad) exceeds {_NEWTON_ACCEPT:g}; smallest singular value of J_g "
-                f"{sigma:.3g} (a singularity or the end of the arm's reach)"
+                f"gjm: {where}, the hand cannot follow its line: pose error "
+                f"{np.max(np.abs(e)):.2e} (m, rad) exceeds {accept:.3g}; smallest singular "
+                f"value of J_g {sigma:.3g} (damped below {_SINGULAR_THRESHOLD * scale:.3g}: a "
+                f"singularity or the end of the arm's reach); the line is followed for "
+                f"{reached:.3f} m from pose A: set approach_distance_m below that, or change "
+                "hand_pitch_deg, approach_axis_hand or pose A"
             )
-        ws.model.check_joints(q_next)
+        try:
+            ws.model.check_joints(q_next)
+        except JointLimitExceeded as limit_exc:
+            limit_exc.args = (
+                f"gjm: {limit_exc.args[0]} {where}: shorten approach_distance_m or move pose A",
+            )
+            raise
         exc = _rate_exceeded(ws, q_next - q, where)
         if exc is not None:
             raise exc
         q, quat = q_next, quat_next
+        goal_prev_ok = goal
         joints.append(q)
         quats.append(quat)
     return joints, quats
@@ -247,19 +294,29 @@ def hand_positions_orbit_m(ws: DynamicsWorkspace, prediction: Prediction) -> Arr
 def _start_joints(
     ws: DynamicsWorkspace, params: GjmParams, robot: RobotDescription | None = None
 ) -> Array:
-    """Pose A's hand point with the hand pitched: ETS-VII's all-zero pose, or ``robot``'s A."""
-    rot = matrix_from_rpy(np.radians([0.0, params.hand_pitch_deg, 0.0]))
+    """Pose A's hand point with the hand pitched: ETS-VII's all-zero pose, or ``robot``'s A.
+
+    The hand is turned by ``hand_pitch_deg`` about the robot's y axis from pose A's
+    orientation (its written ``hand_rpy_deg``, else where its joints put the hand): ETS-VII's
+    and Orihime's pose A hold the hand parallel to the robot frame, so for them this is the
+    hand at rpy (0, pitch, 0).
+    """
+    pitch = matrix_from_rpy(np.radians([0.0, params.hand_pitch_deg, 0.0]))
     if robot is None:
         hand_pos, reference = ws.model.hand_pos_robot_m, np.zeros(ws.model.n_joints)
+        rot = pitch
     else:
         reference = robot.target_joints_rad("A", ws, experiment="gjm")
-        hand_pos = ws.hand_pose(State(joints_rad=reference)).pos_robot_m
+        hand = ws.hand_pose(State(joints_rad=reference))
+        hand_pos = hand.pos_robot_m
+        written = robot.poses["A"].rot_robot_from_hand
+        rot = pitch @ (hand.rot_robot_from_hand if written is None else written)
     try:
         solutions = solve_ik(ws, hand_pos, rot, reference_joints_rad=reference, n_starts=4)
     except DidNotConverge as exc:
         raise InfeasibleGoal(
-            f"no joint angles within limits put the hand at pose A pitched "
-            f"{params.hand_pitch_deg} deg"
+            f"gjm: at t = 0 s, no joint angles within limits put the hand at pose A pitched "
+            f"{params.hand_pitch_deg} deg: change hand_pitch_deg or pose A"
         ) from exc
     return solutions[0].joints_rad
 
@@ -271,7 +328,8 @@ def _metrics(
     rot_hand = Rotation.from_quat(prediction.quat_orbit_from_hand_xyzw)
     pitch = prediction.rpy_base_rad[:, 1] - prediction.rpy_base_rad[0, 1]
     pos = hand_positions_orbit_m(ws, prediction)
-    axis = rot_hand[0].as_matrix()[:, 0]
+    approach_hand = np.asarray(params.approach_axis_hand, dtype=np.float64)
+    axis = rot_hand[0].as_matrix() @ (approach_hand / np.linalg.norm(approach_hand))
     along = (pos - pos[0]) @ axis
     off_line = pos - pos[0] - np.outer(along, axis)
     rates = np.abs(np.diff(joints, axis=0)) / COMMAND_PERIOD_S
@@ -312,7 +370,9 @@ def plan_gjm(
     q0 = _start_joints(ws, params, robot)
     start = ws.evaluate(State(joints_rad=q0))
     rot_goal = start.hand.rot_orbit_from_hand
-    pos0, axis = start.hand.pos_orbit_m, rot_goal[:, 0]
+    approach_hand = np.asarray(params.approach_axis_hand, dtype=np.float64)
+    pos0 = start.hand.pos_orbit_m
+    axis = rot_goal @ (approach_hand / np.linalg.norm(approach_hand))
     layout = (
         ("lead", "hold", params.lead_s),
         ("approach", "gjm", params.approach_s),

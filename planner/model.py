@@ -23,6 +23,7 @@ its own, so the base body carries Table 1 minus the rotors (see :func:`base_body
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -35,6 +36,7 @@ __all__ = [
     "LinkSpec",
     "RobotModel",
     "WheelSpec",
+    "arm_reach_m",
     "base_body_inertial",
     "default_model",
     "inertia_matrix",
@@ -263,3 +265,11 @@ def default_model(
         joint_limit_rad=_frozen(np.tile([-limit, limit], (n, 1))),
         joint_rate_limit_radps=_frozen(np.full(n, np.radians(joint_rate_limit_degps))),
     )
+
+
+def arm_reach_m(model: RobotModel) -> float:
+    """The arm's reach: the lengths of the segments from joint 2 to the hand point at the
+    all-zero pose (as :func:`planner.ik.solve_ik` bounds a target; ETS-VII 2.649 m, the
+    test UR5 1.104 m and Panda 1.090 m, as loaded from tests/planner/vendor/)."""
+    points = [link.joint_pos_robot_m for link in model.links] + [model.hand_pos_robot_m]
+    return sum(float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(points[1:]))

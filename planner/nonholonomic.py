@@ -385,9 +385,11 @@ def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting,
     while float(np.linalg.norm(e)) >= params.attitude_tolerance_rad:
         if iterations == params.max_iterations:
             raise DidNotConverge(
-                f"forward and backward paths did not meet in {iterations} iterations: attitude "
-                f"gap {np.linalg.norm(e):.3g} rad exceeds tolerance "
-                f"{params.attitude_tolerance_rad:.3g} rad"
+                f"nonholonomic: at the paths' meeting (before timing) forward and backward "
+                f"paths did not meet in {iterations} iterations: attitude gap "
+                f"{np.linalg.norm(e):.3g} rad exceeds tolerance "
+                f"{params.attitude_tolerance_rad:.3g} rad: raise max_iterations or move "
+                "phi_init_deg nearer phi_end_deg"
             )
         jac = prob.jacobian(x, g_f, g_b, e)
         for _ in range(12):  # Lyapunov descent: keep a step only if V = |e|^2 / 2 decreases
@@ -401,8 +403,10 @@ def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting,
             mu *= 10.0
         else:
             raise DidNotConverge(
-                f"the meeting stalled at an attitude gap of {np.linalg.norm(e):.3g} rad "
-                f"(tolerance {params.attitude_tolerance_rad:.3g} rad)"
+                f"nonholonomic: at the paths' meeting (before timing) the meeting stalled at "
+                f"an attitude gap of {np.linalg.norm(e):.3g} rad (tolerance "
+                f"{params.attitude_tolerance_rad:.3g} rad): change damping or path_steps, or "
+                "move phi_init_deg nearer phi_end_deg"
             )
         iterations += 1
     if not jac.any():
@@ -432,8 +436,10 @@ def _check_path_limits(model: RobotModel, joints: Array) -> None:
         k, i = bad[0]
         limit = hi[i] if joints[k, i] > hi[i] else lo[i]
         raise DidNotConverge(
-            f"the paths met only beyond the joint limits: joint {i + 1} reaches "
-            f"{np.degrees(joints[k, i]):.1f} deg, limit {np.degrees(limit):.1f} deg"
+            f"nonholonomic: the {'forward' if k < joints.shape[0] // 2 else 'backward'} path "
+            f"(before timing) met the other only beyond the joint limits: joint {i + 1} "
+            f"reaches {np.degrees(joints[k, i]):.1f} deg, limit {np.degrees(limit):.1f} deg: "
+            "move phi_init_deg or phi_end_deg away from that limit"
         )
 
 
@@ -495,21 +501,32 @@ def _correct_on_grid(
     forward, backward = _commands(prob, x, params, None)
     counts = (forward.shape[0] - 1, backward.shape[0] - 1)
     e_grid = np.zeros(3)
+    step = np.zeros_like(x)
+    jac = jac.copy()
     for corrections in range(params.max_corrections + 1):
         if corrections:
-            x = x + _gauss_newton_step(jac, e_grid, 0.0)
+            step = _gauss_newton_step(jac, e_grid, 0.0)
+            x = x + step
             forward, backward = _commands(prob, x, params, counts)
         joints = np.vstack([forward, backward[1:]])
         # End error of the commands in e's terms: log(R_end^T R_final) = G_b e.
         rot_final = prob.rot_init @ _grid_rotation(prob.ws, joints)
         end_error = Rotation.from_matrix(prob.rot_end.T @ rot_final).as_rotvec()
-        e_grid = np.asarray(prob.rotations(x)[1].T @ end_error, dtype=np.float64)
+        e_prev, e_grid = e_grid, np.asarray(prob.rotations(x)[1].T @ end_error, dtype=np.float64)
         if np.linalg.norm(e_grid) < params.attitude_tolerance_rad:
             return joints, x, counts, corrections
+        if corrections:
+            # Broyden's update: the meeting's J is the smooth paths'; the chords' differs by
+            # the discretisation, which each step measures (a vendor arm's fast joints
+            # leave few commands per path, and plain Gauss-Newton on J stalled at 1e-5 rad).
+            jac += np.outer(e_grid - e_prev - jac @ step, step) / float(step @ step)
+    duration_s = (counts[0] + counts[1]) * COMMAND_PERIOD_S
     raise DidNotConverge(
-        f"the 4 Hz commands end {np.linalg.norm(e_grid):.3g} rad from the target attitude "
-        f"after {params.max_corrections} corrections (tolerance "
-        f"{params.attitude_tolerance_rad:.3g} rad)"
+        f"nonholonomic: at t = {params.lead_s + duration_s:.2f} s (the motion's end) the 4 Hz "
+        f"commands end {np.linalg.norm(e_grid):.3g} rad from the target attitude after "
+        f"{params.max_corrections} corrections (tolerance "
+        f"{params.attitude_tolerance_rad:.3g} rad): raise max_corrections (at most 20), lower "
+        "rate_fraction (more commands per path) or move phi_init_deg nearer phi_end_deg"
     )
 
 

@@ -299,19 +299,33 @@ def _rules_doc(value: object) -> Mapping[str, Any] | None:
 def check_plan_limits(model: RobotModel, plan: Plan, *, rate_tolerance: float = 1e-9) -> None:
     """Every commanded joint within its angle limit and every step within its rate limit.
 
-    Raises :class:`JointLimitExceeded` naming the joint, the value and the limit.
+    Raises :class:`JointLimitExceeded` naming the joint, the value, the limit and when
+    (the command's time and its segment).
     """
-    for q in plan.command_joints_rad:
-        model.check_joints(q)
+    for k, q in enumerate(plan.command_joints_rad):
+        try:
+            model.check_joints(q)
+        except JointLimitExceeded as angle_exc:
+            angle_exc.args = (f"{angle_exc.args[0]} {_when(plan, k)}",)
+            raise
     if plan.command_times_s.size < 2:
         return
     rates = np.abs(np.diff(plan.command_joints_rad, axis=0)) / COMMAND_PERIOD_S
     worst = np.max(rates, axis=0)
     for i, (rate, limit) in enumerate(zip(worst, model.joint_rate_limit_radps, strict=True)):
         if rate > limit * (1.0 + rate_tolerance):
-            raise JointLimitExceeded(
+            exc = JointLimitExceeded(
                 i + 1, math.degrees(rate), math.degrees(limit), "deg/s", what="moves at"
             )
+            exc.args = (f"{exc.args[0]} {_when(plan, int(np.argmax(rates[:, i])) + 1)}",)
+            raise exc
+
+
+def _when(plan: Plan, k: int) -> str:
+    """``at t = ... s`` of command ``k``, with the segment it belongs to."""
+    t_s = float(plan.command_times_s[k])
+    names = [s.name for s in plan.segments if s.t_start_s < t_s <= s.t_end_s]
+    return f"at t = {t_s:.2f} s" + (f" (segment {names[0]!r})" if names else "")
 
 
 def plan_for_robot(plan: Plan, robot: Described | None) -> Plan:

@@ -154,7 +154,14 @@ def reactionless_line(
         min_sing = min(min_sing, s1)
         for i in np.flatnonzero((q < lo) | (q > hi)):
             limit = hi[i] if q[i] > hi[i] else lo[i]
-            raise JointLimitExceeded(int(i) + 1, np.degrees(q[i]), np.degrees(limit), "deg")
+            exc = JointLimitExceeded(int(i) + 1, np.degrees(q[i]), np.degrees(limit), "deg")
+            along_m = float((ws.hand_pose(State(joints_rad=q)).pos_robot_m - start_pos) @ direction)
+            exc.args = (
+                f"reactionless: {exc.args[0]} at t = {(k + 1) * dt:.2f} s of the B->C leg "
+                f"(hand {along_m:.3f} m along its line): shorten distance_m or change "
+                "direction_robot",
+            )
+            raise exc
         times.append((k + 1) * dt)
         path.append(q.copy())
     joints = np.array(path)
@@ -163,8 +170,9 @@ def reactionless_line(
     travelled = float((pos[-1] - start_pos) @ direction)
     if travelled < 0.9 * distance_m:
         raise InfeasibleGoal(
-            f"the reaction null space allowed only {travelled:.3f} m of the {distance_m:.3f} m "
-            "along the direction"
+            f"reactionless: at t = {times[-1]:.2f} s (the B->C leg's end) the reaction null "
+            f"space allowed only {travelled:.3f} m of the {distance_m:.3f} m along the "
+            "direction: shorten distance_m or change direction_robot"
         )
     orientation = np.array(
         [Rotation.from_matrix(rot0.T @ h.rot_robot_from_hand).magnitude() for h in hands]

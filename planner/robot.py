@@ -20,6 +20,7 @@ Reading, parsing and checking a description's TOML and URDF is :mod:`planner.des
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -37,7 +38,7 @@ from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.limits import DEFAULT_LIMITS, Limits
 from planner.mjcf import ServoGains
-from planner.model import RobotModel
+from planner.model import RobotModel, arm_reach_m, default_model
 from planner.plan import Plan
 from planner.simulation import default_servo_gains
 from planner.state import State
@@ -45,11 +46,14 @@ from planner.state import State
 __all__ = [
     "DEFAULT_SERVO_BANDWIDTH_RADPS",
     "DEFAULT_SERVO_LAG_S",
+    "NONHOLONOMIC_MAX_CORRECTIONS",
+    "NONHOLONOMIC_START_OFFSET_DEG",
     "NamedPose",
     "RobotDescription",
     "SensorNoiseSpec",
     "ServoSpec",
     "WheelLimits",
+    "derived_experiment_defaults",
     "servo_gains_of",
 ]
 
@@ -269,8 +273,93 @@ class RobotDescription:
         return solutions[0].joints_rad
 
     def experiment_defaults(self, experiment: str) -> Mapping[str, object]:
-        """The ``[experiments.NAME]`` table (raw values), empty when the file has none."""
-        return self.experiments.get(experiment, MappingProxyType({}))
+        """The experiment's defaults for this robot: its ``[experiments.NAME]`` table (raw
+        values) over what :func:`derived_experiment_defaults` finds for the keys the table
+        leaves out (the planners' own defaults are ETS-VII's numbers)."""
+        own = self.experiments.get(experiment, MappingProxyType({}))
+        derived = derived_experiment_defaults(self, experiment, given=own)
+        return MappingProxyType({**derived, **own}) if derived else own
+
+    @property
+    def reach_ratio(self) -> float:
+        """This arm's reach over ETS-VII's (:func:`planner.model.arm_reach_m`): the scale of the
+        experiments' distances where the description gives none."""
+        return arm_reach_m(self.model) / _ets7_reach_m()
+
+
+@functools.cache
+def _ets7_reach_m() -> float:
+    return arm_reach_m(default_model())
+
+
+#: Experiment 4's start as an offset from its goal (deg, joints 1-6; 0 beyond): ETS-VII's
+#: flight case (SPEC 3, item 4), whose goal is its pose A (all zero).
+NONHOLONOMIC_START_OFFSET_DEG = (9.6, -2.0, 2.0, 0.0, -13.6, 0.0)
+#: Experiment 4's corrections of the 4 Hz commands for another arm (ETS-VII needs 1 of its
+#: default 5; an arm with few commands per path needs more).
+NONHOLONOMIC_MAX_CORRECTIONS = 12
+#: ETS-VII's lengths (m) and speeds (m/s), scaled by :attr:`RobotDescription.reach_ratio`
+#: for another arm: each experiment's scale key first, the rest scaled only with it (a table
+#: that gives the scale key has chosen the motion's size, and keeps the planners' defaults).
+_SCALED = {
+    "gjm": {"approach_distance_m": 0.22},
+    "reactionless": {
+        "distance_m": 0.35,
+        "out_speed_mps": 0.015,
+        "back_speed_mps": 0.0075,
+        "orientation_weight_m": 0.3,
+    },
+    "coordination": {"distance_m": 0.2},
+}
+#: The slowest speed a scaled default may take (planner.parameters.MIN_SPEED_MPS).
+_MIN_SCALED_SPEED_MPS = 0.003
+
+
+def derived_experiment_defaults(
+    robot: RobotDescription, experiment: str, *, given: Mapping[str, object] = MappingProxyType({})
+) -> dict[str, object]:
+    """What the tool picks for the keys of ``[experiments.NAME]`` that ``given`` (the
+    description's table) leaves out, where the planners' own defaults (ETS-VII's numbers) do
+    not fit another arm (docs/robots.md, "Experiment defaults"):
+
+    - ``ptp``: ``start_joints_deg`` none: pose A (ETS-VII's all-zero pose is stretched and
+      singular for a vendor arm);
+    - ``nonholonomic``: ``phi_end_deg`` pose A's joints, ``phi_init_deg`` pose A plus
+      ETS-VII's flight offset (:data:`NONHOLONOMIC_START_OFFSET_DEG`), clipped 1 deg inside
+      the limits, and ``max_corrections`` :data:`NONHOLONOMIC_MAX_CORRECTIONS` unless the
+      table gives ``phi_end_deg``;
+    - sizes (``gjm`` ``approach_distance_m``; ``reactionless`` ``distance_m``, its speeds
+      and ``orientation_weight_m``; ``coordination`` ``distance_m``): ETS-VII's scaled by
+      the arm's reach over ETS-VII's, to the mm (speeds at least 3 mm/s), unless the table
+      gives the experiment's distance (ETS-VII itself: its own numbers).
+    """
+    out: dict[str, object] = {}
+    if experiment == "ptp" and "start_joints_deg" not in given:
+        out["start_joints_deg"] = None
+    if experiment == "nonholonomic" and not {"phi_init_deg", "phi_end_deg"} <= set(given):
+        try:
+            goal = robot.pose_joints_rad("A")
+        except PlannerError:
+            goal = robot.model.reference_joints
+        offset = np.zeros(robot.n_joints)
+        k = min(robot.n_joints, len(NONHOLONOMIC_START_OFFSET_DEG))
+        offset[:k] = np.radians(NONHOLONOMIC_START_OFFSET_DEG[:k])
+        margin = np.radians(1.0)
+        lo, hi = robot.model.joint_limit_rad[:, 0], robot.model.joint_limit_rad[:, 1]
+        start = np.clip(goal + offset, lo + margin, hi - margin)
+        if "phi_end_deg" not in given:
+            out["phi_end_deg"] = [round(float(v), 6) for v in np.degrees(goal)]
+        if "phi_init_deg" not in given:
+            out["phi_init_deg"] = [round(float(v), 6) for v in np.degrees(start)]
+    if experiment == "nonholonomic" and not {"phi_end_deg", "max_corrections"} & set(given):
+        out["max_corrections"] = NONHOLONOMIC_MAX_CORRECTIONS
+    scaled = _SCALED.get(experiment, {})
+    if scaled and next(iter(scaled)) not in given:
+        for key, value in scaled.items():
+            if key not in given:
+                size = round(value * robot.reach_ratio, 3)
+                out[key] = max(size, _MIN_SCALED_SPEED_MPS) if key.endswith("_mps") else size
+    return out
 
 
 def servo_gains_of(spec: ServoSpec, model: RobotModel) -> ServoGains:

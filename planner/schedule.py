@@ -9,6 +9,7 @@ the wheel momentum carry over from one experiment to the next.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -19,7 +20,7 @@ from planner._builder import CommandBuilder
 from planner.attitude_control import AcsGains, AcsMode, default_acs_gains
 from planner.coordination import CoordinationParams, plan_coordination
 from planner.dynamics import DynamicsWorkspace
-from planner.errors import InfeasibleGoal, InvalidInput
+from planner.errors import InfeasibleGoal, InvalidInput, PlannerError, name_failure
 from planner.experiments import (
     PtpParams,
     ReactionlessParams,
@@ -165,29 +166,62 @@ def _experiment_plans(
 ) -> list[Plan]:
     plans = []
     for name in params.experiments:
-        if name == "ptp":
-            ptp = _robot_params(robot, name, PtpParams, settle_s=params.ptp_settle_s)
-            plans.append(plan_ptp(ws, ptp, gains, robot=robot))
-        elif name == "reactionless":
-            reactionless = _robot_params(robot, name, ReactionlessParams)
-            plans.append(plan_reactionless(ws, reactionless, gains, robot=robot))
-        elif name == "gjm":
-            plans.append(plan_gjm(ws, _robot_params(robot, name, GjmParams), robot=robot))
-        elif name == "coordination":
-            coordination = _robot_params(
-                robot,
-                name,
-                CoordinationParams,
-                settle_s=params.coordination_settle_s,
-                pause_s=params.coordination_pause_s,
+        try:
+            plans.append(_experiment_plan(ws, params, gains, robot, name))
+        except PlannerError as exc:
+            names = [f.name for f in dataclasses.fields(_params_type(name))]
+            message = str(name_failure(exc, name, names))
+            exc.args = (
+                f"pass: the {name} experiment failed (its parameters: the description's "
+                f"[experiments.{name}] table; or drop it from experiments): {message}",
             )
-            plans.append(plan_coordination_for(ws, coordination, gains, robot=robot))
-        else:
-            from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
-
-            nonholonomic = _robot_params(robot, name, NonholonomicParams)
-            plans.append(plan_nonholonomic(ws, nonholonomic, robot=robot))
+            raise
     return plans
+
+
+def _params_type(name: str) -> type[Any]:
+    if name == "nonholonomic":
+        from planner.nonholonomic import NonholonomicParams
+
+        return NonholonomicParams
+    types: dict[str, type[Any]] = {
+        "ptp": PtpParams,
+        "reactionless": ReactionlessParams,
+        "gjm": GjmParams,
+        "coordination": CoordinationParams,
+    }
+    return types[name]
+
+
+def _experiment_plan(
+    ws: DynamicsWorkspace,
+    params: PassParams,
+    gains: AcsGains,
+    robot: RobotDescription | None,
+    name: str,
+) -> Plan:
+    """One experiment of the pass, with the robot's defaults and the pass's waits."""
+    if name == "ptp":
+        ptp = _robot_params(robot, name, PtpParams, settle_s=params.ptp_settle_s)
+        return plan_ptp(ws, ptp, gains, robot=robot)
+    if name == "reactionless":
+        reactionless = _robot_params(robot, name, ReactionlessParams)
+        return plan_reactionless(ws, reactionless, gains, robot=robot)
+    if name == "gjm":
+        return plan_gjm(ws, _robot_params(robot, name, GjmParams), robot=robot)
+    if name == "coordination":
+        coordination = _robot_params(
+            robot,
+            name,
+            CoordinationParams,
+            settle_s=params.coordination_settle_s,
+            pause_s=params.coordination_pause_s,
+        )
+        return plan_coordination_for(ws, coordination, gains, robot=robot)
+    from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
+
+    nonholonomic = _robot_params(robot, name, NonholonomicParams)
+    return plan_nonholonomic(ws, nonholonomic, robot=robot)
 
 
 def plan_pass(
@@ -286,8 +320,9 @@ def plan_pass(
     times, joints = builder.arrays()
     if times[-1] > params.window_s:
         raise InfeasibleGoal(
-            f"the pass needs {times[-1]:.1f} s, more than the {params.window_s:.1f} s window: "
-            "drop an experiment or shorten the settling waits"
+            f"pass: the pass needs {times[-1]:.1f} s (it ends at t = {times[-1]:.1f} s), more "
+            f"than the {params.window_s:.1f} s window (window_s): drop an experiment from "
+            "experiments or shorten the settling waits"
         )
     prediction = predict(
         ws,
