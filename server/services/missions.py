@@ -122,8 +122,9 @@ def _mission_public(mission: Mission) -> MissionPublic:
 
 
 def list_missions(settings: Settings) -> MissionsPublic:
-    """Every mission the server knows, by name, each file read now (a few ms each); a file
-    that does not load is listed in ``unloadable`` with its key and reason, not refused."""
+    """Every mission the server knows, by name, each file read now (about 1 ms a file,
+    docs/missions.md); a file that does not load is listed in ``unloadable`` with its key
+    and reason, not refused."""
     loaded: list[MissionPublic] = []
     unloadable: list[MissionUnloadablePublic] = []
     for name, path in known_missions(settings).items():
