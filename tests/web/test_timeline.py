@@ -268,7 +268,8 @@ def test_bad_span_is_refused_in_the_form_with_the_reason(console: Console, groun
     assert "ets7-1999's elements reach 1999-08-01 00:00:00Z to 1999-11-29 00:00:00Z" in (
         page.text_content("[data-test=tl-error]") or ""
     )
-    page.fill("[data-test=tl-start]", START_1999)
+    page.click("[data-test=tl-epoch-button]")  # the elements' epoch
+    assert page.input_value("[data-test=tl-start]") == START_1999
     page.fill("[data-test=tl-hours]", "500")
     page.click("[data-test=tl-show]")
     assert "Hours 500 is outside (0, 168]" in (page.text_content("[data-test=tl-error]") or "")

@@ -244,8 +244,9 @@ export function timelinePage(root: HTMLElement, ctx: Ctx, params: string[]): () 
           + `light time ${fmt(w.light_time_min_s * 1000, 0)}–${fmt(w.light_time_max_s * 1000, 0)} ms`),
         s("rect", { x: x0, y: y + 6, width: Math.max(1, x1 - x0), height: LANE_H - 12, rx: 3, class: "bar" }),
         s("rect", { x: clip(x(netA)), y: y + 10, width: Math.max(1, clip(x(netB)) - clip(x(netA))), height: LANE_H - 20, class: "net" }),
+        // A LOS past the span's end is marked dashed at the end (the window goes on).
         s("line", { x1: clip(x(aos)), x2: clip(x(aos)), y1: y + 3, y2: y + LANE_H - 3, class: "mark aos" }),
-        s("line", { x1: clip(x(los)), x2: clip(x(los)), y1: y + 3, y2: y + LANE_H - 3, class: "mark los" }),
+        s("line", { x1: x1, x2: x1, y1: y + 3, y2: y + LANE_H - 3, class: `mark los${los > endMs ? " clipped" : ""}` }),
       );
       // Times as text when the bar leaves room (else in the tooltip and the table).
       if (x1 - x0 >= 150) {
