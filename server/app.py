@@ -26,6 +26,7 @@ from server.api import analyses as analyses_api
 from server.api import console as console_api
 from server.api import control as control_api
 from server.api import link as link_api
+from server.api import missions as missions_api
 from server.api import model as model_api
 from server.api import passes as passes_api
 from server.api import plans as plans_api
@@ -288,6 +289,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(model_api.router)
     app.include_router(robots_api.router)
     app.include_router(windows_api.router)
+    app.include_router(missions_api.router)
     app.include_router(ready_api.router)
     app.include_router(web_api.make_router())
 

@@ -54,6 +54,10 @@ __all__ = [
     "EventsPublic",
     "FlightRuleRowPublic",
     "FlightRulesPublic",
+    "MissionPublic",
+    "MissionRelayPublic",
+    "MissionUnloadablePublic",
+    "MissionsPublic",
     "ParameterValue",
     "PassControlPublic",
     "PassCreate",
@@ -469,6 +473,52 @@ class WindowsPublic(BaseModel):
     los_margin_s: float
     data: list[WindowPublic]
     count: int
+
+
+class MissionRelayPublic(BaseModel):
+    """A geostationary relay of a mission: its name in requests, the satellite, its east
+    longitude."""
+
+    name: str
+    satellite: str
+    longitude_deg: float
+
+
+class MissionPublic(BaseModel):
+    """A mission the server computes windows for (docs/missions.md): a request names it by
+    ``name``. ``windows_from`` .. ``windows_until`` is the span ``GET /api/windows`` accepts
+    (the elements' epoch, less and plus the propagation's limit)."""
+
+    name: str
+    description: str
+    vehicle: str
+    mission_sha256: str
+    #: The epoch of the vehicle's elements (a TLE's or the mean elements').
+    epoch: datetime
+    windows_from: datetime
+    windows_until: datetime
+    relays: list[MissionRelayPublic]
+    station: str
+    processing_delay_s: float
+    aos_margin_s: float
+    los_margin_s: float
+
+
+class MissionUnloadablePublic(BaseModel):
+    """A mission file the server has that does not load: its name and why."""
+
+    name: str
+    reason: str
+
+
+class MissionsPublic(BaseModel):
+    """The missions by name; ``unloadable`` the files that do not load (never listed in
+    ``data``); ``max_hours`` the longest span one ``GET /api/windows`` computes."""
+
+    data: list[MissionPublic]
+    count: int
+    unloadable: list[MissionUnloadablePublic]
+    max_hours: float
 
 
 # --- commands ------------------------------------------------------------------------------

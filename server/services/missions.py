@@ -8,6 +8,7 @@ name is its file's stem; a name is checked against ``mission.NAME`` before any p
 made of it, so a request cannot make the server read another file. Files are read when a
 request needs them, never at import.
 
+    list_missions(settings) -> MissionsPublic              GET /api/missions
     windows_job(path, start, hours) -> WindowsPublic     GET /api/windows, in a worker
     window_for_pass(settings, ref) -> (name, window)     POST /api/passes naming a window
 
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from mission import (
+    MAX_HOURS,
     MISSIONS_DIR,
     NAME,
     InvalidMission,
@@ -33,9 +35,14 @@ from mission import (
     compute_windows,
     load_mission,
 )
+from mission.windows import MAX_EPOCH_DISTANCE_DAYS
 from server.schemas import (
     EARLIEST,
     LATEST,
+    MissionPublic,
+    MissionRelayPublic,
+    MissionsPublic,
+    MissionUnloadablePublic,
     WindowPublic,
     WindowRef,
     WindowsPublic,
@@ -48,6 +55,7 @@ __all__ = [
     "MAX_WINDOW_HOURS",
     "WINDOW_MATCH_S",
     "known_missions",
+    "list_missions",
     "resolve_mission",
     "window_for_pass",
     "windows_job",
@@ -89,6 +97,47 @@ def resolve_mission(settings: Settings, name: str) -> Path:
             f"{sorted(known_missions(settings))}",
         )
     return missions[name]
+
+
+def _mission_public(mission: Mission) -> MissionPublic:
+    epoch = mission.orbit.epoch_utc
+    reach = timedelta(days=MAX_EPOCH_DISTANCE_DAYS)
+    return MissionPublic(
+        name=mission.name,
+        description=mission.description,
+        vehicle=mission.vehicle,
+        mission_sha256=mission.content_sha256,
+        epoch=epoch,
+        windows_from=epoch - reach,
+        windows_until=epoch + reach,
+        relays=[
+            MissionRelayPublic(name=r.name, satellite=r.satellite, longitude_deg=r.longitude_deg)
+            for r in mission.relays
+        ],
+        station=mission.ground.station,
+        processing_delay_s=mission.ground.processing_delay_s,
+        aos_margin_s=mission.margins.aos_margin_s,
+        los_margin_s=mission.margins.los_margin_s,
+    )
+
+
+def list_missions(settings: Settings) -> MissionsPublic:
+    """Every mission the server knows, by name, each file read now (about 1 ms a file,
+    docs/missions.md); a file that does not load is listed in ``unloadable`` with its key
+    and reason, not refused."""
+    loaded: list[MissionPublic] = []
+    unloadable: list[MissionUnloadablePublic] = []
+    for name, path in known_missions(settings).items():
+        try:
+            loaded.append(_mission_public(load_mission(path)))
+        except InvalidMission as exc:
+            unloadable.append(MissionUnloadablePublic(name=name, reason=f"{exc.key}: {exc.reason}"))
+    return MissionsPublic(
+        data=loaded,
+        count=len(loaded),
+        unloadable=unloadable,
+        max_hours=min(MAX_WINDOW_HOURS, MAX_HOURS),
+    )
 
 
 def _load(path: Path) -> Mission:

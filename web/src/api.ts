@@ -20,6 +20,78 @@ export interface PassPublic {
   created_at: string;
   updated_at: string;
   version: number;
+  /** The computed contact window the pass was scheduled in (``aos_time`` and ``los_time``
+   * are then its net time); null for a pass given by hand (absent: an older server). */
+  window?: PassWindow | null;
+}
+
+/** A pass's computed window as it was computed when the pass was scheduled. */
+export interface PassWindow {
+  mission: string;
+  mission_sha256: string;
+  relay: string;
+  aos_time: string;
+  los_time: string;
+  aos_margin_s: number;
+  los_margin_s: number;
+  net_s: number;
+  min_range_km: number;
+  max_range_km: number;
+  light_time_min_s: number;
+  light_time_max_s: number;
+  processing_delay_s: number;
+}
+
+/** A contact window (``GET /api/windows``, docs/missions.md). */
+export interface WindowPublic {
+  relay: string;
+  aos_time: string;
+  los_time: string;
+  duration_s: number;
+  net_start_time: string;
+  net_end_time: string;
+  net_s: number;
+  min_range_km: number;
+  max_range_km: number;
+  light_time_min_s: number;
+  light_time_max_s: number;
+}
+
+export interface WindowsPublic {
+  mission: string;
+  mission_sha256: string;
+  vehicle: string;
+  start: string;
+  hours: number;
+  processing_delay_s: number;
+  aos_margin_s: number;
+  los_margin_s: number;
+  data: WindowPublic[];
+  count: number;
+}
+
+/** A mission the server computes windows for (``GET /api/missions``). */
+export interface MissionPublic {
+  name: string;
+  description: string;
+  vehicle: string;
+  mission_sha256: string;
+  epoch: string;
+  /** The span ``GET /api/windows`` accepts: the elements' epoch -/+ the propagation's limit. */
+  windows_from: string;
+  windows_until: string;
+  relays: { name: string; satellite: string; longitude_deg: number }[];
+  station: string;
+  processing_delay_s: number;
+  aos_margin_s: number;
+  los_margin_s: number;
+}
+
+export interface MissionsPublic {
+  data: MissionPublic[];
+  count: number;
+  unloadable: { name: string; reason: string }[];
+  max_hours: number;
 }
 
 export interface CommandPublic {

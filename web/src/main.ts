@@ -12,6 +12,7 @@ import { livePage } from "./pages/live";
 import { passesPage } from "./pages/passes";
 import { planPage } from "./pages/plan";
 import { reportPage } from "./pages/report";
+import { timelinePage } from "./pages/timeline";
 import type { LagMsg } from "./protocol.gen";
 import { ConsoleSocket, type Message, type Welcome } from "./socket";
 import { clear, h } from "./ui";
@@ -132,6 +133,7 @@ const ROUTES: Record<string, Page> = {
   plan: planPage,
   report: reportPage,
   alarms: alarmsPage,
+  timeline: timelinePage,
 };
 
 function shell(ctx: Ctx): void {
@@ -149,6 +151,7 @@ function shell(ctx: Ctx): void {
     {},
     h("a", { href: "#/live", "data-route": "live" }, "Live"),
     h("a", { href: "#/passes", "data-route": "passes" }, "Passes"),
+    h("a", { href: "#/timeline", "data-route": "timeline" }, "Timeline"),
     h("a", { href: "#/plan", "data-route": "plan" }, "Planning"),
     h("a", { href: "#/alarms", "data-route": "alarms" }, "Alarms"),
   );

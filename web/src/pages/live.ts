@@ -1,5 +1,6 @@
 // The live pass view: what is happening now (pass state, link, latest values, plots, 3D),
-// what comes next (AOS/LOS countdown, the plan's next segment, queued commands), and
+// what comes next (the countdown to the pass's window's AOS and LOS and to the mission's
+// next acquisition, on the ground's clock; the plan's next segment, queued commands), and
 // whether the spacecraft does what the plan predicted (the prediction under every plot),
 // how far ahead the uplink has loaded the onboard schedule (its fill, lead and
 // retransmissions, from the link status), and the pass's active alarms (on the plot of what
@@ -16,7 +17,8 @@ import type { Ctx } from "../main";
 import { COMMAND_STAGES, FINAL_STAGES, STAGE_RANK, type CommandStage } from "../protocol.gen";
 import type { Message } from "../socket";
 import { frameJoints, frameMomentum, frameTargets, TelemetryStore } from "../store";
-import { clear, clock, fmt, h, utc } from "../ui";
+import { clear, clock, fmt, h } from "../ui";
+import { groundNow, NextAcquisition, utcText, windowCountdown } from "../windows";
 import { passControls, stateReason } from "./control";
 import { PassView, predictionColumns } from "./passview";
 
@@ -100,6 +102,8 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   const stateBadge = h("span.badge", { "data-test": "pass-state" });
   const stateWhy = h("span.state-reason", { "data-test": "state-reason", hidden: true });
   const countdown = h("span.countdown", { "data-test": "countdown" });
+  const nextAos = h("span.next-aos", { "data-test": "next-aos" });
+  const groundClock = h("span.ground-clock.small", { "data-test": "ground-clock" });
   const segmentNow = h("span.segment", { "data-test": "segment" });
   const controls = h("span");
   const staleBadge = h("span.badge.stale", { "data-test": "stale", hidden: true }, "STALE");
@@ -115,6 +119,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
   const top = h("section.passbar", {},
     title, stateBadge, stateWhy, countdown, segmentNow, staleBadge, h("span.spacer"),
     h("label.inline", {}, "Plots: ", windowSel), reportLink, controls);
+  const windowBar = h("section.windowbar", { "data-test": "window-bar" }, nextAos, h("span.spacer"), groundClock);
 
   const linkPanel = h("div.panel.link", { "data-test": "link" });
   const valuesPanel = h("div.panel.values", { "data-test": "values" });
@@ -128,7 +133,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     h("h4", {}, "Onboard schedule and uplink"), scheduleBox,
     h("h4", {}, "Next and latest"), nextList);
   const status = h("section.status", {}, linkPanel, valuesPanel, timelinePanel);
-  root.append(top, status);
+  root.append(top, windowBar, status);
   const view = new PassView(root, ctx.paths);
   root.dataset.pass = pass.id;
 
@@ -490,14 +495,33 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     ].filter(Boolean).join(" · ");
   }
 
+  // The next acquisition, from the computed windows of the pass's mission (none for a
+  // pass given by hand).
+  const acquisition = new NextAcquisition(pass.window?.mission ?? null, ctx.paths);
+  const renderCountdown = (): void => {
+    // On the ground's UTC clock (the browser's corrected by the console socket's pong).
+    const now = groundNow(ctx.socket);
+    const cd = windowCountdown(pass, now.ms);
+    countdown.textContent = cd.text;
+    Object.assign(countdown.dataset, {
+      kind: cd.kind, phase: cd.phase, target: cd.target, targetMs: String(cd.targetMs),
+      seconds: cd.seconds.toFixed(3), nowMs: String(now.ms), clock: now.synced ? "ground" : "browser",
+    });
+    const next = acquisition.at(now.ms);
+    nextAos.textContent = next.text;
+    nextAos.dataset.kind = next.kind;
+    nextAos.dataset.nowMs = String(now.ms);
+    if (next.kind === "window") {
+      Object.assign(nextAos.dataset, { relay: next.window.relay, aosMs: String(next.aosMs), seconds: next.seconds.toFixed(3) });
+    } else {
+      for (const k of ["relay", "aosMs", "seconds"]) delete nextAos.dataset[k];
+    }
+    groundClock.textContent = now.synced ? `ground UTC ${utcText(now.ms)}` : `browser clock ${utcText(now.ms)} (no ground time yet)`;
+    groundClock.dataset.clock = now.synced ? "ground" : "browser";
+  };
+
   const tick = (): void => {
-    // Countdown on the ground clock (corrected by the console socket's pong).
-    const now = ctx.socket.groundNowMs();
-    const aos = Date.parse(pass.aos_time);
-    const los = Date.parse(pass.los_time);
-    if (pass.state === "scheduled") countdown.textContent = now < aos ? `AOS in ${clock((aos - now) / 1000)}` : `AOS ${clock((now - aos) / 1000)} ago · LOS in ${clock((los - now) / 1000)}`;
-    else if (LIVE_STATES.has(pass.state)) countdown.textContent = now < los ? `LOS in ${clock((los - now) / 1000)}` : `LOS passed ${clock((now - los) / 1000)} ago`;
-    else countdown.textContent = `AOS ${utc(pass.aos_time)} · LOS ${utc(pass.los_time)}`;
+    renderCountdown();
     const onboard = onboardNowNs();
     const tNow = onboard !== null && pass.epoch_ns !== null && LIVE_STATES.has(pass.state) ? (onboard - pass.epoch_ns) / 1e9 : null;
     segmentNow.textContent = segmentText(tNow);
@@ -546,6 +570,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     window.clearInterval(timer);
     cancelAnimationFrame(raf);
     window.clearTimeout(commandReload);
+    acquisition.dispose();
     offMessage();
     offResync();
     ctx.socket.unsubscribe("telemetry", pass.id);
