@@ -47,7 +47,7 @@ from server.services.artifacts import ArtifactStore
 from server.services.clock import Clock, SystemClock
 from server.services.console import ConsoleHub
 from server.services.console_seats import ConsoleSeats
-from server.services.dbworker import Database, Publisher
+from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
 from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
@@ -100,7 +100,7 @@ def build_live_path(
     the downlink). The alarms subscribe to the publisher first, so a frame batch is checked
     before the consoles get it."""
     publisher = Publisher()
-    db = Database(sessions, publisher)
+    db = Database(sessions, publisher, frames_apart=frames_apart_for(sessions))
     delay_s = settings.link_one_way_delay_s
 
     async def send(text: str) -> bool:
@@ -175,7 +175,8 @@ def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         url = settings.resolved_database_url()
-        # Two pools on one database: the command path's own (link worker, runner, abort)
+        # Two pools on one database: the command path's own (the link's database worker and,
+        # on PostgreSQL, its frames' worker: a connection each; the runner, abort)
         # and the readers' (routes, consoles), so no number of readers takes a connection
         # the link needs (docs/security.md).
         link_engine = make_engine(url, pool=PoolSizes(size=2, overflow=1, timeout_s=30.0))

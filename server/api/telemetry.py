@@ -61,7 +61,7 @@ async def get_telemetry(
     fields: Annotated[SafeLine | None, Query(max_length=2000, description="j1,j2,...")] = None,
     buckets: Annotated[int | None, Query(ge=1, le=service.MAX_BUCKETS)] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_ROWS, description="raw rows at most")] = 5000,
-) -> TelemetryPublic:
+) -> TelemetryPublic | Response:
     """Frames generated in ``[t0, t1)``: raw rows (at most ``limit``), or with ``buckets``
     that many equal spans with min / max / mean per field."""
     if buckets is not None:
@@ -75,10 +75,11 @@ async def get_telemetry(
             buckets=buckets,
             limit=limit,
         )
-    return await workers.run(
+    # encoded in the worker process: the server only sends the bytes (service.telemetry_json)
+    body = await workers.run(
         read_session_job,
         settings.resolved_database_url(),
-        service.telemetry,
+        service.telemetry_json,
         pass_id=pass_id,
         t0_ns=t0,
         t1_ns=t1,
@@ -89,6 +90,7 @@ async def get_telemetry(
         what=f"telemetry of pass {pass_id}",
         client=http,
     )
+    return Response(body, media_type="application/json")
 
 
 @router.get("/telemetry/across", response_model=QuantityAcrossPublic, tags=["telemetry"])

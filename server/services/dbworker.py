@@ -2,8 +2,10 @@
 
 Every database write of the live path (link, runner) goes through :class:`Database`: one
 worker thread, so writes keep their order and an SQLite commit never stalls the event loop
-(and with it the uplink). :class:`Publisher` hands committed events, newly archived
-telemetry frames and the alarms as written to the consoles.
+(and with it the uplink); on PostgreSQL the telemetry frames have a second worker thread
+and connection of their own, so storing them never waits behind the command stages.
+:class:`Publisher` hands committed events, newly archived telemetry frames and the alarms
+as written to the consoles.
 """
 
 from __future__ import annotations
@@ -25,7 +27,14 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from telemetry.wire import TelemetryFrame
 
-__all__ = ["AlarmCallback", "Database", "FrameCallback", "Publisher", "done_unless"]
+__all__ = [
+    "AlarmCallback",
+    "Database",
+    "FrameCallback",
+    "Publisher",
+    "done_unless",
+    "frames_apart_for",
+]
 
 log = logging.getLogger("hikoboshi.ground.db")
 
@@ -104,6 +113,15 @@ class Database:
     At 60x a pass changes some 700 command stages a second, and frames queued behind that
     backlog waited seconds (60 000 copies in one demo). Frames and command stages touch
     different tables, so the order between them is free; each kind keeps its own order.
+
+    With ``frames_apart`` (PostgreSQL: :func:`frames_apart_for`), the frames do not share the
+    worker at all: a second thread stores them, one job after another in a transaction
+    each, on a connection of its own. On one worker a frame job still waited for the group
+    in progress; under 200 viewer reads a loaded PostgreSQL took seconds over a group of
+    acknowledgements (three statements each), and at 20x the frames of those seconds
+    outgrew what one job stores (:data:`~server.services.downlink.MAX_INGEST_FRAMES`): the
+    ground fell 25 s behind the vehicle. SQLite keeps one worker (one writer at a time:
+    a second would only wait for the database's lock).
     """
 
     #: A group runs at most this many jobs: frames arriving meanwhile wait for the whole
@@ -111,9 +129,12 @@ class Database:
     #: of its frames; with 64, none).
     MAX_GROUP = 64
 
-    def __init__(self, sessions: sessionmaker[Session], publisher: Publisher) -> None:
+    def __init__(
+        self, sessions: sessionmaker[Session], publisher: Publisher, *, frames_apart: bool = False
+    ) -> None:
         self._sessions = sessions
         self._publisher = publisher
+        self._counts = threading.Lock()  # groups and jobs, counted by both workers
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         #: jobs to run before the queue's (thread-safe appends and pops); a queue entry of
         #: ``_URGENT`` wakes the worker for them
@@ -122,6 +143,15 @@ class Database:
         self._control: collections.deque[_Job] = collections.deque()
         self._thread = threading.Thread(target=self._worker, name="ground-db", daemon=True)
         self._thread.start()
+        #: the frames' own worker (``frames_apart``): its queue and thread
+        self._frames: queue.SimpleQueue[_Job | None] | None = None
+        self._frames_thread: threading.Thread | None = None
+        if frames_apart:
+            self._frames = queue.SimpleQueue()
+            self._frames_thread = threading.Thread(
+                target=self._frames_worker, name="ground-db-frames", daemon=True
+            )
+            self._frames_thread.start()
         self._pending: set[asyncio.Future[Any]] = set()
         self._closed = False
         self.groups = 0
@@ -188,11 +218,17 @@ class Database:
             for _ in range(max(0, ran - len(frames))):
                 carry.popleft()
 
+    def _frames_worker(self) -> None:
+        """The frames' worker (``frames_apart``): each job in a transaction of its own, in
+        the order they came (the downlink has one in flight at a time)."""
+        assert self._frames is not None
+        while (job := self._frames.get()) is not None:
+            self._run_group([job])
+
     def _run_group(self, group: list[_Job], *, yield_to_control: bool = False) -> int:
         """Run ``group``'s jobs in one transaction and settle them; with
         ``yield_to_control``, stop after the job during which a control job arrived and
         commit what ran (the rest stays queued). How many jobs ran."""
-        self.groups += 1
         outcomes: list[tuple[bool, Any]] = []
         ran = 0
         try:
@@ -218,7 +254,9 @@ class Database:
                         outcomes.append((True, self._transaction(job.fn)))
                     except Exception as exc:
                         outcomes.append((False, exc))
-        self.jobs += ran
+        with self._counts:
+            self.groups += 1
+            self.jobs += ran
         for job, (ok, value) in zip(group[:ran], outcomes, strict=True):
             # A loop closed meanwhile has nobody left to wait for the result (the committed
             # work stands).
@@ -234,7 +272,9 @@ class Database:
         if self._closed:  # no worker will ever run it: fail now rather than hang
             future.set_exception(RuntimeError("the database worker is closed"))
             return future
-        if urgent or control:
+        if urgent and self._frames is not None:
+            self._frames.put(_Job(job, future, loop))
+        elif urgent or control:
             (self._control if control else self._urgent).append(_Job(job, future, loop))
             self._queue.put(_URGENT)
         else:
@@ -273,7 +313,7 @@ class Database:
         """Queue ``job`` without waiting; ``then`` gets its result once it has committed, or
         None if it failed (the failure is logged). The emitter goes on at once: the downlink
         reads the next message while this one's frames are being stored. It runs ahead of the
-        jobs already waiting (see the class docstring)."""
+        jobs already waiting, or on the frames' own worker (see the class docstring)."""
         future = self._enqueue(job, urgent=True)
 
         def done(f: asyncio.Future[T]) -> None:
@@ -311,7 +351,17 @@ class Database:
     def close(self) -> None:
         self._closed = True
         self._queue.put(None)
+        if self._frames is not None and self._frames_thread is not None:
+            self._frames.put(None)
+            self._frames_thread.join()
         self._thread.join()
+
+
+def frames_apart_for(sessions: sessionmaker[Session]) -> bool:
+    """Whether the frames get a worker of their own on these sessions' database: on every
+    backend but SQLite (see :class:`Database`)."""
+    bind = sessions.kw.get("bind")
+    return bind is not None and bind.dialect.name != "sqlite"
 
 
 @dataclass
