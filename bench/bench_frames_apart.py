@@ -1,5 +1,5 @@
 """Telemetry frames behind a burst of command-stage writes on the link's database worker
-(#29): on one worker (SQLite's, and PostgreSQL's before) or on a worker of their own
+on one worker (SQLite's, and PostgreSQL's before) or on a worker of their own
 (``frames_apart``, PostgreSQL's now), in the same run on one database.
 
 A stored pass and 950 queued commands; every command's four stage moves (``released``,

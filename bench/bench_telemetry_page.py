@@ -1,4 +1,4 @@
-"""What a page of raw telemetry costs the server's interpreter (#29): the worker process
+"""What a page of raw telemetry costs the server's interpreter: the worker process
 hands back either the page's model (unpickled, then validated and encoded to JSON by the
 route, the encoding on the event loop) or its JSON bytes (unpickled only). Best of 5,
 in this process, on a page of 5,000 rows of 40 values (4.2 MB of JSON, as the demo pass's

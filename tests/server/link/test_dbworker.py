@@ -1,6 +1,6 @@
 """The link's database worker (server/services/dbworker.py): on PostgreSQL the telemetry
 frames are stored on a worker and connection of their own, so that a frame job never waits
-behind the command stages' writes (#29: under 200 viewer reads a loaded PostgreSQL took
+behind the command stages' writes (under 200 viewer reads a loaded PostgreSQL took
 seconds over a group of them, and the ground fell 25 s behind the vehicle); SQLite keeps
 one worker, frames first in its queue."""
 
