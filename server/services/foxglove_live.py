@@ -24,7 +24,6 @@ bench/bench_foxglove.py measures the cost on the ingest path as a ratio.
 from __future__ import annotations
 
 import collections
-import importlib.util
 import json
 import logging
 import threading
@@ -87,7 +86,9 @@ class FoxgloveUnavailable(RuntimeError):
 
 def foxglove_missing() -> str | None:
     """Why the live view cannot run here (one line naming the extra), or None."""
-    if importlib.util.find_spec("foxglove") is None:
+    try:
+        import foxglove  # noqa: F401  (the native library loads: the check is real)
+    except ImportError:
         return (
             f"the Foxglove live view needs the {EXTRA} extra (foxglove-sdk): pip install '{EXTRA}'"
         )
@@ -144,7 +145,7 @@ class FoxgloveLive:
 
     @property
     def port(self) -> int:
-        return int(self._server.port()) if self._server is not None else self._port
+        return int(self._server.port) if self._server is not None else self._port
 
     # -- lifecycle -----------------------------------------------------------------------
 

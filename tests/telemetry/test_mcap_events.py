@@ -89,9 +89,9 @@ def test_a_pass_without_events_has_no_events_channel(recording: PassRecording) -
     quiet = PassRecording("quiet", recording.plan, recording.epoch_ns, recording.frames)
     buffer = io.BytesIO()
     write_mcap(quiet, buffer)
-    topics = {
-        c.topic for c in make_reader(io.BytesIO(buffer.getvalue())).get_summary().channels.values()
-    }  # type: ignore[union-attr]
+    summary = make_reader(io.BytesIO(buffer.getvalue())).get_summary()
+    assert summary is not None
+    topics = {c.topic for c in summary.channels.values()}
     assert TOPIC_EVENTS in topics and TOPIC_EVENT_LOG not in topics
 
 
