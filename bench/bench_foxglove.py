@@ -18,17 +18,20 @@ Figures: frames per second each way, the ratio ``with / without`` (1.0: no cost)
 the view sent and dropped (drop-oldest queue of ``QUEUE_ITEMS`` messages) in the last run.
 Target: ratio >= 0.8 (the view may not take a fifth of ingest).
 
-Run: ``PYTHONPATH=. .venv/bin/python bench/bench_foxglove.py`` (needs the foxglove extra).
+Run: ``.venv/bin/python bench/bench_foxglove.py`` (needs the foxglove extra).
 """
 
 from __future__ import annotations
 
 import asyncio
+import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' protocol client
 
 from _common import emit
 
@@ -100,7 +103,10 @@ def _client(port: int, stop: threading.Event, subscribed: threading.Event) -> Re
     async def run() -> None:
         ready = asyncio.Event()
         topics = {"/tf", "/events", "/scene", "/robot_description", "/plot/joints", "/plot/base"}
-        task = asyncio.create_task(listen(f"ws://127.0.0.1:{port}", topics, received, ready))
+        first = {"/tf", "/events", "/scene", "/robot_description"}  # the plots come later
+        task = asyncio.create_task(
+            listen(f"ws://127.0.0.1:{port}", topics, received, ready, required=first)
+        )
         await asyncio.wait_for(ready.wait(), 20.0)
         subscribed.set()
         while not stop.is_set():
@@ -138,9 +144,9 @@ def main() -> None:
             pass_id = _pass(sessions, plan, epoch_ns, f"b{run}")
             with_view.append(_ingest(sessions, publisher, pass_id, frames))
             deadline = time.monotonic() + 30.0
-            while live._queue and time.monotonic() < deadline:  # let it finish to count
+            while not live.idle() and time.monotonic() < deadline:  # let it finish to count
                 time.sleep(0.05)
-            time.sleep(0.5)
+            time.sleep(1.0)  # the SDK's own send queue to the client
             sent, dropped = live.sent, live.dropped
             received_tf = len(received.messages.get("/tf", []))
             stop.set()

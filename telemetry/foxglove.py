@@ -156,6 +156,43 @@ def urdf_tree(urdf: str) -> list[tuple[str, str]]:
     return tree
 
 
+class _Kinematics:
+    """The model compiled once, its data and the ids of the bodies and sites the URDF names
+    (MuJoCo's ``base`` body is URDF's ``base_link``, its ``robot_origin`` site
+    ``robot_base``, its ``hand`` site ``hand``; link bodies share their URDF names)."""
+
+    def __init__(self, model: RobotModel, mjm: mujoco.MjModel | None = None) -> None:
+        self.n_joints = model.n_joints
+        self.mjm = compile_model(model) if mjm is None else mjm
+        self.mjd = mujoco.MjData(self.mjm)
+        self.layout = MjLayout.of(self.mjm, model.n_joints, len(model.wheels))
+        robot_site = int(mujoco.mj_name2id(self.mjm, mujoco.mjtObj.mjOBJ_SITE, "robot_origin"))
+        bodies = {"base_link": self.layout.base_body} | {
+            link.name: body for link, body in zip(model.links, self.layout.link_bodies, strict=True)
+        }
+        sites = {"robot_base": robot_site, "hand": self.layout.hand_site}
+        self.names = [*bodies, *sites]
+        self.body_ids = list(bodies.values())
+        self.site_ids = list(sites.values())
+
+    def poses(self, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
+        mjm, mjd, layout = self.mjm, self.mjd, self.layout
+        q = np.asarray(joints_rad, dtype=np.float64).reshape(-1, self.n_joints)
+        pos = np.empty((len(self.names), len(q), 3))
+        rot = np.empty((len(self.names), len(q), 3, 3))
+        body_ids, site_ids = self.body_ids, self.site_ids
+        nb = len(body_ids)
+        for k, row in enumerate(q):
+            mjd.qpos[:] = mjm.qpos0  # base at the origin, identity attitude
+            mjd.qpos[layout.joint_qpos] = row
+            mujoco.mj_kinematics(mjm, mjd)
+            pos[:nb, k] = mjd.xpos[body_ids]
+            rot[:nb, k] = mjd.xmat[body_ids].reshape(-1, 3, 3)
+            pos[nb:, k] = mjd.site_xpos[site_ids]
+            rot[nb:, k] = mjd.site_xmat[site_ids].reshape(-1, 3, 3)
+        return {name: (pos[i], rot[i]) for i, name in enumerate(self.names)}
+
+
 def link_poses_base(
     model: RobotModel, joints_rad: Array, mjm: mujoco.MjModel | None = None
 ) -> dict[str, tuple[Array, Array]]:
@@ -166,31 +203,7 @@ def link_poses_base(
     MuJoCo's ``base`` body is URDF's ``base_link``, its ``robot_origin`` site ``robot_base``,
     its ``hand`` site ``hand``; link bodies share their URDF names.
     """
-    if mjm is None:
-        mjm = compile_model(model)
-    mjd = mujoco.MjData(mjm)
-    layout = MjLayout.of(mjm, model.n_joints, len(model.wheels))
-    robot_site = int(mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_SITE, "robot_origin"))
-    bodies = {"base_link": layout.base_body} | {
-        link.name: body for link, body in zip(model.links, layout.link_bodies, strict=True)
-    }
-    sites = {"robot_base": robot_site, "hand": layout.hand_site}
-    q = np.asarray(joints_rad, dtype=np.float64).reshape(-1, model.n_joints)
-    names = [*bodies, *sites]
-    pos = np.empty((len(names), len(q), 3))
-    rot = np.empty((len(names), len(q), 3, 3))
-    body_ids = list(bodies.values())
-    site_ids = list(sites.values())
-    nb = len(body_ids)
-    for k, row in enumerate(q):
-        mjd.qpos[:] = mjm.qpos0  # base at the origin, identity attitude
-        mjd.qpos[layout.joint_qpos] = row
-        mujoco.mj_kinematics(mjm, mjd)
-        pos[:nb, k] = mjd.xpos[body_ids]
-        rot[:nb, k] = mjd.xmat[body_ids].reshape(-1, 3, 3)
-        pos[nb:, k] = mjd.site_xpos[site_ids]
-        rot[nb:, k] = mjd.site_xmat[site_ids].reshape(-1, 3, 3)
-    return {name: (pos[i], rot[i]) for i, name in enumerate(names)}
+    return _Kinematics(model, mjm).poses(joints_rad)
 
 
 def _quat_xyzw(rot: Array) -> Array:
@@ -204,10 +217,11 @@ def _json_str(text: str) -> str:
     return json.dumps(text).replace("%", "%%")
 
 
-def _add_fixed_links(urdf: str, poses: dict[str, tuple[Array, Array]]) -> None:
-    """The poses of links the MuJoCo model does not have but which a ``fixed`` joint holds to
-    one it has (the keep-out equipment drawn on the base, :func:`planner.urdf.urdf_xml`):
-    the parent's pose composed with the joint's origin."""
+_Fixed = list[tuple[str, str, Array, Array]]  # parent, child, offset, rotation
+
+
+def _fixed_joints(urdf: str) -> _Fixed:
+    """The ``fixed`` joints of a URDF: (parent, child, origin offset, origin rotation)."""
     fixed = []
     for joint in ET.fromstring(urdf).iter("joint"):
         parent_el, child_el = joint.find("parent"), joint.find("child")
@@ -215,18 +229,23 @@ def _add_fixed_links(urdf: str, poses: dict[str, tuple[Array, Array]]) -> None:
             origin = joint.find("origin")
             xyz = "0 0 0" if origin is None else origin.get("xyz", "0 0 0")
             rpy = "0 0 0" if origin is None else origin.get("rpy", "0 0 0")
-            fixed.append(
-                (str(parent_el.get("link")), str(child_el.get("link")), xyz.split(), rpy.split())
-            )
+            offset = np.array([float(v) for v in xyz.split()])
+            rot = Rotation.from_euler("xyz", [float(v) for v in rpy.split()]).as_matrix()
+            fixed.append((str(parent_el.get("link")), str(child_el.get("link")), offset, rot))
+    return fixed
+
+
+def _add_fixed_links(fixed: _Fixed, poses: dict[str, tuple[Array, Array]]) -> None:
+    """The poses of links the MuJoCo model does not have but which a ``fixed`` joint holds to
+    one it has (the keep-out equipment drawn on the base, :func:`planner.urdf.urdf_xml`):
+    the parent's pose composed with the joint's origin."""
     added = True
     while added:
         added = False
-        for parent, child, xyz_text, rpy_text in fixed:
+        for parent, child, offset, rot in fixed:
             if child in poses or parent not in poses:
                 continue
             pos_p, rot_p = poses[parent]
-            offset = np.array([float(v) for v in xyz_text])
-            rot = Rotation.from_euler("xyz", [float(v) for v in rpy_text]).as_matrix()
             poses[child] = (pos_p + np.einsum("nij,j->ni", rot_p, offset), rot_p @ rot)
             added = True
 
@@ -243,7 +262,8 @@ class FrameTransformer:
         roots = {p for p, _ in self.tree} - {c for _, c in self.tree}
         if roots != {"base_link"}:
             raise ValueError(f"URDF tree must be rooted at base_link, found roots {sorted(roots)}")
-        self._mjm = compile_model(model)
+        self._kinematics = _Kinematics(model)
+        self._fixed = _fixed_joints(urdf)
         self._template = "".join(
             [
                 '{"transforms":[',
@@ -260,8 +280,8 @@ class FrameTransformer:
 
     def link_poses(self, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
         """:func:`link_poses_base` of every URDF link (fixed ones too) at ``joints_rad``."""
-        poses = link_poses_base(self.model, joints_rad, self._mjm)
-        _add_fixed_links(self.urdf, poses)
+        poses = self._kinematics.poses(joints_rad)
+        _add_fixed_links(self._fixed, poses)
         return poses
 
     def __call__(
@@ -279,14 +299,17 @@ class FrameTransformer:
         n = len(generation_time_ns)
         # Columns per row: sec, nsec, then (x, y, z, qx, qy, qz, qw) per edge, base first.
         base = np.hstack([np.zeros((n, 3)), np.asarray(quat_orbit_from_base_xyzw, np.float64)])
-        blocks = [base]
+        positions, rotations = [], []
         for parent, child in tree:
             pos_p, rot_p = poses[parent]
             pos_c, rot_c = poses[child]
             # child in parent: R_p^T (p_c - p_p), R_p^T R_c
-            pos_rel = np.einsum("nji,nj->ni", rot_p, pos_c - pos_p)
-            rot_rel = np.einsum("nji,njk->nik", rot_p, rot_c)
-            blocks.append(np.hstack([pos_rel, _quat_xyzw(rot_rel)]))
+            positions.append(np.einsum("nji,nj->ni", rot_p, pos_c - pos_p))
+            rotations.append(np.einsum("nji,njk->nik", rot_p, rot_c))
+        blocks = [base]
+        if tree:  # every edge's quaternions in one call (scipy's overhead is per call)
+            quats = _quat_xyzw(np.concatenate(rotations)).reshape(len(tree), n, 4)
+            blocks += [np.hstack([p, q]) for p, q in zip(positions, quats, strict=True)]
         values = np.hstack(blocks).tolist()  # Python floats: %r is repr, exact in JSON
         sec, nsec = np.divmod(np.asarray(generation_time_ns, dtype=np.int64), 1_000_000_000)
         n_edges = len(tree) + 1

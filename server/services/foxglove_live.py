@@ -16,7 +16,8 @@ The channels are the MCAP recording's, with its schemas and JSON encoding
   origins at the commanded joint angles, with a sphere at the hand, in ``base_link``).
 
 It never slows ingest: the publisher's callbacks (on the event loop, after each commit) only
-append to a bounded queue and wake one thread, which makes and sends the messages. When that
+append to a bounded queue and wake one thread, which makes and sends the messages (and makes
+none while no client is connected). When that
 thread falls behind, the oldest queued item goes and :attr:`FoxgloveLive.dropped` counts it.
 bench/bench_foxglove.py measures the cost on the ingest path as a ratio.
 """
@@ -130,6 +131,7 @@ class FoxgloveLive:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = False
+        self._busy = False
         self._thread: threading.Thread | None = None
         self._unsubscribe: list[Callable[[], None]] = []
         self._server: Any = None
@@ -238,18 +240,30 @@ class FoxgloveLive:
                 items = list(self._queue)
                 self._queue.clear()
                 self._wake.clear()
+                self._busy = True
             if self._stop:
                 return
-            for kind, payload in items:
-                try:
-                    if kind == "frames":
-                        self._frames(*payload)
-                    elif kind == "event":
-                        self._event(payload)
-                    elif self._current is not None:
-                        self._send_static(self._current)
-                except Exception:
-                    log.exception("Foxglove live view: %s not sent", kind)
+            try:
+                self._handle(items)
+            finally:
+                self._busy = False
+
+    def idle(self) -> bool:
+        """Nothing queued and nothing being made (for a bench or a test to wait on)."""
+        with self._lock:
+            return not self._queue and not self._busy
+
+    def _handle(self, items: list[tuple[str, Any]]) -> None:
+        for kind, payload in items:
+            try:
+                if kind == "frames":
+                    self._frames(*payload)
+                elif kind == "event":
+                    self._event(payload)
+                elif self._current is not None:
+                    self._send_static(self._current)
+            except Exception:
+                log.exception("Foxglove live view: %s not sent", kind)
 
     def _log(self, topic: str, data: bytes, log_ns: int) -> None:
         self._channels[topic].log(data, log_time=log_ns)
@@ -307,6 +321,8 @@ class FoxgloveLive:
         self._scene_path(view)
 
     def _frames(self, pass_id: str, frames: list[TelemetryFrame]) -> None:
+        if not any(channel.has_sinks() for channel in (*self._channels.values(), self._scene)):
+            return  # no client listening: nothing to make (a subscription resends the rest)
         view = self._view(pass_id)
         if view is None:
             return

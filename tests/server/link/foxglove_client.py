@@ -37,9 +37,17 @@ class Received:
         return [(t, json.loads(data)) for t, data in self.messages.get(topic, [])]
 
 
-async def listen(url: str, topics: set[str], received: Received, subscribed: asyncio.Event) -> None:
-    """Connect, subscribe to ``topics`` as they are advertised (``subscribed`` is set once all
-    are), and collect into ``received`` until cancelled."""
+async def listen(
+    url: str,
+    topics: set[str],
+    received: Received,
+    subscribed: asyncio.Event,
+    required: set[str] | None = None,
+) -> None:
+    """Connect, subscribe to ``topics`` as they are advertised (``subscribed`` is set once
+    all of ``required``, default all of them, are), and collect into ``received`` until
+    cancelled."""
+    required = topics if required is None else required
     offered: Any = list(SUBPROTOCOLS)
     async with connect(url, subprotocols=offered) as ws:
         assert ws.subprotocol in SUBPROTOCOLS
@@ -61,7 +69,7 @@ async def listen(url: str, topics: set[str], received: Received, subscribed: asy
                             next_id += 1
                     if wanted:
                         await ws.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
-                    if topics <= set(by_subscription.values()):
+                    if required <= set(by_subscription.values()):
                         subscribed.set()
                 continue
             if frame[0] != MESSAGE_DATA:
