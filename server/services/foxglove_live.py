@@ -17,7 +17,9 @@ The channels are the MCAP recording's, with its schemas and JSON encoding
 
 It never slows ingest: the publisher's callbacks (on the event loop, after each commit) only
 append to a bounded queue and wake one thread, which makes and sends the messages (and makes
-none while no client is connected). When that
+none while no client is connected). The thread works at most :data:`MAX_DUTY` of the time
+and sleeps the rest, so under a flood of telemetry it falls behind rather than taking the
+GIL from ingest. When that
 thread falls behind, the oldest queued item goes and :attr:`FoxgloveLive.dropped` counts it.
 bench/bench_foxglove.py measures the cost on the ingest path as a ratio.
 """
@@ -28,6 +30,7 @@ import collections
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -39,6 +42,7 @@ from planner.model import RobotModel, default_model
 from planner.plan import Plan
 from planner.urdf import urdf_xml
 from server.services.dbworker import Publisher
+from server.services.errors import ConflictError
 from server.services.robots import model_for_plan, urdf_for_plan
 from server.storage import repository as repo
 from telemetry.foxglove import (
@@ -60,6 +64,7 @@ from telemetry.wire import TelemetryFrame
 
 __all__ = [
     "EXTRA",
+    "MAX_DUTY",
     "QUEUE_ITEMS",
     "TOPIC_SCENE",
     "FoxgloveLive",
@@ -75,6 +80,9 @@ TOPIC_SCENE = "/scene"
 #: Queued items (a telemetry message's frames, or one event) before the oldest is dropped:
 #: 256 messages of frames are a minute of telemetry at 4 Hz.
 QUEUE_ITEMS = 256
+#: The share of the time the view's thread may work (it sleeps the rest): the bound on
+#: what it takes from ingest when telemetry comes faster than it can follow.
+MAX_DUTY = 0.2
 _SCENE_PATH = "predicted_hand_path"
 _SCENE_ARM = "commanded_arm"
 #: The chain the commanded arm is drawn through (links the model lacks are skipped).
@@ -141,6 +149,7 @@ class FoxgloveLive:
         self._scene: Any = None
         self._views: dict[str, _PassView] = {}
         self._current: _PassView | None = None
+        self._unviewable: set[str] = set()
         #: items dropped because the thread was behind, and messages sent
         self.dropped = 0
         self.sent = 0
@@ -243,10 +252,16 @@ class FoxgloveLive:
                 self._busy = True
             if self._stop:
                 return
+            started = time.perf_counter()
             try:
                 self._handle(items)
             finally:
                 self._busy = False
+            # At most MAX_DUTY of one core (and of the GIL) for the view: rest in proportion
+            # to the work done; what comes meanwhile queues, and the oldest goes.
+            worked = time.perf_counter() - started
+            if not self._stop:
+                time.sleep(worked * (1.0 / MAX_DUTY - 1.0))
 
     def idle(self) -> bool:
         """Nothing queued and nothing being made (for a bench or a test to wait on)."""
@@ -283,8 +298,14 @@ class FoxgloveLive:
                 return None
             plan = Plan.from_json(repo.get_plan(session=session, plan_id=record.plan_id).document)
             epoch_ns = int(record.epoch_ns)
-        model: RobotModel = model_for_plan(plan, self._robot_files) or default_model()
-        urdf = urdf_for_plan(plan, self._robot_files) or urdf_xml(model, name=plan.robot)
+        try:
+            model: RobotModel = model_for_plan(plan, self._robot_files) or default_model()
+            urdf = urdf_for_plan(plan, self._robot_files) or urdf_xml(model, name=plan.robot)
+        except ConflictError as exc:  # a robot this server has no description of
+            if pass_id not in self._unviewable:
+                log.warning("Foxglove live view: pass %s not shown: %s", pass_id, exc)
+            self._unviewable.add(pass_id)
+            return None
         pred_schema, pred_ns, pred = prediction_plot_messages(plan, epoch_ns)
         self._channel(TOPIC_PLOT_PREDICTION, pred_schema, "onboard")
         static = [(TOPIC_ROBOT_DESCRIPTION, json.dumps({"data": urdf}).encode(), epoch_ns)]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
+import sys
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -77,3 +78,28 @@ async def listen(
             _, subscription, log_ns = _HEADER.unpack_from(frame)
             topic = by_subscription[subscription]
             received.messages.setdefault(topic, []).append((log_ns, bytes(frame[_HEADER.size :])))
+
+
+def main(argv: list[str]) -> None:
+    """``python -m tests.server.link.foxglove_client URL TOPIC...``: listen (in a process of
+    its own, so that a bench's client takes no GIL from what it measures) until standard
+    input closes, then print the count of messages per topic as JSON."""
+    url, topics = argv[0], set(argv[1:])
+
+    async def run() -> None:
+        received = Received()
+        subscribed = asyncio.Event()
+        first = {"/tf", "/events", "/scene", "/robot_description"} & topics
+        task = asyncio.create_task(listen(url, topics, received, subscribed, required=first))
+        await asyncio.wait_for(subscribed.wait(), 30.0)
+        print("subscribed", flush=True)
+        await asyncio.to_thread(sys.stdin.read)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        print(json.dumps({t: len(m) for t, m in received.messages.items()}), flush=True)
+
+    asyncio.run(run())
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
