@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from hikoboshi.cli import app
 from server.services.recordings import load_recording
+from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.foxglove_client import Received, listen
 from tests.server.link.harness import (
@@ -60,6 +61,13 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
                 return any('"to": "complete"' in d["message"] for _, d in received.json("/events"))
 
             await wait_for(completed_seen, 20.0, "the pass's completion on /events")
+
+            def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
+                with ground.readers() as session:
+                    stored = repo.count_frames(session=session, pass_id=pass_id)
+                return len(received.messages.get("/tf", [])) >= stored
+
+            await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
         finally:
             stop.set()
             await asyncio.wait_for(flight, 40.0)
