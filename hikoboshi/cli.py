@@ -65,6 +65,27 @@ LogLevelOption = Annotated[
 ]
 
 
+FoxglovePortOption = Annotated[
+    int | None,
+    typer.Option(
+        help="Stream the live pass to Foxglove on this port (ws://HOST:PORT, docs/mcap.md); "
+        "needs the hikoboshi[foxglove] extra",
+        show_default=False,
+    ),
+]
+
+
+def _check_foxglove(port: int) -> None:
+    """One error line and status 2 for a port out of range or the extra missing."""
+    from server.services.foxglove_live import foxglove_missing
+
+    if not 0 <= port <= 65535:
+        _fail(f"--foxglove-port {port} must lie in [0, 65535]")
+    missing = foxglove_missing()
+    if missing is not None:
+        _fail(f"--foxglove-port: {missing}")
+
+
 def _configure_logging(log_format: str, log_level: str, stream: Any = None) -> None:
     """The one logging configuration (server/logs.py), or one error line and status 2."""
     from server.logs import configure_logging
@@ -510,6 +531,7 @@ def demo(
     ] = None,
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
+    foxglove_port: FoxglovePortOption = None,
 ) -> None:
     """The main job: the ground service on SQLite, the simulated spacecraft as its own
     process, and the whole ETS-VII pass (all four experiments) at --speed times real time.
@@ -533,6 +555,8 @@ def demo(
     except ValueError as exc:
         _fail(str(exc))
 
+    if foxglove_port is not None:
+        _check_foxglove(foxglove_port)
     if not 0 < speed <= 1000:
         _fail(f"--speed {speed} must lie in (0, 1000]")
     if not 0 <= loss < 1:
@@ -563,8 +587,11 @@ def demo(
         on_ready=None if as_json else _announce,
         log_format=log_format,
         log_level=log_level.lower(),
+        foxglove_port=foxglove_port,
     )
     out.mkdir(parents=True, exist_ok=True)
+    if foxglove_port is not None and not as_json:
+        console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove_port}")
     ground_log = (out / "ground.log").open("a", encoding="utf-8")  # open until the exit
     _configure_logging(log_format, log_level, stream=ground_log)
     with Progress(
@@ -1024,6 +1051,7 @@ def serve(
     ] = None,
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
+    foxglove_port: FoxglovePortOption = None,
 ) -> None:
     """Run the ground service. Settings from the environment: DATABASE_URL (default SQLite
     under HIKOBOSHI_DATA_DIR, ./data), HIKOBOSHI_TOKENS (token=name:role,...; required
@@ -1048,6 +1076,10 @@ def serve(
         settings = settings.model_copy(
             update={"robot_files": (*settings.robot_files, *(p.resolve() for p in robot))}
         )
+    if foxglove_port is not None:
+        settings = settings.model_copy(update={"foxglove_port": foxglove_port})
+    if settings.foxglove_port is not None:
+        _check_foxglove(settings.foxglove_port)
     for path in settings.robot_files:
         _load(path)  # one clear error line for a bad description, before serving
     if not settings.tokens:

@@ -116,6 +116,8 @@ class DemoOptions:
     #: the spacecraft's in OUT/spacecraft.log.
     log_format: str = "text"
     log_level: str = "info"
+    #: Stream the pass to Foxglove on this port (the ground's ``foxglove_port``); None: no.
+    foxglove_port: int | None = None
 
 
 class _Api:
@@ -240,7 +242,12 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             robot_name = robot_label = load_robot(robot).name
         except PlannerError as exc:
             raise DemoError(str(exc)) from None
-    settings = Settings(data_dir=out, tokens=tokens, robot_files=() if robot is None else (robot,))
+    settings = Settings(
+        data_dir=out,
+        tokens=tokens,
+        robot_files=() if robot is None else (robot,),
+        foxglove_port=options.foxglove_port,
+    )
     started = time.monotonic()
     with _ground(settings, port):
         api = _Api(base, operator)

@@ -49,6 +49,7 @@ from server.services.console import ConsoleHub
 from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
+from server.services.foxglove_live import FoxgloveLive
 from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
 from server.services.malformed import MalformedPolicy
@@ -171,6 +172,23 @@ class GroundServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
+def _foxglove_live(
+    settings: Settings, publisher: Publisher, sessions: sessionmaker[Session]
+) -> FoxgloveLive | None:
+    """The Foxglove live view when ``foxglove_port`` is set, listening (docs/mcap.md)."""
+    if settings.foxglove_port is None:
+        return None
+    view = FoxgloveLive(
+        host=settings.foxglove_host,
+        port=settings.foxglove_port,
+        publisher=publisher,
+        sessions=sessions,
+        robot_files=tuple(str(p) for p in settings.robot_files),
+    )
+    view.start()
+    return view
+
+
 def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -253,9 +271,12 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
         app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
         connect_metrics(app.state)  # GET /metrics reads the services (server/api/metrics.py)
+        app.state.foxglove = _foxglove_live(settings, live.publisher, app.state.read_sessions)
         try:
             yield
         finally:
+            if app.state.foxglove is not None:
+                app.state.foxglove.close()
             app.state.readiness.close()
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs

@@ -242,6 +242,15 @@ class Settings(BaseSettings):
     """More malformed messages than this on one connection within one interval: the ground
     closes it (1008) and the vehicle reconnects."""
 
+    # --- the Foxglove live view (server/services/foxglove_live.py, docs/mcap.md) ---------
+    foxglove_port: int | None = Field(default=None, ge=0, le=65535)
+    """Stream the live pass to Foxglove on this port (foxglove-sdk's websocket server in the
+    ground process; needs the ``hikoboshi[foxglove]`` extra; ``hikoboshi serve
+    --foxglove-port``; 0: a free port). None: no live view."""
+    foxglove_host: str = "127.0.0.1"
+    """The address the Foxglove live view listens on (no token is asked there: keep it on
+    loopback or a trusted network)."""
+
     @field_validator("tokens", mode="before")
     @classmethod
     def _tokens_from_text(cls, value: Any) -> Any:

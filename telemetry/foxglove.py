@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from typing import Any
 
 import mujoco
@@ -38,6 +39,9 @@ __all__ = [
     "ORBIT_FRAME",
     "STRING_SCHEMA",
     "STRING_SCHEMA_NAME",
+    "FrameTransformer",
+    "event_level",
+    "event_log",
     "frame_transforms",
     "link_poses_base",
     "urdf_tree",
@@ -152,37 +156,54 @@ def urdf_tree(urdf: str) -> list[tuple[str, str]]:
     return tree
 
 
-def link_poses_base(model: RobotModel, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
+class _Kinematics:
+    """The model compiled once, its data and the ids of the bodies and sites the URDF names
+    (MuJoCo's ``base`` body is URDF's ``base_link``, its ``robot_origin`` site
+    ``robot_base``, its ``hand`` site ``hand``; link bodies share their URDF names)."""
+
+    def __init__(self, model: RobotModel, mjm: mujoco.MjModel | None = None) -> None:
+        self.n_joints = model.n_joints
+        self.mjm = compile_model(model) if mjm is None else mjm
+        self.mjd = mujoco.MjData(self.mjm)
+        self.layout = MjLayout.of(self.mjm, model.n_joints, len(model.wheels))
+        robot_site = int(mujoco.mj_name2id(self.mjm, mujoco.mjtObj.mjOBJ_SITE, "robot_origin"))
+        bodies = {"base_link": self.layout.base_body} | {
+            link.name: body for link, body in zip(model.links, self.layout.link_bodies, strict=True)
+        }
+        sites = {"robot_base": robot_site, "hand": self.layout.hand_site}
+        self.names = [*bodies, *sites]
+        self.body_ids = list(bodies.values())
+        self.site_ids = list(sites.values())
+
+    def poses(self, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
+        mjm, mjd, layout = self.mjm, self.mjd, self.layout
+        q = np.asarray(joints_rad, dtype=np.float64).reshape(-1, self.n_joints)
+        pos = np.empty((len(self.names), len(q), 3))
+        rot = np.empty((len(self.names), len(q), 3, 3))
+        body_ids, site_ids = self.body_ids, self.site_ids
+        nb = len(body_ids)
+        for k, row in enumerate(q):
+            mjd.qpos[:] = mjm.qpos0  # base at the origin, identity attitude
+            mjd.qpos[layout.joint_qpos] = row
+            mujoco.mj_kinematics(mjm, mjd)
+            pos[:nb, k] = mjd.xpos[body_ids]
+            rot[:nb, k] = mjd.xmat[body_ids].reshape(-1, 3, 3)
+            pos[nb:, k] = mjd.site_xpos[site_ids]
+            rot[nb:, k] = mjd.site_xmat[site_ids].reshape(-1, 3, 3)
+        return {name: (pos[i], rot[i]) for i, name in enumerate(self.names)}
+
+
+def link_poses_base(
+    model: RobotModel, joints_rad: Array, mjm: mujoco.MjModel | None = None
+) -> dict[str, tuple[Array, Array]]:
     """URDF link name -> ``(pos_base_m (N, 3), rot_base_from_link (N, 3, 3))`` for each row
     of ``joints_rad`` (N, n), from the model's MuJoCo kinematics with the base at identity.
+    ``mjm``: ``model`` compiled already (:func:`planner.mjcf.compile_model`), else compiled here.
 
     MuJoCo's ``base`` body is URDF's ``base_link``, its ``robot_origin`` site ``robot_base``,
     its ``hand`` site ``hand``; link bodies share their URDF names.
     """
-    mjm = compile_model(model)
-    mjd = mujoco.MjData(mjm)
-    layout = MjLayout.of(mjm, model.n_joints, len(model.wheels))
-    robot_site = int(mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_SITE, "robot_origin"))
-    bodies = {"base_link": layout.base_body} | {
-        link.name: body for link, body in zip(model.links, layout.link_bodies, strict=True)
-    }
-    sites = {"robot_base": robot_site, "hand": layout.hand_site}
-    q = np.asarray(joints_rad, dtype=np.float64).reshape(-1, model.n_joints)
-    names = [*bodies, *sites]
-    pos = np.empty((len(names), len(q), 3))
-    rot = np.empty((len(names), len(q), 3, 3))
-    body_ids = list(bodies.values())
-    site_ids = list(sites.values())
-    nb = len(body_ids)
-    for k, row in enumerate(q):
-        mjd.qpos[:] = mjm.qpos0  # base at the origin, identity attitude
-        mjd.qpos[layout.joint_qpos] = row
-        mujoco.mj_kinematics(mjm, mjd)
-        pos[:nb, k] = mjd.xpos[body_ids]
-        rot[:nb, k] = mjd.xmat[body_ids].reshape(-1, 3, 3)
-        pos[nb:, k] = mjd.site_xpos[site_ids]
-        rot[nb:, k] = mjd.site_xmat[site_ids].reshape(-1, 3, 3)
-    return {name: (pos[i], rot[i]) for i, name in enumerate(names)}
+    return _Kinematics(model, mjm).poses(joints_rad)
 
 
 def _quat_xyzw(rot: Array) -> Array:
@@ -196,10 +217,11 @@ def _json_str(text: str) -> str:
     return json.dumps(text).replace("%", "%%")
 
 
-def _add_fixed_links(urdf: str, poses: dict[str, tuple[Array, Array]]) -> None:
-    """The poses of links the MuJoCo model does not have but which a ``fixed`` joint holds to
-    one it has (the keep-out equipment drawn on the base, :func:`planner.urdf.urdf_xml`):
-    the parent's pose composed with the joint's origin."""
+_Fixed = list[tuple[str, str, Array, Array]]  # parent, child, offset, rotation
+
+
+def _fixed_joints(urdf: str) -> _Fixed:
+    """The ``fixed`` joints of a URDF: (parent, child, origin offset, origin rotation)."""
     fixed = []
     for joint in ET.fromstring(urdf).iter("joint"):
         parent_el, child_el = joint.find("parent"), joint.find("child")
@@ -207,20 +229,97 @@ def _add_fixed_links(urdf: str, poses: dict[str, tuple[Array, Array]]) -> None:
             origin = joint.find("origin")
             xyz = "0 0 0" if origin is None else origin.get("xyz", "0 0 0")
             rpy = "0 0 0" if origin is None else origin.get("rpy", "0 0 0")
-            fixed.append(
-                (str(parent_el.get("link")), str(child_el.get("link")), xyz.split(), rpy.split())
-            )
+            offset = np.array([float(v) for v in xyz.split()])
+            rot = Rotation.from_euler("xyz", [float(v) for v in rpy.split()]).as_matrix()
+            fixed.append((str(parent_el.get("link")), str(child_el.get("link")), offset, rot))
+    return fixed
+
+
+def _add_fixed_links(fixed: _Fixed, poses: dict[str, tuple[Array, Array]]) -> None:
+    """The poses of links the MuJoCo model does not have but which a ``fixed`` joint holds to
+    one it has (the keep-out equipment drawn on the base, :func:`planner.urdf.urdf_xml`):
+    the parent's pose composed with the joint's origin."""
     added = True
     while added:
         added = False
-        for parent, child, xyz_text, rpy_text in fixed:
+        for parent, child, offset, rot in fixed:
             if child in poses or parent not in poses:
                 continue
             pos_p, rot_p = poses[parent]
-            offset = np.array([float(v) for v in xyz_text])
-            rot = Rotation.from_euler("xyz", [float(v) for v in rpy_text]).as_matrix()
             poses[child] = (pos_p + np.einsum("nij,j->ni", rot_p, offset), rot_p @ rot)
             added = True
+
+
+class FrameTransformer:
+    """``foxglove.FrameTransforms`` messages of one robot, batch after batch: the model is
+    compiled and the URDF's tree read once (the live view calls it for every telemetry
+    message; :func:`frame_transforms` for a whole recording)."""
+
+    def __init__(self, model: RobotModel, urdf: str) -> None:
+        self.model = model
+        self.urdf = urdf
+        self.tree = urdf_tree(urdf)
+        roots = {p for p, _ in self.tree} - {c for _, c in self.tree}
+        if roots != {"base_link"}:
+            raise ValueError(f"URDF tree must be rooted at base_link, found roots {sorted(roots)}")
+        self._kinematics = _Kinematics(model)
+        self._fixed = _fixed_joints(urdf)
+        self._template = "".join(
+            [
+                '{"transforms":[',
+                ",".join(
+                    '{"timestamp":{"sec":%d,"nsec":%d},'
+                    f'"parent_frame_id":{_json_str(parent)},"child_frame_id":{_json_str(child)},'
+                    '"translation":{"x":%r,"y":%r,"z":%r},'
+                    '"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}'
+                    for parent, child in [(ORBIT_FRAME, "base_link"), *self.tree]
+                ),
+                "]}",
+            ]
+        )
+
+    def link_poses(self, joints_rad: Array) -> dict[str, tuple[Array, Array]]:
+        """:func:`link_poses_base` of every URDF link (fixed ones too) at ``joints_rad``."""
+        poses = self._kinematics.poses(joints_rad)
+        _add_fixed_links(self._fixed, poses)
+        return poses
+
+    def __call__(
+        self,
+        generation_time_ns: NDArray[np.int64],
+        quat_orbit_from_base_xyzw: Array,
+        joints_rad: Array,
+    ) -> list[bytes]:
+        """One message (JSON, UTF-8) per row (see :func:`frame_transforms`)."""
+        tree = self.tree
+        poses = self.link_poses(joints_rad)
+        unknown = sorted({name for edge in tree for name in edge} - set(poses))
+        if unknown:
+            raise ValueError(f"URDF links {unknown} have no pose in the MuJoCo model")
+        n = len(generation_time_ns)
+        # Columns per row: sec, nsec, then (x, y, z, qx, qy, qz, qw) per edge, base first.
+        base = np.hstack([np.zeros((n, 3)), np.asarray(quat_orbit_from_base_xyzw, np.float64)])
+        positions, rotations = [], []
+        for parent, child in tree:
+            pos_p, rot_p = poses[parent]
+            pos_c, rot_c = poses[child]
+            # child in parent: R_p^T (p_c - p_p), R_p^T R_c
+            positions.append(np.einsum("nji,nj->ni", rot_p, pos_c - pos_p))
+            rotations.append(np.einsum("nji,njk->nik", rot_p, rot_c))
+        blocks = [base]
+        if tree:  # every edge's quaternions in one call (scipy's overhead is per call)
+            quats = _quat_xyzw(np.concatenate(rotations)).reshape(len(tree), n, 4)
+            blocks += [np.hstack([p, q]) for p, q in zip(positions, quats, strict=True)]
+        values = np.hstack(blocks).tolist()  # Python floats: %r is repr, exact in JSON
+        sec, nsec = np.divmod(np.asarray(generation_time_ns, dtype=np.int64), 1_000_000_000)
+        n_edges = len(tree) + 1
+        out = []
+        for s, ns, row in zip(sec.tolist(), nsec.tolist(), values, strict=True):
+            args: list[Any] = []
+            for e in range(n_edges):
+                args += [s, ns, *row[7 * e : 7 * e + 7]]
+            out.append((self._template % tuple(args)).encode())
+        return out
 
 
 def frame_transforms(
@@ -234,48 +333,53 @@ def frame_transforms(
     with the recorded attitude as is, then each joint of ``urdf`` (parent -> child) at the
     row's joint angles. Timestamps are the generation times (onboard clock). Every input must
     be finite and every time non-negative."""
-    tree = urdf_tree(urdf)
-    poses = link_poses_base(model, joints_rad)
-    _add_fixed_links(urdf, poses)
-    unknown = sorted({name for edge in tree for name in edge} - set(poses))
-    if unknown:
-        raise ValueError(f"URDF links {unknown} have no pose in the MuJoCo model")
-    roots = {p for p, _ in tree} - {c for _, c in tree}
-    if roots != {"base_link"}:
-        raise ValueError(f"URDF tree must be rooted at base_link, found roots {sorted(roots)}")
+    return FrameTransformer(model, urdf)(generation_time_ns, quat_orbit_from_base_xyzw, joints_rad)
 
-    n = len(generation_time_ns)
-    # Columns per row: sec, nsec, then (x, y, z, qx, qy, qz, qw) per edge, base first.
-    base = np.hstack([np.zeros((n, 3)), np.asarray(quat_orbit_from_base_xyzw, np.float64)])
-    blocks = [base]
-    for parent, child in tree:
-        pos_p, rot_p = poses[parent]
-        pos_c, rot_c = poses[child]
-        # child in parent: R_p^T (p_c - p_p), R_p^T R_c
-        pos_rel = np.einsum("nji,nj->ni", rot_p, pos_c - pos_p)
-        rot_rel = np.einsum("nji,njk->nik", rot_p, rot_c)
-        blocks.append(np.hstack([pos_rel, _quat_xyzw(rot_rel)]))
-    values = np.hstack(blocks).tolist()  # Python floats: %r is repr, exact in JSON
-    sec, nsec = np.divmod(np.asarray(generation_time_ns, dtype=np.int64), 1_000_000_000)
 
-    template = "".join(
-        [
-            '{"transforms":[',
-            ",".join(
-                '{"timestamp":{"sec":%d,"nsec":%d},'
-                f'"parent_frame_id":{_json_str(parent)},"child_frame_id":{_json_str(child)},'
-                '"translation":{"x":%r,"y":%r,"z":%r},'
-                '"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}'
-                for parent, child in [(ORBIT_FRAME, "base_link"), *tree]
-            ),
-            "]}",
-        ]
-    )
-    n_edges = len(tree) + 1
-    out = []
-    for s, ns, row in zip(sec.tolist(), nsec.tolist(), values, strict=True):
-        args: list[Any] = []
-        for e in range(n_edges):
-            args += [s, ns, *row[7 * e : 7 * e + 7]]
-        out.append((template % tuple(args)).encode())
-    return out
+#: Event kinds Foxglove's Log panel shows as errors and as warnings (the rest: INFO).
+_ERROR_KINDS = frozenset({"vehicle_safed", "link_closed_malformed", "ground_stopped"})
+_WARNING_KINDS = frozenset(
+    {
+        "alarm_raised",
+        "auth_blocked",
+        "command_ack_unknown",
+        "commands_cancelled",
+        "link_disconnected",
+        "link_error_received",
+        "link_error_replied",
+        "link_takeover",
+        "pass_control_refused",
+        "pass_start_refused",
+        "retransmit_requested",
+        "schedule_delete_unverified",
+        "vehicle_safe_exit_unverified",
+    }
+)
+
+
+def event_level(kind: str, detail: Mapping[str, Any]) -> int:
+    """The ``foxglove.LogLevel`` of an audit event: ERROR for a safing, a pass that ended
+    aborted or safed, a link closed for malformed input and a ground stopped mid-pass;
+    WARNING for refusals, losses and alarms; INFO otherwise."""
+    state = detail.get("to") if kind == "pass_state" else None
+    if kind in _ERROR_KINDS or state in ("aborted", "safed"):
+        return LOG_LEVELS["ERROR"]
+    if kind in _WARNING_KINDS or (kind == "command_stage" and detail.get("stage") == "rejected"):
+        return LOG_LEVELS["WARNING"]
+    return LOG_LEVELS["INFO"]
+
+
+def event_log(time_ns: int, kind: str, actor: str, detail: Mapping[str, Any]) -> dict[str, Any]:
+    """An audit event as a ``foxglove.Log`` message: its ground time, :func:`event_level`,
+    ``"<kind>: <detail as JSON>"`` as the message and the actor as the name (Foxglove's Log
+    panel filters by name). ``file`` and ``line`` say nothing here: empty and 0."""
+    sec, nsec = divmod(int(time_ns), 1_000_000_000)
+    text = json.dumps(dict(detail), separators=(", ", ": "), sort_keys=True, default=str)
+    return {
+        "timestamp": {"sec": sec, "nsec": nsec},
+        "level": event_level(kind, detail),
+        "message": f"{kind}: {text}",
+        "name": actor,
+        "file": "",
+        "line": 0,
+    }

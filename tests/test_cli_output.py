@@ -34,6 +34,8 @@ def help_of(*command: str) -> str:
         (("spacecraft",), "TOML file with [link], [uplink], [downlink] tables"),
         (("calibrate",), "The [acs] TOML file to write"),
         (("model", "limits"), "its [limits] over the built-in defaults"),
+        (("serve",), "needs the hikoboshi[foxglove] extra"),
+        (("demo",), "needs the hikoboshi[foxglove] extra"),
     ],
 )
 def test_help_keeps_bracketed_names(command: tuple[str, ...], bracketed: str) -> None:

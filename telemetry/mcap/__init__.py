@@ -28,6 +28,9 @@ Derived channels (for viewing; not read back)::
     /plot/joints, /plot/base, /plot/wheels          flat numbers per frame, degrees; onboard
     /plot/prediction                                the plan's prediction; onboard
                                                     (epoch_ns + t_s)
+    /events               foxglove.Log              one per audit event (level by kind, the
+                                                    actor as name); ground (only when the
+                                                    pass has events)
     /alarms               foxglove.Log              the pass's alarms: each change of band and
                                                     each acknowledgement; onboard (only when
                                                     the pass has alarms)
@@ -59,7 +62,13 @@ from telemetry.mcap._schemas import (
     URDF_ATTACHMENT,
     urdf_attachment_name,
 )
-from telemetry.mcap._write import TOPIC_ALARMS, TOPIC_ROBOT_DESCRIPTION, TOPIC_TF, write_mcap
+from telemetry.mcap._write import (
+    TOPIC_ALARMS,
+    TOPIC_EVENT_LOG,
+    TOPIC_ROBOT_DESCRIPTION,
+    TOPIC_TF,
+    write_mcap,
+)
 
 __all__ = [
     "METADATA_NAME",
@@ -68,6 +77,7 @@ __all__ = [
     "TOPIC_ALARMS",
     "TOPIC_COMMANDS",
     "TOPIC_EVENTS",
+    "TOPIC_EVENT_LOG",
     "TOPIC_PLAN",
     "TOPIC_ROBOT_DESCRIPTION",
     "TOPIC_TELEMETRY",

@@ -17,7 +17,13 @@ from scipy.spatial.transform import Rotation
 from planner.plan import Plan
 from telemetry.recording import FrameArrays
 
-__all__ = ["PLOT_TOPICS", "plot_messages", "plot_schema"]
+__all__ = [
+    "PLOT_TOPICS",
+    "frame_plot_messages",
+    "plot_messages",
+    "plot_schema",
+    "prediction_plot_messages",
+]
 
 Array = NDArray[np.float64]
 
@@ -114,18 +120,27 @@ def plot_schema(topic: str, fields: list[str]) -> dict[str, Any]:
     }
 
 
-def plot_messages(
-    frames: FrameArrays, t_s: Array, plan: Plan, epoch_ns: int
-) -> dict[str, tuple[dict[str, Any], NDArray[np.int64], list[bytes]]]:
-    """topic -> (schema, log times in onboard ns, JSON messages)."""
-    out: dict[str, tuple[dict[str, Any], NDArray[np.int64], list[bytes]]] = {}
-    for topic, cols in _columns(frames, t_s).items():
-        out[topic] = (plot_schema(topic, list(cols)), frames.generation_time_ns, _json_rows(cols))
+_Plot = tuple[dict[str, Any], NDArray[np.int64], list[bytes]]
+
+
+def frame_plot_messages(frames: FrameArrays, t_s: Array) -> dict[str, _Plot]:
+    """``/plot/joints``, ``/plot/base``, ``/plot/wheels``: topic -> (schema, log times in
+    onboard ns, JSON messages), one message per frame (``t_s``: the frames' plan times)."""
+    return {
+        topic: (plot_schema(topic, list(cols)), frames.generation_time_ns, _json_rows(cols))
+        for topic, cols in _columns(frames, t_s).items()
+    }
+
+
+def prediction_plot_messages(plan: Plan, epoch_ns: int) -> _Plot:
+    """``/plot/prediction``: (schema, log times ``epoch_ns + t_s``, JSON messages)."""
     pred = _prediction_columns(plan)
     log_ns = epoch_ns + np.round(pred["t_s"] * 1e9).astype(np.int64)
-    out[TOPIC_PLOT_PREDICTION] = (
-        plot_schema(TOPIC_PLOT_PREDICTION, list(pred)),
-        log_ns,
-        _json_rows(pred),
-    )
+    return plot_schema(TOPIC_PLOT_PREDICTION, list(pred)), log_ns, _json_rows(pred)
+
+
+def plot_messages(frames: FrameArrays, t_s: Array, plan: Plan, epoch_ns: int) -> dict[str, _Plot]:
+    """topic -> (schema, log times in onboard ns, JSON messages)."""
+    out = frame_plot_messages(frames, t_s)
+    out[TOPIC_PLOT_PREDICTION] = prediction_plot_messages(plan, epoch_ns)
     return out

@@ -21,6 +21,7 @@ from telemetry.foxglove import (
     LOG_SCHEMA_NAME,
     STRING_SCHEMA,
     STRING_SCHEMA_NAME,
+    event_log,
     frame_transforms,
 )
 from telemetry.mcap._alarms import TOPIC_ALARMS, alarm_logs
@@ -44,9 +45,11 @@ from telemetry.mcap._schemas import (
 )
 from telemetry.recording import CommandRow, EventRow, PassRecording
 
-__all__ = ["TOPIC_ALARMS", "TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
+__all__ = ["TOPIC_ALARMS", "TOPIC_EVENT_LOG", "TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
 
 TOPIC_TF = "/tf"
+#: The audit events as ``foxglove.Log`` (Foxglove's Log panel); the live view's ``/events``.
+TOPIC_EVENT_LOG = "/events"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
 LIBRARY = f"hikoboshi telemetry.mcap format {FORMAT_VERSION}"
 #: Uncompressed bytes per chunk: a few seconds of the pass, so a reader seeks cheaply.
@@ -212,6 +215,16 @@ def write_mcap(
             ),
         ),
     }
+    if recording.events:
+        derived[TOPIC_EVENT_LOG] = (
+            LOG_SCHEMA_NAME,
+            LOG_SCHEMA,
+            "ground",
+            (
+                [e.time_ns for e in recording.events],
+                [_dumps(event_log(e.time_ns, e.kind, e.actor, e.detail)) for e in recording.events],
+            ),
+        )
     if recording.alarms:
         alarm_ns, logs = alarm_logs(recording.alarms, frames, recording.epoch_ns)
         derived[TOPIC_ALARMS] = (

@@ -1,0 +1,149 @@
+"""The Foxglove live view: a client speaking Foxglove's websocket protocol (our own, with the
+``websockets`` package) receives ``/tf`` and ``/events`` while a real pass flies through the
+real ground (uvicorn, loopback) from the spacecraft process at 10x; and without the extra,
+``--foxglove-port`` is refused with one line naming it."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+import httpx
+import jsonschema_rs
+import pytest
+from typer.testing import CliRunner
+
+from hikoboshi.cli import app
+from server.services.recordings import load_recording
+from server.storage import repository as repo
+from server.storage.db import sqlite_url
+from tests.server.link.foxglove_client import Received, listen
+from tests.server.link.harness import (
+    OPERATOR,
+    connected,
+    running_ground,
+    settled,
+    spacecraft,
+    store_pass,
+    wait_for,
+)
+from tests.telemetry.test_mcap import FOXGLOVE_FRAME_TRANSFORMS
+from tests.telemetry.test_mcap_alarms import FOXGLOVE_LOG
+
+TOPICS = {"/tf", "/events", "/scene", "/robot_description"}
+
+
+def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) -> None:
+    pytest.importorskip("foxglove", reason="the foxglove extra (hikoboshi[foxglove])")
+    received = Received()
+
+    async def scenario(ws_url: str, ground_url: str, pass_id: str) -> None:
+        subscribed = asyncio.Event()
+        client = asyncio.create_task(listen(ws_url, TOPICS, received, subscribed))
+        process, _ = spacecraft(ground)
+        stop = asyncio.Event()
+        flight = asyncio.create_task(process.run(stop))
+        try:
+            await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
+            async with httpx.AsyncClient(base_url=ground_url) as rest:
+                await connected(rest)
+                response = await rest.post(
+                    f"/api/passes/{pass_id}/start",
+                    json={"confirm": "START fox-1"},
+                    headers=OPERATOR,
+                )
+                assert response.status_code == 200, response.text
+                await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
+
+            def completed_seen() -> bool:
+                return any('"to": "complete"' in d["message"] for _, d in received.json("/events"))
+
+            await wait_for(completed_seen, 20.0, "the pass's completion on /events")
+
+            def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
+                with ground.readers() as session:
+                    stored = repo.count_frames(session=session, pass_id=pass_id)
+                return len(received.messages.get("/tf", [])) >= stored
+
+            await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
+        finally:
+            stop.set()
+            await asyncio.wait_for(flight, 40.0)
+            client.cancel()
+            await asyncio.gather(client, return_exceptions=True)
+
+    with running_ground(sqlite_url(tmp_path), foxglove_port=0) as ground:
+        live = ground.app.state.foxglove
+        pass_id = store_pass(ground.sessions, "fox-1", (6.0, -3.0, 0.0, 6.0, 0.0, 0.0), 2.0)
+        asyncio.run(scenario(f"ws://127.0.0.1:{live.port}", ground.url, pass_id))
+        with ground.readers() as session:
+            stored = load_recording(session=session, pass_id=pass_id).frames.generation_time_ns
+        dropped = live.dropped
+
+    channels = received.channels
+    assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
+    assert channels["/events"]["schemaName"] == "foxglove.Log"
+    assert {channels[t]["encoding"] for t in ("/tf", "/events")} == {"json"}
+    assert channels["/scene"]["schemaName"] == "foxglove.SceneUpdate"
+    assert {"/plot/joints", "/plot/base", "/plot/wheels", "/plot/prediction"} <= set(channels)
+
+    # /tf: one message per frame stored for the pass, at its generation time, each in
+    # Foxglove's published schema with the orbit -> base_link edge first
+    assert dropped == 0
+    tf = received.json("/tf")
+    validator = jsonschema_rs.validator_for(FOXGLOVE_FRAME_TRANSFORMS)
+    for log_ns, doc in tf:
+        validator.validate(doc)
+        first = doc["transforms"][0]
+        assert (first["parent_frame_id"], first["child_frame_id"]) == ("orbit", "base_link")
+        stamp = first["timestamp"]
+        assert stamp["sec"] * 10**9 + stamp["nsec"] == log_ns
+    assert len(stored) > 40
+    assert sorted(t for t, _ in tf) == sorted(stored.tolist())
+    children = {t["child_frame_id"] for t in tf[-1][1]["transforms"]}
+    assert {"base_link", "link1", "link6", "hand"} <= children
+
+    # /events: the pass's transitions as foxglove.Log, at their ground times
+    log_validator = jsonschema_rs.validator_for(FOXGLOVE_LOG)
+    events = received.json("/events")
+    for log_ns, doc in events:
+        log_validator.validate(doc)
+        assert doc["timestamp"]["sec"] * 10**9 + doc["timestamp"]["nsec"] == log_ns
+    transitions = [
+        (json.loads(d["message"].partition(": ")[2]), d["name"])
+        for _, d in events
+        if d["message"].startswith("pass_state: ")
+    ]
+    assert [(t["from"], t["to"], who) for t, who in transitions] == [
+        ("scheduled", "aos", "otto"),
+        ("aos", "running", "otto"),
+        ("running", "los", "ground"),
+        ("los", "complete", "ground"),
+    ]
+
+    # the URDF once (at least), the plan's hand path and the commanded arm on /scene
+    [(_, description), *_] = received.json("/robot_description")
+    assert description["data"].startswith("<?xml") or "<robot" in description["data"]
+    scene = received.messages["/scene"]
+    assert any(b"predicted_hand_path" in m for _, m in scene)
+    assert sum(b"commanded_arm" in m for _, m in scene) > 10
+
+
+def test_without_the_extra_the_port_is_refused_with_one_line(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove: ImportError
+    monkeypatch.setenv("HIKOBOSHI_DATA_DIR", str(tmp_path))
+    for argv in (
+        ["serve", "--foxglove-port", "8765"],
+        ["demo", "--out", str(tmp_path / "demo"), "--foxglove-port", "8765"],
+    ):
+        result = CliRunner().invoke(app, argv)
+        assert result.exit_code == 2, result.output
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "hikoboshi[foxglove]" in lines[0], lines
+    monkeypatch.setenv("HIKOBOSHI_FOXGLOVE_PORT", "8765")  # the setting alone, too
+    result = CliRunner().invoke(app, ["serve"])
+    assert result.exit_code == 2 and "hikoboshi[foxglove]" in result.stderr
