@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from planner.description.build import build_robot
-from planner.description.collision_xml import mesh_filenames
 from planner.description.checks import InvalidRobotDescription
+from planner.description.collision_xml import mesh_filenames
 from planner.description.files import (
     ETS7_DESCRIPTION,
     MAX_MESHES_BYTES,
@@ -52,9 +52,9 @@ def load_robot(path: str | Path) -> RobotDescription:
     meshes = {}
     for name in collision_names:
         meshes[name] = read_mesh_points(head.urdf_path, name, packages)
-        path = mesh_path(head.urdf_path, name, packages, "<collision> <mesh>")
-        assert path is not None  # read_mesh_points refuses an unknown package
-        sizes[path.resolve()] = path.stat().st_size
+        found = mesh_path(head.urdf_path, name, packages, "<collision> <mesh>")
+        assert found is not None  # read_mesh_points refuses an unknown package
+        sizes[found.resolve()] = found.stat().st_size
     total = sum(sizes.values())
     if total > MAX_MESHES_BYTES:
         raise InvalidRobotDescription(

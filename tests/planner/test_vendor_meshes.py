@@ -113,7 +113,9 @@ def test_a_hull_s_distance_agrees_with_an_independent_computation(
         direction /= np.linalg.norm(direction)
         point = centre + direction * (0.02 + 0.05 * k)  # from inside the hull to well outside
         probe = CollisionShape("sphere", (radius,), np.eye(3), point)
-        model = CollisionModel((CollisionBody("hull", 0, (shape,)), CollisionBody("p", 1, (probe,))))
+        model = CollisionModel(
+            (CollisionBody("hull", 0, (shape,)), CollisionBody("p", 1, (probe,)))
+        )
         got = ShapeSet(model).distance(0, 1, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3))
         want = _brute_distance(point, robot_points) - radius
         assert got.distance_m == pytest.approx(want, abs=2e-6), (k, point)
