@@ -34,6 +34,7 @@ __all__ = [
     "description_for_plan",
     "description_named",
     "known_robots",
+    "mesh_file",
     "model_for_plan",
     "resolve_robot",
     "robot_descriptions",
@@ -164,11 +165,12 @@ def description_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> 
     return found
 
 
-def robot_urdf(description: RobotDescription) -> str:
+def robot_urdf(description: RobotDescription, *, mesh_base: str | None = None) -> str:
     """The robot's URDF for viewers: the export of its model under its name (as ``hikoboshi
     model urdf --robot FILE`` prints it), with its base's display box and the keep-out
     equipment the flight rules check against, drawn (ETS-VII: exactly ``GET
-    /api/model/urdf``)."""
+    /api/model/urdf``). ``mesh_base``: the address the vendor's visual meshes are served
+    under (``/api/robots/NAME/meshes/``; None: primitives only)."""
     box = description.base_box_size_m
     extra = {} if box is None else {"base_box_size_m": box}
     equipment = (
@@ -180,7 +182,29 @@ def robot_urdf(description: RobotDescription) -> str:
             if b.is_equipment and b.name != description.base_link
         )
     )
-    return urdf_xml(description.model, name=description.name, equipment=equipment, **extra)
+    return urdf_xml(
+        description.model,
+        name=description.name,
+        equipment=equipment,
+        meshes=description.visual_meshes,
+        mesh_uri=None if mesh_base is None else (lambda key: mesh_base + key),
+        **extra,
+    )
+
+
+def mesh_file(description: RobotDescription, key: str) -> Path:
+    """The file of the visual mesh ``key`` (``3/base.dae``) of ``description``: only the
+    files its URDF names and loading found (no path is made from the request);
+    ``NotFoundError`` ``unknown_mesh`` naming the robot's meshes otherwise."""
+    path = description.mesh_files.get(key)
+    if path is None or not path.is_file():
+        known = sorted(description.mesh_files)
+        raise NotFoundError(
+            "unknown_mesh",
+            f"robot {description.name!r} has no mesh {key!r}; its meshes: "
+            + (", ".join(known) if known else "none (it is drawn from primitives)"),
+        )
+    return path
 
 
 def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:
