@@ -280,12 +280,12 @@ def urdf_xml(
     for k, mesh in enumerate(drawn):
         assert mesh_uri is not None
         if mesh.joint == 0:
-            owner, origin = "base_link", -model.pos_base_from_robot_m
+            owner, link_pos = "base_link", -model.pos_base_from_robot_m
         else:
             owner = model.links[mesh.joint - 1].name
-            origin = model.links[mesh.joint - 1].joint_pos_robot_m
+            link_pos = model.links[mesh.joint - 1].joint_pos_robot_m
         visual = ET.SubElement(links[owner], "visual", name=f"{mesh.link}_mesh_{k}")
-        _origin(visual, mesh.pos_robot_m - origin, rpy_from_matrix(mesh.rot_robot_from_mesh))
+        _origin(visual, mesh.pos_robot_m - link_pos, rpy_from_matrix(mesh.rot_robot_from_mesh))
         ET.SubElement(
             ET.SubElement(visual, "geometry"),
             "mesh",
