@@ -165,6 +165,10 @@ def description_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> 
     return found
 
 
+#: The frames the export names itself (planner.urdf): equipment may not take these names.
+_EXPORT_FRAMES = frozenset({"base_link", "robot_base", "hand"})
+
+
 def robot_urdf(description: RobotDescription, *, mesh_base: str | None = None) -> str:
     """The robot's URDF for viewers: the export of its model under its name (as ``hikoboshi
     model urdf --robot FILE`` prints it), with its base's display box and the keep-out
@@ -179,7 +183,12 @@ def robot_urdf(description: RobotDescription, *, mesh_base: str | None = None) -
         else tuple(
             b
             for b in description.collision.bodies
-            if b.is_equipment and b.name != description.base_link
+            if b.is_equipment
+            and b.name != description.base_link
+            # a vendor's own base mesh (its hull is not drawn; its visual mesh is), and never
+            # under a name the export gives its own frames (a UR5's link is "base_link")
+            and any(s.kind != "convex" for s in b.shapes)
+            and b.name not in _EXPORT_FRAMES
         )
     )
     return urdf_xml(
