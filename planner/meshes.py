@@ -16,7 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MESH_MEDIA_TYPES", "MeshVisual", "mesh_key", "mesh_media_type"]
+from planner.model import RobotModel
+
+__all__ = ["MESH_MEDIA_TYPES", "MeshVisual", "mesh_key", "mesh_link_pose", "mesh_media_type"]
 
 Array = NDArray[np.float64]
 
@@ -53,3 +55,13 @@ class MeshVisual:
     pos_robot_m: Array
     scale: tuple[float, float, float]
     rgba: tuple[float, float, float, float] | None  # the <visual>'s inline colour, if any
+
+
+def mesh_link_pose(model: RobotModel, mesh: MeshVisual) -> tuple[str, Array, Array]:
+    """The link of the export (:func:`planner.urdf.urdf_xml`) that carries ``mesh`` and the
+    mesh's position and rotation in that link's frame: ``base_link`` (the base frame) for a
+    mesh rigid with the base, else arm link k's frame (on joint k, robot axes at zero)."""
+    if mesh.joint == 0:
+        return "base_link", mesh.pos_robot_m + model.pos_base_from_robot_m, mesh.rot_robot_from_mesh
+    link = model.links[mesh.joint - 1]
+    return link.name, mesh.pos_robot_m - link.joint_pos_robot_m, mesh.rot_robot_from_mesh

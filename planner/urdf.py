@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 
 from planner.collision import CollisionBody
 from planner.frames import rpy_from_matrix
-from planner.meshes import MeshVisual
+from planner.meshes import MeshVisual, mesh_link_pose
 from planner.model import RobotModel
 
 __all__ = ["urdf_xml"]
@@ -279,13 +279,9 @@ def urdf_xml(
     links = {link.get("name"): link for link in robot.iter("link")}
     for k, mesh in enumerate(drawn):
         assert mesh_uri is not None
-        if mesh.joint == 0:
-            owner, link_pos = "base_link", -model.pos_base_from_robot_m
-        else:
-            owner = model.links[mesh.joint - 1].name
-            link_pos = model.links[mesh.joint - 1].joint_pos_robot_m
+        owner, xyz, rot = mesh_link_pose(model, mesh)
         visual = ET.SubElement(links[owner], "visual", name=f"{mesh.link}_mesh_{k}")
-        _origin(visual, mesh.pos_robot_m - link_pos, rpy_from_matrix(mesh.rot_robot_from_mesh))
+        _origin(visual, xyz, rpy_from_matrix(rot))
         ET.SubElement(
             ET.SubElement(visual, "geometry"),
             "mesh",

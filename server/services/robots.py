@@ -23,6 +23,7 @@ from planner.description import (
     load_robot,
 )
 from planner.errors import PlannerError
+from planner.meshes import MeshVisual
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
 from planner.urdf import urdf_xml
@@ -35,6 +36,7 @@ __all__ = [
     "description_named",
     "known_robots",
     "mesh_file",
+    "meshes_for_plan",
     "model_for_plan",
     "resolve_robot",
     "robot_descriptions",
@@ -227,6 +229,21 @@ def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | N
         model_for_plan(plan, robot_files)  # raises ConflictError robot_unknown
         return None
     return robot_urdf(found)
+
+
+def meshes_for_plan(
+    plan: Plan, robot_files: Sequence[Path | str] = ()
+) -> tuple[tuple[MeshVisual, bytes], ...]:
+    """The visual meshes of the robot ``plan`` was made for, each with its file's bytes (for
+    the recording's ``/robot_meshes``); none for ETS-VII, a robot without meshes, or one the
+    server has no description of (:func:`urdf_for_plan` says so first)."""
+    if plan.robot_hash == ETS7_ROBOT_HASH:
+        return ()
+    found = _by_hash(robot_files, plan.robot_hash)
+    if found is None:
+        return ()
+    data = {key: path.read_bytes() for key, path in found.mesh_files.items()}
+    return tuple((mesh, data[mesh.key]) for mesh in found.visual_meshes)
 
 
 @functools.lru_cache(maxsize=16)

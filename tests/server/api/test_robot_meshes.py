@@ -122,3 +122,122 @@ def test_an_unknown_robot_and_a_missing_token(ur5_client: TestClient) -> None:
     )
     assert "'kuka'" in message and "ur5" in message
     assert ur5_client.get("/api/robots/ur5/meshes/0/base.dae").status_code == 401
+
+
+# foxglove-sdk schemas/jsonschema/ModelPrimitive.json's fields, restated and closed.
+_MODEL_PRIMITIVE = {
+    "type": "object",
+    "additionalProperties": False,
+    "required": ["pose", "scale", "color", "override_color", "url", "media_type", "data"],
+    "properties": {
+        "pose": {
+            "type": "object",
+            "additionalProperties": False,
+            "properties": {
+                "position": {"type": "object", "required": ["x", "y", "z"]},
+                "orientation": {"type": "object", "required": ["x", "y", "z", "w"]},
+            },
+        },
+        "scale": {"type": "object", "required": ["x", "y", "z"]},
+        "color": {"type": "object", "required": ["r", "g", "b", "a"]},
+        "override_color": {"type": "boolean"},
+        "url": {"type": "string"},
+        "media_type": {"type": "string"},
+        "data": {"type": "string"},
+    },
+}
+
+
+def test_the_recording_embeds_the_vendor_meshes_on_their_tf_frames(
+    ur5_client: TestClient, ur5_toml: Path
+) -> None:
+    """A flown UR5 pass's MCAP from the ground: /robot_meshes holds one entity per visual
+    mesh, the file's bytes exactly (base64), on a frame /tf moves, at the pose the viewers'
+    URDF gives that mesh."""
+    import base64
+    import io
+    import json
+
+    import jsonschema_rs
+    from mcap.reader import make_reader
+
+    from planner.frames import matrix_from_quat_xyzw, rpy_from_matrix
+    from planner.plan import plan_for_robot
+    from server.storage import repository as repo
+    from telemetry.layout import FrameLayout
+    from telemetry.mcap import TOPIC_ROBOT_MESHES, TOPIC_TF
+    from tests.server.api.conftest import sessions
+    from tests.server.storage.factories import make_frames, make_plan
+
+    ur5 = load_robot(ur5_toml)
+    frames = make_frames(range(8), layout=FrameLayout(6, 3))
+    with sessions(ur5_client)() as session:
+        plan = repo.add_plan(
+            session=session, plan=plan_for_robot(make_plan(n_joints=6), ur5), created_at_ns=0
+        )
+        record = repo.add_pass(
+            session=session,
+            name="ur5-flown",
+            plan_id=plan.id,
+            aos_time_ns=0,
+            los_time_ns=10**12,
+            relay="TDRS-W",
+            created_at_ns=0,
+        )
+        record.epoch_ns = int(frames[0].generation_time_ns)
+        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
+        session.commit()
+        pass_id = record.id
+    response = ur5_client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    updates, tf_children = [], set()
+    for schema, channel, message in make_reader(io.BytesIO(response.content)).iter_messages(
+        topics=[TOPIC_ROBOT_MESHES, TOPIC_TF]
+    ):
+        doc = json.loads(message.data)
+        if channel.topic == TOPIC_TF:
+            tf_children |= {t["child_frame_id"] for t in doc["transforms"]}
+        else:
+            assert schema is not None and schema.name == "foxglove.SceneUpdate"
+            updates.append(doc)
+    [update] = updates
+    assert len(update["entities"]) == len(ur5.visual_meshes) == 7
+    validator = jsonschema_rs.validator_for(_MODEL_PRIMITIVE)
+    urdf = ET.fromstring(robot_urdf_with_meshes(ur5))
+    for entity, mesh in zip(update["entities"], ur5.visual_meshes, strict=True):
+        assert entity["frame_id"] in tf_children
+        assert entity["lifetime"] == {"sec": 0, "nsec": 0} and entity["frame_locked"] is True
+        [model] = entity["models"]
+        validator.validate(model)
+        assert base64.b64decode(model["data"]) == ur5.mesh_files[mesh.key].read_bytes()
+        assert model["media_type"] == "model/vnd.collada+xml"
+        # the same place as the console's URDF draws it
+        [visual] = [
+            v
+            for v in urdf.iter("visual")
+            if (m := v.find("geometry/mesh")) is not None
+            and m.get("filename", "").endswith("/" + mesh.key)
+        ]
+        origin = visual.find("origin")
+        assert origin is not None
+        assert (
+            urdf.find(f"link[@name='{entity['frame_id']}']/visual[@name='{visual.get('name')}']")
+            is not None
+        )
+        position = model["pose"]["position"]
+        np.testing.assert_allclose(
+            [position["x"], position["y"], position["z"]],
+            [float(v) for v in origin.get("xyz", "").split()],
+            atol=1e-12,
+        )
+        q = model["pose"]["orientation"]
+        rot = matrix_from_quat_xyzw(np.array([q["x"], q["y"], q["z"], q["w"]]))
+        np.testing.assert_allclose(
+            rpy_from_matrix(rot), [float(v) for v in origin.get("rpy", "").split()], atol=1e-9
+        )
+
+
+def robot_urdf_with_meshes(robot: object) -> str:
+    from server.services.robots import robot_urdf
+
+    return robot_urdf(robot, mesh_base="/api/robots/ur5/meshes/")  # type: ignore[arg-type]
