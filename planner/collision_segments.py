@@ -28,7 +28,7 @@ from planner.collision import (
 )
 from planner.model import RobotModel
 
-__all__ = ["segment_collision_model"]
+__all__ = ["generated_contacts", "segment_collision_model"]
 
 Array = NDArray[np.float64]
 
@@ -96,3 +96,26 @@ def segment_collision_model(
         if d.distance_m < clearance_m:
             contacts.append(AllowedContact((names[i], names[j]), _TOUCHING))
     return CollisionModel(tuple(bodies), tuple(contacts))
+
+
+def generated_contacts(
+    model: RobotModel, collision: CollisionModel, clearance_m: float
+) -> CollisionModel:
+    """``collision`` (a URDF's own bodies: a vendor's meshes) with the contacts this module
+    generates allowed besides its own: each joint's two sides (bodies of joints k and k + 1)
+    and every pair nearer than ``clearance_m`` at the reference pose
+    (``[flight_rules] generated_allowed_contact = true``)."""
+    bodies = collision.bodies
+    contacts = list(collision.allowed)
+    for i, j in collision.pairs:
+        if abs(bodies[i].joint - bodies[j].joint) == 1:
+            contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _ADJACENT))
+    trial = CollisionModel(bodies, tuple(contacts))
+    shapes = ShapeSet(trial)
+    rots, trans = body_poses(model, model.reference_joints)
+    for i, j in trial.pairs:
+        a, b = bodies[i].joint, bodies[j].joint
+        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
+        if d.distance_m < clearance_m:
+            contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _TOUCHING))
+    return CollisionModel(bodies, tuple(contacts))

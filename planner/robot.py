@@ -37,6 +37,7 @@ from planner.flight_rules import FlightRules, FlightRulesReport, ServoModel, che
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.limits import DEFAULT_LIMITS, Limits
+from planner.meshes import MeshVisual
 from planner.mjcf import ServoGains
 from planner.model import RobotModel, arm_reach_m, default_model
 from planner.plan import Plan
@@ -151,6 +152,10 @@ class RobotDescription:
     lumped: tuple[tuple[str, str], ...] = ()
     locked: tuple[tuple[str, str, float], ...] = ()
     renamed: tuple[tuple[str, str], ...] = ()
+    #: the URDF's visual meshes the description reaches (planner.meshes), and their files by
+    #: served key (what GET /api/robots/{name}/meshes/{key} may answer, and nothing else)
+    visual_meshes: tuple[MeshVisual, ...] = ()
+    mesh_files: Mapping[str, Path] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def n_joints(self) -> int:

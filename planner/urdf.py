@@ -35,18 +35,25 @@ last link), a sphere at the hand. ``equipment`` (a description's keep-out bodies
 fixed on ``base_link`` at its origin, with a visual per shape (a capsule drawn as a cylinder
 of its whole length; a convex hull is not drawn), so that viewers show what the flight rules
 keep the arm away from.
+
+``meshes`` (a vendor description's visual meshes, :class:`planner.meshes.MeshVisual`) with
+``mesh_uri`` (the address a viewer fetches each from, by its key): each becomes a ``<visual>``
+``<mesh>`` on the link of the body that carries it, placed at its zero-pose frame; a link
+that has one draws no cylinder (the last link no hand sphere), the vendor's shape standing
+for it. Without ``mesh_uri`` no mesh is written and the primitives are drawn as before.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.collision import CollisionBody
 from planner.frames import rpy_from_matrix
+from planner.meshes import MeshVisual, mesh_link_pose
 from planner.model import RobotModel
 
 __all__ = ["urdf_xml"]
@@ -168,11 +175,16 @@ def urdf_xml(
     name: str = "ets7",
     base_box_size_m: tuple[float, float, float] = _BASE_BOX_SIZE_M,
     equipment: Sequence[CollisionBody] = (),
+    meshes: Sequence[MeshVisual] = (),
+    mesh_uri: Callable[[str], str] | None = None,
 ) -> str:
     """The URDF document of ``model`` (frames as in the module docstring), as a string.
     ``base_box_size_m``: the base's display box (ETS-VII's by default); ``equipment``: the
-    keep-out bodies fixed on the base to draw (none by default)."""
+    keep-out bodies fixed on the base to draw (none by default); ``meshes`` and ``mesh_uri``
+    (key -> address): the vendor's visual meshes (none unless both are given)."""
     robot = ET.Element("robot", name=name)
+    drawn = list(meshes) if mesh_uri is not None else []
+    meshed = {m.joint for m in drawn}
 
     base = ET.SubElement(robot, "link", name="base_link")
     _inertial(base, model.base_mass_kg, np.zeros(3), model.base_inertia_kgm2)
@@ -206,7 +218,7 @@ def urdf_xml(
         )
         segment_m = end_robot_m - spec.joint_pos_robot_m
         length_m = float(np.linalg.norm(segment_m))
-        if length_m > _MIN_SEGMENT_M:
+        if length_m > _MIN_SEGMENT_M and i + 1 not in meshed:
             _visual(
                 link,
                 f"{spec.name}_segment",
@@ -239,15 +251,16 @@ def urdf_xml(
         parent_name, parent_pos_robot_m = spec.name, spec.joint_pos_robot_m
 
     hand = ET.SubElement(robot, "link", name="hand")
-    _visual(
-        hand,
-        "hand_sphere",
-        np.zeros(3),
-        np.zeros(3),
-        "sphere",
-        _HAND_RGBA,
-        radius=_num(_HAND_RADIUS_M),
-    )
+    if model.n_joints not in meshed:
+        _visual(
+            hand,
+            "hand_sphere",
+            np.zeros(3),
+            np.zeros(3),
+            "sphere",
+            _HAND_RGBA,
+            radius=_num(_HAND_RADIUS_M),
+        )
     hand_joint = _joint(
         robot,
         "hand_joint",
@@ -263,6 +276,21 @@ def urdf_xml(
 
     for body in equipment:
         _equipment(robot, body, model.pos_base_from_robot_m)
+    links = {link.get("name"): link for link in robot.iter("link")}
+    for k, mesh in enumerate(drawn):
+        assert mesh_uri is not None
+        owner, xyz, rot = mesh_link_pose(model, mesh)
+        visual = ET.SubElement(links[owner], "visual", name=f"{mesh.link}_mesh_{k}")
+        _origin(visual, xyz, rpy_from_matrix(rot))
+        ET.SubElement(
+            ET.SubElement(visual, "geometry"),
+            "mesh",
+            filename=mesh_uri(mesh.key),
+            scale=_vec(mesh.scale),
+        )
+        if mesh.rgba is not None:
+            material = ET.SubElement(visual, "material", name=f"{mesh.link}_mesh_{k}_material")
+            ET.SubElement(material, "color", rgba=_vec(mesh.rgba))
 
     ET.indent(robot, space="  ")
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"

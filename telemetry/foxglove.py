@@ -12,13 +12,21 @@ of :func:`planner.urdf.urdf_xml` relative to its URDF parent, at the measured jo
 Link poses come from the model's own MuJoCo kinematics (:func:`planner.mjcf.compile_model`),
 so they are the planner's, not a second derivation. The base's position in the orbit frame is
 not telemetered: its translation is zero (the base centre of mass at the orbit origin).
+
+:func:`mesh_scene_update` gives a vendor robot's visual meshes as one ``foxglove.SceneUpdate``
+(field names as foxglove-sdk ``schemas/jsonschema/SceneUpdate.json``): one entity per mesh,
+on the frame of the export's link that carries it (``/tf`` moves it), the file embedded as
+a ``foxglove.ModelPrimitive``'s ``data`` (base64 in JSON) with its media type, lifetime 0
+(for ever). Embedded rather than named by URL: an MCAP is opened away from the ground, and
+the ground's mesh route needs a token no viewer of a file has.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import mujoco
@@ -26,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from planner.meshes import MeshVisual, mesh_link_pose, mesh_media_type
 from planner.mjcf import compile_model
 from planner.model import RobotModel
 from planner.mujoco_conventions import MjLayout
@@ -37,6 +46,8 @@ __all__ = [
     "LOG_SCHEMA",
     "LOG_SCHEMA_NAME",
     "ORBIT_FRAME",
+    "SCENE_UPDATE_SCHEMA",
+    "SCENE_UPDATE_SCHEMA_NAME",
     "STRING_SCHEMA",
     "STRING_SCHEMA_NAME",
     "FrameTransformer",
@@ -44,6 +55,7 @@ __all__ = [
     "event_log",
     "frame_transforms",
     "link_poses_base",
+    "mesh_scene_update",
     "urdf_tree",
 ]
 
@@ -383,3 +395,104 @@ def event_log(time_ns: int, kind: str, actor: str, detail: Mapping[str, Any]) ->
         "file": "",
         "line": 0,
     }
+
+
+SCENE_UPDATE_SCHEMA_NAME = "foxglove.SceneUpdate"
+_TIME: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+    },
+}
+_VEC3: dict[str, Any] = {"type": "object", "properties": {k: {"type": "number"} for k in _XYZ}}
+_QUAT: dict[str, Any] = {"type": "object", "properties": {k: {"type": "number"} for k in _XYZW}}
+_COLOR: dict[str, Any] = {
+    "type": "object",
+    "properties": {k: {"type": "number"} for k in ("r", "g", "b", "a")},
+}
+_LISTS = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models")
+#: ``foxglove.SceneUpdate`` restated for what :func:`mesh_scene_update` writes (its entities'
+#: other primitive lists are written empty).
+SCENE_UPDATE_SCHEMA: dict[str, Any] = {
+    "title": SCENE_UPDATE_SCHEMA_NAME,
+    "description": "An update to the entities displayed in a 3D scene",
+    "type": "object",
+    "properties": {
+        "deletions": {"type": "array", "items": {"type": "object"}},
+        "entities": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.SceneEntity",
+                "type": "object",
+                "properties": {
+                    "timestamp": _TIME,
+                    "frame_id": {"type": "string"},
+                    "id": {"type": "string"},
+                    "lifetime": _TIME,
+                    "frame_locked": {"type": "boolean"},
+                    "metadata": {"type": "array", "items": {"type": "object"}},
+                    **{k: {"type": "array", "items": {"type": "object"}} for k in _LISTS[:-1]},
+                    "models": {
+                        "type": "array",
+                        "items": {
+                            "title": "foxglove.ModelPrimitive",
+                            "type": "object",
+                            "properties": {
+                                "pose": {
+                                    "type": "object",
+                                    "properties": {"position": _VEC3, "orientation": _QUAT},
+                                },
+                                "scale": _VEC3,
+                                "color": _COLOR,
+                                "override_color": {"type": "boolean"},
+                                "url": {"type": "string"},
+                                "media_type": {"type": "string"},
+                                "data": {"type": "string", "contentEncoding": "base64"},
+                            },
+                        },
+                    },
+                },
+            },
+        },
+    },
+    "required": ["deletions", "entities"],
+}
+
+
+def mesh_scene_update(
+    model: RobotModel, meshes: Sequence[tuple[MeshVisual, bytes]], time_ns: int
+) -> dict[str, Any]:
+    """One ``foxglove.SceneUpdate`` holding every mesh (its file's bytes given), each on its
+    export link's frame at its zero-pose offset (see the module doc)."""
+    stamp = {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
+    entities = []
+    for k, (mesh, data) in enumerate(meshes):
+        frame, xyz, rot = mesh_link_pose(model, mesh)
+        quat = _quat_xyzw(rot)[0]
+        rgba = mesh.rgba or (0.8, 0.8, 0.85, 1.0)
+        entity: dict[str, Any] = {
+            "timestamp": stamp,
+            "frame_id": frame,
+            "id": f"mesh/{k}/{mesh.link}",
+            "lifetime": {"sec": 0, "nsec": 0},
+            "frame_locked": True,
+            "metadata": [{"key": "uri", "value": mesh.uri}],
+            **{name: [] for name in _LISTS},
+        }
+        entity["models"] = [
+            {
+                "pose": {
+                    "position": dict(zip(_XYZ, (float(v) for v in xyz), strict=True)),
+                    "orientation": dict(zip(_XYZW, (float(v) for v in quat), strict=True)),
+                },
+                "scale": dict(zip(_XYZ, mesh.scale, strict=True)),
+                "color": dict(zip(("r", "g", "b", "a"), rgba, strict=True)),
+                "override_color": mesh.rgba is not None,
+                "url": "",
+                "media_type": mesh_media_type(mesh.uri) or "application/octet-stream",
+                "data": base64.b64encode(data).decode("ascii"),
+            }
+        ]
+        entities.append(entity)
+    return {"deletions": [], "entities": entities}

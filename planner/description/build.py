@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import replace
+from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
@@ -28,9 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.collision import AllowedContact, CollisionModel
-from planner.collision_segments import segment_collision_model
+from planner.collision_segments import generated_contacts, segment_collision_model
 from planner.description.checks import Checker, InvalidRobotDescription, frozen
-from planner.description.collision_xml import collision_model_from, flight_rules_from
+from planner.description.collision_xml import (
+    collision_model_from,
+    flight_rules_from,
+    visual_meshes_from,
+)
 from planner.description.hashing import content_sha256
 from planner.description.reduce import CONTINUOUS_LIMIT_RAD, Mount, Reduction, reduce_tree
 from planner.description.tables import (
@@ -46,6 +51,7 @@ from planner.description.vendor import locked_from, mission_limits_from, mount_f
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.flight_rules import FlightRules
+from planner.meshes import mesh_key
 from planner.model import LinkSpec, RobotModel, WheelSpec, base_body_inertial
 from planner.robot import NamedPose, RobotDescription, ServoSpec, servo_gains_of
 from planner.servo_check import servo_modes
@@ -122,9 +128,11 @@ def build_robot(
     head: Header,
     urdf: Urdf,
     meshes: Mapping[str, Array] | None = None,
+    visual_files: Mapping[str, Path] | None = None,
 ) -> RobotDescription:
     """The description from its parsed TOML document (``head`` already checked) and its
-    parsed URDF (``meshes``: the points of every mesh its ``<collision>`` names, read); ``c``
+    parsed URDF (``meshes``: the points of every mesh its ``<collision>`` names, read;
+    ``visual_files``: the files of the ``<visual>`` meshes that were found, by filename); ``c``
     names the TOML file and ``head.urdf_path`` the URDF in messages. Reads no file:
     :func:`planner.description.load_robot` has read them."""
     urdf_path = head.urdf_path
@@ -164,9 +172,20 @@ def build_robot(
             # the tree's own frames unless loading moved something (a mount, a locked
             # tool): ETS-VII's shapes keep their numbers to the last bit
             frames=red.frames if mount is not None or red.locked else None,
+            mount_box=None if mount is None else (mount.size_m, -red.pos_j1_m),
         )
         if urdf_collision
         else None
+    )
+    first_link = urdf.link_ref(urdf.joints[red.joint_names[0]], "child")
+    keys = {name: mesh_key(k, name) for k, name in enumerate(visual_files or {})}
+    visuals = visual_meshes_from(
+        urdf,
+        head.base_link,
+        list(red.joint_names),
+        first_link,
+        keys,
+        frames=red.frames if mount is not None or red.locked else None,
     )
 
     rotor_mass, rotor_free_inertia = base_body_inertial(model)
@@ -190,6 +209,23 @@ def build_robot(
     model = _with_reference(c, doc, model, red, poses)
     ws = DynamicsWorkspace(model)
     box = mount.size_m if mount is not None else urdf.box_size(head.base_link)
+    generate = c.table("[flight_rules]", doc.get("flight_rules", {})).get(
+        "generated_allowed_contact", False
+    )
+    if not isinstance(generate, bool):
+        raise c.fail(
+            "[flight_rules] generated_allowed_contact", f"must be true or false, got {generate!r}"
+        )
+    if generate:
+        if collision is None:
+            raise c.fail(
+                "[flight_rules] generated_allowed_contact",
+                "the URDF's <collision> shapes are not read (urdf_collision = false, or none)",
+            )
+        try:
+            collision = generated_contacts(model, collision, rules.min_clearance_m)
+        except InvalidInput as exc:
+            raise c.fail("[flight_rules] generated_allowed_contact", str(exc)) from None
     if "generated_collision" in doc:
         if urdf_collision:
             raise c.fail(
@@ -230,6 +266,10 @@ def build_robot(
         lumped=red.lumped,
         locked=red.locked,
         renamed=red.renamed,
+        visual_meshes=visuals,
+        mesh_files=MappingProxyType(
+            {keys[name]: path for name, path in (visual_files or {}).items()}
+        ),
     )
     try:
         description.acs_gains(ws)

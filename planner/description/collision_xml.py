@@ -21,8 +21,14 @@ from planner.description.checks import Checker, frozen
 from planner.description.urdf_xml import Frame, Urdf
 from planner.errors import InvalidInput
 from planner.flight_rules import FlightRules
+from planner.meshes import MeshVisual
 
-__all__ = ["collision_model_from", "flight_rules_from", "mesh_filenames"]
+__all__ = [
+    "collision_model_from",
+    "flight_rules_from",
+    "mesh_filenames",
+    "visual_meshes_from",
+]
 
 Array = NDArray[np.float64]
 
@@ -35,21 +41,22 @@ _RULE_KEYS = frozenset(
         "max_hand_speed_mps",
         "pass_window_s",
         "allowed_contact",
+        "generated_allowed_contact",
     }
 )
 _CONTACT_KEYS = frozenset({"bodies", "reason"})
 _MODES = ("feedback", "free_drift")
 
 
-def mesh_filenames(urdf: Urdf) -> list[str]:
-    """Every mesh file a ``<collision>`` names, in order of appearance."""
+def mesh_filenames(urdf: Urdf, element: str = "collision") -> list[str]:
+    """Every mesh file a ``<collision>`` (or ``<visual>``) names, in order of appearance."""
     out: list[str] = []
-    for elem in urdf.root.iter("collision"):
+    for elem in urdf.root.iter(element):
         mesh = elem.find("geometry/mesh")
         if mesh is not None:
             name = mesh.get("filename")
             if not name:
-                raise urdf.c.fail("<collision> <mesh>", "missing filename")
+                raise urdf.c.fail(f"<{element}> <mesh>", "missing filename")
             if name not in out:
                 out.append(name)
     return out
@@ -154,11 +161,13 @@ def collision_model_from(
     toml: Checker,
     *,
     frames: Mapping[str, Frame] | None = None,
+    mount_box: tuple[tuple[float, float, float], Array] | None = None,
 ) -> CollisionModel | None:
     """The URDF's collision bodies (None when it has no ``<collision>`` at all: the rules
     step refuses such a robot, :func:`planner.collision.check_collision_model`). ``frames``:
     every link's frame at the reference, tool joints locked (default: the all-zero pose, in
-    the base link's frame)."""
+    the base link's frame). ``mount_box``: the ``[base]`` cube (size, centre in the robot
+    frame), a box of the base link's body (the spacecraft the arm must keep clear of)."""
     frames = _zero_pose_frames(urdf, base_link) if frames is None else frames
     robot_origin = frames[first_link].pos  # joint 1's position: its child link's origin
     bodies = []
@@ -178,6 +187,15 @@ def collision_model_from(
             for elem in elems
         )
         bodies.append(CollisionBody(name, _moving_joint(urdf, name, arm_joints), shapes))
+    if bodies and mount_box is not None:
+        size, centre = mount_box
+        box = CollisionShape("box", size, frozen(np.eye(3)), frozen(centre))
+        names = [b.name for b in bodies]
+        if base_link in names:
+            k = names.index(base_link)
+            bodies[k] = CollisionBody(base_link, 0, (*bodies[k].shapes, box))
+        else:
+            bodies.insert(0, CollisionBody(base_link, 0, (box,)))
     if not bodies:
         if allowed:
             raise toml.fail(
@@ -188,6 +206,52 @@ def collision_model_from(
         return CollisionModel(tuple(bodies), tuple(allowed))
     except InvalidInput as exc:
         raise toml.fail("[[flight_rules.allowed_contact]]", str(exc)) from None
+
+
+def visual_meshes_from(
+    urdf: Urdf,
+    base_link: str,
+    arm_joints: Sequence[str],
+    first_link: str,
+    keys: Mapping[str, str],
+    *,
+    frames: Mapping[str, Frame] | None = None,
+) -> tuple[MeshVisual, ...]:
+    """Every ``<visual>`` mesh whose file was found (``keys``: its filename -> served key),
+    placed at the all-zero pose in the robot frame like the collision shapes."""
+    frames = _zero_pose_frames(urdf, base_link) if frames is None else frames
+    robot_origin = frames[first_link].pos
+    out = []
+    for name, link in urdf.links.items():
+        if name not in frames:  # not on the tree the model was built from
+            continue
+        for elem in link.findall("visual"):
+            mesh = elem.find("geometry/mesh")
+            filename = "" if mesh is None else mesh.get("filename", "")
+            if mesh is None or filename not in keys:
+                continue
+            where = f"link {name!r} <visual>"
+            rot, pos = urdf.origin(elem, where)
+            placed = frames[name].then(rot, pos)
+            scale = urdf.floats(f"{where} <mesh scale>", mesh.get("scale"), 3, "1 1 1")
+            color = elem.find("material/color")
+            rgba = None
+            if color is not None and color.get("rgba"):
+                values = urdf.floats(f"{where} <color rgba>", color.get("rgba"), 4, "")
+                rgba = (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
+            out.append(
+                MeshVisual(
+                    link=name,
+                    joint=_moving_joint(urdf, name, arm_joints),
+                    uri=filename,
+                    key=keys[filename],
+                    rot_robot_from_mesh=frozen(placed.rot_matrix),
+                    pos_robot_m=frozen(placed.pos - robot_origin),
+                    scale=(float(scale[0]), float(scale[1]), float(scale[2])),
+                    rgba=rgba,
+                )
+            )
+    return tuple(out)
 
 
 def flight_rules_from(c: Checker, value: object) -> tuple[FlightRules, tuple[AllowedContact, ...]]:

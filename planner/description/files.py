@@ -7,6 +7,7 @@ The only module of the planner that opens a robot's files (``load_robot`` and
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,12 @@ __all__ = [
     "ETS7_DESCRIPTION",
     "EXAMPLES_DIR",
     "MAX_FILE_BYTES",
+    "MAX_MESHES_BYTES",
+    "MAX_MESH_POINTS",
+    "mesh_path",
+    "packages_from",
     "read_limited",
+    "read_limited_size",
     "read_mesh_points",
     "read_toml",
     "urdf_path_of",
@@ -27,6 +33,12 @@ __all__ = [
 
 #: Neither the TOML nor the URDF may be larger (checked by size before reading).
 MAX_FILE_BYTES = 16 * 1024 * 1024
+#: Every mesh a URDF names (visual and collision), added up, may be no larger: the server
+#: hands them to each console that draws the robot (our choice: the 19 files example-robot-
+#: data's panda.urdf names are 10.6 MB, the 14 of ur5_robot.urdf 6.9 MB; summed by st_size).
+MAX_MESHES_BYTES = 64 * 1024 * 1024
+#: A collision mesh may have no more points (its convex hull is built at every load).
+MAX_MESH_POINTS = 200_000
 #: The shipped descriptions: in an installed wheel beside this module (``robots``, setup.py
 #: copies them there), else the checkout's ``examples/robots`` (an editable install).
 _PACKAGED = Path(__file__).resolve().parent / "robots"
@@ -36,8 +48,9 @@ EXAMPLES_DIR = (
 ETS7_DESCRIPTION = EXAMPLES_DIR / "ets7" / "ets7.toml"
 
 
-def read_limited(path: Path, what: str) -> bytes:
-    """The file's bytes; refused by its size before reading anything when too large."""
+def read_limited_size(path: Path, what: str) -> int:
+    """The size of a regular file within :data:`MAX_FILE_BYTES`; refused otherwise (nothing
+    is read)."""
     try:
         size = path.stat().st_size
     except FileNotFoundError:
@@ -50,6 +63,12 @@ def read_limited(path: Path, what: str) -> bytes:
         raise InvalidRobotDescription(
             path, what, f"the file is {size} bytes, over the {MAX_FILE_BYTES} byte limit"
         )
+    return size
+
+
+def read_limited(path: Path, what: str) -> bytes:
+    """The file's bytes; refused by its size before reading anything when too large."""
+    read_limited_size(path, what)
     try:
         with path.open("rb") as f:
             data = f.read(MAX_FILE_BYTES + 1)  # the file may have grown since stat
@@ -86,24 +105,75 @@ def urdf_path_of(c: Checker, toml_path: Path, urdf_name: str) -> Path:
     return urdf_path
 
 
-def read_mesh_points(urdf_path: Path, filename: str) -> NDArray[np.float64]:
-    """The vertices of a mesh a URDF's ``<collision>`` names (a path relative to the URDF,
-    or ``file://``; ``package://`` URIs need a ROS workspace and are refused with that
-    reason), read by coal's mesh loader (assimp: STL, OBJ, DAE, ...), size-limited like the
-    description's own files. The rules take the mesh as its convex hull."""
+def packages_from(c: Checker, toml_path: Path, value: object) -> dict[str, Path]:
+    """``[packages]``: where each ``package://NAME/`` a URDF's meshes name lives (a folder,
+    relative to the description's or absolute), as ROS's package path would say; the folder
+    must exist."""
+    out: dict[str, Path] = {}
+    for name, folder in c.table("[packages]", value).items():
+        where = f"[packages] {name}"
+        text = c.text(where, folder)
+        path = Path(text) if Path(text).is_absolute() else toml_path.parent / text
+        if not path.is_dir():
+            raise c.fail(where, f"{text!r} is not a folder")
+        out[name] = path.resolve()
+    return out
+
+
+def mesh_path(
+    urdf_path: Path, filename: str, packages: Mapping[str, Path], where: str
+) -> Path | None:
+    """The file a URDF's ``<mesh filename>`` names: a path relative to the URDF, a
+    ``file://`` path, or ``package://NAME/...`` inside the folder ``[packages]`` gives NAME
+    (None: no folder is given for NAME). A package path that leaves its folder is refused."""
+    if filename.startswith("package://"):
+        name, _, rest = filename.removeprefix("package://").partition("/")
+        folder = packages.get(name)
+        if folder is None:
+            return None
+        path = (folder / rest).resolve()
+        if not rest or not path.is_relative_to(folder):
+            raise InvalidRobotDescription(
+                urdf_path, where, f"leaves the folder of package {name!r} ({folder})"
+            )
+        return path
+    name = filename.removeprefix("file://")
+    return Path(name) if Path(name).is_absolute() else urdf_path.parent / name
+
+
+def read_mesh_points(
+    urdf_path: Path, filename: str, packages: Mapping[str, Path] | None = None
+) -> NDArray[np.float64]:
+    """The vertices of a mesh a URDF's ``<collision>`` names (:func:`mesh_path`; a
+    ``package://`` URI needs its folder in ``[packages]``), read by coal's mesh loader
+    (assimp: STL, OBJ, DAE, ...), size-limited like the description's own files and to
+    :data:`MAX_MESH_POINTS` points. The rules take the mesh as its convex hull."""
     import coal
 
     where = f"<collision> <mesh filename={filename!r}>"
-    if filename.startswith("package://"):
+    path = mesh_path(urdf_path, filename, packages or {}, where)
+    if path is None:
+        package = filename.removeprefix("package://").partition("/")[0]
         raise InvalidRobotDescription(
-            urdf_path, where, "package:// needs a ROS workspace: give a path relative to the URDF"
+            urdf_path,
+            where,
+            f"package:// needs a ROS workspace: name the folder of package {package!r} in the "
+            "description's [packages], or give a path relative to the URDF",
         )
-    name = filename.removeprefix("file://")
-    path = Path(name) if Path(name).is_absolute() else urdf_path.parent / name
     read_limited(path, "mesh")  # the size limit and a clear error for a missing file
     try:
         mesh = coal.MeshLoader().load(str(path), np.ones(3))
-        points = np.array([mesh.vertex(i) for i in range(mesh.num_vertices)], dtype=np.float64)
+        count = int(mesh.num_vertices)
+        if count > MAX_MESH_POINTS:
+            raise InvalidRobotDescription(
+                urdf_path,
+                where,
+                f"the mesh has {count} points, over the {MAX_MESH_POINTS} point limit of a "
+                "collision mesh: give a simpler one (its convex hull is what the rules use)",
+            )
+        points = np.array([mesh.vertex(i) for i in range(count)], dtype=np.float64)
+    except InvalidRobotDescription:
+        raise
     except Exception as exc:  # assimp's own errors
         raise InvalidRobotDescription(urdf_path, where, f"cannot read the mesh: {exc}") from None
     if points.ndim != 2 or points.shape[0] < 4 or not np.all(np.isfinite(points)):

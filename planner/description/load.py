@@ -4,20 +4,27 @@
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from planner.description.build import build_robot
+from planner.description.checks import InvalidRobotDescription
 from planner.description.collision_xml import mesh_filenames
 from planner.description.files import (
     ETS7_DESCRIPTION,
+    MAX_MESHES_BYTES,
+    mesh_path,
+    packages_from,
     read_limited,
+    read_limited_size,
     read_mesh_points,
     read_toml,
     urdf_path_of,
 )
 from planner.description.tables import head_from, sensor_noise_from, servo_from
 from planner.description.urdf_xml import Urdf
+from planner.meshes import MESH_MEDIA_TYPES, mesh_media_type
 from planner.robot import RobotDescription, SensorNoiseSpec, ServoSpec
 
 __all__ = ["VehicleTables", "default_robot", "load_robot", "load_vehicle_tables"]
@@ -34,12 +41,51 @@ def load_robot(path: str | Path) -> RobotDescription:
     c, doc = read_toml(toml_path, "description")
     head = head_from(c, doc, lambda urdf_name: urdf_path_of(c, toml_path, urdf_name))
     urdf = Urdf(head.urdf_path, read_limited(head.urdf_path, "URDF"))
-    meshes = (
-        {name: read_mesh_points(head.urdf_path, name) for name in mesh_filenames(urdf)}
+    packages = packages_from(c, toml_path, doc.get("packages", {}))
+    collision_names = (
+        mesh_filenames(urdf)
         if doc.get("urdf_collision", True) is not False  # false: <collision> is not read
-        else {}
+        else []
     )
-    return build_robot(c, doc, head, urdf, meshes)
+    visual_files = _visual_files(head.urdf_path, urdf, packages)
+    sizes = {path.resolve(): path.stat().st_size for path in visual_files.values()}
+    meshes = {}
+    for name in collision_names:
+        meshes[name] = read_mesh_points(head.urdf_path, name, packages)
+        found = mesh_path(head.urdf_path, name, packages, "<collision> <mesh>")
+        assert found is not None  # read_mesh_points refuses an unknown package
+        sizes[found.resolve()] = found.stat().st_size
+    total = sum(sizes.values())
+    if total > MAX_MESHES_BYTES:
+        raise InvalidRobotDescription(
+            head.urdf_path,
+            "<mesh>",
+            f"the {len(sizes)} mesh files it names are {total} bytes together, over the "
+            f"{MAX_MESHES_BYTES} byte limit of one robot's meshes",
+        )
+    return build_robot(c, doc, head, urdf, meshes, visual_files)
+
+
+def _visual_files(urdf_path: Path, urdf: Urdf, packages: Mapping[str, Path]) -> dict[str, Path]:
+    """The file of every ``<visual>`` mesh the description reaches, by filename, each
+    size-limited (a ``package://`` mesh whose folder ``[packages]`` does not give is left to
+    the primitives); a reachable file that is missing or too large is refused."""
+    out: dict[str, Path] = {}
+    for name in mesh_filenames(urdf, "visual"):
+        where = f"<visual> <mesh filename={name!r}>"
+        path = mesh_path(urdf_path, name, packages, where)
+        if path is None:
+            continue
+        if mesh_media_type(name) is None:
+            raise InvalidRobotDescription(
+                urdf_path, where, f"not a mesh viewers draw: {sorted(MESH_MEDIA_TYPES)}"
+            )
+        try:
+            read_limited_size(path, "mesh")
+        except InvalidRobotDescription as exc:
+            raise InvalidRobotDescription(urdf_path, where, exc.problem) from None
+        out[name] = path
+    return out
 
 
 @functools.cache

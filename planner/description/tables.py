@@ -76,6 +76,7 @@ TOP_KEYS = frozenset(
         "mission_limits",
         "urdf_collision",
         "generated_collision",
+        "packages",
     }
 )
 _WHEEL_KEYS = frozenset(

@@ -8,6 +8,10 @@ FILE``); ``GET /api/robots/by-hash/{robot_hash}/urdf``: the URDF of the robot a 
 made for, by the plan's ``robot_hash`` (a plan records the description's hash, and the robot
 may have been given to the server by file). An unknown robot is 404 ``unknown_robot`` with the
 known ones. ``GET /api/model/urdf`` stays ETS-VII's (server/api/model.py).
+``GET /api/robots/{name}/meshes/{index}/{filename}``: a visual mesh the robot's URDF names
+(a vendor's STL, DAE or OBJ; the URDFs above point their ``<mesh>`` here): only the files
+its description names and loading found, looked up by key, never a path made from the
+request; 404 ``unknown_mesh`` with the robot's meshes otherwise.
 """
 
 from __future__ import annotations
@@ -17,11 +21,12 @@ from typing import Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, Path
-from fastapi.responses import Response
+from fastapi.responses import FileResponse, Response
 
 from planner.description import RobotDescription
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
+from planner.meshes import mesh_media_type
 from planner.plan import ETS7_ROBOT_NAME
 from server.api.deps import SettingsDep, ViewerDep
 from server.schemas import ERROR_RESPONSES, RobotPosePublic, RobotPublic, RobotsPublic
@@ -98,7 +103,7 @@ def _urdf(robot: RobotDescription) -> Response:
     key = (robot.name, robot.content_sha256)
     with _LOCK:
         if key not in _URDF:
-            _URDF[key] = service.robot_urdf(robot)
+            _URDF[key] = service.robot_urdf(robot, mesh_base=f"/api/robots/{robot.name}/meshes/")
         text = _URDF[key]
     return Response(text, media_type="application/xml")
 
@@ -123,3 +128,30 @@ def get_robot_urdf_by_hash(robot_hash: RobotHash, settings: SettingsDep, _: View
     ``robot_hash``: ``GET /api/plans/{id}/document``); 404 ``unknown_robot`` when the server
     has no such description."""
     return _urdf(service.description_by_hash(settings, robot_hash))
+
+
+_MESH_RESPONSE: dict[int | str, dict[str, Any]] = {
+    200: {
+        "content": {"model/stl": {}, "model/vnd.collada+xml": {}, "model/obj": {}},
+        "description": "The mesh file as the vendor wrote it",
+    }
+}
+MeshIndex = Annotated[int, Path(ge=0, le=9999)]
+MeshFile = Annotated[str, Path(min_length=1, max_length=255, pattern=r"^[A-Za-z0-9_.\-]+$")]
+
+
+@router.get(
+    "/{name}/meshes/{index}/{filename}", response_class=FileResponse, responses=_MESH_RESPONSE
+)
+def get_robot_mesh(
+    name: RobotName, index: MeshIndex, filename: MeshFile, settings: SettingsDep, _: ViewerDep
+) -> FileResponse:
+    """A visual mesh the robot's URDF names (``GET /api/robots/{name}/urdf`` points its
+    ``<mesh>`` elements here); 404 ``unknown_robot`` or ``unknown_mesh`` with the reason."""
+    robot = service.description_named(settings, name)
+    path = service.mesh_file(robot, f"{index}/{filename}")
+    return FileResponse(
+        path,
+        media_type=mesh_media_type(filename) or "application/octet-stream",
+        headers={"Cache-Control": "private, max-age=3600"},
+    )

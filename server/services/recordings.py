@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from planner.plan import Plan
 from server.services.errors import ConflictError
-from server.services.robots import model_for_plan, urdf_for_plan
+from server.services.robots import meshes_for_plan, model_for_plan, urdf_for_plan
 from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
 from server.storage._common import MAX_LIMIT
@@ -126,7 +126,8 @@ def recording_mcap(
     buffer = io.BytesIO()
     model = model_for_plan(recording.plan, robot_files)
     urdf = urdf_for_plan(recording.plan, robot_files)
-    write_mcap(recording, buffer, model=model, urdf=urdf)
+    meshes = meshes_for_plan(recording.plan, robot_files)
+    write_mcap(recording, buffer, model=model, urdf=urdf, meshes=meshes)
     return recording.name, buffer.getvalue()
 
 
@@ -140,6 +141,7 @@ def write_recording(
     session.rollback()
     model = model_for_plan(recording.plan, robot_files)
     urdf = urdf_for_plan(recording.plan, robot_files)
+    meshes = meshes_for_plan(recording.plan, robot_files)
     with open(path, "wb") as stream:
-        write_mcap(recording, stream, model=model, urdf=urdf)
+        write_mcap(recording, stream, model=model, urdf=urdf, meshes=meshes)
     return recording.name

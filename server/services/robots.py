@@ -23,6 +23,7 @@ from planner.description import (
     load_robot,
 )
 from planner.errors import PlannerError
+from planner.meshes import MeshVisual
 from planner.model import RobotModel
 from planner.plan import ETS7_ROBOT_HASH, Plan
 from planner.urdf import urdf_xml
@@ -34,6 +35,8 @@ __all__ = [
     "description_for_plan",
     "description_named",
     "known_robots",
+    "mesh_file",
+    "meshes_for_plan",
     "model_for_plan",
     "resolve_robot",
     "robot_descriptions",
@@ -164,11 +167,16 @@ def description_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> 
     return found
 
 
-def robot_urdf(description: RobotDescription) -> str:
+#: The frames the export names itself (planner.urdf): equipment may not take these names.
+_EXPORT_FRAMES = frozenset({"base_link", "robot_base", "hand"})
+
+
+def robot_urdf(description: RobotDescription, *, mesh_base: str | None = None) -> str:
     """The robot's URDF for viewers: the export of its model under its name (as ``hikoboshi
     model urdf --robot FILE`` prints it), with its base's display box and the keep-out
     equipment the flight rules check against, drawn (ETS-VII: exactly ``GET
-    /api/model/urdf``)."""
+    /api/model/urdf``). ``mesh_base``: the address the vendor's visual meshes are served
+    under (``/api/robots/NAME/meshes/``; None: primitives only)."""
     box = description.base_box_size_m
     extra = {} if box is None else {"base_box_size_m": box}
     equipment = (
@@ -177,10 +185,37 @@ def robot_urdf(description: RobotDescription) -> str:
         else tuple(
             b
             for b in description.collision.bodies
-            if b.is_equipment and b.name != description.base_link
+            if b.is_equipment
+            and b.name != description.base_link
+            # a vendor's own base mesh (its hull is not drawn; its visual mesh is), and never
+            # under a name the export gives its own frames (a UR5's link is "base_link")
+            and any(s.kind != "convex" for s in b.shapes)
+            and b.name not in _EXPORT_FRAMES
         )
     )
-    return urdf_xml(description.model, name=description.name, equipment=equipment, **extra)
+    return urdf_xml(
+        description.model,
+        name=description.name,
+        equipment=equipment,
+        meshes=description.visual_meshes,
+        mesh_uri=None if mesh_base is None else (lambda key: mesh_base + key),
+        **extra,
+    )
+
+
+def mesh_file(description: RobotDescription, key: str) -> Path:
+    """The file of the visual mesh ``key`` (``3/base.dae``) of ``description``: only the
+    files its URDF names and loading found (no path is made from the request);
+    ``NotFoundError`` ``unknown_mesh`` naming the robot's meshes otherwise."""
+    path = description.mesh_files.get(key)
+    if path is None or not path.is_file():
+        known = sorted(description.mesh_files)
+        raise NotFoundError(
+            "unknown_mesh",
+            f"robot {description.name!r} has no mesh {key!r}; its meshes: "
+            + (", ".join(known) if known else "none (it is drawn from primitives)"),
+        )
+    return path
 
 
 def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | None:
@@ -194,6 +229,21 @@ def urdf_for_plan(plan: Plan, robot_files: Sequence[Path | str] = ()) -> str | N
         model_for_plan(plan, robot_files)  # raises ConflictError robot_unknown
         return None
     return robot_urdf(found)
+
+
+def meshes_for_plan(
+    plan: Plan, robot_files: Sequence[Path | str] = ()
+) -> tuple[tuple[MeshVisual, bytes], ...]:
+    """The visual meshes of the robot ``plan`` was made for, each with its file's bytes (for
+    the recording's ``/robot_meshes``); none for ETS-VII, a robot without meshes, or one the
+    server has no description of (:func:`urdf_for_plan` says so first)."""
+    if plan.robot_hash == ETS7_ROBOT_HASH:
+        return ()
+    found = _by_hash(robot_files, plan.robot_hash)
+    if found is None:
+        return ()
+    data = {key: path.read_bytes() for key, path in found.mesh_files.items()}
+    return tuple((mesh, data[mesh.key]) for mesh in found.visual_meshes)
 
 
 @functools.lru_cache(maxsize=16)

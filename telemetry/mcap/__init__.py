@@ -25,6 +25,9 @@ Derived channels (for viewing; not read back)::
     /tf                   foxglove.FrameTransforms  per frame: orbit -> base_link (recorded
                                                     attitude), then every URDF link; onboard
     /robot_description    std_msgs/String           the URDF, once, at the file's first log time
+    /robot_meshes         foxglove.SceneUpdate      a vendor robot's visual meshes, embedded,
+                                                    once, on their links' /tf frames (only
+                                                    when the robot has meshes)
     /plot/joints, /plot/base, /plot/wheels          flat numbers per frame, degrees; onboard
     /plot/prediction                                the plan's prediction; onboard
                                                     (epoch_ns + t_s)
@@ -66,6 +69,7 @@ from telemetry.mcap._write import (
     TOPIC_ALARMS,
     TOPIC_EVENT_LOG,
     TOPIC_ROBOT_DESCRIPTION,
+    TOPIC_ROBOT_MESHES,
     TOPIC_TF,
     write_mcap,
 )
@@ -80,6 +84,7 @@ __all__ = [
     "TOPIC_EVENT_LOG",
     "TOPIC_PLAN",
     "TOPIC_ROBOT_DESCRIPTION",
+    "TOPIC_ROBOT_MESHES",
     "TOPIC_TELEMETRY",
     "TOPIC_TF",
     "URDF_ATTACHMENT",

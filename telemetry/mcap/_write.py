@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import IO, Any
 
@@ -12,6 +12,7 @@ import numpy as np
 from mcap.writer import CompressionType, IndexType, Writer
 from numpy.typing import NDArray
 
+from planner.meshes import MeshVisual
 from planner.model import RobotModel, default_model
 from planner.urdf import urdf_xml
 from telemetry.foxglove import (
@@ -19,10 +20,13 @@ from telemetry.foxglove import (
     FRAME_TRANSFORMS_SCHEMA_NAME,
     LOG_SCHEMA,
     LOG_SCHEMA_NAME,
+    SCENE_UPDATE_SCHEMA,
+    SCENE_UPDATE_SCHEMA_NAME,
     STRING_SCHEMA,
     STRING_SCHEMA_NAME,
     event_log,
     frame_transforms,
+    mesh_scene_update,
 )
 from telemetry.mcap._alarms import TOPIC_ALARMS, alarm_logs
 from telemetry.mcap._errors import RecordingFileError
@@ -45,12 +49,21 @@ from telemetry.mcap._schemas import (
 )
 from telemetry.recording import CommandRow, EventRow, PassRecording
 
-__all__ = ["TOPIC_ALARMS", "TOPIC_EVENT_LOG", "TOPIC_ROBOT_DESCRIPTION", "TOPIC_TF", "write_mcap"]
+__all__ = [
+    "TOPIC_ALARMS",
+    "TOPIC_EVENT_LOG",
+    "TOPIC_ROBOT_DESCRIPTION",
+    "TOPIC_ROBOT_MESHES",
+    "TOPIC_TF",
+    "write_mcap",
+]
 
 TOPIC_TF = "/tf"
 #: The audit events as ``foxglove.Log`` (Foxglove's Log panel); the live view's ``/events``.
 TOPIC_EVENT_LOG = "/events"
 TOPIC_ROBOT_DESCRIPTION = "/robot_description"
+#: A vendor robot's visual meshes, embedded (telemetry.foxglove.mesh_scene_update).
+TOPIC_ROBOT_MESHES = "/robot_meshes"
 LIBRARY = f"hikoboshi telemetry.mcap format {FORMAT_VERSION}"
 #: Uncompressed bytes per chunk: a few seconds of the pass, so a reader seeks cheaply.
 CHUNK_SIZE_BYTES = 1024 * 1024
@@ -147,6 +160,7 @@ def write_mcap(
     *,
     model: RobotModel | None = None,
     urdf: str | None = None,
+    meshes: Sequence[tuple[MeshVisual, bytes]] = (),
 ) -> None:
     """Write ``recording`` as one MCAP file (zstd chunks, chunk and message indexes).
 
@@ -156,7 +170,9 @@ def write_mcap(
     schema). ``urdf``: the robot's URDF document, the export of ``model`` (default:
     :func:`planner.urdf.urdf_xml` of ``model`` under the plan's robot's name); attached as
     ``<robot>.urdf``, the recording's plan's robot (:func:`urdf_attachment_name`: ETS-VII's
-    ``ets7.urdf``). A stream is written from its current position and left open.
+    ``ets7.urdf``). ``meshes``: a vendor robot's visual meshes with their files' bytes,
+    written once on ``/robot_meshes`` as a ``foxglove.SceneUpdate`` (none: no such topic).
+    A stream is written from its current position and left open.
     Raises :class:`RecordingFileError` for a recording that JSON cannot carry exactly
     (a non-finite number, a negative time, a payload that is not JSON).
     """
@@ -248,6 +264,13 @@ def write_mcap(
         "first log time of the file",
         ([start_ns], [_dumps({"data": urdf})]),
     )
+    if meshes:
+        derived[TOPIC_ROBOT_MESHES] = (
+            SCENE_UPDATE_SCHEMA_NAME,
+            SCENE_UPDATE_SCHEMA,
+            "first log time of the file",
+            ([start_ns], [_dumps(mesh_scene_update(model, meshes, start_ns))]),
+        )
 
     with _binary_output(path_or_stream) as stream:
         writer = Writer(

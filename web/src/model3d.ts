@@ -5,9 +5,15 @@
 // Renders on demand (when a pose changes or the camera moves), never in a busy loop.
 // The flight rules' worst pair of bodies can be highlighted: its arm link coloured, a
 // segment between the two nearest points, labelled with the bodies and their distance.
+// A vendor robot's <mesh> visuals (STL, DAE, OBJ, served by GET /api/robots/{name}/meshes/...)
+// are fetched once each with the viewer's token and parsed by three.js's own loaders; the
+// URDF draws no primitive where it has a mesh. A mesh that cannot be had is counted, not drawn.
 
 import * as THREE from "three";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { ColladaLoader } from "three/examples/jsm/loaders/ColladaLoader.js";
+import { OBJLoader } from "three/examples/jsm/loaders/OBJLoader.js";
+import { STLLoader } from "three/examples/jsm/loaders/STLLoader.js";
 import { storedToken } from "./api";
 import type { Vec3, WorstPair } from "./flightrules";
 
@@ -37,11 +43,97 @@ function place(obj: THREE.Object3D, xyz: number[], rpy: number[]): void {
   obj.quaternion.setFromEuler(new THREE.Euler(rpy[0], rpy[1], rpy[2], "ZYX"));
 }
 
-function visualMesh(visual: Element, opacity: number): THREE.Object3D | null {
+const meshFiles = new Map<string, Promise<THREE.Object3D>>();
+
+/** The mesh file at ``url`` as three.js objects in its own frame (URDF: z up, metres), fetched
+ * and parsed once; each caller clones it. */
+function meshFile(url: string): Promise<THREE.Object3D> {
+  let cached = meshFiles.get(url);
+  if (!cached) {
+    const headers: Record<string, string> = {};
+    const token = storedToken();
+    if (token) headers.Authorization = `Bearer ${token}`;
+    cached = fetch(url, { headers }).then(async (r) => {
+      if (!r.ok) throw new Error(`${url}: HTTP ${r.status}`);
+      const ext = url.split("?")[0].split(".").pop()?.toLowerCase() ?? "";
+      if (ext === "stl") {
+        return new THREE.Mesh(new STLLoader().parse(await r.arrayBuffer()), new THREE.MeshStandardMaterial());
+      }
+      if (ext === "obj") return new OBJLoader().parse(await r.text());
+      if (ext === "dae") {
+        const scene = new ColladaLoader().parse(await r.text(), "")?.scene;
+        if (!scene) throw new Error(`${url}: not a COLLADA document`);
+        // The loader turns a Z_UP file to three's y up; a URDF's frames are z up already.
+        scene.rotation.set(0, 0, 0);
+        return scene;
+      }
+      throw new Error(`${url}: not a mesh the console draws (stl, dae, obj)`);
+    });
+    meshFiles.set(url, cached);
+  }
+  return cached;
+}
+
+/** What mesh visuals a robot asked for and what came of them. */
+export interface MeshCounts {
+  asked: number;
+  loaded: number;
+  failed: number;
+}
+
+function meshVisual(
+  visual: Element,
+  geometryEl: Element,
+  opacity: number,
+  counts: MeshCounts,
+  done: () => void,
+): THREE.Object3D {
+  const holder = new THREE.Group();
+  holder.userData.visual = true;
+  const { xyz, rpy } = originOf(visual);
+  place(holder, xyz, rpy);
+  const [sx, sy, sz] = nums(geometryEl.getAttribute("scale"), 3, 1);
+  holder.scale.set(sx, sy, sz);
+  const colour = visual.querySelector("material > color")?.getAttribute("rgba");
+  counts.asked += 1;
+  meshFile(geometryEl.getAttribute("filename") ?? "")
+    .then((file) => {
+      const copy = file.clone(true);
+      copy.traverse((o) => {
+        if (!(o instanceof THREE.Mesh)) return;
+        // One plain material per drawn mesh, so that highlighting and see-through act on it alone.
+        const first = (Array.isArray(o.material) ? o.material[0] : o.material) as THREE.MeshStandardMaterial;
+        const rgba = colour ? nums(colour, 4, 0.8) : null;
+        o.material = new THREE.MeshStandardMaterial({
+          color: rgba ? new THREE.Color(rgba[0], rgba[1], rgba[2]) : (first?.color?.clone() ?? new THREE.Color(0.8, 0.8, 0.85)),
+          transparent: opacity < 1,
+          opacity,
+          metalness: 0.2,
+          roughness: 0.6,
+        });
+      });
+      holder.add(copy);
+      counts.loaded += 1;
+    })
+    .catch(() => {
+      counts.failed += 1;
+    })
+    .finally(done);
+  return holder;
+}
+
+function visualMesh(
+  visual: Element,
+  opacity: number,
+  counts: MeshCounts,
+  done: () => void,
+): THREE.Object3D | null {
   const geometryEl = visual.querySelector("geometry > *");
   if (!geometryEl) return null;
   let geometry: THREE.BufferGeometry;
   switch (geometryEl.tagName) {
+    case "mesh":
+      return meshVisual(visual, geometryEl, opacity, counts, done);
     case "box": {
       const [x, y, z] = nums(geometryEl.getAttribute("size"), 3, 0.1);
       geometry = new THREE.BoxGeometry(x, y, z);
@@ -91,8 +183,10 @@ class Robot {
   /** The robot frame's origin in the root link's frame: joint 1's origin (the robot frame
    * has the base's axes, so only this offset turns its points into the base frame). */
   readonly robotOrigin = new THREE.Vector3();
+  /** The mesh files its visuals asked for, loaded and failed (counted as they arrive). */
+  readonly meshes: MeshCounts = { asked: 0, loaded: 0, failed: 0 };
 
-  constructor(doc: Document, opacity: number, withBase: boolean) {
+  constructor(doc: Document, opacity: number, withBase: boolean, changed: () => void = () => {}) {
     const links = this.links;
     for (const link of doc.querySelectorAll("robot > link")) {
       const g = new THREE.Group();
@@ -100,7 +194,7 @@ class Robot {
       const isBase = g.name === "base_link";
       if (withBase || !isBase) {
         for (const visual of link.querySelectorAll(":scope > visual")) {
-          const mesh = visualMesh(visual, isBase ? Math.min(opacity, 0.9) : opacity);
+          const mesh = visualMesh(visual, isBase ? Math.min(opacity, 0.9) : opacity, this.meshes, changed);
           if (mesh) g.add(mesh);
         }
       }
@@ -155,8 +249,12 @@ class Robot {
       const on = names.has(name) && link !== this.rootLink;
       // While a pair is shown the base body is see-through: the arm may be inside it.
       const seeThrough = names.size > 0 && link === this.rootLink;
+      const shapes: THREE.Mesh[] = [];
       for (const child of link.children) {
-        if (!(child instanceof THREE.Mesh)) continue;
+        if (child instanceof THREE.Mesh) shapes.push(child);
+        else if (child.userData.visual) child.traverse((o) => o instanceof THREE.Mesh && shapes.push(o));
+      }
+      for (const child of shapes) {
         const material = child.material as THREE.MeshStandardMaterial;
         type Saved = { color: THREE.Color; emissive: THREE.Color; opacity: number; transparent: boolean };
         const saved = child.userData.colour as Saved | undefined;
@@ -254,12 +352,21 @@ export class SatelliteView {
   load(urdf: string): boolean {
     const doc = new DOMParser().parseFromString(urdf, "application/xml");
     if (doc.querySelector("parsererror") || !doc.querySelector("robot")) return false;
-    this.robot = new Robot(doc, 1, true);
-    this.ghost = new Robot(doc, 0.3, false);
+    const robot = new Robot(doc, 1, true, () => {
+      // What came of the meshes, for the tests and the operator: asked, loaded, failed.
+      this.el.dataset.meshesLoaded = String(robot.meshes.loaded);
+      this.el.dataset.meshesFailed = String(robot.meshes.failed);
+      this.request();
+    });
+    this.robot = robot;
+    this.ghost = new Robot(doc, 0.3, false, () => this.request());
     this.body.add(this.robot.root, this.ghost.root);
     // What is drawn, for the tests: the URDF's robot and its moving joints.
     this.el.dataset.robot = doc.querySelector("robot")?.getAttribute("name") ?? "";
     this.el.dataset.joints = String(this.robot.joints.length);
+    this.el.dataset.meshes = String(robot.meshes.asked);
+    this.el.dataset.meshesLoaded = String(robot.meshes.loaded);
+    this.el.dataset.meshesFailed = String(robot.meshes.failed);
     this.request();
     return true;
   }
