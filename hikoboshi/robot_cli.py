@@ -21,8 +21,7 @@ __all__ = ["register"]
 robot_app = typer.Typer(
     rich_markup_mode=HELP_MARKUP,
     no_args_is_help=True,
-    help="Robot descriptions: check what a description loads to, or write one for a "
-    "vendor's URDF.",
+    help="Robot descriptions: check what a description loads to, or write one for a vendor's URDF.",
 )
 console = make_console(soft_wrap=True)
 err_console = make_console(stderr=True)

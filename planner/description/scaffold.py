@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 from planner.collision import CollisionModel, ShapeSet, body_poses
 from planner.collision_segments import segment_collision_model
 from planner.description.build import build_robot, model_from_urdf
-from planner.description.checks import NAME, Checker, InvalidRobotDescription
+from planner.description.checks import NAME, Checker
 from planner.description.files import read_limited
 from planner.description.reduce import Mount
 from planner.description.tables import head_from
@@ -353,9 +353,7 @@ def scaffold_description(
             axis = matrix_from_rpy(np.radians([0.0, pitch, 0.0]))[:, 0]
             x = np.array([1.0, 0.0, 0.0])
             joined = clearance.joined_at(qa)
-            ok_c, _, mid = _line_ok(
-                ws, qa, x, COORDINATION_DISTANCE_M, reach_m, clearance, joined
-            )
+            ok_c, _, mid = _line_ok(ws, qa, x, COORDINATION_DISTANCE_M, reach_m, clearance, joined)
             if not ok_c:
                 continue
             ok_back, _, _ = _line_ok(
@@ -369,7 +367,7 @@ def scaffold_description(
             break
     if chosen_a is None:
         raise c.fail("[poses.A]", "no sampled pose lets the hand move along robot +x")
-    qa, pitch, sigma_a = chosen_a
+    qa, pitch, _sigma_a = chosen_a
 
     # --- B and the reactionless direction ---------------------------------------------------
     best_b: tuple[float, Array, str, float, Any, float] | None = None
@@ -384,9 +382,7 @@ def scaffold_description(
     )
     for k in np.argsort(-near_sigma):
         qb = near[k]
-        path_clear = min(
-            clearance.clear(qa + s * (qb - qa), joined) for s in np.linspace(0, 1, 9)
-        )
+        path_clear = min(clearance.clear(qa + s * (qb - qa), joined) for s in np.linspace(0, 1, 9))
         if path_clear < PATH_CLEARANCE_M or clearance.clear(qb) < POSE_CLEARANCE_M:
             continue
         tried += 1
@@ -458,8 +454,10 @@ def scaffold_description(
     choice = {
         "reach_m": reach_m,
         "pose_samples": POSE_SAMPLES,
-        "sigma_min_Jg": {k: _scaled_sigma(ws.evaluate(State(joints_rad=q)).J_g, reach_m)
-                         for k, q in poses.items()},  # fmt: skip
+        "sigma_min_Jg": {
+            k: _scaled_sigma(ws.evaluate(State(joints_rad=q)).J_g, reach_m)
+            for k, q in poses.items()
+        },
         "clearance_m": {k: clearance.clear(q, joined) for k, q in poses.items()},
         "gjm_hand_pitch_deg": pitch,
         "reactionless_direction": direction_label,
@@ -493,7 +491,6 @@ def scaffold_description(
         rotor=rotor,
         phi_init=phi_init,
         choice=choice,
-        hand_pose=lambda q: ws.hand_pose(State(joints_rad=q)),
     )
     doc = tomllib.loads(text)
     head = head_from(c, doc, lambda _name: urdf_path)
@@ -542,7 +539,6 @@ def _nums(values: Any, digits: int = 3) -> str:
 
 def _render(**k: Any) -> str:
     """The TOML text, each choice commented."""
-    n = len(k["joint_names"])
     ch = k["choice"]
     lines = [
         f"# {k['name']}: a description written by `hikoboshi robot init` (docs/robots.md,",
@@ -622,9 +618,11 @@ def _render(**k: Any) -> str:
         "",
         f"# Poses away from singularities: smallest singular value of J_g (angular rows x "
         f"{ch['reach_m']:.3g} m,",
-        "# the reach) " + ", ".join(f"{p} {v:.3g}" for p, v in ch["sigma_min_Jg"].items())
+        "# the reach) "
+        + ", ".join(f"{p} {v:.3g}" for p, v in ch["sigma_min_Jg"].items())
         + "; clearance of the generated bodies "
-        + ", ".join(f"{p} {v:.3g} m" for p, v in ch["clearance_m"].items()) + ".",
+        + ", ".join(f"{p} {v:.3g} m" for p, v in ch["clearance_m"].items())
+        + ".",
     ]
     notes = {
         "A": "the reference pose: servo design, IK seed, the vehicle's start, coordination's "
@@ -634,14 +632,12 @@ def _render(**k: Any) -> str:
         f"{ch['reactionless_direction']} by the reactionless path",
     }
     for name, q in k["poses"].items():
-        hand = k["hand_pose"](q)
         lines += [
             f"[poses.{name}]",
             f'description = "{notes[name]}"',
             f"joints_deg = {_nums(np.degrees(q), 3)}",
             "",
         ]
-        del hand
     direction = _DIRECTIONS[ch["reactionless_direction"]]
     lines += [
         "[experiments.ptp]",
@@ -674,5 +670,4 @@ def _render(**k: Any) -> str:
         f"min_clearance_m = {MIN_CLEARANCE_M}",
         "",
     ]
-    assert n == len(k["poses"]["A"])
     return "\n".join(lines)

@@ -48,6 +48,7 @@ def predicted_of(plan: Mapping[str, Any]) -> Predicted | None:
         metrics=metrics if isinstance(metrics, Mapping) else {},
     )
 
+
 FIGURE_CAPTIONS = {
     "predicted_vs_flown": "Predicted against flown: base attitude, attitude and joint differences.",
     "reaction": "Experiment 1 (paper Fig. 5): hand speed, the reaction momentum |H~bm phi'| "

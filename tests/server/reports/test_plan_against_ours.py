@@ -22,7 +22,9 @@ from telemetry.recording import PassRecording
 @pytest.fixture(scope="module")
 def orihime_ptp() -> tuple[Plan, ReportPublic, dict[str, object]]:
     robot = load_robot(EXAMPLES_DIR / "orihime" / "orihime.toml")
-    params = parameters_from_values(resolve("ptp")[0], {}, defaults=robot.experiment_defaults("ptp"))
+    params = parameters_from_values(
+        resolve("ptp")[0], {}, defaults=robot.experiment_defaults("ptp")
+    )
     plan = plan_experiment("ptp", params, robot=robot)
     flight = fly_offline(plan, robot=robot, seed=2)
     recording = PassRecording.from_frames("orihime PTP", plan, flight.epoch_ns, flight.frames)
