@@ -108,6 +108,10 @@ MIN_CLEARANCE_M = 0.05
 COORDINATION_DISTANCE_M = 0.15
 GJM_DISTANCE_M = 0.15
 REACTIONLESS_DISTANCES_M = (0.15, 0.1, 0.05)
+#: The reactionless line's wander a scaffold accepts: off the line at most this fraction of
+#: its length, the hand turning at most this much.
+MAX_LATERAL_FRACTION = 0.25
+MAX_TURN_DEG = 25.0
 #: The reactionless outbound speed (ETS-VII's), lowered until the joints keep within 0.9 of
 #: their mission rate; the return at half of it.
 REACTIONLESS_SPEED_MPS = 0.015
@@ -129,8 +133,8 @@ WHEEL_SPEED_RADPS = 240.0
 WHEEL_RADIUS_M = 0.15
 #: The non-holonomic motion's start: pose A offset by ETS-VII's (deg), clipped to the limits.
 NONHOLONOMIC_OFFSET_DEG = (9.6, -2.0, 2.0, 0.0, -13.6, 0.0, 0.0)
-#: GJM hand pitches tried (deg), ETS-VII's first.
-GJM_PITCHES_DEG = (-23.0, 0.0, 23.0, -45.0, 45.0, -67.0, 67.0, -90.0, 90.0)
+#: GJM hand pitches tried (deg), the hand parallel to the robot frame first.
+GJM_PITCHES_DEG = (0.0, -23.0, 23.0, -45.0, 45.0, -67.0, 67.0, -90.0, 90.0)
 _DIRECTIONS = {
     "+x": (1.0, 0.0, 0.0),
     "-x": (-1.0, 0.0, 0.0),
@@ -336,34 +340,31 @@ def scaffold_description(
 
     # --- A: the reference pose ------------------------------------------------------------
     chosen_a: tuple[Array, float, float] | None = None  # joints, pitch, sigma
-    for k in order[:25]:
+    # pitch 0 first (the hand parallel to the robot frame at A: GJM's start whether its
+    # pitch turns the robot frame or pose A's own hand), then the others
+    for pitch, k in [(p, k) for p in GJM_PITCHES_DEG for k in order[:25]]:
         pos = hands_robot[k]
-        for pitch in GJM_PITCHES_DEG:
-            rot = matrix_from_rpy(np.radians([0.0, pitch, 0.0]))
-            try:
-                q = solve_ik(ws, pos, rot, reference_joints_rad=samples[k], n_starts=2)[0]
-            except PlannerError:
-                continue
-            qa = q.joints_rad
-            if np.any(qa < lo) or np.any(qa > hi) or clearance.clear(qa) < POSE_CLEARANCE_M:
-                continue
-            s = _scaled_sigma(ws.evaluate(State(joints_rad=qa)).J_g, reach_m)
-            if s < 0.5 * sigma[k]:
-                continue
-            axis = matrix_from_rpy(np.radians([0.0, pitch, 0.0]))[:, 0]
-            x = np.array([1.0, 0.0, 0.0])
-            joined = clearance.joined_at(qa)
-            ok_c, _, mid = _line_ok(ws, qa, x, COORDINATION_DISTANCE_M, reach_m, clearance, joined)
-            if not ok_c:
-                continue
-            ok_back, _, _ = _line_ok(
-                ws, mid, -x, COORDINATION_DISTANCE_M, reach_m, clearance, joined
-            )
-            ok_g, _, _ = _line_ok(ws, qa, axis, GJM_DISTANCE_M, reach_m, clearance, joined)
-            if ok_back and ok_g:
-                chosen_a = (qa, pitch, s)
-                break
-        if chosen_a is not None:
+        rot = matrix_from_rpy(np.radians([0.0, pitch, 0.0]))
+        try:
+            q = solve_ik(ws, pos, rot, reference_joints_rad=samples[k], n_starts=2)[0]
+        except PlannerError:
+            continue
+        qa = q.joints_rad
+        if np.any(qa < lo) or np.any(qa > hi) or clearance.clear(qa) < POSE_CLEARANCE_M:
+            continue
+        s = _scaled_sigma(ws.evaluate(State(joints_rad=qa)).J_g, reach_m)
+        if s < 0.5 * sigma[k]:
+            continue
+        axis = rot[:, 0]
+        x = np.array([1.0, 0.0, 0.0])
+        joined = clearance.joined_at(qa)
+        ok_c, _, mid = _line_ok(ws, qa, x, COORDINATION_DISTANCE_M, reach_m, clearance, joined)
+        if not ok_c:
+            continue
+        ok_back, _, _ = _line_ok(ws, mid, -x, COORDINATION_DISTANCE_M, reach_m, clearance, joined)
+        ok_g, _, _ = _line_ok(ws, qa, axis, GJM_DISTANCE_M, reach_m, clearance, joined)
+        if ok_back and ok_g:
+            chosen_a = (qa, pitch, s)
             break
     if chosen_a is None:
         raise c.fail("[poses.A]", "no sampled pose lets the hand move along robot +x")
@@ -407,11 +408,14 @@ def scaffold_description(
                 travel = float(moved[-1] @ np.array(direction))
                 lateral = moved - np.outer(moved @ np.array(direction), direction)
                 wander = float(np.max(np.linalg.norm(lateral, axis=1)))
+                turned = math.degrees(float(np.max(path.hand_orientation_change_rad)))
+                if wander > MAX_LATERAL_FRACTION * distance or turned > MAX_TURN_DEG:
+                    continue
                 score = travel - 2.0 * wander
                 if best_b is None or score > best_b[0]:
                     best_b = (score, qb, label, distance, path, speed)
-                break
-        if tried >= 6:
+                break  # the longest distance that holds
+        if tried >= 20 or (best_b is not None and tried >= 6):
             break
     if best_b is None:
         raise c.fail("[poses.B]", "no sampled pose starts a reactionless line")
