@@ -1,7 +1,8 @@
 """``hikoboshi robot check FILE``: load a robot description and say what loading did to its
 URDF (links lumped, tool joints locked, arm links renamed), its joints' vendor and mission
 limits, the reference pose and hand frame, and the servos' fastest mode against what the
-simulator holds (docs/robots.md, "A vendor's URDF" and "Servo stability")."""
+simulator holds (docs/robots.md, "A vendor's URDF" and "Servo stability"); ``hikoboshi robot
+init`` writes a description for a vendor's URDF (``planner.description.scaffold``)."""
 
 from __future__ import annotations
 
@@ -236,7 +237,7 @@ def robot_init(
     vendor's, named poses A, B, C away from singularities, servos the simulator holds,
     wheels sized from the arm's reaction momentum, an attitude law and the experiments'
     defaults (docs/robots.md, "Starting from a vendor's URDF"). The URDF is copied beside
-    FILE unchanged when it is not in FILE's folder. Takes about 20 s. Exit 2 with the
+    FILE unchanged when it is not in FILE's folder. Takes a minute or more. Exit 2 with the
     reason when the URDF does not load or FILE exists."""
     from planner.description import load_robot
     from planner.description.scaffold import scaffold_description
