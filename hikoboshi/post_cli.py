@@ -104,6 +104,7 @@ def _write_report(out: Path, report: ReportPublic, figures: dict[str, bytes]) ->
 
 def _report_from_file(path: Path) -> tuple[ReportPublic, dict[str, bytes]]:
     from server.services.analyses import compute_analyses
+    from server.services.report_tables import predicted_of
     from server.services.reports import build_report
     from telemetry.mcap import RecordingFileError, read_mcap
 
@@ -124,6 +125,14 @@ def _report_from_file(path: Path) -> tuple[ReportPublic, dict[str, bytes]]:
         figure_names=list(run.figures),
         alarms=recording.alarms,
         epoch_ns=recording.epoch_ns,
+        plan=predicted_of(
+            {
+                "robot": recording.plan.robot,
+                "robot_hash": recording.plan.robot_hash,
+                "experiment": recording.plan.experiment,
+                "metrics": recording.plan.metrics,
+            }
+        ),
     )
     return report, run.figures
 

@@ -1,7 +1,8 @@
 """``hikoboshi robot check FILE``: load a robot description and say what loading did to its
 URDF (links lumped, tool joints locked, arm links renamed), its joints' vendor and mission
 limits, the reference pose and hand frame, and the servos' fastest mode against what the
-simulator holds (docs/robots.md, "A vendor's URDF" and "Servo stability")."""
+simulator holds (docs/robots.md, "A vendor's URDF" and "Servo stability"); ``hikoboshi robot
+init`` writes a description for a vendor's URDF (``planner.description.scaffold``)."""
 
 from __future__ import annotations
 
@@ -14,13 +15,14 @@ import numpy as np
 import typer
 
 from hikoboshi.output import HELP_MARKUP, make_console
+from planner.description.scaffold import DEFAULT_BASE_MASS_KG, DEFAULT_BASE_SIZE_M
 
 __all__ = ["register"]
 
 robot_app = typer.Typer(
     rich_markup_mode=HELP_MARKUP,
     no_args_is_help=True,
-    help="Robot descriptions: check what a description loads to.",
+    help="Robot descriptions: check what a description loads to, or write one for a vendor's URDF.",
 )
 console = make_console(soft_wrap=True)
 err_console = make_console(stderr=True)
@@ -202,6 +204,102 @@ def robot_check(
         )
 
 
+def _urdf_beside(urdf: Path, out: Path) -> tuple[str, Path | None]:
+    """The URDF's name as the description names it (relative to its folder), and where it
+    must be copied (None: it is already inside the description's folder)."""
+    folder = out.parent.resolve()
+    resolved = urdf.resolve()
+    if resolved.is_relative_to(folder):
+        return resolved.relative_to(folder).as_posix(), None
+    target = out.parent / urdf.name
+    if target.exists() and target.read_bytes() != urdf.read_bytes():
+        _fail(
+            f"{target}: another file of the URDF's name is in the way; choose another --out "
+            "folder (the URDF is copied beside the description, unchanged)"
+        )
+    return urdf.name, target
+
+
+@robot_app.command("init")
+def robot_init(
+    urdf: Annotated[Path, typer.Option("--urdf", help="The vendor's URDF, read unchanged.")],
+    hand: Annotated[str, typer.Option("--hand", help="The URDF link that is the hand frame.")],
+    out: Annotated[Path, typer.Option("--out", help="The description to write (TOML).")],
+    base_mass: Annotated[
+        float, typer.Option("--base-mass", help="The cube's mass (kg).")
+    ] = DEFAULT_BASE_MASS_KG,
+    base_size: Annotated[
+        float, typer.Option("--base-size", help="The cube's edge (m).")
+    ] = DEFAULT_BASE_SIZE_M,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Write a robot description for a vendor's arm on a cube: mission limits inside the
+    vendor's, named poses A, B, C away from singularities, servos the simulator holds,
+    wheels sized from the arm's reaction momentum, an attitude law and the experiments'
+    defaults (docs/robots.md, "Starting from a vendor's URDF"). The URDF is copied beside
+    FILE unchanged when it is not in FILE's folder. Takes a minute or more. Exit 2 with the
+    reason when the URDF does not load or FILE exists."""
+    from planner.description import load_robot
+    from planner.description.scaffold import scaffold_description
+    from planner.errors import PlannerError
+
+    if out.exists():
+        _fail(f"{out}: exists; remove it or choose another --out")
+    if not urdf.is_file():
+        _fail(f"{urdf}: --urdf names no file")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    urdf_name, copy_to = _urdf_beside(urdf, out)
+    try:
+        scaffold = scaffold_description(
+            urdf,
+            hand,
+            out_path=out,
+            urdf_name=urdf_name,
+            base_mass_kg=base_mass,
+            base_size_m=base_size,
+        )
+    except PlannerError as exc:
+        _fail(str(exc))
+    if copy_to is not None and not copy_to.exists():
+        copy_to.write_bytes(urdf.read_bytes())
+    out.write_text(scaffold.toml, encoding="utf-8")
+    try:
+        load_robot(out)  # the file as written, read back
+    except PlannerError as exc:  # not expected: the scaffold was built from this text
+        out.unlink()
+        _fail(str(exc))
+    report = {**scaffold.report, "copied_urdf": None if copy_to is None else str(copy_to)}
+    if as_json:
+        print(json.dumps(report))
+        return
+    out_ = console.print
+    lines = [
+        f"wrote {out} ({report['n_joints']} joints, base link {report['base_link']}, hand "
+        f"{report['hand']})"
+        + ("" if copy_to is None else f"; copied the URDF unchanged to {copy_to}"),
+    ]
+    for name, joints in report["poses_deg"].items():
+        lines.append(
+            f"  pose {name}: ({', '.join(f'{v:.4g}' for v in joints)}) deg, smallest singular "
+            f"value of J_g {report['sigma_min_Jg'][name]:.3g}, clearance "
+            f"{report['clearance_m'][name]:.3g} m"
+        )
+    wheels, servo = report["wheels"], report["servo"]
+    lines += [
+        f"  wheels: {wheels['momentum_limit_nms']:.6g} N m s, {wheels['torque_limit_nm']:.6g} N m "
+        f"(arm reaction momentum at most {report['reaction_momentum_bound_nms']:.3g} N m s)",
+        f"  servos: {servo['bandwidth_radps']:.6g} rad/s, lag {servo['lag_s']:.6g} s (fastest "
+        f"mode {report['servo_fastest_per_s']:.4g} 1/s; the integrator holds "
+        f"{report['servo_limit_per_s']:.4g})",
+        f"  experiments: gjm hand pitch {report['gjm_hand_pitch_deg']:.6g} deg, reactionless "
+        f"{report['reactionless_distance_m']:.6g} m toward robot "
+        f"{report['reactionless_direction']}",
+        f"next: hikoboshi robot check {out}; hikoboshi plan --robot {out} pass",
+    ]
+    for line in lines:
+        out_(line, markup=False, highlight=False)
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``robot`` (``check``) to ``hikoboshi``."""
+    """Add ``robot`` (``check``, ``init``) to ``hikoboshi``."""
     app.add_typer(robot_app, name="robot")

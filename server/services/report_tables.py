@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
+from planner.plan import ETS7_ROBOT_HASH
 from server.schemas import (
     ReportAnalysisPublic,
     ReportPublic,
@@ -22,14 +23,31 @@ from server.schemas import (
 )
 from server.services.analyses import KINDS
 from telemetry.analysis.paper import (
+    Predicted,
     Sources,
     compare_with_flight,
+    compare_with_plan,
     phase_plane_ordering,
     reaction_ordering,
 )
 from telemetry.identification import INERTIA_PARAMETER_NAMES
 
-__all__ = ["FIGURE_CAPTIONS", "build_report"]
+__all__ = ["FIGURE_CAPTIONS", "build_report", "predicted_of"]
+
+
+def predicted_of(plan: Mapping[str, Any]) -> Predicted | None:
+    """A plan document's (``Plan.to_dict``: ``robot``, ``robot_hash``, ``experiment``,
+    ``metrics``) predictions when its robot is not ETS-VII; ``None`` for ETS-VII's (a
+    document naming no robot is ETS-VII's, as everywhere)."""
+    if plan.get("robot_hash", ETS7_ROBOT_HASH) == ETS7_ROBOT_HASH:
+        return None
+    metrics = plan.get("metrics")
+    return Predicted(
+        robot=str(plan.get("robot")),
+        experiment=str(plan.get("experiment")),
+        metrics=metrics if isinstance(metrics, Mapping) else {},
+    )
+
 
 FIGURE_CAPTIONS = {
     "predicted_vs_flown": "Predicted against flown: base attitude, attitude and joint differences.",
@@ -485,29 +503,47 @@ _SEVERITIES = ("watch", "warning", "distress", "critical", "severe")
 
 def _flight_table(
     documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
+    plan: Predicted | None = None,
 ) -> ReportTablePublic:
     """The paper's results against this pass's (:mod:`telemetry.analysis.paper`); an
-    analysis absent or failed gives "not measured" rows."""
+    analysis absent or failed gives "not measured" rows. For a robot other than ETS-VII
+    (``plan`` given) the flight's numbers are not its own: each result's criterion, in the
+    same shape, is held against the pass's own plan's prediction instead, and the table
+    says so (``plan_against_ours``)."""
 
     def result(kind: str) -> Mapping[str, Any] | None:
         doc = documents.get(kind, ({}, None))[0]
         found = doc.get("result") if doc.get("status") == "ok" else None
         return found if isinstance(found, Mapping) else None
 
-    rows = compare_with_flight(
-        Sources(
-            pass_analysis=result("pass_analysis"),
-            identification=result("inertia_identification"),
-            resim=result("gravity_gradient_resim"),
-        )
+    sources = Sources(
+        pass_analysis=result("pass_analysis"),
+        identification=result("inertia_identification"),
+        resim=result("gravity_gradient_resim"),
     )
+    rows = compare_with_flight(sources) if plan is None else compare_with_plan(sources, plan)
     counts = {v: sum(r.verdict == v for r in rows) for v in dict.fromkeys(r.verdict for r in rows)}
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items())
+    if plan is not None:
+        return _table(
+            "plan_against_ours",
+            f"Plan against ours: robot {plan.robot} is not ETS-VII, so each result of the "
+            "paper is held against this pass's own plan, not the flight",
+            ["result", "paper", "plan", "ours", "criterion", "verdict"],
+            [r.row() for r in rows],
+            [
+                f"The flight's numbers are ETS-VII's, not robot {plan.robot}'s: each criterion "
+                "keeps the paper's shape (the same tolerance, band or ordering) with the number "
+                f"the plan ({plan.experiment}) predicted in the flight's place.",
+                summary,
+            ],
+        )
     return _table(
         "flight_against_ours",
         "Flight against ours: every result of the paper, measured on this pass",
         ["result", "paper", "flight", "ours", "criterion", "verdict"],
         [r.row() for r in rows],
-        [", ".join(f"{n} {v}" for v, n in counts.items())],
+        [summary],
     )
 
 
@@ -547,11 +583,14 @@ def build_report(
     alarms: Sequence[Mapping[str, Any]] = (),
     epoch_ns: int | None = None,
     commands: Mapping[str, Any] | None = None,
+    plan: Predicted | None = None,
 ) -> ReportPublic:
     """The report of stored documents (``kind -> (document, created_at_ns)``, as
     :mod:`server.services.analyses` stores them), of the pass's ``alarms`` (oldest
     raised first; ``epoch_ns``: the plan's ``t = 0`` onboard, for their times) and of its
-    ``commands``' outcome (None: not known, as for a recording file)."""
+    ``commands``' outcome (None: not known, as for a recording file). ``plan``: the pass's
+    plan's predictions when its robot is not ETS-VII (:func:`predicted_of`), whose first
+    table then holds the pass against them instead of the flight."""
     statuses, tables = [], []
     for kind in KINDS:
         if kind not in documents:
@@ -568,7 +607,7 @@ def build_report(
             statuses.append(
                 ReportAnalysisPublic(kind=kind, status="failed", created_at=created, error=reason)
             )
-    tables.insert(0, _flight_table(documents))
+    tables.insert(0, _flight_table(documents, plan))
     if commands is not None:
         tables.insert(1, _commands_table(commands))
     tables += _alarm_tables(alarms, epoch_ns)

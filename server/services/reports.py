@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session
 from server.schemas import ReportCell, ReportPublic
 from server.services import analyses
 from server.services.errors import NotFoundError
-from server.services.report_tables import FIGURE_CAPTIONS, build_report
+from server.services.report_tables import FIGURE_CAPTIONS, build_report, predicted_of
 from server.services.summary import command_outcome
 from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
@@ -93,7 +93,8 @@ def render_html(report: ReportPublic, image_src: Mapping[str, str]) -> str:
         parts += [f"<th>{e(c)}</th>" for c in table.columns]
         parts.append("</tr></thead><tbody>")
         for row in table.rows:
-            verdict = str(row[-1]) if table.id == "flight_against_ours" and row else ""
+            graded = table.id in ("flight_against_ours", "plan_against_ours")
+            verdict = str(row[-1]) if graded and row else ""
             attr = f' class="{_VERDICT_CLASS[verdict]}"' if verdict in _VERDICT_CLASS else ""
             parts.append(f"<tr{attr}>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>")
         parts.append("</tbody></table>")
@@ -131,11 +132,13 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
         session=session, pass_id=record.id, kinds=["pass_imported"], limit=1
     ).count
     alarms = alarm_repo.list_alarms(session=session, pass_id=record.id, limit=MAX_LIMIT).items
+    plan = repo.get_plan(session=session, plan_id=record.plan_id)
+    plan_doc = json.loads(plan.document)
     report = build_report(
         pass_id=record.id,
         name=record.name,
         state=record.state,
-        experiment=repo.get_plan(session=session, plan_id=record.plan_id).experiment,
+        experiment=plan.experiment,
         imported=imported > 0,
         documents={kind: (r.result, r.created_at_ns) for kind, r in rows.items()},
         figure_names=list(figures),
@@ -143,6 +146,7 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
         epoch_ns=record.epoch_ns,
         # a pass flown here (an imported one's report is its recording's, as from the file)
         commands=None if imported else command_outcome(session, record.id).document(),
+        plan=predicted_of(plan_doc if isinstance(plan_doc, Mapping) else {}),
     )
     return report, figures
 
