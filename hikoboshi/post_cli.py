@@ -102,17 +102,44 @@ def _write_report(out: Path, report: ReportPublic, figures: dict[str, bytes]) ->
         (out / f"{name}.png").write_bytes(png)
 
 
-def _report_from_file(path: Path) -> tuple[ReportPublic, dict[str, bytes]]:
+def _robot_files(robot: list[Path] | None) -> tuple[str, ...]:
+    """The descriptions a report may need (its plan's robot, found by hash): ``--robot``
+    and ``HIKOBOSHI_ROBOTS``, as ``hikoboshi serve`` knows them."""
+    from server.settings import Settings
+
+    try:
+        configured = Settings.from_env().robot_files
+    except ValueError as exc:
+        _fail(f"bad settings in the environment: {exc}")
+    return tuple(str(p.resolve()) for p in (*configured, *(robot or ())))
+
+
+def _robot_unknown(exc: Exception) -> NoReturn:
+    message = getattr(exc, "message", str(exc)).split(": start it with")[0]
+    _fail(f"{message}: name its description with --robot FILE")
+
+
+def _report_from_file(
+    path: Path, robot_files: tuple[str, ...]
+) -> tuple[ReportPublic, dict[str, bytes]]:
     from server.services.analyses import compute_analyses
+    from server.services.errors import ConflictError
     from server.services.report_tables import predicted_of
     from server.services.reports import build_report
+    from server.services.robots import model_for_plan
     from telemetry.mcap import RecordingFileError, read_mcap
 
     try:
         recording = read_mcap(path)
     except (RecordingFileError, OSError) as exc:
         _fail(f"{path}: {exc}")
-    run = compute_analyses(recording)
+    try:
+        # the plan's own robot: another robot's frames analysed with ETS-VII's model fail
+        # on their shapes, or worse, give numbers of the wrong arm
+        model = model_for_plan(recording.plan, robot_files)
+    except ConflictError as exc:
+        _robot_unknown(exc)
+    run = compute_analyses(recording, model, robot_files)
     now_ns = time.time_ns()
     state = recording.meta.get("state")
     report = build_report(
@@ -147,20 +174,37 @@ def report(
         bool,
         typer.Option("--json", help="Print one JSON object: what was written, each analysis."),
     ] = False,
+    robot: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="The description of the pass's robot when it is not a shipped one (found by "
+            "its hash, as hikoboshi serve --robot; also HIKOBOSHI_ROBOTS). Repeatable."
+        ),
+    ] = None,
 ) -> None:
     """Write a pass report: report.json (the numbers in tables), report.html and the
     figures. A stored pass's newest analyses are used (run and stored first if it has none,
-    or with --recompute); an .mcap file is analysed on the spot."""
+    or with --recompute); an .mcap file is analysed on the spot. Either is analysed with
+    its plan's robot's model (ETS-VII's, a shipped robot's, or one given by --robot)."""
+    robot_files = _robot_files(robot)
     if _is_file(target):
-        found = _report_from_file(Path(target))
+        found = _report_from_file(Path(target), robot_files)
     else:
         from server.services import analyses
+        from server.services.errors import ConflictError
         from server.services.reports import stored_report
 
         with _session() as session:
             if recompute or not analyses.newest_documents(session=session, pass_id=target):
                 err_console.print(f"analysing pass {target} ...")
-                analyses.run_analyses(session=session, pass_id=target, actor=ACTOR)
+                try:
+                    analyses.run_analyses(
+                        session=session, pass_id=target, actor=ACTOR, robot_files=robot_files
+                    )
+                except ConflictError as exc:
+                    if exc.code != "robot_unknown":
+                        raise
+                    _robot_unknown(exc)
             found = stored_report(session, target)
     report_doc, figures = found
     _write_report(out, report_doc, figures)
