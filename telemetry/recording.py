@@ -191,6 +191,8 @@ def check_physical(frames: FrameArrays) -> None:
     }
     for name, (values, bound, unit) in columns.items():
         values = np.asarray(values, dtype=np.float64)
+        if len(values) == 0:  # no frame: nothing unphysical (the analyses say "no data")
+            continue
         bad = ~np.isfinite(values) | (np.abs(np.nan_to_num(values, nan=np.inf)) > bound)
         rows = np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))
         if rows.size:

@@ -187,6 +187,8 @@ def compute_analyses(
 
     def passes() -> Any:
         physical()
+        if n == 0:  # nothing flown is stored: no result, not an empty "ok"
+            raise InsufficientData("the pass has no telemetry frames")
         return analyse_pass(recording, ws)
 
     analysis, pass_doc = _attempt("pass_analysis", passes)

@@ -85,3 +85,18 @@ def test_a_pass_whose_vehicle_reported_divergence_is_not_analysed(
     for kind, doc in run.documents.items():
         assert doc["status"] == "failed", kind
         assert "the vehicle reported its simulation diverged" in doc["error"]["message"]
+
+
+def test_a_pass_with_no_frames_fails_every_analysis_with_the_reason(
+    flown: PassRecording, model: RobotModel
+) -> None:
+    """A pass that stored no frame (a window lost whole) is no result: each analysis fails
+    saying so, none is ``ok`` on nothing, and nothing raises (the ground answered 500)."""
+    empty = PassRecording.from_frames("empty", flown.plan, flown.epoch_ns, [])
+    run = compute_analyses(empty, model)
+    for kind, doc in run.documents.items():
+        assert doc["status"] == "failed", (kind, doc)
+        assert "no telemetry frames" in doc["error"]["message"] or (
+            "0 telemetry frames" in doc["error"]["message"]
+        ), (kind, doc)
+    assert run.figures == {}
