@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -815,6 +816,42 @@ def spacecraft(
             "protection)",
         ),
     ] = False,
+    mission: Annotated[
+        Path | None,
+        typer.Option(
+            help="A mission file (docs/missions.md): the link is up only inside its contact "
+            "windows and its one-way delay is the ground's processing delay plus the path's "
+            "light time (replacing --delay); the gaps are flown fast"
+        ),
+    ] = None,
+    mission_start: Annotated[
+        str | None,
+        typer.Option(
+            help="With --mission: the UTC (ISO 8601) of the spacecraft's onboard second 0 "
+            "(default: the mission's elements' epoch)"
+        ),
+    ] = None,
+    windows: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --mission: fly these windows (hikoboshi windows --json, or a "
+            "campaign.json) instead of every window of --hours from the start"
+        ),
+    ] = None,
+    relay: Annotated[
+        list[str] | None,
+        typer.Option(help="With --mission: only this relay's windows; repeatable"),
+    ] = None,
+    hours: Annotated[
+        float, typer.Option(help="With --mission and no --windows: hours of windows")
+    ] = 24.0,
+    fast_scale: Annotated[
+        float | None,
+        typer.Option(
+            help="With --mission: between windows the onboard clock runs at most this many "
+            "times wall time (default: as fast as the simulation computes)"
+        ),
+    ] = None,
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
 ) -> None:
@@ -880,6 +917,11 @@ def spacecraft(
             vehicle = VehicleConfig(**vehicle_fields)
         if vehicle_config is not None:
             vehicle = _with_vehicle_tables(vehicle, vehicle_config)
+        contact = None
+        if mission is not None:
+            contact = _contact(mission, mission_start, windows, relay or (), hours)
+        elif any(o is not None for o in (mission_start, windows, relay, fast_scale)):
+            raise ValueError("--mission-start, --windows, --relay and --fast-scale need --mission")
         config = ProcessConfig(
             ground_url=ground,
             token=token,
@@ -890,6 +932,8 @@ def spacecraft(
             seed=seed,
             truth_log=truth_log,
             garbage=tuple(parse_garbage(g) for g in garbage or ()),
+            contact=contact,
+            fast_scale=fast_scale,
         )
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -908,6 +952,22 @@ def spacecraft(
         )
 
     asyncio.run(main_async())
+
+
+def _contact(
+    mission: Path, start: str | None, windows: Path | None, relays: Sequence[str], hours: float
+) -> Any:
+    """The spacecraft's contact plan from its --mission options (ValueError: one line)."""
+    from mission import MissionError, load_mission, parse_utc
+    from spacecraft.contact import load_contact
+
+    try:
+        start_utc = (
+            load_mission(mission).orbit.epoch_utc if start is None else parse_utc(start)
+        )
+    except MissionError as exc:
+        raise ValueError(str(exc)) from None
+    return load_contact(mission, start_utc, windows_path=windows, relays=relays, hours=hours)
 
 
 def _spacecraft_token(token: str | None, token_file: Path | None) -> str:

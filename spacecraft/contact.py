@@ -24,9 +24,10 @@ from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
-__all__ = ["ContactPlan", "ContactWindow", "contact_plan"]
+__all__ = ["ContactPlan", "ContactWindow", "contact_plan", "load_contact", "windows_from_json"]
 
 #: The one-way delay is sampled this often along a window (the light time changes by less
 #: than 20 us a second on a LEO-GEO path: linear interpolation is exact to well under 1 us).
@@ -173,3 +174,78 @@ def contact_plan(
             )
         )
     return ContactPlan(out)
+
+
+def windows_from_json(text: str, where: str = "windows") -> list[Any]:
+    """The windows of a JSON document: ``hikoboshi windows --json``'s object (its
+    ``windows``), a campaign's (each pass's ``window``) or a bare list of windows.
+    ValueError naming ``where`` and what is wrong."""
+    import json
+
+    from mission import MissionError, Window
+
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"{where}: not JSON: {exc}") from None
+    if isinstance(doc, dict) and isinstance(doc.get("windows"), list):
+        items = doc["windows"]
+    elif isinstance(doc, dict) and isinstance(doc.get("passes"), list):
+        items = [p.get("window") if isinstance(p, dict) else None for p in doc["passes"]]
+    elif isinstance(doc, list):
+        items = doc
+    else:
+        raise ValueError(f"{where}: neither a list of windows nor an object holding one")
+    windows = []
+    for i, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ValueError(f"{where}: window {i} is not an object")
+        try:
+            windows.append(Window.from_dict(item))
+        except MissionError as exc:
+            raise ValueError(f"{where}: window {i}: {exc}") from None
+    if not windows:
+        raise ValueError(f"{where}: no windows")
+    return windows
+
+
+def load_contact(
+    mission_path: Path,
+    start_utc: datetime,
+    *,
+    windows_path: Path | None = None,
+    relays: Sequence[str] = (),
+    hours: float = 24.0,
+) -> ContactPlan:
+    """The contact plan of a mission file for a link whose onboard second 0 is
+    ``start_utc``: the windows of ``windows_path`` (:func:`windows_from_json`), else those
+    computed over ``hours`` from the start; only ``relays``' when given. ValueError with
+    the reason on one line."""
+    from mission import MissionError, compute_windows, load_mission
+
+    try:
+        mission = load_mission(mission_path)
+        if windows_path is not None:
+            windows = windows_from_json(windows_path.read_text(), str(windows_path))
+        else:
+            windows = compute_windows(mission, start_utc, hours)
+    except MissionError as exc:
+        raise ValueError(str(exc)) from None
+    names = {r.name for r in mission.relays}
+    unknown = sorted(set(relays) - names)
+    if unknown:
+        raise ValueError(
+            f"relay(s) {', '.join(unknown)} not in {mission_path}; it has "
+            f"{', '.join(sorted(names))}"
+        )
+    missing = sorted({w.relay for w in windows} - names)
+    if missing:
+        raise ValueError(f"window relay(s) {', '.join(missing)} not in {mission_path}")
+    if relays:
+        windows = [w for w in windows if w.relay in relays]
+    if not windows:
+        raise ValueError(f"no windows of {mission_path} to fly from {start_utc.isoformat()}")
+    try:
+        return contact_plan(mission, start_utc, windows)
+    except MissionError as exc:
+        raise ValueError(str(exc)) from None
