@@ -471,6 +471,24 @@ def demo(
             "(docs/spacecraft.md)"
         ),
     ] = None,
+    campaign: Annotated[
+        bool,
+        typer.Option(
+            "--campaign",
+            help="Fly the mission's campaign: its passes back to back across the computed "
+            "windows, the gaps flown fast (docs/missions.md)",
+        ),
+    ] = False,
+    mission: Annotated[
+        Path | None,
+        typer.Option(
+            help="The campaign's mission file (implies --campaign; default "
+            "examples/missions/ets7-1999.toml)"
+        ),
+    ] = None,
+    start: Annotated[
+        str, typer.Option(help="With --campaign: the campaign's start, ISO 8601 UTC")
+    ] = "1999-09-30T00:00:00Z",
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
 ) -> None:
@@ -505,6 +523,14 @@ def demo(
             parse_outage(window)
         except ValueError as exc:
             _fail(f"--outage {window}: {exc}")
+    if campaign or mission is not None:
+        if outage or fault or robot is not None or experiments or serve_after:
+            _fail(
+                "--campaign takes its windows and experiments from the mission: no --outage, "
+                "--fault, --robot, --experiments or --serve-after"
+            )
+        _campaign_demo(mission, start, out, speed, loss, port, seed, as_json, log_format, log_level)
+        return
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
     if robot is not None:
         _load(robot)  # a bad description: one error line before anything starts
@@ -555,6 +581,73 @@ def demo(
     else:
         _print_demo(summary)
     if not summary["verdict"]["ok"]:
+        raise typer.Exit(1)
+
+
+def _campaign_demo(
+    mission: Path | None,
+    start: str,
+    out: Path,
+    speed: float,
+    loss: float,
+    port: int,
+    seed: int,
+    as_json: bool,
+    log_format: str,
+    log_level: str,
+) -> None:
+    """``hikoboshi demo --campaign``: exit 0 iff every pass ended complete with every
+    command executed at its tag, none expired, no frame missing, and no command reached
+    the spacecraft outside a window; 1 otherwise; 2 for bad options."""
+    from hikoboshi.campaign_demo import CampaignOptions, campaign_markdown, run_campaign_demo
+    from hikoboshi.demo import DemoError
+    from mission import MISSIONS_DIR, MissionError, load_mission, parse_utc
+
+    path = mission if mission is not None else MISSIONS_DIR / "ets7-1999.toml"
+    try:
+        load_mission(path)
+        start_utc = parse_utc(start)
+    except MissionError as exc:
+        _fail(str(exc))
+    options = CampaignOptions(
+        mission=path,
+        start_utc=start_utc,
+        out=out if out != Path("out/demo") else Path("out/campaign"),
+        speed=speed,
+        loss=loss,
+        port=port,
+        seed=seed,
+        log_format=log_format,
+        log_level=log_level.lower(),
+    )
+    options.out.mkdir(parents=True, exist_ok=True)
+    ground_log = (options.out / "ground.log").open("a", encoding="utf-8")  # open until exit
+    _configure_logging(log_format, log_level, stream=ground_log)
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f}"),
+        TimeRemainingColumn(),
+        console=err_console,
+        disable=as_json,
+    ) as progress:
+        tasks: dict[str, Any] = {}
+
+        def on_progress(phase: str, done: float, total: float) -> None:
+            if phase not in tasks:
+                tasks[phase] = progress.add_task(phase, total=total)
+            progress.update(tasks[phase], completed=done, total=total)
+
+        try:
+            doc = run_campaign_demo(options, on_progress)
+        except (DemoError, MissionError) as exc:
+            _fail(f"campaign demo stopped: {exc} (logs in {options.out})")
+    if as_json:
+        sys.stdout.write(json.dumps(doc) + "\n")
+    else:
+        console.print(campaign_markdown(doc), highlight=False, soft_wrap=True, markup=False)
+        console.print(f"Campaign report: {options.out}/campaign.json and campaign.md")
+    if not doc["verdict"]["ok"]:
         raise typer.Exit(1)
 
 
@@ -962,9 +1055,7 @@ def _contact(
     from spacecraft.contact import load_contact
 
     try:
-        start_utc = (
-            load_mission(mission).orbit.epoch_utc if start is None else parse_utc(start)
-        )
+        start_utc = load_mission(mission).orbit.epoch_utc if start is None else parse_utc(start)
     except MissionError as exc:
         raise ValueError(str(exc)) from None
     return load_contact(mission, start_utc, windows_path=windows, relays=relays, hours=hours)

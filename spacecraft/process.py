@@ -340,6 +340,8 @@ class SpacecraftProcess:
             now = self.onboard_s()
             if contact is not None and not contact.is_up(now) and self._is_command(raw):
                 self.commands_outside_window += 1
+                if self._truth is not None:
+                    self._truth.write([{"event": "command_outside_window", "onboard_s": now}])
             deliver = self.uplink.send(now, len(raw))
             if deliver is not None:
                 heapq.heappush(self._incoming, (deliver, next(self._counter), raw))

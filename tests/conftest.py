@@ -73,6 +73,7 @@ REALTIME_MODULES = (
     "tests/spacecraft/test_process.py",
     "tests/spacecraft/test_process_contact.py",
     "tests/spacecraft/test_robot.py",
+    "tests/test_campaign_demo.py",
     "tests/test_cli_demo.py",
 )
 
