@@ -18,9 +18,9 @@
    gap the wheel momentum carried across it as measured (the ground's telemetry at the end
    of one pass and the start of the next) against the campaign's prediction.
 
-Windows of two relays may overlap; the spacecraft flies the campaign's windows each cut at
-the next one's acquisition (the ground moves to the relay of its next pass), so the link is
-on one relay at a time.
+The relay is booked per pass, as TDRS time was (shared among NASA's users): the link is up
+from the window's AOS to the end of its pass and :data:`SERVICE_TAIL_S`, never past the
+window's LOS nor the next pass's AOS (one relay at a time); the rest is flown fast.
 """
 
 from __future__ import annotations
@@ -63,6 +63,9 @@ PAPER_ORDER: tuple[tuple[str, ...], ...] = (
 )
 #: Onboard s a pass keeps for its start (the ground's start lead and the request's slack).
 START_ALLOWANCE_S = 60.0
+#: Onboard s the relay service runs on after a pass's plan ends: the last echoes and the
+#: telemetry still in the onboard store come down, through the loss's resends.
+SERVICE_TAIL_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -132,16 +135,29 @@ def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
     return specs
 
 
-def _flown_windows(specs: list[_PassSpec]) -> list[Any]:
-    """The campaign's windows, each cut at the next one's acquisition (one relay at a
-    time); a pass must still fit its window's net time (checked by the caller)."""
-    windows = [s.window for s in specs]
-    flown = []
-    for i, w in enumerate(windows):
-        if i + 1 < len(windows) and windows[i + 1].aos_utc < w.los_utc:
-            w = replace(w, los_utc=windows[i + 1].aos_utc, los_margin_s=0.0)
-        flown.append(w)
-    return flown
+def _service_windows(specs: list[_PassSpec], durations_s: list[float]) -> list[Any]:
+    """The relay service each pass books in its window: from the window's AOS to the end
+    of the pass (its net start, the start allowance and the plan) and
+    :data:`SERVICE_TAIL_S`, never past the window's LOS nor the next window's AOS (one
+    relay at a time). Raises DemoError when a pass does not fit its window's net time."""
+    from mission import format_utc
+
+    services = []
+    for i, (spec, duration_s) in enumerate(zip(specs, durations_s, strict=True)):
+        w = spec.window
+        if duration_s + START_ALLOWANCE_S > w.net_s:
+            raise DemoError(
+                f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
+                f"time of its window {w.relay} {format_utc(w.aos_utc)}"
+            )
+        end = w.net_start_utc + timedelta(seconds=START_ALLOWANCE_S + duration_s + SERVICE_TAIL_S)
+        end = min(end, w.los_utc)
+        if i + 1 < len(specs):
+            end = min(end, specs[i + 1].window.aos_utc)
+        if end < w.net_start_utc + timedelta(seconds=START_ALLOWANCE_S + duration_s):
+            raise DemoError(f"pass {i + 1} overlaps the next pass's window")
+        services.append(replace(w, los_utc=end, los_margin_s=0.0))
+    return services
 
 
 def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None) -> dict[str, Any]:
@@ -173,7 +189,9 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         report("planning the campaign", 0, 1)
         specs = _campaign(options, lambda e: float(make_plan(tuple(e))["duration_s"]))
         report("planning the campaign", 1, 1)
-        flown = _flown_windows(specs)
+        flown = _service_windows(
+            specs, [float(make_plan(s.experiments)["duration_s"]) for s in specs]
+        )
         windows_file = out / "windows.json"
         windows_file.write_text(
             json.dumps({"windows": [w.to_dict() for w in flown]}, indent=2) + "\n"
@@ -212,11 +230,6 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
                 plan = make_plan(spec.experiments)
                 duration_s = float(plan["duration_s"])
-                if duration_s + START_ALLOWANCE_S > window.net_s:
-                    raise DemoError(
-                        f"pass {i} ({duration_s:.0f} s) does not fit the {window.net_s:.0f} s "
-                        f"its window {window.relay} {format_utc(window.aos_utc)} leaves"
-                    )
                 name = f"{mission.name} pass {i} {format_utc(window.aos_utc)}"
                 record = api.call(
                     "POST",
@@ -373,7 +386,8 @@ def _pass_result(
         "pass": index,
         "pass_id": pass_id,
         "experiments": list(spec.experiments),
-        "window": window.to_dict(),
+        "window": spec.window.to_dict(),
+        "service_los_utc": _fmt(window.los_utc),
         "state": state,
         "outcome": summary.get("outcome"),
         "outcome_text": summary.get("outcome_text"),
@@ -396,6 +410,12 @@ def _pass_result(
         "summary_json": str((where / "summary.json").resolve()),
         "_span_s": (epoch_s, epoch_s + duration_s),
     }
+
+
+def _fmt(moment: datetime) -> str:
+    from mission import format_utc
+
+    return format_utc(moment)
 
 
 def _utc(start: datetime, onboard_s: float) -> str:
@@ -461,10 +481,14 @@ def _campaign_doc(
         if p["frames_missing"]:
             problems.append(f"pass {p['pass']}: {p['frames_missing']} frames missing")
     n_outside = None if link is None else link.get("commands_outside_window")
-    if n_outside is None:
+    n_delivered = None if link is None else link.get("commands_delivered_outside_window")
+    if n_outside is None or n_delivered is None:
         problems.append("the spacecraft's link record is missing from the truth log")
-    elif n_outside:
-        problems.append(f"{n_outside} commands reached the spacecraft outside a window")
+    else:
+        if n_outside:
+            problems.append(f"{n_outside} commands were sent onto the relay outside a window")
+        if n_delivered:
+            problems.append(f"{n_delivered} commands reached the vehicle outside a window")
     return {
         "mission": mission.name,
         "mission_file": str(options.mission),
@@ -485,6 +509,7 @@ def _campaign_doc(
             for g in fast
         ],
         "commands_outside_window": n_outside,
+        "commands_delivered_outside_window": n_delivered,
         "link": link,
         "truth_start_ns": start_ns,
         "verdict": {"ok": not problems, "problems": problems},
@@ -535,7 +560,9 @@ def campaign_markdown(doc: dict[str, Any]) -> str:
         )
     lines += [
         "",
-        f"Commands that reached the spacecraft outside a window: {doc['commands_outside_window']}",
+        "Commands sent onto the relay outside a window: "
+        f"{doc['commands_outside_window']}; received by the vehicle outside one: "
+        f"{doc['commands_delivered_outside_window']}",
         "",
         "Verdict: " + ("ok" if doc["verdict"]["ok"] else "; ".join(doc["verdict"]["problems"])),
         "",

@@ -33,9 +33,12 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
   connection that sends too many; the process reconnects as after any drop.
 - **Contact plan** (``contact``, :mod:`spacecraft.contact`: the windows of a mission): the
   relay is there only inside a window. The process connects at acquisition of signal and
-  closes its socket at loss, both links drop whatever is not across before the window's
-  loss, and a command reaching the socket outside a window is counted
-  (``commands_outside_window``; the ground cannot send one: there is no socket). Between
+  closes its socket at loss, and both links drop whatever is not across before the window's
+  loss. Two counts: ``commands_outside_window``, the commands the ground put on the relay
+  outside a window (it cannot once the socket is closed; between LOS and the close, a
+  loaded loop's lag, it can, and the link loses them), and
+  ``commands_delivered_outside_window``, those the vehicle received outside one (the link
+  makes it 0). Between
   windows the vehicle keeps flying (gravity gradient on the base, attitude control with the
   wheels) in FAST mode: the onboard clock runs as fast as the simulation computes (at most
   ``fast_scale`` times wall time when given) until the next acquisition, where it returns
@@ -152,6 +155,7 @@ class SpacecraftProcess:
         self.uplink = LinkEmulator(up)
         self.downlink_link = LinkEmulator(down)
         self.commands_outside_window = 0
+        self.commands_delivered_outside_window = 0
         self.fast_forwards = 0  # how many gaps were flown in FAST mode
         # Resend after the onboard timeout plus three seconds of wall time per unit of time
         # scale: at 20x the 10 s timeout is half a wall second, less than a loaded ground
@@ -184,12 +188,16 @@ class SpacecraftProcess:
     def onboard_s(self) -> float:
         return self._onboard0 + (time.monotonic() - self._wall0) * self._scale
 
-    def _anchor(self, onboard_s: float) -> None:
-        """The onboard clock reads ``onboard_s`` now (never backwards) and runs on."""
+    def _anchor(self, onboard_s: float, scale: float) -> None:
+        """The onboard clock reads ``onboard_s`` now (never backwards) and runs on at
+        ``scale`` times wall time (0: it stands, FAST mode moves it)."""
         self._onboard0 = max(onboard_s, self.onboard_s())
         self._wall0 = time.monotonic()
+        self._scale = scale
 
     def _wall_delay(self, onboard_s: float) -> float:
+        if self._scale == 0:
+            return 0.01  # FAST mode: the clock moves in steps
         return max(0.0, (onboard_s - self.onboard_s()) / self._scale)
 
     def onboard_ns(self, onboard_s: float) -> int:
@@ -381,6 +389,9 @@ class SpacecraftProcess:
         its delivery instant."""
         while self._incoming and self._incoming[0][0] <= now:
             deliver, _, raw = heapq.heappop(self._incoming)
+            contact = self.config.contact
+            if contact is not None and not contact.is_up(deliver) and self._is_command(raw):
+                self.commands_delivered_outside_window += 1
             if not self._stopping:
                 self._advance(deliver)
             self.vehicle.heard_from_ground()
@@ -399,20 +410,24 @@ class SpacecraftProcess:
         if aos is None:
             return  # no window ahead: the clock runs on at its pass speed
         self.fast_forwards += 1
+        await self._lose_signal()  # if the closer has not run yet (a loaded loop)
         log.info("no window until onboard %.1f s: flying the gap fast", aos)
         wall0, h0 = time.monotonic(), self.vehicle.wheel_momentum_nms().tolist()
         fast = self.config.fast_scale
         t = now
-        while t < aos and not stop.is_set():
-            began = time.monotonic()
-            t = min(aos, t + FAST_CHUNK_S)
-            self._deliver_due(t)
-            self._advance(t)
-            self._anchor(t)
-            spent = time.monotonic() - began
-            pause = 0.0 if fast is None else max(0.0, FAST_CHUNK_S / fast - spent)
-            await asyncio.sleep(pause)  # the loop's other tasks run between chunks
-            self._anchor(t)  # the clock stood still while the chunk was computed
+        self._anchor(t, 0.0)  # the clock follows the vehicle, step by step
+        try:
+            while t < aos and not stop.is_set():
+                began = time.monotonic()
+                t = min(aos, t + FAST_CHUNK_S)
+                self._deliver_due(t)
+                self._advance(t)
+                self._anchor(t, 0.0)
+                spent = time.monotonic() - began
+                pause = 0.0 if fast is None else max(0.0, FAST_CHUNK_S / fast - spent)
+                await asyncio.sleep(pause)  # the loop's other tasks run between chunks
+        finally:
+            self._anchor(t, self.config.time_scale)
         log.info("acquisition of signal at onboard %.1f s", self.onboard_s())
         if self._truth is not None:
             self._truth.write(
@@ -451,7 +466,7 @@ class SpacecraftProcess:
             self._flush_telemetry(now)
             if self._stopping and self.store.unacked == 0:
                 return
-            await asyncio.sleep(tick_s / self._scale)
+            await asyncio.sleep(tick_s / self.config.time_scale)
 
     # -- connection ----------------------------------------------------------------------
 
@@ -544,8 +559,16 @@ class SpacecraftProcess:
             end = self.onboard_s()
         while self.onboard_s() < end:
             await asyncio.sleep(min(0.05, self._wall_delay(end)))
+        await self._lose_signal()
+
+    async def _lose_signal(self) -> None:
+        """Close the socket (if open): the window is over."""
+        ws = self._ws
+        if ws is None:
+            return
         log.info("loss of signal at onboard %.1f s", self.onboard_s())
-        await ws.close(1001, "loss of signal")
+        with contextlib.suppress(ConnectionClosed):
+            await ws.close(1001, "loss of signal")
 
     def _announced_joints(self) -> int | None:
         """``hello``'s joint count: with the robot of a description only (a ``hello`` without
@@ -592,6 +615,7 @@ class SpacecraftProcess:
                 "dropped_outage": down.dropped_outage,
             },
             "commands_outside_window": self.commands_outside_window,
+            "commands_delivered_outside_window": self.commands_delivered_outside_window,
             "gaps_flown_fast": self.fast_forwards,
             "connections": self.connections,
         }
