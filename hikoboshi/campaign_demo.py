@@ -1,10 +1,11 @@
 """The campaign demo: a mission's passes flown back to back across its computed windows
 (``hikoboshi demo --campaign``; docs/missions.md "The campaign demo").
 
-1. The campaign: ``mission.campaign.plan_campaign`` when it is there (the experiments
-   assigned to consecutive windows, each pass's predicted start state and the wheel
-   momentum gravity gradient loads between passes); otherwise the paper's order over
-   the first three windows that hold each pass (:data:`PAPER_ORDER`), with no prediction.
+1. The campaign: ``hikoboshi.campaign.plan_campaign`` (the experiments assigned to
+   consecutive windows, each pass's predicted start state and the wheel momentum gravity
+   gradient loads between passes), each pass's plan made by the ground from the campaign
+   plan's parameters; or, given experiments per pass (a shorter campaign: the tests),
+   those over the first windows that hold them, with no prediction.
 2. The ground service starts (as ``hikoboshi demo``), the spacecraft process starts with
    ``--mission`` and the campaign's windows (``--windows``): its onboard second 0 is the
    campaign's start in UTC, its link is up only inside those windows with the geometry's
@@ -96,27 +97,39 @@ class _PassSpec:
     experiments: tuple[str, ...]
     #: the wheel momentum predicted to be loaded between the previous pass and this one
     gap_momentum_nms: list[float] | None
+    #: the plan's parameters (the campaign's: its start state and orbit), else None: the
+    #: ground plans ``experiments`` from the nominal start
+    parameters: dict[str, Any] | None = None
+    #: the campaign's predicted wheel momentum at the plan's start and end (N m s)
+    predicted_start_h: list[float] | None = None
+    predicted_end_h: list[float] | None = None
 
 
 def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
-    """The passes: mission.campaign's when it is there, else the paper's order over the
-    first windows (from the start, 24 h) whose net time holds each pass's plan."""
+    """The passes: the campaign planner's (:func:`hikoboshi.campaign.plan_campaign`), or,
+    with ``pass_experiments`` or ``relay``, those experiments over the first windows (from
+    the start, 24 h; the relay's only) whose net time holds each pass's plan."""
     from mission import compute_windows, load_mission
 
     mission = load_mission(options.mission)
     try:
-        module: Any = importlib.import_module("mission.campaign")
+        module: Any = importlib.import_module("hikoboshi.campaign")
     except ImportError:
         module = None
-    if module is not None and options.pass_experiments is None:
+    if module is not None and options.pass_experiments is None and options.relay is None:
         campaign = module.plan_campaign(mission, options.start_utc)
+
+        def floats(values: Any) -> list[float]:
+            return [float(x) for x in values]
+
         return [
             _PassSpec(
                 window=p.window,
                 experiments=tuple(p.experiments),
-                gap_momentum_nms=(
-                    None if p.gap_momentum_nms is None else [float(x) for x in p.gap_momentum_nms]
-                ),
+                gap_momentum_nms=floats(p.gap_momentum_nms) if p.index > 1 else None,
+                parameters=dict(p.plan.parameters),
+                predicted_start_h=floats(p.start_state.wheel_momentum_nms),
+                predicted_end_h=floats(p.end_state.wheel_momentum_nms),
             )
             for p in campaign.passes
         ]
@@ -178,20 +191,32 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     results: list[dict[str, Any]] = []
     with _ground(settings, port):
         api = _Api(base, operator)
-        durations: dict[tuple[str, ...], dict[str, Any]] = {}
+        plans: dict[str, dict[str, Any]] = {}
 
-        def make_plan(experiments: tuple[str, ...]) -> dict[str, Any]:
-            if experiments not in durations:
-                body = {"experiment": "pass", "parameters": {"experiments": list(experiments)}}
+        def make_plan(parameters: dict[str, Any]) -> dict[str, Any]:
+            key = json.dumps(parameters, sort_keys=True)
+            if key not in plans:
+                body = {"experiment": "pass", "parameters": parameters}
                 # planning runs in the ground's workers: minutes on a loaded machine
-                durations[experiments] = api.call("POST", "/api/plans", body, timeout_s=900.0)
-            return durations[experiments]
+                plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
+            return plans[key]
+
+        def parameters_of(spec: _PassSpec) -> dict[str, Any]:
+            if spec.parameters is not None:
+                return spec.parameters
+            return {"experiments": list(spec.experiments)}
 
         report("planning the campaign", 0, 1)
-        specs = _campaign(options, lambda e: float(make_plan(tuple(e))["duration_s"]))
+        specs = _campaign(
+            options, lambda e: float(make_plan({"experiments": list(e)})["duration_s"])
+        )
         report("planning the campaign", 1, 1)
+        report("the ground plans each pass", 0, len(specs))
+        for k, spec in enumerate(specs, start=1):
+            make_plan(parameters_of(spec))
+            report("the ground plans each pass", k, len(specs))
         flown = _service_windows(
-            specs, [float(make_plan(s.experiments)["duration_s"]) for s in specs]
+            specs, [float(make_plan(parameters_of(s))["duration_s"]) for s in specs]
         )
         windows_file = out / "windows.json"
         windows_file.write_text(
@@ -229,7 +254,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             start_ns = _truth_start(truth_log, proc)
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
-                plan = make_plan(spec.experiments)
+                plan = make_plan(parameters_of(spec))
                 duration_s = float(plan["duration_s"])
                 name = f"{mission.name} pass {i} {format_utc(window.aos_utc)}"
                 record = api.call(
@@ -424,6 +449,8 @@ def _pass_result(
         "wheel_momentum_start_nms": _momentum_at(api, pass_id, epoch_ns, before=False),
         "wheel_momentum_end_nms": _momentum_at(api, pass_id, end_ns, before=True),
         "predicted_gap_momentum_nms": spec.gap_momentum_nms,
+        "predicted_wheel_momentum_start_nms": spec.predicted_start_h,
+        "predicted_wheel_momentum_end_nms": spec.predicted_end_h,
         "report_html": str((where / "report.html").resolve()),
         "summary_json": str((where / "summary.json").resolve()),
         "_span_s": (epoch_s, epoch_s + duration_s),
@@ -481,6 +508,7 @@ def _campaign_doc(
                 "wheel_momentum_to_nms": h1,
                 "measured_nms": measured,
                 "predicted_nms": predicted,
+                "predicted_wheel_momentum_to_nms": after["predicted_wheel_momentum_start_nms"],
                 "error_norm_nms": error,
             }
         )

@@ -209,7 +209,9 @@ def _plan_help() -> str:
 
     return (
         "Plan an experiment (ptp, reactionless, gjm, coordination, nonholonomic, pass) as a "
-        "4 Hz time-tagged command plan with its prediction, and write it as JSON. Parameters "
+        "4 Hz time-tagged command plan with its prediction, and write it as JSON; or a "
+        "campaign of passes over a mission's windows (plan campaign --mission FILE --start "
+        "ISO8601; docs/missions.md). Parameters "
         "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
         "paper's experiment. With --robot FILE the plan is for that robot: its poses, and "
         "its [experiments.NAME] tables as the defaults.\n\nParameters:\n\n" + parameters_help()
@@ -229,7 +231,8 @@ def plan_command(
         Path | None, typer.Argument(help="check: the plan JSON file to evaluate.")
     ] = None,
     out: Annotated[
-        Path | None, typer.Option("--out", help="Plan JSON file to write (planning).")
+        Path | None,
+        typer.Option("--out", help="Plan JSON file to write (planning); campaign: a directory."),
     ] = None,
     assignments: Annotated[
         list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable.")
@@ -245,9 +248,41 @@ def plan_command(
         bool, typer.Option("--json", help="Print the metrics and the rules as JSON.")
     ] = False,
     robot: RobotOption = None,
+    mission_file: Annotated[
+        Path | None, typer.Option("--mission", help="campaign: the mission file (TOML).")
+    ] = None,
+    start: Annotated[
+        str | None, typer.Option("--start", help="campaign: from when, ISO 8601 with offset.")
+    ] = None,
+    assignment: Annotated[
+        str | None,
+        typer.Option(
+            "--assign",
+            help="campaign: experiments per pass, passes split by / (default "
+            "ptp,reactionless,gjm/coordination/nonholonomic).",
+        ),
+    ] = None,
 ) -> None:
     """Plan (exit 3 when the plan fails a flight rule: the file is still written, with its
-    rules table, so that it can be looked at), or ``plan check FILE``."""
+    rules table, so that it can be looked at), or ``plan check FILE``, or ``plan campaign
+    --mission FILE --start ISO8601 [--out DIR]``: one plan per pass over consecutive windows
+    and a campaign.json (docs/missions.md)."""
+    if experiment == "campaign":
+        from hikoboshi.campaign_cli import run_campaign
+
+        if file is not None:
+            _fail(f"unexpected argument {str(file)!r} (plan campaign takes no FILE)")
+        run_campaign(
+            mission_file=mission_file,
+            start=start,
+            out=out,
+            robot=_load(robot) if robot is not None else None,
+            assignment=assignment,
+            as_json=as_json,
+        )
+        return
+    if mission_file is not None or start is not None or assignment is not None:
+        _fail("--mission, --start and --assign are for plan campaign")
     if experiment == "check":
         if file is None:
             _fail("plan check needs the plan FILE to evaluate")

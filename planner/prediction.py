@@ -77,6 +77,7 @@ def predict(
     acs_gains: AcsGains | None = None,
     initial_quat_orbit_from_base_xyzw: Array | None = None,
     initial_wheel_momentum_nms: Array | None = None,
+    initial_omega_base_orbit_radps: Array | None = None,
     orbit: Orbit | None = None,
     sub_steps: int = 2,
 ) -> Prediction:
@@ -85,6 +86,9 @@ def predict(
     ``acs_commands`` switch the attitude-control mode and target at their times (free drift
     before the first); ``acs_gains`` is needed when any command is ``feedback`` (feedforward
     acts through the feedback loop). ``orbit`` switches the gravity-gradient torque on.
+    The base starts at ``initial_quat_orbit_from_base_xyzw`` turning at
+    ``initial_omega_base_orbit_radps`` (orbit frame; default the orbit frame, at rest), the
+    wheels holding ``initial_wheel_momentum_nms`` (base frame; default none), the arm at rest.
     """
     times = np.asarray(command_times_s, dtype=np.float64)
     joints = np.asarray(command_joints_rad, dtype=np.float64)
@@ -109,9 +113,16 @@ def predict(
         if initial_wheel_momentum_nms is None
         else np.array(initial_wheel_momentum_nms, dtype=np.float64)
     )
-    # Total angular momentum (orbit frame) of a system starting with the base and arm at
-    # rest: just the wheels'.
-    momentum = matrix_from_quat_xyzw(quat) @ h_w
+    # Total angular momentum (orbit frame) of a system starting with the arm at rest: the
+    # base's turning (eq. 3, H~_b w_b) and the wheels'.
+    rot0 = matrix_from_quat_xyzw(quat)
+    base_momentum = np.zeros(3)
+    if initial_omega_base_orbit_radps is not None:
+        omega0 = np.asarray(initial_omega_base_orbit_radps, dtype=np.float64)
+        if omega0.shape != (3,) or not np.all(np.isfinite(omega0)):
+            raise InvalidInput(f"initial base rate must be a finite 3-vector, got {omega0}")
+        base_momentum = ws.momentum_blocks(joints[0])[0] @ (rot0.T @ omega0)
+    momentum = rot0 @ (base_momentum + h_w)
 
     cache: dict[str, tuple[Array, Array, Array]] = {}
 

@@ -28,10 +28,12 @@ from planner.experiments import (
     plan_reactionless,
 )
 from planner.gjm import GjmParams, plan_gjm
+from planner.gravity_gradient import Orbit
 from planner.parameters import parameters_from_values
 from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
 from planner.ptp import ptp_commands
+from planner.state import VehicleState
 
 if TYPE_CHECKING:
     from planner.robot import RobotDescription
@@ -51,6 +53,15 @@ class PassParams:
     ptp_settle_s: float = 100.0  # experiment 1's settling wait (flight: about 100 s)
     coordination_settle_s: float = 120.0  # each variant starts at rest (paper 3.5)
     coordination_pause_s: float = 0.0  # one back-and-forth motion
+    #: Where the pass starts, as parameters (so that the ground re-plans a campaign's pass
+    #: from its plan's parameters alone; docs/planning.md): the arm's joints (None: pose
+    #: A), the base attitude and rate (orbit frame), the wheels' momentum (base frame).
+    start_joints_rad: tuple[float, ...] | None = None
+    start_quat_orbit_from_base_xyzw: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)
+    start_omega_base_orbit_radps: tuple[float, ...] = (0.0, 0.0, 0.0)
+    start_wheel_momentum_nms: tuple[float, ...] = (0.0, 0.0, 0.0)
+    #: The orbit radius of the gravity-gradient torque in the prediction (0: none).
+    gravity_gradient_radius_m: float = 0.0
 
     def check(self) -> None:
         unknown = [e for e in self.experiments if e not in EXPERIMENTS]
@@ -58,6 +69,53 @@ class PassParams:
             raise InvalidInput(f"experiments {list(self.experiments)} must come from {EXPERIMENTS}")
         if not 0 < self.window_s <= 3600:
             raise InvalidInput(f"window_s = {self.window_s} must lie in (0, 3600] s")
+        for name, size in (
+            ("start_quat_orbit_from_base_xyzw", 4),
+            ("start_omega_base_orbit_radps", 3),
+            ("start_wheel_momentum_nms", 3),
+        ):
+            if len(getattr(self, name)) != size:
+                raise InvalidInput(f"{name} must hold {size} numbers, got {getattr(self, name)}")
+        radius = self.gravity_gradient_radius_m
+        if radius != 0.0 and not 6.4e6 <= radius <= 5.0e7:
+            raise InvalidInput(
+                f"gravity_gradient_radius_m = {radius} must be 0 (none) or lie in [6.4e6, 5e7] m"
+            )
+
+    @property
+    def has_start(self) -> bool:
+        """Whether the parameters name a start other than the nominal one."""
+        return (
+            self.start_joints_rad is not None
+            or tuple(self.start_quat_orbit_from_base_xyzw) != (0.0, 0.0, 0.0, 1.0)
+            or any(self.start_omega_base_orbit_radps)
+            or any(self.start_wheel_momentum_nms)
+        )
+
+    def start_state(self, nominal_joints_rad: Array) -> VehicleState:
+        """The start the parameters name (joints ``nominal_joints_rad`` when they name none)."""
+        joints = (
+            nominal_joints_rad if self.start_joints_rad is None else np.array(self.start_joints_rad)
+        )
+        return VehicleState(
+            joints_rad=joints,
+            quat_orbit_from_base_xyzw=np.array(self.start_quat_orbit_from_base_xyzw),
+            omega_base_orbit_radps=np.array(self.start_omega_base_orbit_radps),
+            wheel_momentum_nms=np.array(self.start_wheel_momentum_nms),
+        )
+
+    @classmethod
+    def starting_at(cls, state: VehicleState, **others: Any) -> PassParams:
+        """Parameters that start the pass at ``state`` (``others``: the rest)."""
+        return cls(
+            start_joints_rad=tuple(float(v) for v in state.joints_rad),
+            start_quat_orbit_from_base_xyzw=tuple(
+                float(v) for v in state.quat_orbit_from_base_xyzw
+            ),
+            start_omega_base_orbit_radps=tuple(float(v) for v in state.omega_base_orbit_radps),
+            start_wheel_momentum_nms=tuple(float(v) for v in state.wheel_momentum_nms),
+            **others,
+        )
 
 
 def plan_coordination_for(
@@ -138,9 +196,21 @@ def plan_pass(
     gains: AcsGains | None = None,
     *,
     robot: RobotDescription | None = None,
+    initial_state: VehicleState | None = None,
+    orbit: Orbit | None = None,
 ) -> Plan:
     """The experiments of ``params`` in order, from pose A, as one plan: ``robot``'s
-    experiments with its poses and default parameters (``None``: ETS-VII's built-in ones)."""
+    experiments with its poses and default parameters (``None``: ETS-VII's built-in ones).
+
+    ``initial_state`` starts the pass where another left the vehicle (a campaign's previous
+    pass and the gap after it): the arm at rest at its joints (a PTP transfer takes it to the
+    first experiment's start), the base at its attitude and rate, the wheels holding its
+    momentum; the whole pass is predicted from there (the flight rules then see the carried
+    momentum). ``None``: pose A, the orbit frame's attitude at rest, wheels empty.
+    ``orbit`` adds the gravity-gradient torque on that orbit to the prediction (eq. 11; the
+    default, ``None``, leaves it out as every planner's prediction does). Both may be given
+    as ``params`` instead (``start_*``, ``gravity_gradient_radius_m``), which the plan's
+    parameters then record; not both ways at once."""
     params.check()
     check_robot(ws, robot)
     model = ws.model
@@ -150,6 +220,27 @@ def plan_pass(
     else:
         gains = gains or robot.acs_gains(ws)
         start = robot.target_joints_rad("A", ws, experiment="pass")
+    if params.has_start:
+        if initial_state is not None:
+            raise InvalidInput("the pass's start is given twice: as parameters and a state")
+        initial_state = params.start_state(start)
+    if params.gravity_gradient_radius_m > 0.0:
+        if orbit is not None:
+            raise InvalidInput("the pass's orbit is given twice: as a parameter and an orbit")
+        nominal = Orbit()
+        orbit = Orbit(
+            altitude_m=params.gravity_gradient_radius_m - nominal.earth_radius_m,
+            earth_radius_m=nominal.earth_radius_m,
+            mu_m3ps2=nominal.mu_m3ps2,
+        )
+    if initial_state is not None:
+        if initial_state.joints_rad.shape != (model.n_joints,):
+            raise InvalidInput(
+                f"initial_state has {initial_state.joints_rad.size} joints, the robot "
+                f"{model.n_joints}"
+            )
+        model.check_joints(initial_state.joints_rad)
+        start = initial_state.joints_rad.copy()
     pieces = _experiment_plans(ws, params, gains, robot)
     builder = CommandBuilder(start)
     acs: list[AcsCommand] = [AcsCommand(0.0, AcsMode.FEEDBACK)]
@@ -198,9 +289,27 @@ def plan_pass(
             f"the pass needs {times[-1]:.1f} s, more than the {params.window_s:.1f} s window: "
             "drop an experiment or shorten the settling waits"
         )
-    prediction = predict(ws, times, joints, acs_commands=acs, acs_gains=gains)
+    prediction = predict(
+        ws,
+        times,
+        joints,
+        acs_commands=acs,
+        acs_gains=gains,
+        initial_quat_orbit_from_base_xyzw=(
+            None if initial_state is None else initial_state.quat_orbit_from_base_xyzw
+        ),
+        initial_wheel_momentum_nms=(
+            None if initial_state is None else initial_state.wheel_momentum_nms
+        ),
+        initial_omega_base_orbit_radps=(
+            None if initial_state is None else initial_state.omega_base_orbit_radps
+        ),
+        orbit=orbit,
+    )
     metrics["duration_s"] = float(times[-1])
     metrics["window_margin_s"] = float(params.window_s - times[-1])
+    if orbit is not None:
+        metrics["gravity_gradient_orbit_radius_m"] = orbit.radius_m
     plan = Plan(
         experiment="pass",
         parameters={**asdict(params), "experiments": list(params.experiments)},
@@ -211,6 +320,11 @@ def plan_pass(
         prediction=prediction,
         metrics=metrics,
         acs_commands=tuple(sorted(acs, key=lambda c: c.t_s)),
+        initial_quat_orbit_from_base_xyzw=(
+            np.array([0.0, 0.0, 0.0, 1.0])
+            if initial_state is None
+            else initial_state.quat_orbit_from_base_xyzw.copy()
+        ),
     )
     check_plan_limits(model, plan)
     return plan_for_robot(plan, robot)
