@@ -186,7 +186,15 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     operator = _token_of(tokens, Role.OPERATOR)
     port = _port(options.port)
     base = f"http://127.0.0.1:{port}"
-    settings = Settings(data_dir=out, tokens=tokens, missions_dir=options.mission.parent.resolve())
+    # Three passes planned again from their parameters: on a loaded 2-core machine one took
+    # over the default 120 s deadline.
+    settings = Settings(
+        data_dir=out,
+        tokens=tokens,
+        missions_dir=options.mission.parent.resolve(),
+        plan_deadline_s=900.0,
+        post_pass_deadline_s=1800.0,
+    )
     truth_log = out / "truth.jsonl"
     results: list[dict[str, Any]] = []
     with _ground(settings, port):
