@@ -62,8 +62,11 @@ PAPER_ORDER: tuple[tuple[str, ...], ...] = (
     ("gjm", "coordination"),
     ("nonholonomic",),
 )
-#: Onboard s a pass keeps for its start (the ground's start lead and the request's slack).
+#: What a pass keeps for its start (the ground's start lead and the request's slack):
+#: this many onboard s, and START_ALLOWANCE_WALL_S of wall time (the job's polling and the
+#: start request on a loaded machine) at the demo's speed.
 START_ALLOWANCE_S = 60.0
+START_ALLOWANCE_WALL_S = 5.0
 #: Onboard s the relay service runs on after a pass's plan ends: the last echoes and the
 #: telemetry still in the onboard store come down, through the loss's resends.
 SERVICE_TAIL_S = 300.0
@@ -139,7 +142,7 @@ def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
     specs: list[_PassSpec] = []
     after = options.start_utc
     for experiments in options.pass_experiments or PAPER_ORDER:
-        need_s = plan_duration(experiments) + START_ALLOWANCE_S
+        need_s = plan_duration(experiments) + _allowance_s(options.speed)
         window = next((w for w in windows if w.net_start_utc >= after and w.net_s >= need_s), None)
         if window is None:
             raise DemoError(f"no window in 24 h holds a pass of {', '.join(experiments)}")
@@ -148,7 +151,11 @@ def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
     return specs
 
 
-def _service_windows(specs: list[_PassSpec], durations_s: list[float]) -> list[Any]:
+def _allowance_s(speed: float) -> float:
+    return START_ALLOWANCE_S + START_ALLOWANCE_WALL_S * speed
+
+
+def _service_windows(specs: list[_PassSpec], durations_s: list[float], speed: float) -> list[Any]:
     """The relay service each pass books in its window: from the window's AOS to the end
     of the pass (its net start, the start allowance and the plan) and
     :data:`SERVICE_TAIL_S`, never past the window's LOS nor the next window's AOS (one
@@ -158,16 +165,17 @@ def _service_windows(specs: list[_PassSpec], durations_s: list[float]) -> list[A
     services = []
     for i, (spec, duration_s) in enumerate(zip(specs, durations_s, strict=True)):
         w = spec.window
-        if duration_s + START_ALLOWANCE_S > w.net_s:
+        allowance_s = _allowance_s(speed)
+        if duration_s + allowance_s > w.net_s:
             raise DemoError(
                 f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
                 f"time of its window {w.relay} {format_utc(w.aos_utc)}"
             )
-        end = w.net_start_utc + timedelta(seconds=START_ALLOWANCE_S + duration_s + SERVICE_TAIL_S)
+        end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + SERVICE_TAIL_S)
         end = min(end, w.los_utc)
         if i + 1 < len(specs):
             end = min(end, specs[i + 1].window.aos_utc)
-        if end < w.net_start_utc + timedelta(seconds=START_ALLOWANCE_S + duration_s):
+        if end < w.net_start_utc + timedelta(seconds=allowance_s + duration_s):
             raise DemoError(f"pass {i + 1} overlaps the next pass's window")
         services.append(replace(w, los_utc=end, los_margin_s=0.0))
     return services
@@ -224,7 +232,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             make_plan(parameters_of(spec))
             report("the ground plans each pass", k, len(specs))
         flown = _service_windows(
-            specs, [float(make_plan(parameters_of(s))["duration_s"]) for s in specs]
+            specs, [float(make_plan(parameters_of(s))["duration_s"]) for s in specs], options.speed
         )
         windows_file = out / "windows.json"
         windows_file.write_text(
