@@ -205,6 +205,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     )
     truth_log = out / "truth.jsonl"
     results: list[dict[str, Any]] = []
+    flown_passes: list[tuple[int, str, str, _PassSpec, Any, int, float]] = []
     with _ground(settings, port):
         api = _Api(base, operator)
         plans: dict[str, dict[str, Any]] = {}
@@ -305,21 +306,8 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                     _ClockSampler(),
                 )
                 _settle(api, pass_id, options.speed)
-                results.append(
-                    _pass_result(
-                        api,
-                        out / f"pass-{i}",
-                        i,
-                        pass_id,
-                        state,
-                        spec,
-                        window,
-                        epoch_ns,
-                        duration_s,
-                        start_ns,
-                        options,
-                    )
-                )
+                # the reports wait for the end: the next window does not
+                flown_passes.append((i, pass_id, state, spec, window, epoch_ns, duration_s))
             report("draining the onboard telemetry store", 0, 1)
             proc.send_signal(signal.SIGTERM)
             try:
@@ -327,6 +315,24 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             except Exception:
                 raise DemoError("the spacecraft did not drain its telemetry in 120 s") from None
             report("draining the onboard telemetry store", 1, 1)
+        for i, pass_id, state, spec, window, epoch_ns, duration_s in flown_passes:
+            report("per-pass summaries and reports", i - 1, len(flown_passes))
+            results.append(
+                _pass_result(
+                    api,
+                    out / f"pass-{i}",
+                    i,
+                    pass_id,
+                    state,
+                    spec,
+                    window,
+                    epoch_ns,
+                    duration_s,
+                    start_ns,
+                    options,
+                )
+            )
+        report("per-pass summaries and reports", len(flown_passes), len(flown_passes))
     truth = read_truth_log(truth_log)
     doc = _campaign_doc(options, mission, results, specs, truth, start_ns)
     doc["wall_time_s"] = round(time.monotonic() - started, 1)
