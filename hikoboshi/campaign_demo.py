@@ -13,8 +13,10 @@
 3. For each pass: its plan is made (``POST /api/plans``, the pass's experiments) and the
    pass scheduled in its window (``POST /api/passes`` naming the window); once the onboard
    clock reaches the window's net start the operator starts it; the job follows it to its
-   end and writes the per-pass summary and report under ``OUT/pass-N/``.
-4. The spacecraft stops; ``OUT/campaign.json`` and ``OUT/campaign.md`` hold per pass the
+   end.
+4. The spacecraft stops; each pass's summary, analyses and report go to ``OUT/pass-N/``
+   (after the last pass: one pass's analyses may outlast the gap to the next window);
+   ``OUT/campaign.json`` and ``OUT/campaign.md`` hold per pass the
    window, the commands executed at their tag, expired, and sent outside a window, and per
    gap the wheel momentum carried across it as measured (the ground's telemetry at the end
    of one pass and the start of the next) against the campaign's prediction.
