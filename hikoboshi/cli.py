@@ -6,6 +6,7 @@ import contextlib
 import json
 import logging
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -529,6 +530,24 @@ def demo(
             "(docs/spacecraft.md)"
         ),
     ] = None,
+    campaign: Annotated[
+        bool,
+        typer.Option(
+            "--campaign",
+            help="Fly the mission's campaign: its passes back to back across the computed "
+            "windows, the gaps flown fast (docs/missions.md)",
+        ),
+    ] = False,
+    mission: Annotated[
+        Path | None,
+        typer.Option(
+            help="The campaign's mission file (implies --campaign; default "
+            "examples/missions/ets7-1999.toml)"
+        ),
+    ] = None,
+    start: Annotated[
+        str, typer.Option(help="With --campaign: the campaign's start, ISO 8601 UTC")
+    ] = "1999-09-30T00:00:00Z",
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
     foxglove_port: FoxglovePortOption = None,
@@ -566,6 +585,14 @@ def demo(
             parse_outage(window)
         except ValueError as exc:
             _fail(f"--outage {window}: {exc}")
+    if campaign or mission is not None:
+        if outage or fault or robot is not None or experiments or serve_after:
+            _fail(
+                "--campaign takes its windows and experiments from the mission: no --outage, "
+                "--fault, --robot, --experiments or --serve-after"
+            )
+        _campaign_demo(mission, start, out, speed, loss, port, seed, as_json, log_format, log_level)
+        return
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
     if robot is not None:
         _load(robot)  # a bad description: one error line before anything starts
@@ -619,6 +646,73 @@ def demo(
     else:
         _print_demo(summary)
     if not summary["verdict"]["ok"]:
+        raise typer.Exit(1)
+
+
+def _campaign_demo(
+    mission: Path | None,
+    start: str,
+    out: Path,
+    speed: float,
+    loss: float,
+    port: int,
+    seed: int,
+    as_json: bool,
+    log_format: str,
+    log_level: str,
+) -> None:
+    """``hikoboshi demo --campaign``: exit 0 iff every pass ended complete with every
+    command executed at its tag, none expired, no frame missing, and no command reached
+    the spacecraft outside a window; 1 otherwise; 2 for bad options."""
+    from hikoboshi.campaign_demo import CampaignOptions, campaign_markdown, run_campaign_demo
+    from hikoboshi.demo import DemoError
+    from mission import MISSIONS_DIR, MissionError, load_mission, parse_utc
+
+    path = mission if mission is not None else MISSIONS_DIR / "ets7-1999.toml"
+    try:
+        load_mission(path)
+        start_utc = parse_utc(start)
+    except MissionError as exc:
+        _fail(str(exc))
+    options = CampaignOptions(
+        mission=path,
+        start_utc=start_utc,
+        out=out if out != Path("out/demo") else Path("out/campaign"),
+        speed=speed,
+        loss=loss,
+        port=port,
+        seed=seed,
+        log_format=log_format,
+        log_level=log_level.lower(),
+    )
+    options.out.mkdir(parents=True, exist_ok=True)
+    ground_log = (options.out / "ground.log").open("a", encoding="utf-8")  # open until exit
+    _configure_logging(log_format, log_level, stream=ground_log)
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f}"),
+        TimeRemainingColumn(),
+        console=err_console,
+        disable=as_json,
+    ) as progress:
+        tasks: dict[str, Any] = {}
+
+        def on_progress(phase: str, done: float, total: float) -> None:
+            if phase not in tasks:
+                tasks[phase] = progress.add_task(phase, total=total)
+            progress.update(tasks[phase], completed=done, total=total)
+
+        try:
+            doc = run_campaign_demo(options, on_progress)
+        except (DemoError, MissionError) as exc:
+            _fail(f"campaign demo stopped: {exc} (logs in {options.out})")
+    if as_json:
+        sys.stdout.write(json.dumps(doc) + "\n")
+    else:
+        console.print(campaign_markdown(doc), highlight=False, soft_wrap=True, markup=False)
+        console.print(f"Campaign report: {options.out}/campaign.json and campaign.md")
+    if not doc["verdict"]["ok"]:
         raise typer.Exit(1)
 
 
@@ -880,6 +974,42 @@ def spacecraft(
             "protection)",
         ),
     ] = False,
+    mission: Annotated[
+        Path | None,
+        typer.Option(
+            help="A mission file (docs/missions.md): the link is up only inside its contact "
+            "windows and its one-way delay is the ground's processing delay plus the path's "
+            "light time (replacing --delay); the gaps are flown fast"
+        ),
+    ] = None,
+    mission_start: Annotated[
+        str | None,
+        typer.Option(
+            help="With --mission: the UTC (ISO 8601) of the spacecraft's onboard second 0 "
+            "(default: the mission's elements' epoch)"
+        ),
+    ] = None,
+    windows: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --mission: fly these windows (hikoboshi windows --json, or a "
+            "campaign.json) instead of every window of --hours from the start"
+        ),
+    ] = None,
+    relay: Annotated[
+        list[str] | None,
+        typer.Option(help="With --mission: only this relay's windows; repeatable"),
+    ] = None,
+    hours: Annotated[
+        float, typer.Option(help="With --mission and no --windows: hours of windows")
+    ] = 24.0,
+    fast_scale: Annotated[
+        float | None,
+        typer.Option(
+            help="With --mission: between windows the onboard clock runs at most this many "
+            "times wall time (default: as fast as the simulation computes)"
+        ),
+    ] = None,
     log_format: LogFormatOption = "text",
     log_level: LogLevelOption = "info",
 ) -> None:
@@ -945,6 +1075,11 @@ def spacecraft(
             vehicle = VehicleConfig(**vehicle_fields)
         if vehicle_config is not None:
             vehicle = _with_vehicle_tables(vehicle, vehicle_config)
+        contact = None
+        if mission is not None:
+            contact = _contact(mission, mission_start, windows, relay or (), hours)
+        elif any(o is not None for o in (mission_start, windows, relay, fast_scale)):
+            raise ValueError("--mission-start, --windows, --relay and --fast-scale need --mission")
         config = ProcessConfig(
             ground_url=ground,
             token=token,
@@ -955,6 +1090,8 @@ def spacecraft(
             seed=seed,
             truth_log=truth_log,
             garbage=tuple(parse_garbage(g) for g in garbage or ()),
+            contact=contact,
+            fast_scale=fast_scale,
         )
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -973,6 +1110,20 @@ def spacecraft(
         )
 
     asyncio.run(main_async())
+
+
+def _contact(
+    mission: Path, start: str | None, windows: Path | None, relays: Sequence[str], hours: float
+) -> Any:
+    """The spacecraft's contact plan from its --mission options (ValueError: one line)."""
+    from mission import MissionError, load_mission, parse_utc
+    from spacecraft.contact import load_contact
+
+    try:
+        start_utc = load_mission(mission).orbit.epoch_utc if start is None else parse_utc(start)
+    except MissionError as exc:
+        raise ValueError(str(exc)) from None
+    return load_contact(mission, start_utc, windows_path=windows, relays=relays, hours=hours)
 
 
 def _spacecraft_token(token: str | None, token_file: Path | None) -> str:

@@ -44,6 +44,7 @@ __all__ = [
     "Window",
     "compute_windows",
     "format_utc",
+    "light_times",
     "parse_utc",
     "segment_clearance_km",
 ]
@@ -97,6 +98,33 @@ class Window:
     @property
     def net_end_utc(self) -> datetime:
         return self.los_utc - timedelta(seconds=self.los_margin_s)
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> Window:
+        """The window :meth:`to_dict` wrote (``hikoboshi windows --json``'s items); the
+        margins from its net start and end. InvalidSpan naming what is wrong."""
+        try:
+            aos, los = parse_utc(str(doc["aos_utc"])), parse_utc(str(doc["los_utc"]))
+            net_start = parse_utc(str(doc.get("net_start_utc", doc["aos_utc"])))
+            net_end = parse_utc(str(doc.get("net_end_utc", doc["los_utc"])))
+            window = cls(
+                relay=str(doc["relay"]),
+                aos_utc=aos,
+                los_utc=los,
+                min_range_km=float(doc.get("min_range_km", 0.0)),
+                max_range_km=float(doc.get("max_range_km", 0.0)),
+                light_time_min_s=float(doc.get("light_time_min_s", 0.0)),
+                light_time_max_s=float(doc.get("light_time_max_s", 0.0)),
+                aos_margin_s=(net_start - aos).total_seconds(),
+                los_margin_s=(los - net_end).total_seconds(),
+            )
+        except KeyError as exc:
+            raise InvalidSpan(f"a window has no {exc.args[0]}") from None
+        except (TypeError, ValueError) as exc:
+            raise InvalidSpan(f"a window is not readable: {exc}") from None
+        if not aos < los:
+            raise InvalidSpan(f"window {doc['aos_utc']} .. {doc['los_utc']}: LOS not after AOS")
+        return window
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -304,3 +332,42 @@ def _with_ranges(
             )
         )
     return windows
+
+
+def light_times(
+    mission: Mission, window: Window, step_s: float = RANGE_STEP_S
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The one-way light time of the path vehicle -> relay -> ground terminal over
+    ``window``, sampled every ``step_s`` (at least) from its acquisition to its loss, both
+    included: ``(seconds since aos_utc, light time s)``. The link emulator interpolates it
+    (spacecraft/contact.py)."""
+    from skyfield.api import EarthSatellite, wgs84
+    from skyfield.framelib import itrs
+    from skyfield.nutationlib import iau2000b_radians
+
+    if not (math.isfinite(step_s) and step_s > 0):
+        raise InvalidSpan(f"step {step_s!r} s must be a positive number")
+    relay = next((r for r in mission.relays if r.name == window.relay), None)
+    if relay is None:
+        raise InvalidSpan(f"window relay {window.relay!r} is not one of the mission's relays")
+    ts = _timescale()
+    sat = EarthSatellite.from_satrec(mission.orbit.satrec(), ts)
+    duration_s = window.duration_s
+    n = max(2, math.ceil(duration_s / step_s) + 1)
+    seconds = np.linspace(0.0, duration_s, n)
+    t0 = ts.from_datetime(window.aos_utc)
+    t = ts.tt_jd(t0.tt + seconds / 86400.0)
+    t._nutation_angles_radians = iau2000b_radians(t)  # as compute_windows places it
+    vehicle_km = np.asarray(sat.at(t).frame_xyz(itrs).km, dtype=np.float64).reshape(3, -1).T
+    relay_km = np.array(relay.position_itrs_km())
+    terminal = mission.ground.terminal
+    terminal_km = np.asarray(
+        wgs84.latlon(
+            terminal.latitude_deg, terminal.longitude_deg, elevation_m=terminal.altitude_m
+        ).itrs_xyz.km,
+        dtype=np.float64,
+    )
+    path_km = np.linalg.norm(vehicle_km - relay_km, axis=1) + float(
+        np.linalg.norm(relay_km - terminal_km)
+    )
+    return seconds, np.asarray(path_km / LIGHT_SPEED_KMPS, dtype=np.float64)

@@ -31,6 +31,12 @@ The model, for a message handed over at ``now_s`` with ``size_bytes``
    both ends included: sent during LOS, arriving during LOS, or in flight when LOS begins
    (even an outage shorter than the delay and entirely inside the flight kills it).
 5. Random loss: each message is dropped with probability ``loss``, independently.
+6. Contact plan (``contact``, :mod:`spacecraft.contact`, from a mission's geometry): when
+   given, the link is up only inside its windows and the propagation delay is the plan's at
+   the end of transmission (the ground's processing delay plus the path's light time) in
+   place of ``delay_s``. A message is lost to LOS (``dropped_outage``) unless it is sent
+   inside a window and arrives before that window's loss of signal: nothing crosses
+   outside a window. Hand-given outages apply as well.
 
 A message lost to both an outage and the random draw counts as ``dropped_outage``. Every
 ``send`` consumes exactly one uniform and one normal draw from the generator, whatever the
@@ -44,9 +50,12 @@ import math
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from spacecraft.contact import ContactPlan
 
 __all__ = [
     "Garbage",
@@ -128,6 +137,8 @@ class LinkConfig:
     bandwidth_bps: float | None = None  # bytes per second; None = unlimited
     preserve_order: bool = True
     seed: int = 0
+    #: windows and delays from a mission's geometry (None: always up, ``delay_s``)
+    contact: ContactPlan | None = None
 
     def __post_init__(self) -> None:
         d, j, p, b = self.delay_s, self.jitter_s, self.loss, self.bandwidth_bps
@@ -201,7 +212,11 @@ class LinkEmulator:
         self._config = replace(self._config, outages=(*self._config.outages, outage))
 
     def is_up(self, t_s: float) -> bool:
-        """Whether the link is up at onboard time ``t_s`` (down on each ``[start_s, end_s)``)."""
+        """Whether the link is up at onboard time ``t_s`` (down on each ``[start_s, end_s)``
+        and, with a contact plan, outside its windows)."""
+        contact = self._config.contact
+        if contact is not None and not contact.is_up(t_s):
+            return False
         return not any(o.contains(t_s) for o in self._config.outages)
 
     def send(self, now_s: float, size_bytes: int) -> float | None:
@@ -233,7 +248,16 @@ class LinkEmulator:
         queue_delay_s = tx_start_s - now_s
 
         jitter_s = cfg.jitter_s * min(max(z, -_JITTER_CLIP_SIGMA), _JITTER_CLIP_SIGMA)
-        arrival_s = self._tx_free_s + max(cfg.delay_s + jitter_s, 0.0)
+        delay_s = cfg.delay_s
+        los_s = math.inf  # the loss of signal of the window carrying the message
+        if cfg.contact is not None:
+            window = cfg.contact.window_at(now_s)
+            if window is None:
+                los_s = -math.inf  # sent outside every window
+            else:
+                delay_s = window.delay_at(self._tx_free_s)
+                los_s = window.end_s
+        arrival_s = self._tx_free_s + max(delay_s + jitter_s, 0.0)
         if cfg.preserve_order:
             arrival_s = max(arrival_s, self._last_delivery_s)
 
@@ -242,7 +266,7 @@ class LinkEmulator:
             sent=self._stats.sent + 1,
             max_queue_delay_s=max(self._stats.max_queue_delay_s, queue_delay_s),
         )
-        if any(o.overlaps(now_s, arrival_s) for o in cfg.outages):
+        if arrival_s >= los_s or any(o.overlaps(now_s, arrival_s) for o in cfg.outages):
             self._stats = replace(st, dropped_outage=st.dropped_outage + 1)
             return None
         if u < cfg.loss:
@@ -255,7 +279,7 @@ class LinkEmulator:
 
 # --- configuration from files and the command line -------------------------------------------
 
-_KEYS = frozenset(f.name for f in fields(LinkConfig))
+_KEYS = frozenset(f.name for f in fields(LinkConfig)) - {"contact"}  # from a mission only
 _TABLES = ("link", "uplink", "downlink")
 
 

@@ -31,6 +31,18 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
   straight onto the socket at the window's rate per wall second, beside the real traffic
   (a rehearsal of a noisy link; docs/protocol.md "Malformed messages"). The ground closes a
   connection that sends too many; the process reconnects as after any drop.
+- **Contact plan** (``contact``, :mod:`spacecraft.contact`: the windows of a mission): the
+  relay is there only inside a window. The process connects at acquisition of signal and
+  closes its socket at loss, and both links drop whatever is not across before the window's
+  loss. Two counts: ``commands_outside_window``, the commands the ground put on the relay
+  outside a window (it cannot once the socket is closed; between LOS and the close, a
+  loaded loop's lag, it can, and the link loses them), and
+  ``commands_delivered_outside_window``, those the vehicle received outside one (the link
+  makes it 0). Between
+  windows the vehicle keeps flying (gravity gradient on the base, attitude control with the
+  wheels) in FAST mode: the onboard clock runs as fast as the simulation computes (at most
+  ``fast_scale`` times wall time when given) until the next acquisition, where it returns
+  to ``time_scale``; the ground re-reads the clock from the ``hello`` of each window.
 - **Stop** (SIGTERM): the vehicle stops, the link keeps running until every telemetry frame has
   been acknowledged or ``drain_timeout_s`` (wall) has passed, then the process exits.
 """
@@ -51,6 +63,7 @@ from pathlib import Path
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
+from spacecraft.contact import ContactPlan
 from spacecraft.downlink import Downlink, DownlinkConfig
 from spacecraft.garbage import GarbageMaker
 from spacecraft.link import Garbage, LinkConfig, LinkEmulator, Outage
@@ -86,6 +99,9 @@ __all__ = ["ProcessConfig", "SpacecraftProcess"]
 
 log = logging.getLogger("hikoboshi.spacecraft")
 
+#: FAST mode flies a gap in steps this long (onboard s; about 50 ms of computing each).
+FAST_CHUNK_S = 5.0
+
 #: Frames larger than this close the socket (the library's guard); smaller ones that are
 #: still over the protocol's limit get an ``error`` reply.
 SOCKET_MAX_BYTES = 4 * 1024 * 1024
@@ -109,10 +125,19 @@ class ProcessConfig:
     truth_log: Path | None = None
     #: windows of malformed messages toward the ground (a rehearsal of a noisy link)
     garbage: tuple[Garbage, ...] = ()
+    #: the relay's windows and delays from a mission (None: always up, the links' delay)
+    contact: ContactPlan | None = None
+    #: between windows the onboard clock runs at most this many times wall time (None: as
+    #: fast as the simulation computes); only with ``contact``
+    fast_scale: float | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.time_scale <= 1000:
             raise ValueError(f"time_scale = {self.time_scale} must lie in (0, 1000]")
+        if self.fast_scale is not None and not self.fast_scale >= self.time_scale:
+            raise ValueError(
+                f"fast_scale = {self.fast_scale} must be at least time_scale = {self.time_scale}"
+            )
         if not self.ground_url.startswith(("ws://", "wss://")):
             raise ValueError(f"ground URL {self.ground_url!r} must start with ws:// or wss://")
 
@@ -123,8 +148,15 @@ class SpacecraftProcess:
         epoch = config.epoch_ns if config.epoch_ns is not None else int(time.time()) * 10**9
         self.epoch_ns = epoch
         self.vehicle = Vehicle(config.vehicle, epoch_ns=epoch, seed=config.seed)
-        self.uplink = LinkEmulator(config.uplink)
-        self.downlink_link = LinkEmulator(config.downlink)
+        contact = config.contact
+        up, down = config.uplink, config.downlink
+        if contact is not None:
+            up, down = replace(up, contact=contact), replace(down, contact=contact)
+        self.uplink = LinkEmulator(up)
+        self.downlink_link = LinkEmulator(down)
+        self.commands_outside_window = 0
+        self.commands_delivered_outside_window = 0
+        self.fast_forwards = 0  # how many gaps were flown in FAST mode
         # Resend after the onboard timeout plus three seconds of wall time per unit of time
         # scale: at 20x the 10 s timeout is half a wall second, less than a loaded ground
         # may take to acknowledge, and early resends only feed its backlog. One second was
@@ -134,7 +166,10 @@ class SpacecraftProcess:
         self.store = Downlink(
             replace(store, resend_after_s=store.resend_after_s + RESEND_WALL_S * config.time_scale)
         )
+        # onboard_s = onboard0 + (monotonic - wall0) * scale, re-anchored by FAST mode
         self._wall0 = time.monotonic()
+        self._onboard0 = 0.0
+        self._scale = config.time_scale
         self._ws: ClientConnection | None = None
         self._connected = asyncio.Event()
         self._incoming: list[tuple[float, int, str | bytes]] = []  # (deliver_s, n, raw)
@@ -151,10 +186,19 @@ class SpacecraftProcess:
     # -- clock ---------------------------------------------------------------------------
 
     def onboard_s(self) -> float:
-        return (time.monotonic() - self._wall0) * self.config.time_scale
+        return self._onboard0 + (time.monotonic() - self._wall0) * self._scale
+
+    def _anchor(self, onboard_s: float, scale: float) -> None:
+        """The onboard clock reads ``onboard_s`` now (never backwards) and runs on at
+        ``scale`` times wall time (0: it stands, FAST mode moves it)."""
+        self._onboard0 = max(onboard_s, self.onboard_s())
+        self._wall0 = time.monotonic()
+        self._scale = scale
 
     def _wall_delay(self, onboard_s: float) -> float:
-        return max(0.0, (onboard_s - self.onboard_s()) / self.config.time_scale)
+        if self._scale == 0:
+            return 0.01  # FAST mode: the clock moves in steps
+        return max(0.0, (onboard_s - self.onboard_s()) / self._scale)
 
     def onboard_ns(self, onboard_s: float) -> int:
         return self.epoch_ns + round(onboard_s * 1e9)
@@ -299,10 +343,23 @@ class SpacecraftProcess:
         return encode(ErrorMsg(reason=reason[:500], ref_type=exc.ref_type))
 
     async def _receiver(self, ws: ClientConnection) -> None:
+        contact = self.config.contact
         async for raw in ws:
-            deliver = self.uplink.send(self.onboard_s(), len(raw))
+            now = self.onboard_s()
+            if contact is not None and not contact.is_up(now) and self._is_command(raw):
+                self.commands_outside_window += 1
+                if self._truth is not None:
+                    self._truth.write([{"event": "command_outside_window", "onboard_s": now}])
+            deliver = self.uplink.send(now, len(raw))
             if deliver is not None:
                 heapq.heappush(self._incoming, (deliver, next(self._counter), raw))
+
+    @staticmethod
+    def _is_command(raw: str | bytes) -> bool:
+        try:
+            return isinstance(decode_ground(raw), JointCommandMsg | AcsCommandMsg)
+        except WireError:
+            return False
 
     # -- the onboard loop ----------------------------------------------------------------
 
@@ -332,6 +389,9 @@ class SpacecraftProcess:
         its delivery instant."""
         while self._incoming and self._incoming[0][0] <= now:
             deliver, _, raw = heapq.heappop(self._incoming)
+            contact = self.config.contact
+            if contact is not None and not contact.is_up(deliver) and self._is_command(raw):
+                self.commands_delivered_outside_window += 1
             if not self._stopping:
                 self._advance(deliver)
             self.vehicle.heard_from_ground()
@@ -340,10 +400,63 @@ class SpacecraftProcess:
             except Exception:  # one message went wrong: the vehicle and link carry on
                 log.exception("handling a message from the ground failed")
 
+    async def _fast_forward(self, stop: asyncio.Event, now: float) -> None:
+        """Fly from ``now`` (no window open) to the next acquisition of signal as fast as the
+        simulation computes (at most ``fast_scale``), in chunks, then run on at
+        ``time_scale``. Nothing crosses the link meanwhile; telemetry made is stored."""
+        contact = self.config.contact
+        assert contact is not None
+        aos = contact.next_start_s(now)
+        if aos is None:
+            return  # no window ahead: the clock runs on at its pass speed
+        self.fast_forwards += 1
+        await self._lose_signal()  # if the closer has not run yet (a loaded loop)
+        log.info("no window until onboard %.1f s: flying the gap fast", aos)
+        wall0, h0 = time.monotonic(), self.vehicle.wheel_momentum_nms().tolist()
+        fast = self.config.fast_scale
+        t = now
+        self._anchor(t, 0.0)  # the clock follows the vehicle, step by step
+        try:
+            while t < aos and not stop.is_set():
+                began = time.monotonic()
+                t = min(aos, t + FAST_CHUNK_S)
+                self._deliver_due(t)
+                self._advance(t)
+                self._anchor(t, 0.0)
+                spent = time.monotonic() - began
+                pause = 0.0 if fast is None else max(0.0, FAST_CHUNK_S / fast - spent)
+                await asyncio.sleep(pause)  # the loop's other tasks run between chunks
+        finally:
+            self._anchor(t, self.config.time_scale)
+        log.info("acquisition of signal at onboard %.1f s", self.onboard_s())
+        if self._truth is not None:
+            self._truth.write(
+                [
+                    {
+                        "event": "gap",
+                        "from_s": round(now, 6),
+                        "to_s": round(t, 6),
+                        "wall_s": round(time.monotonic() - wall0, 3),
+                        "wheel_momentum_from_nms": h0,
+                        "wheel_momentum_to_nms": self.vehicle.wheel_momentum_nms().tolist(),
+                    }
+                ]
+            )
+
     async def _onboard(self, stop: asyncio.Event) -> None:
         tick_s = self.config.vehicle.telemetry_period_s / 2
+        contact = self.config.contact
         while True:
             now = self.onboard_s()
+            if (
+                contact is not None
+                and not self._stopping
+                and not stop.is_set()
+                and not contact.is_up(now)
+                and contact.next_start_s(now) is not None
+            ):
+                await self._fast_forward(stop, now)
+                continue
             self._deliver_due(now)
             if stop.is_set() and not self._stopping:
                 self._stopping = True
@@ -361,6 +474,8 @@ class SpacecraftProcess:
         delay = self.config.backoff_initial_s
         rng = random.Random(self.config.seed)
         while not stop.is_set() or self._stopping:
+            if not await self._window_open(stop):
+                return
             try:
                 async with connect(
                     self.config.ground_url,
@@ -400,7 +515,11 @@ class SpacecraftProcess:
                     if report is not None:  # a safe vehicle says so at once
                         self._send(encode(report))
                     log.info("connected to %s", self.config.ground_url)
-                    await self._receiver(ws)
+                    los = asyncio.create_task(self._close_at_los(ws), name="los")
+                    try:
+                        await self._receiver(ws)
+                    finally:
+                        los.cancel()
             except (OSError, ConnectionClosed, InvalidHandshake, InvalidURI, TimeoutError) as exc:
                 log.warning("link to ground down: %s", exc)
             finally:
@@ -415,6 +534,41 @@ class SpacecraftProcess:
                 return
             await asyncio.sleep(delay * (0.5 + rng.random()))
             delay = min(delay * 2.0, self.config.backoff_max_s)
+
+    async def _window_open(self, stop: asyncio.Event) -> bool:
+        """Wait, with a contact plan, until a window is open (True), or the process stops
+        before one opens (False: stop set and not draining, or no window ahead)."""
+        contact = self.config.contact
+        if contact is None:
+            return True
+        while not contact.is_up(self.onboard_s()):
+            if (stop.is_set() and not self._stopping) or (
+                contact.next_start_s(self.onboard_s()) is None
+            ):
+                return False
+            await asyncio.sleep(0.01)
+        return True
+
+    async def _close_at_los(self, ws: ClientConnection) -> None:
+        """Close the socket at the loss of signal of the window it was opened in."""
+        contact = self.config.contact
+        if contact is None:
+            return
+        end = contact.end_of_contact_s(self.onboard_s())
+        if end is None:
+            end = self.onboard_s()
+        while self.onboard_s() < end:
+            await asyncio.sleep(min(0.05, self._wall_delay(end)))
+        await self._lose_signal()
+
+    async def _lose_signal(self) -> None:
+        """Close the socket (if open): the window is over."""
+        ws = self._ws
+        if ws is None:
+            return
+        log.info("loss of signal at onboard %.1f s", self.onboard_s())
+        with contextlib.suppress(ConnectionClosed):
+            await ws.close(1001, "loss of signal")
 
     def _announced_joints(self) -> int | None:
         """``hello``'s joint count: with the robot of a description only (a ``hello`` without
@@ -441,6 +595,31 @@ class SpacecraftProcess:
             ]
         )
 
+    def _link_record(self) -> dict[str, object]:
+        """The truth log's last record: what crossed the link, and what reached the
+        spacecraft's socket outside a window (with a contact plan; 0 without)."""
+        up, down = self.uplink.stats, self.downlink_link.stats
+        return {
+            "event": "link",
+            "onboard_s": round(self.onboard_s(), 6),
+            "uplink": {
+                "sent": up.sent,
+                "delivered": up.delivered,
+                "dropped_loss": up.dropped_loss,
+                "dropped_outage": up.dropped_outage,
+            },
+            "downlink": {
+                "sent": down.sent,
+                "delivered": down.delivered,
+                "dropped_loss": down.dropped_loss,
+                "dropped_outage": down.dropped_outage,
+            },
+            "commands_outside_window": self.commands_outside_window,
+            "commands_delivered_outside_window": self.commands_delivered_outside_window,
+            "gaps_flown_fast": self.fast_forwards,
+            "connections": self.connections,
+        }
+
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set and the telemetry is drained (or the drain times out)."""
         self._open_truth_log()
@@ -466,4 +645,5 @@ class SpacecraftProcess:
                 await self._ws.close()
             if self._truth is not None:
                 self._log_truth()
+                self._truth.write([self._link_record()])
                 self._truth.close()

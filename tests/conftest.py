@@ -73,7 +73,9 @@ REALTIME_MODULES = (
     "tests/server/link/test_takeover.py",
     "tests/spacecraft/test_hostile.py",
     "tests/spacecraft/test_process.py",
+    "tests/spacecraft/test_process_contact.py",
     "tests/spacecraft/test_robot.py",
+    "tests/test_campaign_demo.py",
     "tests/test_cli_demo.py",
 )
 

@@ -1,0 +1,647 @@
+"""The campaign demo: a mission's passes flown back to back across its computed windows
+(``hikoboshi demo --campaign``; docs/missions.md "The campaign demo").
+
+1. The campaign: ``hikoboshi.campaign.plan_campaign`` (the experiments assigned to
+   consecutive windows, each pass's predicted start state and the wheel momentum gravity
+   gradient loads between passes), each pass's plan made by the ground from the campaign
+   plan's parameters; or, given experiments per pass (a shorter campaign: the tests),
+   those over the first windows that hold them, with no prediction.
+2. The ground service starts (as ``hikoboshi demo``), the spacecraft process starts with
+   ``--mission`` and the campaign's windows (``--windows``): its onboard second 0 is the
+   campaign's start in UTC, its link is up only inside those windows with the geometry's
+   delay, and it flies the time before and between windows in FAST mode.
+3. For each pass: its plan is made (``POST /api/plans``, the pass's experiments) and the
+   pass scheduled in its window (``POST /api/passes`` naming the window); once the onboard
+   clock reaches the window's net start the operator starts it; the job follows it to its
+   end.
+4. The spacecraft stops; each pass's summary, analyses and report go to ``OUT/pass-N/``
+   (after the last pass: one pass's analyses may outlast the gap to the next window);
+   ``OUT/campaign.json`` and ``OUT/campaign.md`` hold per pass the
+   window, the commands executed at their tag, expired, and sent outside a window, and per
+   gap the wheel momentum carried across it as measured (the ground's telemetry at the end
+   of one pass and the start of the next) against the campaign's prediction.
+
+The relay is booked per pass, as TDRS time was (shared among NASA's users): the link is up
+from the window's AOS to the end of its pass and :data:`SERVICE_TAIL_S`, never past the
+window's LOS nor the next pass's AOS (one relay at a time); the rest is flown fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+import itertools
+import json
+import signal
+import sys
+import time
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+from hikoboshi.demo import (
+    DemoError,
+    DemoOptions,
+    Progress,
+    _Api,
+    _ClockSampler,
+    _follow,
+    _ground,
+    _port,
+    _settle,
+    _spacecraft,
+    _token_of,
+    _tokens,
+    read_truth_log,
+)
+from server.settings import Role, Settings
+
+__all__ = ["PAPER_ORDER", "CampaignOptions", "campaign_markdown", "run_campaign_demo"]
+
+#: Without mission.campaign: the experiments of each pass, the paper's order over three.
+PAPER_ORDER: tuple[tuple[str, ...], ...] = (
+    ("ptp", "reactionless"),
+    ("gjm", "coordination"),
+    ("nonholonomic",),
+)
+#: What a pass keeps for its start (the ground's start lead and the request's slack):
+#: this many onboard s, and START_ALLOWANCE_WALL_S of wall time (the job's polling and the
+#: start request on a loaded machine) at the demo's speed.
+START_ALLOWANCE_S = 60.0
+START_ALLOWANCE_WALL_S = 5.0
+#: Onboard s the relay service runs on after a pass's plan ends: the last echoes and the
+#: telemetry still in the onboard store come down, through the loss's resends.
+SERVICE_TAIL_S = 300.0
+
+
+@dataclass(frozen=True)
+class CampaignOptions:
+    mission: Path
+    start_utc: datetime
+    out: Path = Path("out/campaign")
+    speed: float = 20.0
+    loss: float = 0.0
+    port: int = 8000
+    seed: int = 0
+    #: the gaps at most this many times wall time (None: as fast as the vehicle computes)
+    fast_scale: float | None = None
+    #: wall s for each pass (from its start request to its end)
+    timeout_s: float = 900.0
+    log_format: str = "text"
+    log_level: str = "info"
+    #: the experiments of each pass, over the first windows that hold them, in place of the
+    #: campaign's (a shorter campaign: the tests)
+    pass_experiments: tuple[tuple[str, ...], ...] | None = None
+    #: with ``pass_experiments`` or without mission.campaign: only this relay's windows
+    relay: str | None = None
+
+
+@dataclass(frozen=True)
+class _PassSpec:
+    window: Any  # mission.Window
+    experiments: tuple[str, ...]
+    #: the wheel momentum predicted to be loaded between the previous pass and this one
+    gap_momentum_nms: list[float] | None
+    #: the plan's parameters (the campaign's: its start state and orbit), else None: the
+    #: ground plans ``experiments`` from the nominal start
+    parameters: dict[str, Any] | None = None
+    #: the campaign's predicted wheel momentum at the plan's start and end (N m s)
+    predicted_start_h: list[float] | None = None
+    predicted_end_h: list[float] | None = None
+
+
+def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
+    """The passes: the campaign planner's (:func:`hikoboshi.campaign.plan_campaign`), or,
+    with ``pass_experiments`` or ``relay``, those experiments over the first windows (from
+    the start, 24 h; the relay's only) whose net time holds each pass's plan."""
+    from mission import compute_windows, load_mission
+
+    mission = load_mission(options.mission)
+    try:
+        module: Any = importlib.import_module("hikoboshi.campaign")
+    except ImportError:
+        module = None
+    if module is not None and options.pass_experiments is None and options.relay is None:
+        campaign = module.plan_campaign(mission, options.start_utc)
+
+        def floats(values: Any) -> list[float]:
+            return [float(x) for x in values]
+
+        return [
+            _PassSpec(
+                window=p.window,
+                experiments=tuple(p.experiments),
+                gap_momentum_nms=floats(p.gap_momentum_nms) if p.index > 1 else None,
+                parameters=dict(p.plan.parameters),
+                predicted_start_h=floats(p.start_state.wheel_momentum_nms),
+                predicted_end_h=floats(p.end_state.wheel_momentum_nms),
+            )
+            for p in campaign.passes
+        ]
+    windows = compute_windows(mission, options.start_utc, 24.0)
+    if options.relay is not None:
+        windows = [w for w in windows if w.relay == options.relay]
+    specs: list[_PassSpec] = []
+    after = options.start_utc
+    for experiments in options.pass_experiments or PAPER_ORDER:
+        need_s = plan_duration(experiments) + _allowance_s(options.speed)
+        window = next((w for w in windows if w.net_start_utc >= after and w.net_s >= need_s), None)
+        if window is None:
+            raise DemoError(f"no window in 24 h holds a pass of {', '.join(experiments)}")
+        specs.append(_PassSpec(window, experiments, None))
+        after = window.net_start_utc + timedelta(seconds=need_s)
+    return specs
+
+
+def _allowance_s(speed: float) -> float:
+    return START_ALLOWANCE_S + START_ALLOWANCE_WALL_S * speed
+
+
+def _service_windows(specs: list[_PassSpec], durations_s: list[float], speed: float) -> list[Any]:
+    """The relay service each pass books in its window: from the window's AOS to the end
+    of the pass (its net start, the start allowance and the plan) and
+    :data:`SERVICE_TAIL_S`, never past the window's LOS nor the next window's AOS (one
+    relay at a time). Raises DemoError when a pass does not fit its window's net time."""
+    from mission import format_utc
+
+    services = []
+    for i, (spec, duration_s) in enumerate(zip(specs, durations_s, strict=True)):
+        w = spec.window
+        allowance_s = _allowance_s(speed)
+        if duration_s + allowance_s > w.net_s:
+            raise DemoError(
+                f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
+                f"time of its window {w.relay} {format_utc(w.aos_utc)}"
+            )
+        end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + SERVICE_TAIL_S)
+        end = min(end, w.los_utc)
+        if i + 1 < len(specs):
+            end = min(end, specs[i + 1].window.aos_utc)
+        if end < w.net_start_utc + timedelta(seconds=allowance_s + duration_s):
+            raise DemoError(f"pass {i + 1} overlaps the next pass's window")
+        services.append(replace(w, los_utc=end, los_margin_s=0.0))
+    return services
+
+
+def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None) -> dict[str, Any]:
+    """Fly the campaign; its report (also ``OUT/campaign.json`` and ``OUT/campaign.md``)."""
+    from mission import format_utc, load_mission
+
+    report = progress or (lambda phase, done, total: None)
+    out = options.out
+    out.mkdir(parents=True, exist_ok=True)
+    mission = load_mission(options.mission)
+    started = time.monotonic()
+    tokens = _tokens(out)
+    operator = _token_of(tokens, Role.OPERATOR)
+    port = _port(options.port)
+    base = f"http://127.0.0.1:{port}"
+    # Three passes planned again from their parameters: on a loaded 2-core machine one took
+    # over the default 120 s deadline.
+    settings = Settings(
+        data_dir=out,
+        tokens=tokens,
+        missions_dir=options.mission.parent.resolve(),
+        plan_deadline_s=900.0,
+        post_pass_deadline_s=1800.0,
+    )
+    truth_log = out / "truth.jsonl"
+    results: list[dict[str, Any]] = []
+    flown_passes: list[tuple[int, str, str, _PassSpec, Any, int, float]] = []
+    with _ground(settings, port):
+        api = _Api(base, operator)
+        plans: dict[str, dict[str, Any]] = {}
+
+        def make_plan(parameters: dict[str, Any]) -> dict[str, Any]:
+            key = json.dumps(parameters, sort_keys=True)
+            if key not in plans:
+                body = {"experiment": "pass", "parameters": parameters}
+                # planning runs in the ground's workers: minutes on a loaded machine
+                plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
+            return plans[key]
+
+        def parameters_of(spec: _PassSpec) -> dict[str, Any]:
+            if spec.parameters is not None:
+                return spec.parameters
+            return {"experiments": list(spec.experiments)}
+
+        report("planning the campaign", 0, 1)
+        specs = _campaign(
+            options, lambda e: float(make_plan({"experiments": list(e)})["duration_s"])
+        )
+        report("planning the campaign", 1, 1)
+        report("the ground plans each pass", 0, len(specs))
+        for k, spec in enumerate(specs, start=1):
+            make_plan(parameters_of(spec))
+            report("the ground plans each pass", k, len(specs))
+        flown = _service_windows(
+            specs, [float(make_plan(parameters_of(s))["duration_s"]) for s in specs], options.speed
+        )
+        windows_file = out / "windows.json"
+        windows_file.write_text(
+            json.dumps({"windows": [w.to_dict() for w in flown]}, indent=2) + "\n"
+        )
+        args = [
+            sys.executable,
+            "-m",
+            "hikoboshi",
+            "spacecraft",
+            "--ground",
+            f"ws://127.0.0.1:{port}/api/link",
+            "--log-format",
+            options.log_format,
+            "--log-level",
+            options.log_level,
+            "--time-scale",
+            repr(options.speed),
+            "--loss",
+            repr(options.loss),
+            "--seed",
+            str(options.seed),
+            "--mission",
+            str(options.mission.resolve()),
+            "--mission-start",
+            options.start_utc.isoformat(),
+            "--windows",
+            str(windows_file.resolve()),
+            *(() if options.fast_scale is None else ("--fast-scale", repr(options.fast_scale))),
+            "--truth-log",
+            str(truth_log.resolve()),
+        ]
+        token_env = {"HIKOBOSHI_SPACECRAFT_TOKEN": _token_of(tokens, Role.SPACECRAFT)}
+        follow_options = DemoOptions(out=out, speed=options.speed, timeout_s=options.timeout_s)
+        with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
+            start_ns = _truth_start(truth_log, proc)
+            for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
+                plan = make_plan(parameters_of(spec))
+                duration_s = float(plan["duration_s"])
+                name = f"{mission.name} pass {i} {format_utc(window.aos_utc)}"
+                record = api.call(
+                    "POST",
+                    "/api/passes",
+                    {
+                        "plan_id": plan["id"],
+                        "name": name,
+                        "window": {
+                            "mission": mission.name,
+                            "relay": window.relay,
+                            "aos_time": window.aos_utc.isoformat(),
+                        },
+                    },
+                )
+                pass_id = record["id"]
+                net_start_s = (window.net_start_utc - options.start_utc).total_seconds()
+                phase = f"pass {i}: waiting for {window.relay}'s window"
+                _wait_onboard(api, proc, start_ns, net_start_s, options, report, phase)
+                started_pass = api.call(
+                    "POST", f"/api/passes/{pass_id}/start", {"confirm": f"START {name}"}
+                )
+                epoch_ns = int(started_pass["epoch_ns"])
+                state = _follow(
+                    api,
+                    proc,
+                    pass_id,
+                    epoch_ns,
+                    duration_s,
+                    follow_options,
+                    _relabel(report, f"pass {i} (onboard s)"),
+                    _ClockSampler(),
+                )
+                _settle(api, pass_id, options.speed)
+                # the reports wait for the end: the next window does not
+                flown_passes.append((i, pass_id, state, spec, window, epoch_ns, duration_s))
+            report("draining the onboard telemetry store", 0, 1)
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=120.0)
+            except Exception:
+                raise DemoError("the spacecraft did not drain its telemetry in 120 s") from None
+            report("draining the onboard telemetry store", 1, 1)
+        for i, pass_id, state, spec, window, epoch_ns, duration_s in flown_passes:
+            report("per-pass summaries and reports", i - 1, len(flown_passes))
+            results.append(
+                _pass_result(
+                    api,
+                    out / f"pass-{i}",
+                    i,
+                    pass_id,
+                    state,
+                    spec,
+                    window,
+                    epoch_ns,
+                    duration_s,
+                    start_ns,
+                    options,
+                )
+            )
+        report("per-pass summaries and reports", len(flown_passes), len(flown_passes))
+    truth = read_truth_log(truth_log)
+    doc = _campaign_doc(options, mission, results, specs, truth, start_ns)
+    doc["wall_time_s"] = round(time.monotonic() - started, 1)
+    (out / "campaign.json").write_text(json.dumps(doc, indent=2) + "\n")
+    (out / "campaign.md").write_text(campaign_markdown(doc))
+    return doc
+
+
+def _relabel(report: Progress, phase: str) -> Progress:
+    def relabelled(_phase: str, done: float, total: float) -> None:
+        report(phase, done, total)
+
+    return relabelled
+
+
+def _truth_start(path: Path, proc: Any) -> int:
+    """The spacecraft's onboard ns at its start (the truth log's first record)."""
+    deadline = time.monotonic() + 60.0
+    while True:
+        records = read_truth_log(path)
+        start = next((r for r in records if r.get("event") == "start"), None)
+        if start is not None:
+            return int(start["onboard_time_ns"])
+        if proc.poll() is not None:
+            raise DemoError(f"the spacecraft process exited with {proc.returncode}")
+        if time.monotonic() > deadline:
+            raise DemoError("the spacecraft wrote no start to its truth log within 60 s")
+        time.sleep(0.1)
+
+
+def _wait_onboard(
+    api: _Api,
+    proc: Any,
+    start_ns: int,
+    at_s: float,
+    options: CampaignOptions,
+    report: Progress,
+    phase: str,
+) -> None:
+    """Until the spacecraft is connected and its clock (as the ground reads it) is at or
+    past ``at_s`` onboard s since its start."""
+    deadline = time.monotonic() + options.timeout_s + at_s / options.speed
+    while True:
+        status = api.call("GET", "/api/link/status")
+        onboard = status.get("onboard_time_ns")
+        now_s = None if onboard is None else (onboard - start_ns) / 1e9
+        if now_s is not None:
+            report(phase, min(now_s, at_s), at_s)
+        if status.get("connected") and now_s is not None and now_s >= at_s:
+            return
+        if proc.poll() is not None:
+            raise DemoError(f"the spacecraft process exited with {proc.returncode}")
+        if time.monotonic() > deadline:
+            raise DemoError(f"{phase}: the onboard clock did not reach {at_s:.0f} s")
+        time.sleep(0.1)
+
+
+def _momentum_at(api: _Api, pass_id: str, t_ns: int, *, before: bool) -> list[float] | None:
+    """The wheel momentum (N m s, base frame) of the pass's first frame at or after
+    ``t_ns``, or (``before``) its last frame before it (within a second)."""
+    t0 = t_ns - 10**9 if before else t_ns
+    t1 = t_ns if before else t_ns + 10**9
+    body = api.call(
+        "GET", f"/api/passes/{pass_id}/telemetry?t0={t0}&t1={t1}&fields=hw1,hw2,hw3&limit=100"
+    )
+    rows = body.get("rows") or []
+    if not rows:
+        return None
+    row = rows[-1] if before else rows[0]
+    return [float(row["values"][k]) for k in ("hw1", "hw2", "hw3")]
+
+
+def _pass_result(
+    api: _Api,
+    where: Path,
+    index: int,
+    pass_id: str,
+    state: str,
+    spec: _PassSpec,
+    window: Any,
+    epoch_ns: int,
+    duration_s: float,
+    start_ns: int,
+    options: CampaignOptions,
+) -> dict[str, Any]:
+    """The pass's summary and report under ``where``; its line of the campaign report."""
+    where.mkdir(parents=True, exist_ok=True)
+    summary = api.call("GET", f"/api/passes/{pass_id}/summary")
+    failed: list[str] = []
+    analyses_error = None
+    try:  # the pass's line of the campaign report does not depend on its analyses
+        analyses = api.call("POST", f"/api/passes/{pass_id}/analyses", timeout_s=900.0)
+        failed = [a["kind"] for a in analyses["data"] if a["status"] != "ok"]
+        (where / "report.html").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report.html"))
+        (where / "report.json").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report"))
+    except (DemoError, OSError) as exc:
+        analyses_error = str(exc)[:500]
+    (where / "summary.json").write_text(
+        json.dumps(
+            {
+                **summary,
+                "final_state": state,
+                "analyses_failed": failed,
+                "analyses_error": analyses_error,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    end_ns = epoch_ns + round(duration_s * 1e9)
+    epoch_s = (epoch_ns - start_ns) / 1e9
+    return {
+        "pass": index,
+        "pass_id": pass_id,
+        "experiments": list(spec.experiments),
+        "window": spec.window.to_dict(),
+        "service_los_utc": _fmt(window.los_utc),
+        "state": state,
+        "outcome": summary.get("outcome"),
+        "outcome_text": summary.get("outcome_text"),
+        "plan_duration_s": duration_s,
+        "epoch_onboard_s": round(epoch_s, 3),
+        "epoch_utc": _utc(options.start_utc, epoch_s),
+        "end_utc": _utc(options.start_utc, epoch_s + duration_s),
+        "commands_total": summary["commands_total"],
+        "commands_executed_at_tag": summary["commands_executed_at_tag"],
+        "commands_executed_late": summary["commands_executed_late"],
+        "commands_expired": summary["commands_expired"],
+        "commands_rejected": summary["commands_rejected"],
+        "commands_retransmitted": summary["commands_retransmitted"],
+        "frames_missing": summary["frames_missing"],
+        "analyses_failed": failed,
+        "analyses_error": analyses_error,
+        "frames_stored": summary["frames_stored"],
+        "frames_expected": summary["frames_expected"],
+        "wheel_momentum_start_nms": _momentum_at(api, pass_id, epoch_ns, before=False),
+        "wheel_momentum_end_nms": _momentum_at(api, pass_id, end_ns, before=True),
+        "predicted_gap_momentum_nms": spec.gap_momentum_nms,
+        "predicted_wheel_momentum_start_nms": spec.predicted_start_h,
+        "predicted_wheel_momentum_end_nms": spec.predicted_end_h,
+        "report_html": str((where / "report.html").resolve()),
+        "summary_json": str((where / "summary.json").resolve()),
+        "_span_s": (epoch_s, epoch_s + duration_s),
+    }
+
+
+def _fmt(moment: datetime) -> str:
+    from mission import format_utc
+
+    return format_utc(moment)
+
+
+def _utc(start: datetime, onboard_s: float) -> str:
+    from mission import format_utc
+
+    return format_utc(start + timedelta(seconds=onboard_s))
+
+
+def _campaign_doc(
+    options: CampaignOptions,
+    mission: Any,
+    results: list[dict[str, Any]],
+    specs: list[_PassSpec],
+    truth: list[dict[str, Any]],
+    start_ns: int,
+) -> dict[str, Any]:
+    link = next((r for r in reversed(truth) if r.get("event") == "link"), None)
+    outside = [r for r in truth if r.get("event") == "command_outside_window"]
+    passes = []
+    previous_end = -float("inf")
+    for result in results:
+        _, end_s = result.pop("_span_s")
+        result["commands_sent_outside_window"] = sum(
+            1 for r in outside if previous_end < r["onboard_s"] <= end_s
+        )
+        previous_end = end_s
+        passes.append(result)
+    gaps = []
+    for before, after in itertools.pairwise(passes):
+        h0, h1 = before["wheel_momentum_end_nms"], after["wheel_momentum_start_nms"]
+        measured = (
+            None if h0 is None or h1 is None else [b - a for a, b in zip(h0, h1, strict=True)]
+        )
+        predicted = after["predicted_gap_momentum_nms"]
+        error = None
+        if measured is not None and predicted is not None:
+            error = sum((m - p) ** 2 for m, p in zip(measured, predicted, strict=True)) ** 0.5
+        gaps.append(
+            {
+                "from_pass": before["pass"],
+                "to_pass": after["pass"],
+                "from_utc": before["end_utc"],
+                "to_utc": after["epoch_utc"],
+                "wheel_momentum_from_nms": h0,
+                "wheel_momentum_to_nms": h1,
+                "measured_nms": measured,
+                "predicted_nms": predicted,
+                "predicted_wheel_momentum_to_nms": after["predicted_wheel_momentum_start_nms"],
+                "error_norm_nms": error,
+            }
+        )
+    fast = [r for r in truth if r.get("event") == "gap"]
+    problems = []
+    for p in passes:
+        if p["state"] != "complete":
+            problems.append(f"pass {p['pass']} ended {p['state']}")
+        if p["commands_executed_at_tag"] != p["commands_total"]:
+            problems.append(
+                f"pass {p['pass']}: {p['commands_executed_at_tag']} of {p['commands_total']} "
+                "commands executed at their tag"
+            )
+        if p["commands_expired"]:
+            problems.append(f"pass {p['pass']}: {p['commands_expired']} commands expired")
+        if p["frames_missing"]:
+            problems.append(f"pass {p['pass']}: {p['frames_missing']} frames missing")
+        if p["analyses_error"]:
+            problems.append(f"pass {p['pass']}: no report: {p['analyses_error']}")
+    n_outside = None if link is None else link.get("commands_outside_window")
+    n_delivered = None if link is None else link.get("commands_delivered_outside_window")
+    if n_outside is None or n_delivered is None:
+        problems.append("the spacecraft's link record is missing from the truth log")
+    else:
+        if n_outside:
+            problems.append(f"{n_outside} commands were sent onto the relay outside a window")
+        if n_delivered:
+            problems.append(f"{n_delivered} commands reached the vehicle outside a window")
+    return {
+        "mission": mission.name,
+        "mission_file": str(options.mission),
+        "start_utc": options.start_utc.isoformat(),
+        "speed": options.speed,
+        "loss": options.loss,
+        "fast_scale": options.fast_scale,
+        "prediction": "mission.campaign" if any(s.gap_momentum_nms for s in specs) else None,
+        "passes": passes,
+        "gaps": gaps,
+        "fast_gaps": [
+            {
+                "from_utc": _utc(options.start_utc, g["from_s"]),
+                "to_utc": _utc(options.start_utc, g["to_s"]),
+                "onboard_s": round(g["to_s"] - g["from_s"], 3),
+                "wall_s": g["wall_s"],
+            }
+            for g in fast
+        ],
+        "commands_outside_window": n_outside,
+        "commands_delivered_outside_window": n_delivered,
+        "link": link,
+        "truth_start_ns": start_ns,
+        "verdict": {"ok": not problems, "problems": problems},
+    }
+
+
+def _v(vector: list[float] | None) -> str:
+    return "-" if vector is None else "(" + ", ".join(f"{x:+.4f}" for x in vector) + ")"
+
+
+def campaign_markdown(doc: dict[str, Any]) -> str:
+    """The campaign report as Markdown (as the demo's summary, for people)."""
+    lines = [
+        f"# Campaign: {doc['mission']} from {doc['start_utc']}",
+        "",
+        f"Speed {doc['speed']:g}x in the windows, loss {doc['loss']:g}; the gaps flown fast.",
+        "",
+        "| pass | experiments | relay | AOS UTC | LOS UTC | state | at tag | expired | "
+        "outside a window | frames missing |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for p in doc["passes"]:
+        w = p["window"]
+        lines.append(
+            f"| {p['pass']} | {', '.join(p['experiments'])} | {w['relay']} | {w['aos_utc']} | "
+            f"{w['los_utc']} | {p['state']} | {p['commands_executed_at_tag']} of "
+            f"{p['commands_total']} | {p['commands_expired']} | "
+            f"{p['commands_sent_outside_window']} | {p['frames_missing']} |"
+        )
+    lines += [
+        "",
+        "## Wheel momentum carried across the gaps (N m s, base frame)",
+        "",
+        "| gap | from UTC | to UTC | measured | predicted | error |",
+        "|---|---|---|---|---|---|",
+    ]
+    for g in doc["gaps"]:
+        err = "-" if g["error_norm_nms"] is None else f"{g['error_norm_nms']:.4f}"
+        lines.append(
+            f"| {g['from_pass']} -> {g['to_pass']} | {g['from_utc']} | {g['to_utc']} | "
+            f"{_v(g['measured_nms'])} | {_v(g['predicted_nms'])} | {err} |"
+        )
+    lines += ["", "## Gaps flown fast (no window open)", ""]
+    for g in doc["fast_gaps"]:
+        lines.append(
+            f"- {g['from_utc']} .. {g['to_utc']}: {g['onboard_s']:.0f} onboard s in "
+            f"{g['wall_s']:.1f} wall s"
+        )
+    lines += [
+        "",
+        "Commands sent onto the relay outside a window: "
+        f"{doc['commands_outside_window']}; received by the vehicle outside one: "
+        f"{doc['commands_delivered_outside_window']}",
+        "",
+        "Verdict: " + ("ok" if doc["verdict"]["ok"] else "; ".join(doc["verdict"]["problems"])),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def default_start() -> datetime:
+    """The campaign's default start: 1999-09-30T00:00:00Z (the paper's campaign day)."""
+    return datetime(1999, 9, 30, tzinfo=UTC)
