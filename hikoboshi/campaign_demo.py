@@ -32,7 +32,6 @@ import importlib
 import itertools
 import json
 import signal
-import sys
 import time
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
@@ -53,6 +52,7 @@ from hikoboshi.demo import (
     _token_of,
     _tokens,
     read_truth_log,
+    spacecraft_command,
 )
 from server.settings import Role, Settings
 
@@ -242,22 +242,14 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             json.dumps({"windows": [w.to_dict() for w in flown]}, indent=2) + "\n"
         )
         args = [
-            sys.executable,
-            "-m",
-            "hikoboshi",
-            "spacecraft",
-            "--ground",
-            f"ws://127.0.0.1:{port}/api/link",
-            "--log-format",
-            options.log_format,
-            "--log-level",
-            options.log_level,
-            "--time-scale",
-            repr(options.speed),
-            "--loss",
-            repr(options.loss),
-            "--seed",
-            str(options.seed),
+            *spacecraft_command(
+                port,
+                speed=options.speed,
+                loss=options.loss,
+                seed=options.seed,
+                log_format=options.log_format,
+                log_level=options.log_level,
+            ),
             "--mission",
             str(options.mission.resolve()),
             "--mission-start",

@@ -6,7 +6,7 @@ import contextlib
 import json
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -621,22 +621,7 @@ def demo(
         console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove_port}")
     ground_log = (out / "ground.log").open("a", encoding="utf-8")  # open until the exit
     _configure_logging(log_format, log_level, stream=ground_log)
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f}"),
-        TimeRemainingColumn(),
-        console=err_console,
-        disable=as_json,
-    ) as progress:
-        tasks: dict[str, Any] = {}
-
-        def on_progress(phase: str, done: float, total: float) -> None:
-            if phase not in tasks:
-                label = "pass (onboard s)" if phase == "pass" else phase
-                tasks[phase] = progress.add_task(label, total=total)
-            progress.update(tasks[phase], completed=done, total=total)
-
+    with _phase_bars(as_json, {"pass": "pass (onboard s)"}) as on_progress:
         try:
             summary = run_demo(options, on_progress)
         except DemoError as exc:
@@ -688,6 +673,25 @@ def _campaign_demo(
     options.out.mkdir(parents=True, exist_ok=True)
     ground_log = (options.out / "ground.log").open("a", encoding="utf-8")  # open until exit
     _configure_logging(log_format, log_level, stream=ground_log)
+    with _phase_bars(as_json) as on_progress:
+        try:
+            doc = run_campaign_demo(options, on_progress)
+        except (DemoError, MissionError) as exc:
+            _fail(f"campaign demo stopped: {exc} (logs in {options.out})")
+    if as_json:
+        sys.stdout.write(json.dumps(doc) + "\n")
+    else:
+        console.print(campaign_markdown(doc), highlight=False, soft_wrap=True, markup=False)
+        console.print(f"Campaign report: {options.out}/campaign.json and campaign.md")
+    if not doc["verdict"]["ok"]:
+        raise typer.Exit(1)
+
+
+@contextlib.contextmanager
+def _phase_bars(
+    as_json: bool, labels: dict[str, str] | None = None
+) -> Iterator[Callable[[str, float, float], None]]:
+    """A progress bar per phase on stderr (none with --json): the demos' ``on_progress``."""
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -700,20 +704,10 @@ def _campaign_demo(
 
         def on_progress(phase: str, done: float, total: float) -> None:
             if phase not in tasks:
-                tasks[phase] = progress.add_task(phase, total=total)
+                tasks[phase] = progress.add_task((labels or {}).get(phase, phase), total=total)
             progress.update(tasks[phase], completed=done, total=total)
 
-        try:
-            doc = run_campaign_demo(options, on_progress)
-        except (DemoError, MissionError) as exc:
-            _fail(f"campaign demo stopped: {exc} (logs in {options.out})")
-    if as_json:
-        sys.stdout.write(json.dumps(doc) + "\n")
-    else:
-        console.print(campaign_markdown(doc), highlight=False, soft_wrap=True, markup=False)
-        console.print(f"Campaign report: {options.out}/campaign.json and campaign.md")
-    if not doc["verdict"]["ok"]:
-        raise typer.Exit(1)
+        yield on_progress
 
 
 def _announce(console_url: str, tokens_file: Path) -> None:

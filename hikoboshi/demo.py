@@ -79,6 +79,7 @@ __all__ = [
     "run_demo",
     "safing_section",
     "segments_section",
+    "spacecraft_command",
     "verdict",
 ]
 
@@ -177,6 +178,31 @@ def _ground(settings: Settings, port: int) -> Iterator[None]:
     finally:
         server.should_exit = True
         thread.join(timeout=60.0)
+
+
+def spacecraft_command(
+    port: int, *, speed: float, loss: float, seed: int, log_format: str, log_level: str
+) -> list[str]:
+    """``hikoboshi spacecraft``'s command line for a demo's vehicle on ``port``, before its
+    demo's own options (its token goes in its environment, never here)."""
+    return [
+        sys.executable,
+        "-m",
+        "hikoboshi",
+        "spacecraft",
+        "--ground",
+        f"ws://127.0.0.1:{port}/api/link",
+        "--log-format",
+        log_format,
+        "--log-level",
+        log_level,
+        "--time-scale",
+        repr(speed),
+        "--loss",
+        repr(loss),
+        "--seed",
+        str(seed),
+    ]
 
 
 @contextmanager
@@ -290,22 +316,14 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         )
         pass_id = record["id"]
         args = [
-            sys.executable,
-            "-m",
-            "hikoboshi",
-            "spacecraft",
-            "--ground",
-            f"ws://127.0.0.1:{port}/api/link",
-            "--log-format",
-            options.log_format,
-            "--log-level",
-            options.log_level,
-            "--time-scale",
-            repr(options.speed),
-            "--loss",
-            repr(options.loss),
-            "--seed",
-            str(options.seed),
+            *spacecraft_command(
+                port,
+                speed=options.speed,
+                loss=options.loss,
+                seed=options.seed,
+                log_format=options.log_format,
+                log_level=options.log_level,
+            ),
             *(a for o in options.outages for a in ("--outage", o)),
             *(() if robot is None else ("--robot", str(robot))),
             *(a for f in options.faults for a in ("--fault", f)),

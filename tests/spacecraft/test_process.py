@@ -384,7 +384,14 @@ def test_safing_goes_down_the_relay_and_safe_exit_brings_the_vehicle_back(tmp_pa
     assert not [a for a in stub.acks if a.stage is CommandStage.EXECUTED]
     assert not process.vehicle.safe
     records = [json.loads(line) for line in truth.read_text().splitlines()]
-    assert [r["event"] for r in records] == ["start", "fault", "safing_entry", "safing_exit"]
+    # ... and at its end the link's counts (spacecraft/process.py)
+    assert [r["event"] for r in records] == [
+        "start",
+        "fault",
+        "safing_entry",
+        "safing_exit",
+        "link",
+    ]
     assert records[0]["faults"] == ["attitude-bias@20,deg=5,axis=y"]
     assert records[0]["onboard_time_ns"] == process.epoch_ns and records[0]["safing"] is True
     assert records[1]["onboard_time_ns"] == since and records[2]["onboard_time_ns"] == since
@@ -441,7 +448,7 @@ def test_the_real_process_takes_faults_and_writes_the_truth_log(
         assert records[2]["event"] == "safing_entry"
         assert reports and reports[0].since_time_ns == records[2]["onboard_time_ns"]
     else:
-        assert len(records) == 2 and not reports
+        assert [r["event"] for r in records[2:]] == ["link"] and not reports
         frames = [
             f for f in stub.frames.values() if f.generation_time_ns > records[1]["onboard_time_ns"]
         ]
