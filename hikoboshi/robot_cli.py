@@ -236,9 +236,11 @@ def robot_init(
     """Write a robot description for a vendor's arm on a cube: mission limits inside the
     vendor's, named poses A, B, C away from singularities, servos the simulator holds,
     wheels sized from the arm's reaction momentum, an attitude law and the experiments'
-    defaults (docs/robots.md, "Starting from a vendor's URDF"). The URDF is copied beside
-    FILE unchanged when it is not in FILE's folder. Takes a minute or more. Exit 2 with the
-    reason when the URDF does not load or FILE exists."""
+    defaults (docs/robots.md, "Starting from a vendor's URDF"), each experiment planned as
+    written and checked against the flight rules. The URDF is copied beside FILE unchanged
+    when it is not in FILE's folder. Takes a minute or more. Exit 2 with the reason when the
+    URDF does not load or FILE exists; exit 1, FILE written, when an experiment as written
+    fails the flight rules (one warning line each on stderr)."""
     from planner.description import load_robot
     from planner.description.scaffold import scaffold_description
     from planner.errors import PlannerError
@@ -271,7 +273,27 @@ def robot_init(
     report = {**scaffold.report, "copied_urdf": None if copy_to is None else str(copy_to)}
     if as_json:
         print(json.dumps(report))
-        return
+    else:
+        _print_init(out, copy_to, report)
+    failing = report["failing_experiments"]
+    for experiment in failing:
+        row = report["experiments"][experiment]
+        why = "; ".join(row["failing"]) or row.get("error", "")
+        if experiment == "nonholonomic":  # the start offset written is the nearest tried
+            nh = report["nonholonomic"]
+            why += f" (the nearest of {nh['candidates_tried']} starts tried: {nh['candidate']})"
+        err_console.print(
+            f"warning: {out}: [experiments.{experiment}] as written fails the flight rules: "
+            f"{why}; edit it before planning",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
+    if failing:
+        raise typer.Exit(code=1)
+
+
+def _print_init(out: Path, copy_to: Path | None, report: dict[str, Any]) -> None:
     out_ = console.print
     lines = [
         f"wrote {out} ({report['n_joints']} joints, base link {report['base_link']}, hand "
@@ -293,7 +315,14 @@ def robot_init(
         f"{report['servo_limit_per_s']:.4g})",
         f"  experiments: gjm hand pitch {report['gjm_hand_pitch_deg']:.6g} deg, reactionless "
         f"{report['reactionless_distance_m']:.6g} m toward robot "
-        f"{report['reactionless_direction']}",
+        f"{report['reactionless_direction']}, nonholonomic from A offset by "
+        f"{report['nonholonomic']['candidate']}",
+        "  as written, against the flight rules: "
+        + ", ".join(
+            f"{e} {'pass' if row['passed'] else 'FAIL'}"
+            + ("" if row["clearance_m"] is None else f" (clearance {row['clearance_m']:.3g} m)")
+            for e, row in report["experiments"].items()
+        ),
         f"next: hikoboshi robot check {out}; hikoboshi plan --robot {out} pass",
     ]
     for line in lines:

@@ -4,8 +4,9 @@ the PyPI package example-robot-data (UR5 and Panda, a dev dependency): the file 
 loads, ``robot check``s clean, and its choices hold against the physics recomputed here
 (poses inside the mission limits and away from singularities, the reaction-momentum bound
 above what the PTP it writes carries, the servos under the integrator's bound over the
-range); every experiment as written plans and passes the flight rules, except those marked
-strict xfail with the numbers (issue 28, part 3: another branch)."""
+range); every experiment as written plans and passes the flight rules, as the scaffold's
+report says, and the non-holonomic start it chose is the first of its candidates whose plan
+passes them."""
 
 from __future__ import annotations
 
@@ -19,9 +20,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from hikoboshi.cli import app
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
-from planner.description import load_robot
+from planner.description import load_robot, scaffold
+from planner.description.scaffold import NONHOLONOMIC_SCALES, nonholonomic_candidates
 from planner.dynamics import DynamicsWorkspace
 from planner.robot import RobotDescription
 from planner.state import State
@@ -121,29 +125,14 @@ def test_wheels_hold_the_arm_s_reaction(
     assert float(np.max(np.abs(plan.prediction.wheel_momentum_nms))) <= 0.8 * capacity
 
 
-#: What does not plan yet as written (issue 28, part 3: branch ``planners``), measured.
-NOT_YET: dict[tuple[str, str], str] = {
-    ("ur5", "nonholonomic"): (
-        "planned, but its path takes wrist_2_link into the base "
-        "box: clearance -0.1256 m at t = 51.42 s against the flight rules' 0.05 m (with the "
-        "offset reversed or halved, as measured on the earlier A: -0.105 and -0.040 m; issue 28 "
-        "part 3, branch planners)"
-    ),
-}
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("experiment", ["ptp", "reactionless", "gjm", "coordination",
                                         "nonholonomic"])  # fmt: skip
 def test_every_experiment_plans_as_written(
     scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
     experiment: str,
-    request: pytest.FixtureRequest,
 ) -> None:
-    robot, _, _, description = scaffolded
-    reason = NOT_YET.get((robot, experiment))
-    if reason is not None:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=reason))
+    _, _, scaffold_report, description = scaffolded
     params = parameters_from_values(
         resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
     )
@@ -151,10 +140,121 @@ def test_every_experiment_plans_as_written(
     report = description.check_plan(plan)
     failing = [row for row in report.rows if row.verdict != "pass"]
     assert report.passed, failing
+    # the scaffold's own check of the file as written says the same
+    said = scaffold_report["experiments"][experiment]
+    assert said["passed"] and said["failing"] == []
+    assert said["clearance_m"] == pytest.approx(report.row("clearance").value, rel=1e-9)
     rates = (
         np.abs(np.diff(plan.command_joints_rad, axis=0)) / np.diff(plan.command_times_s)[:, None]
     )
     assert np.all(rates <= description.model.joint_rate_limit_radps * (1 + 1e-6))
+
+
+@pytest.mark.slow
+def test_the_nonholonomic_start_is_the_first_candidate_that_passes(
+    scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
+) -> None:
+    """The start written is pose A plus the offsets the report names, and its plan's
+    clearance is the report's; every candidate tried before it fell short of the flight
+    rules' clearance, the screen's or the full check's (recomputed here for those checked
+    in full)."""
+    robot, _, report, description = scaffolded
+    nh, tried = report["nonholonomic"], report["nonholonomic_tried"]
+    assert nh["passed"] and report["failing_experiments"] == []
+    n = description.model.n_joints
+    labels = [label for label, _ in nonholonomic_candidates(n)]
+    offsets = dict(nonholonomic_candidates(n))
+    order = [labels.index(e["candidate"]) for e in tried]
+    assert order == sorted(set(order))  # in the candidates' order, each once
+    assert tried[-1]["candidate"] == nh["candidate"]
+    defaults = description.experiment_defaults("nonholonomic")
+    qa = description.pose_joints_rad("A")
+    assert np.degrees(qa) == pytest.approx(defaults["phi_end_deg"], abs=1e-3)
+    # A plus the offsets, or less where a joint would come near its limit
+    moved = np.array(defaults["phi_init_deg"]) - np.degrees(qa)
+    offset = offsets[nh["candidate"]]
+    assert np.all(np.abs(moved) <= np.abs(offset) + 1e-3) and np.all(moved * offset >= -1e-6)
+    assert not np.allclose(moved, 0.0)
+    assert moved == pytest.approx(nh["phi_init_deg"] - np.degrees(qa), abs=1e-3)
+    min_clearance = description.flight_rules.min_clearance_m
+    for entry in tried[:-1]:  # those before it fall short
+        if entry.get("clearance_m") is None:  # screened out
+            screened = entry["screened_clearance_m"]
+            assert screened is None or screened < min_clearance, entry
+            continue
+        assert not entry["passed"], entry
+        params = parameters_from_values(
+            resolve("nonholonomic")[0], {"phi_init_deg": entry["phi_init_deg"]},
+            defaults=defaults,
+        )  # fmt: skip
+        again = description.check_plan(plan_experiment("nonholonomic", params, robot=description))
+        assert not again.passed
+        assert again.row("clearance").value == pytest.approx(entry["clearance_m"], rel=1e-9)
+    # the chosen plan, recomputed: passes with the clearance the report gives
+    params = parameters_from_values(resolve("nonholonomic")[0], {}, defaults=defaults)
+    plan = plan_experiment("nonholonomic", params, robot=description)
+    check = description.check_plan(plan)
+    assert check.passed
+    assert check.row("clearance").value == pytest.approx(nh["clearance_m"], rel=1e-9)
+    assert nh["clearance_m"] >= min_clearance
+    assert plan.metrics["predicted_end_attitude_error_deg"] == pytest.approx(
+        nh["end_attitude_error_deg"], rel=1e-6
+    )
+    if robot == "ur5":  # ETS-VII's offsets as they are take wrist_2_link into the base box
+        assert tried[0]["candidate"] == "ETS-VII's offsets x1"
+        assert nh["candidate"] != tried[0]["candidate"]
+
+
+def test_nonholonomic_candidates_start_with_ets_vii_s_offsets() -> None:
+    candidates = nonholonomic_candidates(6)
+    first, reversed_ = candidates[0][1], candidates[1][1]
+    assert first.tolist() == [9.6, -2.0, 2.0, 0.0, -13.6, 0.0]
+    assert reversed_.tolist() == [-9.6, 2.0, -2.0, 0.0, 13.6, 0.0]
+    # every sign pattern of the four non-zero offsets at each scale, no repeats
+    assert len(candidates) == 16 * len(NONHOLONOMIC_SCALES)
+    assert len({tuple(o) for _, o in candidates}) == len(candidates)
+    assert candidates[16][0] == "ETS-VII's offsets x0.5"
+    assert candidates[16][1] == pytest.approx(0.5 * first)
+    assert nonholonomic_candidates(7)[0][1].tolist() == [9.6, -2.0, 2.0, 0.0, -13.6, 0.0, 0.0]
+
+
+@pytest.mark.slow
+def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With only ETS-VII's offsets at 1.5 times their size to try, no start keeps the UR5's
+    non-holonomic path clear of the base: the file is written for the user to edit, but
+    the exit status is 1, stderr names the experiment and the report gives the nearest
+    candidate and the verdicts (in process, to narrow the candidates)."""
+    monkeypatch.setattr(scaffold, "NONHOLONOMIC_SCALES", (1.5,))
+    out = tmp_path / "ur5.toml"
+    result = CliRunner().invoke(
+        app, ["robot", "init", "--urdf", str(vendor_urdf("ur5")), "--hand", "tool0",
+              "--out", str(out), "--json"],
+    )  # fmt: skip
+    assert result.exit_code == 1, (result.stdout, result.stderr)
+    report = json.loads(result.stdout)
+    assert report["failing_experiments"] == ["nonholonomic"]
+    nh = report["nonholonomic"]
+    assert not nh["passed"] and nh["candidates_tried"] == 16 and nh["fully_checked"] == 0
+    screened = [e["screened_clearance_m"] for e in report["nonholonomic_tried"]]
+    assert nh["screened_clearance_m"] == max(v for v in screened if v is not None) < 0.05
+    row = report["experiments"]["nonholonomic"]
+    assert not row["passed"] and row["clearance_m"] < 0.05
+    assert any(f.startswith("clearance ") for f in row["failing"])
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: "), result.stderr
+    assert "[experiments.nonholonomic]" in lines[0] and nh["candidate"] in lines[0]
+    assert f"clearance {row['clearance_m']:.4g} m" in lines[0]
+    text = out.read_text()
+    assert "NO candidate passes the flight rules" in text
+    assert "nonholonomic FAILS" in text.replace("\n# ", " ")
+    description = load_robot(out)
+    params = parameters_from_values(
+        resolve("nonholonomic")[0], {}, defaults=description.experiment_defaults("nonholonomic")
+    )
+    check = description.check_plan(plan_experiment("nonholonomic", params, robot=description))
+    assert check.row("clearance").value == pytest.approx(row["clearance_m"], rel=1e-9)
 
 
 # --- refusals: exit 2, one line naming what is wrong ----------------------------------------

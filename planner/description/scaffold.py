@@ -34,7 +34,15 @@ module chooses what a description needs and a URDF cannot say, and writes it as 
 - the memoryless PD **attitude law** of the shipped small robot (Orihime's);
 - the **experiments' defaults**: PTP A -> B, reactionless from B along the chosen direction,
   GJM from A with the chosen hand pitch, coordination's line length, the non-holonomic
-  motion from an offset of A back to A.
+  motion from an offset of A back to A. The offset is the first of
+  :func:`nonholonomic_candidates` (ETS-VII's offsets as they are, reversed, with the other
+  sign patterns, then halved and halved again) whose plan passes the flight rules: each
+  candidate's meeting is first found coarsely and its paths' clearance sampled (a screen,
+  a fraction of a second), and only those that keep the clearance are planned and checked
+  in full (:meth:`RobotDescription.check_plan`);
+- **every experiment as written** is then planned and checked against the flight rules; the
+  verdicts are in the report (``experiments``) and, for an experiment that fails, on the
+  command line's stderr.
 
 Everything is computed on the model the description will load to; the text is then built
 by :func:`planner.description.build.build_robot` from its own parse, so a scaffold that does
@@ -44,6 +52,7 @@ its key.
 
 from __future__ import annotations
 
+import itertools
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -53,6 +62,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.catalogue import plan_experiment, resolve
 from planner.collision import CollisionModel, ShapeSet, body_poses
 from planner.collision_segments import segment_collision_model
 from planner.description.build import build_robot, model_from_urdf
@@ -63,10 +73,12 @@ from planner.description.tables import head_from
 from planner.description.urdf_xml import Urdf
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
+from planner.flight_rules import sampled_clearance
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.model import RobotModel, WheelSpec
-from planner.parameters import MIN_SPEED_MPS
+from planner.nonholonomic import find_meeting
+from planner.parameters import MIN_SPEED_MPS, parameters_from_values
 from planner.ptp import ptp_commands
 from planner.reactionless import reactionless_line
 from planner.robot import RobotDescription
@@ -77,7 +89,9 @@ from planner.state import State
 __all__ = [
     "DEFAULT_BASE_MASS_KG",
     "DEFAULT_BASE_SIZE_M",
+    "EXPERIMENTS",
     "Scaffold",
+    "nonholonomic_candidates",
     "scaffold_description",
 ]
 
@@ -134,6 +148,17 @@ WHEEL_SPEED_RADPS = 240.0
 WHEEL_RADIUS_M = 0.15
 #: The non-holonomic motion's start: pose A offset by ETS-VII's (deg), clipped to the limits.
 NONHOLONOMIC_OFFSET_DEG = (9.6, -2.0, 2.0, 0.0, -13.6, 0.0, 0.0)
+#: The offsets' scales tried, nearest ETS-VII's first.
+NONHOLONOMIC_SCALES = (1.0, 0.5, 0.25, 0.125)
+#: At most this many candidates whose screened paths keep the clearance are planned in full.
+NONHOLONOMIC_FULL_CHECKS = 4
+#: The screen: the meeting found with these RK4 steps and this attitude tolerance (rad), every
+#: this many of its path samples checked for clearance.
+SCREEN_PATH_STEPS = 16
+SCREEN_TOLERANCE_RAD = 1e-5
+SCREEN_STRIDE = 4
+#: The experiments a scaffold writes, each planned as written and checked.
+EXPERIMENTS = ("ptp", "reactionless", "gjm", "coordination", "nonholonomic")
 #: GJM hand pitches tried (deg), the hand parallel to the robot frame first.
 GJM_PITCHES_DEG = (0.0, -23.0, 23.0, -45.0, 45.0, -67.0, 67.0, -90.0, 90.0)
 _DIRECTIONS = {
@@ -264,6 +289,164 @@ def _line_ok(
         if k % 5 == 0 and clearance.clear(q, exempt) < PATH_CLEARANCE_M:
             return False, worst, q
     return True, worst, q
+
+
+def nonholonomic_candidates(n: int) -> list[tuple[str, Array]]:
+    """The non-holonomic start offsets from A tried, in order (label, offsets in deg, (n,)):
+    at each of :data:`NONHOLONOMIC_SCALES`, ETS-VII's offsets (:data:`NONHOLONOMIC_OFFSET_DEG`,
+    cut or padded with zeros to ``n`` joints) as they are, reversed, then every other sign
+    pattern of their non-zero entries."""
+    base = np.zeros(n)
+    given = np.array(NONHOLONOMIC_OFFSET_DEG)[:n]
+    base[: given.size] = given
+    moved = np.flatnonzero(base)
+    joints = ", ".join(str(i + 1) for i in moved)
+    patterns: list[tuple[str, Array]] = [
+        ("ETS-VII's offsets", np.ones(moved.size)),
+        ("reversed", -np.ones(moved.size)),
+    ]
+    for pattern in itertools.product((1.0, -1.0), repeat=moved.size):
+        if len(set(pattern)) == 2:
+            mark = "".join("+" if v > 0 else "-" for v in pattern)
+            patterns.append((f"signs {mark} on joints {joints}", np.array(pattern)))
+    out = []
+    for scale in NONHOLONOMIC_SCALES:
+        for label, signs in patterns:
+            offset = base.copy()
+            offset[moved] *= signs * scale
+            out.append((f"{label} x{scale:g}", offset))
+    return out
+
+
+def _nonholonomic_params(description: RobotDescription, phi_init: Array, **extra: Any) -> Any:
+    values = {"phi_init_deg": [float(v) for v in np.degrees(phi_init)], **extra}
+    return parameters_from_values(
+        resolve("nonholonomic")[0], values, defaults=description.experiment_defaults("nonholonomic")
+    )
+
+
+def _screened_clearance(
+    description: RobotDescription, ws: DynamicsWorkspace, phi_init: Array
+) -> float:
+    """The least distance over every pair the flight rules check (the arm against the base
+    and against itself) along the coarse meeting's paths (m; -inf when the paths do not meet
+    inside the limits)."""
+    params = _nonholonomic_params(
+        description,
+        phi_init,
+        path_steps=SCREEN_PATH_STEPS,
+        attitude_tolerance_rad=SCREEN_TOLERANCE_RAD,
+    )
+    try:
+        meeting = find_meeting(ws, params)
+    except PlannerError:
+        return -math.inf
+    path = np.vstack(
+        [meeting.forward_joints_rad[::SCREEN_STRIDE], meeting.backward_joints_rad[::-SCREEN_STRIDE]]
+    )
+    collision = description.collision
+    assert collision is not None  # the scaffold writes generated collision bodies
+    rots, trans = body_poses(ws.model, path)
+    found = sampled_clearance(
+        collision, list(collision.pairs), rots, trans, np.abs(np.diff(path, axis=0)), ws.model
+    )
+    return found.worst_m
+
+
+def _experiment_row(description: RobotDescription, experiment: str, params: Any) -> dict[str, Any]:
+    """``experiment`` planned with ``params`` for ``description`` and checked: the verdict, the
+    clearances (m: the arm against the base, the arm against itself), the failing rules, the
+    end attitude error (deg; None for an experiment without one)."""
+    try:
+        plan = plan_experiment(experiment, params, robot=description)
+    except PlannerError as exc:
+        return {
+            "passed": False,
+            "clearance_m": None,
+            "self_clearance_m": None,
+            "failing": [],
+            "error": str(exc),
+        }
+    report = description.check_plan(plan)
+    values = {row.rule: row.value for row in report.rows}
+    return {
+        "passed": report.passed,
+        "clearance_m": values.get("clearance"),  # None: no pair of the kind to check
+        "self_clearance_m": values.get("self_clearance"),
+        "failing": [
+            f"{row.rule} {row.value:.4g} {row.unit} (limit {row.limit:.4g})"
+            for row in report.failing
+        ],
+        "end_attitude_error_deg": plan.metrics.get("predicted_end_attitude_error_deg"),
+    }
+
+
+def _choose_nonholonomic(
+    description: RobotDescription, qa: Array, lo: Array, hi: Array
+) -> dict[str, Any]:
+    """The first of :func:`nonholonomic_candidates` whose plan passes the flight rules (or,
+    when none does, the one that came nearest), and what was tried."""
+    ws = DynamicsWorkspace(description.model)
+    min_clearance = description.flight_rules.min_clearance_m
+    tried: list[dict[str, Any]] = []
+    seen: list[Array] = []
+    chosen: dict[str, Any] | None = None
+    full = 0
+    for label, offset in nonholonomic_candidates(description.model.n_joints):
+        phi_init = np.clip(qa + np.radians(offset), lo, hi)
+        if any(np.allclose(phi_init, other) for other in seen):
+            continue  # the limits made it another candidate's start
+        seen.append(phi_init)
+        screened = _screened_clearance(description, ws, phi_init)
+        entry: dict[str, Any] = {
+            "candidate": label,
+            "offset_deg": [float(v) for v in offset],
+            "phi_init_deg": [round(float(v), 3) for v in np.degrees(phi_init)],
+            # None: the paths met only beyond the joint limits, or did not meet
+            "screened_clearance_m": screened if math.isfinite(screened) else None,
+        }
+        tried.append(entry)
+        if screened < min_clearance:
+            continue
+        full += 1
+        # the start as it will be written (3 decimals of a degree)
+        params = parameters_from_values(
+            resolve("nonholonomic")[0],
+            {"phi_init_deg": entry["phi_init_deg"]},
+            defaults=description.experiment_defaults("nonholonomic"),
+        )
+        entry.update(_experiment_row(description, "nonholonomic", params))
+        if entry["passed"]:
+            chosen = entry
+            break
+        if full >= NONHOLONOMIC_FULL_CHECKS:
+            break
+    screens = [e["screened_clearance_m"] for e in tried if e["screened_clearance_m"] is not None]
+    if chosen is None:  # none passes: the nearest (as checked in full where it was)
+        nearest: dict[str, Any] = max(tried, key=_nearness)
+        chosen = {
+            "passed": False,
+            "clearance_m": None,
+            "self_clearance_m": None,
+            "failing": [],
+            "end_attitude_error_deg": None,
+            **nearest,
+        }
+    return {
+        **chosen,
+        "candidates_tried": len(tried),
+        "fully_checked": full,
+        "best_screened_clearance_m": max(screens) if screens else None,
+        "tried": tried,
+    }
+
+
+def _nearness(entry: dict[str, Any]) -> tuple[bool, float]:
+    """Checked in full before screened only, then by clearance."""
+    flown, screened = entry.get("clearance_m"), entry["screened_clearance_m"]
+    if flown is not None:
+        return True, flown
+    return False, screened if screened is not None else -math.inf
 
 
 def scaffold_description(
@@ -454,8 +637,7 @@ def scaffold_description(
     rotor = _round_up(2.0 * spin / WHEEL_RADIUS_M**2)
 
     # --- experiments ---------------------------------------------------------------------------
-    offset = np.radians(np.resize(np.array(NONHOLONOMIC_OFFSET_DEG), n))
-    phi_init = np.clip(qa + offset, lo, hi)
+    phi_init = np.clip(qa + np.radians(nonholonomic_candidates(n)[0][1]), lo, hi)
     choice = {
         "reach_m": reach_m,
         "pose_samples": POSE_SAMPLES,
@@ -475,7 +657,7 @@ def scaffold_description(
         "servo_fastest_per_s": modes.fastest_per_s,
         "servo_limit_per_s": modes.limit_per_s,
     }
-    text = _render(
+    written = dict(
         name=robot_name,
         urdf_name=urdf_name,
         root=root,
@@ -494,12 +676,32 @@ def scaffold_description(
         torque=torque,
         spin=spin,
         rotor=rotor,
-        phi_init=phi_init,
         choice=choice,
     )
-    doc = tomllib.loads(text)
+    # a first description (ETS-VII's offsets) to plan the non-holonomic candidates on; the
+    # model and the flight rules are the final description's
+    doc = tomllib.loads(_render(**written, phi_init=phi_init))
     head = head_from(c, doc, lambda _name: urdf_path)
     description = build_robot(c, doc, head, urdf, {})
+    nonholonomic = _choose_nonholonomic(description, qa, lo, hi)
+    phi_init = np.radians(nonholonomic["phi_init_deg"])
+    doc = tomllib.loads(_render(**written, phi_init=phi_init, nonholonomic=nonholonomic))
+    head = head_from(c, doc, lambda _name: urdf_path)
+    description = build_robot(c, doc, head, urdf, {})
+    checked = {
+        experiment: _experiment_row(
+            description,
+            experiment,
+            parameters_from_values(
+                resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
+            ),
+        )
+        for experiment in EXPERIMENTS
+    }
+    # the verdicts go into comments only: the values, and so the description, are unchanged
+    text = _render(**written, phi_init=phi_init, nonholonomic=nonholonomic, checked=checked)
+    if tomllib.loads(text) != doc:
+        raise c.fail("document", "the scaffold's text changed between its check and its writing")
     report = {
         "robot": robot_name,
         "file": str(out_path),
@@ -516,6 +718,10 @@ def scaffold_description(
             "rotor_mass_kg": rotor,
         },
         **choice,
+        "nonholonomic": {k: v for k, v in nonholonomic.items() if k != "tried"},
+        "nonholonomic_tried": nonholonomic["tried"],
+        "experiments": checked,
+        "failing_experiments": [e for e, row in checked.items() if not row["passed"]],
     }
     return Scaffold(toml=text, report=report, description=description)
 
@@ -644,6 +850,17 @@ def _render(**k: Any) -> str:
             "",
         ]
     direction = _DIRECTIONS[ch["reactionless_direction"]]
+    checked = k.get("checked")
+    if checked is not None:
+        verdicts = [
+            f"{e} {'passes' if row['passed'] else 'FAILS'}"
+            + ("" if row["clearance_m"] is None else f" ({row['clearance_m']:.3g} m)")
+            for e, row in checked.items()
+        ]
+        lines += _wrapped(
+            "Each experiment below, planned as written, against the flight rules (clearance "
+            "of the arm from the base): " + ", ".join(verdicts) + "."
+        )
     lines += [
         "[experiments.ptp]",
         f"start_joints_deg = {_nums(np.degrees(k['poses']['A']), 3)}",
@@ -665,7 +882,7 @@ def _render(**k: Any) -> str:
         "[experiments.coordination]",
         f"distance_m = {COORDINATION_DISTANCE_M}",
         "",
-        "# From A offset by ETS-VII's offsets (clipped to the limits) back to A.",
+        *_nonholonomic_comment(k.get("nonholonomic")),
         "[experiments.nonholonomic]",
         f"phi_init_deg = {_nums(np.degrees(k['phi_init']), 3)}",
         f"phi_end_deg = {_nums(np.degrees(k['poses']['A']), 3)}",
@@ -676,3 +893,56 @@ def _render(**k: Any) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _wrapped(text: str, width: int = 92) -> list[str]:
+    """``text`` as comment lines of at most ``width`` characters."""
+    lines: list[str] = []
+    line = "#"
+    for word in text.split():
+        if len(line) + 1 + len(word) > width and line != "#":
+            lines.append(line)
+            line = "#"
+        line += " " + word
+    return [*lines, line]
+
+
+def _metres(value: float | None) -> str:
+    return "none to check" if value is None else f"{value:.4g} m"
+
+
+def _nonholonomic_comment(nh: dict[str, Any] | None) -> list[str]:
+    """What was tried for the non-holonomic start and why this one (None: the first
+    description's, ETS-VII's offsets)."""
+    if nh is None:
+        return ["# From A offset by ETS-VII's offsets (clipped to the limits) back to A."]
+    offsets = ", ".join(f"{v:g}" for v in nh["offset_deg"])
+    scales = ", ".join(f"x{v:g}" for v in NONHOLONOMIC_SCALES)
+    tried = (
+        f"{nh['candidates_tried']} tried (ETS-VII's offsets as they are, reversed, the other "
+        f"sign patterns; at {scales}): the meeting's paths found coarsely and sampled for "
+        f"clearance, {nh['fully_checked']} of them planned and checked in full"
+    )
+    best = nh["best_screened_clearance_m"]
+    if nh["passed"]:
+        text = (
+            f"From A offset by {nh['candidate']} ({offsets} deg, clipped to the limits) back "
+            f"to A: the first candidate whose plan passes the flight rules, clearance "
+            f"{_metres(nh['clearance_m'])} from the base and {_metres(nh['self_clearance_m'])} "
+            f"between the links (at least {MIN_CLEARANCE_M} m), end attitude error "
+            f"{nh['end_attitude_error_deg']:.2g} deg. {tried}."
+        )
+    elif nh.get("clearance_m") is not None:
+        text = (
+            f"NO candidate passes the flight rules: written is the nearest, A offset by "
+            f"{nh['candidate']} ({offsets} deg): {'; '.join(nh['failing'])}. {tried}. "
+            "Choose phi_init_deg (and phi_end_deg) yourself."
+        )
+    else:
+        text = (
+            f"NO candidate passes the flight rules: written is the nearest, A offset by "
+            f"{nh['candidate']} ({offsets} deg), whose coarse paths come nearest: "
+            f"{'no meeting inside the limits' if best is None else _metres(best)} (at least "
+            f"{MIN_CLEARANCE_M} m). {tried}. Choose phi_init_deg (and phi_end_deg) yourself."
+        )
+    return _wrapped(text)
