@@ -339,6 +339,16 @@ class RobotPublic(BaseModel):
     #: The experiments' default parameters from the description (``[experiments.NAME]``,
     #: raw values), under which the catalogue's own defaults apply.
     experiments: dict[str, dict[str, Any]]
+    #: Per experiment of the catalogue, the defaults a plan for this robot takes where the
+    #: request leaves a parameter out: ``experiments``' values over those the tool derives
+    #: for the keys the description leaves out (``RobotDescription.experiment_defaults``:
+    #: distances scaled by the arm's reach, pose A as the start...); a parameter in neither
+    #: takes the catalogue's default (ETS-VII's number). Null: the robot's own pose or the
+    #: planner's choice (as a request that leaves the parameter out).
+    experiment_defaults: dict[str, dict[str, Any]]
+    #: Per experiment: the keys of ``experiment_defaults`` the tool derived for this robot
+    #: (not in its description), sorted.
+    derived_defaults: dict[str, list[str]]
     #: ``GET`` this for the robot's URDF.
     urdf_url: str
 

@@ -2,7 +2,8 @@
 
 ``GET /api/robots``: each robot the server knows (shipped under ``examples/robots/``, or given
 at its start: :mod:`server.services.robots`) with its joint count, hash, joint limits, named
-poses and experiment defaults: what the console's planning page offers.
+poses and experiment defaults (its description's, and the effective ones a plan takes with
+those the tool derives marked): what the console's planning page offers.
 ``GET /api/robots/{name}/urdf``: a robot's URDF by name (``hikoboshi model urdf --robot
 FILE``); ``GET /api/robots/by-hash/{robot_hash}/urdf``: the URDF of the robot a plan was
 made for, by the plan's ``robot_hash`` (a plan records the description's hash, and the robot
@@ -23,6 +24,7 @@ import numpy as np
 from fastapi import APIRouter, Path
 from fastapi.responses import FileResponse, Response
 
+from planner.catalogue import experiments
 from planner.description import RobotDescription
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
@@ -82,6 +84,7 @@ def _public(robot: RobotDescription) -> RobotPublic:
                     else [float(v) for v in pose.hand_rpy_deg],
                 )
             )
+        effective = {name: dict(robot.experiment_defaults(name)) for name in experiments()}
         public = RobotPublic(
             name=robot.name,
             description=robot.description,
@@ -93,6 +96,11 @@ def _public(robot: RobotDescription) -> RobotPublic:
             ],
             poses=poses,
             experiments={k: dict(v) for k, v in robot.experiments.items()},
+            experiment_defaults=effective,
+            derived_defaults={
+                name: sorted(set(values) - set(robot.experiments.get(name, {})))
+                for name, values in effective.items()
+            },
             urdf_url=f"/api/robots/{robot.name}/urdf",
         )
         _PUBLIC[key] = public

@@ -170,6 +170,13 @@ export interface RobotPublic {
   joint_limits_deg: number[][];
   poses: RobotPose[];
   experiments: Record<string, Record<string, unknown>>;
+  /** Per experiment, the defaults a plan for this robot takes for the parameters a request
+   * leaves out: ``experiments`` over what the tool derives for the robot (null: its own pose,
+   * as when left out); absent from older servers. */
+  experiment_defaults?: Record<string, Record<string, unknown>>;
+  /** Per experiment, the keys of ``experiment_defaults`` the tool derived (not written in the
+   * robot's description). */
+  derived_defaults?: Record<string, string[]>;
   urdf_url: string;
 }
 

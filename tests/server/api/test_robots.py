@@ -1,6 +1,8 @@
 """``/api/robots``: the robots the server plans for, each one's URDF by name, and the URDF of
 a plan's robot by its description hash (a robot given by file included); 404 with the reason
-for an unknown robot, 422 for a malformed name or hash, a viewer's token required."""
+for an unknown robot, 422 for a malformed name or hash, a viewer's token required. A vendor
+arm's listed experiment defaults are the ones its plans take (the tool's derived ones
+marked), and a plan of those values typed is the plan of none."""
 
 from __future__ import annotations
 
@@ -8,10 +10,12 @@ import shutil
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 
+from planner.catalogue import experiments, resolve
 from planner.description import EXAMPLES_DIR, default_robot, load_robot
 from planner.model import default_model
 from planner.plan import plan_for_robot
@@ -22,7 +26,8 @@ from server.services.errors import DomainError
 from server.services.robots import robot_urdf, urdf_for_plan
 from server.settings import Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import TOKENS, VIEWER, sessions
+from tests.planner.test_vendor_urdf import copy_robot
+from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.storage.factories import make_plan
 
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
@@ -219,3 +224,97 @@ def test_the_grounds_recording_of_an_orihime_pass_attaches_orihime_urdf(
     assert response.status_code == 200, response.text
     assert read_urdf(io.BytesIO(response.content)) == ("orihime.urdf", robot_urdf(orihime))
     assert read_mcap(io.BytesIO(response.content)).plan.robot == "orihime"
+
+
+@pytest.fixture()
+def ur5_toml(tmp_path: Path) -> Path:
+    """The test UR5 (tests/planner/vendor/ur5.toml): a table for the GJM's axis only."""
+    return copy_robot(tmp_path, "ur5")
+
+
+@pytest.fixture()
+def client_with_ur5(database_url: str, tmp_path: Path, ur5_toml: Path) -> Iterator[TestClient]:
+    settings = Settings(
+        data_dir=tmp_path, database_url=database_url, tokens=TOKENS, robot_files=(ur5_toml,)
+    )
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def _listed(client: TestClient, name: str) -> dict[str, Any]:
+    response = client.get("/api/robots", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    robot: dict[str, Any] = next(r for r in response.json()["data"] if r["name"] == name)
+    return robot
+
+
+def test_a_vendor_arms_defaults_are_the_ones_its_plans_take_derived_marked(
+    client_with_ur5: TestClient, ur5_toml: Path
+) -> None:
+    ur5 = load_robot(ur5_toml)
+    listed = _listed(client_with_ur5, "ur5")
+    effective = listed["experiment_defaults"]
+    derived = listed["derived_defaults"]
+    assert set(effective) == set(derived) == set(experiments())
+    for experiment in experiments():
+        assert effective[experiment] == dict(ur5.experiment_defaults(experiment)), experiment
+        own = ur5.experiments.get(experiment, {})
+        assert derived[experiment] == sorted(set(effective[experiment]) - set(own)), experiment
+    # the description's own table keeps its meaning: the GJM's axis, nothing derived in it
+    assert listed["experiments"] == {"gjm": {"approach_axis_hand": [0.0, 0.0, 1.0]}}
+    assert derived["gjm"] == ["approach_distance_m"]
+    # scaled by the arm's reach (1.104 m over ETS-VII's 2.649 m), not ETS-VII's numbers
+    reactionless = resolve("reactionless")[0]()
+    assert effective["reactionless"]["distance_m"] == 0.146 != reactionless.distance_m
+    assert effective["coordination"]["distance_m"] == 0.083
+    assert effective["ptp"] == {"start_joints_deg": None}  # pose A, not ETS-VII's zeros
+    assert effective["nonholonomic"]["phi_end_deg"] == [0.0, -90.0, 90.0, -90.0, -90.0, 0.0]
+    assert effective["nonholonomic"]["max_corrections"] == 12
+    assert derived["nonholonomic"] == ["max_corrections", "phi_end_deg", "phi_init_deg"]
+
+
+def test_orihime_and_ets7_give_their_defaults_themselves(client: TestClient) -> None:
+    """Their descriptions give every key their plans depend on: what the tool derives for
+    ETS-VII is its own numbers, the catalogue's."""
+    orihime = _listed(client, "orihime")
+    assert orihime["experiment_defaults"]["reactionless"]["distance_m"] == 0.2
+    assert "distance_m" not in orihime["derived_defaults"]["reactionless"]
+    ets7 = _listed(client, "ets7")
+    for experiment, keys in ets7["derived_defaults"].items():
+        catalogue = resolve(experiment)[0]()
+        for key in keys:
+            assert ets7["experiment_defaults"][experiment][key] == getattr(catalogue, key)
+
+
+def _as_typed(value: object) -> str:
+    """A default as the planning form writes it into its field (web/src/pages/plan.ts)."""
+    if isinstance(value, list):
+        return ", ".join(_as_typed(v) for v in value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+@pytest.mark.slow
+def test_a_plan_of_the_listed_defaults_typed_is_the_plan_of_none(
+    client_with_ur5: TestClient,
+) -> None:
+    """Reactionless on the UR5: the experiment with the most derived keys (its distance,
+    speeds and orientation weight scaled by reach)."""
+    listed = _listed(client_with_ur5, "ur5")
+    defaults = listed["experiment_defaults"]["reactionless"]
+    typed = {k: _as_typed(v) for k, v in defaults.items() if v is not None}
+    assert {"distance_m", "out_speed_mps", "back_speed_mps", "orientation_weight_m"} <= set(typed)
+
+    def validate(parameters: dict[str, str]) -> dict[str, Any]:
+        body = {"experiment": "reactionless", "robot": "ur5", "parameters": parameters}
+        response = client_with_ur5.post("/api/plans/validate", json=body, headers=OPERATOR)
+        assert response.status_code == 200, response.text
+        result: dict[str, Any] = response.json()
+        assert result["valid"] is True, result["errors"]
+        return result
+
+    untyped, from_form = validate({}), validate(typed)
+    assert from_form["summary"] == untyped["summary"]
+    summary = untyped["summary"]
+    assert summary["parameters"]["distance_m"] == 0.146

@@ -33,14 +33,24 @@ const BUILT_IN: RobotPublic = {
   joint_limits_deg: [], poses: [], experiments: {}, urdf_url: "/api/model/urdf",
 };
 
-/** The parameter's default for ``robot``: its description's ``[experiments]`` value, else the
- * catalogue's; a per-joint list of the catalogue (ETS-VII's six) is blank for a robot of
- * another joint count (the server then takes the robot's own, or says what it needs). */
-function defaultFor(spec: ParamSpec, experiment: string, robot: RobotPublic): string {
-  const own = robot.experiments[experiment]?.[spec.name];
-  if (own !== undefined) return asText(own);
-  if (isJointList(spec) && spec.default !== "" && spec.default.split(",").length !== robot.n_joints) return "";
-  return spec.default;
+/** The parameter's default for ``robot``, as the server plans it when the field is left as
+ * it is: the robot's effective default (its description's ``[experiments]`` value, or the one
+ * the tool derives for it: ``derived`` when that is not the catalogue's number; null is
+ * blank, the robot's own choice), else the catalogue's. From a server that lists no
+ * effective defaults, the description's value; there a per-joint list of the catalogue
+ * (ETS-VII's six) is blank for a robot of another joint count (the server then takes the
+ * robot's own, or says what it needs). */
+function defaultFor(spec: ParamSpec, experiment: string, robot: RobotPublic): { text: string; derived: boolean } {
+  const effective = (robot.experiment_defaults ?? robot.experiments)[experiment] ?? {};
+  const derived = robot.derived_defaults?.[experiment]?.includes(spec.name) ?? false;
+  if (spec.name in effective) {
+    const value = effective[spec.name];
+    const text = value === null || value === undefined ? "" : asText(value);
+    // ETS-VII's derived numbers are the catalogue's own: nothing to tell the operator.
+    return { text, derived: derived && norm(text) !== norm(spec.default) };
+  }
+  if (isJointList(spec) && spec.default !== "" && spec.default.split(",").length !== robot.n_joints) return { text: "", derived: false };
+  return { text: spec.default, derived: false };
 }
 
 export function planPage(root: HTMLElement, ctx: Ctx, params: string[]): () => void {
@@ -91,7 +101,7 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
       (r.description ? ` · ${r.description}` : ""));
     robotInfo.dataset.joints = String(r.n_joints);
     for (const spec of EXPERIMENTS[select.value].params) {
-      const dflt = defaultFor(spec, select.value, r);
+      const { text: dflt, derived } = defaultFor(spec, select.value, r);
       const jointList = isJointList(spec);
       const hint = jointList ? `${r.n_joints} values, or default (the robot's)` : spec.optional ? "default (derived)" : "";
       const choices = spec.type === "bool" ? ["true", "false"] : spec.choices;
@@ -103,7 +113,14 @@ function planForm(root: HTMLElement, ctx: Ctx): void {
       const unit = jointList
         ? ` (deg, ${r.n_joints} comma-separated)`
         : spec.type === "floats" || spec.type === "strings" ? " (comma-separated)" : "";
-      const parts: (HTMLElement | string)[] = [h("span.name", {}, spec.name, h("span.muted.small", {}, unit)), input];
+      const name = h("span.name", {}, spec.name, h("span.muted.small", {}, unit));
+      if (derived) {
+        // Not written in the robot's description: the tool's value for this arm.
+        const why = "Not in the robot's description: derived by the planner for this robot (docs/robots.md, Experiment defaults)";
+        name.append(h("span.muted.small.derived", { "data-test": `derived-${spec.name}`, title: why }, " · derived for this robot"));
+        input.title = why;
+      }
+      const parts: (HTMLElement | string)[] = [name, input];
       if (jointList && poses.length) {
         // The robot's named poses: choosing one writes its joints into the field.
         const pick = h("select.pose", { "data-test": `pose-${spec.name}`, title: "A named pose of the robot" },
