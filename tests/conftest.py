@@ -77,15 +77,6 @@ REALTIME_MODULES = (
     "tests/spacecraft/test_robot.py",
     "tests/test_campaign_demo.py",
     "tests/test_cli_demo.py",
-    # Not real time, but they keep a core busy for minutes with planning subprocesses (a
-    # vendor arm's every experiment, a scaffold, a campaign): beside them, the real-time
-    # tests above starved (the malformed-message flood fell to 4,091 of its 12,000
-    # messages, the 200 viewers to 253 requests), so they take the same lock.
-    "tests/mission/test_campaign.py",
-    "tests/planner/test_vendor_pinocchio.py",
-    "tests/planner/test_vendor_planners.py",
-    "tests/test_cli_campaign.py",
-    "tests/test_cli_robot_init.py",
 )
 
 

@@ -1,6 +1,7 @@
-"""A live pass under 200 concurrent viewer reads (#14, #29): 20 viewer tokens with 10
-clients each loop over the heaviest reads of an imported, analysed pass (its recording, the
-report as JSON and HTML, its analyses, raw telemetry) while the ground flies a pass at 20x,
+"""A live pass under 80 concurrent viewer reads: 10 viewer tokens with 8 clients each (past
+a token's 6 heavy reads and the viewers' 16 at once: both caps turn viewers away) loop over
+the heaviest reads of an imported, analysed pass (its recording, the report as JSON and
+HTML, its analyses, raw telemetry) while the ground flies a pass at 20x,
 then aborts a second one. Meanwhile an operator's screen samples liveness and the link
 status and keeps a console websocket open (it connects while the load is on).
 
@@ -52,8 +53,10 @@ from tests.server.link.load import (
 SCALE = 20.0
 OPERATOR_TOKEN = "operator-token-0123456789"
 SPACECRAFT_TOKEN = "spacecraft-token-01234567"
-VIEWER_TOKENS = [f"viewer-token-{k:02d}-0123456789" for k in range(20)]
-CLIENTS_PER_TOKEN = 10
+#: 80 viewers, past both caps; the issue's 200 (20 x 10) are bench/bench_load.py's, which
+#: reports the latencies under them against no load
+VIEWER_TOKENS = [f"viewer-token-{k:02d}-0123456789" for k in range(10)]
+CLIENTS_PER_TOKEN = 8
 TOKENS = ",".join(
     [f"{OPERATOR_TOKEN}=otto:operator", f"{SPACECRAFT_TOKEN}=ets7:spacecraft"]
     + [f"{token}=viewer{k:02d}:viewer" for k, token in enumerate(VIEWER_TOKENS)]
@@ -77,7 +80,7 @@ SERVER_RSS_BOUND = 768 * 1024 * 1024
 
 
 @pytest.mark.slow
-def test_a_pass_flies_and_its_operators_keep_control_under_200_concurrent_viewer_reads(
+def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_reads(
     database_url: str, tmp_path: Path, demo_recording: PassRecording
 ) -> None:
     buffer = io.BytesIO()
@@ -180,7 +183,7 @@ def test_a_pass_flies_and_its_operators_keep_control_under_200_concurrent_viewer
         "analyses",
         "telemetry",
     }
-    assert load.status[429] + load.status[503] >= 200, load.status
+    assert load.status[429] >= 20 and load.status[429] + load.status[503] >= 80, load.status
     assert load.stale_connections <= max(3, sum(load.status.values()) // 20), load
     # the operator's screen: liveness and link status always answered, never locked out
     assert not probes.unexpected, probes.unexpected

@@ -1,5 +1,5 @@
-"""A noisy link cannot starve the uplink: 400 malformed messages a wall second for 30 s of
-wall time on the spacecraft link during a 20x pass, both backends.
+"""A noisy link cannot starve the uplink: 400 malformed messages a wall second for 12 s of
+wall time (:data:`FLOOD_WALL_S`) on the spacecraft link during a 20x pass, both backends.
 
 Real processes on loopback: ``hikoboshi serve`` and ``hikoboshi spacecraft --garbage``
 (its rehearsal noise, spacecraft/garbage.py: invalid JSON, unknown types, wrong versions
@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -31,7 +32,9 @@ from tests.server.link.harness import _free_port, serve_process, store_pass
 
 SCALE = 20.0
 RATE = 400.0  # malformed messages a wall second
-FLOOD_WALL_S = 30.0
+#: wall s of flood: past the close threshold several times over (a close about every 2.5 s
+#: at this rate); the issue's 30 s with ``HIKOBOSHI_TEST_FLOOD_S=30``
+FLOOD_WALL_S = float(os.environ.get("HIKOBOSHI_TEST_FLOOD_S", "12"))
 #: onboard s of the spacecraft's clock (10 wall s after it starts): the flood starts once
 #: the pass's commands are executing (asserted against its truth log's epoch)
 FLOOD_START_S = 200.0
@@ -102,7 +105,9 @@ def test_a_pass_flies_untouched_through_400_malformed_messages_a_second(
         with serve_process(database_url, port, tmp_path / "server.log", env):
             # planned before the spacecraft starts: its clock runs toward the flood
             # 10 s of motion, then holding to past the flood's end (onboard s)
-            flown = store_pass(sessions, "noisy", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 800.0)
+            flown = store_pass(
+                sessions, "noisy", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), flood_end_s + 100.0
+            )
             status, wall_s = asyncio.run(scenario(flown))
         with sessions() as session:
             commands = repo.list_commands(session=session, pass_id=flown)
@@ -119,7 +124,7 @@ def test_a_pass_flies_untouched_through_400_malformed_messages_a_second(
     sent = re.search(r"(\d+)\s+malformed\s+messages\s+sent", vehicle_log.read_text())
     assert sent is not None, vehicle_log.read_text()[-2000:]
     n_sent = int(sent.group(1))
-    # the flood was real: aimed at 400 a second for 30 s; the spacecraft process that sends
+    # the flood was real: aimed at 400 a second; the spacecraft process that sends
     # it shares the cores with the ground it floods, and fell to 307 a second on a loaded
     # machine: at least 240 a second
     assert n_sent >= 0.6 * RATE * FLOOD_WALL_S, n_sent
@@ -128,7 +133,7 @@ def test_a_pass_flies_untouched_through_400_malformed_messages_a_second(
     tags_s = sorted((c.execute_time_ns - epoch_ns) / 1e9 for c in commands)
     assert tags_s[0] < FLOOD_START_S and tags_s[-1] > flood_end_s, (tags_s[0], tags_s[-1])
     # the pass flew untouched: every command executed at its tag, every frame stored
-    assert len(commands) > 2500
+    assert len(commands) > 4 * flood_end_s  # 4 Hz to past the flood
     assert {c.stage for c in commands} == {"executed"}
     assert all(c.executed_at_ns == c.execute_time_ns for c in commands)
     assert summary.frames_missing == 0 and summary.gaps_open == 0

@@ -23,7 +23,9 @@ from server.storage.db import make_engine, read_session_factory, session_factory
 from tests.server.link.harness import OPERATOR, _free_port, serve_process, store_pass
 from tests.server.link.load import spacecraft_process
 
-SCALE = 5.0
+#: The vehicle's time scale: the pass (600 s onboard, 30 s of wall) is aborted long before
+#: it ends.
+SCALE = 20.0
 TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
 #: A timestamp of every line: UTC, milliseconds (server/logs.py).
 STAMP = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z"
@@ -63,7 +65,7 @@ def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str) -> str:
             httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30.0) as client,
         ):
             pass_id = store_pass(
-                session_factory(engine), "logged", (5.0, 0.0, 0.0, 5.0, 0.0, 0.0), 60.0
+                session_factory(engine), "logged", (5.0, 0.0, 0.0, 5.0, 0.0, 0.0), 600.0
             )
             vehicle = spacecraft_process(port, "s-token", SCALE, tmp_path / "spacecraft.log")
 
@@ -91,7 +93,9 @@ def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str) -> str:
             _until(lambda: state(pass_id) == "aborted", "the pass aborted")
     finally:
         if vehicle is not None:
-            vehicle.terminate()
+            # the ground stopped first (its stop with the vehicle connected is logged): the
+            # vehicle's drain would wait its 30 s for a ground that does not come back
+            vehicle.kill()
             vehicle.wait(timeout=60)
         engine.dispose()
     return pass_id
