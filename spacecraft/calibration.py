@@ -37,7 +37,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -265,6 +265,23 @@ class _BudgetSpent(Exception):
     pass
 
 
+_T = TypeVar("_T")
+
+
+def _memoised(fn: Callable[[dict[str, float]], _T]) -> Callable[[dict[str, float]], _T]:
+    """``fn`` of a law's values (a prediction or a seeded flight: deterministic), computed
+    once per distinct values; the result is shared, read only."""
+    cache: dict[tuple[tuple[str, float], ...], _T] = {}
+
+    def call(values: dict[str, float]) -> _T:
+        key = tuple(sorted(values.items()))
+        if key not in cache:
+            cache[key] = fn(values)
+        return cache[key]
+
+    return call
+
+
 @dataclass
 class _Objective:
     """Counts evaluations, remembers the best point, stops at the budget."""
@@ -277,8 +294,14 @@ class _Objective:
     best_cost: float = math.inf
     best_x: Array | None = None
     first_cost: float = math.nan
+    #: the start in the fit's space and as given: at that point the values are the start's
+    #: own (``from_x(to_x(v))`` can differ from ``v`` in the last bit)
+    start_x: Array | None = None
+    start: Mapping[str, float] | None = None
 
     def values(self, x: Array) -> dict[str, float]:
+        if self.start is not None and self.start_x is not None and np.array_equal(x, self.start_x):
+            return dict(self.start)
         return {n: PARAMETERS[n].from_x(float(v)) for n, v in zip(self.names, x, strict=True)}
 
     def __call__(self, x: Array) -> Array:
@@ -293,7 +316,7 @@ class _Objective:
             self.best_cost, self.best_x = cost, np.array(x, dtype=np.float64)
         if self.progress is not None:
             self.progress(self.evaluations, self.budget, self.best_cost)
-        return r
+        return np.array(r, dtype=np.float64)  # the optimiser's own copy
 
 
 def _solve(
@@ -308,6 +331,7 @@ def _solve(
     lower = np.array([PARAMETERS[n].lower for n in names])
     upper = np.array([PARAMETERS[n].upper for n in names])
     x0 = np.array([PARAMETERS[n].to_x(float(start[n])) for n in names])
+    as_given = x0.copy()
     for i, n in enumerate(names):
         p = PARAMETERS[n]
         off = x0[i] >= upper[i] if p.off_at_upper else x0[i] <= lower[i]
@@ -315,6 +339,8 @@ def _solve(
             x0[i] = p.to_x(p.active_start)
     x0 = np.clip(x0, lower, upper)
     objective = _Objective(names, residuals, max_evaluations, progress)
+    if np.array_equal(x0, as_given):
+        objective.start_x, objective.start = x0, start
     jac: Array | None = None
     try:
         result = least_squares(
@@ -400,6 +426,7 @@ def fit_to_recording(
     first = {n: PARAMETERS[n].default for n in names}
     first.update({k: float(v) for k, v in (start or {}).items() if k in names})
 
+    @_memoised
     def residuals(values: dict[str, float]) -> Array:
         gains = gains_from_parameters(ws, values)
         pred = predict(
@@ -803,13 +830,16 @@ def fit_to_paper(
     first = {n: PARAMETERS[n].default for n in names}
     first.update({k: float(v) for k, v in (start or {}).items() if k in names})
 
+    @_memoised
+    def metrics(values: dict[str, float]) -> dict[str, dict[str, float]]:
+        return _predicted_metrics(ws, plans, gains_from_parameters(ws, values))
+
     def residuals(values: dict[str, float]) -> Array:
-        m = _predicted_metrics(ws, plans, gains_from_parameters(ws, values))
+        m = metrics(values)
         return np.array([x for t in targets for x in t.residuals(m)], dtype=np.float64)
 
     objective, values, _, r, message = _solve(names, first, residuals, max_evaluations, progress)
-    m0 = _predicted_metrics(ws, plans, gains_from_parameters(ws, first))
-    m1 = _predicted_metrics(ws, plans, gains_from_parameters(ws, values))
+    m0, m1 = metrics(first), metrics(values)
     r0 = np.array([x for t in targets for x in t.residuals(m0)])
     rows = [
         TargetRow(
@@ -826,7 +856,8 @@ def fit_to_paper(
     ]
     rows += _unfitted_rows(ws)
     if check_vehicle:
-        v0, v1 = _vehicle_metrics(first, ws, plans), _vehicle_metrics(values, ws, plans)
+        flown = _memoised(lambda v: _vehicle_metrics(v, ws, plans))
+        v0, v1 = flown(first), flown(values)
         for t in targets:
             rows.append(
                 TargetRow(

@@ -17,6 +17,16 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*HIKOBOSHI, *args], capture_output=True, text=True, timeout=600)
 
 
+@pytest.fixture(scope="module")
+def ptp_planned(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``hikoboshi plan ptp --out FILE --json`` (no --robot: ETS-VII), run once for the
+    module's tests of the PTP file (read only): the file and stdout."""
+    out = tmp_path_factory.mktemp("ptp") / "ptp.json"
+    result = run("plan", "ptp", "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    return out, result.stdout
+
+
 @pytest.mark.parametrize(
     ("experiment", "kinds"),
     [
@@ -25,10 +35,16 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
         ("gjm", {"gjm", "hold"}),
     ],
 )
-def test_plan_writes_the_documented_file(tmp_path: Path, experiment: str, kinds: set[str]) -> None:
-    out = tmp_path / f"{experiment}.json"
-    result = run("plan", experiment, "--out", str(out), "--json")
-    assert result.returncode == 0, result.stderr
+def test_plan_writes_the_documented_file(
+    tmp_path: Path, experiment: str, kinds: set[str], request: pytest.FixtureRequest
+) -> None:
+    if experiment == "ptp":
+        out, stdout = request.getfixturevalue("ptp_planned")
+    else:
+        out = tmp_path / f"{experiment}.json"
+        result = run("plan", experiment, "--out", str(out), "--json")
+        assert result.returncode == 0, result.stderr
+        stdout = result.stdout
     doc = json.loads(out.read_text())
     assert doc["experiment"] == experiment
     assert len(doc["initial_joints_rad"]) == 6
@@ -40,7 +56,7 @@ def test_plan_writes_the_documented_file(tmp_path: Path, experiment: str, kinds:
     for seg in doc["segments"]:
         assert set(seg) >= {"name", "kind", "t_start_s", "t_end_s"}
         assert 0.0 <= seg["t_start_s"] <= seg["t_end_s"] <= times[-1]
-    assert json.loads(result.stdout)["out"] == str(out)
+    assert json.loads(stdout)["out"] == str(out)
 
 
 def test_plan_help_lists_the_parameters() -> None:
@@ -77,7 +93,9 @@ def test_bad_parameters_exit_with_one_line_and_write_nothing(
 ORIHIME = Path(__file__).resolve().parents[1] / "examples" / "robots" / "orihime" / "orihime.toml"
 
 
-def test_plan_for_another_robot_takes_its_description(tmp_path: Path) -> None:
+def test_plan_for_another_robot_takes_its_description(
+    tmp_path: Path, ptp_planned: tuple[Path, str]
+) -> None:
     out = tmp_path / "reactionless.json"
     result = run("plan", "--robot", str(ORIHIME), "reactionless", "--out", str(out), "--json")
     assert result.returncode == 0, result.stderr
@@ -88,8 +106,7 @@ def test_plan_for_another_robot_takes_its_description(tmp_path: Path) -> None:
     assert doc["parameters"]["distance_m"] == 0.2  # Orihime's [experiments.reactionless]
     assert json.loads(result.stdout)["metrics"]["peak_attitude_deg"] < 0.01
     # without --robot: ETS-VII, as before
-    ets7 = tmp_path / "ptp.json"
-    assert run("plan", "ptp", "--out", str(ets7)).returncode == 0
+    ets7, _ = ptp_planned
     assert json.loads(ets7.read_text())["robot"] == "ets7"
 
 
@@ -135,9 +152,10 @@ def test_a_plan_into_the_base_exits_3_naming_the_bodies_and_is_still_written(
     assert report["rows"] == doc["flight_rules"]["rows"]
 
 
-def test_plan_check_passes_a_good_plan_and_refuses_another_robots(tmp_path: Path) -> None:
-    out = tmp_path / "ptp.json"
-    assert run("plan", "ptp", "--out", str(out)).returncode == 0
+def test_plan_check_passes_a_good_plan_and_refuses_another_robots(
+    ptp_planned: tuple[Path, str],
+) -> None:
+    out, _ = ptp_planned
     checked = run("plan", "check", str(out))
     assert checked.returncode == 0, checked.stderr
     assert "clearance" in checked.stdout and "FAIL" not in checked.stdout

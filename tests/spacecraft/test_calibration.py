@@ -3,6 +3,7 @@ pass flown with known gains, the written [acs] file, the paper fit's report and 
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -17,6 +18,7 @@ from planner.description import load_acs_config
 from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
+from planner.plan import Plan
 from spacecraft.calibration import (
     fit_to_paper,
     fit_to_recording,
@@ -37,10 +39,16 @@ TRUTH = {"bandwidth_radps": 0.04, "damping_ratio": 0.9}
 RELATIVE_TOLERANCE = {"bandwidth_radps": 0.03, "damping_ratio": 0.05}
 
 
+@functools.cache
+def ptp_plan() -> Plan:
+    """A PTP A -> B with 60 s of settling (planned once, flown with each law; read only)."""
+    return plan_ptp(DynamicsWorkspace(default_model()), PtpParams(settle_s=60.0))
+
+
 def ptp_flown_with(law: dict[str, float], name: str) -> PassRecording:
     """A PTP A -> B with 60 s of settling, flown through the vehicle (seed 3) with ``law``."""
     workspace = DynamicsWorkspace(default_model())
-    plan = plan_ptp(workspace, PtpParams(settle_s=60.0))
+    plan = ptp_plan()
     config = VehicleConfig(
         acs_gains=gains_from_parameters(workspace, law),
         initial_joints_rad=tuple(float(v) for v in plan.initial_joints_rad),
@@ -145,42 +153,6 @@ def test_paper_fit_reports_every_target(workspace: DynamicsWorkspace) -> None:
     json.dumps(result.to_dict())
 
 
-@pytest.mark.slow
-def test_cli_calibrates_to_a_recorded_pass(
-    flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
-) -> None:
-    mcap = tmp_path / "pass.mcap"
-    write_mcap(flown, mcap)
-    out, report = tmp_path / "acs.toml", tmp_path / "report.json"
-    result = CliRunner().invoke(
-        app,
-        [
-            "calibrate",
-            "--mcap",
-            str(mcap),
-            "--max-evaluations",
-            "4",
-            "--out",
-            str(out),
-            "--report",
-            str(report),
-            "--json",
-        ],
-    )
-    assert result.exit_code == 0, result.output
-    doc = json.loads(report.read_text())
-    # --json: the report's fields and the files written, on stdout (progress is on stderr)
-    printed = json.loads(result.stdout)
-    assert printed.pop("wrote") == [str(out), str(report)]
-    assert printed == doc
-    assert doc["kind"] == "recording" and doc["evaluations"] <= 4
-    loaded = load_acs_config(workspace, out)
-    fitted = gains_from_parameters(workspace, doc["parameters"])
-    np.testing.assert_array_equal(loaded.kp_nm_per_rad, fitted.kp_nm_per_rad)
-    assert "[acs]" in out.read_text() and "bandwidth_radps" in out.read_text()
-    assert "rms_residual_y_deg" in [row["id"] for row in doc["targets"]]
-
-
 def test_cli_refuses_unknown_parameters(tmp_path: Path) -> None:
     result = CliRunner().invoke(
         app, ["calibrate", "--parameters", "kp", "--out", str(tmp_path / "a.toml")]
@@ -251,8 +223,10 @@ def test_cli_calibrates_to_a_stored_pass(
     assert imported.exit_code == 0, imported.output
     pass_id = re.findall(r"[0-9a-f-]{36}", imported.output)[0]
     out = tmp_path / "acs.toml"
+    # the law alone: the servo fit and noise estimate of a recorded pass are
+    # test_cli_calibrates_to_a_recorded_pass's
     args = ["calibrate", "--pass", pass_id, "--max-evaluations", "2", "--out", str(out)]
-    result = runner.invoke(app, args)
+    result = runner.invoke(app, [*args, "--no-servo"])
     assert result.exit_code == 0, result.output
     assert out.read_text().startswith("[acs]\n")
     missing = runner.invoke(app, [*args[:2], "00000000-0000-4000-8000-000000000000", *args[3:]])
@@ -331,12 +305,13 @@ def test_sensor_noise_is_estimated_from_the_holds(servo_pass: PassRecording) -> 
 
 
 @pytest.mark.slow
-def test_cli_writes_servos_and_noise_a_vehicle_reads(
+def test_cli_calibrates_to_a_recorded_pass(
     flown: PassRecording, workspace: DynamicsWorkspace, tmp_path: Path
 ) -> None:
-    """The recorded pass of the law's tests (ETS-VII's servos, default noise): --vehicle-out
-    holds [servo] and [sensor_noise] tables that load as a robot description's, and the
-    spacecraft's --vehicle-config flies them; the [acs] file is the law's as before."""
+    """The recorded pass of the law's tests (ETS-VII's servos, default noise), one run: the
+    [acs] file is the fitted law's, --json prints the report; --vehicle-out holds [servo] and
+    [sensor_noise] tables that load as a robot description's, and the spacecraft's
+    --vehicle-config flies them."""
     from hikoboshi.cli import _with_vehicle_tables
     from planner.description import load_vehicle_tables
     from planner.simulation import ETS7_SERVO_LAG_S
@@ -344,11 +319,24 @@ def test_cli_writes_servos_and_noise_a_vehicle_reads(
     mcap = tmp_path / "pass.mcap"
     write_mcap(flown, mcap)
     out, report, vehicle = tmp_path / "acs.toml", tmp_path / "r.json", tmp_path / "vehicle.toml"
-    args = ["calibrate", "--mcap", str(mcap), "--max-evaluations", "2", "--out", str(out)]
-    args += ["--report", str(report), "--vehicle-out", str(vehicle)]
+    args = ["calibrate", "--mcap", str(mcap), "--max-evaluations", "4", "--out", str(out)]
+    args += ["--report", str(report), "--vehicle-out", str(vehicle), "--json"]
     result = CliRunner().invoke(app, [*args, "--servo-max-evaluations", "3"])
     assert result.exit_code == 0, result.output
-    load_acs_config(workspace, out)  # the law's file alone, as before
+    doc = json.loads(report.read_text())
+    # --json: the report's fields and the files written, on stdout (progress is on stderr)
+    printed = json.loads(result.stdout)
+    assert printed.pop("wrote") == [str(out), str(report), str(vehicle)]
+    assert printed == doc
+    assert doc["kind"] == "recording" and doc["evaluations"] <= 4
+    # the [acs] file is the fitted law's
+    loaded = load_acs_config(workspace, out)
+    fitted = gains_from_parameters(workspace, doc["parameters"])
+    np.testing.assert_array_equal(loaded.kp_nm_per_rad, fitted.kp_nm_per_rad)
+    assert "[acs]" in out.read_text() and "bandwidth_radps" in out.read_text()
+    ids = {row["id"] for row in doc["targets"]}
+    assert "rms_residual_y_deg" in ids
+    # the servos and the noise
     tables = load_vehicle_tables(vehicle, 6)
     assert tables.servo is not None and tables.sensor_noise is not None
     lags = np.asarray(tables.servo.lag_s)
@@ -356,8 +344,6 @@ def test_cli_writes_servos_and_noise_a_vehicle_reads(
     # at 0 and keeps its start value.
     np.testing.assert_allclose(lags, ETS7_SERVO_LAG_S, rtol=0.02)
     assert tables.sensor_noise.attitude_rad == pytest.approx(math.radians(0.005), rel=0.1)
-    doc = json.loads(report.read_text())
-    ids = {row["id"] for row in doc["targets"]}
     assert {"servo_lag_j4_s", "servo_bandwidth_j4_radps", "sensor_noise_joint"} <= ids
     assert doc["servo"]["joints"][4]["note"].startswith("commanded at under")
     assert doc["sensor_noise"]["samples"]["joint"] > 100

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
 from planner.model import default_model
+from planner.plan import Plan
 from planner.simulation import SimConfig
 from spacecraft._calibration import coordination_metrics, fly_plan, plan_messages
 from spacecraft.vehicle import SensorNoise, Vehicle, VehicleConfig, VehicleError
@@ -716,6 +717,15 @@ def ws() -> DynamicsWorkspace:
     return DynamicsWorkspace(default_model())
 
 
+@pytest.fixture(scope="module")
+def calibration(ws: DynamicsWorkspace) -> dict[str, Plan]:
+    """The plans calibration flies (spacecraft._calibration.calibration_plans), planned once
+    for the module's flights of them (read only)."""
+    from spacecraft._calibration import calibration_plans
+
+    return calibration_plans(ws)
+
+
 def test_plans_become_uplink_messages_in_tag_order(ws: DynamicsWorkspace) -> None:
     from planner.experiments import PtpParams, plan_ptp
 
@@ -731,12 +741,12 @@ def test_plans_become_uplink_messages_in_tag_order(ws: DynamicsWorkspace) -> Non
 
 @pytest.mark.slow
 def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
-    ws: DynamicsWorkspace, config: VehicleConfig
+    ws: DynamicsWorkspace, config: VehicleConfig, calibration: dict[str, Plan]
 ) -> None:
     from planner.gjm import plan_gjm
-    from spacecraft._calibration import calibration_plans, ptp_settling_s
+    from spacecraft._calibration import ptp_settling_s
 
-    ptp = calibration_plans(ws)["ptp"]  # a 360 s wait: the final value is the one held
+    ptp = calibration["ptp"]  # a 360 s wait: the final value is the one held
     flight = fly_plan(ptp, config)
     assert flight.rejected == 0
     # flight: about 100 s to settle (70 to 130 s, the report's criterion: within 0.05 deg of
@@ -757,14 +767,12 @@ def test_ptp_settles_in_about_100_s_and_gjm_pitches_the_base_as_in_flight(
 
 @pytest.mark.slow
 def test_the_attitude_modes_differ_on_the_coordination_motion_as_in_flight(
-    ws: DynamicsWorkspace, config: VehicleConfig
+    config: VehicleConfig, calibration: dict[str, Plan]
 ) -> None:
     """Experiment 3 (paper 3.5, Fig. 9) flown through the vehicle, all three variants, as the
     demo pass schedules them (one back-and-forth motion, 120 s settle) and measured as the
     report does (spacecraft._calibration.coordination_metrics)."""
-    from spacecraft._calibration import calibration_plans
-
-    plan = calibration_plans(ws)["coordination"]
+    plan = calibration["coordination"]
     flight = fly_plan(plan, config)
     assert flight.rejected == 0
     a, b, c = (coordination_metrics(flight, plan, label) for label in ("(a)", "(b)", "(c)"))

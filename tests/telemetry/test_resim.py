@@ -18,14 +18,13 @@ from telemetry.resim import (
     find_free_drift_segments,
     resimulate_free_drift,
 )
-from tests.telemetry.test_identification import fly
 
 DEG = np.pi / 180.0
 
 
 @pytest.fixture(scope="module")
-def noise_free(model: RobotModel) -> GravityGradientResim:
-    return resimulate_free_drift(fly(model, 0.0), model)
+def noise_free(noise_free_free_drift: PassRecording, model: RobotModel) -> GravityGradientResim:
+    return resimulate_free_drift(noise_free_free_drift, model)
 
 
 @pytest.fixture(scope="module")
