@@ -4,6 +4,10 @@ SQLite: a file in ``tmp_path``. PostgreSQL: a new schema per test on the server 
 ``DATABASE_URL`` (when it names PostgreSQL) or of ``postgresql://postgres@127.0.0.1:5432/test``
 (trust auth), selected with ``search_path`` and dropped afterwards. With no server
 answering, the PostgreSQL variants are skipped with the reason.
+
+``module_database_url``: one fresh database per module and backend, for modules whose tests
+only read what they share (a file in a module's temporary directory; a schema dropped after
+the module's last test).
 """
 
 from __future__ import annotations
@@ -47,9 +51,7 @@ def postgres_server() -> URL:
     return url
 
 
-@pytest.fixture()
-def postgres_schema_url(postgres_server: URL) -> Iterator[str]:
-    """A URL whose connections see only a fresh, empty schema (dropped after the test)."""
+def _schema_url(postgres_server: URL) -> Iterator[str]:
     schema = f"test_{uuid.uuid4().hex[:16]}"
     conninfo = libpq_conninfo(postgres_server)
     with psycopg.connect(conninfo, autocommit=True) as conn:
@@ -60,6 +62,18 @@ def postgres_schema_url(postgres_server: URL) -> Iterator[str]:
     finally:
         with psycopg.connect(conninfo, autocommit=True) as conn:
             conn.execute(f"DROP SCHEMA {schema} CASCADE")
+
+
+@pytest.fixture()
+def postgres_schema_url(postgres_server: URL) -> Iterator[str]:
+    """A URL whose connections see only a fresh, empty schema (dropped after the test)."""
+    yield from _schema_url(postgres_server)
+
+
+@pytest.fixture(scope="module")
+def module_postgres_schema_url(postgres_server: URL) -> Iterator[str]:
+    """``postgres_schema_url`` for a whole module (dropped after its last test)."""
+    yield from _schema_url(postgres_server)
 
 
 @pytest.fixture(params=BACKENDS)
@@ -95,4 +109,15 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
     if request.param == "sqlite":
         return sqlite_url(tmp_path)
     url: str = request.getfixturevalue("postgres_schema_url")
+    return url
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def module_database_url(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> str:
+    """``database_url`` shared by a module's tests, on each backend."""
+    if request.param == "sqlite":
+        return sqlite_url(tmp_path_factory.mktemp("module_db"))
+    url: str = request.getfixturevalue("module_postgres_schema_url")
     return url

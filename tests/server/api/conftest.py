@@ -1,5 +1,6 @@
 """An application per test on a fresh database, SQLite and PostgreSQL (see
-``tests/server/conftest.py``), with a viewer and an operator token; one real plan."""
+``tests/server/conftest.py``), with a viewer and an operator token; one real plan.
+``module_client``: one application per module and backend, for tests that share what they read."""
 
 from __future__ import annotations
 
@@ -35,6 +36,16 @@ CHEAP_PTP: dict[str, Any] = {"experiment": "ptp", "parameters": {"settle_s": 0.2
 @pytest.fixture()
 def client(database_url: str, tmp_path: Path) -> Iterator[TestClient]:
     settings = Settings(data_dir=tmp_path, database_url=database_url, tokens=TOKENS)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def module_client(
+    module_database_url: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[TestClient]:
+    data_dir = tmp_path_factory.mktemp("module_app")
+    settings = Settings(data_dir=data_dir, database_url=module_database_url, tokens=TOKENS)
     with TestClient(create_app(settings)) as c:
         yield c
 

@@ -51,6 +51,13 @@ def _nothing_stored(client: TestClient) -> None:
         assert repo.list_events(session=session).count == 0
 
 
+@pytest.fixture(scope="module")
+def shared_client(module_client: TestClient) -> TestClient:
+    """One application per module and backend, for the refusals that pass the token check
+    or come before it: none stores a row or an event, and ``_nothing_stored`` says so."""
+    return module_client
+
+
 # --- the ASGI application called directly: what it reads of a body -----------------------
 
 
@@ -112,16 +119,16 @@ def test_an_anonymous_30_mb_body_is_refused_before_a_byte_is_read(client: TestCl
     assert call.headers["connection"] == "close"  # the rest is never read
 
 
-def test_a_declared_body_over_the_limit_is_refused_unread(client: TestClient) -> None:
+def test_a_declared_body_over_the_limit_is_refused_unread(shared_client: TestClient) -> None:
     headers = {**OPERATOR, "content-type": "application/json", "content-length": str(2 * MIB)}
-    call = Call([b"{}"]).run(client.app, "POST", "/api/passes", headers)
+    call = Call([b"{}"]).run(shared_client.app, "POST", "/api/passes", headers)
     assert (call.status, call.code, call.read) == (413, "request_too_large", 0)
 
 
-def test_a_streamed_body_is_cut_off_past_the_limit(client: TestClient) -> None:
+def test_a_streamed_body_is_cut_off_past_the_limit(shared_client: TestClient) -> None:
     chunks = [b" " * 256 * 1024] * 16  # 4 MiB, no content-length
     headers = {**OPERATOR, "content-type": "application/json", "transfer-encoding": "chunked"}
-    call = Call(chunks).run(client.app, "POST", "/api/passes", headers)
+    call = Call(chunks).run(shared_client.app, "POST", "/api/passes", headers)
     assert (call.status, call.code) == (413, "request_too_large")
     assert MIB < call.read <= MIB + 256 * 1024
 
@@ -173,16 +180,20 @@ def test_an_over_limit_json_body_with_a_token_is_413(client: TestClient) -> None
         "esc-nested",
     ],
 )
-def test_json_bodies_are_checked_before_the_route(client: TestClient, body: str, code: str) -> None:
-    response = client.post("/api/passes", content=body.encode(), headers={**OPERATOR, **JSON})
+def test_json_bodies_are_checked_before_the_route(
+    shared_client: TestClient, body: str, code: str
+) -> None:
+    response = shared_client.post(
+        "/api/passes", content=body.encode(), headers={**OPERATOR, **JSON}
+    )
     assert (response.status_code, _error(response)) == (400, code), response.text
     assert response.json()["error"]["message"]
-    _nothing_stored(client)
+    _nothing_stored(shared_client)
 
 
-def test_a_body_without_a_content_type_is_checked_as_json(client: TestClient) -> None:
+def test_a_body_without_a_content_type_is_checked_as_json(shared_client: TestClient) -> None:
     # FastAPI reads a body without a content type as JSON: so does the edge.
-    response = client.post("/api/passes", content=b'{"name": "\\u0000"}', headers=OPERATOR)
+    response = shared_client.post("/api/passes", content=b'{"name": "\\u0000"}', headers=OPERATOR)
     assert (response.status_code, _error(response)) == (400, "invalid_text")
 
 
@@ -197,9 +208,9 @@ def test_check_json_limits() -> None:
     assert "at .a[1].b" in refused[1]
 
 
-def test_a_deep_but_allowed_body_reaches_the_route(client: TestClient) -> None:
+def test_a_deep_but_allowed_body_reaches_the_route(shared_client: TestClient) -> None:
     body = {"plan_id": "p", "name": [[[[1]]]]}
-    response = client.post("/api/passes", json=body, headers=OPERATOR)
+    response = shared_client.post("/api/passes", json=body, headers=OPERATOR)
     assert (response.status_code, _error(response)) == (422, "invalid_request")
 
 
@@ -248,15 +259,15 @@ def test_nul_in_a_confirmation_is_refused_and_nothing_stored(
     ],
 )
 def test_control_characters_in_paths_and_queries_are_refused(
-    client: TestClient, path: str, headers: dict[str, str]
+    shared_client: TestClient, path: str, headers: dict[str, str]
 ) -> None:
-    response = client.get(path, headers=headers)
+    response = shared_client.get(path, headers=headers)
     assert (response.status_code, _error(response)) == (400, "invalid_text")
     assert response.headers["x-content-type-options"] == "nosniff"
 
 
-def test_ordinary_queries_still_pass(client: TestClient) -> None:
-    response = client.get("/api/plans?experiment=ptp%20x&limit=5", headers=VIEWER)
+def test_ordinary_queries_still_pass(shared_client: TestClient) -> None:
+    response = shared_client.get("/api/plans?experiment=ptp%20x&limit=5", headers=VIEWER)
     assert response.status_code == 200, response.text
 
 

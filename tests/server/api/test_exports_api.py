@@ -1,6 +1,8 @@
 """``/api/passes/{id}/telemetry.csv`` and ``.parquet`` read back by other readers (the
 ``csv`` module, arro3's Parquet reader) against the REST JSON of the same frames; the
-command history and the audit log searched by kind, stage, actor and time range."""
+command history and the audit log searched by kind, stage, actor and time range. The tests
+only read (or add a pass of their own): one application and one stored pass per module and
+backend."""
 
 from __future__ import annotations
 
@@ -26,11 +28,22 @@ N_FRAMES = 23
 RECEIVED_NS = 1_790_000_000_000_000_000
 
 
+@pytest.fixture(scope="module")
+def client(module_client: TestClient) -> TestClient:
+    return module_client
+
+
 @pytest.fixture()
-def pass_id(client: TestClient, ptp_plan: Plan, monkeypatch: pytest.MonkeyPatch) -> str:
-    """A pass with N_FRAMES frames, 9 commands and events of three kinds by two actors;
-    exports read it 5 frames a page (several pages, the last one short)."""
+def pass_id(stored_pass_id: str, monkeypatch: pytest.MonkeyPatch) -> str:
+    """``stored_pass_id``, which exports read 5 frames a page (several pages, the last one
+    short)."""
     monkeypatch.setattr(exports, "PAGE_ROWS", 5)
+    return stored_pass_id
+
+
+@pytest.fixture(scope="module")
+def stored_pass_id(client: TestClient, ptp_plan: Plan) -> str:
+    """A pass with N_FRAMES frames, 9 commands and events of three kinds by two actors."""
     frames = make_frames(range(N_FRAMES), seed=3)
     with sessions(client)() as session:
         plan_id = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id

@@ -114,7 +114,9 @@ def test_a_plan_into_the_base_is_stored_invalid_and_its_pass_never_starts(
     assert len(_events(client, "pass_start_refused")) == 2
 
 
-def test_a_plan_that_keeps_the_rules_passes_the_gate(client: TestClient) -> None:
+def test_a_plan_that_keeps_the_rules_passes_the_gate_and_fits_its_pass_s_window(
+    client: TestClient,
+) -> None:
     validation = client.post("/api/plans/validate", json=CHEAP_PTP, headers=OPERATOR).json()
     assert validation["valid"] is True and validation["errors"] == []
     assert validation["flight_rules"]["passed"] is True
@@ -129,9 +131,7 @@ def test_a_plan_that_keeps_the_rules_passes_the_gate(client: TestClient) -> None
     assert response.status_code == 409 and response.json()["error"]["code"] == "link_down"
     assert _events(client, "pass_start_refused") == []
 
-
-def test_the_fits_pass_row_is_taken_with_the_passs_own_window(client: TestClient) -> None:
-    plan = client.post("/api/plans", json=CHEAP_PTP, headers=OPERATOR).json()
+    # The fits_pass row is taken with the pass's own window.
     rows = {r["rule"]: r for r in plan["flight_rules"]["rows"]}
     assert rows["fits_pass"]["verdict"] == "pass"  # the description's pass_window_s
     # A window that holds the plan and the scheduler's start lead, with little to spare:
@@ -143,6 +143,7 @@ def test_the_fits_pass_row_is_taken_with_the_passs_own_window(client: TestClient
     window = plan["duration_s"] + lead_s + 1.0
     pass_id = _schedule(client, plan["id"], "tight", window_s=window)
     assert _start(client, pass_id, "tight").json()["error"]["code"] == "link_down"
+    assert _events(client, "pass_start_refused") == []
 
 
 def test_a_plan_stored_without_a_table_is_refused_until_checked_then_starts(
@@ -179,15 +180,22 @@ def test_a_plan_stored_without_a_table_is_refused_until_checked_then_starts(
     assert client.post("/api/plans/no-such-plan/check", headers=OPERATOR).status_code == 404
 
 
-def test_a_plan_without_a_table_that_fails_its_check_is_refused_at_start(
-    client: TestClient,
-) -> None:
-    # the issue's plan, stored without its table (as an older server or an import would)
+@pytest.fixture(scope="module")
+def into_the_base_plan() -> Plan:
+    """The plan into the base, planned once, without its rules table (as an older server
+    or an import would store it)."""
     from planner.catalogue import parameters_from_values, plan_experiment
     from planner.experiments import PtpParams
 
     params = parameters_from_values(PtpParams, INTO_THE_BASE["parameters"])
-    bad = plan_experiment("ptp", params)
+    return plan_experiment("ptp", params)
+
+
+def test_a_plan_without_a_table_that_fails_its_check_is_refused_at_start(
+    client: TestClient, into_the_base_plan: Plan
+) -> None:
+    bad = into_the_base_plan
+    assert bad.flight_rules is None
     with sessions(client)() as session:
         plan_id = str(repo.add_plan(session=session, plan=bad, created_at_ns=0).id)
         session.commit()

@@ -216,9 +216,12 @@ def test_schemathesis_generates_from_the_patterns(tmp_path: Path) -> None:
     assert any(not s.isascii() for s in drawn), drawn[:10]
 
 
-@pytest.fixture()
-def client(tmp_path: Path) -> Iterator[TestClient]:
-    with TestClient(create_app(Settings(data_dir=tmp_path, tokens=TOKENS))) as c:
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    """One application for the module: its tests only ask (a few failed authentications,
+    far under the edge's limit per address)."""
+    settings = Settings(data_dir=tmp_path_factory.mktemp("app"), tokens=TOKENS)
+    with TestClient(create_app(settings)) as c:
         yield c
 
 

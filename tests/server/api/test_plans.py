@@ -20,6 +20,13 @@ def _nothing_stored(client: TestClient) -> None:
     assert client.get("/api/events", headers=VIEWER).json()["count"] == 0
 
 
+@pytest.fixture(scope="module")
+def shared_client(module_client: TestClient) -> TestClient:
+    """One application per module and backend, for the tests that store nothing (and say
+    so with ``_nothing_stored``)."""
+    return module_client
+
+
 def test_an_operator_plans_and_stores_a_real_experiment(client: TestClient) -> None:
     before = datetime.now(UTC)
     response = client.post("/api/plans", json=CHEAP_PTP, headers=OPERATOR)
@@ -69,40 +76,44 @@ def test_an_operator_plans_and_stores_a_real_experiment(client: TestClient) -> N
     ],
 )
 def test_a_refused_plan_is_422_with_the_planners_message_and_stores_nothing(
-    client: TestClient, request_body: dict[str, object], needle: str
+    shared_client: TestClient, request_body: dict[str, object], needle: str
 ) -> None:
-    response = client.post("/api/plans", json=request_body, headers=OPERATOR)
+    response = shared_client.post("/api/plans", json=request_body, headers=OPERATOR)
     assert response.status_code == 422, response.text
     error = response.json()["error"]
     assert needle in error["message"]
     assert error["code"] in ("InvalidInput", "JointLimitExceeded")
-    _nothing_stored(client)
+    _nothing_stored(shared_client)
 
 
-def test_a_malformed_body_is_422_in_the_error_shape(client: TestClient) -> None:
-    response = client.post("/api/plans", json={"parameters": {}}, headers=OPERATOR)
+def test_a_malformed_body_is_422_in_the_error_shape(shared_client: TestClient) -> None:
+    response = shared_client.post("/api/plans", json={"parameters": {}}, headers=OPERATOR)
     assert response.status_code == 422
     assert response.json()["error"]["code"] == "invalid_request"
     assert "experiment" in response.json()["error"]["message"]
-    _nothing_stored(client)
+    _nothing_stored(shared_client)
 
 
-def test_tokens_and_roles(client: TestClient) -> None:
-    assert client.get("/api/plans").status_code == 401
-    assert client.post("/api/plans", json=CHEAP_PTP).json()["error"]["code"] == "unauthorized"
-    refused = client.post("/api/plans", json=CHEAP_PTP, headers=VIEWER)
+def test_tokens_and_roles(shared_client: TestClient) -> None:
+    assert shared_client.get("/api/plans").status_code == 401
+    assert (
+        shared_client.post("/api/plans", json=CHEAP_PTP).json()["error"]["code"] == "unauthorized"
+    )
+    refused = shared_client.post("/api/plans", json=CHEAP_PTP, headers=VIEWER)
     assert refused.status_code == 403
     assert refused.json()["error"]["code"] == "forbidden"
-    assert client.post("/api/plans/validate", json=CHEAP_PTP, headers=VIEWER).status_code == 403
-    _nothing_stored(client)
+    assert (
+        shared_client.post("/api/plans/validate", json=CHEAP_PTP, headers=VIEWER).status_code == 403
+    )
+    _nothing_stored(shared_client)
 
 
-def test_validate_plans_without_storing(client: TestClient) -> None:
-    ok = client.post("/api/plans/validate", json=CHEAP_PTP, headers=OPERATOR).json()
+def test_validate_plans_without_storing(shared_client: TestClient) -> None:
+    ok = shared_client.post("/api/plans/validate", json=CHEAP_PTP, headers=OPERATOR).json()
     assert ok["valid"] is True and ok["errors"] == []
     assert ok["summary"]["experiment"] == "ptp"
     assert ok["summary"]["segments"][-1]["name"] == "settle"
-    bad = client.post(
+    bad = shared_client.post(
         "/api/plans/validate",
         json={"experiment": "ptp", "parameters": {"settle_s": 0.3}},
         headers=OPERATOR,
@@ -110,13 +121,13 @@ def test_validate_plans_without_storing(client: TestClient) -> None:
     assert bad["valid"] is False and bad["summary"] is None
     assert bad["errors"][0]["code"] == "InvalidInput"
     assert "0.25 s" in bad["errors"][0]["message"]
-    _nothing_stored(client)
+    _nothing_stored(shared_client)
 
 
 @pytest.mark.parametrize("plan_id", [NO_PLAN, "not-a-uuid"])
-def test_an_unknown_plan_is_404(client: TestClient, plan_id: str) -> None:
+def test_an_unknown_plan_is_404(shared_client: TestClient, plan_id: str) -> None:
     for path in (f"/api/plans/{plan_id}", f"/api/plans/{plan_id}/document"):
-        response = client.get(path, headers=VIEWER)
+        response = shared_client.get(path, headers=VIEWER)
         assert response.status_code == 404
         assert response.json()["error"]["code"] == "not_found"
 

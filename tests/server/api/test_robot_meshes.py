@@ -20,15 +20,21 @@ from tests.planner.test_vendor_meshes import meshed_robot
 from tests.server.api.conftest import TOKENS, VIEWER
 
 
-@pytest.fixture()
-def ur5_toml(tmp_path: Path) -> Path:
-    return meshed_robot(tmp_path, "ur5")
+@pytest.fixture(scope="module")
+def ur5_toml(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return meshed_robot(tmp_path_factory.mktemp("ur5"), "ur5")
 
 
-@pytest.fixture()
-def ur5_client(database_url: str, tmp_path: Path, ur5_toml: Path) -> Iterator[TestClient]:
+@pytest.fixture(scope="module")
+def ur5_client(
+    module_database_url: str, tmp_path_factory: pytest.TempPathFactory, ur5_toml: Path
+) -> Iterator[TestClient]:
+    """One application per module and backend: the tests read (one adds a pass of its own)."""
     settings = Settings(
-        data_dir=tmp_path, database_url=database_url, tokens=TOKENS, robot_files=(ur5_toml,)
+        data_dir=tmp_path_factory.mktemp("app"),
+        database_url=module_database_url,
+        tokens=TOKENS,
+        robot_files=(ur5_toml,),
     )
     with TestClient(create_app(settings)) as c:
         yield c

@@ -1,5 +1,6 @@
 """``/api/passes/{id}/telemetry``: raw rows and decimation against frames ingested through
-the storage, compared with NumPy."""
+the storage, compared with NumPy. The tests only read: one application and one stored pass
+per module and backend."""
 
 from __future__ import annotations
 
@@ -18,7 +19,12 @@ N_FRAMES = 95
 RECEIVED_NS = 1_790_000_000_000_000_000
 
 
-@pytest.fixture()
+@pytest.fixture(scope="module")
+def client(module_client: TestClient) -> TestClient:
+    return module_client
+
+
+@pytest.fixture(scope="module")
 def pass_with_frames(client: TestClient, ptp_plan: Plan) -> tuple[str, list[TelemetryFrame]]:
     frames = make_frames(range(N_FRAMES), seed=7)
     with sessions(client)() as session:

@@ -1,7 +1,8 @@
 """``GET /api/windows`` and ``POST /api/passes`` naming a window (docs/missions.md): the
 windows the library computes, by mission name (shipped or in the server's folder), the
 refusals with their reasons, and a pass stored with its window, refused 409 when its plan
-does not fit the window's net time. On SQLite and PostgreSQL."""
+does not fit the window's net time. On SQLite and PostgreSQL. One application per module and
+backend: its tests store plans and no pass, but the one that stores a pass, on its own."""
 
 from __future__ import annotations
 
@@ -24,11 +25,10 @@ ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 START = datetime(1999, 9, 30, tzinfo=UTC)
 
 
-@pytest.fixture()
-def missions_dir(tmp_path: Path) -> Path:
+@pytest.fixture(scope="module")
+def missions_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The server's own folder: ETS-VII's mission with margins that leave a few minutes."""
-    folder = tmp_path / "missions"
-    folder.mkdir()
+    folder = tmp_path_factory.mktemp("missions")
     text = ETS7.read_text()
     text = text.replace("aos_margin_s = 120.0", "aos_margin_s = 3400.0")
     (folder / "tight.toml").write_text(text)
@@ -36,13 +36,26 @@ def missions_dir(tmp_path: Path) -> Path:
     return folder
 
 
-@pytest.fixture()
-def client(database_url: str, tmp_path: Path, missions_dir: Path) -> Iterator[TestClient]:
+def _client(database_url: str, data_dir: Path, missions_dir: Path) -> Iterator[TestClient]:
     settings = Settings(
-        data_dir=tmp_path, database_url=database_url, tokens=TOKENS, missions_dir=missions_dir
+        data_dir=data_dir, database_url=database_url, tokens=TOKENS, missions_dir=missions_dir
     )
     with TestClient(create_app(settings)) as c:
         yield c
+
+
+@pytest.fixture(scope="module")
+def client(
+    module_database_url: str, tmp_path_factory: pytest.TempPathFactory, missions_dir: Path
+) -> Iterator[TestClient]:
+    """Shared by the module's tests, which store no pass."""
+    yield from _client(module_database_url, tmp_path_factory.mktemp("app"), missions_dir)
+
+
+@pytest.fixture()
+def own_client(database_url: str, tmp_path: Path, missions_dir: Path) -> Iterator[TestClient]:
+    """A fresh application, for the test that stores a pass."""
+    yield from _client(database_url, tmp_path, missions_dir)
 
 
 def _windows(client: TestClient, **query: Any) -> Any:
@@ -123,8 +136,9 @@ def _window_request(plan_id: str, mission: str, relay: str, aos: datetime) -> di
 
 
 def test_a_pass_named_by_its_window_runs_in_its_net_time_and_keeps_it(
-    client: TestClient, ptp_plan: Plan
+    own_client: TestClient, ptp_plan: Plan
 ) -> None:
+    client = own_client
     first = _windows(client).json()["data"][0]
     plan_id = _plan_id(client, ptp_plan)
     # the acquisition time as an operator would type it, to the minute

@@ -18,9 +18,9 @@ from server.services.analyses import AnalysisRun, compute_analyses
 from spacecraft.offline import fly_offline
 from telemetry.mcap import write_mcap
 from telemetry.recording import CommandRow, EventRow, PassRecording
-from tests.server.api.conftest import client, ptp_plan
+from tests.server.api.conftest import client, module_client, ptp_plan
 
-__all__ = ["client", "ptp_plan"]  # fixtures, shared with the API tests
+__all__ = ["client", "module_client", "ptp_plan"]  # fixtures, shared with the API tests
 
 #: A name that must be escaped in HTML and made safe in a file name.
 SHORT_NAME = "<b>short</b> & PTP"

@@ -1,11 +1,15 @@
 """``hikoboshi report`` and ``hikoboshi mcap export|import`` against the configured database
-(``DATABASE_URL``: SQLite and PostgreSQL), and ``report`` of an .mcap file."""
+(``DATABASE_URL``: SQLite and PostgreSQL), and ``report`` of an .mcap file. The short
+recording is imported and reported once per backend (``reported``), the tests that read its
+report and its analyses share it."""
 
 from __future__ import annotations
 
 import io
 import json
 import re
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -31,17 +35,60 @@ def run(*args: str) -> str:
     return result.output
 
 
-def test_import_report_and_export_a_stored_pass(
-    env: Path, short_mcap: bytes, short_recording: PassRecording
-) -> None:
-    source = env / "short.mcap"
-    source.write_bytes(short_mcap)
-    out = run("mcap", "import", str(source))
-    match = re.search(r"imported pass ([0-9a-f-]{36}) .*: 571 frames, 12 commands, 2 events", out)
-    assert match, out
-    pass_id = match.group(1)
+@dataclass(frozen=True)
+class Reported:
+    """The short recording imported by the command line and reported: its analyses run."""
 
-    out = run("report", pass_id, "--out", str(env / "report"))
+    env: Path
+    database_url: str
+    import_output: str
+    pass_id: str
+    report_output: str
+
+
+@pytest.fixture(scope="module")
+def reported(
+    module_database_url: str, tmp_path_factory: pytest.TempPathFactory, short_mcap: bytes
+) -> Iterator[Reported]:
+    """Once per module and backend: the analyses are the expensive part of a report."""
+    env = tmp_path_factory.mktemp("reported")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        monkeypatch.setenv("DATABASE_URL", module_database_url)
+        monkeypatch.setenv("HIKOBOSHI_DATA_DIR", str(env / "data"))
+        source = env / "short.mcap"
+        source.write_bytes(short_mcap)
+        out = run("mcap", "import", str(source))
+        match = re.search(r"imported pass ([0-9a-f-]{36}) ", out)
+        assert match, out
+        pass_id = match.group(1)
+        report_output = run("report", pass_id, "--out", str(env / "report"))
+        yield Reported(env, module_database_url, out, pass_id, report_output)
+
+
+@pytest.fixture()
+def reported_env(reported: Reported, monkeypatch: pytest.MonkeyPatch) -> Reported:
+    """The command line pointed at ``reported``'s database."""
+    monkeypatch.setenv("DATABASE_URL", reported.database_url)
+    monkeypatch.setenv("HIKOBOSHI_DATA_DIR", str(reported.env / "data"))
+    return reported
+
+
+@pytest.fixture(scope="module")
+def file_report(tmp_path_factory: pytest.TempPathFactory, short_mcap: bytes) -> Path:
+    """``report`` of the .mcap file: no database, so once for the module."""
+    out = tmp_path_factory.mktemp("file_report")
+    source = out / "short.mcap"
+    source.write_bytes(short_mcap)
+    run("report", str(source), "--out", str(out / "from-file"))
+    return out / "from-file"
+
+
+def test_import_report_and_export_a_stored_pass(
+    reported_env: Reported, short_recording: PassRecording
+) -> None:
+    env, pass_id, out = reported_env.env, reported_env.pass_id, reported_env.report_output
+    imported = rf"imported pass {pass_id} .*: 571 frames, 12 commands, 2 events"
+    assert re.search(imported, reported_env.import_output), reported_env.import_output
     assert "gravity_gradient_resim: failed (InsufficientData: no free-drift segment" in out
     report = json.loads((env / "report" / "report.json").read_text())
     assert report["pass_id"] == pass_id and report["imported"] is True
@@ -58,15 +105,10 @@ def test_import_report_and_export_a_stored_pass(
 
 
 def test_report_of_a_file_matches_the_report_of_the_stored_pass(
-    env: Path, short_mcap: bytes
+    reported: Reported, file_report: Path
 ) -> None:
-    source = env / "short.mcap"
-    source.write_bytes(short_mcap)
-    run("report", str(source), "--out", str(env / "from-file"))
-    pass_id = re.findall(r"[0-9a-f-]{36}", run("mcap", "import", str(source)))[0]
-    run("report", pass_id, "--out", str(env / "from-db"))
-    from_file = json.loads((env / "from-file" / "report.json").read_text())
-    from_db = json.loads((env / "from-db" / "report.json").read_text())
+    from_file = json.loads((file_report / "report.json").read_text())
+    from_db = json.loads((reported.env / "report" / "report.json").read_text())
     assert from_file["pass_id"] is None and from_file["imported"] is False
     assert from_file["tables"] == from_db["tables"] and from_file["tables"]
 
@@ -120,10 +162,9 @@ def test_import_prints_the_id_alone_on_stdout_and_json_on_request(
     assert doc["state"] == "aborted" and doc["name"]  # as the recording says
 
 
-def test_report_and_export_print_json_on_request(env: Path, short_mcap: bytes) -> None:
-    source = env / "short.mcap"
-    source.write_bytes(short_mcap)
-    pass_id = runner.invoke(app, ["mcap", "import", str(source)]).stdout.strip()
+def test_report_and_export_print_json_on_request(reported_env: Reported, tmp_path: Path) -> None:
+    """On the pass ``reported`` analysed: its stored analyses are reported."""
+    env, pass_id = tmp_path, reported_env.pass_id
     result = runner.invoke(app, ["report", pass_id, "--out", str(env / "r"), "--json"])
     assert result.exit_code == 0, result.output
     doc = json.loads(result.stdout)

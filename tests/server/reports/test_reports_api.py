@@ -14,11 +14,13 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
+from planner.plan import Plan
 from server.app import create_app
 from server.services import analyses as analyses_service
 from server.services.analyses import AnalysisRun
 from server.services.clock import ManualClock
 from server.settings import Settings
+from server.storage import repository as repo
 from server.storage.models import AnalysisRecord, EventRecord
 from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
@@ -52,11 +54,30 @@ def numbers(analysis: dict[str, Any]) -> tuple[Any, ...]:
 def test_export_import_round_trip_gives_identical_analyses(
     client: TestClient, short_mcap: bytes
 ) -> None:
+    """The worker-process jobs of an import and of the analyses take the request's time off
+    the server's injected clock (one clock), not the worker's own."""
+    clock = ManualClock(wall_ns=1_700_000_000 * 10**9)
+    client.app.state.clock = clock  # type: ignore[attr-defined]
     first = upload(client, short_mcap)
+    imported_at = clock.time_ns()
     assert first["frames"] == 571 and first["commands"] == 12 and first["events"] == 2
     original = first["imported"]
     assert (original["name"], original["state"]) == (SHORT_NAME, "aborted")
+    clock.jump(7.0)  # the analyses are asked for later, on the same clock
     before = analyse(client, original["id"])
+    with sessions(client)() as session:
+        rows = session.scalars(
+            select(EventRecord).where(EventRecord.pass_id == original["id"])
+        ).all()
+        times = {r.kind: r.time_ns for r in rows if r.kind in ("pass_imported", "analyses_run")}
+        created = {
+            a.created_at_ns
+            for a in session.scalars(
+                select(AnalysisRecord).where(AnalysisRecord.pass_id == original["id"])
+            ).all()
+        }
+    assert times == {"pass_imported": imported_at, "analyses_run": imported_at + 7 * 10**9}
+    assert created == {imported_at + 7 * 10**9}
 
     response = client.get(f"/api/passes/{original['id']}/recording.mcap", headers=VIEWER)
     assert response.status_code == 200
@@ -212,7 +233,7 @@ def test_demo_pass_report(
 
 
 def test_what_viewers_and_unflown_passes_cannot_do(
-    client: TestClient, short_mcap: bytes, ptp_plan: Any
+    client: TestClient, short_mcap: bytes, ptp_plan: Plan
 ) -> None:
     assert client.post("/api/passes/import", content=short_mcap, headers=VIEWER).status_code == 403
     pass_id = upload(client, short_mcap)["imported"]["id"]
@@ -223,13 +244,13 @@ def test_what_viewers_and_unflown_passes_cannot_do(
         assert response.json()["error"]["code"] == "analysis_not_run" or path.endswith(".png")
     assert client.get(f"/api/passes/{pass_id}/analyses", headers=VIEWER).json()["count"] == 0
 
-    plan = client.post(
-        "/api/plans", json={"experiment": "ptp", "parameters": {"settle_s": 0.25}}, headers=OPERATOR
-    ).json()
+    with sessions(client)() as session:  # the plan the API would store, planned once
+        plan_id = str(repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id)
+        session.commit()
     scheduled = client.post(
         "/api/passes",
         json={
-            "plan_id": plan["id"],
+            "plan_id": plan_id,
             "name": "later",
             "aos_time": "2031-01-01T00:00:00Z",
             "los_time": "2031-01-01T01:00:00Z",
@@ -243,8 +264,10 @@ def test_what_viewers_and_unflown_passes_cannot_do(
 
 
 def test_bad_uploads_are_refused_with_the_reason_and_store_nothing(
-    client: TestClient, short_mcap: bytes
+    module_client: TestClient, short_mcap: bytes
 ) -> None:
+    """On the application the module's refusals share: none of them stores anything."""
+    client = module_client
     cases = {
         b"not a recording": "not an MCAP file",
         short_mcap[: len(short_mcap) // 2]: "truncated",
@@ -273,9 +296,9 @@ def test_an_upload_over_the_limit_is_refused(
 
 
 @pytest.mark.parametrize("kind", ["coverage", "pass"])
-def test_unknown_analysis_kinds_are_invalid_requests(client: TestClient, kind: str) -> None:
+def test_unknown_analysis_kinds_are_invalid_requests(module_client: TestClient, kind: str) -> None:
     pass_id = "00000000-0000-4000-8000-000000000000"
-    response = client.get(f"/api/passes/{pass_id}/analyses/{kind}", headers=VIEWER)
+    response = module_client.get(f"/api/passes/{pass_id}/analyses/{kind}", headers=VIEWER)
     assert response.status_code == 422
 
 
@@ -305,22 +328,3 @@ def test_html_marks_what_the_flight_showed_and_we_did_not() -> None:
     assert '<tr class="not-measured"><td>drift</td>' in page
     assert "<tr><td>range</td>" in page
     assert "<tr><td>not reproduced</td></tr>" in page
-
-
-def test_import_and_analyses_are_stamped_by_the_servers_clock(
-    client: TestClient, short_mcap: bytes
-) -> None:
-    """The worker-process jobs of an import and of the analyses take the request's time off
-    the server's injected clock (issue 23: one clock), not the worker's own."""
-    clock = ManualClock(wall_ns=1_700_000_000 * 10**9)
-    client.app.state.clock = clock  # type: ignore[attr-defined]
-    pass_id = upload(client, short_mcap)["imported"]["id"]
-    imported_at = clock.time_ns()
-    clock.jump(7.0)  # the analyses are asked for later, on the same clock
-    analyse(client, pass_id)
-    with sessions(client)() as session:
-        rows = session.scalars(select(EventRecord).where(EventRecord.pass_id == pass_id)).all()
-        times = {r.kind: r.time_ns for r in rows if r.kind in ("pass_imported", "analyses_run")}
-        created = {a.created_at_ns for a in session.scalars(select(AnalysisRecord)).all()}
-    assert times == {"pass_imported": imported_at, "analyses_run": imported_at + 7 * 10**9}
-    assert created == {imported_at + 7 * 10**9}
