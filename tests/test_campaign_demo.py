@@ -1,6 +1,9 @@
 """The campaign demo end to end, short: two ptp passes in two consecutive TDRS-West windows
-of 1999-09-30 (a 44-minute gap flown fast), at 20x with 10 % loss, through the code of
+of 1999-09-30 (a 44-minute gap flown fast), at 10x with 10 % loss, through the code of
 ``hikoboshi demo --campaign`` (ground service, spacecraft process with ``--mission``).
+10x, not the demo's 20x: the uplink's 120 s onboard lead is then 12 s of wall, not 6; at
+20x, beside a busy core and a CPU-heavy test, the starved ground sent commands late and the
+vehicle's refusals aborted the second pass.
 
 Realtime (tests/conftest.py): it flies a vehicle in wall time. The README's command flies
 the whole campaign at the default speed (docs/missions.md "The campaign demo").
@@ -22,7 +25,7 @@ def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_wind
         mission=MISSIONS_DIR / "ets7-1999.toml",
         start_utc=parse_utc("1999-09-30T00:20:00Z"),
         out=tmp_path / "campaign",
-        speed=20.0,
+        speed=10.0,
         loss=0.1,
         port=0,
         seed=5,
