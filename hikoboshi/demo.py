@@ -145,6 +145,13 @@ class _Api:
                 return body_out
         except urllib.error.HTTPError as exc:
             raise DemoError(f"{method} {path}: {exc.code} {exc.read().decode()[:500]}") from None
+        except (TimeoutError, urllib.error.URLError) as exc:
+            # a ground that does not answer (overloaded, or gone): a reason, not a traceback
+            reason = getattr(exc, "reason", None) or exc or "timed out"
+            raise DemoError(
+                f"{method} {path}: no answer from the ground service within {timeout_s:g} s"
+                f" ({reason}); its log is ground.log in the output folder"
+            ) from None
 
 
 def _port(preferred: int) -> int:
@@ -284,7 +291,9 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         request: dict[str, Any] = {"experiment": "pass", "parameters": parameters}
         if robot_name is not None:
             request["robot"] = robot_name
-        plan = api.call("POST", "/api/plans", request)
+        # planning the whole pass is seconds of CPU on a quiet machine and minutes on a
+        # crowded one: it may take the demo's whole timeout
+        plan = api.call("POST", "/api/plans", request, timeout_s=options.timeout_s)
         report("planning the pass (all four experiments)", 1, 1)
         rules = plan.get("flight_rules") or {}
         if not rules.get("passed", False):
