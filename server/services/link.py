@@ -163,6 +163,9 @@ class Connection:
     peer: str | None = None
     user_agent: str | None = None
     connected_ns: int | None = None
+    #: sends that failed on it (the socket went away under the uplink): the first is
+    #: logged, the rest counted, as a closed link fails every queued command's send
+    send_failures: int = 0
 
     def described(self) -> dict[str, Any]:
         """This connection as the takeover event names it."""
@@ -320,6 +323,12 @@ class GroundLink:
         if self._conn is not conn:
             return
         self._conn = None
+        if conn.send_failures > 1:
+            log.warning(
+                "connection %d: %d sends failed after its socket went away",
+                conn.id,
+                conn.send_failures,
+            )
         if self._pinger is not None:
             self._pinger.cancel()
             self._pinger = None
@@ -339,7 +348,14 @@ class GroundLink:
             async with conn.lock:
                 await conn.send_text(text)
         except Exception as exc:  # the socket went away under us
-            log.warning("send to spacecraft failed: %r", exc)
+            conn.send_failures += 1
+            if conn.send_failures == 1:
+                log.warning(
+                    "send to spacecraft failed on connection %d: %r (further failures on it"
+                    " are counted, not logged)",
+                    conn.id,
+                    exc,
+                )
             return False
         return True
 

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 from server.services.clock import ManualClock
 from server.services.link import Connection, GroundLink
@@ -224,3 +227,33 @@ def test_a_diverged_vehicle_s_frames_are_refused_and_counted_by_their_reason(
     assert any("base rate 1e+30 rad/s" in r for r in reasons), reasons
     rows = {r.detail["code"]: r.detail for r in _events(sessions, "link_error_replied")}
     assert rows["unphysical"]["count"] == 2
+
+
+def test_a_closed_socket_s_failed_sends_are_logged_once_and_counted(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """After the ground closes a connection (the threshold above), the uplink's sends
+    fail until the handler detaches it: one warning names the connection and the first
+    failure, and the detach gives the count (a flood's closes used to log a warning per
+    queued command: 898 of a 948-line log)."""
+    sessions = make_sessions(tmp_path)
+    g = ground(sessions, ManualClock())
+
+    async def scenario() -> None:
+        conn = await _connect(g.link, Socket())
+
+        async def gone(text: str) -> None:
+            raise ConnectionResetError("socket closed")
+
+        conn.send_text = gone
+        with caplog.at_level(logging.WARNING, logger="hikoboshi.ground.link"):
+            sent = [await g.link.send(encode(HELLO)) for _ in range(50)]
+            await g.link.detach(conn, "closed by the ground (1008)")
+        assert sent == [False] * 50
+        assert conn.send_failures == 50
+
+    asyncio.run(scenario())
+    lines = [r.getMessage() for r in caplog.records if r.name == "hikoboshi.ground.link"]
+    failed = [m for m in lines if "send to spacecraft failed" in m]
+    assert len(failed) == 1 and "connection " in failed[0], lines
+    assert any("50 sends failed" in m for m in lines), lines
