@@ -152,6 +152,7 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
             commands = repo.list_commands(session=session, pass_id=flown)
             summary = pass_summary(session=session, pass_id=flown)
             cut_commands = repo.list_commands(session=session, pass_id=cut)
+            deleted = repo.list_events(session=session, pass_id=cut, kinds=["schedule_deleted"])
     finally:
         engine.dispose()
 
@@ -197,4 +198,12 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
     # the abort was done; nothing of the cut pass was lost or left open
     assert abort_s < LOCKOUT_S, f"abort answered in {abort_s:.2f} s"
     assert {c.stage for c in cut_commands} <= {"executed", "cancelled"}
+    # and it stopped the pass on board: nothing executed from the delete's tag on, and
+    # everything before it did (a stage set alone would not tell a pass that ran on)
+    [delete] = deleted.items
+    from_ns = int(delete.detail["from_time_ns"])
+    later = [c for c in cut_commands if c.execute_time_ns >= from_ns]
+    earlier = [c for c in cut_commands if c.execute_time_ns < from_ns]
+    assert later and {c.stage for c in later} == {"cancelled"}, len(later)
+    assert earlier and {c.stage for c in earlier} == {"executed"}, len(earlier)
     assert peak < SERVER_RSS_BOUND, f"server peak RSS {peak / 2**20:.0f} MiB"
