@@ -6,7 +6,12 @@ loads, ``robot check``s clean, and its choices hold against the physics recomput
 above what the PTP it writes carries, the servos under the integrator's bound over the
 range); every experiment as written plans and passes the flight rules, as the scaffold's
 report says, and the non-holonomic start it chose is the first of its candidates whose plan
-passes them."""
+passes them.
+
+Each arm is scaffolded once per test run (:func:`scaffold_once`, shared with
+tests/planner/test_vendor_pinocchio.py and across xdist's workers): the UR5 on the default
+cube with its URDF inside the description's folder (named, not copied), the Panda on a
+500 kg cube of 1.2 m with its URDF elsewhere (copied beside the description)."""
 
 from __future__ import annotations
 
@@ -15,13 +20,15 @@ import math
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from hikoboshi import robot_cli
 from hikoboshi.cli import app
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import load_robot, scaffold
@@ -31,8 +38,18 @@ from planner.robot import RobotDescription
 from planner.state import State
 from tests.planner.test_vendor_urdf import vendor_urdf
 
+if TYPE_CHECKING:
+    from tests.conftest import MadeOnce
+
 HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]
 HANDS = {"ur5": "tool0", "panda": "panda_hand_tcp"}
+#: The cube each shared scaffold asks for (kg, m; the UR5's the defaults, not given).
+CUBES = {"ur5": (300.0, 1.0), "panda": (500.0, 1.2)}
+#: The vendor's links lumped with the cube, their URDF <mass> (kg): the UR5's base_link (its
+#: root, world, has none), the Panda's panda_link0.
+LUMPED_KG = {"ur5": 4.0, "panda": 0.629769}
+#: The shared UR5's URDF, inside the description's folder.
+INSIDE = Path("urdf") / "ur5_robot.urdf"
 GUARD_S = 600  # a guard against a hang, not a timing assertion
 
 
@@ -40,18 +57,56 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*HIKOBOSHI, *args], capture_output=True, text=True, timeout=GUARD_S)
 
 
+@dataclass(frozen=True)
+class Scaffolded:
+    """One ``robot init --json`` run: the file it was asked to write and what it said."""
+
+    out: Path
+    urdf: Path  # the --urdf given
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def scaffold_once(made_once: MadeOnce, robot: str) -> Scaffolded:
+    """``hikoboshi robot init`` (a real subprocess) of ``robot`` as :data:`CUBES` and
+    :data:`INSIDE` say, once per test run; readers must not change its folder."""
+
+    def make(folder: Path) -> None:
+        args = ["robot", "init", "--hand", HANDS[robot], "--json"]
+        if robot == "ur5":
+            urdf = folder / "arm" / INSIDE
+            urdf.parent.mkdir(parents=True)
+            shutil.copyfile(vendor_urdf(robot), urdf)
+        else:
+            urdf = vendor_urdf(robot)
+            mass, size = CUBES[robot]
+            args += ["--base-mass", f"{mass:g}", "--base-size", f"{size:g}"]
+        out = folder / "arm" / f"{robot}.toml"
+        result = run(*args, "--urdf", str(urdf), "--out", str(out))
+        said = {"out": str(out), "urdf": str(urdf), "returncode": result.returncode,
+                "stdout": result.stdout, "stderr": result.stderr}  # fmt: skip
+        (folder / "run.json").write_text(json.dumps(said))
+
+    said = json.loads((made_once(f"robot-init-{robot}", make) / "run.json").read_text())
+    return Scaffolded(
+        out=Path(said["out"]),
+        urdf=Path(said["urdf"]),
+        returncode=said["returncode"],
+        stdout=said["stdout"],
+        stderr=said["stderr"],
+    )
+
+
 @pytest.fixture(scope="module", params=list(HANDS))
 def scaffolded(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+    request: pytest.FixtureRequest, made_once: MadeOnce
 ) -> tuple[str, Path, dict[str, Any], RobotDescription]:
     robot = request.param
-    out = tmp_path_factory.mktemp(robot) / "desc" / f"{robot}.toml"
-    urdf = vendor_urdf(robot)
-    result = run("robot", "init", "--urdf", str(urdf), "--hand", HANDS[robot], "--out", str(out),
-                 "--json")  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    report = json.loads(result.stdout)
-    return robot, out, report, load_robot(out)
+    done = scaffold_once(made_once, robot)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    return robot, done.out, report, load_robot(done.out)
 
 
 @pytest.mark.slow
@@ -59,13 +114,23 @@ def test_the_description_loads_with_the_vendor_file_unchanged(
     scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
 ) -> None:
     robot, out, report, description = scaffolded
-    copied = out.parent / vendor_urdf(robot).name
-    assert report["copied_urdf"] == str(copied)
-    assert copied.read_bytes() == vendor_urdf(robot).read_bytes()
+    if robot == "ur5":  # a URDF inside the description's folder is named, not copied
+        named = out.parent / INSIDE
+        assert report["copied_urdf"] is None and report["urdf"] == INSIDE.as_posix()
+        assert sorted(p.name for p in out.parent.iterdir()) == ["ur5.toml", "urdf"]
+    else:  # one elsewhere is copied beside it
+        named = out.parent / vendor_urdf(robot).name
+        assert report["copied_urdf"] == str(named) and report["urdf"] == named.name
+    assert description.urdf_path == named
+    assert named.read_bytes() == vendor_urdf(robot).read_bytes()
     assert description.n_joints == {"ur5": 6, "panda": 7}[robot]
     assert description.hand_link == HANDS[robot]
     assert description.reference_pose == "A"
-    assert description.model.base_mass_kg > 300.0  # the cube and the vendor's root lumped
+    # the cube asked for (--base-mass, --base-size; the UR5's the defaults) with the vendor's
+    # links at the root lumped into it, and its drawn box
+    mass, size = CUBES[robot]
+    assert description.model.base_mass_kg == pytest.approx(mass + LUMPED_KG[robot], abs=1e-9)
+    assert description.base_box_size_m == (size, size, size)
     check = run("robot", "check", str(out), "--json")
     assert check.returncode == 0, check.stderr
     servo = json.loads(check.stdout)["servo"]
@@ -294,19 +359,18 @@ def test_refusals_name_what_is_wrong(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_urdf_inside_the_folder_is_named_not_copied(tmp_path: Path) -> None:
-    folder = tmp_path / "arm"
-    (folder / "urdf").mkdir(parents=True)
-    urdf = folder / "urdf" / "ur5_robot.urdf"
-    shutil.copyfile(vendor_urdf("ur5"), urdf)
-    out = folder / "ur5.toml"
-    result = run("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(out),
-                 "--base-mass", "500", "--base-size", "1.2")  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    assert sorted(p.name for p in folder.iterdir()) == ["ur5.toml", "urdf"]
-    description = load_robot(out)
-    assert description.urdf_path == urdf
-    # a 500 kg cube of 1.2 m: its mass and its drawn box
-    assert description.base_box_size_m == (1.2, 1.2, 1.2)
-    assert description.model.base_mass_kg == pytest.approx(500.0 + 4.0, abs=1e-9)  # + base_link
-    assert "wrote" in result.stdout and "robot check" in result.stdout
+def test_the_text_report_names_the_file_and_the_next_step(
+    scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Without ``--json`` the command prints its report as lines (``robot_cli._print_init``,
+    the branch ``--json`` replaces): the file written, where the URDF went, each pose and
+    the next commands."""
+    robot, out, report, _ = scaffolded
+    copied = None if report["copied_urdf"] is None else Path(report["copied_urdf"])
+    robot_cli._print_init(out, copied, report)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"wrote {out} ({report['n_joints']} joints")
+    assert ("copied the URDF unchanged" in lines[0]) == (robot != "ur5")
+    assert [line.split(":")[0] for line in lines[1:4]] == ["  pose A", "  pose B", "  pose C"]
+    assert lines[-1] == f"next: hikoboshi robot check {out}; hikoboshi plan --robot {out} pass"
