@@ -34,6 +34,8 @@ from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import load_robot, scaffold
 from planner.description.scaffold import NONHOLONOMIC_SCALES, nonholonomic_candidates
 from planner.dynamics import DynamicsWorkspace
+from planner.flight_rules import FlightRulesReport
+from planner.plan import Plan
 from planner.robot import RobotDescription
 from planner.state import State
 from tests.planner.test_vendor_urdf import vendor_urdf
@@ -109,6 +111,22 @@ def scaffolded(
     return robot, done.out, report, load_robot(done.out)
 
 
+_AS_WRITTEN: dict[tuple[Path, str], tuple[Plan, FlightRulesReport]] = {}
+
+
+def as_written(description: RobotDescription, experiment: str) -> tuple[Plan, FlightRulesReport]:
+    """``experiment`` with the description's defaults, planned and checked here (once per
+    module and description: several tests read the same plan)."""
+    key = (description.path, experiment)
+    if key not in _AS_WRITTEN:
+        params = parameters_from_values(
+            resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
+        )
+        plan = plan_experiment(experiment, params, robot=description)
+        _AS_WRITTEN[key] = (plan, description.check_plan(plan))
+    return _AS_WRITTEN[key]
+
+
 @pytest.mark.slow
 def test_the_description_loads_with_the_vendor_file_unchanged(
     scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
@@ -181,10 +199,7 @@ def test_wheels_hold_the_arm_s_reaction(
     bound = report["reaction_momentum_bound_nms"]
     capacity = min(w.momentum_limit_nms for w in description.wheel_limits)
     assert capacity >= 2.5 * bound
-    params = parameters_from_values(
-        resolve("ptp")[0], {}, defaults=description.experiment_defaults("ptp")
-    )
-    plan = plan_experiment("ptp", params, robot=description)
+    plan, _ = as_written(description, "ptp")
     carried = np.linalg.norm(plan.prediction.reaction_momentum_orbit_nms, axis=1)
     assert 0.0 < float(np.max(carried)) <= bound
     assert float(np.max(np.abs(plan.prediction.wheel_momentum_nms))) <= 0.8 * capacity
@@ -198,11 +213,7 @@ def test_every_experiment_plans_as_written(
     experiment: str,
 ) -> None:
     _, _, scaffold_report, description = scaffolded
-    params = parameters_from_values(
-        resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
-    )
-    plan = plan_experiment(experiment, params, robot=description)
-    report = description.check_plan(plan)
+    plan, report = as_written(description, experiment)
     failing = [row for row in report.rows if row.verdict != "pass"]
     assert report.passed, failing
     # the scaffold's own check of the file as written says the same
@@ -256,9 +267,7 @@ def test_the_nonholonomic_start_is_the_first_candidate_that_passes(
         assert not again.passed
         assert again.row("clearance").value == pytest.approx(entry["clearance_m"], rel=1e-9)
     # the chosen plan, recomputed: passes with the clearance the report gives
-    params = parameters_from_values(resolve("nonholonomic")[0], {}, defaults=defaults)
-    plan = plan_experiment("nonholonomic", params, robot=description)
-    check = description.check_plan(plan)
+    plan, check = as_written(description, "nonholonomic")
     assert check.passed
     assert check.row("clearance").value == pytest.approx(nh["clearance_m"], rel=1e-9)
     assert nh["clearance_m"] >= min_clearance
