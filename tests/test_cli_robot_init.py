@@ -296,11 +296,13 @@ def test_nonholonomic_candidates_start_with_ets_vii_s_offsets() -> None:
 def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With only ETS-VII's offsets at 1.5 times their size to try, no start keeps the UR5's
-    non-holonomic path clear of the base: the file is written for the user to edit, but
-    the exit status is 1, stderr names the experiment and the report gives the nearest
-    candidate and the verdicts (in process, to narrow the candidates)."""
+    """With only ETS-VII's offsets at 1.5 times their size, as they are and reversed, to try,
+    no start keeps the UR5's non-holonomic path clear of the base: the file is written for
+    the user to edit, but the exit status is 1, stderr names the experiment and the report
+    gives the nearer candidate and the verdicts (in process, to narrow the candidates)."""
+    candidates = scaffold.nonholonomic_candidates
     monkeypatch.setattr(scaffold, "NONHOLONOMIC_SCALES", (1.5,))
+    monkeypatch.setattr(scaffold, "nonholonomic_candidates", lambda n: candidates(n)[:2])
     out = tmp_path / "ur5.toml"
     result = CliRunner().invoke(
         app, ["robot", "init", "--urdf", str(vendor_urdf("ur5")), "--hand", "tool0",
@@ -310,7 +312,9 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     report = json.loads(result.stdout)
     assert report["failing_experiments"] == ["nonholonomic"]
     nh = report["nonholonomic"]
-    assert not nh["passed"] and nh["candidates_tried"] == 16 and nh["fully_checked"] == 0
+    assert not nh["passed"] and nh["candidates_tried"] == 2 and nh["fully_checked"] == 0
+    tried = [e["candidate"] for e in report["nonholonomic_tried"]]
+    assert tried == ["ETS-VII's offsets x1.5", "reversed x1.5"]
     screened = [e["screened_clearance_m"] for e in report["nonholonomic_tried"]]
     assert nh["screened_clearance_m"] == max(v for v in screened if v is not None) < 0.05
     row = report["experiments"]["nonholonomic"]
