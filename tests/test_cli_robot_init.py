@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from hikoboshi import robot_cli
 from hikoboshi.cli import app
@@ -335,11 +335,15 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     assert check.row("clearance").value == pytest.approx(row["clearance_m"], rel=1e-9)
 
 
-# --- refusals: exit 2, one line naming what is wrong ----------------------------------------
+# --- refusals: exit 2, one line naming what is wrong (in process: nothing is planned) ---------
 
 
-def _refused(result: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert result.returncode == 2, (result.stdout, result.stderr)
+def in_process(*args: str) -> Result:
+    return CliRunner().invoke(app, list(args))
+
+
+def _refused(result: Result, *needles: str) -> None:
+    assert result.exit_code == 2, (result.stdout, result.stderr)
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
     for needle in needles:
@@ -350,22 +354,22 @@ def test_refusals_name_what_is_wrong(tmp_path: Path) -> None:
     urdf = vendor_urdf("ur5")
     out = tmp_path / "ur5.toml"
     args = ["robot", "init", "--urdf", str(urdf), "--out", str(out)]
-    _refused(run(*args, "--hand", "no_such_link"), "no_such_link", "ur5_robot.urdf")
-    _refused(run(*args, "--hand", "tool0", "--base-mass", "-3"), "--base-mass", "-3")
-    _refused(run(*args, "--hand", "tool0", "--base-size", "0"), "--base-size")
+    _refused(in_process(*args, "--hand", "no_such_link"), "no_such_link", "ur5_robot.urdf")
+    _refused(in_process(*args, "--hand", "tool0", "--base-mass", "-3"), "--base-mass", "-3")
+    _refused(in_process(*args, "--hand", "tool0", "--base-size", "0"), "--base-size")
     _refused(
-        run("robot", "init", "--urdf", str(tmp_path / "none.urdf"), "--hand", "tool0",
-            "--out", str(out)),
+        in_process("robot", "init", "--urdf", str(tmp_path / "none.urdf"), "--hand", "tool0",
+                   "--out", str(out)),
         "none.urdf",
     )  # fmt: skip
     out.write_text("# mine\n")
-    _refused(run(*args, "--hand", "tool0"), str(out), "exists")
+    _refused(in_process(*args, "--hand", "tool0"), str(out), "exists")
     assert out.read_text() == "# mine\n"  # left alone
     other = tmp_path / "b" / "ur5.toml"
     other.parent.mkdir()
     (other.parent / urdf.name).write_text("<robot name='else'/>")
     _refused(
-        run("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(other)),
+        in_process("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(other)),
         "in the way",
     )
     assert not other.exists()
