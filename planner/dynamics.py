@@ -140,7 +140,8 @@ class DynamicsWorkspace:
         """The system's centre of mass, orbit frame: the kinematics only (the same numbers
         as :meth:`evaluate`'s ``com_orbit_m``, without the inertia and the solves)."""
         self._load(state)
-        return self._mjd.subtree_com[self._layout.base_body].copy()
+        com: Array = self._mjd.subtree_com[self._layout.base_body].copy()
+        return com
 
     def hand_jacobian(self, state: State) -> tuple[HandPose, Array, Array]:
         """Hand pose with ``J_b`` (6, 6) and ``J_m`` (6, n), eq. (6)."""
