@@ -136,6 +136,13 @@ class DynamicsWorkspace:
         rot = self._load(state)
         return self._hand_pose(state, rot)
 
+    def com_orbit_m(self, state: State) -> Array:
+        """The system's centre of mass, orbit frame: the kinematics only (the same numbers
+        as :meth:`evaluate`'s ``com_orbit_m``, without the inertia and the solves)."""
+        self._load(state)
+        com: Array = self._mjd.subtree_com[self._layout.base_body].copy()
+        return com
+
     def hand_jacobian(self, state: State) -> tuple[HandPose, Array, Array]:
         """Hand pose with ``J_b`` (6, 6) and ``J_m`` (6, n), eq. (6)."""
         rot = self._load(state)

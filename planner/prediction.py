@@ -238,11 +238,9 @@ def predict(
     rpy = np.zeros((times.size, 3))
     # Eq. (2) with zero linear momentum: the system CoM stays where it starts, and the base
     # moves under it as the arm moves.
-    com0 = ws.evaluate(State(joints_rad=joints[0], quat_orbit_from_base_xyzw=quats[0])).com_orbit_m
+    com0 = ws.com_orbit_m(State(joints_rad=joints[0], quat_orbit_from_base_xyzw=quats[0]))
     for k in range(times.size):
-        offset = ws.evaluate(
-            State(joints_rad=joints[k], quat_orbit_from_base_xyzw=quats[k])
-        ).com_orbit_m
+        offset = ws.com_orbit_m(State(joints_rad=joints[k], quat_orbit_from_base_xyzw=quats[k]))
         hand = ws.hand_pose(
             State(
                 joints_rad=joints[k],

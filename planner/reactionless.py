@@ -70,6 +70,18 @@ def _dls(a: Array, b: Array) -> Array:
     return np.asarray(a.T @ np.linalg.solve(a @ a.T + _DAMPING * np.eye(a.shape[0]), b))
 
 
+def _row_projector(a: Array) -> Array:
+    """``pinv(a) a`` of one row ``a`` (m,): ``a a^T / |a|^2``, zero where ``a`` is."""
+    norm2 = float(a @ a)
+    return np.outer(a, a) / norm2 if norm2 > 0.0 else np.zeros((a.size, a.size))
+
+
+def _rotation(rot: Array) -> Rotation:
+    """``rot``, a product of MuJoCo's frames (orthonormal to round-off), as scipy's rotation
+    without its re-orthogonalisation (three quarters of the cost)."""
+    return Rotation.from_matrix(rot, assume_valid=True)
+
+
 def _rns_basis(ws: DynamicsWorkspace, joints: Array) -> tuple[Array, float]:
     _, h_bm = ws.momentum_blocks(joints)
     _, sing, vt = np.linalg.svd(h_bm)
@@ -123,17 +135,15 @@ def reactionless_line(
     start_pos, rot0 = hand0.pos_robot_m, hand0.rot_robot_from_hand
     lo, hi = model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]
 
-    def joint_rate(t: float, phi: Array) -> tuple[Array, float]:
+    def joint_rate(speed: float, phi: Array) -> tuple[Array, float]:
         hand, _, J_m = ws.hand_jacobian(State(joints_rad=phi))
         basis, sing = _rns_basis(ws, phi)
-        speed = float(_speed_profile(np.array([t]), duration_s, ramp_s, speed_mps)[0])
-        # Where the hand should be along the line at time t (integral of the profile).
         a_v, a_w = J_m[:3] @ basis, J_m[3:] @ basis
-        a1 = (direction @ a_v)[None, :]
-        zeta = _dls(a1, np.array([speed]))
-        p1 = np.eye(basis.shape[1]) - np.linalg.pinv(a1) @ a1  # the RNS's n - 3 dimensions
+        a1 = direction @ a_v
+        zeta = _dls(a1[None, :], np.array([speed]))
+        p1 = np.eye(basis.shape[1]) - _row_projector(a1)  # the RNS's n - 3 dimensions
         pos_err = lateral @ (start_pos - hand.pos_robot_m)
-        rot_err = Rotation.from_matrix(rot0 @ hand.rot_robot_from_hand.T).as_rotvec()
+        rot_err = _rotation(rot0 @ hand.rot_robot_from_hand.T).as_rotvec()
         a2 = np.vstack([lateral @ a_v, orientation_weight_m * a_w])
         b2 = np.concatenate(
             [_LATERAL_GAIN_PS * pos_err, orientation_weight_m * _ORIENTATION_GAIN_PS * rot_err]
@@ -141,15 +151,20 @@ def reactionless_line(
         zeta = zeta + p1 @ _dls(a2 @ p1, b2 - a2 @ zeta)
         return basis @ zeta, sing
 
+    # The hand's speed along the line at each RK4 stage's time (k dt, k dt + dt / 2, k dt +
+    # dt), the profile evaluated once for them all.
+    starts = np.arange(n_steps) * dt
+    speeds = _speed_profile(
+        np.concatenate([starts, starts + 0.5 * dt, starts + dt]), duration_s, ramp_s, speed_mps
+    ).reshape(3, n_steps)
     times = [0.0]
     path = [q.copy()]
     min_sing = np.inf
     for k in range(n_steps):
-        t = k * dt
-        k1, s1 = joint_rate(t, q)
-        k2, _ = joint_rate(t + 0.5 * dt, q + 0.5 * dt * k1)
-        k3, _ = joint_rate(t + 0.5 * dt, q + 0.5 * dt * k2)
-        k4, _ = joint_rate(t + dt, q + dt * k3)
+        k1, s1 = joint_rate(float(speeds[0, k]), q)
+        k2, _ = joint_rate(float(speeds[1, k]), q + 0.5 * dt * k1)
+        k3, _ = joint_rate(float(speeds[1, k]), q + 0.5 * dt * k2)
+        k4, _ = joint_rate(float(speeds[2, k]), q + dt * k3)
         q = q + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         min_sing = min(min_sing, s1)
         for i in np.flatnonzero((q < lo) | (q > hi)):
@@ -174,9 +189,7 @@ def reactionless_line(
             f"space allowed only {travelled:.3f} m of the {distance_m:.3f} m along the "
             "direction: shorten distance_m or change direction_robot"
         )
-    orientation = np.array(
-        [Rotation.from_matrix(rot0.T @ h.rot_robot_from_hand).magnitude() for h in hands]
-    )
+    orientation = np.array([_rotation(rot0.T @ h.rot_robot_from_hand).magnitude() for h in hands])
     return ReactionlessPath(
         t_s=np.array(times),
         joints_rad=joints,

@@ -9,6 +9,7 @@ angular second.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,6 +33,17 @@ def _zeros(n: int) -> Array:
 _UNSET_RATES: Array = np.zeros(0)
 
 
+#: The arrays a :class:`State` checks and their shapes (None: any, the joints').
+_STATE_SHAPES: tuple[tuple[str, tuple[int] | None], ...] = (
+    ("joints_rad", None),
+    ("quat_orbit_from_base_xyzw", (4,)),
+    ("pos_base_orbit_m", (3,)),
+    ("vel_base_orbit_mps", (3,)),
+    ("omega_base_orbit_radps", (3,)),
+    ("wheel_rates_radps", (3,)),
+)
+
+
 @dataclass(frozen=True, eq=False)
 class State:
     """Positions and velocities of base, joints and wheels (SI units)."""
@@ -46,19 +58,13 @@ class State:
     wheel_rates_radps: Array = field(default_factory=lambda: _zeros(3))
 
     def __post_init__(self) -> None:
-        shapes = {
-            "joints_rad": None,
-            "quat_orbit_from_base_xyzw": (4,),
-            "pos_base_orbit_m": (3,),
-            "vel_base_orbit_mps": (3,),
-            "omega_base_orbit_radps": (3,),
-            "wheel_rates_radps": (3,),
-        }
-        for name, shape in shapes.items():
+        # The planners make one per evaluation (tens of thousands per plan): the checks use
+        # the arrays' own methods, not numpy's slower function wrappers.
+        for name, shape in _STATE_SHAPES:
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if shape is not None and value.shape != shape:
                 raise InvalidInput(f"{name} must have shape {shape}, got {value.shape}")
-            if not np.all(np.isfinite(value)):
+            if not np.isfinite(value).all():
                 raise InvalidInput(f"{name} must be finite, got {value.tolist()}")
             object.__setattr__(self, name, value)
         rates = np.asarray(self.joint_rates_radps, dtype=np.float64)
@@ -69,10 +75,11 @@ class State:
                 f"joint_rates_radps has shape {rates.shape}, joints_rad {self.joints_rad.shape}"
             )
         object.__setattr__(self, "joint_rates_radps", rates)
-        norm = float(np.linalg.norm(self.quat_orbit_from_base_xyzw))
+        quat = self.quat_orbit_from_base_xyzw
+        norm = math.sqrt(quat.dot(quat))  # np.linalg.norm's own arithmetic
         if not 0.5 < norm < 2.0:
             raise InvalidInput(f"quat_orbit_from_base_xyzw is not a rotation (norm {norm:.3g})")
-        object.__setattr__(self, "quat_orbit_from_base_xyzw", self.quat_orbit_from_base_xyzw / norm)
+        object.__setattr__(self, "quat_orbit_from_base_xyzw", quat / norm)
 
     @property
     def rot_orbit_from_base(self) -> Array:

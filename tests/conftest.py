@@ -5,10 +5,11 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -101,13 +102,30 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: (not _realtime(item), item.path not in slow))  # stable
 
 
+def _run_folder(run_id: str) -> Path:
+    """The folder the xdist workers of one run share (named by the run's id)."""
+    folder = Path(tempfile.gettempdir()) / f"hikoboshi-tests-{run_id}"
+    folder.mkdir(exist_ok=True)
+    return folder
+
+
+@contextlib.contextmanager
+def _flocked(path: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on the file ``path`` (made if missing) while inside."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 class _RealtimeLock:
     """An exclusive ``flock`` shared by the xdist workers of one run (a file named by the
     run's id): held by each ``realtime`` test from its setup to its teardown."""
 
     def __init__(self, run_id: str) -> None:
-        folder = Path(tempfile.gettempdir()) / f"hikoboshi-tests-{run_id}"
-        folder.mkdir(exist_ok=True)
+        folder = _run_folder(run_id)
         self._fd = os.open(folder / "realtime.lock", os.O_RDWR | os.O_CREAT, 0o600)
 
     @contextlib.contextmanager
@@ -121,6 +139,35 @@ class _RealtimeLock:
 
 _RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers only
 _REALTIME = _RealtimeLock(_RUN_ID) if _RUN_ID else None
+
+
+#: ``made_once(name, make)``: the folder ``name`` that ``make(folder)`` fills (a costly
+#: product several modules read, such as a vendor arm's ``robot init``).
+MadeOnce = Callable[[str, Callable[[Path], None]], Path]
+
+
+@pytest.fixture(scope="session")
+def made_once(tmp_path_factory: pytest.TempPathFactory) -> MadeOnce:
+    """Made once per test run and shared: across xdist's workers the folder is in the run's
+    shared folder and the first worker to ask makes it holding an exclusive ``flock`` (the
+    others wait on it, then read what it made); without xdist, once per session in its
+    temporary folder. Readers must not change it: one that must copies it first. A ``make``
+    that raises leaves it unmade (the next to ask starts again in an emptied folder), so a
+    costly one should record a failure (an exit status, a stderr) for its readers to assert
+    on rather than raise."""
+    base = _run_folder(_RUN_ID) if _RUN_ID else tmp_path_factory.mktemp("made-once")
+
+    def made(name: str, make: Callable[[Path], None]) -> Path:
+        folder, done = base / name, base / f"{name}.done"
+        with _flocked(base / f"{name}.lock"):
+            if not done.exists():
+                shutil.rmtree(folder, ignore_errors=True)
+                folder.mkdir()
+                make(folder)
+                done.touch()
+        return folder
+
+    return made
 
 
 #: ``HIKOBOSHI_TEST_TIMELINE=path``: each test's wall start and end, its worker and outcome

@@ -6,7 +6,12 @@ loads, ``robot check``s clean, and its choices hold against the physics recomput
 above what the PTP it writes carries, the servos under the integrator's bound over the
 range); every experiment as written plans and passes the flight rules, as the scaffold's
 report says, and the non-holonomic start it chose is the first of its candidates whose plan
-passes them."""
+passes them.
+
+Each arm is scaffolded once per test run (:func:`scaffold_once`, shared with
+tests/planner/test_vendor_pinocchio.py and across xdist's workers): the UR5 on the default
+cube with its URDF inside the description's folder (named, not copied), the Panda on a
+500 kg cube of 1.2 m with its URDF elsewhere (copied beside the description)."""
 
 from __future__ import annotations
 
@@ -15,24 +20,38 @@ import math
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
+from hikoboshi import robot_cli
 from hikoboshi.cli import app
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import load_robot, scaffold
 from planner.description.scaffold import NONHOLONOMIC_SCALES, nonholonomic_candidates
 from planner.dynamics import DynamicsWorkspace
+from planner.flight_rules import FlightRulesReport
+from planner.plan import Plan
 from planner.robot import RobotDescription
 from planner.state import State
 from tests.planner.test_vendor_urdf import vendor_urdf
 
+if TYPE_CHECKING:
+    from tests.conftest import MadeOnce
+
 HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]
 HANDS = {"ur5": "tool0", "panda": "panda_hand_tcp"}
+#: The cube each shared scaffold asks for (kg, m; the UR5's the defaults, not given).
+CUBES = {"ur5": (300.0, 1.0), "panda": (500.0, 1.2)}
+#: The vendor's links lumped with the cube, their URDF <mass> (kg): the UR5's base_link (its
+#: root, world, has none), the Panda's panda_link0.
+LUMPED_KG = {"ur5": 4.0, "panda": 0.629769}
+#: The shared UR5's URDF, inside the description's folder.
+INSIDE = Path("urdf") / "ur5_robot.urdf"
 GUARD_S = 600  # a guard against a hang, not a timing assertion
 
 
@@ -40,18 +59,72 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*HIKOBOSHI, *args], capture_output=True, text=True, timeout=GUARD_S)
 
 
+@dataclass(frozen=True)
+class Scaffolded:
+    """One ``robot init --json`` run: the file it was asked to write and what it said."""
+
+    out: Path
+    urdf: Path  # the --urdf given
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def scaffold_once(made_once: MadeOnce, robot: str) -> Scaffolded:
+    """``hikoboshi robot init`` (a real subprocess) of ``robot`` as :data:`CUBES` and
+    :data:`INSIDE` say, once per test run; readers must not change its folder."""
+
+    def make(folder: Path) -> None:
+        args = ["robot", "init", "--hand", HANDS[robot], "--json"]
+        if robot == "ur5":
+            urdf = folder / "arm" / INSIDE
+            urdf.parent.mkdir(parents=True)
+            shutil.copyfile(vendor_urdf(robot), urdf)
+        else:
+            urdf = vendor_urdf(robot)
+            mass, size = CUBES[robot]
+            args += ["--base-mass", f"{mass:g}", "--base-size", f"{size:g}"]
+        out = folder / "arm" / f"{robot}.toml"
+        result = run(*args, "--urdf", str(urdf), "--out", str(out))
+        said = {"out": str(out), "urdf": str(urdf), "returncode": result.returncode,
+                "stdout": result.stdout, "stderr": result.stderr}  # fmt: skip
+        (folder / "run.json").write_text(json.dumps(said))
+
+    said = json.loads((made_once(f"robot-init-{robot}", make) / "run.json").read_text())
+    return Scaffolded(
+        out=Path(said["out"]),
+        urdf=Path(said["urdf"]),
+        returncode=said["returncode"],
+        stdout=said["stdout"],
+        stderr=said["stderr"],
+    )
+
+
 @pytest.fixture(scope="module", params=list(HANDS))
 def scaffolded(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+    request: pytest.FixtureRequest, made_once: MadeOnce
 ) -> tuple[str, Path, dict[str, Any], RobotDescription]:
     robot = request.param
-    out = tmp_path_factory.mktemp(robot) / "desc" / f"{robot}.toml"
-    urdf = vendor_urdf(robot)
-    result = run("robot", "init", "--urdf", str(urdf), "--hand", HANDS[robot], "--out", str(out),
-                 "--json")  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    report = json.loads(result.stdout)
-    return robot, out, report, load_robot(out)
+    done = scaffold_once(made_once, robot)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    return robot, done.out, report, load_robot(done.out)
+
+
+_AS_WRITTEN: dict[tuple[Path, str], tuple[Plan, FlightRulesReport]] = {}
+
+
+def as_written(description: RobotDescription, experiment: str) -> tuple[Plan, FlightRulesReport]:
+    """``experiment`` with the description's defaults, planned and checked here (once per
+    module and description: several tests read the same plan)."""
+    key = (description.path, experiment)
+    if key not in _AS_WRITTEN:
+        params = parameters_from_values(
+            resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
+        )
+        plan = plan_experiment(experiment, params, robot=description)
+        _AS_WRITTEN[key] = (plan, description.check_plan(plan))
+    return _AS_WRITTEN[key]
 
 
 @pytest.mark.slow
@@ -59,13 +132,23 @@ def test_the_description_loads_with_the_vendor_file_unchanged(
     scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
 ) -> None:
     robot, out, report, description = scaffolded
-    copied = out.parent / vendor_urdf(robot).name
-    assert report["copied_urdf"] == str(copied)
-    assert copied.read_bytes() == vendor_urdf(robot).read_bytes()
+    if robot == "ur5":  # a URDF inside the description's folder is named, not copied
+        named = out.parent / INSIDE
+        assert report["copied_urdf"] is None and report["urdf"] == INSIDE.as_posix()
+        assert sorted(p.name for p in out.parent.iterdir()) == ["ur5.toml", "urdf"]
+    else:  # one elsewhere is copied beside it
+        named = out.parent / vendor_urdf(robot).name
+        assert report["copied_urdf"] == str(named) and report["urdf"] == named.name
+    assert description.urdf_path == named
+    assert named.read_bytes() == vendor_urdf(robot).read_bytes()
     assert description.n_joints == {"ur5": 6, "panda": 7}[robot]
     assert description.hand_link == HANDS[robot]
     assert description.reference_pose == "A"
-    assert description.model.base_mass_kg > 300.0  # the cube and the vendor's root lumped
+    # the cube asked for (--base-mass, --base-size; the UR5's the defaults) with the vendor's
+    # links at the root lumped into it, and its drawn box
+    mass, size = CUBES[robot]
+    assert description.model.base_mass_kg == pytest.approx(mass + LUMPED_KG[robot], abs=1e-9)
+    assert description.base_box_size_m == (size, size, size)
     check = run("robot", "check", str(out), "--json")
     assert check.returncode == 0, check.stderr
     servo = json.loads(check.stdout)["servo"]
@@ -116,10 +199,7 @@ def test_wheels_hold_the_arm_s_reaction(
     bound = report["reaction_momentum_bound_nms"]
     capacity = min(w.momentum_limit_nms for w in description.wheel_limits)
     assert capacity >= 2.5 * bound
-    params = parameters_from_values(
-        resolve("ptp")[0], {}, defaults=description.experiment_defaults("ptp")
-    )
-    plan = plan_experiment("ptp", params, robot=description)
+    plan, _ = as_written(description, "ptp")
     carried = np.linalg.norm(plan.prediction.reaction_momentum_orbit_nms, axis=1)
     assert 0.0 < float(np.max(carried)) <= bound
     assert float(np.max(np.abs(plan.prediction.wheel_momentum_nms))) <= 0.8 * capacity
@@ -133,11 +213,7 @@ def test_every_experiment_plans_as_written(
     experiment: str,
 ) -> None:
     _, _, scaffold_report, description = scaffolded
-    params = parameters_from_values(
-        resolve(experiment)[0], {}, defaults=description.experiment_defaults(experiment)
-    )
-    plan = plan_experiment(experiment, params, robot=description)
-    report = description.check_plan(plan)
+    plan, report = as_written(description, experiment)
     failing = [row for row in report.rows if row.verdict != "pass"]
     assert report.passed, failing
     # the scaffold's own check of the file as written says the same
@@ -191,9 +267,7 @@ def test_the_nonholonomic_start_is_the_first_candidate_that_passes(
         assert not again.passed
         assert again.row("clearance").value == pytest.approx(entry["clearance_m"], rel=1e-9)
     # the chosen plan, recomputed: passes with the clearance the report gives
-    params = parameters_from_values(resolve("nonholonomic")[0], {}, defaults=defaults)
-    plan = plan_experiment("nonholonomic", params, robot=description)
-    check = description.check_plan(plan)
+    plan, check = as_written(description, "nonholonomic")
     assert check.passed
     assert check.row("clearance").value == pytest.approx(nh["clearance_m"], rel=1e-9)
     assert nh["clearance_m"] >= min_clearance
@@ -222,11 +296,13 @@ def test_nonholonomic_candidates_start_with_ets_vii_s_offsets() -> None:
 def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With only ETS-VII's offsets at 1.5 times their size to try, no start keeps the UR5's
-    non-holonomic path clear of the base: the file is written for the user to edit, but
-    the exit status is 1, stderr names the experiment and the report gives the nearest
-    candidate and the verdicts (in process, to narrow the candidates)."""
+    """With only ETS-VII's offsets at 1.5 times their size, as they are and reversed, to try,
+    no start keeps the UR5's non-holonomic path clear of the base: the file is written for
+    the user to edit, but the exit status is 1, stderr names the experiment and the report
+    gives the nearer candidate and the verdicts (in process, to narrow the candidates)."""
+    candidates = scaffold.nonholonomic_candidates
     monkeypatch.setattr(scaffold, "NONHOLONOMIC_SCALES", (1.5,))
+    monkeypatch.setattr(scaffold, "nonholonomic_candidates", lambda n: candidates(n)[:2])
     out = tmp_path / "ur5.toml"
     result = CliRunner().invoke(
         app, ["robot", "init", "--urdf", str(vendor_urdf("ur5")), "--hand", "tool0",
@@ -236,7 +312,9 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     report = json.loads(result.stdout)
     assert report["failing_experiments"] == ["nonholonomic"]
     nh = report["nonholonomic"]
-    assert not nh["passed"] and nh["candidates_tried"] == 16 and nh["fully_checked"] == 0
+    assert not nh["passed"] and nh["candidates_tried"] == 2 and nh["fully_checked"] == 0
+    tried = [e["candidate"] for e in report["nonholonomic_tried"]]
+    assert tried == ["ETS-VII's offsets x1.5", "reversed x1.5"]
     screened = [e["screened_clearance_m"] for e in report["nonholonomic_tried"]]
     assert nh["screened_clearance_m"] == max(v for v in screened if v is not None) < 0.05
     row = report["experiments"]["nonholonomic"]
@@ -257,11 +335,15 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     assert check.row("clearance").value == pytest.approx(row["clearance_m"], rel=1e-9)
 
 
-# --- refusals: exit 2, one line naming what is wrong ----------------------------------------
+# --- refusals: exit 2, one line naming what is wrong (in process: nothing is planned) ---------
 
 
-def _refused(result: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert result.returncode == 2, (result.stdout, result.stderr)
+def in_process(*args: str) -> Result:
+    return CliRunner().invoke(app, list(args))
+
+
+def _refused(result: Result, *needles: str) -> None:
+    assert result.exit_code == 2, (result.stdout, result.stderr)
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
     for needle in needles:
@@ -272,41 +354,40 @@ def test_refusals_name_what_is_wrong(tmp_path: Path) -> None:
     urdf = vendor_urdf("ur5")
     out = tmp_path / "ur5.toml"
     args = ["robot", "init", "--urdf", str(urdf), "--out", str(out)]
-    _refused(run(*args, "--hand", "no_such_link"), "no_such_link", "ur5_robot.urdf")
-    _refused(run(*args, "--hand", "tool0", "--base-mass", "-3"), "--base-mass", "-3")
-    _refused(run(*args, "--hand", "tool0", "--base-size", "0"), "--base-size")
+    _refused(in_process(*args, "--hand", "no_such_link"), "no_such_link", "ur5_robot.urdf")
+    _refused(in_process(*args, "--hand", "tool0", "--base-mass", "-3"), "--base-mass", "-3")
+    _refused(in_process(*args, "--hand", "tool0", "--base-size", "0"), "--base-size")
     _refused(
-        run("robot", "init", "--urdf", str(tmp_path / "none.urdf"), "--hand", "tool0",
-            "--out", str(out)),
+        in_process("robot", "init", "--urdf", str(tmp_path / "none.urdf"), "--hand", "tool0",
+                   "--out", str(out)),
         "none.urdf",
     )  # fmt: skip
     out.write_text("# mine\n")
-    _refused(run(*args, "--hand", "tool0"), str(out), "exists")
+    _refused(in_process(*args, "--hand", "tool0"), str(out), "exists")
     assert out.read_text() == "# mine\n"  # left alone
     other = tmp_path / "b" / "ur5.toml"
     other.parent.mkdir()
     (other.parent / urdf.name).write_text("<robot name='else'/>")
     _refused(
-        run("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(other)),
+        in_process("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(other)),
         "in the way",
     )
     assert not other.exists()
 
 
 @pytest.mark.slow
-def test_a_urdf_inside_the_folder_is_named_not_copied(tmp_path: Path) -> None:
-    folder = tmp_path / "arm"
-    (folder / "urdf").mkdir(parents=True)
-    urdf = folder / "urdf" / "ur5_robot.urdf"
-    shutil.copyfile(vendor_urdf("ur5"), urdf)
-    out = folder / "ur5.toml"
-    result = run("robot", "init", "--urdf", str(urdf), "--hand", "tool0", "--out", str(out),
-                 "--base-mass", "500", "--base-size", "1.2")  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    assert sorted(p.name for p in folder.iterdir()) == ["ur5.toml", "urdf"]
-    description = load_robot(out)
-    assert description.urdf_path == urdf
-    # a 500 kg cube of 1.2 m: its mass and its drawn box
-    assert description.base_box_size_m == (1.2, 1.2, 1.2)
-    assert description.model.base_mass_kg == pytest.approx(500.0 + 4.0, abs=1e-9)  # + base_link
-    assert "wrote" in result.stdout and "robot check" in result.stdout
+def test_the_text_report_names_the_file_and_the_next_step(
+    scaffolded: tuple[str, Path, dict[str, Any], RobotDescription],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Without ``--json`` the command prints its report as lines (``robot_cli._print_init``,
+    the branch ``--json`` replaces): the file written, where the URDF went, each pose and
+    the next commands."""
+    robot, out, report, _ = scaffolded
+    copied = None if report["copied_urdf"] is None else Path(report["copied_urdf"])
+    robot_cli._print_init(out, copied, report)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"wrote {out} ({report['n_joints']} joints")
+    assert ("copied the URDF unchanged" in lines[0]) == (robot != "ur5")
+    assert [line.split(":")[0] for line in lines[1:4]] == ["  pose A", "  pose B", "  pose C"]
+    assert lines[-1] == f"next: hikoboshi robot check {out}; hikoboshi plan --robot {out} pass"

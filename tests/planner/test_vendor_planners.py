@@ -4,25 +4,26 @@ defaults the tool derives where the description gives none (docs/robots.md, "Exp
 defaults").
 
 Each experiment and the pass are planned once per arm by the command line (``hikoboshi plan
---robot FILE --json``, a real subprocess: exit 0 means planned and every flight rule kept),
-and the plan file it writes is checked against physics here: the reactionless motion leaves
-the base still with the wheels off, the GJM hand reaches its target on its line, the
-non-holonomic plan ends at its attitude, every joint within the mission's angle and rate
-limits. Failures name the experiment, the time, the quantity and a parameter to change.
+--robot FILE --json``, in process: exit 0 means planned and every flight rule kept; its
+contract as a real subprocess is tests/test_cli_plan.py's), and the plan file it writes is
+checked against physics here: the reactionless motion leaves the base still with the wheels
+off, the GJM hand reaches its target on its line, the non-holonomic plan ends at its
+attitude, every joint within the mission's angle and rate limits. Failures name the
+experiment, the time, the quantity and a parameter to change.
 """
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner, Result
 
+from hikoboshi.cli import app
 from planner.catalogue import experiments, parameters_from_values, plan_experiment, resolve
 from planner.description import ETS7_DESCRIPTION, load_robot
 from planner.dynamics import DynamicsWorkspace
@@ -38,7 +39,6 @@ from tests.planner.test_vendor_urdf import URDFS, copy_robot
 
 pytestmark = pytest.mark.slow
 
-HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]
 ROBOTS = list(URDFS)
 
 
@@ -51,25 +51,22 @@ def vendor(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Ro
     return out
 
 
-_PLANNED: dict[tuple[str, str], tuple[subprocess.CompletedProcess[str], Path]] = {}
+_PLANNED: dict[tuple[str, str], tuple[Result, Path]] = {}
 
 
 def planned(
     vendor: dict[str, tuple[Path, RobotDescription]], robot: str, experiment: str
-) -> tuple[subprocess.CompletedProcess[str], Plan]:
+) -> tuple[Result, Plan]:
     """``hikoboshi plan EXPERIMENT --robot FILE --json`` (once per module and pair)."""
     toml, _ = vendor[robot]
     if (robot, experiment) not in _PLANNED:
         out = toml.parent / f"{experiment}.json"
-        result = subprocess.run(
-            [*HIKOBOSHI, "plan", experiment, "--robot", str(toml), "--out", str(out), "--json"],
-            capture_output=True,
-            text=True,
-            timeout=1200,  # a guard against a hang, not a timing assertion
+        result = CliRunner().invoke(
+            app, ["plan", experiment, "--robot", str(toml), "--out", str(out), "--json"]
         )
         _PLANNED[robot, experiment] = (result, out)
     result, out = _PLANNED[robot, experiment]
-    assert result.returncode == 0, result.stderr
+    assert result.exit_code == 0, (result.stderr, result.exception)
     return result, Plan.from_json(out.read_text(encoding="utf-8"))
 
 
@@ -285,21 +282,11 @@ def test_the_pass_names_its_failing_experiment(
             "approach_axis_hand = [0.0, 0.0, 1.0]\napproach_distance_m = 0.3",
         )
     )
-    result = subprocess.run(
-        [
-            *HIKOBOSHI,
-            "plan",
-            "pass",
-            "--robot",
-            str(folder / "panda.toml"),
-            "--out",
-            str(tmp_path / "p.json"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=1200,  # a guard against a hang, not a timing assertion
+    result = CliRunner().invoke(
+        app,
+        ["plan", "pass", "--robot", str(folder / "panda.toml"), "--out", str(tmp_path / "p.json")],
     )
-    assert result.returncode == 2
+    assert result.exit_code == 2, (result.stdout, result.stderr)
     (line,) = result.stderr.strip().splitlines()
     assert line.startswith(
         "error: pass: the gjm experiment failed (its parameters: the description's "
