@@ -43,6 +43,17 @@ def stored_pass(
 
 @pytest.fixture()
 def passes(client: TestClient) -> dict[str, list[TelemetryFrame]]:
+    return _three_passes(client)
+
+
+@pytest.fixture(scope="module")
+def module_passes(module_client: TestClient) -> tuple[TestClient, str]:
+    """The three passes on one application per backend, for the refusals (reads): its
+    client and the first pass's id."""
+    return module_client, next(iter(_three_passes(module_client)))
+
+
+def _three_passes(client: TestClient) -> dict[str, list[TelemetryFrame]]:
     """Three passes: 40 frames from T0, 60 frames from 10 frames later (another axis
     origin), and one with none."""
     first = make_frames(range(40), seed=1)
@@ -117,13 +128,9 @@ def test_a_field_of_a_seven_joint_pass_only_where_it_exists(client: TestClient) 
     ],
 )
 def test_bad_queries_are_4xx_with_a_reason(
-    client: TestClient,
-    passes: dict[str, list[TelemetryFrame]],
-    query: str,
-    status: int,
-    code: str,
+    module_passes: tuple[TestClient, str], query: str, status: int, code: str
 ) -> None:
-    a = next(iter(passes))
+    client, a = module_passes
     response = client.get(f"/api/telemetry/across?{query.format(a=a)}", headers=VIEWER)
     assert response.status_code == status, response.text
     assert response.json()["error"]["code"] == code

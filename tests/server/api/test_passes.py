@@ -68,6 +68,13 @@ def test_an_operator_schedules_a_pass_of_a_real_plan(client: TestClient, ptp_pla
     assert event["detail"]["aos_time_ns"] == aos_ns
 
 
+@pytest.fixture(scope="module")
+def plan_to_refuse(module_client: TestClient, ptp_plan: Plan) -> tuple[TestClient, str]:
+    """One application per backend for the refusals, with a stored plan: a refusal stores
+    nothing, so after each of them there is still no pass and no event."""
+    return module_client, _stored_plan(module_client, ptp_plan)
+
+
 @pytest.mark.parametrize(
     ("change", "status", "code"),
     [
@@ -84,9 +91,13 @@ def test_an_operator_schedules_a_pass_of_a_real_plan(client: TestClient, ptp_pla
     ],
 )
 def test_a_refused_pass_names_its_reason_and_stores_nothing(
-    client: TestClient, ptp_plan: Plan, change: dict[str, Any], status: int, code: str
+    plan_to_refuse: tuple[TestClient, str],
+    ptp_plan: Plan,
+    change: dict[str, Any],
+    status: int,
+    code: str,
 ) -> None:
-    plan_id = _stored_plan(client, ptp_plan)
+    client, plan_id = plan_to_refuse
     change = dict(change)  # shared by the backends' runs
     window_s = change.pop("window_s", ptp_plan.duration_s + LEAD_S - change.pop("short_by_s", 0))
     body = {**_request(plan_id, window_s), **change}

@@ -32,6 +32,10 @@ from tests.server.storage.factories import make_plan
 
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
 SPACECRAFT = {"Authorization": "Bearer s-token"}
+#: For the tests that only ask the robots' routes (they read the robot files) and plan
+#: validation (it plans in a worker and stores nothing): none of them touches the database,
+#: so they ask one backend; the tests that store a plan or a pass keep both.
+NO_DATABASE = pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 
 
 def _revolute(urdf: str) -> list[str]:
@@ -47,6 +51,7 @@ def _error(response: object, status: int, code: str) -> str:
     return message
 
 
+@NO_DATABASE
 def test_the_robots_list_their_joints_poses_hash_and_defaults(client: TestClient) -> None:
     response = client.get("/api/robots", headers=VIEWER)
     assert response.status_code == 200
@@ -71,6 +76,7 @@ def test_the_robots_list_their_joints_poses_hash_and_defaults(client: TestClient
     assert orihime["urdf_url"] == "/api/robots/orihime/urdf"
 
 
+@NO_DATABASE
 def test_a_robots_urdf_by_name_is_its_own(client: TestClient) -> None:
     response = client.get("/api/robots/orihime/urdf", headers=VIEWER)
     assert response.status_code == 200
@@ -100,6 +106,7 @@ def test_a_robots_urdf_by_name_is_its_own(client: TestClient) -> None:
     )
 
 
+@NO_DATABASE
 def test_an_unknown_or_malformed_robot_is_refused_with_the_reason(client: TestClient) -> None:
     message = _error(client.get("/api/robots/hikari/urdf", headers=VIEWER), 404, "unknown_robot")
     assert "hikari" in message and "orihime" in message and "ets7" in message
@@ -112,6 +119,7 @@ def test_an_unknown_or_malformed_robot_is_refused_with_the_reason(client: TestCl
     _error(client.get("/api/robots/by-hash/ABC/urdf", headers=VIEWER), 422, "invalid_request")
 
 
+@NO_DATABASE
 @pytest.mark.parametrize(
     "path", ["/api/robots", "/api/robots/orihime/urdf", "/api/robots/by-hash/{hash}/urdf"]
 )
@@ -159,6 +167,7 @@ def client_with_file(database_url: str, tmp_path: Path, renamed: Path) -> Iterat
         yield c
 
 
+@NO_DATABASE
 def test_a_robot_given_by_file_is_listed_and_served_by_name_and_hash(
     client_with_file: TestClient, client: TestClient, renamed: Path
 ) -> None:
@@ -248,6 +257,7 @@ def _listed(client: TestClient, name: str) -> dict[str, Any]:
     return robot
 
 
+@NO_DATABASE
 def test_a_vendor_arms_defaults_are_the_ones_its_plans_take_derived_marked(
     client_with_ur5: TestClient, ur5_toml: Path
 ) -> None:
@@ -273,6 +283,7 @@ def test_a_vendor_arms_defaults_are_the_ones_its_plans_take_derived_marked(
     assert derived["nonholonomic"] == ["max_corrections", "phi_end_deg", "phi_init_deg"]
 
 
+@NO_DATABASE
 def test_orihime_and_ets7_give_their_defaults_themselves(client: TestClient) -> None:
     """Their descriptions give every key their plans depend on: what the tool derives for
     ETS-VII is its own numbers, the catalogue's."""
@@ -296,6 +307,7 @@ def _as_typed(value: object) -> str:
 
 
 @pytest.mark.slow
+@NO_DATABASE
 def test_a_plan_of_the_listed_defaults_typed_is_the_plan_of_none(
     client_with_ur5: TestClient,
 ) -> None:

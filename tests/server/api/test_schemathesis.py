@@ -27,6 +27,15 @@ Exclusions, each narrowed to its operation, status and error codes (the check
   than 60 days from the mission's elements' epoch, which is the mission file's, not the
   schema's.
 
+The coverage phase runs on SQLite only; PostgreSQL gets the examples and fuzzing phases
+(every operation called with generated data, accepted and refused). The coverage phase is
+an enumeration of the schema (each boundary, each missing or wrong-typed field, each
+unexpected method): 1,419 cases, 1,039 of them schema-invalid, which validation refuses
+before any storage is reached, and on PostgreSQL 48 of its 110 s went to routes that use
+no database (contact windows, plan validation, the robots). What the backends do
+differently (ids that are no UUID, free text, times and limits in queries, the rows
+written) the fuzzing phase's generated values reach on PostgreSQL too, on every operation.
+
 Not run: the ``max_response_time`` check (a timed assertion: it needs a limit, and a test
 here must not depend on the machine being idle) and the stateful phase (chains of
 operations through their links: minutes on this machine, over the suite's budget; the
@@ -179,7 +188,11 @@ def excused_refusals_are_the_documented_ones(ctx: Any, response: Any, case: Any)
     return True
 
 
-def _config() -> SchemathesisConfig:
+#: The backend the coverage phase runs on (the module's docstring says why one).
+COVERAGE_BACKEND = "sqlite"
+
+
+def _config(backend: str) -> SchemathesisConfig:
     operations = [
         {
             "include-path": e.path,
@@ -201,7 +214,10 @@ def _config() -> SchemathesisConfig:
                 "deterministic": True,
                 "database": "none",
             },
-            "phases": {"stateful": {"enabled": False}},
+            "phases": {
+                "stateful": {"enabled": False},
+                "coverage": {"enabled": backend == COVERAGE_BACKEND},
+            },
             "operations": operations,
         }
     )
@@ -271,7 +287,7 @@ def test_a_schemathesis_run_finds_nothing(
     app = create_app(settings)
     EXCUSED_USES.clear()
     try:
-        schema = schemathesis.openapi.from_asgi("/openapi.json", app, config=_config())
+        schema = schemathesis.openapi.from_asgi("/openapi.json", app, config=_config(backend))
         run = _run(schema)
     finally:
         shutdown_lifespans()
@@ -292,7 +308,10 @@ def test_a_schemathesis_run_finds_nothing(
     assert not run.errors, "\n".join(run.errors)
     assert not run.failures, "\n".join(sorted(set(run.failures)))
     assert run.operations == documented  # every operation was fuzzed
-    assert run.cases["coverage"] > 10 * len(documented)
+    if backend == COVERAGE_BACKEND:
+        assert run.cases["coverage"] > 10 * len(documented)
+    else:
+        assert run.cases["coverage"] == 0
     # The run reached the routes, not only the edge's refusals: successes and 404s.
     assert run.statuses[200] > 0 and run.statuses[404] > 0
 

@@ -394,17 +394,27 @@ BAD_REQUESTS: list[tuple[str, BadRequest, str]] = [
 ]
 
 
+@pytest.fixture(scope="module")
+def replayable(module_client: TestClient, flight: Flight) -> tuple[TestClient, str, str, list[int]]:
+    """One application per backend for the bad requests, which store nothing: its client, a
+    flown pass, an unflown one and the flown one's stored frame seqs."""
+    pass_id = add_flown_pass(module_client, flight)
+    unflown = add_pass(module_client, "unflown")
+    return module_client, pass_id, unflown, stored_seqs(module_client, pass_id)
+
+
 @pytest.mark.parametrize(
     ("build", "says"),
     [(b, s) for _, b, s in BAD_REQUESTS],
     ids=[i for i, _, _ in BAD_REQUESTS],
 )
 def test_a_bad_replay_request_gets_an_error_and_the_socket_stays_usable(
-    client: TestClient, flight: Flight, build: BadRequest, says: str
+    replayable: tuple[TestClient, str, str, list[int]],
+    flight: Flight,
+    build: BadRequest,
+    says: str,
 ) -> None:
-    pass_id = add_flown_pass(client, flight)
-    unflown = add_pass(client, "unflown")
-    stored = stored_seqs(client, pass_id)
+    client, pass_id, unflown, stored = replayable
     with client.websocket_connect(CONSOLE, headers=AS_VIEWER) as ws:
         welcome(ws)
         replay_id = open_replay(ws, pass_id, speed=STEP, paused=True)["replay_id"]
