@@ -396,9 +396,9 @@ def halves_change(ys: Sequence[float]) -> float:
     """The mean of the window's second half less that of its first half. The rule for
     counts (threads, open files): a leak climbs through the window, while a pooled database
     connection that opens once (two files on SQLite: the database and its WAL) or a
-    keep-alive socket that comes and goes steps or jitters by one to three. A least-squares line through such a step reads it as a trend: two 30-pass
-    runs with the SQLite pool stepping from 18 to 21 files at pass 9 and staying there gave
-    +1.2 over the window."""
+    keep-alive socket that comes and goes steps or jitters by one to three. A least-squares
+    line through such a step reads it as a trend: two 30-pass runs with the SQLite pool
+    stepping from 18 to 21 files at pass 9 and staying there gave +1.2 over the window."""
     half = len(ys) // 2
     first, second = ys[:half], ys[len(ys) - half :]
     return sum(second) / len(second) - sum(first) / len(first)
