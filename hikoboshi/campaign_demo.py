@@ -94,6 +94,11 @@ class CampaignOptions:
     pass_experiments: tuple[tuple[str, ...], ...] | None = None
     #: with ``pass_experiments`` or without mission.campaign: only this relay's windows
     relay: str | None = None
+    #: where the passes are not the campaign planner's: more of their plan parameters
+    #: (``planner.schedule.PassParams``, e.g. a shorter ``ptp_settle_s``: the tests)
+    pass_parameters: dict[str, Any] | None = None
+    #: onboard s each pass keeps its relay after its plan ends (a shorter booking: the tests)
+    service_tail_s: float = SERVICE_TAIL_S
 
 
 @dataclass(frozen=True)
@@ -157,10 +162,15 @@ def _allowance_s(speed: float) -> float:
     return START_ALLOWANCE_S + START_ALLOWANCE_WALL_S * speed
 
 
-def _service_windows(specs: list[_PassSpec], durations_s: list[float], speed: float) -> list[Any]:
+def _service_windows(
+    specs: list[_PassSpec],
+    durations_s: list[float],
+    speed: float,
+    tail_s: float = SERVICE_TAIL_S,
+) -> list[Any]:
     """The relay service each pass books in its window: from the window's AOS to the end
-    of the pass (its net start, the start allowance and the plan) and
-    :data:`SERVICE_TAIL_S`, never past the window's LOS nor the next window's AOS (one
+    of the pass (its net start, the start allowance and the plan) and ``tail_s``
+    (:data:`SERVICE_TAIL_S`), never past the window's LOS nor the next window's AOS (one
     relay at a time). Raises DemoError when a pass does not fit its window's net time."""
     from mission import format_utc
 
@@ -173,7 +183,7 @@ def _service_windows(specs: list[_PassSpec], durations_s: list[float], speed: fl
                 f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
                 f"time of its window {w.relay} {format_utc(w.aos_utc)}"
             )
-        end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + SERVICE_TAIL_S)
+        end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + tail_s)
         end = min(end, w.los_utc)
         if i + 1 < len(specs):
             end = min(end, specs[i + 1].window.aos_utc)
@@ -220,22 +230,26 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                 plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
             return plans[key]
 
+        def parameters_for(experiments: tuple[str, ...]) -> dict[str, Any]:
+            return {"experiments": list(experiments), **(options.pass_parameters or {})}
+
         def parameters_of(spec: _PassSpec) -> dict[str, Any]:
             if spec.parameters is not None:
                 return spec.parameters
-            return {"experiments": list(spec.experiments)}
+            return parameters_for(spec.experiments)
 
         report("planning the campaign", 0, 1)
-        specs = _campaign(
-            options, lambda e: float(make_plan({"experiments": list(e)})["duration_s"])
-        )
+        specs = _campaign(options, lambda e: float(make_plan(parameters_for(e))["duration_s"]))
         report("planning the campaign", 1, 1)
         report("the ground plans each pass", 0, len(specs))
         for k, spec in enumerate(specs, start=1):
             make_plan(parameters_of(spec))
             report("the ground plans each pass", k, len(specs))
         flown = _service_windows(
-            specs, [float(make_plan(parameters_of(s))["duration_s"]) for s in specs], options.speed
+            specs,
+            [float(make_plan(parameters_of(s))["duration_s"]) for s in specs],
+            options.speed,
+            options.service_tail_s,
         )
         windows_file = out / "windows.json"
         windows_file.write_text(

@@ -562,13 +562,14 @@ def demo(
     above watch); with --fault, 0 iff the pass ended safed or complete, every fault began,
     no frame is missing, no command is outstanding and none executed after the vehicle
     safed; 1 otherwise; 2 for bad options."""
-    from hikoboshi.demo import DemoError, DemoOptions, check_fault_specs, run_demo
     from server.redaction import install_redaction
     from spacecraft.link import parse_outage
 
     install_redaction()  # no token in any log of the demo (docs/security.md "Logs")
     from server.logs import check_log_options
 
+    # Bad options are refused before the ground service's modules (hikoboshi.demo: uvicorn,
+    # the application) are imported: seconds of a refusal's time.
     try:
         check_log_options(log_format, log_level)
     except ValueError as exc:
@@ -596,6 +597,8 @@ def demo(
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
     if robot is not None:
         _load(robot)  # a bad description: one error line before anything starts
+    from hikoboshi.demo import DemoError, DemoOptions, check_fault_specs, run_demo
+
     try:
         check_fault_specs(fault or (), robot)
     except DemoError as exc:

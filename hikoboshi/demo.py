@@ -60,11 +60,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-import uvicorn
-
 from planner.limits import SEVERITY_RANK, Severity
-from server.api.edge import uvicorn_config
-from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage.db import sqlite_url
 
@@ -168,6 +164,13 @@ def _port(preferred: int) -> int:
 
 @contextmanager
 def _ground(settings: Settings, port: int) -> Iterator[None]:
+    # The application and uvicorn are imported here, not with the module (1.5 of its 2 s of
+    # imports, measured): hikoboshi demo checks its options with this module first.
+    import uvicorn
+
+    from server.api.edge import uvicorn_config
+    from server.app import create_app
+
     # As `hikoboshi serve` runs it: forwarded headers believed from no one, logs redacted.
     config = uvicorn_config(
         create_app(settings), settings, host="127.0.0.1", port=port, log_level="warning"

@@ -41,6 +41,11 @@ class Downlink:
     def __init__(self, config: DownlinkConfig | None = None) -> None:
         self.config = config or DownlinkConfig()
         self._frames: dict[int, TelemetryFrame] = {}  # unacknowledged, by seq
+        #: the seqs were added in increasing order (the vehicle's frames are): the dict's
+        #: order is then the seqs' and an acknowledgement need not look at every frame held
+        #: (a gap flown without a link leaves tens of thousands)
+        self._ordered = True
+        self._last_added: int | None = None
         self._last_sent_s: dict[int, float] = {}
         self._live: list[int] = []  # made but not yet sent once
         self._requested: set[int] = set()
@@ -57,23 +62,43 @@ class Downlink:
         for frame in frames:
             if len(self._frames) >= self.config.capacity_frames:
                 # Never silently: the oldest frame is the one given up, and it is counted.
-                oldest = min(self._frames)
+                oldest = next(iter(self._frames)) if self._ordered else min(self._frames)
                 self._frames.pop(oldest)
                 self._last_sent_s.pop(oldest, None)
                 self.frames_overflowed += 1
+            if self._last_added is not None and frame.seq <= self._last_added:
+                self._ordered = False
+            self._last_added = frame.seq
             self._frames[frame.seq] = frame
             self._live.append(frame.seq)
 
+    def _through(self, seq: int) -> list[int]:
+        """The seqs held up to ``seq``."""
+        if not self._ordered:
+            return [s for s in self._frames if s <= seq]
+        out = []
+        for s in self._frames:
+            if s > seq:
+                break
+            out.append(s)
+        return out
+
+    def _within(self, lo: int, hi: int) -> list[int]:
+        """The seqs held in ``[lo, hi]``, by looking each up when the range is the smaller."""
+        if hi - lo < len(self._frames):
+            return [s for s in range(lo, hi + 1) if s in self._frames]
+        return [s for s in self._frames if lo <= s <= hi]
+
     def on_ack(self, through_seq: int, ranges: Iterable[tuple[int, int]] = ()) -> None:
-        for seq in [s for s in self._frames if s <= through_seq]:
+        for seq in self._through(through_seq):
             self._forget(seq)
         for lo, hi in ranges:
-            for seq in [s for s in self._frames if lo <= s <= hi]:
+            for seq in self._within(lo, hi):
                 self._forget(seq)
 
     def on_retransmit(self, ranges: Iterable[tuple[int, int]]) -> None:
         for lo, hi in ranges:
-            self._requested.update(s for s in self._frames if lo <= s <= hi)
+            self._requested.update(self._within(lo, hi))
 
     def _forget(self, seq: int) -> None:
         self._frames.pop(seq, None)

@@ -394,6 +394,9 @@ class Vehicle:
         self._wheel_torque = np.zeros(3)
         self._law = AttitudeController(self._gains)
         self._sample: tuple[int, State, Measurement] | None = None
+        #: the truth state at a step count (the divergence check, control and telemetry at
+        #: one instant read it once); cleared where the state changes without a step
+        self._truth_state: tuple[int, State] | None = None
         # The onboard software's servo target: `_target` at `_target_ns`, moving at
         # `_target_rate`; the joint servos' hardware applies it through the faults.
         self._target = q0.copy()
@@ -780,6 +783,7 @@ class Vehicle:
                     acks += self._enter_diverged(t, diverged)
             if fault == t:  # the truth changes first: what is measured at t shows it
                 self._truth += self._faults.begin(t, self._sim)
+                self._truth_state = None  # a bump changed the velocities
                 self._apply_servo(t)
             trigger = self._check_safing(t) if t == self._next_control_ns else None
             if trigger is not None:  # before the commands due at t: none executes
@@ -833,13 +837,15 @@ class Vehicle:
                 f"non-finite or huge state {warnings} time(s) (servos faster than the "
                 "integrator holds?)",
             )
-        state = self._sim.state()
+        state = self._state()
         checks = (
             ("joints", np.abs(state.joints_rad), MAX_JOINT_ABS_RAD, "rad"),
             ("base rate", np.abs(state.omega_base_orbit_radps), MAX_BASE_RATE_RADPS, "rad/s"),
             ("wheel speed", np.abs(state.wheel_rates_radps), MAX_WHEEL_SPEED_RADPS, "rad/s"),
         )
         for name, values, bound, unit in checks:
+            if values.size == 0 or values.max() <= bound:  # finite and within (NaN: false)
+                continue
             bad = ~np.isfinite(values) | (np.nan_to_num(values, nan=np.inf) > bound)
             if np.any(bad):
                 worst = float(values[int(np.argmax(bad))])
@@ -961,10 +967,17 @@ class Vehicle:
 
     # -- onboard attitude control and telemetry -------------------------------------------
 
+    def _state(self) -> State:
+        """The truth state now, read once per step count (shared, read only)."""
+        steps = self._sim.step_count
+        if self._truth_state is None or self._truth_state[0] != steps:
+            self._truth_state = (steps, self._sim.state())
+        return self._truth_state[1]
+
     def _measure(self, t: int) -> tuple[State, Measurement]:
         """The sensor sample at ``t`` (one per instant: control and telemetry share it)."""
         if self._sample is None or self._sample[0] != t:
-            state = self._sim.state()
+            state = self._state()
             sample = self._faults.sense(measure(state, self.config.noise, self._rng))
             self._sample = (t, state, sample)
         return self._sample[1], self._sample[2]

@@ -1,6 +1,12 @@
-"""The campaign demo end to end, short: two ptp passes in two consecutive TDRS-West windows
-of 1999-09-30 (a 44-minute gap flown fast), at 10x with 10 % loss, through the code of
-``hikoboshi demo --campaign`` (ground service, spacecraft process with ``--mission``).
+"""The campaign demo end to end, short: two ptp passes in the first two windows of
+1999-09-30 after 00:20 (TDRS-West, then TDRS-East; a 28-minute gap flown fast), at 10x with
+10 % loss, through the code of ``hikoboshi demo --campaign`` (ground service, spacecraft
+process with ``--mission``). Both relays' windows, as the demo takes them: with TDRS-West's
+alone the gap flown fast was 90 minutes, most of the test's CPU time (the spacecraft
+process simulating it); which windows a relay filter picks is checked without a flight.
+Each ptp pass settles 20 s (the demo's 100 s assert nothing more here) and keeps its relay
+60 s onboard after its plan (the demo's 300 s, for the last resends through the loss, were
+24 s of idle wall here; the frames and commands asserted below still arrive).
 10x, not the demo's 20x: the uplink's 120 s onboard lead is then 12 s of wall, not 6; at
 20x, beside a busy core and a CPU-heavy test, the starved ground sent commands late and the
 vehicle's refusals aborted the second pass.
@@ -31,13 +37,14 @@ def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_wind
         seed=5,
         timeout_s=900.0,  # a hang guard, not a timing
         pass_experiments=(("ptp",), ("ptp",)),
-        relay="TDRS-West",
+        pass_parameters={"ptp_settle_s": 20.0},
+        service_tail_s=60.0,
     )
     doc = run_campaign_demo(options)
     assert doc == json.loads((tmp_path / "campaign" / "campaign.json").read_text())
     assert (tmp_path / "campaign" / "campaign.md").read_text().startswith("# Campaign")
     passes = doc["passes"]
-    assert [p["window"]["relay"] for p in passes] == ["TDRS-West", "TDRS-West"]
+    assert [p["window"]["relay"] for p in passes] == ["TDRS-West", "TDRS-East"]
     assert passes[0]["window"]["aos_utc"] < passes[1]["window"]["aos_utc"]
     for p in passes:
         assert p["state"] == "complete", p
@@ -59,3 +66,34 @@ def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_wind
     assert gap["measured_nms"] is not None
     assert any(abs(x) > 1e-5 for x in gap["measured_nms"])
     assert doc["verdict"] == {"ok": True, "problems": []}
+
+
+def test_a_relay_s_windows_alone_and_one_relay_booked_at_a_time() -> None:
+    """Which windows the short campaign's passes take (no flight): with ``relay`` only that
+    relay's, else the first that holds each pass whichever relay; each pass books its relay
+    from its window's AOS to the end of its pass and the service tail, never past the next
+    pass's AOS (the overlapping TDRS-East window) nor its own LOS."""
+    from hikoboshi.campaign_demo import SERVICE_TAIL_S, _allowance_s, _campaign, _service_windows
+
+    plan_s = 153.75  # the ptp pass's plan
+    taken = {}
+    for relay in ("TDRS-West", None):
+        options = CampaignOptions(
+            mission=MISSIONS_DIR / "ets7-1999.toml",
+            start_utc=parse_utc("1999-09-30T00:20:00Z"),
+            speed=10.0,
+            pass_experiments=(("ptp",), ("ptp",)),
+            relay=relay,
+        )
+        specs = _campaign(options, lambda experiments: plan_s)
+        services = _service_windows(specs, [plan_s, plan_s], 10.0)
+        taken[relay] = [(s.window.relay, s.window.aos_utc) for s in specs]
+        for spec, service in zip(specs, services, strict=True):
+            assert service.aos_utc == spec.window.aos_utc
+            booked_s = (service.los_utc - spec.window.net_start_utc).total_seconds()
+            assert booked_s <= _allowance_s(10.0) + plan_s + SERVICE_TAIL_S + 1e-6
+            assert service.los_utc <= spec.window.los_utc
+        assert services[0].los_utc <= specs[1].window.aos_utc
+    (west1, west2), (first, east) = taken["TDRS-West"], taken[None]
+    assert west1[0] == west2[0] == "TDRS-West" and west1[1] < west2[1]
+    assert first == west1 and east[0] == "TDRS-East" and west1[1] < east[1] < west2[1]

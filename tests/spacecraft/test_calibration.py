@@ -164,7 +164,8 @@ def test_cli_refuses_unknown_parameters(tmp_path: Path) -> None:
 #: The whole law family. Measured (seed 3): wn 0.0399 (0.2 %), zeta 0.892 (0.9 %), tau
 #: 4.93 s (1.4 %), Ti 278 s (7 %: the integral term is the least observable in a 60 s
 #: settle; 25 to 37 % from the earlier, softer defaults). The standard errors (noise only)
-#: are far smaller.
+#: are far smaller. Those are the values at evaluation 26 (the budget of 30 stops there);
+#: left to converge, the fit polishes the fifth digit until evaluation 45.
 FAMILY_TRUTH = {
     "bandwidth_radps": 0.04,
     "damping_ratio": 0.9,
@@ -183,7 +184,7 @@ FAMILY_TOLERANCE = {
 def test_fit_recovers_a_filtered_pid_law() -> None:
     workspace = DynamicsWorkspace(default_model())
     recording = ptp_flown_with(FAMILY_TRUTH, "family")
-    result = fit_to_recording(recording, tuple(FAMILY_TRUTH), ws=workspace, max_evaluations=80)
+    result = fit_to_recording(recording, tuple(FAMILY_TRUTH), ws=workspace, max_evaluations=30)
     # from the defaults: the calibrated 11 s filter, no integral term
     assert result.start["rate_filter_tau_s"] == 11.0
     assert math.isinf(result.start["integral_time_s"])
@@ -194,7 +195,8 @@ def test_fit_recovers_a_filtered_pid_law() -> None:
 #: A law whose wheels saturate in the PTP (the default law asks for about 0.12 N m there).
 #: Measured (seed 3): wn 0.0404 (1.1 %), zeta 0.859 (4.5 %), torque limit 0.0402 N m
 #: (0.6 %), from the default 0.3 N m, which does not bind: the fit starts at 0.1 N m, where
-#: it does.
+#: it does. Those are the values at evaluation 29 (the budget of 30 stops there); left to
+#: converge, the fit polishes the fifth digit until evaluation 57.
 SATURATING_TRUTH = {"bandwidth_radps": 0.04, "damping_ratio": 0.9, "torque_limit_nm": 0.04}
 SATURATING_TOLERANCE = {"bandwidth_radps": 0.05, "damping_ratio": 0.10, "torque_limit_nm": 0.05}
 
@@ -203,7 +205,7 @@ SATURATING_TOLERANCE = {"bandwidth_radps": 0.05, "damping_ratio": 0.10, "torque_
 def test_fit_recovers_a_wheel_torque_limit() -> None:
     workspace = DynamicsWorkspace(default_model())
     recording = ptp_flown_with(SATURATING_TRUTH, "saturating")
-    result = fit_to_recording(recording, tuple(SATURATING_TRUTH), ws=workspace, max_evaluations=60)
+    result = fit_to_recording(recording, tuple(SATURATING_TRUTH), ws=workspace, max_evaluations=30)
     assert result.start["torque_limit_nm"] == 0.3
     for name, truth in SATURATING_TRUTH.items():
         assert result.parameters[name] == pytest.approx(truth, rel=SATURATING_TOLERANCE[name])
@@ -321,7 +323,11 @@ def test_cli_calibrates_to_a_recorded_pass(
     out, report, vehicle = tmp_path / "acs.toml", tmp_path / "r.json", tmp_path / "vehicle.toml"
     args = ["calibrate", "--mcap", str(mcap), "--max-evaluations", "4", "--out", str(out)]
     args += ["--report", str(report), "--vehicle-out", str(vehicle), "--json"]
-    result = CliRunner().invoke(app, [*args, "--servo-max-evaluations", "3"])
+    # a budget of one optimiser evaluation of the arm (12 simulations: the start's tracking,
+    # the evaluation and its Jacobian): the joint-by-joint lags it starts from are within
+    # 0.5 % of ETS-VII's (measured); the arm fit's convergence is
+    # test_servo_fit_recovers_each_joint_s_lag_and_bandwidth's
+    result = CliRunner().invoke(app, [*args, "--servo-max-evaluations", "1"])
     assert result.exit_code == 0, result.output
     doc = json.loads(report.read_text())
     # --json: the report's fields and the files written, on stdout (progress is on stderr)

@@ -51,3 +51,19 @@ def test_overflow_is_counted_not_silent() -> None:
     store = Downlink(DownlinkConfig(capacity_frames=10))
     store.add(_frame(i) for i in range(12))
     assert store.unacked == 10 and store.frames_overflowed == 2
+
+
+def test_acks_and_requests_forget_and_resend_the_same_frames_in_any_order_of_adding() -> None:
+    """An acknowledgement reads only the seqs it covers when the frames came in seq order
+    (the vehicle's); frames added out of order, ranges wider than the store and empty ranges
+    give what a look at every frame held gives."""
+    for order in (list(range(20)), [5, 3, 9, 0, 1, 2, 4, 6, 7, 8, *range(10, 20)]):
+        store = Downlink(DownlinkConfig(capacity_frames=18))
+        store.add(_frame(i) for i in order)  # the two oldest (0 and 1) are given up
+        held = set(range(2, 20))
+        store.due(0.0)
+        store.on_ack(4, [(8, 8), (12, 10), (15, 10**9)])
+        held -= {s for s in held if s <= 4 or s == 8 or s >= 15}
+        assert store.unacked == len(held)
+        store.on_retransmit([(0, 6), (9, 11), (-(10**9), 7)])
+        assert _sent(store.due(0.5)) == sorted(held & {5, 6, 7, 9, 10, 11})
