@@ -143,7 +143,7 @@ class _Api:
             raise DemoError(f"{method} {path}: {exc.code} {exc.read().decode()[:500]}") from None
         except (TimeoutError, urllib.error.URLError) as exc:
             # a ground that does not answer (overloaded, or gone): a reason, not a traceback
-            reason = getattr(exc, "reason", None) or exc or "timed out"
+            reason = getattr(exc, "reason", exc)  # URLError's reason, or the timeout itself
             raise DemoError(
                 f"{method} {path}: no answer from the ground service within {timeout_s:g} s"
                 f" ({reason}); its log is ground.log in the output folder"
