@@ -120,25 +120,10 @@ def _flocked(path: Path) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-class _RealtimeLock:
-    """An exclusive ``flock`` shared by the xdist workers of one run (a file named by the
-    run's id): held by each ``realtime`` test from its setup to its teardown."""
-
-    def __init__(self, run_id: str) -> None:
-        folder = _run_folder(run_id)
-        self._fd = os.open(folder / "realtime.lock", os.O_RDWR | os.O_CREAT, 0o600)
-
-    @contextlib.contextmanager
-    def hold(self) -> Iterator[None]:
-        fcntl.flock(self._fd, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
-
-
 _RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers only
-_REALTIME = _RealtimeLock(_RUN_ID) if _RUN_ID else None
+#: The lock file each ``realtime`` test holds from its setup to its teardown (an exclusive
+#: ``flock`` shared by the run's xdist workers).
+_REALTIME = _run_folder(_RUN_ID) / "realtime.lock" if _RUN_ID else None
 
 
 #: ``made_once(name, make)``: the folder ``name`` that ``make(folder)`` fills (a costly
@@ -179,7 +164,7 @@ TIMELINE = os.environ.get("HIKOBOSHI_TEST_TIMELINE")
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """A ``realtime`` test holds the real-time lock from setup to teardown; each test's
     times go to the timeline."""
-    held = _REALTIME.hold() if _REALTIME is not None and _realtime(item) else None
+    held = _flocked(_REALTIME) if _REALTIME is not None and _realtime(item) else None
     with held or contextlib.nullcontext():
         start = time.time()
         yield
