@@ -16,9 +16,12 @@ import socket
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
 
 import uvicorn
 from fastapi import FastAPI
+from sqlalchemy import Engine, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.api import alarms as alarms_api
@@ -44,6 +47,12 @@ from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
 from server.services.alarms import AlarmService
 from server.services.artifacts import ArtifactStore
+from server.services.authority import (
+    CommandAuthority,
+    LeasePolicy,
+    ground_name,
+    hold_sqlite_file,
+)
 from server.services.clock import Clock, SystemClock
 from server.services.console import ConsoleHub
 from server.services.console_seats import ConsoleSeats
@@ -94,14 +103,22 @@ class LivePath:
 
 
 def build_live_path(
-    *, sessions: sessionmaker[Session], settings: Settings, clock: Clock
+    *,
+    sessions: sessionmaker[Session],
+    settings: Settings,
+    clock: Clock,
+    authority: CommandAuthority | None = None,
 ) -> LivePath:
     """The live path's services, each handed its collaborators. The downlink sends its
     acknowledgements through the link's session (bound late: the link routes telemetry to
     the downlink). The alarms subscribe to the publisher first, so a frame batch is checked
-    before the consoles get it."""
+    before the consoles get it. With ``authority`` (the service), every transaction of the
+    database worker is fenced by the command lease and the runner commands only while this
+    ground holds it."""
     publisher = Publisher()
     db = Database(sessions, publisher, frames_apart=frames_apart_for(sessions))
+    if authority is not None:
+        db.fence = authority.fence
     delay_s = settings.link_one_way_delay_s
 
     async def send(text: str) -> bool:
@@ -134,6 +151,7 @@ def build_live_path(
         settings=settings,
         clock=clock,
         alarms=alarms,
+        authority=authority,
     )
     alarms.start()
     return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
@@ -189,10 +207,64 @@ def _foxglove_live(
     return view
 
 
+def _authority(settings: Settings, url: str) -> tuple[CommandAuthority, Engine, IO[str] | None]:
+    """The command lease's keeper on a connection of its own; on an SQLite file, first the
+    file's exclusive lock (a second ground is refused here, before anything is written:
+    :class:`~server.services.authority.SecondGround`)."""
+    held: IO[str] | None = None
+    parsed = make_url(url)
+    if parsed.get_backend_name() == "sqlite":
+        database = parsed.database or ""
+        if database and database != ":memory:" and not database.startswith("file:"):
+            held = hold_sqlite_file(Path(database))
+    engine = make_engine(
+        url, pool=PoolSizes(size=1, overflow=0, timeout_s=2.0, statement_timeout_s=2.0)
+    )
+    policy = LeasePolicy(
+        name=settings.command_lease,
+        holder=ground_name(settings.ground_name),
+        ttl_s=settings.lease_ttl_s,
+        renew_s=settings.lease_renew_s,
+        force=held is not None,
+    )
+    return CommandAuthority(session_factory(engine), policy), engine, held
+
+
+async def _keep_command(live: LivePath, authority: CommandAuthority, commanding: bool) -> None:
+    """Command the vehicle if this ground took the lease at its start (the recovery after a
+    restart), else be a standby; then keep the lease: a standby that takes it over from a
+    holder gone runs the same recovery, a holder whose lease was taken stands down."""
+
+    async def took_over() -> None:
+        log.warning(
+            "took over the command lease (token %s): resuming the passes left unfinished",
+            authority.status()["token"],
+            extra={"fields": {"event": "takeover"}},
+        )
+        await live.runner.recover()
+
+    async def lost(reason: str) -> None:
+        await live.runner.stand_down()
+        await live.link.going_away(1013, "standby: another ground holds the command lease")
+
+    if commanding:
+        await live.runner.recover()
+    else:
+        log.warning(
+            "standby: %s holds the command lease %r; this ground serves reads and consoles "
+            "and takes over when it is gone",
+            authority.status().get("lease_holder") or "another ground",
+            authority.policy.name,
+            extra={"fields": {"event": "standby"}},
+        )
+    authority.start(on_acquired=took_over, on_lost=lost)
+
+
 def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         url = settings.resolved_database_url()
+        authority, lease_engine, held = _authority(settings, url)
         # Two pools on one database: the command path's own (the link's database worker and,
         # on PostgreSQL, its frames' worker: a connection each; the runner, abort)
         # and the readers' (routes, consoles), so no number of readers takes a connection
@@ -228,8 +300,14 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.operator_sessions = session_factory(operator_engine)
         app.state.operator_read_sessions = read_session_factory(operator_engine)
         live = build_live_path(
-            sessions=session_factory(link_engine), settings=settings, clock=SystemClock()
+            sessions=session_factory(link_engine),
+            settings=settings,
+            clock=SystemClock(),
+            authority=authority,
         )
+        app.state.authority = authority
+        # before the first transaction of the command path: each is fenced by the lease
+        commanding = await asyncio.to_thread(authority.try_acquire)
         app.state.clock = live.clock
         app.state.publisher = live.publisher
         app.state.db = live.db
@@ -238,7 +316,7 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.runner = live.runner
         app.state.alarms = live.alarms
         await live.alarms.load_vehicle_alarms()
-        await live.runner.recover()
+        await _keep_command(live, authority, commanding)  # docs/operations.md
         app.state.console = ConsoleHub(
             publisher=live.publisher,
             link_status=live.link.status,
@@ -283,6 +361,10 @@ def create_app(settings: Settings) -> FastAPI:
             await app.state.console.close()
             await live.runner.shutdown()
             await live.close()
+            await authority.close()  # after the last write: a standby takes over at once
+            lease_engine.dispose()
+            if held is not None:
+                held.close()
             engine.dispose()
             operator_engine.dispose()
             link_engine.dispose()
@@ -317,7 +399,10 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/health", tags=["service"])
     async def health() -> dict[str, str]:
-        """Liveness: on the event loop, no thread and no database (the live lane)."""
-        return {"status": "ok"}
+        """Liveness: on the event loop, no thread and no database (the live lane); and
+        whether this ground commands the vehicle (``holder``) or is a ``standby``."""
+        authority: CommandAuthority | None = getattr(app.state, "authority", None)
+        role = "starting" if authority is None else authority.status()["role"]
+        return {"status": "ok", "command": role}
 
     return app

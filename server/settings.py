@@ -242,6 +242,21 @@ class Settings(BaseSettings):
     """More malformed messages than this on one connection within one interval: the ground
     closes it (1008) and the vehicle reconnects."""
 
+    # --- command authority (server/services/authority.py, docs/operations.md "One ground
+    # in command") -----------------------------------------------------------------------
+    command_lease: str = Field(default="vehicle", min_length=1, max_length=64)
+    """The name of the vehicle's command lease: the grounds that may command one vehicle
+    share it, and exactly one of them holds it (the others are hot standbys)."""
+    ground_name: str | None = Field(default=None, min_length=1, max_length=80)
+    """This ground's name as a lease holder (the host's name when unset; the process id
+    and a random suffix are added, so a restarted ground is a new holder)."""
+    lease_ttl_s: float = Field(default=5.0, ge=1.0, le=600)
+    """The command lease's time to live (wall s, on the database's clock): a standby takes
+    over this long after the holder's last renewal, once the holder died."""
+    lease_renew_s: float = Field(default=1.0, gt=0, le=60)
+    """The holder renews its lease, and a standby tries to take it, this often (wall s;
+    under half of ``lease_ttl_s``)."""
+
     # --- the Foxglove live view (server/services/foxglove_live.py, docs/mcap.md) ---------
     foxglove_port: int | None = Field(default=None, ge=0, le=65535)
     """Stream the live pass to Foxglove on this port (foxglove-sdk's websocket server in the

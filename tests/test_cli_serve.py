@@ -43,7 +43,7 @@ def test_serve_answers_with_roles_from_the_environment(tmp_path: Path) -> None:
                 assert time.monotonic() < deadline, "the server did not come up"
                 assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
                 time.sleep(0.2)
-        assert health.json() == {"status": "ok"}
+        assert health.json() == {"status": "ok", "command": "holder"}
         assert httpx.get(f"{base}/api/plans").status_code == 401
         viewer = {"Authorization": "Bearer v-tok"}
         assert httpx.get(f"{base}/api/plans", headers=viewer).status_code == 200

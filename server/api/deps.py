@@ -20,6 +20,7 @@ from server.api.errors import HttpError
 from server.api.lanes import Lane, request_lane
 from server.schemas import SafeLine
 from server.services.alarms import AlarmService
+from server.services.authority import CommandAuthority
 from server.services.clock import Clock
 from server.services.console import ConsoleHub
 from server.services.dbworker import Database, Publisher
@@ -34,6 +35,7 @@ T = TypeVar("T")
 __all__ = [
     "BEARER",
     "AlarmsDep",
+    "AuthorityDep",
     "ClockDep",
     "ConsoleDep",
     "DatabaseDep",
@@ -113,6 +115,8 @@ RunnerDep = Annotated[PassRunner, Depends(_state("runner", PassRunner))]
 DatabaseDep = Annotated[Database, Depends(_state("db", Database))]
 ConsoleDep = Annotated[ConsoleHub, Depends(_state("console", ConsoleHub))]
 AlarmsDep = Annotated[AlarmService, Depends(_state("alarms", AlarmService))]
+#: The command lease's keeper: whether this ground commands the vehicle or is a standby.
+AuthorityDep = Annotated[CommandAuthority, Depends(_state("authority", CommandAuthority))]
 
 
 @dataclass(frozen=True)

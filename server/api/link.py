@@ -1,10 +1,13 @@
 """``/api/link``: the spacecraft's websocket (docs/protocol.md), for the ``spacecraft`` role.
 
 A bad token or role is accepted and then closed with 1008 and the reason (closing before
-the handshake would lose the reason to a bare HTTP 403). Every text (or binary) frame goes
-to :class:`server.services.link.GroundLink`, which answers a malformed one with ``error``
-and keeps the connection. Only the socket's own end closes the session: an exception while
-handling one message (a bug, a database failure) is logged and the next message is read.
+the handshake would lose the reason to a bare HTTP 403). A ground that does not hold the
+vehicle's command lease (a standby, server/services/authority.py) closes it with 1013
+(try again later) and the holder's name: the spacecraft tries its next ground. Every text
+(or binary) frame goes to :class:`server.services.link.GroundLink`, which answers a
+malformed one with ``error`` and keeps the connection. Only the socket's own end closes
+the session: an exception while handling one message (a bug, a database failure) is
+logged and the next message is read.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from server.api.deps import ClockDep, LinkDep, websocket_principal
+from server.api.deps import AuthorityDep, ClockDep, LinkDep, websocket_principal
 from server.api.errors import HttpError
 from server.services.link import Connection
 from server.settings import Role
@@ -26,12 +29,19 @@ log = logging.getLogger("hikoboshi.ground.link")
 
 
 @router.websocket("/api/link")
-async def spacecraft_link(websocket: WebSocket, link: LinkDep, clock: ClockDep) -> None:
+async def spacecraft_link(
+    websocket: WebSocket, link: LinkDep, clock: ClockDep, authority: AuthorityDep
+) -> None:
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
     except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
+        return
+    if not authority.may_command():
+        # a standby (or a lease lapsing): the vehicle goes on to its next ground's URL
+        holder = authority.status().get("lease_holder") or "no ground"
+        await websocket.close(code=1013, reason=f"standby: {holder} holds the command"[:120])
         return
 
     async def close(code: int, reason: str) -> None:

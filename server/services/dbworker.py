@@ -25,6 +25,7 @@ from typing import Any, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.storage.errors import LeaseLost
 from telemetry.wire import TelemetryFrame
 
 __all__ = [
@@ -156,6 +157,10 @@ class Database:
         self._closed = False
         self.groups = 0
         self.jobs = 0
+        #: Run first in every transaction (the command lease's fencing check,
+        #: :meth:`server.services.authority.CommandAuthority.fence`): a write of a ground that
+        #: no longer holds the lease fails there and is rolled back. None: no lease (tests).
+        self.fence: Callable[[Session], None] | None = None
         #: Told each commit's duration (wall s, measured, not the injected clock: it is a
         #: latency): the metrics' histogram (server/services/metrics.py), or no one.
         self.on_commit: Callable[[float], None] | None = None
@@ -163,6 +168,8 @@ class Database:
     def _transaction(self, job: Callable[[Session], T]) -> T:
         with self._sessions() as session:
             try:
+                if self.fence is not None:
+                    self.fence(session)
                 result = job(session)
                 self._commit(session)
             except BaseException:
@@ -234,6 +241,12 @@ class Database:
         try:
             with self._sessions() as session:
                 try:
+                    if self.fence is not None:
+                        self.fence(session)
+                except BaseException:
+                    session.rollback()
+                    raise
+                try:
                     results = []
                     for job in group:
                         ran += 1
@@ -246,7 +259,13 @@ class Database:
                     raise
             outcomes = [(True, r) for r in results]
         except Exception:
-            if ran == 1:
+            error = sys.exc_info()[1]
+            if ran == 0 and isinstance(error, LeaseLost):  # the fence: every job refused
+                ran = len(group)
+                outcomes = [(False, error)] * ran
+            elif ran <= 1:  # the first job failed (or the fence could not ask): that job
+                ran = 1
+                outcomes = [(False, error)]
                 outcomes = [(False, sys.exc_info()[1])]
             else:
                 for job in group[:ran]:  # isolate the failure: one transaction each

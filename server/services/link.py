@@ -404,15 +404,16 @@ class GroundLink:
         self._safe_exits.start(request_id)
         return request_id
 
-    async def going_away(self) -> None:
-        """The server is stopping: close the spacecraft's websocket now (1001), so that its
-        handler ends and records the detach while the database worker still runs, instead
-        of being cancelled past the server's graceful timeout. The vehicle keeps its loaded
-        commands and reconnects to the next ground, as after a crash."""
+    async def going_away(self, code: int = 1001, reason: str = "ground service stopping") -> None:
+        """The server is stopping (or standing down: 1013, another ground holds the command
+        lease): close the spacecraft's websocket now, so that its handler ends and records
+        the detach while the database worker still runs, instead of being cancelled past
+        the server's graceful timeout. The vehicle keeps its loaded commands and reconnects
+        to the next ground, as after a crash."""
         conn = self._conn
         if conn is not None:
             with contextlib.suppress(Exception):
-                await conn.close(1001, "ground service stopping")
+                await conn.close(code, reason)
 
     async def close(self) -> None:
         await self._safe_exits.close()

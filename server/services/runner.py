@@ -73,7 +73,6 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Coroutine
-from datetime import UTC, datetime
 from typing import Any, Protocol
 
 from sqlalchemy.orm import Session
@@ -102,6 +101,7 @@ from server.services.link import (
     TelemetryWindow,
     robot_mismatch,
 )
+from server.services.pass_reasons import handover_reason, safed_reason
 from server.services.pass_states import (
     TRANSITIONS,
     ActivePass,
@@ -158,6 +158,14 @@ class SafingAlarms(Protocol):
     def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None: ...
 
 
+class Authority(Protocol):
+    """Whether this ground may command the vehicle (server.services.authority)."""
+
+    def may_command(self) -> bool: ...
+
+    def refusal(self) -> ConflictError | None: ...
+
+
 class PassRunner:
     def __init__(
         self,
@@ -170,8 +178,11 @@ class PassRunner:
         settings: Settings,
         clock: Clock,
         alarms: SafingAlarms | None = None,
+        authority: Authority | None = None,
     ):
         self._link = link
+        #: None: this ground always commands (one ground, the simulated-time tests)
+        self._authority = authority
         self._alarms = alarms
         self._downlink = downlink
         self._db = db
@@ -342,8 +353,15 @@ class PassRunner:
 
     # -- start ---------------------------------------------------------------------------
 
+    def _refuse_unless_commanding(self) -> None:
+        """A standby (or a holder whose lease is lapsing) starts and aborts nothing."""
+        refusal = None if self._authority is None else self._authority.refusal()
+        if refusal is not None:
+            raise refusal
+
     async def start(self, pass_id: str, actor: str) -> None:
         async with self._lock:
+            self._refuse_unless_commanding()
             if self._active is not None:
                 raise Conflict(f"pass {self._active.name!r} is running; one pass at a time")
             link = self._link
@@ -463,6 +481,10 @@ class PassRunner:
     async def _uplink_step(self, active: ActivePass) -> float:
         """Expire, send what is due; the ground monotonic instant to look again."""
         link, clock, up = self._link, self._clock, active.uplink
+        if self._authority is not None and not self._authority.may_command():
+            # the lease lapsing (the database does not answer): nothing goes up, nothing is
+            # judged expired; the vehicle flies what it holds
+            return clock.monotonic() + LINK_DOWN_POLL_S
         if not link.connected:
             # The onboard clock is still known from the last hello: what can no longer
             # arrive expires; the rest waits for the link.
@@ -603,6 +625,7 @@ class PassRunner:
 
     async def abort(self, pass_id: str, actor: str, reason: str) -> None:
         async with self._lock:
+            self._refuse_unless_commanding()
             await self._abort_locked(pass_id, actor, reason)
         log.info(
             "pass aborted by %s: %s",
@@ -701,6 +724,27 @@ class PassRunner:
                 await task
         await self._db.drain()
 
+    async def stand_down(self) -> None:
+        """Another ground took the command lease: stop commanding at once and write nothing
+        (the database refuses this ground's writes now). The pass's uplink and task stop,
+        the background resolutions end; the pass stays as the record has it, for the ground
+        in command to resume. This ground may take the lease again later
+        (:meth:`recover` then runs again)."""
+        async with self._lock:
+            self._closing.set()
+            active = self._active
+            if active is not None:
+                await self._stop_pass_task(active)
+                active.tracker.close()
+                if self._active is active:
+                    self._active = None
+                log.warning("pass %s: handed to the ground in command", active.pass_id)
+            for task in list(self._background):
+                task.cancel()
+                with contextlib.suppress(Exception, asyncio.CancelledError):
+                    await task
+            self._closing = asyncio.Event()
+
     async def _stop_pass_task(self, active: ActivePass) -> None:
         """Stop the pass's uplink and wait for its task (an abort or a handover; not the
         task itself, when it is the one stopping)."""
@@ -742,36 +786,3 @@ class PassRunner:
         if self._active is active:
             self._active = None
         log.info("pass %s: %s", pass_id, reason)
-
-
-def handover_reason(
-    onboard_ns: int | None, first_tag_ns: int | None, loaded: int, unsent: int, policy: str
-) -> str:
-    """The ``ground_stopped`` event's sentence: when the pass was handed to the vehicle,
-    what it holds, and the policy it flies under."""
-    at = "an unknown onboard time"
-    if onboard_ns is not None:
-        at = datetime.fromtimestamp(onboard_ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
-        at = f"onboard {at[:-4]} UTC"
-        if first_tag_ns is not None:
-            at += f" (t = {(onboard_ns - first_tag_ns) / 1e9:.1f} s into the pass)"
-    return (
-        f"ground service stopped: pass handed to the vehicle at {at}; {loaded} commands "
-        f"loaded or on their way, {unsent} not sent; the vehicle's LOS policy {policy!r} "
-        "applies until the ground resumes the pass"
-    )
-
-
-def safed_reason(report: Safing, first_tag_ns: int | None = None) -> str:
-    """A safed pass's reason: the trigger and the onboard time (and, given the pass's first
-    command's tag, the time into the pass)."""
-    since = report.since_time_ns if report.since_time_ns is not None else report.onboard_time_ns
-    at = datetime.fromtimestamp(since / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4]
-    text = f"the vehicle safed itself at onboard {at} UTC"
-    if first_tag_ns is not None:
-        text += f" (t = {(since - first_tag_ns) / 1e9:.2f} s into the pass)"
-    trigger = report.trigger
-    if trigger is not None:
-        where = f"{trigger.quantity} {trigger.channel}".strip()
-        text += f": {where} {trigger.value:.4g} beyond its red limit {trigger.limit:.4g}"
-    return text[:300]

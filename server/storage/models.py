@@ -8,6 +8,8 @@
     events            the audit log: who did what, when, to which pass
     analysis_results  post-pass analysis documents
     alarms            limit alarms and the vehicle's safing alarms, with their timeline
+    ground_leases     the command authority over a vehicle: which ground holds it, its
+                      fencing token and when it expires (server/storage/lease.py)
 
 Conventions:
 
@@ -431,3 +433,20 @@ class AlarmRecord(Base):
         # the active ones: triggered, or cleared and not yet acknowledged
         Index("ix_alarms_acknowledged_state", "acknowledged", "state"),
     )
+
+
+class GroundLease(Base):
+    """The command authority over a vehicle (server/storage/lease.py): the ground that holds
+    it (``holder``, a process's own name), its **fencing token** (raised by one at every
+    acquisition, never reused) and its expiry. Times are the **database's** clock, seconds
+    since the Unix epoch (a float), so grounds on machines whose clocks disagree still agree
+    on who holds it. One row per lease name; a holder of ``""`` holds nothing."""
+
+    __tablename__ = "ground_leases"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(128))
+    token: Mapped[int] = mapped_column(BigInteger)
+    acquired_s: Mapped[float] = mapped_column(Double)
+    renewed_s: Mapped[float] = mapped_column(Double)
+    expires_s: Mapped[float] = mapped_column(Double)

@@ -42,7 +42,7 @@ def client(tmp_path: Path) -> TestClient:
 
 
 def test_lifespan_opens_a_migrated_sqlite_database(client: TestClient, tmp_path: Path) -> None:
-    assert client.get("/api/health").json() == {"status": "ok"}
+    assert client.get("/api/health").json() == {"status": "ok", "command": "holder"}
     assert (tmp_path / "hikoboshi.sqlite3").exists()
 
 

@@ -44,7 +44,7 @@ def test_a_large_response_is_gzipped_when_asked(client: TestClient) -> None:
 def test_a_small_response_is_sent_as_it_is(client: TestClient) -> None:
     headers, body = raw(client, "/api/health", "gzip")
     assert len(body) < MINIMUM_BYTES and "content-encoding" not in headers
-    assert json.loads(body) == {"status": "ok"}
+    assert json.loads(body) == {"status": "ok", "command": "holder"}
 
 
 def test_a_client_that_does_not_accept_gzip_gets_plain_bytes(client: TestClient) -> None:

@@ -15,6 +15,7 @@ TABLES = {
     "passes",
     "commands",
     "telemetry_frames",
+    "ground_leases",
     "events",
     "analysis_results",
     "alarms",
@@ -27,7 +28,7 @@ def test_migrations_create_every_table(empty_engine: Engine) -> None:
     assert set(inspect(empty_engine).get_table_names()) == TABLES | {"alembic_version"}
     assert set(Base.metadata.tables) == TABLES
     with empty_engine.connect() as conn:
-        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0006"
+        assert conn.scalar(text("SELECT version_num FROM alembic_version")) == "0007"
 
 
 def test_upgrade_is_idempotent(engine: Engine) -> None:
