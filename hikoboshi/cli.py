@@ -879,7 +879,13 @@ def ptp_demo(
 
 @app.command()
 def spacecraft(
-    ground: Annotated[str, typer.Option(help="Ground link endpoint, ws://HOST:PORT/PATH")],
+    ground: Annotated[
+        list[str],
+        typer.Option(
+            help="Ground link endpoint, ws://HOST:PORT/PATH; repeat it for a hot standby's "
+            "(tried in order after a drop or a standby's refusal)"
+        ),
+    ],
     token: Annotated[
         str | None,
         typer.Option(
@@ -1078,7 +1084,8 @@ def spacecraft(
         elif any(o is not None for o in (mission_start, windows, relay, fast_scale)):
             raise ValueError("--mission-start, --windows, --relay and --fast-scale need --mission")
         config = ProcessConfig(
-            ground_url=ground,
+            ground_url=ground[0],
+            standby_urls=tuple(ground[1:]),
             token=token,
             time_scale=time_scale,
             vehicle=vehicle,

@@ -20,7 +20,12 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
   connection, which instead gets the report of the SAFE state right after ``hello``.
 - **Truth log** (``truth_log``, :mod:`spacecraft.truth`): the start, each fault's onset and
   each entry into and exit from SAFE, written as they happen; never sent to the ground.
-- **Connection**: reconnects after any drop with exponential backoff. A drop changes nothing
+- **Connection**: reconnects after any drop with exponential backoff, trying its grounds in
+  order (``ground_url``, then each of ``standby_urls``; the ground it was connected to is
+  tried again last): a standby refuses the handshake (503: another ground holds the command
+  lease, docs/operations.md "One ground in command"; a holder that loses it closes with
+  1013) and the next one is tried at once; the backoff grows only once every ground has
+  been tried. A drop changes nothing
   on board: the loaded schedule keeps executing, and only the vehicle's LOS policy (silence
   for ``los_hold_after_s`` with ``hold``) refuses queued joint commands. ``hello`` is the
   session handshake, announces the schedule's capacity, the LOS policy and (when the vehicle
@@ -111,6 +116,8 @@ SOCKET_MAX_BYTES = 4 * 1024 * 1024
 class ProcessConfig:
     ground_url: str
     token: str
+    #: more grounds' link endpoints (hot standbys), tried in order after ``ground_url``
+    standby_urls: tuple[str, ...] = ()
     time_scale: float = 1.0
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     uplink: LinkConfig = field(default_factory=LinkConfig)
@@ -138,8 +145,14 @@ class ProcessConfig:
             raise ValueError(
                 f"fast_scale = {self.fast_scale} must be at least time_scale = {self.time_scale}"
             )
-        if not self.ground_url.startswith(("ws://", "wss://")):
-            raise ValueError(f"ground URL {self.ground_url!r} must start with ws:// or wss://")
+        for url in self.ground_urls:
+            if not url.startswith(("ws://", "wss://")):
+                raise ValueError(f"ground URL {url!r} must start with ws:// or wss://")
+
+    @property
+    def ground_urls(self) -> tuple[str, ...]:
+        """Every ground this vehicle may talk to, in the order it tries them."""
+        return (self.ground_url, *self.standby_urls)
 
 
 class SpacecraftProcess:
@@ -473,12 +486,15 @@ class SpacecraftProcess:
     async def _connection(self, stop: asyncio.Event) -> None:
         delay = self.config.backoff_initial_s
         rng = random.Random(self.config.seed)
+        urls = list(self.config.ground_urls)
+        tried = 0  # grounds tried since the last backoff
         while not stop.is_set() or self._stopping:
             if not await self._window_open(stop):
                 return
+            url = urls[0]
             try:
                 async with connect(
-                    self.config.ground_url,
+                    url,
                     additional_headers={"Authorization": f"Bearer {self.config.token}"},
                     max_size=SOCKET_MAX_BYTES,
                     proxy=None,
@@ -514,14 +530,14 @@ class SpacecraftProcess:
                     report = self.vehicle.safing_report()
                     if report is not None:  # a safe vehicle says so at once
                         self._send(encode(report))
-                    log.info("connected to %s", self.config.ground_url)
+                    log.info("connected to %s", url)
                     los = asyncio.create_task(self._close_at_los(ws), name="los")
                     try:
                         await self._receiver(ws)
                     finally:
                         los.cancel()
             except (OSError, ConnectionClosed, InvalidHandshake, InvalidURI, TimeoutError) as exc:
-                log.warning("link to ground down: %s", exc)
+                log.warning("link to ground %s down: %s", url, exc)
             finally:
                 was_connected = self._connected.is_set()
                 self._connected.clear()
@@ -532,6 +548,11 @@ class SpacecraftProcess:
                     self._outgoing.clear()
             if stop.is_set() and not self._stopping:
                 return
+            urls.append(urls.pop(0))  # the next ground; this one again last
+            tried += 1
+            if tried < len(urls):
+                continue
+            tried = 0
             await asyncio.sleep(delay * (0.5 + rng.random()))
             delay = min(delay * 2.0, self.config.backoff_max_s)
 

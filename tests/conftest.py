@@ -63,6 +63,7 @@ REALTIME_MODULES = (
     "tests/server/link/test_abort_consoles.py",
     "tests/server/link/test_api.py",
     "tests/server/link/test_e2e.py",
+    "tests/server/link/test_failover.py",
     "tests/server/link/test_foxglove_live.py",
     "tests/server/link/test_hostile.py",
     "tests/server/link/test_load.py",

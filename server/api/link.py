@@ -2,8 +2,9 @@
 
 A bad token or role is accepted and then closed with 1008 and the reason (closing before
 the handshake would lose the reason to a bare HTTP 403). A ground that does not hold the
-vehicle's command lease (a standby, server/services/authority.py) closes it with 1013
-(try again later) and the holder's name: the spacecraft tries its next ground. Every text
+vehicle's command lease (a standby, server/services/authority.py) refuses the handshake
+itself (503, ``standby`` and the holder's name; a holder that loses the lease closes the
+socket with 1013): the spacecraft tries its next ground, having sent this one nothing. Every text
 (or binary) frame goes to :class:`server.services.link.GroundLink`, which answers a
 malformed one with ``error`` and keeps the connection. Only the socket's own end closes
 the session: an exception while handling one message (a bug, a database failure) is
@@ -16,9 +17,10 @@ import asyncio
 import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi.responses import JSONResponse
 
 from server.api.deps import AuthorityDep, ClockDep, LinkDep, websocket_principal
-from server.api.errors import HttpError
+from server.api.errors import HttpError, error_body
 from server.services.link import Connection
 from server.settings import Role
 
@@ -32,16 +34,23 @@ log = logging.getLogger("hikoboshi.ground.link")
 async def spacecraft_link(
     websocket: WebSocket, link: LinkDep, clock: ClockDep, authority: AuthorityDep
 ) -> None:
+    refusal = authority.refusal()
+    if refusal is not None:
+        # a standby (or a lease lapsing): refused in the handshake, before the vehicle says
+        # hello or sends what it kept for the ground; it goes on to its next ground's URL
+        await websocket.send_denial_response(
+            JSONResponse(
+                error_body(refusal.code, refusal.message, refusal.detail),
+                status_code=503,
+                headers={"Retry-After": "1"},
+            )
+        )
+        return
     await websocket.accept()
     try:
         principal = websocket_principal(websocket, Role.SPACECRAFT)
     except HttpError as exc:
         await websocket.close(code=1008, reason=exc.message[:120])
-        return
-    if not authority.may_command():
-        # a standby (or a lease lapsing): the vehicle goes on to its next ground's URL
-        holder = authority.status().get("lease_holder") or "no ground"
-        await websocket.close(code=1013, reason=f"standby: {holder} holds the command"[:120])
         return
 
     async def close(code: int, reason: str) -> None:

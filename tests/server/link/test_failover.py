@@ -1,0 +1,203 @@
+"""Two grounds on one PostgreSQL: exactly one commands the vehicle, the other is a hot standby
+that takes over when the holder dies (docs/operations.md "One ground in command").
+
+Ground A runs a pass; ground B, started on the same database as if by mistake, is a standby:
+it says so, refuses to start a pass and writes nothing on the running one. A is then killed
+(SIGKILL: no shutdown, its lease left to expire); B takes the lease over, resumes the pass
+from the database and the vehicle's ``hello``, and the vehicle (given both grounds' URLs)
+moves to it. The pass completes, each command's stage the vehicle's own record, and every
+frame of the pass's window is stored once. Both grounds are processes of their own
+(``hikoboshi serve``), so the kill is real; the spacecraft runs in the test's loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from server.storage import repository as repo
+from server.storage.db import make_engine, read_session_factory, session_factory
+from spacecraft.link import LinkConfig
+from spacecraft.process import ProcessConfig, SpacecraftProcess
+from tests.server.link.harness import (
+    OPERATOR,
+    VIEWER,
+    _free_port,
+    generated_frames,
+    serve_process,
+    store_pass,
+    wait_for,
+)
+
+pytestmark = pytest.mark.realtime
+
+SCALE = 10.0
+TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
+#: The lease here: the standby takes over 3 s (wall) after the holder's last renewal.
+LEASE = {"HIKOBOSHI_LEASE_TTL_S": "3", "HIKOBOSHI_LEASE_RENEW_S": "0.5"}
+#: onboard s: the schedule loaded before the kill rides out the takeover (3-4 s of lease
+#: and recovery, 30-40 s onboard at 10x, more on a loaded machine)
+LEAD_WINDOW_S = 150.0
+
+
+def _env(name: str) -> dict[str, str]:
+    return {
+        "HIKOBOSHI_TOKENS": TOKENS,
+        "HIKOBOSHI_UPLINK_LEAD_WINDOW_S": str(LEAD_WINDOW_S),
+        "HIKOBOSHI_GROUND_NAME": name,
+        **LEASE,
+    }
+
+
+@pytest.mark.slow
+def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
+    postgres_schema_url: str, tmp_path: Path
+) -> None:
+    database_url = postgres_schema_url
+    port_a, port_b = _free_port(), _free_port()
+    engine = make_engine(database_url)
+    sessions, readers = session_factory(engine), read_session_factory(engine)
+    process = SpacecraftProcess(
+        ProcessConfig(
+            ground_url=f"ws://127.0.0.1:{port_a}/api/link",
+            standby_urls=(f"ws://127.0.0.1:{port_b}/api/link",),
+            token="s-token",
+            time_scale=SCALE,
+            uplink=LinkConfig(seed=31),
+            downlink=LinkConfig(seed=32),
+            seed=7,
+            backoff_initial_s=0.05,
+            backoff_max_s=0.3,
+            drain_timeout_s=90.0,
+        )
+    )
+    generated = generated_frames(process)
+
+    def events(pass_id: str, *kinds: str) -> list[Any]:
+        with readers() as session:
+            return list(repo.list_events(session=session, pass_id=pass_id, kinds=kinds).items)
+
+    def executed_on_board(pass_id: str, n: int) -> bool:
+        with readers() as session:
+            first = repo.list_commands(session=session, pass_id=pass_id, limit=n)
+        outcomes = [process.vehicle.outcome(c.seq) for c in first]
+        return all(a is not None and a.stage.value == "executed" for a in outcomes)
+
+    def resolved(pass_id: str) -> bool:
+        with readers() as session:
+            ended = repo.get_pass(session=session, pass_id=pass_id).state in ("complete", "aborted")
+            waiting = repo.list_commands(
+                session=session, pass_id=pass_id, stages=("queued", "released", "sent", "received")
+            )
+        return ended and not waiting
+
+    async def scenario() -> dict[str, Any]:
+        seen: dict[str, Any] = {}
+        stop = asyncio.Event()
+        task = asyncio.create_task(process.run(stop))
+        log_a, log_b = tmp_path / "ground-a.log", tmp_path / "ground-b.log"
+        a_url, b_url = f"http://127.0.0.1:{port_a}", f"http://127.0.0.1:{port_b}"
+        try:
+            with serve_process(database_url, port_a, log_a, _env("ground-a")) as ground_a:
+                pass_id = store_pass(sessions, "failover", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 200.0)
+                seen["pass_id"] = pass_id
+                async with httpx.AsyncClient(base_url=a_url, timeout=30.0) as a:
+                    assert (await a.get("/api/health")).json()["command"] == "holder"
+                    await wait_for(lambda: process.connections > 0, 60.0, "a spacecraft")
+                    started = await a.post(
+                        f"/api/passes/{pass_id}/start",
+                        json={"confirm": "START failover"},
+                        headers=OPERATOR,
+                    )
+                    assert started.status_code == 200, started.text
+                with serve_process(database_url, port_b, log_b, _env("ground-b")) as ground_b:
+                    async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
+                        health = (await b.get("/api/health")).json()
+                        assert health == {"status": "ok", "command": "standby"}
+                        refused = await b.post(
+                            f"/api/passes/{pass_id}/start",
+                            json={"confirm": "START failover"},
+                            headers=OPERATOR,
+                        )
+                        assert refused.status_code == 409, refused.text
+                        body = refused.json()["error"]
+                        assert body["code"] == "standby", body
+                        assert "ground-a" in body["message"]
+                        # a standby serves reads: the running pass, as the holder writes it
+                        got = await b.get(f"/api/passes/{pass_id}", headers=VIEWER)
+                        assert got.status_code == 200 and got.json()["state"] == "running"
+                    await wait_for(
+                        lambda: executed_on_board(pass_id, 30), 60.0, "30 commands executed"
+                    )
+                    # the standby wrote nothing on the running pass
+                    assert not events(pass_id, "pass_resumed", "ground_stopped")
+                    connections_before = process.connections
+                    ground_a.send_signal(signal.SIGKILL)
+                    killed = time.monotonic()
+                    killed_ns = time.time_ns()
+                    ground_a.wait(30)
+                    await wait_for(
+                        lambda: events(pass_id, "pass_resumed"), 60.0, "the standby took over"
+                    )
+                    seen["takeover_s"] = time.monotonic() - killed
+                    await wait_for(lambda: resolved(pass_id), 120.0, "the pass ended, resolved")
+                    async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
+                        health = (await b.get("/api/health")).json()
+                        assert health["command"] == "holder"
+                        summary = await b.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
+                        assert summary.status_code == 200, summary.text
+                        seen["summary"] = summary.json()
+                    stop.set()  # drain the onboard store while the new holder is there
+                    await asyncio.wait_for(task, 100.0)
+                    assert process.store.unacked == 0
+                    assert process.connections > connections_before  # moved to B
+                    seen["killed_ns"] = killed_ns
+                    assert ground_b.poll() is None
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, 100.0)
+        return seen
+
+    try:
+        seen = asyncio.run(scenario())
+        pass_id = seen["pass_id"]
+        with sessions() as session:
+            commands = repo.list_commands(session=session, pass_id=pass_id)
+            record = repo.get_pass(session=session, pass_id=pass_id)
+            frames = repo.frame_seqs(session=session, pass_id=pass_id)
+            resumed = repo.list_events(session=session, pass_id=pass_id, kinds=["pass_resumed"])
+    finally:
+        engine.dispose()
+    [resumed_event] = resumed.items
+    assert resumed_event.detail["state"] == "running"
+    # every command's stage is the vehicle's own record; none cancelled or left open
+    for c in commands:
+        ack = process.vehicle.outcome(c.seq)
+        if c.stage == "expired":
+            assert ack is None, (c.seq, c.stage, ack)
+        else:
+            assert ack is not None and c.stage == ack.stage.value, (c.seq, c.stage, ack)
+            assert c.stage == "executed", (c.seq, c.stage, ack)
+            assert c.executed_at_ns == c.execute_time_ns
+    summary = seen["summary"]
+    assert summary["commands_unresolved"] == summary["commands_cancelled"] == 0
+    assert record.state == "complete", (record.state, record.state_reason)
+    assert record.state_reason == f"complete, {summary['outcome_text']}"
+    # every frame generated in the pass's window stored, once (the archive's key)
+    assert record.telemetry_start_ns is not None and record.telemetry_end_ns is not None
+    window = sorted(
+        f.seq
+        for f in generated
+        if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
+    )
+    assert frames == window
+    print(
+        f"takeover (kill to pass_resumed): {seen['takeover_s']:.1f} s wall with a "
+        f"{LEASE['HIKOBOSHI_LEASE_TTL_S']} s lease; {summary['outcome_text']}"
+    )
