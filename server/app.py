@@ -225,7 +225,7 @@ def _authority(settings: Settings, url: str) -> tuple[CommandAuthority, Engine, 
         holder=ground_name(settings.ground_name),
         ttl_s=settings.lease_ttl_s,
         renew_s=settings.lease_renew_s,
-        force=held is not None,
+        exclusive=held is not None,
     )
     return CommandAuthority(session_factory(engine), policy), engine, held
 

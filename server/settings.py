@@ -250,9 +250,10 @@ class Settings(BaseSettings):
     ground_name: str | None = Field(default=None, min_length=1, max_length=80)
     """This ground's name as a lease holder (the host's name when unset; the process id
     and a random suffix are added, so a restarted ground is a new holder)."""
-    lease_ttl_s: float = Field(default=5.0, ge=1.0, le=600)
+    lease_ttl_s: float = Field(default=10.0, ge=1.0, le=600)
     """The command lease's time to live (wall s, on the database's clock): a standby takes
-    over this long after the holder's last renewal, once the holder died."""
+    over this long after the holder's last renewal, once the holder died; the holder stops
+    sending ``lease_ttl_s - lease_renew_s`` after the start of its last renewal."""
     lease_renew_s: float = Field(default=1.0, gt=0, le=60)
     """The holder renews its lease, and a standby tries to take it, this often (wall s;
     under half of ``lease_ttl_s``)."""

@@ -27,7 +27,9 @@ of its own (so a busy event loop or a backlog of writes never delays a renewal):
 
 On SQLite the service holds an exclusive lock on the database file's lock file
 (:func:`hold_sqlite_file`): a second ground on the same file is refused at its start, and
-the first takes the lease with ``force`` (the lock proves the previous holder is gone).
+the one ground takes the lease whoever the row names (the lock proves the previous holder is
+gone) and keeps it without renewals (``exclusive``: a renewal would queue for SQLite's one
+write lock behind the command path's own writes, and nothing could take the lease anyway).
 """
 
 from __future__ import annotations
@@ -105,13 +107,15 @@ def hold_sqlite_file(database: Path) -> IO[str]:
 class LeasePolicy:
     """The lease's name (one per vehicle), this ground's name, its time to live and how often
     it is renewed (wall s; settings ``command_lease``, ``ground_name``, ``lease_ttl_s``,
-    ``lease_renew_s``), and whether to take it whoever holds it (SQLite's file lock)."""
+    ``lease_renew_s``), and whether this ground is the only one by construction
+    (``exclusive``: SQLite's file lock is held, so the lease is taken whoever the row names
+    and never lapses: no other ground can exist to take it)."""
 
     name: str
     holder: str
-    ttl_s: float = 5.0
+    ttl_s: float = 10.0
     renew_s: float = 1.0
-    force: bool = False
+    exclusive: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.renew_s < self.ttl_s / 2:
@@ -168,7 +172,9 @@ class CommandAuthority:
     def may_command(self) -> bool:
         """Whether this ground may send to the vehicle now: it holds the lease and its last
         renewal is recent enough (see the module docstring)."""
-        return self._lease is not None and self._monotonic() < self._valid_until
+        if self._lease is None:
+            return False
+        return self.policy.exclusive or self._monotonic() < self._valid_until
 
     def refusal(self) -> ConflictError | None:
         """Why an operator's start or abort is refused here (None: this ground commands)."""
@@ -232,7 +238,7 @@ class CommandAuthority:
             with self._sessions() as session:
                 got = leases.acquire(
                     session, self.policy.name, self.policy.holder, self.policy.ttl_s,
-                    force=self.policy.force and self.acquisitions == 0,
+                    force=self.policy.exclusive,
                 )  # fmt: skip
                 session.commit()
         except Exception as exc:
@@ -266,6 +272,8 @@ class CommandAuthority:
 
     def _keep(self) -> None:
         while not self._stop.wait(self.policy.renew_s):
+            if self._lease is not None and self.policy.exclusive:
+                continue  # the file lock is the authority: nothing to renew
             if self._lease is None:
                 if self.try_acquire():
                     self._call(self._on_acquired)

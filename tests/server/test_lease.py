@@ -225,3 +225,18 @@ def test_sqlite_refuses_a_second_ground_on_the_same_file(tmp_path: Path) -> None
 def test_the_lease_policy_refuses_a_renewal_too_slow_for_its_time_to_live() -> None:
     with pytest.raises(ValueError, match="under half"):
         LeasePolicy(name=NAME, holder="g", ttl_s=2.0, renew_s=1.5)
+
+
+def test_the_one_ground_of_an_sqlite_file_takes_the_lease_and_never_lapses(
+    engine: Engine,
+) -> None:
+    """``exclusive`` (the file lock held): the lease is taken whoever the row names (a ground
+    killed with it), with a higher token, and commanding never waits for a renewal."""
+    dead = _acquire(engine, "killed-ground")
+    assert isinstance(dead, Lease)
+    clock = _Clock()
+    policy = LeasePolicy(name=NAME, holder="ground-a", exclusive=True)
+    a = CommandAuthority(session_factory(engine), policy, monotonic=clock)
+    assert a.try_acquire() and a.lease is not None and a.lease.token == dead.token + 1
+    clock.now += 3600.0  # no renewal for an hour
+    assert a.may_command() and a.refusal() is None

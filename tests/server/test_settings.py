@@ -69,6 +69,10 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "malformed_close_after": ("50", 50),
     "foxglove_port": ("8765", 8765),
     "foxglove_host": ("10.0.0.5", "10.0.0.5"),
+    "command_lease": ("ets-vii-b", "ets-vii-b"),
+    "ground_name": ("tsukuba-1", "tsukuba-1"),
+    "lease_ttl_s": ("8", 8.0),
+    "lease_renew_s": ("2", 2.0),
 }
 
 
