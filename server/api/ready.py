@@ -27,6 +27,10 @@ class ReadyPublic(BaseModel):
     status: Literal["ready"]
     #: The head migration the database is at.
     migration: list[str]
+    #: ``holder``: this ground commands the vehicle; ``standby``: it serves reads and
+    #: consoles and takes over when the holder is gone (docs/operations.md "One ground in
+    #: command"). A load balancer that must reach the holder asks ``/api/command``.
+    command: Literal["holder", "standby"]
 
 
 @router.get(
@@ -46,9 +50,48 @@ async def ready(request: Request) -> Any:
         )
     answer = await probe.check()
     if answer.ready:
-        return ReadyPublic(status="ready", migration=answer.detail["migration"])
+        role = request.app.state.authority.status()["role"]
+        return ReadyPublic(status="ready", migration=answer.detail["migration"], command=role)
     return JSONResponse(
         error_body(answer.code, answer.message, answer.detail or None),
         status_code=503,
         headers={"Retry-After": "5"},
+    )
+
+
+class CommandPublic(BaseModel):
+    #: always ``holder`` in a 200 answer
+    role: Literal["holder"]
+    ground: str
+    lease: str
+    token: int
+
+
+@router.get(
+    "/api/command",
+    response_model=CommandPublic,
+    responses={503: {"model": ErrorPublic, "description": "A standby, and who holds the lease"}},
+)
+async def command(request: Request) -> Any:
+    """Whether this ground commands the vehicle: 200 for the holder of the command lease,
+    503 for a standby (or a holder whose lease is lapsing), with the holder's name. A load
+    balancer in front of several grounds routes the spacecraft's link by it (docker-compose's
+    ``replicas`` profile); public, like ``/api/ready``."""
+    authority = getattr(request.app.state, "authority", None)
+    if authority is None:
+        return JSONResponse(
+            error_body("starting", "the service is not started"),
+            status_code=503,
+            headers={"Retry-After": "2"},
+        )
+    refusal = authority.refusal()
+    if refusal is not None:
+        return JSONResponse(
+            error_body(refusal.code, refusal.message, refusal.detail),
+            status_code=503,
+            headers={"Retry-After": "1"},
+        )
+    status = authority.status()
+    return CommandPublic(
+        role="holder", ground=status["ground"], lease=status["lease"], token=status["token"]
     )

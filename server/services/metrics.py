@@ -17,7 +17,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram
-from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    Metric,
+)
 from prometheus_client.registry import Collector
 
 from server.services.command_stages import STAGE_RANK
@@ -40,6 +45,8 @@ class Sources:
     uplink_leads_s: Callable[[], list[float]] | None = None
     workers: Callable[[], tuple[int, int, int]] | None = None  # running, admitted, queue
     consoles: Callable[[], int] | None = None
+    #: the command lease (server.services.authority.CommandAuthority.status and its counts)
+    authority: Callable[[], dict[str, Any]] | None = None
 
 
 def _gauge(name: str, doc: str, value: float | None) -> Iterator[Metric]:
@@ -153,6 +160,37 @@ class GroundCollector(Collector):
             )
         if s.consoles is not None:
             yield from _gauge("hikoboshi_consoles", "Console websockets connected", s.consoles())
+        if s.authority is not None:
+            yield from self._authority(s.authority())
+
+    @staticmethod
+    def _authority(a: dict[str, Any]) -> Iterator[Metric]:
+        yield from _gauge(
+            "hikoboshi_command_lease_holder",
+            "1 when this ground holds the vehicle's command lease, 0 for a standby",
+            a["role"] == "holder",
+        )
+        yield from _gauge(
+            "hikoboshi_command_lease_commanding",
+            "1 when this ground may send to the vehicle now (holder, lease renewed in time)",
+            a["commanding"],
+        )
+        yield from _gauge(
+            "hikoboshi_command_lease_token", "The fencing token this ground holds", a["token"]
+        )
+        yield from _gauge(
+            "hikoboshi_command_lease_database_reachable",
+            "1 when the lease's last read or renewal reached the database",
+            a["database_reachable"],
+        )
+        for name, doc in (
+            ("acquisitions", "Times this ground acquired the command lease (takeovers)"),
+            ("losses", "Times another ground took the lease from this one"),
+            ("renewal_failures", "Lease renewals that did not reach the database"),
+        ):
+            family = CounterMetricFamily(f"hikoboshi_command_lease_{name}", doc)
+            family.add_metric([], float(a[name]))
+            yield family
 
 
 class GroundMetrics:

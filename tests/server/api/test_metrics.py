@@ -43,6 +43,13 @@ def test_the_gauges_are_the_services_figures(client: TestClient) -> None:
     assert samples[("hikoboshi_worker_queue_capacity", ())] == state.workers.queue
     assert samples[("hikoboshi_consoles", ())] == state.console.clients == 0
     assert samples[("hikoboshi_commands", (("stage", "queued"),))] == 0.0  # no pass running
+    # the one ground of its database holds the command lease (server/services/authority.py)
+    authority = state.authority
+    assert samples[("hikoboshi_command_lease_holder", ())] == 1.0
+    assert samples[("hikoboshi_command_lease_commanding", ())] == 1.0
+    assert samples[("hikoboshi_command_lease_token", ())] == authority.lease.token >= 1
+    assert samples[("hikoboshi_command_lease_acquisitions_total", ())] == 1.0
+    assert samples[("hikoboshi_command_lease_losses_total", ())] == 0.0
 
 
 def test_requests_are_timed_by_route_and_commits_by_the_database_worker(

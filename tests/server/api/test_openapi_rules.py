@@ -270,8 +270,9 @@ def test_operations_declare_the_bearer_scheme_instead_of_a_header_parameter(
     operations = [(path, op) for path, item in document["paths"].items() for op in item.values()]
     secured = [path for path, op in operations if op.get("security") == [{"bearerAuth": []}]]
     open_ = [path for path, op in operations if "security" not in op]
-    assert sorted(open_) == ["/api/health", "/api/ready"]  # liveness and readiness: public
-    assert len(secured) == len(operations) - 2 >= 27
+    # liveness, readiness and command authority: public (an orchestrator's probes)
+    assert sorted(open_) == ["/api/command", "/api/health", "/api/ready"]
+    assert len(secured) == len(operations) - 3 >= 27
     headers = [
         (path, p["name"])
         for path, op in operations

@@ -22,7 +22,15 @@ NOWHERE = "postgresql://hikoboshi@127.0.0.1:1/none"
 def test_ready_at_the_head_migration_without_a_token(client: TestClient) -> None:
     response = client.get("/api/ready")
     assert response.status_code == 200, response.text
-    assert response.json() == {"status": "ready", "migration": list(head_revisions())}
+    assert response.json() == {
+        "status": "ready",
+        "migration": list(head_revisions()),
+        "command": "holder",
+    }
+    # the one ground of its database commands the vehicle (a load balancer's probe)
+    command = client.get("/api/command")
+    assert command.status_code == 200, command.text
+    assert command.json()["role"] == "holder" and command.json()["token"] >= 1
 
 
 def test_a_schema_behind_the_head_is_not_ready(client: TestClient) -> None:

@@ -120,6 +120,12 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
                         health = (await b.get("/api/health")).json()
                         assert health == {"status": "ok", "command": "standby"}
+                        assert (await b.get("/api/ready")).json()["command"] == "standby"
+                        command = await b.get("/api/command")  # a load balancer's probe
+                        assert command.status_code == 503
+                        assert command.json()["error"]["code"] == "standby"
+                        metrics = (await b.get("/metrics", headers=VIEWER)).text
+                        assert "hikoboshi_command_lease_holder 0.0" in metrics
                         refused = await b.post(
                             f"/api/passes/{pass_id}/start",
                             json={"confirm": "START failover"},
@@ -150,6 +156,8 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
                         health = (await b.get("/api/health")).json()
                         assert health["command"] == "holder"
+                        command = await b.get("/api/command")
+                        assert command.status_code == 200 and command.json()["token"] == 2
                         summary = await b.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
                         assert summary.status_code == 200, summary.text
                         seen["summary"] = summary.json()
