@@ -68,7 +68,7 @@ async def _run(tmp: Path, garbage: bool, old: bool) -> dict[str, Any]:
     clock = SystemClock()
     live = build_live_path(
         sessions=session_factory(engine),
-        settings=Settings(data_dir=tmp, malformed_close_after=10**9),
+        settings=Settings(data_dir=tmp, malformed_unusable_after=10**9),
         clock=clock,
     )
     link = live.link

@@ -135,7 +135,7 @@ def build_live_path(
         malformed=MalformedPolicy(
             interval_s=settings.malformed_interval_s,
             replies_per_s=settings.malformed_replies_per_s,
-            close_after=settings.malformed_close_after,
+            unusable_after=settings.malformed_unusable_after,
         ),
     )
     trackers = Trackers(link=link, db=db, clock=clock, one_way_delay_s=delay_s)

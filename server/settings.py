@@ -235,12 +235,15 @@ class Settings(BaseSettings):
     # docs/protocol.md "Malformed messages") ---------------------------------------------
     malformed_interval_s: float = Field(default=5.0, gt=0, le=3600)
     """Malformed messages on the spacecraft link: one audit row per kind per interval
-    (ground s); also the threshold's window."""
+    (ground s); also how long a connection must carry nothing readable before it can be
+    found unusable (``malformed_unusable_after``)."""
     malformed_replies_per_s: float = Field(default=10.0, ge=0, le=1000)
     """``error`` replies to malformed messages, at most this many a second."""
-    malformed_close_after: int = Field(default=1000, ge=1)
-    """More malformed messages than this on one connection within one interval: the ground
-    closes it (1008) and the vehicle reconnects."""
+    malformed_unusable_after: int = Field(default=1000, ge=1)
+    """More malformed messages than this in a row on one connection, and nothing readable on
+    it for a whole ``malformed_interval_s``: its stream is unusable, the ground closes it
+    (1008) and the vehicle reconnects. Malformed messages beside readable ones never close
+    the link (they are dropped and counted)."""
 
     # --- command authority (server/services/authority.py, docs/operations.md "One ground
     # in command") -----------------------------------------------------------------------

@@ -26,6 +26,12 @@ receiver stores must read the same on every database (PostgreSQL refuses NUL). A
 message alone is not refused for its text: it must never be answered with an ``error``, so
 the control characters of its string values are escaped instead (NUL becomes the four
 characters ``\x00``) and it is delivered.
+
+The cheap refusals come first, so that noise costs little more than its JSON parse: the size,
+the parse, then the top-level ``v`` and ``type`` (a wrong version, no type, or, on the
+spacecraft -> ground direction, a type the protocol does not have) before the walk of the
+whole tree and the field validation. Their reasons show the offending value through
+``repr`` (which escapes every control character and lone surrogate), cut short.
 """
 
 from __future__ import annotations
@@ -466,6 +472,10 @@ def _size(text: str | bytes) -> int:
     return len(text.encode("utf-8", "surrogatepass"))
 
 
+#: a tuple: ``isinstance`` checks it faster than the union ``dict | list``
+_CONTAINERS = (dict, list)
+
+
 def _check_tree(doc: dict[str, object], strings: bool, ref_type: str | None) -> None:
     """Refuse nesting deeper than :data:`MAX_DEPTH` and, when ``strings``, control
     characters in any string (keys included); level by level, so depth costs no stack."""
@@ -484,7 +494,7 @@ def _check_tree(doc: dict[str, object], strings: bool, ref_type: str | None) -> 
             value
             for node in level
             for value in (node.values() if isinstance(node, dict) else node)
-            if isinstance(value, dict | list)
+            if isinstance(value, _CONTAINERS)
         ]
         depth += 1
 
@@ -496,7 +506,18 @@ def _control_reason(text: str) -> str:
     return f"control character U+{ord(match.group()):04X} in the string {shown!r}: not allowed"
 
 
-def _load(text: str | bytes) -> dict[str, object]:
+def _shown(value: object) -> str:
+    """A top-level value as a refusal names it: short, never a control character."""
+    if value is None or isinstance(value, bool | int | float):
+        return repr(value)[:32]
+    if isinstance(value, str):
+        return repr(value[:64])
+    return f"(a JSON {'object' if isinstance(value, dict) else 'array'})"
+
+
+def _load(text: str | bytes, known: frozenset[str] | None = None) -> dict[str, object]:
+    """The message's object, refused with the first fault met, cheapest first; with
+    ``known`` (the direction's types), a type not in it is refused before the tree walk."""
     size = _size(text)
     if size > MAX_MESSAGE_BYTES:
         raise WireError(
@@ -517,20 +538,22 @@ def _load(text: str | bytes) -> dict[str, object]:
         for key, value in doc.items():
             if isinstance(value, str):
                 doc[key] = escape_controls(value)
-    if isinstance(text, bytes):
-        strings = _SUSPECT_BYTES.search(text) is not None
-    else:
-        strings = _SUSPECT.search(text) is not None
-    _check_tree(doc, strings, ref_type)
     version = doc.get("v")
     if version != PROTOCOL_VERSION:
         raise WireError(
-            f"protocol version {version!r} is not served: this end speaks {PROTOCOL_VERSION}",
+            f"protocol version {_shown(version)} is not served: this end speaks {PROTOCOL_VERSION}",
             ref_type,
             "version",
         )
     if ref_type is None:
         raise WireError("a message needs a string 'type'", code="no_type")
+    if known is not None and ref_type not in known:
+        raise WireError(f"unknown message type {_shown(ref_type)}", ref_type, "unknown_type")
+    if isinstance(text, bytes):
+        strings = _SUSPECT_BYTES.search(text) is not None
+    else:
+        strings = _SUSPECT.search(text) is not None
+    _check_tree(doc, strings, ref_type)
     return doc
 
 
@@ -602,7 +625,7 @@ def decode_spacecraft(text: str | bytes, layout: FrameLayout | None = None) -> S
     """A spacecraft -> ground message, or :class:`WireError`. With ``layout`` (the robot
     of the session), a telemetry frame of another shape, or a ``hello`` announcing another
     joint count, is refused too."""
-    doc = _load(text)
+    doc = _load(text, SPACECRAFT_TYPES)
     kind = str(doc["type"])
     try:
         message = _SPACECRAFT.validate_python(doc)

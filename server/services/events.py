@@ -274,14 +274,16 @@ class LinkErrorReplied(Event):
 
 @dataclass(frozen=True, kw_only=True)
 class LinkClosedMalformed(Event):
-    """The ground closed the spacecraft's connection (1008): too many malformed messages
-    within one interval (server/services/malformed.py)."""
+    """The ground closed the spacecraft's connection (1008): its stream was unusable, a run
+    of ``count`` malformed messages and nothing readable for ``unreadable_s`` (at least the
+    policy's ``interval_s``; server/services/malformed.py)."""
 
     kind = "link_closed_malformed"
     connection: int
     reason: str
     count: int
     interval_s: float
+    unreadable_s: float
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -15,14 +15,16 @@ it, each the one owner of its state:
   a command and the writes that move it; :mod:`server.services.events`: every event;
 - :mod:`server.services.dbworker`: the database worker thread and the consoles' publisher.
 
+Its own parts, each in its module: :mod:`server.services.link_connection` (one accepted
+websocket and the sends on it), :mod:`server.services.link_noise` (the messages that do not
+decode: counted, audited, answered at a bounded rate; the connection closed only when its
+stream is unusable) and :mod:`server.services.command_fates` (what the vehicle says of a
+command, filed in its stage).
+
 What the vehicle says about commands reaches the runner (:mod:`server.services.runner`) as
-typed :data:`LinkEvent` values through :meth:`GroundLink.add_listener`, after this module
-has filed the stage: ``command_ack`` moves the command's stage (``received``,
-``executed``, ``rejected`` with its reason, ``cancelled`` when a ``schedule_delete``
-removed it) with the onboard time, never backwards; a ``schedule_full`` refusal is
-transient (the vehicle did not keep the command; the runner sends it again) and leaves the
-stage alone. ``command_unknown`` expires the commands the vehicle never received whose tag
-has passed. ``verification`` answers a ``schedule_delete``.
+typed :data:`LinkEvent` values through :meth:`GroundLink.add_listener`, after the stage is
+filed (``command_ack``: queued; ``command_unknown``'s expiries: written).
+``verification`` answers a ``schedule_delete``.
 
 ``hello`` names the robot the vehicle flies (its description's name, ``content_sha256`` and
 joint count; a ``hello`` without them is ETS-VII's, 6 joints): :attr:`GroundLink.robot`,
@@ -36,23 +38,16 @@ import asyncio
 import contextlib
 import itertools
 import logging
-from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
-from sqlalchemy import select
-from sqlalchemy.orm import Session
-
 from server.services.clock import Clock, OnboardClock
-from server.services.command_stages import set_command_stage
+from server.services.command_fates import CommandFates
 from server.services.dbworker import Database
 from server.services.downlink import GroundDownlink, TelemetryWindow
 from server.services.events import (
     CommandAcked,
-    CommandAckUnknown,
-    CommandDeferred,
     CommandsUnknown,
-    LinkClosedMalformed,
     LinkConnected,
     LinkDisconnected,
     LinkDown,
@@ -64,14 +59,16 @@ from server.services.events import (
     SafingReported,
     VehicleSafeExitRequested,
     event_job,
-    record,
 )
-from server.services.malformed import MalformedGuard, MalformedPolicy, tally_events
+from server.services.link_connection import Connection
+from server.services.link_noise import LinkNoise
+from server.services.malformed import MalformedPolicy
 from server.services.safing import (
     RESEND_MARGIN_S,
+    SafeExitRefused,
     SafeExitSender,
     VehicleSafingState,
-    exit_confirmation,
+    check_exit_request,
 )
 from server.services.vehicle import (
     ETS7_ROBOT,
@@ -80,9 +77,6 @@ from server.services.vehicle import (
     ScheduleStatus,
     robot_mismatch,
 )
-from server.storage import repository as repo
-from server.storage.models import CommandRecord
-from server.storage.stages import acked_stage, expires_unknown
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,
@@ -135,49 +129,6 @@ class LinkUnavailable(Exception):
     """No spacecraft is connected, or its clock is not known yet."""
 
 
-class SafeExitRefused(Exception):
-    """A ``safe_exit`` the ground will not send: ``code`` says why (``vehicle_not_safe``,
-    ``confirmation_mismatch``)."""
-
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(message)
-        self.code = code
-
-
-# --- connection and status -----------------------------------------------------------------
-
-
-@dataclass
-class Connection:
-    """One accepted websocket, as the API layer hands it over."""
-
-    actor: str  # the token holder's name
-    send_text: Callable[[str], Awaitable[None]]
-    close: Callable[[int, str], Awaitable[None]]
-    id: int = field(default_factory=itertools.count(1).__next__)
-    greeted: bool = False  # its hello has arrived
-    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
-    #: who is at the other end, for the takeover audit: the peer's ``host:port`` and
-    #: ``User-Agent`` header (None: unknown), and when it connected (ground ns, the
-    #: link's clock; stamped by :meth:`GroundLink.attach` when not given)
-    peer: str | None = None
-    user_agent: str | None = None
-    connected_ns: int | None = None
-    #: sends that failed on it (the socket went away under the uplink): the first is
-    #: logged, the rest counted, as a closed link fails every queued command's send
-    send_failures: int = 0
-
-    def described(self) -> dict[str, Any]:
-        """This connection as the takeover event names it."""
-        return {
-            "connection": self.id,
-            "actor": self.actor,
-            "peer": self.peer,
-            "user_agent": self.user_agent,
-            "connected_ns": self.connected_ns,
-        }
-
-
 # --- the link ------------------------------------------------------------------------------
 
 
@@ -212,14 +163,18 @@ class GroundLink:
         self.round_trip_s: float | None = None
         self._pings: dict[int, float] = {}
         self._ping_ids = itertools.count()
-        self.errors_received = 0
         #: messages that did not decode: counted, audited per kind per interval, answered
-        #: at a bounded rate, the connection closed past a threshold (malformed.py)
-        self.malformed = MalformedGuard(malformed or MalformedPolicy())
-        self._auditor: asyncio.Task[None] | None = None
-        self._noise_actor = "spacecraft"
-        #: seq -> pass, for acknowledgements (registered by the runner)
-        self._command_pass: dict[int, str] = {}
+        #: at a bounded rate, the connection closed only when its stream is unusable
+        self._noise = LinkNoise(
+            db=db,
+            clock=clock,
+            policy=malformed or MalformedPolicy(),
+            send=self.send,
+            current=lambda: self._conn,
+        )
+        self.malformed = self._noise.guard
+        #: what the vehicle says of commands, filed in their stages
+        self._fates = CommandFates(db=db, clock=clock)
         self._listeners: list[Callable[[LinkEvent], None]] = []
         self._uplink_status: Callable[[], dict[str, Any] | None] | None = None
         #: the vehicle's on-board safing, from its reports (server.services.safing)
@@ -244,8 +199,7 @@ class GroundLink:
 
     def expect_commands(self, pass_id: str, seqs: list[int]) -> None:
         """Acknowledgements of these seqs belong to ``pass_id``."""
-        for seq in seqs:
-            self._command_pass[seq] = pass_id
+        self._fates.expect(pass_id, seqs)
 
     def set_uplink_status(self, provider: Callable[[], dict[str, Any] | None] | None) -> None:
         self._uplink_status = provider
@@ -323,12 +277,7 @@ class GroundLink:
         if self._conn is not conn:
             return
         self._conn = None
-        if conn.send_failures > 1:
-            log.warning(
-                "connection %d: %d sends failed after its socket went away",
-                conn.id,
-                conn.send_failures,
-            )
+        conn.log_failures()
         if self._pinger is not None:
             self._pinger.cancel()
             self._pinger = None
@@ -342,22 +291,7 @@ class GroundLink:
     async def send(self, text: str) -> bool:
         """Send one message to the spacecraft; False when there is no link or it failed."""
         conn = self._conn
-        if conn is None:
-            return False
-        try:
-            async with conn.lock:
-                await conn.send_text(text)
-        except Exception as exc:  # the socket went away under us
-            conn.send_failures += 1
-            if conn.send_failures == 1:
-                log.warning(
-                    "send to spacecraft failed on connection %d: %r (further failures on it"
-                    " are counted, not logged)",
-                    conn.id,
-                    exc,
-                )
-            return False
-        return True
+        return conn is not None and await conn.send(text)
 
     async def send_command(self, command: JointCommandMsg | AcsCommandMsg) -> bool:
         return self.connected and await self.send(encode(command))
@@ -387,15 +321,7 @@ class GroundLink:
         ``confirm`` is not ``EXIT SAFE <vehicle>``; :class:`LinkUnavailable` without a link."""
         if not self.connected:
             raise LinkUnavailable("no spacecraft is connected: safe_exit needs the link")
-        expected = exit_confirmation(self.vehicle)
-        if confirm != expected:
-            raise SafeExitRefused(
-                "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
-            )
-        if self.safing.mode != "safe":
-            raise SafeExitRefused(
-                "vehicle_not_safe", f"the vehicle {self.vehicle!r} is not in SAFE"
-            )
+        check_exit_request(self.vehicle, self.safing.mode, confirm)
         request_id = self._safe_exits.new_request_id()
         event = VehicleSafeExitRequested(
             actor=actor, pass_id=self.safing.pass_id, request_id=request_id, vehicle=self.vehicle
@@ -419,9 +345,7 @@ class GroundLink:
         await self._safe_exits.close()
         if self._pinger is not None:
             self._pinger.cancel()
-        if self._auditor is not None:
-            self._auditor.cancel()
-        self._audit_interval()  # what the open interval counted so far
+        self._noise.close()
         conn, self._conn = self._conn, None
         if conn is not None:
             with contextlib.suppress(Exception):
@@ -439,15 +363,14 @@ class GroundLink:
         try:
             message = decode_spacecraft(raw)
         except WireError as exc:
-            await self._refuse(conn, exc, received)
+            await self._noise.refuse(conn, exc, received)
             return
+        self.malformed.readable(conn.id)  # its stream is usable, noise or not
         if conn is not self._conn:
             return  # a superseded connection
         if isinstance(message, ErrorMsg):
             # Never answered (not even before the hello); its text arrives escaped.
-            self.errors_received += 1
-            self._noisy(conn, received)
-            self.malformed.error_received(message.reason, message.ref_type, received)
+            self._noise.error_received(conn, message, received)
         elif isinstance(message, Hello):
             await self._on_hello(conn, message, received)
         elif not conn.greeted:
@@ -458,13 +381,17 @@ class GroundLink:
             await self._downlink.on_telemetry(message, received)
         elif isinstance(message, CommandAck):
             self._observe(message.onboard_time_ns, received)
-            self._on_command_ack(message, received)
+            self._fates.file_ack(message, self.vehicle or "spacecraft")
+            reason = None if message.reason is None else message.reason.value
+            seq, stage, onboard_ns = message.seq, message.stage.value, message.onboard_time_ns
+            self._emit(CommandAcked(seq, stage, reason, onboard_ns, received))
         elif isinstance(message, Verification):
             self._observe(message.onboard_time_ns, received)
             self._emit(RequestVerified(message, received))
         elif isinstance(message, CommandUnknown):
             self._observe(message.onboard_time_ns, received)
-            await self._on_command_unknown(message)
+            await self._fates.expire_unknown(message, self.vehicle or "spacecraft")
+            self._emit(CommandsUnknown(tuple(message.seqs), message.onboard_time_ns))
         elif isinstance(message, Safing):
             self._observe(message.onboard_time_ns, received)
             if message.state == "nominal":
@@ -484,58 +411,10 @@ class GroundLink:
     def errors_replied(self) -> int:
         return self.malformed.replied
 
-    async def _refuse(self, conn: Connection, exc: WireError, received: float) -> None:
-        """A message that did not decode: counted, audited with its kind once per
-        interval, answered with ``error`` (naming the reason; the wire's reasons hold no
-        control character) at a bounded rate, the connection closed past the threshold
-        (:mod:`server.services.malformed`). Nothing here waits for the database, and the
-        loop is let go after each: the uplink and the acknowledgements go first. A broken
-        ``error`` from the vehicle is counted, never answered."""
-        reason = str(exc)[:500]
-        if exc.ref_type == "error":
-            self.errors_received += 1
-            reason = f"unreadable error message: {reason}"[:500]
-        self._noisy(conn, received)
-        verdict = self.malformed.refused(conn.id, exc, reason, received)
-        if verdict.reply is not None and conn is self._conn:
-            await self.send(encode(ErrorMsg(reason=verdict.reply, ref_type=exc.ref_type)))
-        if verdict.close is not None:
-            count = self.malformed.policy.close_after + 1
-            log.warning("closing the spacecraft's link: %s", verdict.close)
-            closed = LinkClosedMalformed(
-                actor=conn.actor,
-                connection=conn.id,
-                reason=verdict.close,
-                count=count,
-                interval_s=self.malformed.policy.interval_s,
-            )
-            self._db.submit(event_job(closed, self.clock))
-            with contextlib.suppress(Exception):
-                await conn.close(1008, verdict.close)
-        await asyncio.sleep(0)
-
-    def _noisy(self, conn: Connection, now: float) -> None:
-        """Before tallying a message of ``conn`` at ``now``: the interval it ends is
-        audited, and an auditor waits for the end of the one it opens."""
-        self._noise_actor = conn.actor
-        end = self.malformed.interval_end()
-        if end is not None and now >= end:
-            self._audit_interval()
-        if self._auditor is None or self._auditor.done():
-            self._auditor = asyncio.create_task(self._audit_intervals(), name="link-noise")
-
-    async def _audit_intervals(self) -> None:
-        await asyncio.sleep(0)  # the message that started it is tallied first
-        while (end := self.malformed.interval_end()) is not None:
-            await self.clock.sleep_until(end)
-            if self.malformed.interval_end() == end:
-                self._audit_interval()
-
-    def _audit_interval(self) -> None:
-        """One audit row per kind of the open interval (queued, not waited for)."""
-        events = tally_events(self.malformed.take_interval(), self._noise_actor, self.clock)
-        if events:
-            self._db.submit(lambda s: [record(s, e, self.clock.time_ns()) for e in events])
+    @property
+    def errors_received(self) -> int:
+        """``error`` messages from the vehicle, readable or not."""
+        return self._noise.errors_received
 
     async def _on_hello(self, conn: Connection, hello: Hello, received_mono: float) -> None:
         # Timed when read off the socket: at 20x, 50 ms of queueing would put the ground's
@@ -571,85 +450,6 @@ class GroundLink:
             self._pings[ping_id] = self.clock.monotonic()
             await self.send(encode(Ping(ping_id=ping_id, ground_time_ns=self.clock.time_ns())))
             await self.clock.sleep_until(self.clock.monotonic() + PING_PERIOD_S / self.time_scale)
-
-    def _pass_of(self, session: Session, seq: int) -> str | None:
-        key = self._command_pass.get(seq)
-        if key is not None:
-            return key
-        return session.scalar(
-            select(CommandRecord.pass_id)
-            .where(CommandRecord.seq == seq)
-            .order_by(CommandRecord.queued_at_ns.desc())
-            .limit(1)
-        )
-
-    def _on_command_ack(self, ack: CommandAck, read_mono: float) -> None:
-        actor = self.vehicle or "spacecraft"
-        reason = None if ack.reason is None else ack.reason.value
-        stage = ack.stage.value
-        filed = acked_stage(stage, reason)
-        if filed is None:
-            # Transient: the vehicle did not keep it, the runner sends it again.
-            deferred = CommandDeferred(
-                actor=actor, seq=ack.seq, reason=reason, detail_text=ack.detail
-            )
-            self._db.submit(event_job(deferred, self.clock))
-        else:
-            # cancelled: the ground's clock (the stage times of storage/models.py)
-            at_ns = self.clock.time_ns() if filed == "cancelled" else ack.onboard_time_ns
-
-            def job(session: Session) -> list[dict[str, Any]]:
-                key = self._pass_of(session, ack.seq)
-                if key is None:
-                    unknown = CommandAckUnknown(actor=actor, seq=ack.seq, stage=stage)
-                    return [record(session, unknown, self.clock.time_ns())]
-                return set_command_stage(
-                    session,
-                    clock=self.clock,
-                    pass_id=key,
-                    seq=ack.seq,
-                    stage=filed,
-                    time_ns=at_ns,
-                    actor=actor,
-                    reason=reason,
-                    detail=ack.detail,
-                )
-
-            # Not awaited: acknowledgements queue behind each other in order, share commits.
-            self._db.submit(job)
-        self._emit(CommandAcked(ack.seq, stage, reason, ack.onboard_time_ns, read_mono))
-
-    async def _on_command_unknown(self, message: CommandUnknown) -> None:
-        """The vehicle never received these: lost on the uplink; those whose tag has passed
-        can no longer run."""
-        actor = self.vehicle or "spacecraft"
-        now_ns = self.clock.time_ns()
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            events: list[dict[str, Any]] = []
-            for seq in message.seqs:
-                key = self._pass_of(session, seq)
-                if key is None:
-                    continue
-                record = repo.get_command(session=session, pass_id=key, seq=seq)
-                if not expires_unknown(
-                    record.stage, record.execute_time_ns, message.onboard_time_ns
-                ):
-                    continue  # received after all, already final, or not due yet
-                events += set_command_stage(
-                    session,
-                    clock=self.clock,
-                    pass_id=key,
-                    seq=seq,
-                    stage="expired",
-                    time_ns=now_ns,
-                    actor=actor,
-                    detail="never reached the vehicle before its tag",
-                )
-            return events
-
-        await self._db.write(job)
-        self._emit(CommandsUnknown(tuple(message.seqs), message.onboard_time_ns))
 
     # -- status --------------------------------------------------------------------------
 

@@ -17,13 +17,18 @@ bounded, whatever the rate; it decides, :class:`~server.services.link.GroundLink
 - **Answered at a bounded rate.** ``error`` replies leave at most
   :attr:`MalformedPolicy.replies_per_s` a second (a bucket of as many); the others are
   counted, and the next reply says how many went unanswered before it.
-- **A threshold closes the connection.** More than :attr:`MalformedPolicy.close_after`
-  malformed messages on one connection within one interval: the ground closes it (1008,
-  ``too many malformed messages: N in T s``), audited; the vehicle reconnects, and the
-  windowed uplink and the downlink's resends carry the pass across (docs/protocol.md).
+- **Noise never closes a link that still carries the real traffic.** A connection is
+  closed (1008) only when its stream is unusable: nothing on it has decoded for at least
+  :attr:`MalformedPolicy.interval_s` while more than :attr:`MalformedPolicy.unusable_after`
+  malformed messages arrived in a row (``unusable stream: N malformed messages and nothing
+  readable for T s``), audited; the vehicle reconnects, and the windowed uplink and the
+  downlink's resends carry the pass across (docs/protocol.md). One message that decodes
+  (any type, an ``error`` too) ends the run: a flood beside valid frames is dropped and
+  counted, never a reason to close, since closing it turns noise into outages (issue 39:
+  10 closes in 30 s of 400 a second aborted a pass on PostgreSQL).
 
 ``error`` messages from the vehicle are never answered (no ping-pong); they are tallied the
-same way (one row per interval), and an unreadable one counts toward the threshold.
+same way (one row per interval), and an unreadable one counts in the run of malformed ones.
 Times are the injected clock's (ground monotonic s).
 """
 
@@ -42,15 +47,17 @@ __all__ = ["MalformedGuard", "MalformedPolicy", "Tally", "Verdict", "tally_event
 class MalformedPolicy:
     """The bounds (server/settings.py's ``malformed_*`` settings)."""
 
-    #: ground s: one audit row per kind per interval; the threshold's window
+    #: ground s: one audit row per kind per interval; and how long a connection must have
+    #: carried nothing readable before it can be found unusable
     interval_s: float = 5.0
     #: ``error`` replies a second at most (and a burst of as many)
     replies_per_s: float = 10.0
-    #: more malformed messages than this on one connection within one interval close it
-    close_after: int = 1000
+    #: more malformed messages than this in a row on one connection, nothing readable
+    #: between them for at least ``interval_s``: the stream is unusable, closed
+    unusable_after: int = 1000
 
     def __post_init__(self) -> None:
-        if not self.interval_s > 0 or not self.replies_per_s >= 0 or not self.close_after >= 1:
+        if not self.interval_s > 0 or not self.replies_per_s >= 0 or not self.unusable_after >= 1:
             raise ValueError(f"malformed-message policy out of range: {self}")
 
 
@@ -72,10 +79,16 @@ class Tally:
 @dataclass(frozen=True)
 class Verdict:
     """What to do with one malformed message: the ``error`` reply's reason (None: no
-    reply) and the close reason (None: keep the connection)."""
+    reply) and the close reason (None: keep the connection), with the run of malformed
+    messages that closes it (its count, and ground s since its first)."""
 
     reply: str | None
-    close: str | None
+    close: str | None = None
+    run_count: int = 0
+    run_s: float = 0.0
+
+
+_KEEP = Verdict(None)
 
 
 @dataclass
@@ -107,10 +120,11 @@ class MalformedGuard:
     _tallies: dict[tuple[str | None, str], Tally] = field(default_factory=dict)
     _bucket: _Bucket | None = None
     _unanswered_since_reply: int = 0
-    #: the connection the threshold counts for, and its count in its own window
-    _conn: int | None = None
-    _conn_start: float = 0.0
-    _conn_count: int = 0
+    #: the run of malformed messages with nothing readable between them: its connection
+    #: (None: no run open), the time of its first and its count
+    _run_conn: int | None = None
+    _run_start: float = 0.0
+    _run_count: int = 0
 
     @staticmethod
     def kind_of(ref_type: str | None, code: str) -> tuple[str | None, str]:
@@ -134,14 +148,24 @@ class MalformedGuard:
         self.by_kind[label] = self.by_kind.get(label, 0) + 1
         return tally
 
-    def _count_for_close(self, conn: int, now: float) -> str | None:
-        if conn != self._conn or now - self._conn_start >= self.policy.interval_s:
-            self._conn, self._conn_start, self._conn_count = conn, now, 0
-        self._conn_count += 1
-        if self._conn_count > self.policy.close_after:
+    def readable(self, conn: int) -> None:
+        """A message of connection ``conn`` decoded: its stream is usable, the run of
+        malformed ones ends. Called for every good message: one comparison."""
+        if conn == self._run_conn:
+            self._run_conn = None
+
+    def _unusable(self, conn: int, now: float) -> Verdict | None:
+        if conn != self._run_conn:
+            self._run_conn, self._run_start, self._run_count = conn, now, 0
+        self._run_count += 1
+        run_s = now - self._run_start
+        if self._run_count > self.policy.unusable_after and run_s >= self.policy.interval_s:
             self.closes += 1
-            n, self._conn = self._conn_count, None
-            return f"too many malformed messages: {n} in {self.policy.interval_s:g} s"
+            n, self._run_conn = self._run_count, None
+            reason = (
+                f"unusable stream: {n} malformed messages and nothing readable for {run_s:.1f} s"
+            )
+            return Verdict(None, reason, n, run_s)
         return None
 
     def refused(self, conn: int, exc: WireError, reason: str, now: float) -> Verdict:
@@ -150,27 +174,30 @@ class MalformedGuard:
         self.malformed += 1
         code = "unreadable" if exc.ref_type == "error" else exc.code
         tally = self._tally(exc.ref_type, code, reason, now, exc.ref_type)
-        close = self._count_for_close(conn, now)
-        if exc.ref_type == "error" or close is not None:
-            return Verdict(None, close)  # never answered; or closing anyway
+        closing = self._unusable(conn, now)
+        if closing is not None:
+            return closing  # not answered: the connection is closing
+        if exc.ref_type == "error":
+            return _KEEP  # never answered
         if self._bucket is None:
             rate = self.policy.replies_per_s
             self._bucket = _Bucket(rate, rate, now)
         if not self._bucket.take(now):
             self.unanswered += 1
             self._unanswered_since_reply += 1
-            return Verdict(None, None)
+            return _KEEP
         self.replied += 1
         tally.replied += 1
         skipped, self._unanswered_since_reply = self._unanswered_since_reply, 0
         if skipped:
             note = f" ({skipped} more malformed messages unanswered before this one)"
             reason = reason[: 500 - len(note)] + note
-        return Verdict(reason[:500], None)
+        return Verdict(reason[:500])
 
     def error_received(self, reason: str, ref_type: str | None, now: float) -> None:
         """A well-formed ``error`` from the vehicle (naming a message of ours of
-        ``ref_type``): tallied, never answered, never counted toward the threshold."""
+        ``ref_type``): tallied, never answered; it decoded, so the caller reports it
+        :meth:`readable` too."""
         self._tally("error", "received", reason, now, ref_type)
 
     def interval_end(self) -> float | None:

@@ -35,8 +35,10 @@ from telemetry.wire import SafeExit, Safing, encode
 __all__ = [
     "MAX_TRANSMISSIONS",
     "RESEND_MARGIN_S",
+    "SafeExitRefused",
     "SafeExitSender",
     "VehicleSafingState",
+    "check_exit_request",
     "exit_confirmation",
 ]
 
@@ -53,6 +55,27 @@ RESEND_MARGIN_S = 2.0
 def exit_confirmation(vehicle: str | None) -> str:
     """The text an operator types to take the vehicle out of SAFE."""
     return f"EXIT SAFE {vehicle or 'spacecraft'}"
+
+
+class SafeExitRefused(Exception):
+    """A ``safe_exit`` the ground will not send: ``code`` says why (``vehicle_not_safe``,
+    ``confirmation_mismatch``)."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def check_exit_request(vehicle: str | None, mode: str, confirm: str) -> None:
+    """Refuse (:class:`SafeExitRefused`) a ``safe_exit`` for ``vehicle`` in ``mode`` unless
+    the vehicle is in SAFE and ``confirm`` is exactly :func:`exit_confirmation`'s text."""
+    expected = exit_confirmation(vehicle)
+    if confirm != expected:
+        raise SafeExitRefused(
+            "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
+        )
+    if mode != "safe":
+        raise SafeExitRefused("vehicle_not_safe", f"the vehicle {vehicle!r} is not in SAFE")
 
 
 @dataclass

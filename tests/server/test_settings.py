@@ -66,7 +66,7 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "limit_checking": ("off", False),
     "malformed_interval_s": ("2", 2.0),
     "malformed_replies_per_s": ("0", 0.0),
-    "malformed_close_after": ("50", 50),
+    "malformed_unusable_after": ("50", 50),
     "foxglove_port": ("8765", 8765),
     "foxglove_host": ("10.0.0.5", "10.0.0.5"),
     "command_lease": ("ets-vii-b", "ets-vii-b"),

@@ -1,8 +1,9 @@
 """Malformed messages on the spacecraft link cost bounded work (server/services/malformed.py):
 the ground's link on the simulated clock, fed a flood of the spacecraft's rehearsal garbage
 (spacecraft/garbage.py). Replies at a bounded rate, one audit row per kind per interval
-with its count, the connection closed past the threshold with its reason, and the
-well-formed messages between the garbage still handled."""
+with its count, the well-formed messages between the garbage still handled, a flood beside
+them never a reason to close, and a connection closed, with its reason, only when its stream
+is unusable (nothing readable for a whole interval under a run of malformed messages)."""
 
 from __future__ import annotations
 
@@ -67,7 +68,6 @@ def test_replies_are_bounded_and_each_kind_is_one_audit_row_per_interval(tmp_pat
         clock,
         malformed_interval_s=5.0,
         malformed_replies_per_s=10.0,
-        malformed_close_after=5000,
     )
     garbage = GarbageMaker(seed=1)
     socket = Socket()
@@ -85,7 +85,7 @@ def test_replies_are_bounded_and_each_kind_is_one_audit_row_per_interval(tmp_pat
             await clock.advance(0.01)
         await clock.advance(5.0)  # past the interval's end: its rows are written
         await g.db.drain()
-        assert socket.closed is None  # 1,200 in one interval: under this threshold
+        assert socket.closed is None
 
     asyncio.run(scenario())
     status = g.link.status()
@@ -140,58 +140,107 @@ def test_a_second_interval_gets_rows_of_its_own(tmp_path: Path) -> None:
     assert sorted(r.detail["count"] for r in rows) == [2] * 4 + [3] * 4
 
 
-def test_past_the_threshold_the_link_is_closed_with_the_reason(tmp_path: Path) -> None:
+def test_a_flood_beside_valid_messages_never_closes_the_link(tmp_path: Path) -> None:
+    """400 malformed messages a second for 20 s, 1,800 in a row between two pongs 4.5 s
+    apart: more than ``malformed_unusable_after`` (1000) a run and 2,000 an interval (the
+    rule of before closed at 1,001 in 5 s), yet every run has a readable message within the
+    interval: the link stays up, the noise dropped and counted, the pongs read."""
     sessions = make_sessions(tmp_path)
     clock = ManualClock()
-    g = ground(sessions, clock, malformed_interval_s=5.0, malformed_close_after=100)
+    g = ground(sessions, clock)  # the defaults: 5 s, 1000
+    garbage = GarbageMaker(seed=4)
+    socket = Socket()
+    pongs = 0
+
+    async def scenario() -> None:
+        nonlocal pongs
+        conn = await _connect(g.link, socket)
+        for step in range(2000):  # 10 ms steps
+            for _ in range(4):
+                await g.link.handle(conn, garbage.next(), clock.monotonic())
+            if step % 450 == 449:
+                pong = Pong(ping_id=step, ground_time_ns=1, onboard_time_ns=10**18 + step)
+                await g.link.handle(conn, encode(pong), clock.monotonic())
+                pongs += 1
+            await clock.advance(0.01)
+        await clock.advance(6.0)
+        await g.db.drain()
+
+    asyncio.run(scenario())
+    assert pongs == 4
+    assert socket.closed is None and g.link.connected
+    status = g.link.status()
+    assert status.malformed_received == 8000 and status.malformed_closes == 0
+    assert _events(sessions, "link_closed_malformed") == []
+    assert sum(r.detail["count"] for r in _events(sessions, "link_error_replied")) == 8000
+    assert g.link.clock_confirmed  # the pongs' onboard stamps were read
+
+
+def test_an_unusable_stream_is_closed_with_the_reason(tmp_path: Path) -> None:
+    """Nothing readable after the hello, only garbage: kept while the run is short of the
+    count or of the interval, closed (1008, audited) on the first malformed message that
+    finds both past; a reconnected vehicle's hello starts a run of its own."""
+    sessions = make_sessions(tmp_path)
+    clock = ManualClock()
+    g = ground(sessions, clock, malformed_interval_s=5.0, malformed_unusable_after=100)
     garbage = GarbageMaker(seed=3)
     first, second = Socket(), Socket()
 
     async def scenario() -> None:
         conn = await _connect(g.link, first)
-        for _ in range(100):  # at the threshold: kept
+        for _ in range(500):  # 500 in 1 s: past the count, not the interval
             await g.link.handle(conn, garbage.next(), clock.monotonic())
-            await clock.advance(0.01)
+            await clock.advance(0.002)
         assert first.closed is None
+        await clock.advance(3.999)  # 4.999 s since the run's first
         await g.link.handle(conn, garbage.next(), clock.monotonic())
-        assert first.closed == (1008, "too many malformed messages: 101 in 5 s")
+        assert first.closed is None
+        await clock.advance(0.01)  # 5.009 s
+        await g.link.handle(conn, garbage.next(), clock.monotonic())
+        reason = "unusable stream: 502 malformed messages and nothing readable for 5.0 s"
+        assert first.closed == (1008, reason)
         await g.link.detach(conn, "closed by the ground (1008)")
-        # the vehicle reconnects: a new connection starts its own count
+        # the vehicle reconnects: its hello is readable, a new run starts; 100 malformed
+        # over 10 s (a whole interval, not the count) keep it
         conn = await _connect(g.link, second)
         for _ in range(100):
             await g.link.handle(conn, garbage.next(), clock.monotonic())
+            await clock.advance(0.1)
         assert second.closed is None and g.link.connected
         await clock.advance(6.0)
         await g.db.drain()
 
     asyncio.run(scenario())
     [closed] = _events(sessions, "link_closed_malformed")
-    assert closed.detail["reason"] == "too many malformed messages: 101 in 5 s"
-    assert closed.detail["count"] == 101 and closed.detail["interval_s"] == 5.0
+    assert closed.detail["reason"].startswith("unusable stream: 502 malformed messages")
+    assert closed.detail["count"] == 502 and closed.detail["interval_s"] == 5.0
+    assert closed.detail["unreadable_s"] == pytest.approx(5.009, abs=1e-6)
     assert g.link.status().malformed_closes == 1
     rows = _events(sessions, "link_error_replied")
-    assert sum(r.detail["count"] for r in rows) == 201
-    assert len(rows) == 4  # one interval, four kinds, across both connections
+    assert sum(r.detail["count"] for r in rows) == 602
 
 
 def test_error_messages_from_the_vehicle_are_tallied_never_answered(tmp_path: Path) -> None:
     sessions = make_sessions(tmp_path)
     clock = ManualClock()
-    g = ground(sessions, clock, malformed_interval_s=1.0, malformed_close_after=10)
+    g = ground(sessions, clock, malformed_interval_s=1.0, malformed_unusable_after=10)
     socket = Socket()
 
     async def scenario() -> None:
         conn = await _connect(g.link, socket)
         error = json.dumps({"v": 2, "type": "error", "reason": "cannot read", "ref_type": "ping"})
-        for _ in range(50):  # well-formed: never toward the threshold
+        for _ in range(50):  # well-formed, readable: 50 over 2.5 s never close the link
             await g.link.handle(conn, error, clock.monotonic())
+            await clock.advance(0.05)
         await clock.advance(1.5)
         await g.db.drain()
 
     asyncio.run(scenario())
     assert socket.errors() == [] and socket.closed is None
-    [row] = _events(sessions, "link_error_received")
-    assert row.detail["count"] == 50 and row.detail["code"] == "received"
+    rows = _events(sessions, "link_error_received")
+    assert sum(r.detail["count"] for r in rows) == 50 and len(rows) == 3  # 1 s intervals
+    row = rows[0]
+    assert {r.detail["code"] for r in rows} == {"received"}
     assert row.detail["reason"] == "cannot read" and row.detail["ref_type"] == "ping"
     assert g.link.status().errors_received == 50
 
@@ -232,7 +281,7 @@ def test_a_diverged_vehicle_s_frames_are_refused_and_counted_by_their_reason(
 def test_a_closed_socket_s_failed_sends_are_logged_once_and_counted(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """After the ground closes a connection (the threshold above), the uplink's sends
+    """After the ground closes a connection (an unusable stream, above), the uplink's sends
     fail until the handler detaches it: one warning names the connection and the first
     failure, and the detach gives the count (a flood's closes used to log a warning per
     queued command: 898 of a 948-line log)."""

@@ -3,11 +3,10 @@ wall time (:data:`FLOOD_WALL_S`) on the spacecraft link during a 20x pass, both 
 
 Real processes on loopback: ``hikoboshi serve`` and ``hikoboshi spacecraft --garbage``
 (its rehearsal noise, spacecraft/garbage.py: invalid JSON, unknown types, wrong versions
-and malformed telemetry in turn). The ground closes the connection each time more than its
-threshold arrive within an interval (server/services/malformed.py); the vehicle reconnects,
-the windowed uplink and the downlink's resends carry the pass. Every command must execute
-at its tag, every frame of the pass be stored, and the audit log stay bounded: one row per
-kind per interval, and one per close.
+and malformed telemetry in turn). The noise is dropped and counted beside the valid traffic,
+never a reason to close the link (server/services/malformed.py): the ground reads every
+malformed message sent, closes nothing, every command executes at its tag, every frame of
+the pass is stored, and the audit log stays bounded (one row per kind per interval).
 """
 
 from __future__ import annotations
@@ -32,8 +31,9 @@ from tests.server.link.harness import _free_port, serve_process, store_pass
 
 SCALE = 20.0
 RATE = 400.0  # malformed messages a wall second
-#: wall s of flood: past the close threshold several times over (a close about every 2.5 s
-#: at this rate); the issue's 30 s with ``HIKOBOSHI_TEST_FLOOD_S=30``
+#: wall s of flood: more than two audit intervals, and more malformed messages than the
+#: rule of before let through (1,000 in 5 s) several times over; the issue's 30 s with
+#: ``HIKOBOSHI_TEST_FLOOD_S=30``
 FLOOD_WALL_S = float(os.environ.get("HIKOBOSHI_TEST_FLOOD_S", "12"))
 #: onboard s of the spacecraft's clock (10 wall s after it starts): the flood starts once
 #: the pass's commands are executing (asserted against its truth log's epoch)
@@ -138,18 +138,18 @@ def test_a_pass_flies_untouched_through_400_malformed_messages_a_second(
     assert all(c.executed_at_ns == c.execute_time_ns for c in commands)
     assert summary.frames_missing == 0 and summary.gaps_open == 0
     assert summary.commands_expired == 0
-    # every malformed message the ground read is counted, and the audit log is bounded:
-    # per interval one row per kind (four kinds; intervals restart with the noise), plus one
-    # row per close
-    assert 0 < status["malformed_received"] <= n_sent  # type: ignore[operator]
-    assert sum(e.detail["count"] for e in noise) == status["malformed_received"]
+    # the link was never closed: the ground read every malformed message sent (none lost
+    # in a socket it closed), counted each, and the audit log is bounded: per interval one
+    # row per kind (four kinds; intervals restart with the noise)
+    assert closes == [] and status["malformed_closes"] == 0, [e.detail for e in closes]
+    assert status["malformed_received"] == n_sent, (status["malformed_received"], n_sent)
+    assert sum(e.detail["count"] for e in noise) == n_sent
     intervals = math.ceil(FLOOD_WALL_S / INTERVAL_S) + 2
     assert len(noise) <= 4 * intervals, len(noise)
-    assert len(closes) == status["malformed_closes"] >= 1
-    assert all(e.detail["reason"].startswith("too many malformed messages") for e in closes)
     assert status["errors_replied"] <= 10 * (wall_s + 1)  # type: ignore[operator]
     print(
         f"sent {n_sent}, read {status['malformed_received']}, replied "
         f"{status['errors_replied']}, closes {len(closes)}, audit rows {len(noise)}, "
-        f"{len(commands)} commands executed at their tags, wall {wall_s:.0f} s"
+        f"{len(commands)} commands executed at their tags, frames missing "
+        f"{summary.frames_missing}, wall {wall_s:.0f} s"
     )
