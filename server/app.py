@@ -59,6 +59,7 @@ from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
 from server.services.foxglove_live import FoxgloveLive
+from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
 from server.services.link import GroundLink
 from server.services.malformed import MalformedPolicy
@@ -78,6 +79,10 @@ from server.storage.db import (
 log = logging.getLogger("hikoboshi.ground")
 
 __all__ = ["GroundServer", "LivePath", "begin_shutdown", "build_live_path", "create_app"]
+
+#: Wall s a stopping ground waits for a database that does not answer before the writes it
+#: still holds fail (each logged): the next ground recovers them from the vehicle.
+STOP_DATABASE_WAIT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -116,7 +121,12 @@ def build_live_path(
     database worker is fenced by the command lease and the runner commands only while this
     ground holds it."""
     publisher = Publisher()
-    db = Database(sessions, publisher, frames_apart=frames_apart_for(sessions))
+    db = Database(
+        sessions,
+        publisher,
+        frames_apart=frames_apart_for(sessions),
+        journal_max=settings.database_journal_max,
+    )
     if authority is not None:
         db.fence = authority.fence
     delay_s = settings.link_one_way_delay_s
@@ -164,6 +174,9 @@ async def begin_shutdown(app: FastAPI) -> None:
     (docs/operations.md "Stopping"); and close the spacecraft's link (1001), which its
     handler records, rather than leave it to be cancelled. The lifespan's shutdown does the
     rest."""
+    db: Database | None = getattr(app.state, "db", None)
+    if db is not None:  # a database away at the stop: its journal fails, loudly, not hangs
+        db.give_up(STOP_DATABASE_WAIT_S)
     workers: WorkerPool | None = getattr(app.state, "workers", None)
     if workers is not None:
         await workers.close()
@@ -306,6 +319,7 @@ def create_app(settings: Settings) -> FastAPI:
             authority=authority,
         )
         app.state.authority = authority
+        live.link.ground_status = ground_status(authority, live.db)
         # before the first transaction of the command path: each is fenced by the lease
         commanding = await asyncio.to_thread(authority.try_acquire)
         app.state.clock = live.clock
@@ -359,6 +373,7 @@ def create_app(settings: Settings) -> FastAPI:
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs
             await app.state.console.close()
+            live.db.give_up(STOP_DATABASE_WAIT_S)  # if begin_shutdown has not already
             await live.runner.shutdown()
             await live.close()
             await authority.close()  # after the last write: a standby takes over at once

@@ -261,6 +261,12 @@ class Settings(BaseSettings):
     """The holder renews its lease, and a standby tries to take it, this often (wall s;
     under half of ``lease_ttl_s``)."""
 
+    database_journal_max: int = Field(default=200_000, ge=100, le=10_000_000)
+    """While the database does not answer, the command path keeps up to this many writes
+    (stage moves, events, frame batches) in memory, in order, and replays them when it is
+    back; past it a write is refused, logged and counted (docs/operations.md "A database
+    outage")."""
+
     # --- the Foxglove live view (server/services/foxglove_live.py, docs/mcap.md) ---------
     foxglove_port: int | None = Field(default=None, ge=0, le=65535)
     """Stream the live pass to Foxglove on this port (foxglove-sdk's websocket server in the

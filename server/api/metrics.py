@@ -102,4 +102,6 @@ def connect_metrics(state: Any) -> None:
         "losses": authority.losses,
         "renewal_failures": authority.renewal_failures,
     }
+    db = state.db
+    sources.database = lambda: db.outage.status(db.journal)
     state.db.on_commit = metrics.db_commit_seconds.observe

@@ -1,4 +1,4 @@
-"""The ground's database worker and its publish hook.
+"""The ground's database worker (its publish hook: :mod:`server.services.publisher`).
 
 Every database write of the live path (link, runner) goes through :class:`Database`: one
 worker thread, so writes keep their order and an SQLite commit never stalls the event loop
@@ -25,13 +25,17 @@ from typing import Any, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.services.db_outage import RETRY_FIRST_S, RETRY_MAX_S, JournalFull, Outage
+from server.services.publisher import AlarmCallback, FrameCallback, Publisher
+from server.storage.db import database_unreachable
 from server.storage.errors import LeaseLost
-from telemetry.wire import TelemetryFrame
 
 __all__ = [
     "AlarmCallback",
     "Database",
     "FrameCallback",
+    "JournalFull",
+    "Outage",
     "Publisher",
     "done_unless",
     "frames_apart_for",
@@ -40,60 +44,6 @@ __all__ = [
 log = logging.getLogger("hikoboshi.ground.db")
 
 T = TypeVar("T")
-
-
-FrameCallback = Callable[[str, list[TelemetryFrame], int], None]
-#: Gets an alarm's JSON document (docs/alarms.md) once it is committed.
-AlarmCallback = Callable[[dict[str, Any]], None]
-
-
-class Publisher:
-    """An in-process publish hook for the consoles: subscribers get every event dict once it
-    is committed, and every newly archived telemetry frame (``pass_id, frames,
-    reception_time_ns``), and every alarm as written (its document). A subscriber must not
-    block; one that raises is logged and kept."""
-
-    def __init__(self) -> None:
-        self._subscribers: list[Callable[[dict[str, Any]], None]] = []
-        self._frame_subscribers: list[FrameCallback] = []
-        self._alarm_subscribers: list[AlarmCallback] = []
-
-    def subscribe(self, callback: Callable[[dict[str, Any]], None]) -> Callable[[], None]:
-        self._subscribers.append(callback)
-        return lambda: self._subscribers.remove(callback)
-
-    def subscribe_frames(self, callback: FrameCallback) -> Callable[[], None]:
-        self._frame_subscribers.append(callback)
-        return lambda: self._frame_subscribers.remove(callback)
-
-    def subscribe_alarms(self, callback: AlarmCallback) -> Callable[[], None]:
-        self._alarm_subscribers.append(callback)
-        return lambda: self._alarm_subscribers.remove(callback)
-
-    def publish_alarms(self, alarms: list[dict[str, Any]]) -> None:
-        for alarm in alarms:
-            for callback in list(self._alarm_subscribers):
-                try:
-                    callback(alarm)
-                except Exception:
-                    log.exception("alarm subscriber failed on %s", alarm.get("id"))
-
-    def publish_frames(
-        self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
-    ) -> None:
-        for callback in list(self._frame_subscribers):
-            try:
-                callback(pass_id, frames, reception_time_ns)
-            except Exception:
-                log.exception("frame subscriber failed on pass %s", pass_id)
-
-    def publish(self, events: list[dict[str, Any]]) -> None:
-        for event in events:
-            for callback in list(self._subscribers):
-                try:
-                    callback(event)
-                except Exception:
-                    log.exception("event subscriber failed on %s", event.get("kind"))
 
 
 class Database:
@@ -123,6 +73,18 @@ class Database:
     outgrew what one job stores (:data:`~server.services.downlink.MAX_INGEST_FRAMES`): the
     ground fell 25 s behind the vehicle. SQLite keeps one worker (one writer at a time:
     a second would only wait for the database's lock).
+
+    **A database outage is ridden through** (docs/operations.md "A database outage"): a
+    transaction that fails because the database cannot be reached
+    (:func:`~server.storage.db.database_unreachable`) settles nothing; its jobs, and every
+    job queued behind them, stay queued in order (the journal) and the worker tries again,
+    backing off from :data:`RETRY_FIRST_S` to :data:`RETRY_MAX_S`, until the database
+    answers; then the journal is replayed in order before anything queued later. No caller
+    sees the outage as a failure: a pass's write waits for the database instead of
+    killing its task. The journal is bounded (``journal_max`` jobs): past it a new job
+    fails at once with :class:`JournalFull`, logged and counted (never silently), and the
+    command path's recovery asks the vehicle for the fates it could not file. At a stop
+    (:meth:`give_up`) a journal the database cannot take fails loudly rather than hang.
     """
 
     #: A group runs at most this many jobs: frames arriving meanwhile wait for the whole
@@ -131,9 +93,16 @@ class Database:
     MAX_GROUP = 64
 
     def __init__(
-        self, sessions: sessionmaker[Session], publisher: Publisher, *, frames_apart: bool = False
+        self,
+        sessions: sessionmaker[Session],
+        publisher: Publisher,
+        *,
+        frames_apart: bool = False,
+        journal_max: int = 200_000,
     ) -> None:
         self._sessions = sessions
+        self.journal_max = journal_max
+        self.outage = Outage()
         self._publisher = publisher
         self._counts = threading.Lock()  # groups and jobs, counted by both workers
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
@@ -155,6 +124,7 @@ class Database:
             self._frames_thread.start()
         self._pending: set[asyncio.Future[Any]] = set()
         self._closed = False
+        self._give_up_at: float | None = None
         self.groups = 0
         self.jobs = 0
         #: Run first in every transaction (the command lease's fencing check,
@@ -183,6 +153,74 @@ class Database:
         if self.on_commit is not None:
             self.on_commit(time.perf_counter() - began)
 
+    # -- a database outage ---------------------------------------------------------------
+
+    def _unreachable(self, error: BaseException | None) -> bool:
+        """Whether ``error`` is the database not being there (and this worker should keep
+        its jobs and try again): the outage begins, or goes on."""
+        if error is None or not database_unreachable(error) or self._given_up():
+            return False
+        with self._counts:
+            began = self.outage.down_since is None
+            if began:
+                self.outage.begin(time.monotonic(), len(self._pending))
+        if began:
+            log.error(
+                "the database does not answer (%s): keeping the command path's writes in "
+                "order until it does (%d waiting)",
+                type(error).__name__,
+                len(self._pending),
+                extra={"fields": {"event": "database_outage", "error": type(error).__name__}},
+            )
+        return True
+
+    def _back_off(self) -> None:
+        """Before trying again during an outage: wait, longer each time (this worker's
+        thread only; the event loop goes on)."""
+        self.outage.tried += 1
+        time.sleep(min(RETRY_MAX_S, RETRY_FIRST_S * 2 ** min(self.outage.tried, 8)))
+
+    def _reached(self) -> None:
+        """A transaction reached the database: an outage in progress ends (its journal is
+        replayed from here, in order), and a replay in progress finishes once nothing is
+        waiting."""
+        outage = self.outage
+        if outage.down_since is None and outage.replay_since is None:
+            return
+        now = time.monotonic()
+        with self._counts:
+            if outage.down_since is not None:
+                waited = outage.end(now, len(self._pending), self.jobs)
+                log.warning(
+                    "the database answers again after %.1f s: replaying %d writes in order",
+                    waited,
+                    outage.journal_at_return,
+                    extra={"fields": {"event": "database_back", "down_s": round(waited, 3)}},
+                )
+            elif self._queue.empty() and not self._urgent and not self._control:
+                replayed = outage.replayed(now, self.jobs)
+                log.warning(
+                    "the database's journal is replayed: %d jobs in %.1f s",
+                    replayed,
+                    outage.last_replay_s,
+                    extra={"fields": {"event": "database_replayed", "jobs": replayed}},
+                )
+
+    def _given_up(self) -> bool:
+        return self._give_up_at is not None and time.monotonic() >= self._give_up_at
+
+    def give_up(self, after_s: float) -> None:
+        """At a stop: once ``after_s`` has passed, a write the database cannot take fails
+        (each logged) instead of waiting for it (the earliest deadline asked holds)."""
+        at = time.monotonic() + after_s
+        if self._give_up_at is None or at < self._give_up_at:
+            self._give_up_at = at
+
+    @property
+    def journal(self) -> int:
+        """Jobs waiting for the database (queued, or in a transaction)."""
+        return len(self._pending)
+
     @staticmethod
     def _take(jobs: collections.deque[_Job]) -> list[_Job]:
         out = []
@@ -204,7 +242,9 @@ class Database:
                     carry.append(item)
             control = self._take(self._control)
             if control:  # alone: an operator waits for them
-                self._run_group(control)
+                ran = self._run_group(control)
+                if ran < len(control):  # not all run (the database away): first again
+                    self._control.extendleft(reversed(control[ran:]))
                 continue
             while len(carry) < self.MAX_GROUP and not stop:
                 try:
@@ -230,7 +270,8 @@ class Database:
         the order they came (the downlink has one in flight at a time)."""
         assert self._frames is not None
         while (job := self._frames.get()) is not None:
-            self._run_group([job])
+            while not self._run_group([job]):  # the database is not there: again
+                pass
 
     def _run_group(self, group: list[_Job], *, yield_to_control: bool = False) -> int:
         """Run ``group``'s jobs in one transaction and settle them; with
@@ -239,6 +280,8 @@ class Database:
         outcomes: list[tuple[bool, Any]] = []
         ran = 0
         try:
+            if self.outage.down_since is not None:
+                self._back_off()
             with self._sessions() as session:
                 try:
                     if self.fence is not None:
@@ -260,19 +303,24 @@ class Database:
             outcomes = [(True, r) for r in results]
         except Exception:
             error = sys.exc_info()[1]
+            if self._unreachable(error):  # nothing settled: the whole group runs again
+                return 0
             if ran == 0 and isinstance(error, LeaseLost):  # the fence: every job refused
                 ran = len(group)
                 outcomes = [(False, error)] * ran
             elif ran <= 1:  # the first job failed (or the fence could not ask): that job
                 ran = 1
                 outcomes = [(False, error)]
-                outcomes = [(False, sys.exc_info()[1])]
             else:
                 for job in group[:ran]:  # isolate the failure: one transaction each
                     try:
                         outcomes.append((True, self._transaction(job.fn)))
                     except Exception as exc:
+                        if self._unreachable(exc):  # the rest stays queued
+                            ran = len(outcomes)
+                            break
                         outcomes.append((False, exc))
+        self._reached()
         with self._counts:
             self.groups += 1
             self.jobs += ran
@@ -290,6 +338,16 @@ class Database:
         future: asyncio.Future[T] = loop.create_future()
         if self._closed:  # no worker will ever run it: fail now rather than hang
             future.set_exception(RuntimeError("the database worker is closed"))
+            return future
+        if self.outage.down_since is not None and len(self._pending) >= self.journal_max:
+            self.outage.refused += 1
+            future.set_exception(
+                JournalFull(
+                    f"the database has not answered for "
+                    f"{time.monotonic() - self.outage.down_since:.0f} s and {self.journal_max} "
+                    "writes wait for it: this one is refused"
+                )
+            )
             return future
         if urgent and self._frames is not None:
             self._frames.put(_Job(job, future, loop))
@@ -369,6 +427,8 @@ class Database:
 
     def close(self) -> None:
         self._closed = True
+        if self._give_up_at is None:
+            self._give_up_at = time.monotonic()
         self._queue.put(None)
         if self._frames is not None and self._frames_thread is not None:
             self._frames.put(None)

@@ -177,6 +177,8 @@ class GroundLink:
         self._fates = CommandFates(db=db, clock=clock)
         self._listeners: list[Callable[[LinkEvent], None]] = []
         self._uplink_status: Callable[[], dict[str, Any] | None] | None = None
+        #: this ground's command lease and database (server.services.ground_status)
+        self.ground_status: Callable[[], dict[str, Any]] | None = None
         #: the vehicle's on-board safing, from its reports (server.services.safing)
         self.safing = VehicleSafingState()
         self._safe_exits = SafeExitSender(
@@ -492,4 +494,5 @@ class GroundLink:
             malformed_by_kind=dict(self.malformed.by_kind),
             errors_unanswered=self.malformed.unanswered,
             malformed_closes=self.malformed.closes,
+            ground=None if self.ground_status is None else self.ground_status(),
         )

@@ -47,6 +47,8 @@ class Sources:
     consoles: Callable[[], int] | None = None
     #: the command lease (server.services.authority.CommandAuthority.status and its counts)
     authority: Callable[[], dict[str, Any]] | None = None
+    #: the database as the command path sees it (server.services.db_outage.Outage.status)
+    database: Callable[[], dict[str, Any]] | None = None
 
 
 def _gauge(name: str, doc: str, value: float | None) -> Iterator[Metric]:
@@ -162,6 +164,43 @@ class GroundCollector(Collector):
             yield from _gauge("hikoboshi_consoles", "Console websockets connected", s.consoles())
         if s.authority is not None:
             yield from self._authority(s.authority())
+        if s.database is not None:
+            yield from self._database(s.database())
+
+    @staticmethod
+    def _database(d: dict[str, Any]) -> Iterator[Metric]:
+        yield from _gauge(
+            "hikoboshi_database_reachable",
+            "1 when the command path's database answers, 0 during an outage",
+            d["reachable"],
+        )
+        yield from _gauge(
+            "hikoboshi_database_journal",
+            "Command-path writes waiting for the database (the journal during an outage)",
+            d["journal"],
+        )
+        yield from _gauge(
+            "hikoboshi_database_journal_peak",
+            "The most writes the journal held in the last outage",
+            d["journal_peak"],
+        )
+        yield from _gauge(
+            "hikoboshi_database_last_outage_seconds",
+            "How long the last database outage lasted (wall s)",
+            d["last_down_s"],
+        )
+        yield from _gauge(
+            "hikoboshi_database_last_replay_seconds",
+            "How long replaying the last outage's journal took (wall s)",
+            d["last_replay_s"],
+        )
+        for name, key, doc in (
+            ("outages", "outages", "Database outages the command path rode through"),
+            ("journal_refused", "refused", "Writes refused because the journal was full"),
+        ):
+            family = CounterMetricFamily(f"hikoboshi_database_{name}", doc)
+            family.add_metric([], float(d[key]))
+            yield family
 
     @staticmethod
     def _authority(a: dict[str, Any]) -> Iterator[Metric]:

@@ -86,6 +86,11 @@ class LinkStatus:
     malformed_by_kind: dict[str, int] = field(default_factory=dict)
     errors_unanswered: int = 0
     malformed_closes: int = 0
+    #: this ground: whether it commands the vehicle (``command``: ``holder`` or
+    #: ``standby``, the lease's holder and token) and whether its database answers
+    #: (``database``: reachable, the journal of writes waiting, the last outage);
+    #: server/services/ground_status.py
+    ground: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)

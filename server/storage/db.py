@@ -53,6 +53,7 @@ __all__ = [
     "PoolSizes",
     "alembic_config",
     "current_revisions",
+    "database_unreachable",
     "head_revisions",
     "make_engine",
     "read_session_factory",
@@ -168,6 +169,37 @@ def _sqlite_engine(url: URL, *, echo: bool, pooling: dict[str, Any]) -> Engine:
         connection.exec_driver_sql("BEGIN" if read_only else "BEGIN IMMEDIATE")
 
     return engine
+
+
+#: SQLSTATE classes of PostgreSQL errors that say the server is not there (for now):
+#: connection exceptions, and the server shutting down or starting up.
+_UNREACHABLE_SQLSTATES = ("08", "57P01", "57P02", "57P03", "53300")
+#: SQLite's errors that pass: another writer holds the lock, the file cannot be opened or
+#: read for now.
+_SQLITE_TRANSIENT = ("database is locked", "unable to open database", "disk i/o error")
+
+
+def database_unreachable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the database cannot be reached now (a connection refused,
+    dropped or timed out; the server shutting down; a pool with no connection to give),
+    rather than refusing the statement: a write that failed so may be run again later."""
+    from sqlalchemy import exc as sa_exc
+
+    if isinstance(exc, sa_exc.TimeoutError):  # the pool: no connection to be had
+        return True
+    if not isinstance(exc, sa_exc.DBAPIError):
+        return False
+    if exc.connection_invalidated:
+        return True
+    orig = exc.orig
+    if orig is not None and type(orig).__module__.startswith("psycopg"):
+        state = getattr(orig, "sqlstate", None)
+        if state is None:  # no answer from a server at all
+            return isinstance(exc, sa_exc.OperationalError)
+        return str(state).startswith(_UNREACHABLE_SQLSTATES)
+    if isinstance(exc, sa_exc.OperationalError):  # sqlite3
+        return any(text in str(orig).lower() for text in _SQLITE_TRANSIENT)
+    return False
 
 
 def session_factory(engine: Engine) -> sessionmaker[Session]:

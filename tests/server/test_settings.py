@@ -73,6 +73,7 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "ground_name": ("tsukuba-1", "tsukuba-1"),
     "lease_ttl_s": ("8", 8.0),
     "lease_renew_s": ("2", 2.0),
+    "database_journal_max": ("5000", 5000),
 }
 
 

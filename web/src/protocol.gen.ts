@@ -151,6 +151,7 @@ export interface LinkStatus {
   malformed_by_kind: Record<string, number>;
   errors_unanswered: number;
   malformed_closes: number;
+  ground: Record<string, unknown> | null;
 }
 
 /** The answer to `ping`: its `id` and the ground time. */

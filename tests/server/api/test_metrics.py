@@ -50,6 +50,10 @@ def test_the_gauges_are_the_services_figures(client: TestClient) -> None:
     assert samples[("hikoboshi_command_lease_token", ())] == authority.lease.token >= 1
     assert samples[("hikoboshi_command_lease_acquisitions_total", ())] == 1.0
     assert samples[("hikoboshi_command_lease_losses_total", ())] == 0.0
+    # the database answers: nothing journaled, no outage
+    assert samples[("hikoboshi_database_reachable", ())] == 1.0
+    assert samples[("hikoboshi_database_journal", ())] == state.db.journal
+    assert samples[("hikoboshi_database_outages_total", ())] == 0.0
 
 
 def test_requests_are_timed_by_route_and_commits_by_the_database_worker(
