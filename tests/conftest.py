@@ -62,6 +62,7 @@ REALTIME_MODULES = (
     "tests/server/console/",
     "tests/server/link/test_abort_consoles.py",
     "tests/server/link/test_api.py",
+    "tests/server/link/test_db_outage_e2e.py",
     "tests/server/link/test_e2e.py",
     "tests/server/link/test_failover.py",
     "tests/server/link/test_foxglove_live.py",

@@ -81,6 +81,16 @@ SQLITE_PRAGMAS = (
     "PRAGMA temp_store = MEMORY",
 )
 
+#: libpq's connection liveness (see make_engine): a dead server is noticed within ~15 s.
+PG_LIVENESS = {
+    "connect_timeout": 5,
+    "keepalives": 1,
+    "keepalives_idle": 5,
+    "keepalives_interval": 2,
+    "keepalives_count": 3,
+    "tcp_user_timeout": 10_000,  # ms
+}
+
 # NaN/inf are not JSON (and jsonb refuses them): fail at the write, on every backend alike.
 _json_dumps = functools.partial(json.dumps, allow_nan=False)
 
@@ -128,7 +138,13 @@ def make_engine(url: str | URL, *, echo: bool = False, pool: PoolSizes | None = 
             raise InvalidArgument(
                 f"PostgreSQL driver {parsed.get_driver_name()!r} is not supported; use psycopg"
             )
-        connect_args: dict[str, Any] = {}
+        # A server gone without a word (a partition, a host down) must not hold a
+        # connection's caller forever: unacknowledged data fails after tcp_user_timeout,
+        # an idle wait for an answer after the keepalives' probes, a connect after 5 s
+        # (the URL's own values win).
+        connect_args: dict[str, Any] = {
+            key: value for key, value in PG_LIVENESS.items() if key not in parsed.query
+        }
         if pool.statement_timeout_s is not None:
             ms = max(1, round(pool.statement_timeout_s * 1000))
             # beside any options the URL gives (a search_path, say), not instead of them
@@ -187,6 +203,8 @@ def database_unreachable(exc: BaseException) -> bool:
 
     if isinstance(exc, sa_exc.TimeoutError):  # the pool: no connection to be had
         return True
+    if isinstance(exc, sa_exc.PendingRollbackError):  # its connection was lost mid-way
+        return "invalid transaction" in str(exc)
     if not isinstance(exc, sa_exc.DBAPIError):
         return False
     if exc.connection_invalidated:

@@ -56,7 +56,13 @@ class CutProxy:
                 continue
             server.settimeout(None)
             with self._lock:
-                self._sockets |= {client, server}
+                up = self._up  # a cut while this one was connecting takes it too
+                if up:
+                    self._sockets |= {client, server}
+            if not up:
+                _reset(client)
+                _reset(server)
+                continue
             for a, b in ((client, server), (server, client)):
                 threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
 
@@ -93,8 +99,12 @@ class CutProxy:
 
 
 def _reset(s: socket.socket) -> None:
+    """Reset the connection (RST, as a server process that died leaves it), waking the
+    pump blocked in ``recv`` on it."""
     with contextlib.suppress(OSError):
         s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+    with contextlib.suppress(OSError):
+        s.shutdown(socket.SHUT_RDWR)
     with contextlib.suppress(OSError):
         s.close()
 
@@ -105,8 +115,9 @@ def cut_proxy(database_url: str) -> Iterator[tuple[CutProxy, str]]:
     url: URL = make_url(database_url)
     proxy = CutProxy((url.host or "127.0.0.1", url.port or 5432))
     try:
-        yield proxy, url.set(host="127.0.0.1", port=proxy.port).render_as_string(
-            hide_password=False
+        yield (
+            proxy,
+            url.set(host="127.0.0.1", port=proxy.port).render_as_string(hide_password=False),
         )
     finally:
         proxy.close()

@@ -63,9 +63,7 @@ def test_writes_made_while_the_database_is_away_are_applied_once_in_order(
             assert not any(f.done() for f in during)
             assert db.journal >= 300 - 64  # a group may be in its transaction
             proxy.restore()
-            results = await asyncio.wait_for(
-                asyncio.gather(*during, return_exceptions=True), 60.0
-            )
+            results = await asyncio.wait_for(asyncio.gather(*during, return_exceptions=True), 60.0)
             return [r if isinstance(r, BaseException) else None for r in results]
 
         try:
@@ -103,9 +101,7 @@ def test_a_full_journal_refuses_a_write_loudly_and_a_stop_does_not_hang(migrated
             except JournalFull as exc:
                 refused = exc
             db.give_up(0.0)  # a stop with the database still away
-            results = await asyncio.wait_for(
-                asyncio.gather(*waiting, return_exceptions=True), 30.0
-            )
+            results = await asyncio.wait_for(asyncio.gather(*waiting, return_exceptions=True), 30.0)
             return results, refused
 
         try:

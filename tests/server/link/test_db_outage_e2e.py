@@ -1,0 +1,142 @@
+"""PostgreSQL goes away mid-pass and comes back (a proxy in front of the real server cuts
+every connection and refuses new ones): the ground keeps flying from memory, shows the
+outage, stops sending once its command lease lapses (the vehicle flies what it holds),
+replays its journal in order when the database answers, and the pass completes: every
+command's stage final and the vehicle's own record, every frame of the pass stored once
+(docs/operations.md "A database outage"). Longer outages: ``HIKOBOSHI_TEST_OUTAGE_S``."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+from typing import Any
+
+import httpx
+import pytest
+
+from server.storage import repository as repo
+from server.storage.db import make_engine, read_session_factory
+from tests.server.cut_proxy import cut_proxy
+from tests.server.link.harness import (
+    OPERATOR,
+    VIEWER,
+    connected,
+    running_ground,
+    spacecraft,
+    store_pass,
+    wait_for,
+)
+
+pytestmark = pytest.mark.realtime
+
+#: wall s the database is away: 60 s onboard at the harness's 10x, inside the 120 s lead
+OUTAGE_S = float(os.environ.get("HIKOBOSHI_TEST_OUTAGE_S", "6"))
+
+
+@pytest.mark.slow
+def test_a_pass_rides_a_database_outage_through(postgres_schema_url: str) -> None:
+    with (
+        cut_proxy(postgres_schema_url) as (proxy, through),
+        running_ground(through, lease_ttl_s=3.0, lease_renew_s=0.5) as ground,
+    ):
+        engine = make_engine(postgres_schema_url)  # the test's own reads: not through it
+        readers = read_session_factory(engine)
+        pass_id = store_pass(ground.sessions, "outage", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 150.0)
+        process, generated = spacecraft(ground)
+        seen: dict[str, Any] = {}
+
+        def executed_on_board(n: int) -> bool:
+            with readers() as session:
+                first = repo.list_commands(session=session, pass_id=pass_id, limit=n)
+            outcomes = [process.vehicle.outcome(c.seq) for c in first]
+            return len(first) == n and all(
+                a is not None and a.stage.value == "executed" for a in outcomes
+            )
+
+        def resolved() -> bool:
+            with readers() as session:
+                ended = repo.get_pass(session=session, pass_id=pass_id).state in (
+                    "complete",
+                    "aborted",
+                )
+                waiting = repo.list_commands(
+                    session=session,
+                    pass_id=pass_id,
+                    stages=("queued", "released", "sent", "received"),
+                )
+            return ended and not waiting
+
+        async def scenario() -> None:
+            stop = asyncio.Event()
+            task = asyncio.create_task(process.run(stop))
+            try:
+                async with httpx.AsyncClient(base_url=ground.url, timeout=30.0) as client:
+                    await connected(client)
+                    started = await client.post(
+                        f"/api/passes/{pass_id}/start",
+                        json={"confirm": "START outage"},
+                        headers=OPERATOR,
+                    )
+                    assert started.status_code == 200, started.text
+                    await wait_for(lambda: executed_on_board(30), 60.0, "30 commands executed")
+                    proxy.cut()
+                    cut_at = time.monotonic()
+                    db = ground.app.state.db
+                    await wait_for(lambda: db.outage.down_since is not None, 30.0, "the outage")
+                    # the link's status (no database needed) shows it to the consoles
+                    status = (await client.get("/api/link/status", headers=VIEWER)).json()
+                    assert status["ground"]["database"]["reachable"] is False
+                    authority = ground.app.state.authority
+                    await wait_for(lambda: not authority.may_command(), 30.0, "lease lapsing")
+                    status = (await client.get("/api/link/status", headers=VIEWER)).json()
+                    assert status["ground"]["command"]["commanding"] is False
+                    seen["journal_during"] = db.journal
+                    await asyncio.sleep(max(0.0, OUTAGE_S - (time.monotonic() - cut_at)))
+                    proxy.restore()
+                    await wait_for(resolved, 180.0, "the pass ended, resolved")
+                    metrics = (await client.get("/metrics", headers=VIEWER)).text
+                    assert "hikoboshi_database_reachable 1.0" in metrics
+                    assert "hikoboshi_database_outages_total 1.0" in metrics
+                    summary = await client.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
+                    assert summary.status_code == 200, summary.text
+                    seen["summary"] = summary.json()
+                    seen["outage"] = db.outage.status(db.journal)
+                    stop.set()
+                    await asyncio.wait_for(task, 60.0)
+                    assert process.store.unacked == 0
+            finally:
+                stop.set()
+                await asyncio.wait_for(task, 60.0)
+
+        try:
+            asyncio.run(scenario())
+            with readers() as session:
+                commands = repo.list_commands(session=session, pass_id=pass_id)
+                record = repo.get_pass(session=session, pass_id=pass_id)
+                frames = repo.frame_seqs(session=session, pass_id=pass_id)
+        finally:
+            engine.dispose()
+    for c in commands:  # every stage final, and the vehicle's own record
+        ack = process.vehicle.outcome(c.seq)
+        if c.stage == "expired":
+            assert ack is None, (c.seq, c.stage, ack)
+        else:
+            assert ack is not None and c.stage == ack.stage.value == "executed", (c.seq, c.stage)
+            assert c.executed_at_ns == c.execute_time_ns
+    summary, outage = seen["summary"], seen["outage"]
+    assert summary["commands_unresolved"] == summary["commands_cancelled"] == 0
+    assert record.state == "complete", (record.state, record.state_reason)
+    assert record.telemetry_start_ns is not None and record.telemetry_end_ns is not None
+    window = sorted(
+        f.seq
+        for f in generated
+        if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
+    )
+    assert frames == window  # every frame of the pass, once
+    assert outage["outages"] == 1 and outage["last_down_s"] >= OUTAGE_S * 0.9
+    print(
+        f"database away {outage['last_down_s']:.1f} s; journal {seen['journal_during']} "
+        f"during, peak {outage['journal_peak']}, replayed in {outage['last_replay_s'] or 0:.1f} s; "
+        f"{summary['outcome_text']}"
+    )
