@@ -16,10 +16,11 @@ slow enough, flies a straight catch-up ramp the plan never predicted. So the gro
   now (``delay + margin / 2``, :attr:`server.services.uplink.Uplink.arrival_ns`) can no
   longer reach the vehicle. "Now" is read on a clock a relayed stamp has confirmed: the
   hello places the onboard clock where it stood when it was *read*, behind on a ground still
-  starting, so the resumed uplink (:class:`ResumedUplink`) sends nothing and expires nothing
-  until a stamp (telemetry, the pong of the hello's ping) has come, or a round trip and
+  starting, so the resumed uplink (:class:`ResumedUplink`) sends nothing until a stamp
+  (telemetry, the pong of the hello's ping) has come, or a round trip and
   :data:`CLOCK_CONFIRM_EXTRA_S` have passed; it decides then, in the step that sends, so
-  nothing it sends can arrive after its tag (``late``).
+  nothing it sends can arrive after its tag (``late``). It expires meanwhile what the
+  hello's clock already finds lost: that clock is never ahead of the vehicle's.
 - **The break.** The first lost command that changes what the vehicle does: a joint command
   off the held pose (more than :data:`REPEAT_TOLERANCE_RAD` on any joint), or any
   attitude-control command. Lost joint commands that repeat the held pose are harmless: the
@@ -168,8 +169,8 @@ def _cancel_job(
 
 
 class ResumedUplink(Uplink):
-    """The uplink of a resumed pass: nothing goes up and nothing expires until a relayed
-    stamp has confirmed the onboard clock (at most :data:`CLOCK_CONFIRM_EXTRA_S` beyond a
+    """The uplink of a resumed pass: nothing goes up until a relayed stamp has confirmed
+    the onboard clock (at most :data:`CLOCK_CONFIRM_EXTRA_S` beyond a
     round trip after the hello); then, once, :func:`hold_after_gap` on that clock, and what
     it withholds is cancelled and leaves the uplink."""
 
@@ -230,7 +231,10 @@ class ResumedUplink(Uplink):
         return True
 
     def expire(self, onboard_ns: int) -> list[UplinkCommand]:
-        return super().expire(onboard_ns) if self._ready(onboard_ns) else []
+        self._ready(onboard_ns)
+        # before the stamp too: a hello read late puts the clock behind, never ahead, so what
+        # it finds lost is lost (a pass resumed after its last tag expires at once)
+        return super().expire(onboard_ns)
 
     def due(self, mono: float, onboard_ns: int) -> list[UplinkCommand]:
         return super().due(mono, onboard_ns) if self._ready(onboard_ns) else []

@@ -264,6 +264,20 @@ async def test_a_gap_in_a_holding_segment_resumes_the_pass(tmp_path: Path) -> No
     assert max(r.seq for r in rows if r.stage == "executed") == rows[-1].seq
 
 
+@simulated
+async def test_a_ground_back_after_the_pass_s_last_tag_expires_what_the_vehicle_never_had(
+    tmp_path: Path,
+) -> None:
+    """Back after the last tag (the pass's LOS before the clock is confirmed): the commands
+    never on board expire at once, none is left ``queued``."""
+    sessions, pass_id, sc, _ = await _restart(tmp_path, _plan(), stop_at_s=40.0, down_s=150.0)
+    assert _refused(sc) == {}
+    rows = commands(sessions, pass_id)
+    assert pass_state(sessions, pass_id) == "complete"
+    assert set(_stages(rows)) == {"executed", "expired"}, _stages(rows)
+    _as_the_vehicle_did(sc, rows)
+
+
 def _row(seq: int, tag_s: float, joints: float | None, stage: str = "queued") -> Any:
     kind = "acs" if joints is None else "joints"
     payload = {} if joints is None else {"joints_rad": [joints] * 6}
