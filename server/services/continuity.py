@@ -19,7 +19,8 @@ slow enough, flies a straight catch-up ramp the plan never predicted. So the gro
   starting, so the resumed uplink (:class:`ResumedUplink`) sends nothing until a stamp
   (telemetry, the pong of the hello's ping) has come, or a round trip and
   :data:`CLOCK_CONFIRM_EXTRA_S` have passed; it decides then, in the step that sends, so
-  nothing it sends can arrive after its tag (``late``). It expires meanwhile what the
+  a hello read late no longer makes it send late (a stamp read late still can:
+  docs/protocol.md). It expires meanwhile what the
   hello's clock already finds lost: that clock is never ahead of the vehicle's.
 - **The break.** The first lost command that changes what the vehicle does: a joint command
   off the held pose (more than :data:`REPEAT_TOLERANCE_RAD` on any joint), or any
