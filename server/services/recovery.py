@@ -13,7 +13,9 @@ before any spacecraft is aborted too (:data:`NO_SPACECRAFT`).
 
 A resumed pass's commands not final are loaded into a new uplink: those the earlier process
 sent and the vehicle did not acknowledge are sent again at once (the vehicle answers a copy of
-a command it holds with its stored acknowledgement), the rest as the window admits them.
+a command it holds with its stored acknowledgement), the rest as the window admits them,
+unless the vehicle's schedule ran dry in mid-motion: then the rest is held
+(:mod:`server.services.continuity`).
 
 **Unresolved commands of ended passes** (:class:`UnresolvedPass`): a recent pass that ended
 (``complete``, ``aborted``, ``safed``) with commands still ``sent`` or ``received`` (the

@@ -79,6 +79,7 @@ from sqlalchemy.orm import Session
 
 from server.logs import current_pass
 from server.services.clock import Clock
+from server.services.continuity import resumed_uplink
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError
@@ -106,7 +107,6 @@ from server.services.pass_states import (
     TRANSITIONS,
     ActivePass,
     abort_job,
-    command_from_record,
     new_uplink,
     start_job,
     transition,
@@ -601,9 +601,8 @@ class PassRunner:
     def _begin_resumed(
         self, p: UnfinishedPass, window: TelemetryWindow, tracker: CommandTracker
     ) -> None:
-        link = self._link
-        uplink = new_uplink([command_from_record(r) for r in p.pending], self._settings, link)
-        uplink.restore(p.transmitted)
+        link = self._link  # the uplink holds after a gap past the lead window (continuity)
+        uplink = resumed_uplink(p, link, self._settings, self._db, self._clock, tracker)
         tags = {r.seq: r.execute_time_ns for r in p.commands}
         active = ActivePass.of(p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True)
         if p.state == "los":

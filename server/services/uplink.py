@@ -280,6 +280,16 @@ class Uplink:
     def sent_commands(self) -> list[UplinkCommand]:
         return [c for c in self.commands if c.transmissions > 0]
 
+    def withhold(self, seqs: set[int]) -> None:
+        """Never send these (commands not yet sent by this uplink, the last in tag order:
+        :mod:`server.services.continuity`): they leave the uplink."""
+        keep = [c for c in self.commands if c.seq not in seqs]
+        self._next = sum(1 for c in self.commands[: self._next] if c.seq not in seqs)
+        self.commands, self._tags = keep, [c.tag_ns for c in keep]
+        self.by_seq = {c.seq: c for c in keep}
+        self._timers = [(due, seq) for due, seq in self._timers if seq in self.by_seq]
+        heapq.heapify(self._timers)
+
     def stop(self) -> None:
         """Send nothing more (abort)."""
         self._timers.clear()
