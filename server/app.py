@@ -45,6 +45,7 @@ from server.api.errors import install_error_handlers
 from server.api.metrics import connect_metrics, install_metrics
 from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
+from server.services._console_jetstream import AcrossGrounds
 from server.services.alarms import AlarmService
 from server.services.artifacts import ArtifactStore
 from server.services.authority import (
@@ -61,6 +62,7 @@ from server.services.downlink import GroundDownlink
 from server.services.foxglove_live import FoxgloveLive
 from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
+from server.services.jetstream import BusConfig, LiveBus
 from server.services.link import GroundLink
 from server.services.malformed import MalformedPolicy
 from server.services.readiness import ReadinessProbe
@@ -243,6 +245,28 @@ def _authority(settings: Settings, url: str) -> tuple[CommandAuthority, Engine, 
     return CommandAuthority(session_factory(engine), policy), engine, held
 
 
+async def _across_grounds(
+    settings: Settings, authority: CommandAuthority, publisher: Publisher
+) -> AcrossGrounds | None:
+    """With ``nats_url``: this ground's live messages to JetStream and its consoles' streams
+    from there (docs/console.md "Across grounds"); without, None (one ground's consoles)."""
+    if settings.nats_url is None:
+        return None
+    config = BusConfig(
+        url=settings.nats_url,
+        stream=settings.nats_stream,
+        max_age_s=settings.nats_max_age_s,
+        max_bytes=settings.nats_max_bytes,
+        lease=settings.command_lease,
+    )
+    bus = LiveBus(config, name=authority.policy.holder)
+    await bus.open()
+    across = AcrossGrounds(bus, commanding=lambda: authority.holder)
+    await across.open(publisher)
+    log.info("consoles across grounds: JetStream stream %r at %s", config.stream, config.url)
+    return across
+
+
 async def _keep_command(live: LivePath, authority: CommandAuthority, commanding: bool) -> None:
     """Command the vehicle if this ground took the lease at its start (the recovery after a
     restart), else be a standby; then keep the lease: a standby that takes it over from a
@@ -330,6 +354,8 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.runner = live.runner
         app.state.alarms = live.alarms
         await live.alarms.load_vehicle_alarms()
+        # before the recovery: what it writes (pass_resumed) reaches every ground's consoles
+        across = await _across_grounds(settings, authority, live.publisher)
         await _keep_command(live, authority, commanding)  # docs/operations.md
         app.state.console = ConsoleHub(
             publisher=live.publisher,
@@ -338,6 +364,7 @@ def create_app(settings: Settings) -> FastAPI:
             replay_sessions=app.state.read_sessions,  # a whole recording: a viewer's read
             db_threads=settings.console_db_threads,
             clock=live.clock,
+            across=across,
         )
         app.state.console.start()
         app.state.console_seats = ConsoleSeats(
@@ -376,6 +403,8 @@ def create_app(settings: Settings) -> FastAPI:
             live.db.give_up(STOP_DATABASE_WAIT_S)  # if begin_shutdown has not already
             await live.runner.shutdown()
             await live.close()
+            if across is not None:  # after the last write: ground_stopped is published
+                await across.close()
             await authority.close()  # after the last write: a standby takes over at once
             lease_engine.dispose()
             if held is not None:

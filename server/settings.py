@@ -267,6 +267,22 @@ class Settings(BaseSettings):
     back; past it a write is refused, logged and counted (docs/operations.md "A database
     outage")."""
 
+    # --- consoles across grounds (server/services/jetstream.py, docs/console.md "Across
+    # grounds") ----------------------------------------------------------------------------
+    nats_url: str | None = Field(default=None, min_length=1, max_length=500)
+    """A NATS server with JetStream (``nats://host:4222``; needs the ``hikoboshi[nats]``
+    extra): every ground publishes its live events there and feeds its consoles from there,
+    so a console sees the same live view on any ground and resumes on another. None: each
+    ground serves its own consoles from its own process."""
+    nats_stream: str = Field(default="HIKOBOSHI", pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    """The JetStream stream the grounds share (created by the first ground, with the limits
+    below; its creation time names the consoles' ``epoch``)."""
+    nats_max_age_s: float = Field(default=86400.0, gt=0)
+    """The stream keeps a message this long (s) at most: a console resumes within it."""
+    nats_max_bytes: int = Field(default=1024 * 1024 * 1024, ge=1024 * 1024)
+    """The stream holds this many bytes at most; past them the oldest messages go (a
+    console asking for them is told ``resync``)."""
+
     # --- the Foxglove live view (server/services/foxglove_live.py, docs/mcap.md) ---------
     foxglove_port: int | None = Field(default=None, ge=0, le=65535)
     """Stream the live pass to Foxglove on this port (foxglove-sdk's websocket server in the

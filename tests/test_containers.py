@@ -151,3 +151,90 @@ def test_the_setup_script_builds_on_a_supported_node_lts() -> None:
         assert entry["version"] == version and entry["integrity"].startswith("sha512-")
     script = (ROOT / "scripts" / "setup.sh").read_text()
     assert "tools/node && npm ci" in script and "-lt 22 ]" in script
+
+
+# --- the replicas profile: two grounds behind a load balancer ------------------------------
+
+REPLICAS = {"nats", "ground-a", "ground-b", "lb", "replicas-spacecraft"}
+HAPROXY = ROOT / "deploy" / "haproxy.cfg"
+
+
+def _haproxy_sections() -> dict[str, list[str]]:
+    """deploy/haproxy.cfg's sections (``backend holder``: its lines), comments dropped."""
+    sections: dict[str, list[str]] = {}
+    current: list[str] = []
+    for raw in HAPROXY.read_text().splitlines():
+        line = raw.split("#", 1)[0].rstrip()
+        if not line.strip():
+            continue
+        if not line.startswith((" ", "\t")):
+            current = sections.setdefault(line.strip(), [])
+        else:
+            current.append(" ".join(line.split()))
+    return sections
+
+
+def test_the_replicas_profile_holds_its_services_and_leaves_the_default_alone() -> None:
+    profiled = {name for name, s in SERVICES.items() if "replicas" in s.get("profiles", [])}
+    assert profiled == REPLICAS
+    for name in ("postgres", "server", "spacecraft"):  # `docker compose up` as before
+        assert "profiles" not in SERVICES[name], name
+
+
+def test_nats_runs_jetstream_on_a_named_volume_with_a_healthcheck() -> None:
+    nats = SERVICES["nats"]
+    assert "-js" in nats["command"]
+    store = nats["command"][nats["command"].index("-sd") + 1]
+    [mount] = [str(m) for m in nats["volumes"] if str(m).endswith(f":{store}")]
+    assert mount.split(":")[0] in COMPOSE["volumes"]
+    assert "js-enabled-only=true" in " ".join(nats["healthcheck"]["test"])
+
+
+def test_two_grounds_serve_on_the_same_database_and_nats() -> None:
+    grounds = [SERVICES["ground-a"], SERVICES["ground-b"]]
+    for ground in grounds:
+        assert ground["command"][0] == "serve"
+        assert ground["depends_on"] == {
+            "postgres": {"condition": "service_healthy"},
+            "nats": {"condition": "service_healthy"},
+        }
+        assert "/api/ready" in " ".join(ground["healthcheck"]["test"])
+        assert "ports" not in ground  # reached through the load balancer only
+    envs = [g["environment"] for g in grounds]
+    assert envs[0]["DATABASE_URL"] == envs[1]["DATABASE_URL"]
+    assert "@postgres:5432/" in envs[0]["DATABASE_URL"]
+    assert envs[0]["HIKOBOSHI_NATS_URL"] == envs[1]["HIKOBOSHI_NATS_URL"] == "nats://nats:4222"
+    assert envs[0]["HIKOBOSHI_GROUND_NAME"] != envs[1]["HIKOBOSHI_GROUND_NAME"]
+
+
+def test_the_load_balancer_sends_the_link_to_the_lease_holder_only() -> None:
+    lb = SERVICES["lb"]
+    [config] = [str(m) for m in lb["volumes"] if "haproxy.cfg" in str(m)]
+    assert (ROOT / config.split(":")[0]).resolve() == HAPROXY.resolve()
+    assert lb["depends_on"] == {
+        "ground-a": {"condition": "service_healthy"},
+        "ground-b": {"condition": "service_healthy"},
+    }
+    sections = _haproxy_sections()
+    frontend = next(lines for name, lines in sections.items() if name.startswith("frontend"))
+    [link_acl] = [line for line in frontend if line.startswith("acl link ")]
+    assert link_acl == "acl link path /api/link"
+    [routed] = [line for line in frontend if line.startswith("use_backend") and "link" in line]
+    holder = sections[f"backend {routed.split()[1]}"]
+    assert "option httpchk GET /api/command" in holder
+    assert "http-check expect status 200" in holder
+    default = next(line.split()[1] for line in frontend if line.startswith("default_backend"))
+    for backend in (holder, sections[f"backend {default}"]):
+        servers = {line.split()[2] for line in backend if line.startswith("server ")}
+        assert servers == {"ground-a:8000", "ground-b:8000"}, backend
+        assert all(line.endswith(" check") for line in backend if line.startswith("server "))
+    assert any("timeout tunnel" in line for line in sections["defaults"])  # websockets
+
+
+def test_the_replicas_spacecraft_reaches_the_holder_through_the_load_balancer() -> None:
+    spacecraft = SERVICES["replicas-spacecraft"]
+    command = spacecraft["command"]
+    grounds = [command[i + 1] for i, word in enumerate(command) if word == "--ground"]
+    assert grounds[0] == "ws://lb:8000/api/link"
+    assert set(grounds[1:]) == {"ws://ground-a:8000/api/link", "ws://ground-b:8000/api/link"}
+    assert "lb" in spacecraft["depends_on"]

@@ -34,7 +34,8 @@ from server.services.link import LinkStatus
 from server.storage.models import TELEMETRY_FIELDS
 
 if TYPE_CHECKING:
-    from server.services.console import ConsoleHub, ConsoleLimits
+    from server.services._console_limits import ConsoleLimits
+    from server.services.console import ConsoleHub
 
 __all__ = [
     "CONTROL_TOPICS",
@@ -92,33 +93,42 @@ class Message:
 class Stream:
     """One topic's (or one pass's telemetry) numbered messages: a ring and an index."""
 
-    def __init__(self, topic: str, pass_id: str | None, limits: ConsoleLimits):
+    def __init__(self, topic: str, pass_id: str | None, limits: ConsoleLimits, floor: int = 0):
+        """``floor``: the seq after which every message of the stream comes to it (0 in
+        one process; across grounds, where the hub started following JetStream)."""
         self.topic = topic
         self.pass_id = pass_id
         self.limits = limits
-        self.last_seq = 0
+        self.last_seq = floor
+        #: the ring holds every message after this seq (the last one it let go)
+        self.floor = floor
         self.ring: deque[Message] = deque()
-        # keys[i] belongs to seq last_seq - len(keys) + 1 + i
+        # keys[i] belongs to seq last_seq - len(keys) + 1 + i (numbered here only)
         self.keys: deque[Any] = deque()
         self.subscriptions: list[Subscription] = []
 
-    def append(self, key: Any, payload: Payload) -> Message:
-        self.last_seq += 1
+    def append(self, key: Any, payload: Payload, seq: int | None = None) -> Message:
+        """The next message: numbered here, or by JetStream (``seq``, increasing, not
+        contiguous: it numbers every subject of the stream; no index is kept then)."""
+        if seq is None:
+            self.last_seq += 1
+            self.keys.append(key)
+            while len(self.keys) > self.limits.index_size:
+                self.keys.popleft()
+        else:
+            self.last_seq = seq
         message = Message(self.last_seq, key, payload)
         message.text = render(self, message, None)
         self.ring.append(message)
-        self.keys.append(key)
         while len(self.ring) > self.limits.ring_size:
-            self.ring.popleft()
-        while len(self.keys) > self.limits.index_size:
-            self.keys.popleft()
+            self.floor = self.ring.popleft().seq
         return message
 
     def from_ring(self, since_seq: int) -> list[Message] | None:
         """Messages after ``since_seq``, or None when the ring no longer holds them all."""
         if since_seq >= self.last_seq:
             return []
-        if not self.ring or self.ring[0].seq > since_seq + 1:
+        if since_seq < self.floor:
             return None
         return [m for m in self.ring if m.seq > since_seq]
 

@@ -11,9 +11,12 @@ The API layer owns the websocket: it authenticates, then hands this service each
   A pass's telemetry stream is let go once the pass has ended and nobody subscribes to it
   (at that pass's end or a later one's), keeping only its last seq: a stream made again
   for it goes on counting from there, and what came before is ``resync``.
-- **Sources**: the link's :class:`~server.services.link.Publisher` (committed events,
-  archived frames, alarms as written; called on the event loop, so nothing here blocks or
-  awaits there) and a poll of :meth:`GroundLink.status` for ``link``.
+- **Sources** (``_console_book``): the link's :class:`~server.services.link.Publisher`
+  (committed events, archived frames, alarms as written; on the event loop, so nothing
+  there blocks) and a poll of :meth:`GroundLink.status` for ``link``. **Across grounds**
+  (``nats_url``, ``_console_jetstream``) they go to JetStream and every stream comes back
+  from it, numbered by the JetStream stream's sequence (its creation names the ``epoch``),
+  the same on every ground; a resume the ring does not cover reads JetStream.
 - **Resume**: ``subscribe`` with ``since_seq`` (and the ``epoch`` it belongs to) replays
   ``(since_seq, seq]`` from the ring, or from the database by the index (events by
   ``(time_ns, kind, pass_id)``, frames by ``reception_time_ns``), with their original seqs;
@@ -40,8 +43,9 @@ The API layer owns the websocket: it authenticates, then hands this service each
   ``behind_drop_s`` it is told why (``error``, the close's reason) and closed.
 
 Client messages are parsed in ``_console_protocol``; the messages sent are the models of
-``console_messages``; streams, subscriptions and clients are ``_console_streams``; the
-database replay is ``_console_replay``. The replay of a recorded pass (``replay_*``
+``console_messages``; streams, subscriptions and clients are ``_console_streams``; topics
+and limits ``_console_limits``; the lag watch ``_console_lag``; the database replay is
+``_console_replay``. The replay of a recorded pass (``replay_*``
 messages: a stored pass streamed to one console at a chosen speed) is
 ``_console_replay_sessions``: each replay is its own task, flow-controlled by the bytes of
 replay data its console has unsent.
@@ -54,14 +58,21 @@ import contextlib
 import logging
 import secrets
 import time
-import uuid
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
-from typing import Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from server.services._console_book import StreamBook
+from server.services._console_lag import check_lag
+from server.services._console_limits import (
+    EVENT_TOPICS,
+    STATE_TOPICS,
+    TOPICS,
+    ConsoleLimits,
+    canonical_pass,
+)
 from server.services._console_protocol import (
     PROTOCOL_VERSION,
     AckMsg,
@@ -79,11 +90,13 @@ from server.services._console_protocol import (
     UnsubscribeMsg,
     decode_client,
 )
-from server.services._console_replay import replay_events, replay_frames, telemetry_rows
+from server.services._console_replay import (
+    replay_events,
+    replay_frames,
+)
 from server.services._console_replay_sessions import Replays
 from server.services._console_streams import (
     ConsoleClient,
-    LinkReport,
     Message,
     Payload,
     Stream,
@@ -93,11 +106,8 @@ from server.services._console_streams import (
 )
 from server.services.clock import Clock, SystemClock
 from server.services.console_messages import (
-    ConsoleAlarm,
-    ConsoleEvent,
     ConsoleRole,
     ErrorMsg,
-    LagMsg,
     PongMsg,
     ResyncMsg,
     SubscribedMsg,
@@ -109,7 +119,9 @@ from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
 from server.storage import repository as repo
 from server.storage.errors import NotFound
-from telemetry.wire import TelemetryFrame
+
+if TYPE_CHECKING:
+    from server.services._console_jetstream import AcrossGrounds
 
 __all__ = [
     "EVENT_TOPICS",
@@ -125,85 +137,6 @@ __all__ = [
 
 log = logging.getLogger("hikoboshi.ground.console")
 T = TypeVar("T")
-
-#: Event topics and the event kinds each carries (``None``: every kind).
-EVENT_TOPICS: dict[str, tuple[str, ...] | None] = {
-    # An abort cancels a pass's commands in one ``commands_cancelled`` event (count and seq
-    # range), not one ``command_stage`` each: a console following stages needs it too.
-    "commands": ("command_stage", "commands_cancelled"),
-    "passes": ("pass_state",),
-    "events": None,
-}
-TOPICS = ("telemetry", *EVENT_TOPICS, "link", "alarms")
-#: Topics whose messages are states, not found again in the database (ring only).
-_STATE_TOPICS = ("link", "alarms")
-#: A pass's states after which its telemetry stream may be retired.
-_ENDED_STATES = ("complete", "aborted", "safed")
-#: How many retired telemetry streams' last seqs are remembered (a few ints each).
-RETIRED_KEPT = 10_000
-
-
-@dataclass
-class ConsoleLimits:
-    """What one console and one stream may hold; read when used, so a test may shrink it."""
-
-    ring_size: int = 1024  # messages per stream kept in memory for a replay
-    index_size: int = 1_000_000  # messages per stream that can be found in the database
-    #: Live data unsent to one client (bytes of text) beyond which its subscription is
-    #: dropped: a burst (an abort expires thousands of commands at once) fits; a console
-    #: that stopped reading is found out in minutes, not hours.
-    queue_bytes: int = 2 * 1024 * 1024
-    max_replay: int = 4096  # messages one subscribe may replay (more: resync)
-    max_subscriptions: int = 32
-    max_message_bytes: int = 64 * 1024  # client -> server
-    max_rate_hz: float = 1000.0
-    link_poll_s: float = 1.0  # wall
-    link_heartbeat_s: float = 5.0  # wall: the link status is pushed at least this often
-    auth_timeout_s: float = 10.0
-    # Replay of recorded passes:
-    max_replays_per_console: int = 4
-    max_replays: int = 32  # in the whole server (each holds its recording in memory)
-    max_replay_frames: int = 200_000  # frames of one recording (~5.5 h at 10 Hz, ~70 MB)
-    max_replay_factor: float = 1000.0
-    max_replay_batch_frames: int = 500  # frames per message (and as-fast-as-possible batch)
-    #: Replay data unsent to one console beyond which its replays hold (until half is sent).
-    replay_window_bytes: int = 1024 * 1024
-    replay_tick_s: float = 0.02  # wall: a real-time replay sends at most this often
-    replay_report_s: float = 0.5  # wall: replay_state while frames flow, at most this often
-    # A console behind (docs/console.md, "Backpressure"); times on the hub's clock:
-    lag_check_s: float = 0.25  # how often each console's lag is measured
-    #: A console whose oldest unsent message is older than this is sent ``lag`` (at most
-    #: this often, and once more, ``behind_s: 0``, when it has caught up).
-    behind_report_s: float = 0.5
-    #: Bulk data (telemetry, command stages, the audit log) unsent for longer than this is
-    #: dropped and each of its subscriptions told ``resync``: the console reloads the
-    #: snapshot over REST and goes on live, instead of reading a backlog older than that.
-    behind_resync_s: float = 2.0
-    #: Anything unsent for longer than this (control messages, which jump the queue,
-    #: included): the console is told why (``error``, and the close's reason) and closed.
-    behind_drop_s: float = 30.0
-    #: A console that acknowledges what it reads (``ack``) is handed bulk data only while
-    #: what it has not acknowledged is less than what it read in the last this long (at
-    #: least ``ack_window_min_bytes``): the rest waits in the server's queues, not in the
-    #: socket's buffers, where a control message could not pass it nor a resync drop it.
-    ack_window_s: float = 0.5
-    ack_window_min_bytes: int = 4096
-
-    @property
-    def hard_cap(self) -> int:
-        """Messages queued to one client, other than its subscriptions' data (which
-        ``queue_bytes`` and the lag bounds hold), beyond which it is disconnected."""
-        return self.max_replay + 1024
-
-
-def _canonical_pass(pass_id: str | None) -> str | None:
-    if pass_id is None:
-        return None
-    try:
-        return str(uuid.UUID(pass_id))
-    except ValueError:
-        return pass_id
-
 
 # --- the hub -------------------------------------------------------------------------------
 
@@ -231,23 +164,28 @@ class ConsoleHub:
         replay_sessions: sessionmaker[Session] | None = None,
         db_threads: int = 2,
         clock: Clock | None = None,
+        across: AcrossGrounds | None = None,
     ):
         """``sessions``: the hub's own reads (a subscription's pass, missed messages), in
         ``db_threads`` threads of its own; ``replay_sessions`` (default ``sessions``): the
         replays' loads of whole recordings; ``clock``: what the consoles' lag is measured
-        on (default the system's)."""
+        on (default the system's); ``across`` (``nats_url``): the streams come from
+        JetStream, numbered by it, instead of from ``publisher`` (docs/console.md "Across
+        grounds")."""
         self.limits = limits or ConsoleLimits()
         self.clock: Clock = clock or SystemClock()
-        #: Names this process's numbering: seqs of another epoch mean nothing here.
-        self.epoch = f"{time.time_ns() // 10**9:x}-{secrets.token_hex(4)}"
+        self.across = across
+        #: Names the numbering: this process's, or across grounds the JetStream stream's;
+        #: seqs of another epoch mean nothing here.
+        self.epoch = (
+            across.epoch
+            if across is not None
+            else f"{time.time_ns() // 10**9:x}-{secrets.token_hex(4)}"
+        )
         self._publisher = publisher
-        self._link_status = link_status
         self._sessions = sessions
-        self._streams: dict[tuple[str, str | None], Stream] = {}
-        #: passes seen ending whose telemetry stream is still held
-        self._ended: set[str] = set()
-        #: the last seq of each retired telemetry stream, by pass (see :meth:`_retire`)
-        self._retired: dict[str, int] = {}
+        self.book = StreamBook(self.limits, link_status, across)
+        self._streams = self.book.streams
         self._clients: set[ConsoleClient] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._unhook: list[Callable[[], None]] = []
@@ -259,12 +197,16 @@ class ConsoleHub:
     # -- lifecycle -----------------------------------------------------------------------
 
     def start(self) -> None:
-        self._unhook = [
-            self._publisher.subscribe(self._on_event),
-            self._publisher.subscribe_frames(self._on_frames),
-            self._publisher.subscribe_alarms(self._on_alarm),
-        ]
-        self._poller = asyncio.create_task(self._poll_link(), name="console-link-poll")
+        book = self.book
+        if self.across is not None:  # the publisher's messages come back from JetStream
+            self.across.attach(book)
+        else:
+            self._unhook = [
+                self._publisher.subscribe(book.on_event),
+                self._publisher.subscribe_frames(book.on_frames),
+                self._publisher.subscribe_alarms(book.on_alarm),
+            ]
+        self._poller = asyncio.create_task(book.poll_link(), name="console-link-poll")
         self._lag_watch = asyncio.create_task(self._watch_lag(), name="console-lag")
 
     async def close(self) -> None:
@@ -344,72 +286,24 @@ class ConsoleHub:
     def clients(self) -> int:
         return len(self._clients)
 
+    def consoles(self) -> list[ConsoleClient]:
+        return list(self._clients)
+
     @property
     def telemetry_streams(self) -> list[str]:
         """The passes whose telemetry stream is held (in memory)."""
         return [p for (topic, p) in self._streams if topic == "telemetry" and p is not None]
 
-    # -- sources (event loop; never block) -------------------------------------------------
+    # -- sources (the book's; event loop, never block) ------------------------------------
 
     def _stream(self, topic: str, pass_id: str | None = None) -> Stream:
-        stream = self._streams.get((topic, pass_id))
-        if stream is None:
-            stream = self._streams[(topic, pass_id)] = Stream(topic, pass_id, self.limits)
-            if pass_id is not None and pass_id in self._retired:
-                # a late frame or a new subscription of an ended pass: the numbering goes on
-                # (an earlier seq is no longer held: resync), and it is retired again
-                stream.last_seq = self._retired.pop(pass_id)
-                self._ended.add(pass_id)
-        return stream
-
-    def _retire(self) -> None:
-        """Let go of the telemetry streams of ended passes nobody subscribes to: each held a
-        ring of its pass's last messages for good, some megabytes a pass, so a ground flying
-        pass after pass grew without bound. Only the stream's last seq is kept."""
-        for pass_id in list(self._ended):
-            stream = self._streams.get(("telemetry", pass_id))
-            if stream is None:
-                self._ended.discard(pass_id)
-            elif not stream.subscriptions:
-                del self._streams[("telemetry", pass_id)]
-                self._ended.discard(pass_id)
-                self._retired[pass_id] = stream.last_seq
-        while len(self._retired) > RETIRED_KEPT:
-            del self._retired[next(iter(self._retired))]
-
-    def _push(self, stream: Stream, key: Any, payload: Payload) -> None:
-        message = stream.append(key, payload)
-        for sub in list(stream.subscriptions):
-            sub.offer(message, live=True)
+        return self.book.stream(topic, pass_id)
 
     def _on_event(self, event: dict[str, Any]) -> None:
-        kind = event["kind"]
-        pass_id = _canonical_pass(event.get("pass_id"))
-        key = (event["time_ns"], kind, pass_id)
-        payload = ConsoleEvent.model_validate({**event, "pass_id": pass_id})
-        for topic, kinds in EVENT_TOPICS.items():
-            if kinds is None or kind in kinds:
-                self._push(self._stream(topic), key, payload)
-        ended = (event.get("detail") or {}).get("to") in _ENDED_STATES
-        if kind == "pass_state" and pass_id is not None and ended:
-            self._ended.add(pass_id)
-            self._retire()
-
-    def _on_frames(
-        self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
-    ) -> None:
-        if not frames:
-            return
-        batch = telemetry_rows(frames, reception_time_ns)
-        rows = batch.rows
-        key = (reception_time_ns, rows[0][1], max(r[1] for r in rows), len(rows))
-        self._push(self._stream("telemetry", _canonical_pass(pass_id)), key, batch)
-
-    def _on_alarm(self, alarm: dict[str, Any]) -> None:
-        self._push(self._stream("alarms"), None, ConsoleAlarm.model_validate(alarm))
+        self.book.on_event(event)
 
     def push_link_status(self, status: LinkStatus) -> None:
-        self._push(self._stream("link"), None, LinkReport(time.time_ns(), status))
+        self.book.push_link_status(status)
 
     # -- consoles behind ------------------------------------------------------------------
 
@@ -422,78 +316,8 @@ class ConsoleHub:
             await self.clock.sleep_until(self.clock.monotonic() + self.limits.lag_check_s)
 
     def check_lag(self) -> None:
-        """Measure every console's lag (the age of its oldest unsent message) and act on it:
-        tell it (``lag``), drop its bulk backlog for a ``resync``, or close it."""
-        now = self.clock.monotonic()
-        limits = self.limits
-        for client in list(self._clients):
-            if client.closing:
-                continue
-            lag = client.lag(now)
-            if lag.any_s > limits.behind_drop_s:
-                reason = (
-                    f"behind by {lag.any_s:.0f} s, more than {limits.behind_drop_s:g} s:"
-                    " the console does not keep up"
-                )
-                log.warning("console %s: %s; closed", client.actor, reason)
-                client.control(ErrorMsg(reason=reason, ref_type=None))
-                client.kill(1008, reason)
-                continue
-            dropped = client.drop_bulk() if lag.bulk_s > limits.behind_resync_s else {}
-            behind = lag.any_s >= limits.behind_report_s
-            due = now - client.last_lag_report >= limits.behind_report_s
-            if (behind and due) or dropped or (client.reported_behind and not behind):
-                client.control(
-                    LagMsg(
-                        behind_s=round(lag.any_s, 3) if behind else 0.0,
-                        queued=client.queued,
-                        resync_s=limits.behind_resync_s,
-                        time_ns=self.clock.time_ns(),
-                    )
-                )
-                client.last_lag_report = now
-                client.reported_behind = behind
-            if dropped:
-                client.resyncs += 1
-                log.info(
-                    "console %s: behind by %.1f s, %d messages dropped: resync",
-                    client.actor,
-                    lag.bulk_s,
-                    sum(dropped.values()),
-                )
-            for sub, count in dropped.items():
-                if sub.closed:
-                    continue
-                stream = sub.stream
-                client.control(
-                    ResyncMsg(
-                        topic=stream.topic,
-                        pass_id=stream.pass_id,
-                        epoch=self.epoch,
-                        seq=sub.last_seq,
-                        reason=(
-                            f"behind by {lag.bulk_s:.1f} s, more than"
-                            f" {limits.behind_resync_s:g} s: {count} messages not sent;"
-                            " reload the snapshot"
-                        ),
-                    )
-                )
-
-    async def _poll_link(self) -> None:
-        previous: dict[str, Any] | None = None
-        pushed = -float("inf")
-        while True:
-            try:
-                status = self._link_status()
-                # The onboard clock always moves: a change is anything else.
-                compare = {**asdict(status), "onboard_time_ns": None}
-                now = time.monotonic()
-                if compare != previous or now - pushed >= self.limits.link_heartbeat_s:
-                    self.push_link_status(status)
-                    previous, pushed = compare, now
-            except Exception:
-                log.exception("link status poll failed")
-            await asyncio.sleep(self.limits.link_poll_s)
+        """Measure every console's lag and act on it (:func:`_console_lag.check_lag`)."""
+        check_lag(self)
 
     # -- client messages -------------------------------------------------------------------
 
@@ -532,7 +356,7 @@ class ConsoleHub:
             return self._stream(topic)
         if pass_id is None:
             raise ProtocolError("telemetry needs a pass_id")
-        key = _canonical_pass(pass_id)
+        key = canonical_pass(pass_id)
         if ("telemetry", key) not in self._streams:
             try:
                 key = await self._in_db_thread(self._pass_exists, pass_id)
@@ -556,9 +380,12 @@ class ConsoleHub:
             raise ProtocolError(f"{self.limits.max_subscriptions} subscriptions at most")
         same_epoch = message.epoch == self.epoch
         if message.since_seq is not None and same_epoch and message.since_seq > stream.last_seq:
-            raise ProtocolError(
-                f"since_seq {message.since_seq} is ahead of the stream (last seq {stream.last_seq})"
-            )
+            # across grounds, another ground's hub may be ahead of this one's: JetStream says
+            last = stream.last_seq if self.across is None else await self.across.last_seq()
+            if message.since_seq > last:
+                raise ProtocolError(
+                    f"since_seq {message.since_seq} is ahead of the stream (last seq {last})"
+                )
         if (old := client.subscriptions.pop(key, None)) is not None:
             self._detach(old)
         sub = Subscription(client, stream, flt)
@@ -598,14 +425,22 @@ class ConsoleHub:
         self, client: ConsoleClient, stream: Stream, since: int
     ) -> tuple[list[Message] | None, str]:
         """The messages ``(since, last]``, or None and why not."""
+        limit = min(self.limits.max_replay, self.limits.hard_cap - client.queued)
+        if self.across is not None:
+            ring = stream.from_ring(since)
+            if ring is not None and len(ring) <= limit:
+                return ring, ""
+            if ring is not None:
+                return None, f"{len(ring)} messages to replay: more than {limit}"
+            return await self.across.replay(stream, since, limit)
         wanted = stream.last_seq - since
-        if wanted > self.limits.max_replay or client.queued + wanted > self.limits.hard_cap:
+        if wanted > limit:
             return None, f"{wanted} messages to replay: more than {self.limits.max_replay}"
         ring = stream.from_ring(since)
         if ring is not None:
             return ring, ""
         entries = stream.indexed(since)
-        if entries is None or stream.topic in _STATE_TOPICS:
+        if entries is None or stream.topic in STATE_TOPICS:
             return None, f"seq {since + 1} is no longer held"
         try:
             if stream.topic == "telemetry":
@@ -621,16 +456,16 @@ class ConsoleHub:
             return None, f"the database replay failed: {exc!r}"[:300]
         if found is None:
             return None, f"seqs {since + 1}..{entries[-1][0]} are not all in the database"
-        return [self._replayed(stream, seq, key, payload) for seq, key, payload in found], ""
+        return [self.replayed(stream, seq, key, payload) for seq, key, payload in found], ""
 
     @staticmethod
-    def _replayed(stream: Stream, seq: int, key: Any, payload: Payload) -> Message:
+    def replayed(stream: Stream, seq: int, key: Any, payload: Payload) -> Message:
         message = Message(seq, key, payload)
         message.text = render(stream, message, None)
         return message
 
     def _unsubscribe(self, client: ConsoleClient, message: UnsubscribeMsg) -> None:
-        key = (message.topic, _canonical_pass(message.pass_id))
+        key = (message.topic, canonical_pass(message.pass_id))
         sub = client.subscriptions.pop(key, None)
         if sub is None:
             raise ProtocolError(f"not subscribed to {message.topic!r} (pass {message.pass_id})")

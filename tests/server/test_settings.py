@@ -74,6 +74,10 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "lease_ttl_s": ("8", 8.0),
     "lease_renew_s": ("2", 2.0),
     "database_journal_max": ("5000", 5000),
+    "nats_url": ("nats://10.0.0.7:4222", "nats://10.0.0.7:4222"),
+    "nats_stream": ("ETS7_LIVE", "ETS7_LIVE"),
+    "nats_max_age_s": ("3600", 3600.0),
+    "nats_max_bytes": ("2097152", 2_097_152),
 }
 
 
