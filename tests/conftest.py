@@ -57,6 +57,9 @@ def demo_recording(model: RobotModel) -> PassRecording:
 #: one busy core they are written for. Two of them side by side on a slow machine starved
 #: each other (the 200-viewer load beside the live console). (xdist's ``loadgroup`` would
 #: put them on one worker, but xdist 3.8 cannot rename the node ids of pytest 9.)
+#: The PostgreSQL fixtures, for every directory (tests/postgres.py).
+pytest_plugins = ("tests.postgres",)
+
 REALTIME_MODULES = (
     "tests/web/",
     "tests/server/console/",

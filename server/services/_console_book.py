@@ -9,7 +9,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import TYPE_CHECKING, Any
 
 from server.services._console_limits import (
@@ -122,6 +122,13 @@ class StreamBook:
 
     def deliver_link(self, report: LinkReport, seq: int | None = None) -> None:
         self.push(self.stream("link"), None, report, seq)
+
+    def with_this_ground(self, report: LinkReport) -> LinkReport:
+        """Another ground's link report (across grounds, the holder's) with this ground's
+        own ``ground``: a console shows whether the ground it is on commands the vehicle,
+        and whether that ground's database answers."""
+        ground = self._link_status().ground
+        return report._replace(status=replace(report.status, ground=ground))
 
     def push_link_status(self, status: LinkStatus) -> None:
         """This ground's link status: to its consoles, or across grounds to JetStream (the

@@ -148,7 +148,7 @@ class AcrossGrounds:
         elif isinstance(payload, ConsoleAlarm):
             book.deliver_alarm(payload, seq)
         elif isinstance(payload, LinkReport):
-            book.deliver_link(payload, seq)
+            book.deliver_link(book.with_this_ground(payload), seq)
         self.position = seq
 
     @staticmethod

@@ -1,7 +1,9 @@
 // The alarm banner under the header of every page: the active alarms counted by severity
 // (worst first, each severity its colour; a click opens the alarm list), and, while the
 // vehicle is SAFE (the link status's vehicle_mode), a red strip saying so with its trigger
-// and, for operators, the way out (Exit SAFE, behind the vehicle's name).
+// and, for operators, the way out (Exit SAFE, behind the vehicle's name). Above them, an
+// amber strip when the ground this console is on does not command the vehicle (a standby:
+// the holder named) or cannot reach its database (the writes it journals meanwhile).
 
 import {
   SEVERITIES_WORST_FIRST, SEVERITY_COLORS, isActive, timeOfDay, triggerText,
@@ -11,8 +13,32 @@ import type { Ctx } from "./main";
 import { safeExitButton } from "./pages/control";
 import { clear, h } from "./ui";
 
+/** The link status's ``ground`` (server/services/ground_status.py). */
+interface GroundStatus {
+  command?: { role?: string; commanding?: boolean; lease_holder?: string | null; ground?: string };
+  database?: { reachable?: boolean; down_s?: number | null; journal?: number };
+}
+
+/** What the ground strip says (none: this ground commands and its database answers). */
+export function groundText(ground: GroundStatus | null | undefined): string | null {
+  const parts: string[] = [];
+  const command = ground?.command;
+  if (command?.role === "standby") {
+    parts.push(`STANDBY GROUND: ${command.lease_holder ?? "no ground"} commands the vehicle; starts and aborts go there`);
+  } else if (command && command.commanding === false) {
+    parts.push("COMMAND LEASE LAPSING: nothing is sent until the database answers (the vehicle flies what it holds)");
+  }
+  const db = ground?.database;
+  if (db && db.reachable === false) {
+    const since = db.down_s == null ? "" : ` for ${Math.round(db.down_s)} s`;
+    parts.push(`DATABASE UNREACHABLE${since}: ${db.journal ?? 0} writes kept in order until it answers`);
+  }
+  return parts.length ? parts.join(" · ") : null;
+}
+
 export class AlarmBanner {
   readonly el: HTMLElement;
+  private readonly ground: HTMLElement;
   private readonly safe: HTMLElement;
   private readonly summary: HTMLAnchorElement;
   private safeKey = "";
@@ -23,7 +49,8 @@ export class AlarmBanner {
   ) {
     this.safe = h("div.safe-banner", { "data-test": "vehicle-safe", role: "alert", hidden: true });
     this.summary = h("a.alarm-summary", { href: "#/alarms", "data-test": "alarm-summary", title: "Open the alarm list" });
-    this.el = h("div.alarm-banner", { "data-test": "alarm-banner" }, this.safe, this.summary);
+    this.ground = h("div.ground-banner", { "data-test": "ground-banner", role: "status", hidden: true });
+    this.el = h("div.alarm-banner", { "data-test": "alarm-banner" }, this.ground, this.safe, this.summary);
     book.onChange(() => this.renderAlarms());
     this.renderAlarms();
   }
@@ -56,6 +83,9 @@ export class AlarmBanner {
 
   /** The vehicle's mode from a link status (its ``vehicle_mode`` and last ``safing``). */
   setLink(status: LinkWithMode | null): void {
+    const ground = groundText(status?.ground as GroundStatus | null | undefined);
+    this.ground.hidden = ground === null;
+    this.ground.textContent = ground ?? "";
     const safe = status?.vehicle_mode === "safe";
     const report = status?.safing ?? null;
     const vehicle = status?.vehicle ?? null;
