@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sqlalchemy import select, text, update
+from sqlalchemy import Update, select, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -128,21 +128,25 @@ def acquire(
     return Lease(name, holder, row.token, now, row.expires_s)
 
 
-def renew(session: Session, lease: Lease, ttl_s: float) -> Lease | None:
-    """Move the lease's expiry to ``ttl_s`` past the database's now, if its token is still
-    the row's (None: another ground acquired it since; the lease is lost)."""
-    _check(lease.name, lease.holder, ttl_s)
-    now = database_now_s(session)
-    done = session.execute(
+def _ours(lease: Lease) -> Update:
+    """An update of the lease's row while it is still ``lease`` (its holder and token)."""
+    return (
         update(GroundLease)
         .where(
             GroundLease.name == lease.name,
             GroundLease.holder == lease.holder,
             GroundLease.token == lease.token,
         )
-        .values(renewed_s=now, expires_s=now + ttl_s)
         .execution_options(synchronize_session=False)
     )
+
+
+def renew(session: Session, lease: Lease, ttl_s: float) -> Lease | None:
+    """Move the lease's expiry to ``ttl_s`` past the database's now, if its token is still
+    the row's (None: another ground acquired it since; the lease is lost)."""
+    _check(lease.name, lease.holder, ttl_s)
+    now = database_now_s(session)
+    done = session.execute(_ours(lease).values(renewed_s=now, expires_s=now + ttl_s))
     if done.rowcount != 1:  # type: ignore[attr-defined]
         return None
     return Lease(lease.name, lease.holder, lease.token, now, now + ttl_s)
@@ -152,16 +156,7 @@ def release(session: Session, lease: Lease) -> bool:
     """Give the lease up (a graceful stop): it expires now, so a standby takes it at once;
     the token stays, so the next holder's is still higher. Whether it was still ours."""
     now = database_now_s(session)
-    done = session.execute(
-        update(GroundLease)
-        .where(
-            GroundLease.name == lease.name,
-            GroundLease.holder == lease.holder,
-            GroundLease.token == lease.token,
-        )
-        .values(holder="", expires_s=now)
-        .execution_options(synchronize_session=False)
-    )
+    done = session.execute(_ours(lease).values(holder="", expires_s=now))
     return bool(done.rowcount == 1)  # type: ignore[attr-defined]
 
 

@@ -290,3 +290,55 @@ def settled(ground: Ground, pass_id: str) -> bool:
         and newest[1] >= record.telemetry_end_ns
         and resolved
     )
+
+
+# -- a pass across a ground's restart, takeover or database outage: what the vehicle did ---
+
+
+def executed_on_board(
+    readers: sessionmaker[Session], process: SpacecraftProcess, pass_id: str, n: int
+) -> bool:
+    """The vehicle's own record (the archive lags it on a loaded database): the pass's
+    first ``n`` commands executed."""
+    with readers() as session:
+        first = repo.list_commands(session=session, pass_id=pass_id, limit=n)
+    outcomes = [process.vehicle.outcome(c.seq) for c in first]
+    return len(first) == n and all(a is not None and a.stage.value == "executed" for a in outcomes)
+
+
+def pass_resolved(readers: sessionmaker[Session], pass_id: str) -> bool:
+    """The pass has ended and none of its commands waits for its fate."""
+    with readers() as session:
+        ended = repo.get_pass(session=session, pass_id=pass_id).state in ("complete", "aborted")
+        waiting = repo.list_commands(
+            session=session, pass_id=pass_id, stages=("queued", "released", "sent", "received")
+        )
+    return ended and not waiting
+
+
+def assert_stages_are_the_vehicles(commands: list[Any], process: SpacecraftProcess) -> None:
+    """Command by command: the stage is the vehicle's own record (executed, at its tag, or
+    rejected), or ``expired`` for one it never had; nothing left open."""
+    for c in commands:
+        ack = process.vehicle.outcome(c.seq)
+        if c.stage == "expired":
+            assert ack is None, (c.seq, c.stage, ack)
+        else:
+            assert ack is not None and c.stage == ack.stage.value, (c.seq, c.stage, ack)
+            assert c.stage in ("executed", "rejected"), (c.seq, c.stage)
+            if c.stage == "executed":
+                assert c.executed_at_ns == c.execute_time_ns
+
+
+def assert_every_frame_once(
+    record: Any, frames: list[int], generated: list[TelemetryFrame]
+) -> None:
+    """Every frame the vehicle generated in the pass's telemetry window is archived, once
+    (``frames``: the archive's seqs of the pass, in order)."""
+    assert record.telemetry_start_ns is not None and record.telemetry_end_ns is not None
+    window = sorted(
+        f.seq
+        for f in generated
+        if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
+    )
+    assert frames == window

@@ -29,7 +29,11 @@ from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
     _free_port,
+    assert_every_frame_once,
+    assert_stages_are_the_vehicles,
+    executed_on_board,
     generated_frames,
+    pass_resolved,
     serve_process,
     store_pass,
     wait_for,
@@ -78,26 +82,20 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
         )
     )
     generated = generated_frames(process)
+    pass_id = ""  # the pass, once stored
+
+    def on_board_30() -> bool:
+        return executed_on_board(readers, process, pass_id, 30)
+
+    def ended() -> bool:
+        return pass_resolved(readers, pass_id)
 
     def events(pass_id: str, *kinds: str) -> list[Any]:
         with readers() as session:
             return list(repo.list_events(session=session, pass_id=pass_id, kinds=kinds).items)
 
-    def executed_on_board(pass_id: str, n: int) -> bool:
-        with readers() as session:
-            first = repo.list_commands(session=session, pass_id=pass_id, limit=n)
-        outcomes = [process.vehicle.outcome(c.seq) for c in first]
-        return all(a is not None and a.stage.value == "executed" for a in outcomes)
-
-    def resolved(pass_id: str) -> bool:
-        with readers() as session:
-            ended = repo.get_pass(session=session, pass_id=pass_id).state in ("complete", "aborted")
-            waiting = repo.list_commands(
-                session=session, pass_id=pass_id, stages=("queued", "released", "sent", "received")
-            )
-        return ended and not waiting
-
     async def scenario() -> dict[str, Any]:
+        nonlocal pass_id
         seen: dict[str, Any] = {}
         stop = asyncio.Event()
         task = asyncio.create_task(process.run(stop))
@@ -138,9 +136,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                         # a standby serves reads: the running pass, as the holder writes it
                         got = await b.get(f"/api/passes/{pass_id}", headers=VIEWER)
                         assert got.status_code == 200 and got.json()["state"] == "running"
-                    await wait_for(
-                        lambda: executed_on_board(pass_id, 30), 60.0, "30 commands executed"
-                    )
+                    await wait_for(on_board_30, 60.0, "30 commands executed")
                     # the standby wrote nothing on the running pass
                     assert not events(pass_id, "pass_resumed", "ground_stopped")
                     connections_before = process.connections
@@ -152,7 +148,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                         lambda: events(pass_id, "pass_resumed"), 60.0, "the standby took over"
                     )
                     seen["takeover_s"] = time.monotonic() - killed
-                    await wait_for(lambda: resolved(pass_id), 120.0, "the pass ended, resolved")
+                    await wait_for(ended, 120.0, "the pass ended, resolved")
                     async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
                         health = (await b.get("/api/health")).json()
                         assert health["command"] == "holder"
@@ -184,27 +180,13 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
         engine.dispose()
     [resumed_event] = resumed.items
     assert resumed_event.detail["state"] == "running"
-    # every command's stage is the vehicle's own record; none cancelled or left open
-    for c in commands:
-        ack = process.vehicle.outcome(c.seq)
-        if c.stage == "expired":
-            assert ack is None, (c.seq, c.stage, ack)
-        else:
-            assert ack is not None and c.stage == ack.stage.value, (c.seq, c.stage, ack)
-            assert c.stage == "executed", (c.seq, c.stage, ack)
-            assert c.executed_at_ns == c.execute_time_ns
+    assert_stages_are_the_vehicles(commands, process)
+    assert all(c.stage == "executed" for c in commands)
     summary = seen["summary"]
     assert summary["commands_unresolved"] == summary["commands_cancelled"] == 0
     assert record.state == "complete", (record.state, record.state_reason)
     assert record.state_reason == f"complete, {summary['outcome_text']}"
-    # every frame generated in the pass's window stored, once (the archive's key)
-    assert record.telemetry_start_ns is not None and record.telemetry_end_ns is not None
-    window = sorted(
-        f.seq
-        for f in generated
-        if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
-    )
-    assert frames == window
+    assert_every_frame_once(record, frames, generated)  # the archive's key: once
     print(
         f"takeover (kill to pass_resumed): {seen['takeover_s']:.1f} s wall with a "
         f"{LEASE['HIKOBOSHI_LEASE_TTL_S']} s lease; {summary['outcome_text']}"

@@ -33,7 +33,11 @@ from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
     _free_port,
+    assert_every_frame_once,
+    assert_stages_are_the_vehicles,
+    executed_on_board,
     generated_frames,
+    pass_resolved,
     serve_process,
     store_pass,
     wait_for,
@@ -134,25 +138,9 @@ def _stop_and_restart(
     )
     generated = generated_frames(process)
 
-    def executed_on_board(pass_id: str, n: int) -> bool:
-        """The vehicle's own record (the archive lags it on a loaded database): the pass's
-        first ``n`` commands executed."""
-        with readers() as session:
-            first = repo.list_commands(session=session, pass_id=pass_id, limit=n)
-        outcomes = [process.vehicle.outcome(c.seq) for c in first]
-        return all(a is not None and a.stage.value == "executed" for a in outcomes)
-
     def state(pass_id: str) -> str:
         with readers() as session:
             return repo.get_pass(session=session, pass_id=pass_id).state
-
-    def resolved(pass_id: str) -> bool:
-        with readers() as session:
-            ended = repo.get_pass(session=session, pass_id=pass_id).state in ("complete", "aborted")
-            waiting = repo.list_commands(
-                session=session, pass_id=pass_id, stages=("queued", "released", "sent", "received")
-            )
-        return ended and not waiting
 
     async def connected(client: httpx.AsyncClient) -> bool:
         try:
@@ -178,7 +166,11 @@ def _stop_and_restart(
                         headers=OPERATOR,
                     )
                     assert response.status_code == 200, response.text
-                await wait_for(lambda: executed_on_board(pass_id, 30), 30.0, "30 commands executed")
+                await wait_for(
+                    lambda: executed_on_board(readers, process, pass_id, 30),
+                    30.0,
+                    "30 commands executed",
+                )
                 sent_at = time.monotonic()
                 first.send_signal(how)
                 # the link's websocket is open: the exit must not wait for it
@@ -186,7 +178,9 @@ def _stop_and_restart(
                 exit_s = time.monotonic() - sent_at
             before = _snapshot(sessions, pass_id)
             with serve(database_url, port, log, lead_window_s):
-                await wait_for(lambda: resolved(pass_id), 120.0, "the pass ended, resolved")
+                await wait_for(
+                    lambda: pass_resolved(readers, pass_id), 120.0, "the pass ended, resolved"
+                )
                 async with httpx.AsyncClient(base_url=base, timeout=30.0) as client:
                     got = await client.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
                     assert got.status_code == 200, got.text
@@ -223,15 +217,7 @@ def _stages_are_what_the_vehicle_did(run: Stopped) -> None:
     rejected), or ``expired`` for one it never had; nothing cancelled, nothing left open.
     The summary's counts and outcome are the archive's, and the ``complete`` reason says
     that outcome."""
-    for c in run.commands:
-        ack = run.process.vehicle.outcome(c.seq)
-        if c.stage == "expired":
-            assert ack is None, (c.seq, c.stage, ack)
-        else:
-            assert ack is not None and c.stage == ack.stage.value, (c.seq, c.stage, ack)
-            assert c.stage in ("executed", "rejected"), (c.seq, c.stage)
-            if c.stage == "executed":
-                assert c.executed_at_ns == c.execute_time_ns
+    assert_stages_are_the_vehicles(run.commands, run.process)
     counts = {s: sum(1 for c in run.commands if c.stage == s) for s in ("executed", "expired")}
     summary = run.summary
     assert summary["commands_unresolved"] == summary["commands_cancelled"] == 0
@@ -254,14 +240,7 @@ def _no_row_lost_and_every_frame_stored(run: Stopped) -> None:
         assert all(b is None or b == a for b, a in zip(times, now, strict=True)), seq
     assert before["events"].items() <= after["events"].items()
     assert set(before["frames"]) <= set(after["frames"])
-    record = after["pass"]
-    assert record.telemetry_start_ns is not None and record.telemetry_end_ns is not None
-    window = sorted(
-        f.seq
-        for f in run.generated
-        if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
-    )
-    assert after["frames"] == window
+    assert_every_frame_once(after["pass"], after["frames"], run.generated)
 
 
 @pytest.mark.slow
