@@ -54,17 +54,9 @@ its reason. The alarms raise the ``critical`` ``vehicle_safing`` alarm; the trac
 resolves the fates of the commands sent. No pass starts while the vehicle is safe (409
 ``vehicle_safe``); an operator's ``safe_exit`` ends it (:mod:`server.services.safing`).
 
-**Graceful stop** (:meth:`PassRunner.shutdown`, SIGTERM): a handover, not an abort. The
-uplink and the pass's task stop, the stage writes already made are flushed, a
-``ground_stopped`` event says what the vehicle holds, and the pass stays ``running`` (or
-``los``) with its telemetry window open: nothing is cancelled, the vehicle flies what it
-holds under its LOS policy, and the next process resumes the pass exactly as after a crash.
-
-**Restart**: :meth:`PassRunner.recover` reopens the telemetry windows stored on the passes
-and carries out the decisions of :mod:`server.services.recovery` (resume a pass left
-``running`` or ``los``, abort the others; a ``safed`` pass is final and stays so), hands the
-link the vehicle's last safing episode, and asks the vehicle, once it is back, about the
-commands of ended passes still ``sent`` or ``received`` (and of a pass it aborts after all).
+**Graceful stop, restart, stand-down**: :mod:`server.services.runner_handover`. The abort,
+the safing and a diverged vehicle's end are :mod:`server.services.runner_ends`; the state
+the parts share, :mod:`server.services.runner_base`.
 """
 
 from __future__ import annotations
@@ -73,24 +65,17 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Coroutine
-from typing import Any, Protocol
+from typing import Any
 
 from sqlalchemy.orm import Session
 
 from server.logs import current_pass
 from server.services.clock import Clock
-from server.services.continuity import resumed_uplink
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError
 from server.services.events import (
-    GroundStopped,
-    PassResumed,
     SafingReported,
-    VehicleSafed,
-    VehicleSafeExited,
-    event_job,
-    record,
 )
 from server.services.link import (
     CommandAcked,
@@ -99,36 +84,28 @@ from server.services.link import (
     LinkUnavailable,
     LinkUp,
     RobotIdentity,
-    TelemetryWindow,
     robot_mismatch,
 )
 from server.services.pass_reasons import handover_reason, safed_reason
 from server.services.pass_states import (
     TRANSITIONS,
     ActivePass,
-    abort_job,
     new_uplink,
     start_job,
     transition,
 )
-from server.services.recovery import (
-    AbortPass,
-    UnfinishedPass,
-    decide,
-    resume_refusal,
-    spacecraft_back,
-)
-from server.services.recovery import load as load_recovery
-from server.services.schedule_delete import Deletion, ScheduleDeletes
+from server.services.runner_base import SETTLE_S, Authority, SafingAlarms
+from server.services.runner_ends import SAFED_TAIL_S, PassEnds
+from server.services.runner_handover import PassHandover
+from server.services.schedule_delete import ScheduleDeletes
 from server.services.summary import command_outcome
-from server.services.tracker import LINK_DOWN_POLL_S, CommandTracker, Trackers
+from server.services.tracker import LINK_DOWN_POLL_S, Trackers
 from server.services.uplink import RttEstimator, UplinkCommand
 from server.settings import Settings
-from server.storage import repository as repo
 from server.storage._common import canonical_id
 from server.storage.errors import Conflict
 from telemetry.uplink import plan_commands
-from telemetry.wire import JointCommandMsg, Safing
+from telemetry.wire import JointCommandMsg
 
 __all__ = [
     "SAFED_TAIL_S",
@@ -142,31 +119,12 @@ __all__ = [
 
 log = logging.getLogger("hikoboshi.ground.runner")
 
-SETTLE_S = 2.0  # onboard s after the last tag before LOS
-#: Onboard s of telemetry a safed pass keeps after the vehicle safed itself.
-SAFED_TAIL_S = 60.0
 #: A pass starts late enough for its first command to go up this many times (the first
 #: timeout, before any round-trip sample) before its last chance.
 START_TRANSMISSIONS = 3
 
 
-class SafingAlarms(Protocol):
-    """What the runner tells the alarms of the vehicle's safing (server.services.alarms)."""
-
-    def vehicle_safed(self, pass_id: str | None, report: Safing) -> None: ...
-
-    def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None: ...
-
-
-class Authority(Protocol):
-    """Whether this ground may command the vehicle (server.services.authority)."""
-
-    def may_command(self) -> bool: ...
-
-    def refusal(self) -> ConflictError | None: ...
-
-
-class PassRunner:
+class PassRunner(PassEnds, PassHandover):
     def __init__(
         self,
         *,
@@ -241,87 +199,6 @@ class PassRunner:
                 if refusal is not None:
                     self._foreign_vehicle(active, refusal)
             self._wake.set()
-
-    def _on_safing(self, event: SafingReported) -> None:
-        """The vehicle's ``safing`` report. Any ``safe`` report stops a running pass's
-        uplink at once and makes the pass ``safed`` (the first of an episode, or one that
-        reaches a pass started or resumed meanwhile); the first of an episode is audited
-        (``vehicle_safed``), and every one goes to the alarms (the 1 s repeats update the
-        alarm). The report ending an episode is audited and clears the alarm."""
-        report, state = event.report, self._link.safing
-        actor = self._link.vehicle or "spacecraft"
-        if report.state == "safe":
-            active = self._active
-            running = active is not None and not active.stop.is_set()
-            if event.entered or running:
-                state.pass_id = None if active is None else active.pass_id
-            if active is not None and running:
-                active.uplink.stop()  # before the runner can wake: nothing more goes up
-                if self._safing is None:
-                    self._safing = asyncio.get_running_loop().create_task(
-                        self._safe_pass(active, report)
-                    )
-            if event.entered:
-                safed = VehicleSafed(
-                    actor=actor,
-                    pass_id=state.pass_id,
-                    since_time_ns=report.since_time_ns,
-                    trigger=None if report.trigger is None else report.trigger.model_dump(),
-                    cancelled=report.cancelled,
-                    onboard_time_ns=report.onboard_time_ns,
-                )
-                self._db.submit(event_job(safed, self._clock))
-            if self._alarms is not None:
-                self._alarms.vehicle_safed(state.pass_id, report)
-        elif event.exited:
-            exited = VehicleSafeExited(
-                actor=actor,
-                pass_id=state.pass_id,
-                request_id=report.exit_request_id,
-                since_time_ns=report.since_time_ns,
-                onboard_time_ns=report.onboard_time_ns,
-            )
-            self._db.submit(event_job(exited, self._clock))
-            if self._alarms is not None:
-                self._alarms.vehicle_nominal(state.pass_id, report)
-
-    async def _safe_pass(self, active: ActivePass, report: Safing) -> None:
-        try:
-            async with self._lock:
-                if self._active is not active or active.stop.is_set():
-                    return  # aborted meanwhile: it stays so
-                since = report.since_time_ns or report.onboard_time_ns
-                await self._abort_locked(
-                    active.pass_id,
-                    self._link.vehicle or "spacecraft",
-                    safed_reason(report, active.first_tag_ns),
-                    safed_at_ns=since,
-                )
-        except Exception:
-            log.exception("pass %s: marking it safed failed", active.pass_id)
-        finally:
-            self._safing = None
-
-    def _foreign_vehicle(self, active: ActivePass, refusal: str) -> None:
-        """The vehicle now connected flies another robot: nothing more of the plan goes up
-        (the uplink stops before the runner can wake), and the pass is aborted."""
-        active.uplink.stop()
-        log.warning("pass %s: %s", active.pass_id, refusal)
-        self._abort_soon(active, f"another robot connected mid-pass: {refusal}")
-
-    def _abort_soon(self, active: ActivePass, reason: str) -> None:
-        if self._diverged is None:
-            self._diverged = asyncio.get_running_loop().create_task(
-                self._abort_diverged(active, reason)
-            )
-
-    async def _abort_diverged(self, active: ActivePass, reason: str) -> None:
-        try:
-            await self.abort(active.pass_id, "ground", reason)
-        except Exception:
-            log.exception("pass %s: abort after divergence failed", active.pass_id)
-        finally:
-            self._diverged = None
 
     @property
     def resolving(self) -> bool:
@@ -546,203 +423,7 @@ class PassRunner:
         self._background.add(task)
         task.add_done_callback(self._background.discard)
 
-    # -- recovery after a restart --------------------------------------------------------
-
-    async def recover(self) -> None:
-        """After the service (re)starts: reopen the telemetry windows of recent passes (late
-        and resent frames still reach their pass), and carry out the decisions of
-        :mod:`server.services.recovery` on the passes the previous process left unfinished:
-        abort, or resume once the spacecraft is back (see the module docstring)."""
-        link = self._link
-        found = await self._db.run(load_recovery)
-        if found.safing is not None and link.safing.last is None:
-            link.safing.restore(found.safing.report, found.safing.pass_id)
-        opened = {
-            w.pass_id: self._downlink.open_window(w.pass_id, w.start_ns, w.end_ns)
-            for w in found.windows
-        }
-        for ended in found.unresolved:
-            log.info("pass %s: %d commands to ask about", ended.id, ended.unresolved)
-            self._background_task(self._resolve(self._trackers.stored(ended.id, ended.commands)))
-        for decision in decide(found.unfinished, running=self._active is not None):
-            if isinstance(decision, AbortPass):
-                await self._abort_locked(decision.pass_id, "ground", decision.reason)
-                continue
-            p = decision.unfinished
-            window = opened.get(p.id) or self._downlink.open_window(p.id, p.start_ns or 0)
-            link.expect_commands(p.id, [r.seq for r in p.commands])
-            resumed = PassResumed(
-                actor="ground",
-                pass_id=p.id,
-                state=p.state,
-                pending=len(p.pending),
-                commands=len(p.commands),
-            )
-            await self._db.write(event_job(resumed, self._clock))
-            self._background_task(self._resume(p, window))
-
-    async def _resume(self, p: UnfinishedPass, window: TelemetryWindow) -> None:
-        link = self._link
-        tracker = self._trackers.stored(p.id, p.commands)  # follows the link from now on
-        late = await spacecraft_back(p, link=link, clock=self._clock, closing=self._closing)
-        async with self._lock:
-            running = self._active is not None
-            refusal = late or resume_refusal(p, running=running, vehicle=link.robot)
-            if self._closing.is_set():
-                tracker.close()
-                return
-            if refusal is None:
-                self._begin_resumed(p, window, tracker)
-                return
-            await self._abort_locked(p.id, "ground", refusal)
-        # what the vehicle did with the commands sent before the restart
-        await self._resolve(tracker)
-
-    def _begin_resumed(
-        self, p: UnfinishedPass, window: TelemetryWindow, tracker: CommandTracker
-    ) -> None:
-        link = self._link  # the uplink holds after a gap past the lead window (continuity)
-        uplink = resumed_uplink(p, link, self._settings, self._db, self._clock, tracker)
-        tags = {r.seq: r.execute_time_ns for r in p.commands}
-        active = ActivePass.of(p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True)
-        if p.state == "los":
-            uplink.stop()
-            self._begin(active, self._finish(active))
-        else:
-            self._begin(active, self._run(active))
-
-    async def _resolve(self, tracker: CommandTracker) -> None:
-        """The fates of a pass's commands left ``sent`` or ``received`` when it ended (or
-        was aborted after a restart): asked about once the vehicle is back and their tags
-        have passed (:meth:`CommandTracker.resolve`), until the service stops."""
-        try:
-            await tracker.resolve(self._closing)
-        finally:
-            tracker.close()
-
-    # -- abort ---------------------------------------------------------------------------
-
-    async def abort(self, pass_id: str, actor: str, reason: str) -> None:
-        async with self._lock:
-            self._refuse_unless_commanding()
-            await self._abort_locked(pass_id, actor, reason)
-        log.info(
-            "pass aborted by %s: %s",
-            actor,
-            reason,
-            extra={
-                "pass_id": pass_id,
-                "fields": {"event": "pass_aborted", "actor": actor, "reason": reason},
-            },
-        )
-
-    async def _abort_locked(
-        self, pass_id: str, actor: str, reason: str, *, safed_at_ns: int | None = None
-    ) -> None:
-        """Abort ``pass_id``, or, with ``safed_at_ns`` (the onboard time the vehicle safed
-        itself), make it ``safed``: no ``schedule_delete`` then (the vehicle emptied its
-        schedule), the window kept :data:`SAFED_TAIL_S` past the safing."""
-        link = self._link
-        active = self._active if self._active and self._active.pass_id == pass_id else None
-        if active is None:  # a pass not running here (restart): every command not sent
-            await self._abort_write(pass_id, actor, reason, None, None, None)
-            return
-        await self._stop_pass_task(active)
-        up = active.uplink
-        deletion: Deletion | None = None
-        if safed_at_ns is None and up.sent_commands():
-            commands = tuple((c.seq, c.tag_ns) for c in up.commands)
-            deletion = Deletion(
-                active.tracker, active.window, active.last_tag_ns, commands, active.max_seq,
-                reason, actor, up.rtt,
-            )  # fmt: skip
-            await self._deletes.begin(deletion)  # first, before any database work
-        from_ns = None if deletion is None else deletion.from_ns
-        end: int | None = None  # the onboard time unknown: leave the window open
-        if from_ns is not None:
-            end = from_ns + self._settle_ns
-        elif deletion is None and link.connected:
-            end = link.onboard_now_ns()
-        if safed_at_ns is not None:
-            end = safed_at_ns + round(SAFED_TAIL_S * 1e9)
-        self._downlink.close_window(active.window, end)
-        # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
-        cancel = [c.seq for c in up.commands if c.transmissions == 0]
-        if from_ns is not None:
-            cancel += [c.seq for c in up.commands if c.transmissions and c.tag_ns >= from_ns]
-        to = "aborted" if safed_at_ns is None else "safed"
-        await self._abort_write(pass_id, actor, reason, cancel, from_ns, end, to)
-        active.tracker.cancelled(cancel)
-        if self._active is active:
-            self._active = None
-        if deletion is not None or link.connected:
-            self._background_task(
-                self._deletes.after_abort(
-                    active.tracker, deletion, self._closing, safed=safed_at_ns is not None
-                )
-            )
-        else:
-            active.tracker.close()
-
-    async def _abort_write(
-        self,
-        pass_id: str,
-        actor: str,
-        reason: str,
-        cancel: list[int] | None,
-        from_ns: int | None,
-        end_ns: int | None,
-        to: str = "aborted",
-    ) -> None:
-        """The abort's transaction, ahead of the stage writes still queued: the operator waits
-        for it, and none of them can undo it (the vehicle's own word still overrules)."""
-        job = abort_job(
-            pass_id=pass_id, actor=actor, reason=reason, clock=self._clock, cancel=cancel,
-            from_ns=from_ns, end_ns=end_ns, to=to,
-        )  # fmt: skip
-        self._publisher.publish(await self._db.run(job, control=True))
-
-    async def shutdown(self) -> None:
-        """The service stops (a graceful stop): an abort or a safing in progress ends first;
-        a pass in flight is handed to the vehicle, not aborted (:meth:`_hand_over`); the
-        background resolutions stop where they are; the stage writes made are flushed."""
-        for pending in (self._safing, self._diverged):
-            if pending is not None:
-                with contextlib.suppress(Exception, asyncio.CancelledError):
-                    await pending
-        async with self._lock:  # no start, abort or resume from here
-            self._closing.set()
-            active = self._active
-            if active is not None:
-                try:
-                    await self._hand_over(active)
-                except Exception:
-                    log.exception("pass %s: the handover failed", active.pass_id)
-        for task in list(self._background):
-            with contextlib.suppress(Exception, asyncio.CancelledError):
-                await task
-        await self._db.drain()
-
-    async def stand_down(self) -> None:
-        """Another ground took the command lease: stop commanding at once and write nothing
-        (the database refuses this ground's writes now). The pass's uplink and task stop,
-        the background resolutions end; the pass stays as the record has it, for the ground
-        in command to resume. This ground may take the lease again later
-        (:meth:`recover` then runs again)."""
-        async with self._lock:
-            self._closing.set()
-            active = self._active
-            if active is not None:
-                await self._stop_pass_task(active)
-                active.tracker.close()
-                if self._active is active:
-                    self._active = None
-                log.warning("pass %s: handed to the ground in command", active.pass_id)
-            for task in list(self._background):
-                task.cancel()
-                with contextlib.suppress(Exception, asyncio.CancelledError):
-                    await task
-            self._closing = asyncio.Event()
+    # -- shared by the abort and the handover ---------------------------------------------
 
     async def _stop_pass_task(self, active: ActivePass) -> None:
         """Stop the pass's uplink and wait for its task (an abort or a handover; not the
@@ -753,35 +434,3 @@ class PassRunner:
         if active.task is not None and active.task is not asyncio.current_task():
             with contextlib.suppress(Exception, asyncio.CancelledError):
                 await active.task
-
-    async def _hand_over(self, active: ActivePass) -> None:
-        """The graceful stop of a pass in flight: the uplink and the pass's task stop, the
-        stage writes already made are flushed, and a ``ground_stopped`` event says what the
-        vehicle holds. The pass stays in its state (``running`` or ``los``), its telemetry
-        window open, no command cancelled: the vehicle flies what it holds under its LOS
-        policy, and the next process resumes the pass as after a crash
-        (:mod:`server.services.recovery`)."""
-        await self._stop_pass_task(active)
-        onboard: int | None = None
-        with contextlib.suppress(LinkUnavailable):
-            onboard = self._link.onboard_now_ns()  # the clock outlives the socket
-        tracker = active.tracker
-        loaded, unsent = len(tracker.outstanding()), len(tracker.in_stage("queued"))
-        policy = self._link.los_policy
-        reason = handover_reason(onboard, active.first_tag_ns, loaded, unsent, policy)
-        pass_id, clock = active.pass_id, self._clock
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            state = repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
-            stopped = GroundStopped(
-                actor="ground", pass_id=pass_id, state=state, reason=reason,
-                onboard_time_ns=onboard, loaded=loaded, unsent=unsent, los_policy=policy,
-            )  # fmt: skip
-            return [record(session, stopped, clock.time_ns())]
-
-        # after the stage writes queued so far (one worker, in order)
-        await self._db.write(job)
-        tracker.close()
-        if self._active is active:
-            self._active = None
-        log.info("pass %s: %s", pass_id, reason)
