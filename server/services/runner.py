@@ -157,6 +157,7 @@ class PassRunner(PassEnds, PassHandover):
         self._diverged: asyncio.Task[None] | None = None
         self._safing: asyncio.Task[None] | None = None
         self._background: set[asyncio.Task[Any]] = set()
+        self._aborted_unstarted: set[str] = set()
         self._deletes = ScheduleDeletes(
             link=link,
             downlink=downlink,

@@ -63,6 +63,8 @@ class RunnerParts:
     _safing: asyncio.Task[None] | None
     _diverged: asyncio.Task[None] | None
     _background: set[asyncio.Task[Any]]
+    #: passes aborted while a resume of theirs waited for the vehicle (it then ends)
+    _aborted_unstarted: set[str]
     _deletes: ScheduleDeletes
     _settle_ns: int
 

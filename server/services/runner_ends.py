@@ -134,11 +134,16 @@ class PassEnds(RunnerParts):
         active = self._active if self._active and self._active.pass_id == pass_id else None
         if active is None:  # a pass not running here (restart): every command not sent
             await self._abort_write(pass_id, actor, reason, None, None, None)
+            self._aborted_unstarted.add(pass_id)  # a resume waiting for the vehicle ends
             return
         await self._stop_pass_task(active)
         up = active.uplink
+        # Commands the vehicle holds that this ground never sent (a pass resumed after a
+        # ground that was killed before it filed their sends): on board all the same.
+        on_board = link.last_command_seq if active.resumed else -1
+        sent = {c.seq for c in up.commands if c.transmissions or c.seq <= on_board}
         deletion: Deletion | None = None
-        if safed_at_ns is None and up.sent_commands():
+        if safed_at_ns is None and sent:
             commands = tuple((c.seq, c.tag_ns) for c in up.commands)
             deletion = Deletion(
                 active.tracker, active.window, active.last_tag_ns, commands, active.max_seq,
@@ -155,18 +160,23 @@ class PassEnds(RunnerParts):
             end = safed_at_ns + round(SAFED_TAIL_S * 1e9)
         self._downlink.close_window(active.window, end)
         # Cancelled on the ground: never sent, and (the delete's T known) tagged from T on.
-        cancel = [c.seq for c in up.commands if c.transmissions == 0]
+        cancel = [c.seq for c in up.commands if c.seq not in sent]
         if from_ns is not None:
-            cancel += [c.seq for c in up.commands if c.transmissions and c.tag_ns >= from_ns]
+            cancel += [c.seq for c in up.commands if c.seq in sent and c.tag_ns >= from_ns]
         to = "aborted" if safed_at_ns is None else "safed"
         await self._abort_write(pass_id, actor, reason, cancel, from_ns, end, to)
         active.tracker.cancelled(cancel)
         if self._active is active:
             self._active = None
         if deletion is not None or link.connected:
+            unfiled = sorted(sent - {c.seq for c in up.commands if c.transmissions} - set(cancel))
             self._background_task(
                 self._deletes.after_abort(
-                    active.tracker, deletion, self._closing, safed=safed_at_ns is not None
+                    active.tracker,
+                    deletion,
+                    self._closing,
+                    safed=safed_at_ns is not None,
+                    ask_about=unfiled,
                 )
             )
         else:

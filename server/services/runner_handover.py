@@ -95,10 +95,14 @@ class PassHandover(RunnerParts):
             if self._closing.is_set():
                 tracker.close()
                 return
-            if refusal is None:
+            if p.id in self._aborted_unstarted:  # an operator aborted it meanwhile
+                self._aborted_unstarted.discard(p.id)
+                refusal = None
+            elif refusal is None:
                 self._begin_resumed(p, window, tracker)
                 return
-            await self._abort_locked(p.id, "ground", refusal)
+            else:
+                await self._abort_locked(p.id, "ground", refusal)
         # what the vehicle did with the commands sent before the restart
         await self._resolve(tracker)
 

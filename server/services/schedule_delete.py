@@ -196,13 +196,16 @@ class ScheduleDeletes:
         closing: asyncio.Event,
         *,
         safed: bool = False,
+        ask_about: list[int] | None = None,
     ) -> None:
         """In the background after an abort: the ``schedule_delete`` (if any) to its end,
         then the stages of the commands before ``T`` as their tags pass (``safed``: the
-        vehicle safed itself, so every command not final is asked about at once)."""
+        vehicle safed itself, so every command not final is asked about at once;
+        ``ask_about``: commands the vehicle holds with no send on file, asked about
+        first)."""
         try:
             if deletion is not None:
                 await self.complete(deletion, closing)
-            await tracker.resolve(closing, any_tag=safed)
+            await tracker.resolve(closing, any_tag=safed, ask_about=ask_about or ())
         finally:
             tracker.close()

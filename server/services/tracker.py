@@ -237,7 +237,12 @@ class CommandTracker:
     # -- resolution after LOS ------------------------------------------------------------
 
     async def resolve(
-        self, stop: asyncio.Event, *, ask_expired: bool = False, any_tag: bool = False
+        self,
+        stop: asyncio.Event,
+        *,
+        ask_expired: bool = False,
+        any_tag: bool = False,
+        ask_about: Iterable[int] = (),
     ) -> int:
         """Ask the vehicle about the commands still ``sent`` or ``received`` once their tag
         has passed (``any_tag``: at once, whatever their tag: after on-board safing, when
@@ -249,7 +254,10 @@ class CommandTracker:
         watch.add_done_callback(lambda _: self._changed.set())
         try:
             if ask_expired:
-                await self._ask_about_expired(stop)
+                await self._ask_about(stop, lambda: self.in_stage("expired"))
+            unfiled = set(ask_about)
+            if unfiled:  # on board with no send on file: the vehicle's word, as acks
+                await self._ask_about(stop, lambda: sorted(unfiled & set(self.in_stage("queued"))))
             queries = 0
             next_query = clock.monotonic()
             while True:
@@ -280,10 +288,12 @@ class CommandTracker:
         finally:
             watch.cancel()
 
-    async def _ask_about_expired(self, stop: asyncio.Event) -> None:
+    async def _ask_about(self, stop: asyncio.Event, which: Callable[[], list[int]]) -> None:
+        """Ask the vehicle about ``which()`` commands, again while some are left (the relay
+        may lose a query or its answers), :data:`EXPIRED_QUERIES` times at most."""
         link, clock = self._link, self._clock
         for _ in range(EXPIRED_QUERIES):  # the relay may lose one
-            seqs = self.in_stage("expired")
+            seqs = which()
             if not seqs or stop.is_set() or not link.connected:
                 return
             if await link.query_commands(seqs):

@@ -26,6 +26,7 @@ from server.services.errors import DomainError
 from server.services.robots import robot_urdf, urdf_for_plan
 from server.settings import Settings
 from server.storage import repository as repo
+from server.storage.db import sqlite_url
 from tests.planner.test_vendor_urdf import copy_robot
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.storage.factories import make_plan
@@ -159,9 +160,12 @@ def renamed(tmp_path: Path) -> Path:
 
 
 @pytest.fixture()
-def client_with_file(database_url: str, tmp_path: Path, renamed: Path) -> Iterator[TestClient]:
+def client_with_file(tmp_path: Path, renamed: Path) -> Iterator[TestClient]:
+    """A ground given the file, on a database of its own (one ground a SQLite file: the
+    ``client`` beside it is another ground)."""
+    own = tmp_path / "with-file"
     settings = Settings(
-        data_dir=tmp_path, database_url=database_url, tokens=TOKENS, robot_files=(renamed,)
+        data_dir=own, database_url=sqlite_url(own), tokens=TOKENS, robot_files=(renamed,)
     )
     with TestClient(create_app(settings)) as c:
         yield c

@@ -136,7 +136,9 @@ def serve_process(
     finally:
         if proc.poll() is None:
             proc.terminate()
-            proc.wait(timeout=30)
+            # a guard against a hang only: a graceful stop flushes the writes queued, which
+            # took over 30 s on a PostgreSQL shared by loaded test runs (test_restart.py)
+            proc.wait(timeout=90)
 
 
 def store_pass(

@@ -48,6 +48,10 @@ LEASE = {"HIKOBOSHI_LEASE_TTL_S": "3", "HIKOBOSHI_LEASE_RENEW_S": "0.5"}
 #: onboard s: the schedule loaded before the kill rides out the takeover (3-4 s of lease
 #: and recovery, 30-40 s onboard at 10x, more on a loaded machine)
 LEAD_WINDOW_S = 150.0
+#: A connection per request: a keep-alive connection the server closes after its idle
+#: timeout (5 s) while this loop is busy flying the spacecraft races the next request
+#: ("Server disconnected without sending a response", seen at load average 8).
+ONE_SHOT = httpx.Limits(max_keepalive_connections=0)
 
 
 def _env(name: str) -> dict[str, str]:
@@ -105,7 +109,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
             with serve_process(database_url, port_a, log_a, _env("ground-a")) as ground_a:
                 pass_id = store_pass(sessions, "failover", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 200.0)
                 seen["pass_id"] = pass_id
-                async with httpx.AsyncClient(base_url=a_url, timeout=30.0) as a:
+                async with httpx.AsyncClient(base_url=a_url, timeout=30.0, limits=ONE_SHOT) as a:
                     assert (await a.get("/api/health")).json()["command"] == "holder"
                     await wait_for(lambda: process.connections > 0, 60.0, "a spacecraft")
                     started = await a.post(
@@ -115,7 +119,9 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     )
                     assert started.status_code == 200, started.text
                 with serve_process(database_url, port_b, log_b, _env("ground-b")) as ground_b:
-                    async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
+                    async with httpx.AsyncClient(
+                        base_url=b_url, timeout=30.0, limits=ONE_SHOT
+                    ) as b:
                         health = (await b.get("/api/health")).json()
                         assert health == {"status": "ok", "command": "standby"}
                         assert (await b.get("/api/ready")).json()["command"] == "standby"
@@ -149,7 +155,9 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     )
                     seen["takeover_s"] = time.monotonic() - killed
                     await wait_for(ended, 120.0, "the pass ended, resolved")
-                    async with httpx.AsyncClient(base_url=b_url, timeout=30.0) as b:
+                    async with httpx.AsyncClient(
+                        base_url=b_url, timeout=30.0, limits=ONE_SHOT
+                    ) as b:
                         health = (await b.get("/api/health")).json()
                         assert health["command"] == "holder"
                         command = await b.get("/api/command")

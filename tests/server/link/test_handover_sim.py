@@ -233,3 +233,55 @@ def test_the_outcome_is_nominal_only_when_every_command_executed_at_its_tag() ->
     table = report.tables[1]
     assert table.rows == [["degraded", 6190, 5790, 0, 393, 2, 0, 5]]
     assert table.notes == [mixed.sentence()]
+
+
+@simulated
+async def test_an_abort_after_a_takeover_leaves_what_the_vehicle_holds_to_its_word(
+    tmp_path: Path,
+) -> None:
+    """The holder is killed before it filed the sends of the commands it loaded (their rows
+    still read ``queued``); the ground that takes over resumes the pass and is told to
+    abort at once. Those commands are on board all the same (the vehicle's ``hello``
+    names the last it received): the abort's ``schedule_delete`` still goes up, the ones
+    tagged before its ``T`` are not cancelled but asked about, and every stage ends as the
+    vehicle's word (found by bench/bench_failover.py's kill9-abort: executed commands
+    filed ``cancelled``)."""
+    clock = ManualClock()
+    sessions = make_sessions(tmp_path)
+    first = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
+    sc = SimulatedSpacecraft(clock)
+    await sc.connect(first)
+    pass_id = store_pass(sessions, 400, clock)
+    await first.runner.start(pass_id, "otto")
+    await sc.run(40.0)
+    await kill_ground(first, sc)
+    held = sorted(sc.vehicle.schedule)
+    assert len(held) > 20
+    with sessions() as session:  # the killed ground's sends never reached the database
+        for seq in held:
+            row = repo.get_command(session=session, pass_id=pass_id, seq=seq)
+            row.stage, row.transmissions = "queued", 0
+            row.released_at_ns = row.sent_at_ns = row.received_at_ns = None
+        session.commit()
+    second = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
+    await second.restarted()
+    await sc.connect(second)
+    while second.runner.active_pass_id != pass_id:  # resumed, nothing sent again yet
+        await sc.run(0.01)
+    uplink = second.runner._active.uplink  # type: ignore[union-attr]
+    assert all(c.transmissions == 0 for c in uplink.commands if c.seq in held)
+    await second.runner.abort(pass_id, "otto", "test abort after a takeover")
+    await sc.run(150.0)
+    rows = commands(sessions, pass_id)
+    assert pass_state(sessions, pass_id) == "aborted"
+    stages = _stages(rows)
+    assert not set(stages) & {"queued", "released", "sent", "received"}, stages
+    executed = sc.vehicle.executed
+    assert executed  # the vehicle flew some of what it held before the delete's T
+    for r in rows:
+        if r.seq in executed:
+            assert r.stage == "executed", (r.seq, r.stage)
+        else:
+            assert r.stage in ("cancelled", "expired"), (r.seq, r.stage)
+    [deleted] = _events(second, pass_id, "schedule_deleted")
+    assert deleted.detail["from_time_ns"] > 0
