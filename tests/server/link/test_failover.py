@@ -54,6 +54,10 @@ LEAD_WINDOW_S = 150.0
 ONE_SHOT = httpx.Limits(max_keepalive_connections=0)
 
 
+def _client(url: str) -> httpx.AsyncClient:
+    return httpx.AsyncClient(base_url=url, timeout=30.0, limits=ONE_SHOT)
+
+
 def _env(name: str) -> dict[str, str]:
     return {
         "HIKOBOSHI_TOKENS": TOKENS,
@@ -109,7 +113,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
             with serve_process(database_url, port_a, log_a, _env("ground-a")) as ground_a:
                 pass_id = store_pass(sessions, "failover", (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 200.0)
                 seen["pass_id"] = pass_id
-                async with httpx.AsyncClient(base_url=a_url, timeout=30.0, limits=ONE_SHOT) as a:
+                async with _client(a_url) as a:
                     assert (await a.get("/api/health")).json()["command"] == "holder"
                     await wait_for(lambda: process.connections > 0, 60.0, "a spacecraft")
                     started = await a.post(
@@ -119,9 +123,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     )
                     assert started.status_code == 200, started.text
                 with serve_process(database_url, port_b, log_b, _env("ground-b")) as ground_b:
-                    async with httpx.AsyncClient(
-                        base_url=b_url, timeout=30.0, limits=ONE_SHOT
-                    ) as b:
+                    async with _client(b_url) as b:
                         health = (await b.get("/api/health")).json()
                         assert health == {"status": "ok", "command": "standby"}
                         assert (await b.get("/api/ready")).json()["command"] == "standby"
@@ -155,9 +157,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
                     )
                     seen["takeover_s"] = time.monotonic() - killed
                     await wait_for(ended, 120.0, "the pass ended, resolved")
-                    async with httpx.AsyncClient(
-                        base_url=b_url, timeout=30.0, limits=ONE_SHOT
-                    ) as b:
+                    async with _client(b_url) as b:
                         health = (await b.get("/api/health")).json()
                         assert health["command"] == "holder"
                         command = await b.get("/api/command")
