@@ -20,22 +20,9 @@ telemetry period, resend timeout) is onboard time, so a 20-minute pass at 20x ta
   connection, which instead gets the report of the SAFE state right after ``hello``.
 - **Truth log** (``truth_log``, :mod:`spacecraft.truth`): the start, each fault's onset and
   each entry into and exit from SAFE, written as they happen; never sent to the ground.
-- **Connection**: reconnects after any drop with exponential backoff, trying its grounds in
-  order (``ground_url``, then each of ``standby_urls``; the ground it was connected to is
-  tried again last): a standby refuses the handshake (503: another ground holds the command
-  lease, docs/operations.md "One ground in command"; a holder that loses it closes with
-  1013) and the next one is tried at once; the backoff grows only once every ground has
-  been tried. A drop changes nothing
-  on board: the loaded schedule keeps executing, and only the vehicle's LOS policy (silence
-  for ``los_hold_after_s`` with ``hold``) refuses queued joint commands. ``hello`` is the
-  session handshake, announces the schedule's capacity, the LOS policy and (when the vehicle
-  flies a robot description, ``hikoboshi spacecraft --robot``) the robot's name, the hash of
-  its description and its joint count, and goes straight to the ground.
-- **Noise** (``garbage``, ``hikoboshi spacecraft --garbage``): while connected and the
-  onboard clock is inside a window, malformed messages (:mod:`spacecraft.garbage`) go
-  straight onto the socket at the window's rate per wall second, beside the real traffic
-  (a rehearsal of a noisy link; docs/protocol.md "Malformed messages"). The ground closes a
-  connection that sends too many; the process reconnects as after any drop.
+- **Connection** (:class:`spacecraft.process_connection.ProcessConnection`, every task
+  that reads or writes the socket): reconnects after any drop, trying its grounds in order,
+  and sends ``hello``; malformed messages beside the real traffic (``garbage``).
 - **Contact plan** (``contact``, :mod:`spacecraft.contact`: the windows of a mission): the
   relay is there only inside a window. The process connects at acquisition of signal and
   closes its socket at loss, and both links drop whatever is not across before the window's
@@ -60,20 +47,18 @@ import heapq
 import itertools
 import json
 import logging
-import random
 import time
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import replace
 
-from websockets.asyncio.client import ClientConnection, connect
-from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+from websockets.asyncio.client import ClientConnection
 
-from spacecraft.contact import ContactPlan
-from spacecraft.downlink import Downlink, DownlinkConfig
+from spacecraft.downlink import Downlink
 from spacecraft.garbage import GarbageMaker
-from spacecraft.link import Garbage, LinkConfig, LinkEmulator, Outage
+from spacecraft.link import LinkEmulator, Outage
+from spacecraft.process_config import ProcessConfig
+from spacecraft.process_connection import SOCKET_MAX_BYTES, ProcessConnection
 from spacecraft.truth import TruthLog
-from spacecraft.vehicle import Vehicle, VehicleConfig
+from spacecraft.vehicle import Vehicle
 from telemetry.wire import (
     PROTOCOL_VERSION,
     AcsCommandMsg,
@@ -82,7 +67,6 @@ from telemetry.wire import (
     CommandStage,
     CommandUnknown,
     ErrorMsg,
-    Hello,
     JointCommandMsg,
     Ping,
     Pong,
@@ -100,62 +84,15 @@ from telemetry.wire import (
 #: Wall seconds the resend timeout allows the ground for its own processing.
 RESEND_WALL_S = 3.0
 
-__all__ = ["ProcessConfig", "SpacecraftProcess"]
+__all__ = ["SOCKET_MAX_BYTES", "ProcessConfig", "SpacecraftProcess"]
 
 log = logging.getLogger("hikoboshi.spacecraft")
 
 #: FAST mode flies a gap in steps this long (onboard s; about 50 ms of computing each).
 FAST_CHUNK_S = 5.0
 
-#: Frames larger than this close the socket (the library's guard); smaller ones that are
-#: still over the protocol's limit get an ``error`` reply.
-SOCKET_MAX_BYTES = 4 * 1024 * 1024
 
-
-@dataclass(frozen=True)
-class ProcessConfig:
-    ground_url: str
-    token: str
-    #: more grounds' link endpoints (hot standbys), tried in order after ``ground_url``
-    standby_urls: tuple[str, ...] = ()
-    time_scale: float = 1.0
-    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
-    uplink: LinkConfig = field(default_factory=LinkConfig)
-    downlink: LinkConfig = field(default_factory=lambda: LinkConfig(seed=1))
-    telemetry_store: DownlinkConfig = field(default_factory=DownlinkConfig)
-    epoch_ns: int | None = None  # onboard clock at start; default: wall clock, whole second
-    seed: int = 0
-    backoff_initial_s: float = 0.2  # wall seconds
-    backoff_max_s: float = 5.0
-    drain_timeout_s: float = 30.0  # wall seconds
-    #: where the truth log is written (None: nowhere)
-    truth_log: Path | None = None
-    #: windows of malformed messages toward the ground (a rehearsal of a noisy link)
-    garbage: tuple[Garbage, ...] = ()
-    #: the relay's windows and delays from a mission (None: always up, the links' delay)
-    contact: ContactPlan | None = None
-    #: between windows the onboard clock runs at most this many times wall time (None: as
-    #: fast as the simulation computes); only with ``contact``
-    fast_scale: float | None = None
-
-    def __post_init__(self) -> None:
-        if not 0 < self.time_scale <= 1000:
-            raise ValueError(f"time_scale = {self.time_scale} must lie in (0, 1000]")
-        if self.fast_scale is not None and not self.fast_scale >= self.time_scale:
-            raise ValueError(
-                f"fast_scale = {self.fast_scale} must be at least time_scale = {self.time_scale}"
-            )
-        for url in self.ground_urls:
-            if not url.startswith(("ws://", "wss://")):
-                raise ValueError(f"ground URL {url!r} must start with ws:// or wss://")
-
-    @property
-    def ground_urls(self) -> tuple[str, ...]:
-        """Every ground this vehicle may talk to, in the order it tries them."""
-        return (self.ground_url, *self.standby_urls)
-
-
-class SpacecraftProcess:
+class SpacecraftProcess(ProcessConnection):
     def __init__(self, config: ProcessConfig) -> None:
         self.config = config
         epoch = config.epoch_ns if config.epoch_ns is not None else int(time.time()) * 10**9
@@ -238,48 +175,6 @@ class SpacecraftProcess:
         if deliver is not None:
             heapq.heappush(self._outgoing, (deliver, next(self._counter), text))
 
-    async def _sender(self) -> None:
-        while True:
-            if not self._outgoing:
-                await asyncio.sleep(0.002)
-                continue
-            deliver, _, text = self._outgoing[0]
-            delay = self._wall_delay(deliver)
-            if delay > 0:
-                await asyncio.sleep(min(delay, 0.01))
-                continue
-            heapq.heappop(self._outgoing)
-            ws = self._ws
-            if ws is None:
-                continue  # the socket went down while the message was in the relay
-            with contextlib.suppress(ConnectionClosed):
-                await ws.send(text)
-
-    async def _noise(self) -> None:
-        """Malformed messages onto the socket at each garbage window's rate (wall), while
-        connected and inside the window (onboard); a burst catches up after a stall, at
-        most a tenth of a second's worth."""
-        windows = self.config.garbage
-        if not windows:
-            return
-        due = time.monotonic()
-        while True:
-            now_s = self.onboard_s()
-            window = next((w for w in windows if w.contains(now_s)), None)
-            ws = self._ws
-            if window is None or ws is None or not self._connected.is_set():
-                await asyncio.sleep(0.01)
-                due = time.monotonic()
-                continue
-            period = 1.0 / window.rate
-            due = max(due, time.monotonic() - 0.1)
-            while due <= time.monotonic():
-                with contextlib.suppress(ConnectionClosed):
-                    await ws.send(self.garbage.next())
-                    self.garbage_sent += 1
-                due += period
-            await asyncio.sleep(max(0.0, due - time.monotonic()))
-
     # -- uplink --------------------------------------------------------------------------
 
     def _handle(self, raw: str | bytes) -> None:
@@ -354,25 +249,6 @@ class SpacecraftProcess:
                     )
                 )
         return encode(ErrorMsg(reason=reason[:500], ref_type=exc.ref_type))
-
-    async def _receiver(self, ws: ClientConnection) -> None:
-        contact = self.config.contact
-        async for raw in ws:
-            now = self.onboard_s()
-            if contact is not None and not contact.is_up(now) and self._is_command(raw):
-                self.commands_outside_window += 1
-                if self._truth is not None:
-                    self._truth.write([{"event": "command_outside_window", "onboard_s": now}])
-            deliver = self.uplink.send(now, len(raw))
-            if deliver is not None:
-                heapq.heappush(self._incoming, (deliver, next(self._counter), raw))
-
-    @staticmethod
-    def _is_command(raw: str | bytes) -> bool:
-        try:
-            return isinstance(decode_ground(raw), JointCommandMsg | AcsCommandMsg)
-        except WireError:
-            return False
 
     # -- the onboard loop ----------------------------------------------------------------
 
@@ -481,121 +357,7 @@ class SpacecraftProcess:
                 return
             await asyncio.sleep(tick_s / self.config.time_scale)
 
-    # -- connection ----------------------------------------------------------------------
-
-    async def _connection(self, stop: asyncio.Event) -> None:
-        delay = self.config.backoff_initial_s
-        rng = random.Random(self.config.seed)
-        urls = list(self.config.ground_urls)
-        tried = 0  # grounds tried since the last backoff
-        while not stop.is_set() or self._stopping:
-            if not await self._window_open(stop):
-                return
-            url = urls[0]
-            try:
-                async with connect(
-                    url,
-                    additional_headers={"Authorization": f"Bearer {self.config.token}"},
-                    max_size=SOCKET_MAX_BYTES,
-                    proxy=None,
-                    open_timeout=5,
-                ) as ws:
-                    self._ws = ws
-                    self.connections += 1
-                    delay = self.config.backoff_initial_s
-                    now = self.onboard_s()
-                    if not self._stopping:
-                        # up to now before hello: a periodic report due while the link was
-                        # down is not sent; the report of the state now follows hello
-                        self._deliver_due(now)
-                        self._advance(now)
-                    hello = Hello(
-                        vehicle=self.config.vehicle.vehicle_name,
-                        onboard_time_ns=self.onboard_ns(now),
-                        time_scale=self.config.time_scale,
-                        next_telemetry_seq=self.vehicle.next_telemetry_seq,
-                        last_command_seq=self.vehicle.last_command_seq,
-                        schedule_capacity=self.config.vehicle.schedule_capacity,
-                        los_policy=self.config.vehicle.los_policy,
-                        los_hold_after_s=self.config.vehicle.los_hold_after_s,
-                        robot=self.config.vehicle.robot,
-                        robot_hash=self.config.vehicle.robot_hash,
-                        n_joints=self._announced_joints(),
-                    )
-                    await ws.send(encode(hello))
-                    self._connected.set()
-                    backlog, self._outbox = self._outbox, []
-                    for text in backlog:
-                        self._send(text)
-                    report = self.vehicle.safing_report()
-                    if report is not None:  # a safe vehicle says so at once
-                        self._send(encode(report))
-                    log.info("connected to %s", url)
-                    los = asyncio.create_task(self._close_at_los(ws), name="los")
-                    try:
-                        await self._receiver(ws)
-                    finally:
-                        los.cancel()
-            except (OSError, ConnectionClosed, InvalidHandshake, InvalidURI, TimeoutError) as exc:
-                log.warning("link to ground %s down: %s", url, exc)
-            finally:
-                was_connected = self._connected.is_set()
-                self._connected.clear()
-                self._ws = None
-                if was_connected:
-                    # In the relay when the link went: lost. The vehicle carries on with its
-                    # schedule; its LOS policy alone decides whether the arm holds.
-                    self._outgoing.clear()
-            if stop.is_set() and not self._stopping:
-                return
-            urls.append(urls.pop(0))  # the next ground; this one again last
-            tried += 1
-            if tried < len(urls):
-                continue
-            tried = 0
-            await asyncio.sleep(delay * (0.5 + rng.random()))
-            delay = min(delay * 2.0, self.config.backoff_max_s)
-
-    async def _window_open(self, stop: asyncio.Event) -> bool:
-        """Wait, with a contact plan, until a window is open (True), or the process stops
-        before one opens (False: stop set and not draining, or no window ahead)."""
-        contact = self.config.contact
-        if contact is None:
-            return True
-        while not contact.is_up(self.onboard_s()):
-            if (stop.is_set() and not self._stopping) or (
-                contact.next_start_s(self.onboard_s()) is None
-            ):
-                return False
-            await asyncio.sleep(0.01)
-        return True
-
-    async def _close_at_los(self, ws: ClientConnection) -> None:
-        """Close the socket at the loss of signal of the window it was opened in."""
-        contact = self.config.contact
-        if contact is None:
-            return
-        end = contact.end_of_contact_s(self.onboard_s())
-        if end is None:
-            end = self.onboard_s()
-        while self.onboard_s() < end:
-            await asyncio.sleep(min(0.05, self._wall_delay(end)))
-        await self._lose_signal()
-
-    async def _lose_signal(self) -> None:
-        """Close the socket (if open): the window is over."""
-        ws = self._ws
-        if ws is None:
-            return
-        log.info("loss of signal at onboard %.1f s", self.onboard_s())
-        with contextlib.suppress(ConnectionClosed):
-            await ws.close(1001, "loss of signal")
-
-    def _announced_joints(self) -> int | None:
-        """``hello``'s joint count: with the robot of a description only (a ``hello`` without
-        robot fields means ETS-VII, 6 joints, to the ground)."""
-        vehicle = self.config.vehicle
-        return None if vehicle.robot is None else vehicle.model.n_joints
+    # -- truth log and run ---------------------------------------------------------------
 
     def _open_truth_log(self) -> None:
         path = self.config.truth_log

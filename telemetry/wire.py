@@ -1,20 +1,11 @@
-"""The space-ground wire protocol, version 2: what crosses the relay link.
+"""The space-ground wire protocol, version 2: the codec of what crosses the relay link.
 
-Every message is one JSON object in one websocket text frame, with ``"v"`` (the protocol
-version) and ``"type"``. Times are integer nanoseconds of the **onboard clock**
-(``*_time_ns``); angles in radians, rates in rad/s, momentum in N m s. The full description,
-with the sequencing and acknowledgement rules, is ``docs/protocol.md``.
-
-Ground -> spacecraft: ``command`` (``joints`` or ``acs``), ``schedule_delete``,
-``telemetry_ack``, ``retransmit``, ``ping``, ``command_query``, ``safe_exit``. Spacecraft ->
-ground: ``hello``, ``command_ack``, ``verification``, ``telemetry``, ``pong``,
-``command_unknown``, ``safing``, ``error``. The messages are shaped after the ECSS PUS
-services they mirror (11 time-based schedule: ``command``, ``schedule_delete`` and the
-schedule summary in every frame's ``buffer``; 1 request verification: ``command_ack``,
-``verification``; 3 housekeeping: ``telemetry``; 17 test: ``ping``/``pong``), so that a
-binary CCSDS Space Packet encoding is only another codec. Version 1 (each command sent once,
-just in time) is not served: its messages get an ``error`` reply naming the version this end
-speaks.
+The messages themselves (the pydantic models each way and the protocol's constants) are in
+:mod:`telemetry.wire_messages`; this module re-exports every one of their names, so
+``telemetry.wire`` stays the one place both ends import the protocol from. The full
+description, with the sequencing and acknowledgement rules, is ``docs/protocol.md``. Version
+1 (each command sent once, just in time) is not served: its messages get an ``error`` reply
+naming the version this end speaks.
 
 :func:`decode_ground` and :func:`decode_spacecraft` accept only well-formed messages of this
 version and raise :class:`WireError` (with a reason fit for an ``error`` reply) for anything
@@ -25,7 +16,9 @@ string, keys included: no protocol message has a legitimate use for one, and the
 receiver stores must read the same on every database (PostgreSQL refuses NUL). An ``error``
 message alone is not refused for its text: it must never be answered with an ``error``, so
 the control characters of its string values are escaped instead (NUL becomes the four
-characters ``\x00``) and it is delivered.
+characters ``\x00``) and it is delivered. A telemetry frame beyond the physical bounds
+(:data:`MAX_JOINT_ABS_RAD` and the others) is refused ``unphysical``. :func:`encode` is the
+way out.
 
 The cheap refusals come first, so that noise costs little more than its JSON parse: the size,
 the parse, then the top-level ``v`` and ``type`` (a wrong version, no type, or, on the
@@ -40,10 +33,45 @@ import itertools
 import json
 import math
 import re
-from enum import StrEnum
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import Field, TypeAdapter, ValidationError
+
+from telemetry.wire_messages import (
+    DEFAULT_SCHEDULE_CAPACITY,
+    MAX_FRAMES_PER_MESSAGE,
+    MAX_JOINTS,
+    MAX_WHEELS,
+    PROTOCOL_VERSION,
+    SPACECRAFT_TYPES,
+    AcsCommandMsg,
+    AcsModeName,
+    BufferState,
+    CommandAck,
+    CommandQuery,
+    CommandStage,
+    CommandUnknown,
+    ErrorMsg,
+    GroundMessage,
+    GroundMessageT,
+    Hello,
+    JointCommandMsg,
+    Ping,
+    Pong,
+    RejectReason,
+    Retransmit,
+    SafeExit,
+    Safing,
+    SafingTrigger,
+    ScheduleDelete,
+    SpacecraftMessage,
+    SpacecraftMessageT,
+    TelemetryAck,
+    TelemetryFrame,
+    TelemetryMsg,
+    Verification,
+    _Obj,
+)
 
 if TYPE_CHECKING:
     from telemetry.layout import FrameLayout
@@ -52,6 +80,7 @@ __all__ = [
     "DEFAULT_SCHEDULE_CAPACITY",
     "MAX_BASE_RATE_RADPS",
     "MAX_DEPTH",
+    "MAX_FRAMES_PER_MESSAGE",
     "MAX_JOINTS",
     "MAX_JOINT_ABS_RAD",
     "MAX_MESSAGE_BYTES",
@@ -69,6 +98,7 @@ __all__ = [
     "CommandUnknown",
     "ErrorMsg",
     "GroundMessage",
+    "GroundMessageT",
     "Hello",
     "JointCommandMsg",
     "Ping",
@@ -80,6 +110,7 @@ __all__ = [
     "SafingTrigger",
     "ScheduleDelete",
     "SpacecraftMessage",
+    "SpacecraftMessageT",
     "TelemetryAck",
     "TelemetryFrame",
     "TelemetryMsg",
@@ -91,21 +122,12 @@ __all__ = [
     "escape_controls",
 ]
 
-PROTOCOL_VERSION = 2
-#: Commands the onboard schedule holds unless ``hello`` announces otherwise.
-DEFAULT_SCHEDULE_CAPACITY = 1024
 #: Larger messages are refused unread (a backlog dump is split into smaller batches).
 MAX_MESSAGE_BYTES = 256 * 1024
-#: At most this many frames in one telemetry message.
-MAX_FRAMES_PER_MESSAGE = 200
 #: Deeper messages are refused before validation. The deepest real one is 4 levels
 #: (``telemetry`` > ``frames`` > a frame > ``joints_rad`` or ``buffer``); 16 leaves room for
 #: later versions and still keeps hostile nesting away from the recursive validators.
 MAX_DEPTH = 16
-#: The most joints (and reaction wheels) a robot may have on the wire; how many a session's
-#: robot has is its :class:`telemetry.layout.FrameLayout` (ETS-VII: 6 joints, 3 wheels).
-MAX_JOINTS = 32
-MAX_WHEELS = 16
 #: What no telemetry frame of a real vehicle can hold (our choice, far outside every robot's
 #: envelope): a frame beyond them is a diverged simulation or broken software, refused
 #: ``unphysical`` and never archived. Joints: continuous joints turn +-2 pi, so 4 pi is past
@@ -163,284 +185,6 @@ def escape_controls(text: str) -> str:
     return _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
 
 
-class _Obj(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class _Msg(_Obj):
-    v: Literal[2] = 2
-
-
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-#: One value per joint (or wheel): the length is the robot's, checked against its layout
-#: where the receiver knows it (:func:`decode_ground`, :func:`decode_spacecraft`).
-JointVec = Annotated[list[float], Field(min_length=1, max_length=MAX_JOINTS)]
-WheelVec = Annotated[list[float], Field(min_length=1, max_length=MAX_WHEELS)]
-Quat = Annotated[list[float], Field(min_length=4, max_length=4)]
-Seq = Annotated[int, Field(ge=0, lt=2**53)]
-TimeNs = Annotated[int, Field(ge=0, lt=2**63)]
-
-
-class AcsModeName(StrEnum):
-    FEEDBACK = "feedback"
-    FREE_DRIFT = "free_drift"
-
-
-# --- ground -> spacecraft ----------------------------------------------------------------
-
-
-class JointCommandMsg(_Msg):
-    """Joint targets to reach at ``execute_time_ns``; between consecutive joint commands
-    (tags one command period apart) the target moves linearly."""
-
-    type: Literal["command"] = "command"
-    kind: Literal["joints"] = "joints"
-    seq: Seq
-    execute_time_ns: TimeNs
-    joints_rad: JointVec
-
-
-class AcsCommandMsg(_Msg):
-    """Attitude-control mode, target and momentum feedforward from ``execute_time_ns``."""
-
-    type: Literal["command"] = "command"
-    kind: Literal["acs"] = "acs"
-    seq: Seq
-    execute_time_ns: TimeNs
-    mode: AcsModeName
-    target_quat_orbit_from_base_xyzw: Quat = Field(default_factory=lambda: [0.0, 0.0, 0.0, 1.0])
-    feedforward: bool = False
-
-
-class TelemetryAck(_Msg):
-    """Every frame with ``seq <= through_seq`` arrived, and those in ``ranges`` (inclusive)."""
-
-    type: Literal["telemetry_ack"] = "telemetry_ack"
-    through_seq: Annotated[int, Field(ge=-1, lt=2**53)]
-    ranges: Annotated[list[tuple[Seq, Seq]], Field(max_length=1000)] = Field(default_factory=list)
-
-
-class Retransmit(_Msg):
-    """Send these frames again (inclusive ranges), oldest first."""
-
-    type: Literal["retransmit"] = "retransmit"
-    ranges: Annotated[list[tuple[Seq, Seq]], Field(min_length=1, max_length=1000)]
-
-
-class ScheduleDelete(_Msg):
-    """Delete from the onboard schedule every command tagged at or after ``from_time_ns``
-    whose seq is at most ``max_seq`` (PUS 11, delete time-tagged activities by time range),
-    and refuse (``cancelled``) any such command that arrives later: copies still in the
-    relay must not refill what was deleted. Commands of a later plan (seq above
-    ``max_seq``) are not touched. Idempotent by ``request_id``: a repeat is answered with the
-    first report and changes nothing. The arm holds at the last joint target left."""
-
-    type: Literal["schedule_delete"] = "schedule_delete"
-    request_id: Seq
-    from_time_ns: TimeNs
-    max_seq: Seq
-
-
-class Ping(_Msg):
-    type: Literal["ping"] = "ping"
-    ping_id: Seq
-    ground_time_ns: TimeNs
-
-
-class CommandQuery(_Msg):
-    """Ask what became of these commands (their acknowledgements may have been lost): the
-    spacecraft answers each seq it knows with its latest ``command_ack`` again, and the
-    others with one ``command_unknown``."""
-
-    type: Literal["command_query"] = "command_query"
-    seqs: Annotated[list[Seq], Field(min_length=1, max_length=1000)]
-
-
-# --- spacecraft -> ground ----------------------------------------------------------------
-
-
-class Hello(_Msg):
-    """First message after (re)connecting: who is there and what its clock says."""
-
-    type: Literal["hello"] = "hello"
-    vehicle: str = Field(max_length=64)
-    onboard_time_ns: TimeNs
-    time_scale: Annotated[float, Field(gt=0, le=1000)]
-    next_telemetry_seq: Seq
-    last_command_seq: Annotated[int, Field(ge=-1)] = -1
-    #: Commands the onboard schedule can hold; more are refused ``schedule_full``.
-    schedule_capacity: Annotated[int, Field(ge=1, le=1_000_000)] = DEFAULT_SCHEDULE_CAPACITY
-    #: What the vehicle does when it hears nothing from the ground: ``continue`` the
-    #: loaded schedule, or ``hold`` (delete the joint commands) after ``los_hold_after_s``.
-    los_policy: Literal["continue", "hold"] = "continue"
-    los_hold_after_s: Annotated[float, Field(gt=0, le=86_400)] | None = None
-    #: The robot flown (its description's name), a hash of its description, and its joint
-    #: count: absent from a peer that predates them (ETS-VII, 6 joints, is then assumed).
-    #: Left out of the encoded message when None, so such a ``hello`` reads as before.
-    robot: str | None = Field(default=None, min_length=1, max_length=64)
-    robot_hash: str | None = Field(default=None, min_length=1, max_length=128)
-    n_joints: Annotated[int, Field(ge=1, le=MAX_JOINTS)] | None = None
-
-
-class CommandStage(StrEnum):
-    RECEIVED = "received"
-    EXECUTED = "executed"
-    REJECTED = "rejected"
-
-
-class RejectReason(StrEnum):
-    LATE = "late"  # arrived at or after its tag; never executed late
-    OUT_OF_LIMITS = "out_of_limits"  # joint angle or rate beyond its limit
-    MALFORMED = "malformed"  # tag off the onboard grid, not a rotation, ...
-    DUPLICATE = "duplicate"  # this seq was seen before; the first one stands
-    LINK_LOST = "link_lost"  # deleted by the LOS policy (no word from the ground): arm holds
-    CANCELLED = "cancelled"  # deleted from the schedule by a ``schedule_delete`` (abort)
-    SCHEDULE_FULL = "schedule_full"  # the onboard schedule holds its capacity already
-    SAFING = "safing"  # dropped or refused because the vehicle is in SAFE (on-board safing)
-
-
-class CommandAck(_Msg):
-    type: Literal["command_ack"] = "command_ack"
-    seq: Seq
-    stage: CommandStage
-    reason: RejectReason | None = None
-    detail: str | None = Field(default=None, max_length=300)
-    onboard_time_ns: TimeNs
-
-
-class BufferState(_Obj):
-    """The onboard schedule's summary (PUS 11): how many commands it holds, the first and
-    last tag, its capacity, and the last command executed."""
-
-    queued: Annotated[int, Field(ge=0)]
-    next_execute_time_ns: TimeNs | None = None
-    last_executed_seq: Annotated[int, Field(ge=-1)] = -1
-    #: the last tag the schedule holds (``next_execute_time_ns`` is the first)
-    last_queued_time_ns: TimeNs | None = None
-    capacity: Annotated[int, Field(ge=1)] | None = None
-
-
-class TelemetryFrame(_Obj):
-    """One sample of the vehicle (SPEC section 6), measured with sensor noise."""
-
-    seq: Seq
-    generation_time_ns: TimeNs
-    joints_rad: JointVec
-    joint_targets_rad: JointVec
-    quat_orbit_from_base_xyzw: Quat
-    omega_base_in_base_radps: Vec3  # gyro: base rate in the base frame
-    wheel_speeds_radps: WheelVec  # relative to the base, one per wheel
-    wheel_momentum_nms: Vec3  # I_w * speed, base frame
-    acs_mode: AcsModeName
-    acs_target_quat_xyzw: Quat
-    acs_feedforward: bool
-    buffer: BufferState
-
-
-class TelemetryMsg(_Msg):
-    type: Literal["telemetry"] = "telemetry"
-    frames: Annotated[list[TelemetryFrame], Field(min_length=1, max_length=MAX_FRAMES_PER_MESSAGE)]
-    retransmission: bool = False
-
-
-class Pong(_Msg):
-    type: Literal["pong"] = "pong"
-    ping_id: Seq
-    ground_time_ns: TimeNs
-    onboard_time_ns: TimeNs
-
-
-class CommandUnknown(_Msg):
-    """The reply to ``command_query`` for seqs the vehicle never received."""
-
-    type: Literal["command_unknown"] = "command_unknown"
-    seqs: Annotated[list[Seq], Field(min_length=1, max_length=1000)]
-    onboard_time_ns: TimeNs
-
-
-class Verification(_Msg):
-    """The report on a request that is not a command (PUS 1): ``completed`` with what it
-    did, or ``failed`` with the reason. For ``schedule_delete``: how many commands were
-    deleted, their seqs as inclusive ranges, and how many of the range had already executed
-    (the request arrived after their tag)."""
-
-    type: Literal["verification"] = "verification"
-    request_id: Seq
-    request_type: Literal["schedule_delete"] = "schedule_delete"
-    stage: Literal["completed", "failed"]
-    deleted: Annotated[int, Field(ge=0)] = 0
-    deleted_ranges: Annotated[list[tuple[Seq, Seq]], Field(max_length=1000)] = Field(
-        default_factory=list
-    )
-    executed_after_from: Annotated[int, Field(ge=0)] = 0
-    detail: str | None = Field(default=None, max_length=300)
-    onboard_time_ns: TimeNs
-
-
-class SafeExit(_Msg):
-    """The telecommand that takes the vehicle out of SAFE (on-board safing): only the ground
-    ends it. Answered by a ``safing`` report (``state`` ``nominal``, this ``request_id``);
-    idempotent by ``request_id``, and harmless when the vehicle is not safe."""
-
-    type: Literal["safe_exit"] = "safe_exit"
-    request_id: Seq
-
-
-class SafingTrigger(_Obj):
-    """What made the vehicle safe itself: the monitored quantity (``planner.limits``'s
-    name), its channel (``joint3``, ``x``, ``wheel2``, empty for a scalar), the value it
-    measured and the red limit it crossed."""
-
-    quantity: str = Field(min_length=1, max_length=64)
-    channel: str = Field(default="", max_length=32)
-    value: float
-    limit: float
-    detail: str | None = Field(default=None, max_length=300)
-
-
-class Safing(_Msg):
-    """The vehicle's on-board safing state (docs/protocol.md, "On-board safing"): sent when
-    it enters SAFE, again every second (onboard) while it stays, and when a ``safe_exit``
-    takes it out (``state`` ``nominal`` with that ``exit_request_id``; a copy of the
-    telecommand gets the same report)."""
-
-    type: Literal["safing"] = "safing"
-    state: Literal["safe", "nominal"]
-    #: onboard time SAFE was entered (the one being reported, or left)
-    since_time_ns: TimeNs | None = None
-    trigger: SafingTrigger | None = None
-    #: commands dropped from the schedule on entry (each acknowledged ``rejected``
-    #: ``safing``)
-    cancelled: Annotated[int, Field(ge=0)] = 0
-    exit_request_id: Seq | None = None
-    onboard_time_ns: TimeNs
-
-
-class ErrorMsg(_Msg):
-    """The reply to a message that could not be understood; the process carries on."""
-
-    type: Literal["error"] = "error"
-    reason: str = Field(max_length=500)
-    ref_type: str | None = Field(default=None, max_length=64)
-
-
-#: The messages each way, as plain unions (what the decoders return).
-GroundMessageT = (
-    JointCommandMsg
-    | AcsCommandMsg
-    | ScheduleDelete
-    | TelemetryAck
-    | Retransmit
-    | Ping
-    | CommandQuery
-    | SafeExit
-)
-SpacecraftMessageT = (
-    Hello | CommandAck | Verification | TelemetryMsg | Pong | CommandUnknown | Safing | ErrorMsg
-)
-GroundMessage = Annotated[GroundMessageT, Field(discriminator="type")]
-SpacecraftMessage = Annotated[SpacecraftMessageT, Field(discriminator="type")]
-
 _COMMAND = TypeAdapter(Annotated[JointCommandMsg | AcsCommandMsg, Field(discriminator="kind")])
 _GROUND_OTHER = TypeAdapter(
     Annotated[
@@ -449,10 +193,6 @@ _GROUND_OTHER = TypeAdapter(
     ]
 )
 _SPACECRAFT = TypeAdapter(SpacecraftMessage)
-#: The ``type`` of every spacecraft -> ground message.
-SPACECRAFT_TYPES = frozenset(
-    str(m.model_fields["type"].default) for m in SpacecraftMessageT.__args__
-)
 
 
 #: ``hello`` fields left out of the encoding when None (added after version 2 was fixed).
