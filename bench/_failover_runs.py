@@ -171,7 +171,9 @@ class _Flight:
         second = self.scenario == "second-serve"
         if not second:
             await asyncio.to_thread(start, B)
-        window_s = self.plan.duration_s / self.options.scale + 600.0
+        # the contact window as the demo schedules it (real time: its flight rule
+        # ``fits_pass``); the accelerated pass ends well inside it
+        window_s = self.plan.duration_s + 120.0
         pass_id = await asyncio.to_thread(
             add_plan_and_pass,
             archive.sessions,

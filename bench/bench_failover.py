@@ -8,7 +8,8 @@ Each run gets a fresh schema on the local PostgreSQL (``DATABASE_URL``, or
 with a ``--lease-ttl`` lease (3 s) renewed every ``--lease-renew`` (ttl/6); the spacecraft
 (in this process, given both grounds' URLs, at ``--scale``, 20x) and the demo pass (ETS-VII,
 all experiments, ``planner.schedule.plan_pass``: 1544 s onboard, 6190 commands), or with
-``--short`` the same plan of its first two experiments (PTP and reactionless: 270 s). The
+``--short`` the same plan of its first three experiments (PTP, reactionless, GJM: 570 s).
+The
 fault falls at a random moment of the pass (``--seed``): a uniform fraction in [0.05, 0.95)
 of the plan's duration after its epoch, onboard.
 
@@ -79,7 +80,7 @@ from _failover import percentile
 from _failover_runs import SCENARIOS, Options, Run, fly
 
 ROOT = Path(__file__).resolve().parents[1]
-SHORT_EXPERIMENTS = ("ptp", "reactionless")
+SHORT_EXPERIMENTS = ("ptp", "reactionless", "gjm")
 
 
 def _ms(x: float | None) -> str:
@@ -110,12 +111,17 @@ def row(r: Run) -> str:
 def describe(scenario: str, runs: Sequence[Run]) -> str:
     """The scenario's table and its takeover percentiles."""
     lines = [f"\n{scenario}: {len(runs)} runs", HEADER, *(row(r) for r in runs)]
-    for what in ("lease_s", "first_send_s", "resumed_s"):
+    for what, label in (
+        ("old_exit_s", "A's exit"),
+        ("lease_s", "B's lease"),
+        ("first_send_s", "B's first send"),
+        ("resumed_s", "pass_resumed"),
+    ):
         xs = [getattr(r, what) for r in runs if getattr(r, what) is not None]
         if xs:
             p50, p99 = percentile(xs, 0.5), percentile(xs, 0.99)
             lines.append(
-                f"  fault to {what[:-2].replace('_', ' ')}: p50 {p50:.1f} s, p99 {p99:.1f} s,"
+                f"  fault to {label}: p50 {p50:.1f} s, p99 {p99:.1f} s,"
                 f" max {max(xs):.1f} s ({len(xs)} runs)"
             )
     aborts = [r.abort_s for r in runs if r.abort_s is not None]
@@ -192,7 +198,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--lease-ttl", type=float, default=3.0, help="wall s (the flight's: 10)")
     parser.add_argument("--lease-renew", type=float, default=None, help="wall s (ttl/6)")
-    parser.add_argument("--short", action="store_true", help="PTP and reactionless only")
+    parser.add_argument("--short", action="store_true", help="PTP, reactionless, GJM only")
     parser.add_argument("--hold", type=float, default=5.0, help="second-serve: B's life, wall s")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench" / "failover")
     args = parser.parse_args()
