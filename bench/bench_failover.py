@@ -8,8 +8,9 @@ Each run gets a fresh schema on the local PostgreSQL (``DATABASE_URL``, or
 with a ``--lease-ttl`` lease (3 s) renewed every ``--lease-renew`` (ttl/6); the spacecraft
 (in this process, given both grounds' URLs, at ``--scale``, 20x) and the demo pass (ETS-VII,
 all experiments, ``planner.schedule.plan_pass``: 1544 s onboard, 6190 commands), or with
-``--short`` the same plan of its first three experiments (PTP, reactionless, GJM: 570 s). The fault falls at a random moment of the pass (``--seed``): a uniform fraction in [0.05, 0.95)
-of the plan's duration after its epoch, onboard.
+``--short`` the same plan of its first three experiments (PTP, reactionless, GJM: 570 s).
+The fault falls at a random moment of the pass (``--seed``): a uniform fraction in
+[0.05, 0.95) of the plan's duration after its epoch, onboard.
 
 Scenarios:
 
