@@ -360,8 +360,11 @@ class PassRunner(PassEnds, PassHandover):
         """Expire, send what is due; the ground monotonic instant to look again."""
         link, clock, up = self._link, self._clock, active.uplink
         if self._authority is not None and not self._authority.may_command():
-            # the lease lapsing (the database does not answer): nothing goes up, nothing is
-            # judged expired; the vehicle flies what it holds
+            # the lease lapsing (the database does not answer): nothing goes up, the vehicle
+            # flies what it holds; what can no longer arrive expires (a 20 s outage across
+            # the pass's LOS left 40 commands queued for good)
+            with contextlib.suppress(LinkUnavailable):
+                active.tracker.record_expired(up.expire(link.onboard_now_ns()), clock.time_ns())
             return clock.monotonic() + LINK_DOWN_POLL_S
         if not link.connected:
             # The onboard clock is still known from the last hello: what can no longer
