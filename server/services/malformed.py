@@ -24,8 +24,8 @@ bounded, whatever the rate; it decides, :class:`~server.services.link.GroundLink
   readable for T s``), audited; the vehicle reconnects, and the windowed uplink and the
   downlink's resends carry the pass across (docs/protocol.md). One message that decodes
   (any type, an ``error`` too) ends the run: a flood beside valid frames is dropped and
-  counted, never a reason to close, since closing it turns noise into outages (issue 39:
-  10 closes in 30 s of 400 a second aborted a pass on PostgreSQL).
+  counted, never a reason to close: closing it would turn noise into outages (at 400 a
+  second for 30 s, 10 closes aborted a pass on PostgreSQL when they did).
 
 ``error`` messages from the vehicle are never answered (no ping-pong); they are tallied the
 same way (one row per interval), and an unreadable one counts in the run of malformed ones.

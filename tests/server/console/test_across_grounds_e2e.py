@@ -24,10 +24,15 @@ from websockets.asyncio.client import ClientConnection, connect
 
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
-from spacecraft.link import LinkConfig
-from spacecraft.process import ProcessConfig, SpacecraftProcess
 from tests.nats_server import nats_server
-from tests.server.link.harness import OPERATOR, _free_port, serve_process, store_pass, wait_for
+from tests.server.link.harness import (
+    OPERATOR,
+    _free_port,
+    serve_process,
+    spacecraft_of_grounds,
+    store_pass,
+    wait_for,
+)
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
@@ -118,20 +123,7 @@ def test_a_console_sees_the_holders_pass_on_the_standby_and_resumes_there_after_
     port_a, port_b = _free_port(), _free_port()
     engine = make_engine(postgres_schema_url)
     sessions, readers = session_factory(engine), read_session_factory(engine)
-    process = SpacecraftProcess(
-        ProcessConfig(
-            ground_url=f"ws://127.0.0.1:{port_a}/api/link",
-            standby_urls=(f"ws://127.0.0.1:{port_b}/api/link",),
-            token="s-token",
-            time_scale=SCALE,
-            uplink=LinkConfig(seed=41),
-            downlink=LinkConfig(seed=42),
-            seed=9,
-            backoff_initial_s=0.05,
-            backoff_max_s=0.3,
-            drain_timeout_s=5.0,
-        )
-    )
+    process = spacecraft_of_grounds((port_a, port_b), scale=SCALE, seed=4, drain_timeout_s=5.0)
 
     def stored(pass_id: str) -> list[int]:
         with readers() as session:

@@ -344,3 +344,25 @@ def assert_every_frame_once(
         if record.telemetry_start_ns <= f.generation_time_ns < record.telemetry_end_ns
     )
     assert frames == window
+
+
+def spacecraft_of_grounds(
+    ports: tuple[int, ...], *, scale: float, seed: int, drain_timeout_s: float
+) -> SpacecraftProcess:
+    """The spacecraft process given the link of every ground on ``ports`` (a holder and its
+    standbys, tried in order), reconnecting fast; its links seeded from ``seed``."""
+    urls = [f"ws://127.0.0.1:{port}/api/link" for port in ports]
+    return SpacecraftProcess(
+        ProcessConfig(
+            ground_url=urls[0],
+            standby_urls=tuple(urls[1:]),
+            token="s-token",
+            time_scale=scale,
+            uplink=LinkConfig(seed=10 * seed + 1),
+            downlink=LinkConfig(seed=10 * seed + 2),
+            seed=seed,
+            backoff_initial_s=0.05,
+            backoff_max_s=0.3,
+            drain_timeout_s=drain_timeout_s,
+        )
+    )

@@ -23,8 +23,6 @@ import pytest
 
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
-from spacecraft.link import LinkConfig
-from spacecraft.process import ProcessConfig, SpacecraftProcess
 from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
@@ -35,6 +33,7 @@ from tests.server.link.harness import (
     generated_frames,
     pass_resolved,
     serve_process,
+    spacecraft_of_grounds,
     store_pass,
     wait_for,
 )
@@ -75,20 +74,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
     port_a, port_b = _free_port(), _free_port()
     engine = make_engine(database_url)
     sessions, readers = session_factory(engine), read_session_factory(engine)
-    process = SpacecraftProcess(
-        ProcessConfig(
-            ground_url=f"ws://127.0.0.1:{port_a}/api/link",
-            standby_urls=(f"ws://127.0.0.1:{port_b}/api/link",),
-            token="s-token",
-            time_scale=SCALE,
-            uplink=LinkConfig(seed=31),
-            downlink=LinkConfig(seed=32),
-            seed=7,
-            backoff_initial_s=0.05,
-            backoff_max_s=0.3,
-            drain_timeout_s=90.0,
-        )
-    )
+    process = spacecraft_of_grounds((port_a, port_b), scale=SCALE, seed=3, drain_timeout_s=90.0)
     generated = generated_frames(process)
     pass_id = ""  # the pass, once stored
 
