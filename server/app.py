@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-import uvicorn
 from fastapi import FastAPI
 from sqlalchemy import Engine, make_url
 from sqlalchemy.orm import Session, sessionmaker
@@ -45,6 +43,7 @@ from server.api.errors import install_error_handlers
 from server.api.metrics import connect_metrics, install_metrics
 from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
+from server.services._console_backfill import backfill
 from server.services._console_jetstream import AcrossGrounds
 from server.services.alarms import AlarmService
 from server.services.artifacts import ArtifactStore
@@ -70,6 +69,7 @@ from server.services.runner import PassRunner
 from server.services.tracker import Trackers
 from server.services.workers import WorkerPool
 from server.settings import Settings
+from server.stopping import STOP_DATABASE_WAIT_S, GroundServer, begin_shutdown
 from server.storage.db import (
     PoolSizes,
     make_engine,
@@ -82,9 +82,8 @@ log = logging.getLogger("hikoboshi.ground")
 
 __all__ = ["GroundServer", "LivePath", "begin_shutdown", "build_live_path", "create_app"]
 
-#: Wall s a stopping ground waits for a database that does not answer before the writes it
-#: still holds fail (each logged): the next ground recovers them from the vehicle.
-STOP_DATABASE_WAIT_S = 10.0
+#: s: a takeover publishes the frames the ground gone did not publish for this long at most
+BACKFILL_GUARD_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -169,42 +168,6 @@ def build_live_path(
     return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
 
 
-async def begin_shutdown(app: FastAPI) -> None:
-    """The server is stopping (SIGTERM): before the HTTP server waits for the requests in
-    flight, stop the worker pool, so that every request waiting for a worker or running in
-    one is answered 503 ``shutting_down`` at once and no job process is left running
-    (docs/operations.md "Stopping"); and close the spacecraft's link (1001), which its
-    handler records, rather than leave it to be cancelled. The lifespan's shutdown does the
-    rest."""
-    db: Database | None = getattr(app.state, "db", None)
-    if db is not None:  # a database away at the stop: its journal fails, loudly, not hangs
-        db.give_up(STOP_DATABASE_WAIT_S)
-    workers: WorkerPool | None = getattr(app.state, "workers", None)
-    if workers is not None:
-        await workers.close()
-    link: GroundLink | None = getattr(app.state, "link", None)
-    if link is not None:
-        await link.going_away()
-
-
-class GroundServer(uvicorn.Server):
-    """uvicorn's server for ``hikoboshi serve``: on SIGTERM (or Ctrl-C) it calls
-    :func:`begin_shutdown` before its own shutdown, which waits a few seconds for the
-    requests in flight and cancels the rest (those answer JSON too:
-    :mod:`server.api.stopping`)."""
-
-    def __init__(self, config: uvicorn.Config, app: FastAPI) -> None:
-        super().__init__(config)
-        self.ground = app
-
-    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
-        try:
-            await begin_shutdown(self.ground)
-        except Exception:
-            log.exception("stopping the worker pool failed")
-        await super().shutdown(sockets)
-
-
 def _foxglove_live(
     settings: Settings, publisher: Publisher, sessions: sessionmaker[Session]
 ) -> FoxgloveLive | None:
@@ -267,10 +230,17 @@ async def _across_grounds(
     return across
 
 
-async def _keep_command(live: LivePath, authority: CommandAuthority, commanding: bool) -> None:
+async def _keep_command(
+    live: LivePath,
+    authority: CommandAuthority,
+    commanding: bool,
+    across: AcrossGrounds | None,
+    sessions: sessionmaker[Session],
+) -> None:
     """Command the vehicle if this ground took the lease at its start (the recovery after a
     restart), else be a standby; then keep the lease: a standby that takes it over from a
-    holder gone runs the same recovery, a holder whose lease was taken stands down."""
+    holder gone first publishes what that ground archived and never published (with NATS),
+    then runs the same recovery; a holder whose lease was taken stands down."""
 
     async def took_over() -> None:
         log.warning(
@@ -278,13 +248,26 @@ async def _keep_command(live: LivePath, authority: CommandAuthority, commanding:
             authority.status()["token"],
             extra={"fields": {"event": "takeover"}},
         )
+        try:
+            await published_what_was_left()
+        finally:
+            authority.settled()  # the vehicle's link is taken from here
         await live.runner.recover()
+
+    async def published_what_was_left() -> None:
+        if across is None:
+            return
+        try:
+            await asyncio.wait_for(backfill(across, sessions), BACKFILL_GUARD_S)
+        except Exception:
+            log.exception("the frames of the ground gone were not published")
 
     async def lost(reason: str) -> None:
         await live.runner.stand_down()
         await live.link.going_away(1013, "standby: another ground holds the command lease")
 
-    if commanding:
+    if commanding:  # after a restart: what this ground stored before it died, unpublished
+        await published_what_was_left()
         await live.runner.recover()
     else:
         log.warning(
@@ -356,7 +339,10 @@ def create_app(settings: Settings) -> FastAPI:
         await live.alarms.load_vehicle_alarms()
         # before the recovery: what it writes (pass_resumed) reaches every ground's consoles
         across = await _across_grounds(settings, authority, live.publisher)
-        await _keep_command(live, authority, commanding)  # docs/operations.md
+        app.state.across = across
+        await _keep_command(  # docs/operations.md
+            live, authority, commanding, across, app.state.operator_read_sessions
+        )
         app.state.console = ConsoleHub(
             publisher=live.publisher,
             link_status=live.link.status,

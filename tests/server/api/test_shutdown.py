@@ -246,3 +246,50 @@ def test_a_request_cut_short_by_the_stop_answers_json() -> None:
     assert json.loads(body["body"])["error"]["code"] == "shutting_down"
     sent, cancelled = asyncio.run(call("/started"))
     assert cancelled and [m["status"] for m in sent] == [200]
+
+
+class _Step:
+    """A stand-in for one of the services a stop goes through: it notes its step."""
+
+    def __init__(self, steps: list[str], name: str, **attrs: object) -> None:
+        self._steps, self._name = steps, name
+        self.__dict__.update(attrs)
+
+    async def _note(self, *_: object) -> None:
+        self._steps.append(self._name)
+
+    close = shutdown = drain = going_away = _note
+
+    def give_up(self, _: float) -> None:
+        pass
+
+
+def test_a_graceful_stop_beside_a_standby_releases_the_lease_after_the_last_write() -> None:
+    """SIGTERM of the holder: the link closes, the pass is handed to the vehicle, the alarms'
+    and the command path's last writes are flushed, and only then is the lease released, all
+    before uvicorn waits for its requests (``begin_shutdown``), so a standby takes over
+    within its next renewal, not after the whole stop. SQLite (one ground a file, the lease
+    its lock) releases nothing there."""
+    from fastapi import FastAPI
+
+    from server.services.authority import LeasePolicy
+    from server.stopping import begin_shutdown
+
+    def app_of(exclusive: bool) -> tuple[FastAPI, list[str]]:
+        steps: list[str] = []
+        app = FastAPI()
+        policy = LeasePolicy(name="ets7", holder="a", ttl_s=3.0, renew_s=0.5, exclusive=exclusive)
+        app.state.authority = _Step(steps, "release", policy=policy, holder=True)
+        app.state.db = _Step(steps, "flush")
+        app.state.workers = _Step(steps, "workers")
+        app.state.link = _Step(steps, "link")
+        app.state.runner = _Step(steps, "hand over")
+        app.state.alarms = _Step(steps, "alarms")
+        return app, steps
+
+    app, steps = app_of(exclusive=False)
+    asyncio.run(begin_shutdown(app))
+    assert steps == ["workers", "link", "hand over", "alarms", "flush", "release"]
+    app, steps = app_of(exclusive=True)
+    asyncio.run(begin_shutdown(app))
+    assert steps == ["workers", "link"]
