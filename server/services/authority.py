@@ -152,6 +152,8 @@ class CommandAuthority:
         self._on_acquired: Callback | None = None
         self._on_lost: LostCallback | None = None
         self._serial: asyncio.Lock | None = None
+        #: a takeover's first steps run (the link waits: :meth:`settled`)
+        self._settling = False
         #: counted for /metrics
         self.acquisitions = 0
         self.losses = 0
@@ -177,9 +179,17 @@ class CommandAuthority:
         return self.policy.exclusive or self._monotonic() < self._valid_until
 
     def refusal(self) -> ConflictError | None:
-        """Why an operator's start or abort is refused here (None: this ground commands)."""
+        """Why an operator's start or abort, or the vehicle's link, is refused here (None:
+        this ground commands)."""
         if self.may_command():
-            return None
+            if not self._settling:
+                return None
+            return ConflictError(
+                "taking_over",
+                "this ground has just taken the command lease over and is settling what the "
+                "ground gone left: try again in a moment",
+                self.status(),
+            )
         status = self.status()
         if self._lease is not None:
             return ConflictError(
@@ -260,6 +270,11 @@ class CommandAuthority:
         )
         return True
 
+    def settled(self) -> None:
+        """A takeover's first steps are done (``on_acquired`` calls it): the vehicle's link
+        and the operators' starts are taken from now on."""
+        self._settling = False
+
     def start(self, *, on_acquired: Callback, on_lost: LostCallback) -> None:
         """Keep the lease from a thread; ``on_acquired`` (a standby that took it over) and
         ``on_lost`` (a holder whose lease was taken) run on the calling event loop, one at
@@ -275,8 +290,11 @@ class CommandAuthority:
             if self._lease is not None and self.policy.exclusive:
                 continue  # the file lock is the authority: nothing to renew
             if self._lease is None:
+                self._settling = True  # before the lease is ours: no link slips in between
                 if self.try_acquire():
                     self._call(self._on_acquired)
+                else:
+                    self._settling = False
                 continue
             self._renew()
 

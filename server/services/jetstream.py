@@ -155,9 +155,7 @@ class LiveBus:
     async def close(self) -> None:
         """Publish what is queued (a few seconds at most), then disconnect."""
         if self._task is not None:
-            try:
-                await asyncio.wait_for(self._queue.join(), 5.0)  # a guard
-            except TimeoutError:
+            if not await self.flush(5.0):  # a guard
                 log.warning("NATS: %d messages not published at close", self._queue.qsize())
             self._task.cancel()
         if self._follower is not None:
@@ -210,7 +208,25 @@ class LiveBus:
         finally:
             self._queue.task_done()
 
+    async def flush(self, timeout_s: float) -> bool:
+        """Wait until what is queued is published (at most ``timeout_s``); whether it was."""
+        try:
+            await asyncio.wait_for(self._queue.join(), timeout_s)
+        except TimeoutError:
+            return False
+        return True
+
     # -- reading ---------------------------------------------------------------------------
+
+    async def last_on(self, subject: str) -> bytes | None:
+        """The data of the stream's last message on ``subject`` (one subject), or None."""
+        from nats.js.errors import NotFoundError
+
+        try:
+            msg = await self._js.get_last_msg(self.config.stream, subject)
+        except NotFoundError:
+            return None
+        return bytes(msg.data or b"")
 
     async def bounds(self) -> tuple[int, int]:
         """The stream's first and last sequence now."""

@@ -211,6 +211,46 @@ def test_the_holder_commands_only_while_its_last_renewal_is_recent(engine: Engin
         assert [e.actor for e in repo.list_events(session=session).items] == ["holder"]
 
 
+def test_a_takeover_takes_no_link_until_its_first_steps_have_settled(engine: Engine) -> None:
+    """A standby whose keeper takes a released lease over commands at once, but refuses the
+    vehicle's link (and starts) with ``taking_over`` until its takeover callback says it has
+    settled (what the ground gone left unpublished goes out first: docs/operations.md)."""
+    if engine.dialect.name == "sqlite":
+        pytest.skip("one ground a file: no standby to take over")
+    a = CommandAuthority(session_factory(engine), LeasePolicy(name=NAME, holder="ground-a"))
+    assert a.try_acquire()
+    b = CommandAuthority(
+        session_factory(engine), LeasePolicy(name=NAME, holder="ground-b", ttl_s=3, renew_s=0.1)
+    )
+    seen: list[tuple[bool, str | None]] = []
+
+    async def scenario() -> None:
+        took_over = asyncio.Event()
+
+        async def on_acquired() -> None:
+            refusal = b.refusal()
+            seen.append((b.may_command(), refusal.code if refusal else None))
+            b.settled()
+            refusal = b.refusal()
+            seen.append((b.may_command(), refusal.code if refusal else None))
+            took_over.set()
+
+        async def on_lost(_: str) -> None:
+            raise AssertionError("b held nothing to lose")
+
+        b.start(on_acquired=on_acquired, on_lost=on_lost)
+        try:
+            refusal = b.refusal()
+            assert refusal is not None and refusal.code == "standby"
+            await a.close()  # a graceful stop: released
+            await asyncio.wait_for(took_over.wait(), 30.0)  # a guard, not a timing
+        finally:
+            await b.close()
+
+    asyncio.run(scenario())
+    assert seen == [(True, "taking_over"), (True, None)]
+
+
 def test_sqlite_refuses_a_second_ground_on_the_same_file(tmp_path: Path) -> None:
     database = tmp_path / "hikoboshi.sqlite3"
     first = hold_sqlite_file(database)
