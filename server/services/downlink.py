@@ -114,6 +114,10 @@ class _Batch:
     fresh: list[TelemetryFrame]
     by_pass: dict[str, list[TelemetryFrame]]
     reception_ns: int
+    #: a retransmission's (a ground gone may have stored its frames: looked up first)
+    retransmission: bool = False
+    #: of its frames, those the archive already held (set by the database job)
+    known: frozenset[int] = frozenset()
 
 
 class GroundDownlink:
@@ -217,9 +221,9 @@ class GroundDownlink:
             self._ack_soon()
             return
         if not by_pass:
-            self._committed(fresh, by_pass, reception_ns, {})
+            self._committed(_Batch(fresh, by_pass, reception_ns), {})
             return
-        self._waiting.append(_Batch(fresh, by_pass, reception_ns))
+        self._waiting.append(_Batch(fresh, by_pass, reception_ns, message.retransmission))
         if not self._ingesting:
             self._ingest()
 
@@ -243,6 +247,15 @@ class GroundDownlink:
                 session.get(PassRecord, pass_id)
                 for pass_id in {p for b in batches for p in b.by_pass}
             ]
+            for batch in batches:
+                if batch.retransmission:  # not published again: see _committed
+                    batch.known = frozenset(
+                        seq
+                        for pass_id, frames in batch.by_pass.items()
+                        for seq in repo.stored_among(
+                            session=session, pass_id=pass_id, seqs=[f.seq for f in frames]
+                        )
+                    )
             if len(batches) > 1:
                 # All the messages in one write per pass; if one of them is refused, each
                 # is stored (or refused) alone below.
@@ -289,20 +302,15 @@ class GroundDownlink:
         def done(results: list[dict[str, int] | None] | None) -> None:
             for k, batch in enumerate(batches):
                 outcome = None if results is None else results[k]
-                self._committed(batch.fresh, batch.by_pass, batch.reception_ns, outcome)
+                self._committed(batch, outcome)
             self._ingesting = False
             if self._waiting:
                 self._ingest()
 
         self._db.submit_then(job, done)
 
-    def _committed(
-        self,
-        fresh: list[TelemetryFrame],
-        by_pass: dict[str, list[TelemetryFrame]],
-        reception_ns: int,
-        duplicates: dict[str, int] | None,
-    ) -> None:
+    def _committed(self, batch: _Batch, duplicates: dict[str, int] | None) -> None:
+        fresh, by_pass = batch.fresh, batch.by_pass
         for frame in fresh:
             self._storing.discard(frame.seq)
         if duplicates is None:
@@ -324,8 +332,14 @@ class GroundDownlink:
                 if self.oldest is None or frame.seq < self.oldest[0]:
                     self.oldest = (frame.seq, frame.generation_time_ns)
         self._ack_soon()
+        # Published once: a retransmission's frames that the archive already held (stored
+        # by a ground gone, or before this ground's restart) reached the consoles then, or
+        # through the takeover's backfill (server/services/_console_backfill.py).
+        known = batch.known
         for pass_id, frames in by_pass.items():
-            self._publisher.publish_frames(pass_id, frames, reception_ns)
+            new = [f for f in frames if f.seq not in known] if known else frames
+            if new:
+                self._publisher.publish_frames(pass_id, new, batch.reception_ns)
 
     def _ack_soon(self) -> None:
         """Acknowledge what is held: one acknowledgement for everything that committed while

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 import uuid
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -236,6 +236,18 @@ def frame_seqs(*, session: Session, pass_id: str) -> list[int]:
     key = require_pass(session, pass_id)
     query = select(_FRAME.seq).where(_FRAME.pass_id == key).distinct().order_by(_FRAME.seq)
     return list(session.scalars(query))
+
+
+def stored_among(*, session: Session, pass_id: str, seqs: Collection[int]) -> set[int]:
+    """Which of the frame numbers ``seqs`` the pass already has stored (a retransmission's
+    frames, before they are written: the copies are not new to anyone)."""
+    if not seqs:
+        return set()
+    key = require_pass(session, pass_id)
+    query = select(_FRAME.seq).where(
+        _FRAME.pass_id == key, _FRAME.seq.between(min(seqs), max(seqs)), _FRAME.seq.in_(seqs)
+    )
+    return set(session.scalars(query))
 
 
 def missing_seqs(*, session: Session, pass_id: str, up_to_seq: int) -> list[tuple[int, int]]:

@@ -70,3 +70,43 @@ def test_a_backlog_is_stored_together_and_a_bad_message_alone_is_refused(
     # the first message went alone (the database was busy); the three that piled up behind
     # it were tried in one write, which the bad one failed (then each was stored alone)
     assert writes == [3]
+
+
+def test_a_retransmission_s_frames_the_archive_held_are_published_once(tmp_path: Path) -> None:
+    """After a takeover (or a restart) the vehicle resends what the ground gone stored but
+    never acknowledged: those copies are not published again (the consoles had them, or the
+    takeover's backfill gives them), while the frames new to the archive are."""
+
+    async def scenario() -> tuple[list[int], list[int], set[int]]:
+        clock = ManualClock()
+        sessions = make_sessions(tmp_path)
+        pass_id = store_pass(sessions, 40, clock)
+        with sessions() as session:  # what the ground gone stored
+            repo.ingest_frames(
+                session=session,
+                pass_id=pass_id,
+                frames=make_frames(range(0, 20)),
+                reception_time_ns=clock.time_ns(),
+            )
+            session.commit()
+        g = ground(sessions, clock)
+        sc = SimulatedSpacecraft(clock)
+        await sc.connect(g)
+        g.downlink.open_window(pass_id, 0)
+        published: list[int] = []
+        g.downlink._publisher.subscribe_frames(
+            lambda _, frames, __: published.extend(f.seq for f in frames)
+        )
+        resent = TelemetryMsg(frames=make_frames(range(10, 30)), retransmission=True)
+        await g.link.handle(sc.conn, encode(resent))
+        await g.link.handle(sc.conn, encode(TelemetryMsg(frames=make_frames(range(30, 40)))))
+        await g.downlink.settled()
+        await g.db.drain()
+        with sessions() as session:
+            stored = repo.frame_seqs(session=session, pass_id=pass_id)
+        return stored, published, {s for s in range(40) if s in g.downlink.held}
+
+    stored, published, held = asyncio.run(scenario())
+    assert stored == list(range(40))
+    assert published == list(range(20, 40))
+    assert held == set(range(10, 40))  # every frame received acknowledged, copies included
