@@ -59,13 +59,13 @@ OPEN_STAGES = ("queued", "released", "sent", "received")
 
 
 @contextmanager
-def postgres_schema() -> Iterator[str]:
-    """A fresh schema on the PostgreSQL server of ``DATABASE_URL`` (or the local one), as a
-    URL whose connections use it; dropped afterwards."""
+def postgres_schema(server: str | None = None) -> Iterator[str]:
+    """A fresh schema on the PostgreSQL server ``server`` (else ``DATABASE_URL``'s, else the
+    local one), as a URL whose connections use it; dropped afterwards."""
     import psycopg
     from sqlalchemy import make_url
 
-    env = os.environ.get("DATABASE_URL", "")
+    env = server or os.environ.get("DATABASE_URL", "")
     url = make_url(env if env.startswith("postgresql") else DEFAULT_POSTGRES_URL)
     schema = f"failover_{uuid.uuid4().hex[:16]}"
     conninfo = url.set(drivername="postgresql").render_as_string(hide_password=False)
@@ -79,16 +79,24 @@ def postgres_schema() -> Iterator[str]:
 
 
 def ground_env(
-    name: str, data_dir: str, lease_ttl_s: float, lease_renew_s: float
+    name: str,
+    data_dir: str,
+    lease_ttl_s: float,
+    lease_renew_s: float,
+    nats: tuple[str, str] | None = None,
 ) -> dict[str, str]:
-    """A ground's environment beside ``DATABASE_URL`` (the flight's uplink defaults)."""
-    return {
+    """A ground's environment beside ``DATABASE_URL`` (the flight's uplink defaults); with
+    ``nats`` (its URL, the run's stream), its live messages go through JetStream."""
+    env = {
         "HIKOBOSHI_TOKENS": TOKENS,
         "HIKOBOSHI_DATA_DIR": data_dir,
         "HIKOBOSHI_GROUND_NAME": name,
         "HIKOBOSHI_LEASE_TTL_S": repr(lease_ttl_s),
         "HIKOBOSHI_LEASE_RENEW_S": repr(lease_renew_s),
     }
+    if nats is not None:
+        env |= {"HIKOBOSHI_NATS_URL": nats[0], "HIKOBOSHI_NATS_STREAM": nats[1]}
+    return env
 
 
 @dataclass(frozen=True)

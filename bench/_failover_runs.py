@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import signal
 import subprocess
 import tempfile
@@ -55,6 +56,9 @@ class Options:
     short: bool
     hold_s: float
     out: Path
+    #: the PostgreSQL server each run makes its schema on; the NATS server, if any
+    server_url: str | None = None
+    nats_url: str | None = None
 
 
 @dataclass
@@ -108,16 +112,22 @@ async def fly(options: Options, plan: Any, scenario: str, n: int, fraction: floa
     logs = options.out / f"{scenario}-{n:02d}"
     logs.mkdir(parents=True, exist_ok=True)
     with (
-        postgres_schema() as url,
+        postgres_schema(options.server_url) as url,
         tempfile.TemporaryDirectory(prefix="failover-") as tmp,
         contextlib.closing(Archive(url)) as archive,
         contextlib.ExitStack() as grounds,
     ):
         ports = {A: free_port(), B: free_port()}
+        stream = f"FAILOVER_{scenario.replace('-', '_').upper()}_{n}_{os.getpid()}"
+        nats = (options.nats_url, stream) if options.nats_url is not None else None
 
         def start(name: str) -> subprocess.Popen[bytes]:
             env = ground_env(
-                name, str(Path(tmp) / name), options.lease_ttl_s, options.lease_renew_s
+                name,
+                str(Path(tmp) / name),
+                options.lease_ttl_s,
+                options.lease_renew_s,
+                nats,
             )
             log = logs / f"{name}.log"
             return grounds.enter_context(serve_process(url, ports[name], log, env))

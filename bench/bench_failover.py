@@ -2,8 +2,10 @@
 command lease keeps exactly one ground in command (docs/operations.md "One ground in
 command"; issue 39, part 6).
 
-Each run gets a fresh schema on the local PostgreSQL (``DATABASE_URL``, or
-``postgresql+psycopg://postgres@127.0.0.1:5432/test``), dropped afterwards; two
+The bench starts its own servers (:mod:`bench._servers`): a PostgreSQL cluster (or uses
+``--database-url``) and a ``nats-server -js`` (unless ``--no-nats``), through which both
+grounds publish their live messages, a stream per run. Each run gets a fresh schema on that
+PostgreSQL, dropped afterwards; two
 ``hikoboshi serve`` processes, ``ground-a`` (the holder: started first) and ``ground-b``,
 with a ``--lease-ttl`` lease (3 s) renewed every ``--lease-renew`` (ttl/6); the spacecraft
 (in this process, given both grounds' URLs, at ``--scale``, 20x) and the demo pass (ETS-VII,
@@ -57,12 +59,14 @@ stdout (``OUT/failover.json`` too); each run's ground logs stay under ``OUT``.
 
     PYTHONPATH=$PWD .venv/bin/python bench/bench_failover.py [--scenario kill9-holder]
         [--runs 3] [--scale 20] [--seed 1] [--lease-ttl 3] [--short] [--out out/bench/failover]
+        [--database-url postgresql+psycopg://...] [--no-nats]
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import random
 import sys
@@ -77,6 +81,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import emit
 from _failover import percentile
 from _failover_runs import SCENARIOS, Options, Run, fly
+from _servers import own_postgres
+
+from tests.nats_server import nats_server
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT_EXPERIMENTS = ("ptp", "reactionless", "gjm")
@@ -200,23 +207,40 @@ def main() -> None:
     parser.add_argument("--short", action="store_true", help="PTP, reactionless, GJM only")
     parser.add_argument("--hold", type=float, default=5.0, help="second-serve: B's life, wall s")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench" / "failover")
+    parser.add_argument(
+        "--database-url",
+        default=None,
+        help="a PostgreSQL server to use (default: a cluster of the bench's own, started here)",
+    )
+    parser.add_argument(
+        "--no-nats", action="store_true", help="no JetStream (default: a nats-server of its own)"
+    )
     args = parser.parse_args()
     if args.runs < 1:
         parser.error("--runs must be at least 1")
     chosen = args.scenario or ["all"]
     scenarios = list(SCENARIOS) if "all" in chosen else list(dict.fromkeys(chosen))
     renew = args.lease_renew if args.lease_renew is not None else min(1.0, args.lease_ttl / 6)
-    options = Options(
-        scale=args.scale,
-        seed=args.seed,
-        lease_ttl_s=args.lease_ttl,
-        lease_renew_s=renew,
-        short=args.short,
-        hold_s=args.hold,
-        out=args.out,
-    )
     args.out.mkdir(parents=True, exist_ok=True)
-    results = asyncio.run(bench(options, scenarios, args.runs))
+    with contextlib.ExitStack() as servers:
+        server = args.database_url or servers.enter_context(own_postgres(args.out / "postgres"))
+        nats = None
+        if not args.no_nats:
+            (args.out / "nats").mkdir(exist_ok=True)
+            nats = servers.enter_context(nats_server(args.out / "nats"))
+        print(f"servers: PostgreSQL {server}, NATS {nats or '-'}", file=sys.stderr, flush=True)
+        options = Options(
+            scale=args.scale,
+            seed=args.seed,
+            lease_ttl_s=args.lease_ttl,
+            lease_renew_s=renew,
+            short=args.short,
+            hold_s=args.hold,
+            out=args.out,
+            server_url=server,
+            nats_url=nats,
+        )
+        results = asyncio.run(bench(options, scenarios, args.runs))
     for scenario, runs in results.items():
         print(describe(scenario, runs), file=sys.stderr)
     doc = {
