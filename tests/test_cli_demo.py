@@ -672,7 +672,7 @@ def test_the_demo_says_where_its_tokens_are_never_the_tokens(
 ) -> None:
     """Without ``--json`` the demo announces the console: with the tokens file (what the
     demo hands it, with the console's URL), which the run's logs may show."""
-    from hikoboshi.cli import _announce
+    from hikoboshi.demo_cli import _announce
 
     _announce("http://127.0.0.1:8000/", Path("out/demo/tokens"))
     printed = capsys.readouterr().err
