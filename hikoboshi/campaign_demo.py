@@ -38,9 +38,8 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from hikoboshi.demo import (
+from hikoboshi.demo_harness import (
     DemoError,
-    DemoOptions,
     Progress,
     _Api,
     _ClockSampler,
@@ -51,9 +50,9 @@ from hikoboshi.demo import (
     _spacecraft,
     _token_of,
     _tokens,
-    read_truth_log,
     spacecraft_command,
 )
+from hikoboshi.demo_summary import read_truth_log
 from server.settings import Role, Settings
 
 __all__ = ["PAPER_ORDER", "CampaignOptions", "campaign_markdown", "run_campaign_demo"]
@@ -275,7 +274,6 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             str(truth_log.resolve()),
         ]
         token_env = {"HIKOBOSHI_SPACECRAFT_TOKEN": _token_of(tokens, Role.SPACECRAFT)}
-        follow_options = DemoOptions(out=out, speed=options.speed, timeout_s=options.timeout_s)
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             start_ns = _truth_start(truth_log, proc)
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
@@ -309,7 +307,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                     pass_id,
                     epoch_ns,
                     duration_s,
-                    follow_options,
+                    options.timeout_s,
                     _relabel(report, f"pass {i} (onboard s)"),
                     _ClockSampler(),
                 )

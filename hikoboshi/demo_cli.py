@@ -136,7 +136,8 @@ def demo(
     chosen = tuple(e.strip() for e in experiments.split(",") if e.strip()) if experiments else ()
     if robot is not None:
         _load(robot)  # a bad description: one error line before anything starts
-    from hikoboshi.demo import DemoError, DemoOptions, check_fault_specs, run_demo
+    from hikoboshi.demo import DemoOptions, check_fault_specs, run_demo
+    from hikoboshi.demo_harness import DemoError
 
     try:
         check_fault_specs(fault or (), robot)
@@ -192,7 +193,7 @@ def _campaign_demo(
     command executed at its tag, none expired, no frame missing, and no command reached
     the spacecraft outside a window; 1 otherwise; 2 for bad options."""
     from hikoboshi.campaign_demo import CampaignOptions, campaign_markdown, run_campaign_demo
-    from hikoboshi.demo import DemoError
+    from hikoboshi.demo_harness import DemoError
     from mission import MISSIONS_DIR, MissionError, load_mission, parse_utc
 
     path = mission if mission is not None else MISSIONS_DIR / "ets7-1999.toml"

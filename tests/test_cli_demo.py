@@ -19,13 +19,11 @@ from typing import Any
 
 import pytest
 
-from hikoboshi.demo import (
-    CONNECT_WALL_S,
-    DemoError,
+from hikoboshi.demo import CONNECT_WALL_S, check_fault_specs, expected_epoch_s
+from hikoboshi.demo_harness import DemoError
+from hikoboshi.demo_summary import (
     OnboardClock,
     alarms_section,
-    check_fault_specs,
-    expected_epoch_s,
     read_truth_log,
     safing_section,
     segments_section,
