@@ -192,7 +192,9 @@ def _campaign_demo(
     """``hikoboshi demo --campaign``: exit 0 iff every pass ended complete with every
     command executed at its tag, none expired, no frame missing, and no command reached
     the spacecraft outside a window; 1 otherwise; 2 for bad options."""
-    from hikoboshi.campaign_demo import CampaignOptions, campaign_markdown, run_campaign_demo
+    from hikoboshi.campaign_demo import run_campaign_demo
+    from hikoboshi.campaign_passes import CampaignOptions
+    from hikoboshi.campaign_report import campaign_markdown
     from hikoboshi.demo_harness import DemoError
     from mission import MISSIONS_DIR, MissionError, load_mission, parse_utc
 
