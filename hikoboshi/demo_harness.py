@@ -90,7 +90,7 @@ def _ground(settings: Settings, port: int) -> Iterator[None]:
     # imports, measured): hikoboshi demo checks its options with this module first.
     import uvicorn
 
-    from server.api.edge import uvicorn_config
+    from server.api.http_server import uvicorn_config
     from server.app import create_app
 
     # As `hikoboshi serve` runs it: forwarded headers believed from no one, logs redacted.

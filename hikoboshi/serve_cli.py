@@ -55,7 +55,7 @@ def serve(
     HIKOBOSHI_TRUSTED_PROXIES (the reverse proxy's addresses or networks, comma-separated:
     X-Forwarded-For is believed from them only; none by default). The HTTP edge's limits
     and timeouts are in docs/security.md."""
-    from server.api.edge import uvicorn_config
+    from server.api.http_server import uvicorn_config
     from server.app import GroundServer, create_app
     from server.redaction import install_redaction
     from server.settings import Settings
