@@ -21,26 +21,29 @@
    gap the wheel momentum carried across it as measured (the ground's telemetry at the end
    of one pass and the start of the next) against the campaign's prediction.
 
-The relay is booked per pass, as TDRS time was (shared among NASA's users): the link is up
-from the window's AOS to the end of its pass and :data:`SERVICE_TAIL_S`, never past the
-window's LOS nor the next pass's AOS (one relay at a time); the rest is flown fast.
+The relay is booked per pass, as TDRS time was: from the window's AOS to the end of its
+pass and a service tail (:mod:`hikoboshi.campaign_passes`, with the options and which
+passes fly where); the rest is flown fast. The report is :mod:`hikoboshi.campaign_report`'s,
+the ground and the spacecraft are run as by ``hikoboshi demo`` (:mod:`hikoboshi.demo_harness`).
 """
 
 from __future__ import annotations
 
-import importlib
-import itertools
 import json
 import signal
 import time
-from dataclasses import dataclass, replace
-from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from hikoboshi.demo import (
+from hikoboshi.campaign_passes import (
+    CampaignOptions,
+    _campaign,
+    _PassSpec,
+    _service_windows,
+)
+from hikoboshi.campaign_report import _campaign_doc, _fmt, _utc, campaign_markdown
+from hikoboshi.demo_harness import (
     DemoError,
-    DemoOptions,
     Progress,
     _Api,
     _ClockSampler,
@@ -51,146 +54,12 @@ from hikoboshi.demo import (
     _spacecraft,
     _token_of,
     _tokens,
-    read_truth_log,
     spacecraft_command,
 )
+from hikoboshi.demo_summary import read_truth_log
 from server.settings import Role, Settings
 
-__all__ = ["PAPER_ORDER", "CampaignOptions", "campaign_markdown", "run_campaign_demo"]
-
-#: Without mission.campaign: the experiments of each pass, the paper's order over three.
-PAPER_ORDER: tuple[tuple[str, ...], ...] = (
-    ("ptp", "reactionless"),
-    ("gjm", "coordination"),
-    ("nonholonomic",),
-)
-#: What a pass keeps for its start (the ground's start lead and the request's slack):
-#: this many onboard s, and START_ALLOWANCE_WALL_S of wall time (the job's polling and the
-#: start request on a loaded machine) at the demo's speed.
-START_ALLOWANCE_S = 60.0
-START_ALLOWANCE_WALL_S = 5.0
-#: Onboard s the relay service runs on after a pass's plan ends: the last echoes and the
-#: telemetry still in the onboard store come down, through the loss's resends.
-SERVICE_TAIL_S = 300.0
-
-
-@dataclass(frozen=True)
-class CampaignOptions:
-    mission: Path
-    start_utc: datetime
-    out: Path = Path("out/campaign")
-    speed: float = 20.0
-    loss: float = 0.0
-    port: int = 8000
-    seed: int = 0
-    #: the gaps at most this many times wall time (None: as fast as the vehicle computes)
-    fast_scale: float | None = None
-    #: wall s for each pass (from its start request to its end)
-    timeout_s: float = 900.0
-    log_format: str = "text"
-    log_level: str = "info"
-    #: the experiments of each pass, over the first windows that hold them, in place of the
-    #: campaign's (a shorter campaign: the tests)
-    pass_experiments: tuple[tuple[str, ...], ...] | None = None
-    #: with ``pass_experiments`` or without mission.campaign: only this relay's windows
-    relay: str | None = None
-    #: where the passes are not the campaign planner's: more of their plan parameters
-    #: (``planner.schedule.PassParams``, e.g. a shorter ``ptp_settle_s``: the tests)
-    pass_parameters: dict[str, Any] | None = None
-    #: onboard s each pass keeps its relay after its plan ends (a shorter booking: the tests)
-    service_tail_s: float = SERVICE_TAIL_S
-
-
-@dataclass(frozen=True)
-class _PassSpec:
-    window: Any  # mission.Window
-    experiments: tuple[str, ...]
-    #: the wheel momentum predicted to be loaded between the previous pass and this one
-    gap_momentum_nms: list[float] | None
-    #: the plan's parameters (the campaign's: its start state and orbit), else None: the
-    #: ground plans ``experiments`` from the nominal start
-    parameters: dict[str, Any] | None = None
-    #: the campaign's predicted wheel momentum at the plan's start and end (N m s)
-    predicted_start_h: list[float] | None = None
-    predicted_end_h: list[float] | None = None
-
-
-def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
-    """The passes: the campaign planner's (:func:`hikoboshi.campaign.plan_campaign`), or,
-    with ``pass_experiments`` or ``relay``, those experiments over the first windows (from
-    the start, 24 h; the relay's only) whose net time holds each pass's plan."""
-    from mission import compute_windows, load_mission
-
-    mission = load_mission(options.mission)
-    try:
-        module: Any = importlib.import_module("hikoboshi.campaign")
-    except ImportError:
-        module = None
-    if module is not None and options.pass_experiments is None and options.relay is None:
-        campaign = module.plan_campaign(mission, options.start_utc)
-
-        def floats(values: Any) -> list[float]:
-            return [float(x) for x in values]
-
-        return [
-            _PassSpec(
-                window=p.window,
-                experiments=tuple(p.experiments),
-                gap_momentum_nms=floats(p.gap_momentum_nms) if p.index > 1 else None,
-                parameters=dict(p.plan.parameters),
-                predicted_start_h=floats(p.start_state.wheel_momentum_nms),
-                predicted_end_h=floats(p.end_state.wheel_momentum_nms),
-            )
-            for p in campaign.passes
-        ]
-    windows = compute_windows(mission, options.start_utc, 24.0)
-    if options.relay is not None:
-        windows = [w for w in windows if w.relay == options.relay]
-    specs: list[_PassSpec] = []
-    after = options.start_utc
-    for experiments in options.pass_experiments or PAPER_ORDER:
-        need_s = plan_duration(experiments) + _allowance_s(options.speed)
-        window = next((w for w in windows if w.net_start_utc >= after and w.net_s >= need_s), None)
-        if window is None:
-            raise DemoError(f"no window in 24 h holds a pass of {', '.join(experiments)}")
-        specs.append(_PassSpec(window, experiments, None))
-        after = window.net_start_utc + timedelta(seconds=need_s)
-    return specs
-
-
-def _allowance_s(speed: float) -> float:
-    return START_ALLOWANCE_S + START_ALLOWANCE_WALL_S * speed
-
-
-def _service_windows(
-    specs: list[_PassSpec],
-    durations_s: list[float],
-    speed: float,
-    tail_s: float = SERVICE_TAIL_S,
-) -> list[Any]:
-    """The relay service each pass books in its window: from the window's AOS to the end
-    of the pass (its net start, the start allowance and the plan) and ``tail_s``
-    (:data:`SERVICE_TAIL_S`), never past the window's LOS nor the next window's AOS (one
-    relay at a time). Raises DemoError when a pass does not fit its window's net time."""
-    from mission import format_utc
-
-    services = []
-    for i, (spec, duration_s) in enumerate(zip(specs, durations_s, strict=True)):
-        w = spec.window
-        allowance_s = _allowance_s(speed)
-        if duration_s + allowance_s > w.net_s:
-            raise DemoError(
-                f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
-                f"time of its window {w.relay} {format_utc(w.aos_utc)}"
-            )
-        end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + tail_s)
-        end = min(end, w.los_utc)
-        if i + 1 < len(specs):
-            end = min(end, specs[i + 1].window.aos_utc)
-        if end < w.net_start_utc + timedelta(seconds=allowance_s + duration_s):
-            raise DemoError(f"pass {i + 1} overlaps the next pass's window")
-        services.append(replace(w, los_utc=end, los_margin_s=0.0))
-    return services
+__all__ = ["run_campaign_demo"]
 
 
 def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None) -> dict[str, Any]:
@@ -275,7 +144,6 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             str(truth_log.resolve()),
         ]
         token_env = {"HIKOBOSHI_SPACECRAFT_TOKEN": _token_of(tokens, Role.SPACECRAFT)}
-        follow_options = DemoOptions(out=out, speed=options.speed, timeout_s=options.timeout_s)
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             start_ns = _truth_start(truth_log, proc)
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
@@ -309,7 +177,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                     pass_id,
                     epoch_ns,
                     duration_s,
-                    follow_options,
+                    options.timeout_s,
                     _relabel(report, f"pass {i} (onboard s)"),
                     _ClockSampler(),
                 )
@@ -485,169 +353,3 @@ def _pass_result(
         "summary_json": str((where / "summary.json").resolve()),
         "_span_s": (epoch_s, epoch_s + duration_s),
     }
-
-
-def _fmt(moment: datetime) -> str:
-    from mission import format_utc
-
-    return format_utc(moment)
-
-
-def _utc(start: datetime, onboard_s: float) -> str:
-    from mission import format_utc
-
-    return format_utc(start + timedelta(seconds=onboard_s))
-
-
-def _campaign_doc(
-    options: CampaignOptions,
-    mission: Any,
-    results: list[dict[str, Any]],
-    specs: list[_PassSpec],
-    truth: list[dict[str, Any]],
-    start_ns: int,
-) -> dict[str, Any]:
-    link = next((r for r in reversed(truth) if r.get("event") == "link"), None)
-    outside = [r for r in truth if r.get("event") == "command_outside_window"]
-    passes = []
-    previous_end = -float("inf")
-    for result in results:
-        _, end_s = result.pop("_span_s")
-        result["commands_sent_outside_window"] = sum(
-            1 for r in outside if previous_end < r["onboard_s"] <= end_s
-        )
-        previous_end = end_s
-        passes.append(result)
-    gaps = []
-    for before, after in itertools.pairwise(passes):
-        h0, h1 = before["wheel_momentum_end_nms"], after["wheel_momentum_start_nms"]
-        measured = (
-            None if h0 is None or h1 is None else [b - a for a, b in zip(h0, h1, strict=True)]
-        )
-        predicted = after["predicted_gap_momentum_nms"]
-        error = None
-        if measured is not None and predicted is not None:
-            error = sum((m - p) ** 2 for m, p in zip(measured, predicted, strict=True)) ** 0.5
-        gaps.append(
-            {
-                "from_pass": before["pass"],
-                "to_pass": after["pass"],
-                "from_utc": before["end_utc"],
-                "to_utc": after["epoch_utc"],
-                "wheel_momentum_from_nms": h0,
-                "wheel_momentum_to_nms": h1,
-                "measured_nms": measured,
-                "predicted_nms": predicted,
-                "predicted_wheel_momentum_to_nms": after["predicted_wheel_momentum_start_nms"],
-                "error_norm_nms": error,
-            }
-        )
-    fast = [r for r in truth if r.get("event") == "gap"]
-    problems = []
-    for p in passes:
-        if p["state"] != "complete":
-            problems.append(f"pass {p['pass']} ended {p['state']}")
-        if p["commands_executed_at_tag"] != p["commands_total"]:
-            problems.append(
-                f"pass {p['pass']}: {p['commands_executed_at_tag']} of {p['commands_total']} "
-                "commands executed at their tag"
-            )
-        if p["commands_expired"]:
-            problems.append(f"pass {p['pass']}: {p['commands_expired']} commands expired")
-        if p["frames_missing"]:
-            problems.append(f"pass {p['pass']}: {p['frames_missing']} frames missing")
-        if p["analyses_error"]:
-            problems.append(f"pass {p['pass']}: no report: {p['analyses_error']}")
-    n_outside = None if link is None else link.get("commands_outside_window")
-    n_delivered = None if link is None else link.get("commands_delivered_outside_window")
-    if n_outside is None or n_delivered is None:
-        problems.append("the spacecraft's link record is missing from the truth log")
-    else:
-        if n_outside:
-            problems.append(f"{n_outside} commands were sent onto the relay outside a window")
-        if n_delivered:
-            problems.append(f"{n_delivered} commands reached the vehicle outside a window")
-    return {
-        "mission": mission.name,
-        "mission_file": str(options.mission),
-        "start_utc": options.start_utc.isoformat(),
-        "speed": options.speed,
-        "loss": options.loss,
-        "fast_scale": options.fast_scale,
-        "prediction": "mission.campaign" if any(s.gap_momentum_nms for s in specs) else None,
-        "passes": passes,
-        "gaps": gaps,
-        "fast_gaps": [
-            {
-                "from_utc": _utc(options.start_utc, g["from_s"]),
-                "to_utc": _utc(options.start_utc, g["to_s"]),
-                "onboard_s": round(g["to_s"] - g["from_s"], 3),
-                "wall_s": g["wall_s"],
-            }
-            for g in fast
-        ],
-        "commands_outside_window": n_outside,
-        "commands_delivered_outside_window": n_delivered,
-        "link": link,
-        "truth_start_ns": start_ns,
-        "verdict": {"ok": not problems, "problems": problems},
-    }
-
-
-def _v(vector: list[float] | None) -> str:
-    return "-" if vector is None else "(" + ", ".join(f"{x:+.4f}" for x in vector) + ")"
-
-
-def campaign_markdown(doc: dict[str, Any]) -> str:
-    """The campaign report as Markdown (as the demo's summary, for people)."""
-    lines = [
-        f"# Campaign: {doc['mission']} from {doc['start_utc']}",
-        "",
-        f"Speed {doc['speed']:g}x in the windows, loss {doc['loss']:g}; the gaps flown fast.",
-        "",
-        "| pass | experiments | relay | AOS UTC | LOS UTC | state | at tag | expired | "
-        "outside a window | frames missing |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for p in doc["passes"]:
-        w = p["window"]
-        lines.append(
-            f"| {p['pass']} | {', '.join(p['experiments'])} | {w['relay']} | {w['aos_utc']} | "
-            f"{w['los_utc']} | {p['state']} | {p['commands_executed_at_tag']} of "
-            f"{p['commands_total']} | {p['commands_expired']} | "
-            f"{p['commands_sent_outside_window']} | {p['frames_missing']} |"
-        )
-    lines += [
-        "",
-        "## Wheel momentum carried across the gaps (N m s, base frame)",
-        "",
-        "| gap | from UTC | to UTC | measured | predicted | error |",
-        "|---|---|---|---|---|---|",
-    ]
-    for g in doc["gaps"]:
-        err = "-" if g["error_norm_nms"] is None else f"{g['error_norm_nms']:.4f}"
-        lines.append(
-            f"| {g['from_pass']} -> {g['to_pass']} | {g['from_utc']} | {g['to_utc']} | "
-            f"{_v(g['measured_nms'])} | {_v(g['predicted_nms'])} | {err} |"
-        )
-    lines += ["", "## Gaps flown fast (no window open)", ""]
-    for g in doc["fast_gaps"]:
-        lines.append(
-            f"- {g['from_utc']} .. {g['to_utc']}: {g['onboard_s']:.0f} onboard s in "
-            f"{g['wall_s']:.1f} wall s"
-        )
-    lines += [
-        "",
-        "Commands sent onto the relay outside a window: "
-        f"{doc['commands_outside_window']}; received by the vehicle outside one: "
-        f"{doc['commands_delivered_outside_window']}",
-        "",
-        "Verdict: " + ("ok" if doc["verdict"]["ok"] else "; ".join(doc["verdict"]["problems"])),
-        "",
-    ]
-    return "\n".join(lines)
-
-
-def default_start() -> datetime:
-    """The campaign's default start: 1999-09-30T00:00:00Z (the paper's campaign day)."""
-    return datetime(1999, 9, 30, tzinfo=UTC)

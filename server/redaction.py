@@ -12,8 +12,9 @@ traceback: the value of a ``token=``-like query parameter (``token``, ``access_t
 module's record factory, so that each record is redacted as it is made, before any filter
 or handler (uvicorn's ``uvicorn.error`` accept lines, ``uvicorn.access``, websockets', httpx
 and our own ``hikoboshi.*`` loggers alike, and handlers added later, pytest's too). The
-command line installs it for ``serve``, ``spacecraft`` and ``demo`` (``hikoboshi/cli.py``),
-and :func:`server.api.edge.uvicorn_config` for any server it configures.
+command line installs it for ``serve``, ``spacecraft`` and ``demo``
+(``hikoboshi/serve_cli.py``, ``spacecraft_cli.py`` and ``demo_cli.py``), and
+:func:`server.api.http_server.uvicorn_config` for any server it configures.
 :class:`RedactSecretsFilter` is the same redaction as a :class:`logging.Filter`.
 
 Imported by the command line for the spacecraft too: this module imports nothing of the

@@ -20,7 +20,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from hikoboshi.campaign_demo import CampaignOptions, run_campaign_demo
+from hikoboshi.campaign_demo import run_campaign_demo
+from hikoboshi.campaign_passes import CampaignOptions
 from mission import MISSIONS_DIR, parse_utc
 
 
@@ -73,7 +74,12 @@ def test_a_relay_s_windows_alone_and_one_relay_booked_at_a_time() -> None:
     relay's, else the first that holds each pass whichever relay; each pass books its relay
     from its window's AOS to the end of its pass and the service tail, never past the next
     pass's AOS (the overlapping TDRS-East window) nor its own LOS."""
-    from hikoboshi.campaign_demo import SERVICE_TAIL_S, _allowance_s, _campaign, _service_windows
+    from hikoboshi.campaign_passes import (
+        SERVICE_TAIL_S,
+        _allowance_s,
+        _campaign,
+        _service_windows,
+    )
 
     plan_s = 153.75  # the ptp pass's plan
     taken = {}

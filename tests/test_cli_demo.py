@@ -19,13 +19,11 @@ from typing import Any
 
 import pytest
 
-from hikoboshi.demo import (
-    CONNECT_WALL_S,
-    DemoError,
+from hikoboshi.demo import CONNECT_WALL_S, check_fault_specs, expected_epoch_s
+from hikoboshi.demo_harness import DemoError
+from hikoboshi.demo_summary import (
     OnboardClock,
     alarms_section,
-    check_fault_specs,
-    expected_epoch_s,
     read_truth_log,
     safing_section,
     segments_section,
@@ -672,7 +670,7 @@ def test_the_demo_says_where_its_tokens_are_never_the_tokens(
 ) -> None:
     """Without ``--json`` the demo announces the console: with the tokens file (what the
     demo hands it, with the console's URL), which the run's logs may show."""
-    from hikoboshi.cli import _announce
+    from hikoboshi.demo_cli import _announce
 
     _announce("http://127.0.0.1:8000/", Path("out/demo/tokens"))
     printed = capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""The demo's REST client (hikoboshi/demo.py ``_Api``) turns a ground that does not answer
+"""The demo's REST client (hikoboshi/demo_harness.py ``_Api``) turns a ground that does not answer
 into the demo's own error with a reason, not a traceback: a crowded machine once made the
 pass's planning request outlast the client's timeout and the demo died with
 ``TimeoutError: timed out``."""
@@ -11,7 +11,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from hikoboshi.demo import DemoError, _Api
+from hikoboshi.demo_harness import DemoError, _Api
 
 
 @pytest.fixture()

@@ -226,9 +226,9 @@ def websocket_principal(websocket: WebSocket, role: Role) -> Principal:
 
 def record_auth_failure(websocket: WebSocket, reason: str, credential: str | None) -> None:
     """Audit a websocket's failed authentication and count it against its address and the
-    ``credential`` it presented (the edge's guard, server/api/edge.py, when the application
-    has one). Over either's limit: 429 ``too_many_failures`` instead (neither counted nor
-    audited again: the block was, once). Called only for a failed attempt."""
+    ``credential`` it presented (the edge's guard, server/api/auth_guard.py, when the
+    application has one). Over either's limit: 429 ``too_many_failures`` instead (neither
+    counted nor audited again: the block was, once). Called only for a failed attempt."""
     guard = getattr(websocket.app.state, "auth_guard", None)
     if guard is None:
         return

@@ -1,5 +1,4 @@
-"""The HTTP edge: what every request meets before any route, and how the service is served
-(docs/security.md).
+"""The HTTP edge: what every request meets before any route (docs/security.md).
 
 :class:`EdgeMiddleware`, a pure ASGI middleware in front of the application
 (:func:`install_edge`), answers in the one JSON error shape, in this order:
@@ -11,10 +10,11 @@
    known ``Authorization: Bearer`` token, before a byte of its body is read (roles are the
    routes' dependencies' business: 403 there); or 429 ``too_many_failures`` (with
    ``Retry-After``) instead when its address or the credential it presents failed
-   ``auth_failure_limit`` times within ``auth_failure_window_s`` (:class:`AuthGuard`; every
-   counted failure goes to the ``hikoboshi.audit`` log, never the token). Only a failing
-   attempt is throttled: a valid token, and a request to a public path, never are. The
-   websockets authenticate themselves, with the same guard (server/api/deps.py);
+   ``auth_failure_limit`` times within ``auth_failure_window_s``
+   (:class:`~server.api.auth_guard.AuthGuard`; every counted failure goes to the
+   ``hikoboshi.audit`` log, never the token). Only a failing attempt is throttled: a valid
+   token, and a request to a public path, never are. The websockets authenticate
+   themselves, with the same guard (server/api/deps.py);
 3. ``OPTIONS`` on a path a route serves: 204 with ``Allow`` listing the methods of the
    route's path as the OpenAPI document groups them, and ``OPTIONS`` (:class:`AllowTable`);
    a method the path does not serve: 405 ``method_not_allowed`` with the same ``Allow``
@@ -38,60 +38,44 @@ Every response gets ``X-Content-Type-Options: nosniff``, ``Referrer-Policy: no-r
 and ``X-Frame-Options: DENY``; the console's page (``/``, ``/index.html``) a
 ``Content-Security-Policy`` that allows its own bundles and websocket only.
 
-:func:`uvicorn_config` is how ``hikoboshi serve`` runs it: keep-alive and graceful
-shutdown timeouts, a bounded request head, a request-head timeout
-(:func:`head_timeout_protocol`), forwarded headers believed from ``trusted_proxies`` only
-(the client address the guard counts is the peer's otherwise), and every log record with
-its secrets redacted (:mod:`server.redaction`).
+The checks of a request's target and body are :mod:`server.api.edge_checks`'s; how the
+service is served (uvicorn's timeouts and limits) is :mod:`server.api.http_server`'s.
 """
 
 from __future__ import annotations
 
 import asyncio
-import hashlib
-import hmac
 import json
 import logging
-import math
 import re
-import secrets
-import time
-from collections import OrderedDict
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
-from urllib.parse import unquote_to_bytes
 
 from fastapi.routing import iter_route_contexts
 from starlette.routing import Match, Router, compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from server.api.auth_guard import AuthGuard
 from server.api.deps import authenticate, presented_credential
+from server.api.edge_checks import (
+    _bad_target,
+    _limited,
+    _read_body,
+    _replay,
+    _too_large,
+    check_json,
+)
 from server.api.errors import HttpError, error_body
 from server.api.lanes import Admission, Refusal, is_heavy, lane_of, set_lane
-from server.redaction import RedactSecretsFilter, install_redaction
 from server.services.clock import Clock, SystemClock
 from server.services.events import AuthBlocked, record
 from server.settings import Settings
 
 if TYPE_CHECKING:
-    import uvicorn
     from fastapi import FastAPI
 
-__all__ = [
-    "AllowTable",
-    "AuthGuard",
-    "EdgeMiddleware",
-    "RedactSecretsFilter",
-    "check_json",
-    "console_csp",
-    "fingerprint",
-    "head_timeout_protocol",
-    "install_edge",
-    "uvicorn_config",
-]
+__all__ = ["AllowTable", "EdgeMiddleware", "console_csp", "install_edge"]
 
-audit = logging.getLogger("hikoboshi.audit")
 log = logging.getLogger("hikoboshi.ground.edge")
 
 #: ``/api`` routes that need no token (the websockets authenticate themselves).
@@ -103,11 +87,6 @@ IMPORT_PATH = "/api/passes/import"
 #: The console's HTML pages: they get the Content-Security-Policy.
 CONSOLE_PAGES = frozenset({"/", "/index.html"})
 
-_CONTROL_BYTES = re.compile(rb"[\x00-\x1f\x7f]")
-_CONTROL_TEXT = re.compile(r"[\x00-\x1f\x7f]")
-#: In JSON strings: control characters except tab, newline, carriage return; and lone
-#: surrogates (``"\ud800"`` parses, but no database stores it).
-_BAD_JSON_TEXT = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff]")
 #: A Host header that may be written into the policy as is.
 _SAFE_HOST = re.compile(r"(?:[A-Za-z0-9.-]+|\[[0-9A-Fa-f:.]+\])(?::[0-9]{1,5})?")
 
@@ -131,230 +110,6 @@ def console_csp(host: str | None) -> str:
         f"img-src 'self' data: blob:; connect-src {connect}; object-src 'none'; "
         "base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
     )
-
-
-@dataclass
-class _Window:
-    start: float
-    failures: int = 0
-
-
-class _Windows:
-    """Fixed windows of failures by key, at most ``max_keys`` (the oldest window goes
-    first)."""
-
-    def __init__(self, window_s: float, max_keys: int) -> None:
-        self.window_s = window_s
-        self.max_keys = max_keys
-        #: key -> its window, in the order the windows started
-        self._windows: OrderedDict[str, _Window] = OrderedDict()
-
-    def __len__(self) -> int:
-        return len(self._windows)
-
-    def get(self, key: str, now: float) -> _Window | None:
-        self._expire(now)
-        return self._windows.get(key)
-
-    def count(self, key: str, now: float) -> _Window:
-        """One more failure for ``key``, in its window (a new one if it has none)."""
-        self._expire(now)
-        window = self._windows.get(key)
-        if window is None:
-            window = self._windows[key] = _Window(start=now)
-            while len(self._windows) > self.max_keys:
-                self._windows.popitem(last=False)
-        window.failures += 1
-        return window
-
-    def _expire(self, now: float) -> None:
-        # Windows are appended as they start, so the expired ones are at the front.
-        while self._windows:
-            first = next(iter(self._windows.values()))
-            if now - first.start < self.window_s:
-                break
-            self._windows.popitem(last=False)
-
-
-#: Drawn once per process: the fingerprints of presented credentials are keyed with it, so
-#: that a logged one cannot be checked against guesses offline (a mistyped password, say).
-_FINGERPRINT_KEY = secrets.token_bytes(32)
-
-
-def fingerprint(credential: str) -> str:
-    """How a presented credential is known to the guard and the audit log: the first 16 hex
-    digits of its HMAC-SHA-256 under a key drawn at start, never the credential itself
-    (the same credential, the same fingerprint, for as long as the process runs)."""
-    data = credential.encode("utf-8", "surrogateescape")
-    digest = hmac.new(_FINGERPRINT_KEY, data, hashlib.sha256).hexdigest()
-    return f"hmac:{digest[:16]}"
-
-
-class AuthGuard:
-    """Failed authentications in fixed windows, counted per client address and per
-    presented credential (its :func:`fingerprint`): after ``limit`` failures within
-    ``window_s`` of the first, a *failing* attempt from that address, or presenting that
-    credential, is refused (429) until the window ends, neither checked further nor audited
-    again. It is asked only about attempts that failed: a valid token is never refused
-    here, and requests without a credential to public paths never meet it
-    (docs/security.md "Failed authentications"). At most ``max_addresses`` addresses and as
-    many credentials are tracked (the oldest window goes first); ``clock`` is injectable
-    (tests move it instead of sleeping)."""
-
-    def __init__(
-        self,
-        *,
-        limit: int,
-        window_s: float,
-        max_addresses: int,
-        clock: Callable[[], float] = time.monotonic,
-        on_blocked: Callable[[str, int, float], None] | None = None,
-    ) -> None:
-        self.limit = limit
-        #: called once per window an address is blocked: (address, failures, seconds left)
-        self.on_blocked = on_blocked
-        self.window_s = window_s
-        self.max_addresses = max_addresses
-        self.clock = clock
-        self._addresses = _Windows(window_s, max_addresses)
-        self._credentials = _Windows(window_s, max_addresses)
-
-    def __len__(self) -> int:
-        """Addresses tracked."""
-        return len(self._addresses)
-
-    def credentials_tracked(self) -> int:
-        return len(self._credentials)
-
-    def retry_after(self, address: str, credential: str | None = None) -> int | None:
-        """Seconds until a failing attempt from ``address`` presenting ``credential`` is
-        heard again, or None when neither is over the limit."""
-        now = self.clock()
-        keys = [(self._addresses, address)]
-        if credential is not None:
-            keys.append((self._credentials, fingerprint(credential)))
-        left: float | None = None
-        for windows, key in keys:
-            window = windows.get(key, now)
-            if window is not None and window.failures >= self.limit:
-                end = window.start + self.window_s - now
-                left = end if left is None else max(left, end)
-        return None if left is None else max(1, math.ceil(left))
-
-    def failed(self, address: str, path: str, reason: str, credential: str | None = None) -> None:
-        """Audit one failed authentication and count it against ``address`` and the
-        credential presented (if any)."""
-        now = self.clock()
-        window = self._addresses.count(address, now)
-        key = None if credential is None else fingerprint(credential)
-        audit.warning(
-            "authentication failed: address=%s credential=%s path=%r reason=%r (%d in this window)",
-            address,
-            key or "none",
-            path,
-            reason,
-            window.failures,
-            extra={
-                "fields": {
-                    "event": "authentication_failed",
-                    "address": address,
-                    "credential": key,
-                    "path": path,
-                    "reason": reason,
-                    "failures": window.failures,
-                }
-            },
-        )
-        if window.failures == self.limit:
-            left = window.start + self.window_s - now
-            audit.warning(
-                "address %s refused for %.0f s: %d failed authentications",
-                address,
-                left,
-                window.failures,
-                extra={
-                    "fields": {
-                        "event": "address_refused",
-                        "address": address,
-                        "refused_s": round(left, 1),
-                        "failures": window.failures,
-                    }
-                },
-            )
-            if self.on_blocked is not None:
-                try:
-                    self.on_blocked(address, window.failures, left)
-                except Exception:
-                    log.exception("recording the block of %s failed", address)
-        if key is not None:
-            held = self._credentials.count(key, now)
-            if held.failures == self.limit:
-                audit.warning(
-                    "credential %s refused for %.0f s: %d failed authentications",
-                    key,
-                    held.start + self.window_s - now,
-                    held.failures,
-                    extra={
-                        "fields": {
-                            "event": "credential_refused",
-                            "credential": key,
-                            "refused_s": round(held.start + self.window_s - now, 1),
-                            "failures": held.failures,
-                        }
-                    },
-                )
-
-
-def check_json(body: bytes, max_depth: int) -> tuple[str, str, Any] | None:
-    """``(code, message, detail)`` when ``body`` is not JSON the service takes, else None.
-
-    Parsed once with :func:`json.loads` (a RecursionError from the parser is too deep);
-    depth and strings are then checked iteratively."""
-    try:
-        document = json.loads(body)
-    except RecursionError:
-        return "json_too_deep", f"the JSON body is nested deeper than {max_depth}", None
-    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
-        return "invalid_json", f"the body is not JSON: {exc}", None
-    stack: list[tuple[Any, int, tuple[str | int, ...]]] = [(document, 1, ())]
-    while stack:
-        value, depth, loc = stack.pop()
-        if isinstance(value, str):
-            bad = _BAD_JSON_TEXT.search(value)
-            if bad:
-                return _bad_text(bad.group(), loc)
-        elif isinstance(value, list | dict):
-            if depth > max_depth:
-                message = f"the JSON body is nested deeper than {max_depth}"
-                return "json_too_deep", message, {"loc": list(loc)}
-            if isinstance(value, list):
-                stack.extend((item, depth + 1, (*loc, i)) for i, item in enumerate(value))
-            else:
-                for key, item in value.items():
-                    bad = _BAD_JSON_TEXT.search(key)
-                    if bad:
-                        return _bad_text(bad.group(), (*loc, key.encode("unicode_escape").decode()))
-                    stack.append((item, depth + 1, (*loc, key)))
-    return None
-
-
-def _bad_text(char: str, loc: tuple[str | int, ...]) -> tuple[str, str, Any]:
-    where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc) or "the body"
-    message = f"a JSON string holds a control character (U+{ord(char):04X}) at {where}"
-    return "invalid_text", message, {"loc": list(loc), "char": f"U+{ord(char):04X}"}
-
-
-def _bad_target(scope: Scope) -> str | None:
-    """``"path"`` or ``"query string"`` when it holds a control character (raw or
-    percent-encoded), else None."""
-    raw_path: bytes = scope.get("raw_path") or scope["path"].encode("utf-8", "surrogateescape")
-    query: bytes = scope.get("query_string", b"")
-    if _CONTROL_TEXT.search(scope["path"]):
-        return "path"
-    for what, raw in (("path", raw_path), ("query string", query)):
-        if _CONTROL_BYTES.search(raw) or _CONTROL_BYTES.search(unquote_to_bytes(raw)):
-            return what
-    return None
 
 
 class AllowTable:
@@ -592,52 +347,6 @@ def _content_length(scope: Scope) -> int | None:
     return int(value) if value is not None and value.strip().isdigit() else None
 
 
-def _too_large(size: int, limit: int) -> str:
-    return f"a request body of {size} bytes or more exceeds the limit of {limit} bytes"
-
-
-async def _read_body(receive: Receive, limit: int) -> bytes | None:
-    """The body, or its first ``limit + 1`` bytes or more when it is larger; None when the
-    client disconnected."""
-    body = bytearray()
-    while True:
-        message = await receive()
-        if message["type"] != "http.request":
-            return None
-        body += message.get("body", b"")
-        if len(body) > limit or not message.get("more_body", False):
-            return bytes(body)
-
-
-def _replay(body: bytes, receive: Receive) -> Receive:
-    """The body read ahead, as one message; then the client's (its disconnect)."""
-    pending = True
-
-    async def replay() -> Message:
-        nonlocal pending
-        if pending:
-            pending = False
-            return {"type": "http.request", "body": body, "more_body": False}
-        return await receive()
-
-    return replay
-
-
-def _limited(receive: Receive, limit: int) -> Receive:
-    received = 0
-
-    async def limited() -> Message:
-        nonlocal received
-        message = await receive()
-        if message["type"] == "http.request":
-            received += len(message.get("body", b""))
-            if received > limit:
-                raise HttpError(413, "request_too_large", _too_large(received, limit))
-        return message
-
-    return limited
-
-
 def _with_security_headers(scope: Scope, send: Send) -> Send:
     extra = list(_SECURITY_HEADERS)
     if scope["path"] in CONSOLE_PAGES:
@@ -702,99 +411,3 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
             publisher.publish([future.result()])
 
     loop.run_in_executor(None, write).add_done_callback(done)
-
-
-# --- serving: uvicorn's settings ---------------------------------------------------------
-
-
-def head_timeout_protocol(seconds: float) -> type[asyncio.Protocol]:
-    """uvicorn's h11 protocol, closing a connection whose request head has not fully arrived
-    ``seconds`` after the connection opened or the head's first byte arrived (uvicorn has
-    no such timeout: a client sending half a request line would hold its connection for
-    good). Idle keep-alive connections are uvicorn's ``timeout_keep_alive``'s."""
-    import h11
-    from uvicorn.protocols.http.h11_impl import H11Protocol
-
-    class HeadTimeoutH11Protocol(H11Protocol):
-        head_timeout_s = seconds
-        _head_timer: asyncio.TimerHandle | None = None
-
-        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
-            super().connection_made(transport)
-            self._arm_head_timer()
-
-        def data_received(self, data: bytes) -> None:
-            super().data_received(data)
-            self._watch_head()
-
-        def on_response_complete(self) -> None:
-            super().on_response_complete()
-            # A pipelined request may have left part of its head behind.
-            if self.conn.trailing_data[0]:
-                self._watch_head()
-
-        def connection_lost(self, exc: Exception | None) -> None:
-            self._cancel_head_timer()
-            super().connection_lost(exc)
-
-        def _watch_head(self) -> None:
-            if not self.transport.is_closing() and self.conn.their_state is h11.IDLE:
-                self._arm_head_timer()  # part of a head, waiting for the rest
-            else:
-                self._cancel_head_timer()
-
-        def _arm_head_timer(self) -> None:
-            if self._head_timer is None:
-                self._head_timer = self.loop.call_later(self.head_timeout_s, self._head_timeout)
-
-        def _cancel_head_timer(self) -> None:
-            if self._head_timer is not None:
-                self._head_timer.cancel()
-                self._head_timer = None
-
-        def _head_timeout(self) -> None:
-            self._head_timer = None
-            if not self.transport.is_closing() and self.conn.their_state is h11.IDLE:
-                client = f"{self.client[0]}:{self.client[1]}" if self.client else "a client"
-                log.info("closing %s: no request head within %.1f s", client, self.head_timeout_s)
-                self.transport.close()
-
-    return HeadTimeoutH11Protocol
-
-
-def uvicorn_config(
-    app: ASGIApp, settings: Settings, *, host: str, port: int, log_level: str = "info"
-) -> uvicorn.Config:
-    """How ``hikoboshi serve`` (and ``demo``'s ground) runs ``app``: the edge's timeouts and
-    limits; ``X-Forwarded-For`` believed from ``settings.trusted_proxies`` only (uvicorn's
-    own default believes loopback, so that anyone on the host could name any address);
-    every log record redacted (:mod:`server.redaction`). Run it with
-    ``server.app.GroundServer(config, app).run()`` (which stops the worker pool first on
-    SIGTERM)."""
-    import uvicorn
-
-    install_redaction()
-    proxies = list(settings.trusted_proxies)
-    config = uvicorn.Config(
-        app,
-        host=host,
-        port=port,
-        log_level=log_level,
-        # uvicorn's records go to the root logger, as configured by server.logs (one
-        # format for every line), not through uvicorn's own handlers.
-        log_config=None,
-        lifespan="on",
-        http=head_timeout_protocol(settings.header_timeout_s),
-        timeout_keep_alive=math.ceil(settings.keep_alive_timeout_s),
-        timeout_graceful_shutdown=3,
-        h11_max_incomplete_event_size=settings.max_header_bytes,
-        server_header=False,
-        proxy_headers=bool(proxies),
-        forwarded_allow_ips=proxies,
-    )
-    # The filter stays (the record factory redacts already; the filter keeps the access log
-    # redacted if another one replaces it).
-    access = logging.getLogger("uvicorn.access")
-    if not any(isinstance(f, RedactSecretsFilter) for f in access.filters):
-        access.addFilter(RedactSecretsFilter())
-    return config

@@ -17,7 +17,7 @@ import httpx
 import pytest
 import uvicorn
 
-from server.api.edge import uvicorn_config
+from server.api.http_server import uvicorn_config
 from server.app import create_app
 from server.redaction import RedactSecretsFilter, install_redaction, redact, redact_record
 from server.settings import ApiToken, Role, Settings

@@ -314,7 +314,7 @@ def test_cli_calibrates_to_a_recorded_pass(
     [acs] file is the fitted law's, --json prints the report; --vehicle-out holds [servo] and
     [sensor_noise] tables that load as a robot description's, and the spacecraft's
     --vehicle-config flies them."""
-    from hikoboshi.cli import _with_vehicle_tables
+    from hikoboshi.spacecraft_cli import _with_vehicle_tables
     from planner.description import load_vehicle_tables
     from planner.simulation import ETS7_SERVO_LAG_S
 

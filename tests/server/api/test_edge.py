@@ -28,8 +28,11 @@ from starlette.websockets import WebSocketDisconnect
 from typer.testing import CliRunner
 
 from server.api import deps
-from server.api.edge import AuthGuard, RedactSecretsFilter, check_json, uvicorn_config
+from server.api.auth_guard import AuthGuard
+from server.api.edge_checks import check_json
+from server.api.http_server import uvicorn_config
 from server.app import create_app
+from server.redaction import RedactSecretsFilter
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, ClientAddress, add_pass, sessions
