@@ -536,7 +536,7 @@ def _servo_rows(servo: ServoFit) -> list[TargetRow]:
 
 
 def _noise_rows(noise: NoiseEstimate) -> list[TargetRow]:
-    from spacecraft.vehicle import SensorNoise
+    from spacecraft.vehicle_config import SensorNoise
 
     default = SensorNoise()
     rows = []
@@ -776,7 +776,7 @@ def _vehicle_metrics(
     """The fit's metrics flown through the vehicle (truth simulation), on the same plans as
     the prediction's (the PTP with its long settling wait)."""
     from spacecraft._calibration import fly_plan
-    from spacecraft.vehicle import VehicleConfig
+    from spacecraft.vehicle_config import VehicleConfig
 
     config = VehicleConfig(acs_gains=gains_from_parameters(ws, values))
     ptp = plans["ptp"]

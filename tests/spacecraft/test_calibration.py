@@ -26,7 +26,7 @@ from spacecraft.calibration import (
     write_acs_config,
 )
 from spacecraft.offline import fly_offline
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.mcap import write_mcap
 from telemetry.recording import PassRecording
 
@@ -249,7 +249,7 @@ def servo_pass() -> PassRecording:
     """A PTP from A to a pose that moves every joint, 40 s of settling, flown through the
     vehicle with SERVO_* and NOISE_DEG (seed 5)."""
     from planner.simulation import SimConfig, default_servo_gains
-    from spacecraft.vehicle import SensorNoise
+    from spacecraft.vehicle_config import SensorNoise
 
     workspace = DynamicsWorkspace(default_model())
     goal = (20.0, 15.0, -20.0, 30.0, 25.0, 40.0)

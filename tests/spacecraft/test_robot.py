@@ -24,13 +24,8 @@ from planner.plan import Plan, Prediction, Segment
 from spacecraft.link import LinkConfig
 from spacecraft.offline import fly_offline
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from spacecraft.vehicle import (
-    SensorNoise,
-    Vehicle,
-    VehicleConfig,
-    VehicleError,
-    vehicle_config_for,
-)
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import SensorNoise, VehicleConfig, VehicleError, vehicle_config_for
 from telemetry.layout import FrameLayout
 from telemetry.wire import CommandStage, Hello, JointCommandMsg, RejectReason, encode
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
