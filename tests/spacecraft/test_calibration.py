@@ -19,12 +19,9 @@ from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
 from planner.plan import Plan
-from spacecraft.calibration import (
-    fit_to_paper,
-    fit_to_recording,
-    gains_from_parameters,
-    write_acs_config,
-)
+from spacecraft.calibration import gains_from_parameters, write_acs_config
+from spacecraft.calibration_paper import fit_to_paper
+from spacecraft.calibration_recording import fit_to_recording
 from spacecraft.offline import fly_offline
 from spacecraft.vehicle_config import VehicleConfig
 from telemetry.mcap import write_mcap
