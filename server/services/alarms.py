@@ -47,7 +47,7 @@ from sqlalchemy.orm import Session
 
 from planner.limits import QUANTITIES, Limits, Severity
 from planner.plan import Plan
-from server.schemas import AlarmPublic, AlarmsPublic
+from server.schemas.alarms import AlarmPublic, AlarmsPublic
 from server.services.alarm_book import (
     Alarm,
     AlarmBook,

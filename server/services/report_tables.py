@@ -1,7 +1,7 @@
 """The tables of a pass report, built from stored analysis documents: pure (no database,
 no files), so the command line builds them from a recording file too.
 
-:func:`build_report` gives the :class:`~server.schemas.ReportPublic` that
+:func:`build_report` gives the :class:`~server.schemas.analyses.ReportPublic` that
 :mod:`server.services.reports` serves as JSON and renders as HTML; :data:`FIGURE_CAPTIONS`
 orders and captions the figures. A pass's alarms (their documents, docs/alarms.md) make two
 tables: the alarms, and their timeline (every change of band and every acknowledgement).
@@ -15,12 +15,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from planner.plan import ETS7_ROBOT_HASH
-from server.schemas import (
-    ReportAnalysisPublic,
-    ReportPublic,
-    ReportTablePublic,
-    iso_from_ns,
-)
+from server.schemas import iso_from_ns
+from server.schemas.analyses import ReportAnalysisPublic, ReportPublic, ReportTablePublic
 from server.services.analyses import KINDS
 from telemetry.analysis.paper import (
     Predicted,
