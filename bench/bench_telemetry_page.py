@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import best_of, emit
 from pydantic import TypeAdapter
 
-from server.schemas import TelemetryPublic, TelemetryRowPublic
+from server.schemas.telemetry import TelemetryPublic, TelemetryRowPublic
 
 ROWS = 5000
 VALUES = 40

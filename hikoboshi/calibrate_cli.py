@@ -79,12 +79,10 @@ def calibrate(
     or to a recorded pass; write the [acs] configuration and a report of every target. From
     a recorded pass also the joint servos and the sensor noise (--vehicle-out)."""
     from planner.errors import InvalidInput
-    from spacecraft.calibration import (
-        fit_to_paper,
-        fit_to_recording,
-        write_acs_config,
-        write_vehicle_config,
-    )
+    from spacecraft.calibration import write_acs_config
+    from spacecraft.calibration_paper import fit_to_paper
+    from spacecraft.calibration_recording import fit_to_recording
+    from spacecraft.servo_fit import write_vehicle_config
 
     if mcap is not None and pass_id is not None:
         _fail("give --mcap or --pass, not both")

@@ -25,7 +25,7 @@ from hikoboshi.output import HELP_MARKUP, make_console
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
-    from server.schemas import ReportPublic
+    from server.schemas.analyses import ReportPublic
 
 __all__ = ["export_app", "mcap_app", "register"]
 

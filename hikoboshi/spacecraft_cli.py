@@ -174,7 +174,7 @@ def spacecraft(
     from spacecraft.faults import parse_fault
     from spacecraft.link import LinkConfig, load_link_config, parse_garbage, parse_outage
     from spacecraft.process import ProcessConfig, SpacecraftProcess
-    from spacecraft.vehicle import VehicleConfig, vehicle_config_for
+    from spacecraft.vehicle_config import VehicleConfig, vehicle_config_for
 
     install_redaction()  # its token never in its log (docs/security.md "Logs")
     _configure_logging(log_format, log_level)
@@ -301,7 +301,7 @@ def _with_vehicle_tables(vehicle: Any, path: Path) -> Any:
     import dataclasses
 
     from planner.description import load_vehicle_tables, servo_gains_of
-    from spacecraft.vehicle import SensorNoise
+    from spacecraft.vehicle_config import SensorNoise
 
     tables = load_vehicle_tables(path, vehicle.model.n_joints)
     if tables.servo is not None:

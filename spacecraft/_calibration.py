@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation
 
 from planner.coordination import REPORT_SETTLE_BAND_DEG
 from planner.plan import Plan
-from spacecraft.vehicle import Vehicle, VehicleConfig
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import AcsCommandMsg, AcsModeName, CommandStage, JointCommandMsg
 
 __all__ = [

@@ -126,7 +126,7 @@ def score_law(plan: Plan, values: Mapping[str, float], seed: int) -> dict[str, f
     from planner.model import default_model
     from spacecraft.calibration import gains_from_parameters
     from spacecraft.offline import fly_offline
-    from spacecraft.vehicle import VehicleConfig
+    from spacecraft.vehicle_config import VehicleConfig
     from telemetry.analysis import analyse_pass
     from telemetry.recording import PassRecording
 

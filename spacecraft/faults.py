@@ -19,7 +19,7 @@ simulation at or after ``T``:
 
 A fault lives in the truth simulation only: nothing of it goes on the link, and the ground
 learns of it from what the telemetry shows. :class:`FaultInjector` applies the faults of a
-:class:`~spacecraft.vehicle.VehicleConfig` in the vehicle's truth simulation and returns a
+:class:`~spacecraft.vehicle_config.VehicleConfig` in the vehicle's truth simulation and returns a
 record of each onset for the truth log (:mod:`spacecraft.truth`).
 """
 

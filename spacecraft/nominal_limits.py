@@ -34,7 +34,8 @@ from planner.catalogue import parse_assignments, plan_experiment, resolve
 from planner.limits import QUANTITIES, ClearanceWatch, Limits, channel_names
 from planner.plan import Plan
 from planner.robot import RobotDescription
-from spacecraft.vehicle import Vehicle, vehicle_config_for
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import vehicle_config_for
 from telemetry.limits import FRAME_QUANTITIES, FrameEvaluator, interpolated_commands
 from telemetry.uplink import plan_commands
 from telemetry.wire import CommandStage, JointCommandMsg, TelemetryFrame

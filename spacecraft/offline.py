@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 from planner.model import default_model
 from planner.plan import Plan
-from spacecraft.vehicle import Vehicle, VehicleConfig, VehicleError, vehicle_config_for
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import VehicleConfig, VehicleError, vehicle_config_for
 from telemetry.uplink import plan_commands
 from telemetry.wire import CommandAck, CommandStage, TelemetryFrame
 
@@ -52,8 +53,8 @@ def fly_offline(
     """Start the vehicle at ``start_ns`` in the plan's initial pose, queue every command of
     ``plan`` (t = 0 at ``start_ns`` + 1 s), and run until ``after_s`` past the last tag.
     The vehicle is ``config``, or that of ``robot`` (a loaded robot description:
-    :func:`spacecraft.vehicle.vehicle_config_for`), or ETS-VII's; a plan for another joint
-    count is refused (:class:`~spacecraft.vehicle.VehicleError`).
+    :func:`spacecraft.vehicle_config.vehicle_config_for`), or ETS-VII's; a plan for another joint
+    count is refused (:class:`~spacecraft.vehicle_config.VehicleError`).
     ``progress`` is called with the fraction done after each ``chunk_s`` of onboard time."""
     initial = tuple(float(v) for v in plan.initial_joints_rad)
     if config is not None and robot is not None:

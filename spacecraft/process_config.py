@@ -13,7 +13,7 @@ from pathlib import Path
 from spacecraft.contact import ContactPlan
 from spacecraft.downlink import DownlinkConfig
 from spacecraft.link import Garbage, LinkConfig
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 
 __all__ = ["ProcessConfig"]
 

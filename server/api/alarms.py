@@ -15,7 +15,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from server.api.deps import AlarmsDep, IdPath, OperatorDep, SessionDep, ViewerDep
-from server.schemas import ERROR_RESPONSES, AlarmAcknowledge, AlarmPublic, AlarmsPublic, SafeLine
+from server.schemas import ERROR_RESPONSES, SafeLine
+from server.schemas.alarms import AlarmAcknowledge, AlarmPublic, AlarmsPublic
 from server.services import alarms as service
 
 __all__ = ["router"]

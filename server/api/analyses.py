@@ -27,14 +27,8 @@ from server.api.deps import (
     WorkersDep,
 )
 from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
-from server.schemas import (
-    ERROR_RESPONSES,
-    AnalysesPublic,
-    AnalysisKind,
-    AnalysisPublic,
-    ReportPublic,
-    SafeLine,
-)
+from server.schemas import ERROR_RESPONSES, SafeLine
+from server.schemas.analyses import AnalysesPublic, AnalysisKind, AnalysisPublic, ReportPublic
 from server.services import analyses as service
 from server.services.artifacts import ArtifactRef
 from server.services.events import with_written

@@ -48,7 +48,8 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import ERROR_RESPONSES, PassControlPublic, SafeText
+from server.schemas import ERROR_RESPONSES, SafeText
+from server.schemas.passes import PassControlPublic
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.errors import ConflictError, InvalidRequestError, UnavailableError

@@ -248,5 +248,5 @@ WorkersDep = Annotated[WorkerPool, Depends(get_workers)]
 
 
 #: A stored record's id in a path (a pass's, a plan's, an alarm's: a UUID; an unknown one is
-#: 404): text without control characters, as the edge requires (server/schemas.py).
+#: 404): text without control characters, as the edge requires (server/schemas/__init__.py).
 IdPath = Annotated[SafeLine, Path(min_length=1, max_length=64)]

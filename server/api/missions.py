@@ -11,7 +11,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from server.api.deps import SettingsDep, ViewerDep
-from server.schemas import ERROR_RESPONSES, MissionsPublic
+from server.schemas import ERROR_RESPONSES
+from server.schemas.passes import MissionsPublic
 from server.services import missions as service
 
 __all__ = ["router"]

@@ -23,11 +23,13 @@ from server.schemas import (
     CommandKind,
     CommandsPublic,
     CommandStage,
+    PassState,
+)
+from server.schemas.passes import (
     PassCreate,
     PassCreateFromWindow,
     PassesPublic,
     PassPublic,
-    PassState,
     PassSummaryPublic,
 )
 from server.services import passes as service

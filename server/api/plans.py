@@ -26,14 +26,8 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import (
-    ERROR_RESPONSES,
-    PlanCreate,
-    PlanPublic,
-    PlansPublic,
-    PlanValidation,
-    SafeLine,
-)
+from server.schemas import ERROR_RESPONSES, SafeLine
+from server.schemas.plans import PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
 from server.services.errors import DomainError
 from server.services.events import with_written

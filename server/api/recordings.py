@@ -27,7 +27,8 @@ from server.api.deps import (
 )
 from server.api.errors import HttpError
 from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
-from server.schemas import ERROR_RESPONSES, ErrorPublic, PassImportPublic
+from server.schemas import ERROR_RESPONSES, ErrorPublic
+from server.schemas.analyses import PassImportPublic
 from server.services.artifacts import ArtifactRef
 from server.services.imports import SpoolBudget, SpoolHold, import_file_job
 from server.services.jobs import jobs_dir, temporary_path

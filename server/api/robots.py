@@ -31,7 +31,8 @@ from planner.errors import PlannerError
 from planner.meshes import mesh_media_type
 from planner.plan import ETS7_ROBOT_NAME
 from server.api.deps import SettingsDep, ViewerDep
-from server.schemas import ERROR_RESPONSES, RobotPosePublic, RobotPublic, RobotsPublic
+from server.schemas import ERROR_RESPONSES
+from server.schemas.plans import RobotPosePublic, RobotPublic, RobotsPublic
 from server.services import robots as service
 
 __all__ = ["router"]

@@ -27,15 +27,8 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import (
-    ERROR_RESPONSES,
-    MAX_NS,
-    EventKind,
-    EventsPublic,
-    QuantityAcrossPublic,
-    SafeLine,
-    TelemetryPublic,
-)
+from server.schemas import ERROR_RESPONSES, MAX_NS, EventKind, SafeLine
+from server.schemas.telemetry import EventsPublic, QuantityAcrossPublic, TelemetryPublic
 from server.services import exports
 from server.services import telemetry as service
 from server.services.jobs import read_session_job

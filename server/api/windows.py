@@ -16,7 +16,8 @@ from fastapi import APIRouter, Query, Request
 from pydantic import AwareDatetime
 
 from server.api.deps import SettingsDep, ViewerDep, WorkersDep
-from server.schemas import ERROR_RESPONSES, NAME_PATTERN, WindowsPublic
+from server.schemas import ERROR_RESPONSES, NAME_PATTERN
+from server.schemas.passes import WindowsPublic
 from server.services import missions as service
 
 __all__ = ["router"]

@@ -6,17 +6,13 @@ consoles' :class:`~server.services.dbworker.Publisher`: its frames (each batch a
 committed, before the consoles get it) and its events (``pass_state`` and ``pass_resumed``
 say which pass runs). Nothing of the link, the downlink or the runner was changed for it.
 
-- **Per pass** a monitor: the pass's :class:`telemetry.limits.FrameEvaluator` (its robot's
-  description and ``[limits]``; the commanded joint targets interpolated from the pass's
-  stored joint commands while it runs, the frame's own targets once it no longer does) and
-  its :class:`~server.services.alarm_book.AlarmBook`. It is loaded on the first frame or
-  the pass's start (a database read, then the evaluator built in a thread); frames that
-  arrive meanwhile wait for it. A batch is evaluated at once, vectorised, on the event loop;
-  frames older than the newest evaluated (a resent gap) are not evaluated again.
-- **Writes** go through the command path's database worker: a raise, a change of band, a
-  clear at once (one job per batch, with their events), an in-band update at most once per
-  second per alarm. Each alarm is published to the consoles (topic ``alarms``) when its
-  write has committed.
+- **Per pass** a monitor (:class:`~server.services.alarm_monitor.PassMonitor`: the pass's
+  frame evaluator and alarm book), loaded on the first frame or the pass's start; frames
+  that arrive meanwhile wait for it. A batch is evaluated at once, vectorised, on the event
+  loop; frames older than the newest evaluated (a resent gap) are not evaluated again.
+- **Writes** (:class:`~server.services.alarm_writes.AlarmWriter`) go through the command
+  path's database worker: a raise, a change of band, a clear at once, an in-band update at
+  most once per second per alarm, each published to the consoles when it has committed.
 - **Link health** (``frames_behind``, ``frame_age_s``) every :data:`LINK_PERIOD_S` of the
   injected clock while a pass is ``running``; their alarms clear when it leaves that state
   (LOS, an abort, safing: its telemetry window closes, no frame of it is expected).
@@ -38,52 +34,29 @@ import contextlib
 import logging
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
-from planner.limits import QUANTITIES, Limits, Severity
-from planner.plan import Plan
-from server.schemas import AlarmPublic, AlarmsPublic
-from server.services.alarm_book import (
-    Alarm,
-    AlarmBook,
-    Change,
-    Observation,
-    QuantityInfo,
-)
+from planner.limits import QUANTITIES, Severity
+from server.schemas.alarms import AlarmPublic, AlarmsPublic
+from server.services.alarm_book import Alarm, AlarmBook, Observation, QuantityInfo
+from server.services.alarm_monitor import PassMonitor, observation
+from server.services.alarm_writes import AlarmWriter
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError, NotFoundError
-from server.services.events import (
-    AlarmAcknowledged,
-    AlarmCleared,
-    AlarmRaised,
-    Event,
-    record,
-)
+from server.services.events import AlarmAcknowledged, record
 from server.services.link import GroundLink, LinkUnavailable
-from server.services.robots import description_for_plan
 from server.settings import Settings
 from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
 from server.storage.errors import Conflict, NotFound
-from telemetry.limits import (
-    CommandedFn,
-    FrameEvaluator,
-    Reading,
-    for_description,
-    interpolated_commands,
-    link_readings,
-)
+from telemetry.limits import link_readings
 from telemetry.wire import Safing, TelemetryFrame
 
 __all__ = [
-    "IN_BAND_PERIOD_S",
     "LINK_PERIOD_S",
     "LINK_QUANTITIES",
     "VEHICLE_SAFING",
@@ -95,78 +68,12 @@ log = logging.getLogger("hikoboshi.ground.alarms")
 
 #: Ground s between two link-health checks while a pass runs (injected clock).
 LINK_PERIOD_S = 1.0
-#: An alarm staying in its band is written (and published) at most this often (ground s).
-IN_BAND_PERIOD_S = 1.0
 #: The quantities checked on the ground's timer, not per frame.
 LINK_QUANTITIES = ("frames_behind", "frame_age_s")
 #: The quantity of the vehicle's safing alarm.
 VEHICLE_SAFING = "vehicle_safing"
 #: Frames held for a monitor still loading, at most (the newest kept).
 MAX_PENDING_FRAMES = 100_000
-
-
-def _info(limits: Limits) -> Callable[[str], QuantityInfo | None]:
-    """A book's quantities: the catalogue's label, unit and direction, the limits' bands."""
-
-    def info(quantity: str) -> QuantityInfo | None:
-        spec, bands = QUANTITIES.get(quantity), limits.bands.get(quantity)
-        if spec is None or bands is None:
-            return None
-        return QuantityInfo(
-            spec.label, spec.unit, spec.direction, lambda s: bands.threshold(Severity(s))
-        )
-
-    return info
-
-
-def _observation(r: Reading) -> Observation:
-    severity = None if r.severity is None else str(r.severity)
-    return Observation(r.quantity, r.channel, r.value, severity, r.frame_seq, r.generation_time_ns)
-
-
-@dataclass
-class _Monitor:
-    """One pass's limit checking (see the module docstring)."""
-
-    pass_id: str
-    book: AlarmBook | None = None
-    evaluator: FrameEvaluator | None = None
-    limits: Limits | None = None
-    commanded: CommandedFn | None = None
-    #: the pass's state as the events last said (None: none seen yet)
-    state: str | None = None
-    loading: asyncio.Task[None] | None = None
-    pending: list[TelemetryFrame] = field(default_factory=list)
-    last_seq: int = -1
-    #: ground ns: the newest frame's reception, else when the pass started running
-    last_frame_ns: int | None = None
-    #: the evaluator could not be built (its robot unknown here): frames are not checked
-    disabled: bool = False
-
-    @property
-    def running(self) -> bool:
-        """Flying the plan: its commands are the commanded targets."""
-        return self.state in ("aos", "running", "los")
-
-    @property
-    def watched(self) -> bool:
-        """The link's health is watched for it: from its start to its LOS (its telemetry
-        window closes there, and no frame of it is expected after)."""
-        return self.state == "running"
-
-    def commanded_at(self, times_ns: NDArray[np.int64]) -> NDArray[np.float64] | None:
-        if self.commanded is None or not self.running:
-            return None
-        return self.commanded(times_ns)
-
-
-@dataclass(frozen=True)
-class _Loaded:
-    state: str
-    plan_document: str
-    tags_ns: list[int]
-    targets_rad: list[list[float]]
-    alarms: list[dict[str, Any]]
 
 
 class AlarmService:
@@ -189,13 +96,12 @@ class AlarmService:
         self._link = link
         self._settings = settings
         self.checking = settings.limit_checking
-        self._monitors: dict[str, _Monitor] = {}
+        self._monitors: dict[str, PassMonitor] = {}
         #: the vehicle's safing alarms, by pass (None: of no pass)
         self._vehicle: dict[str | None, AlarmBook] = {}
         self._unhook: list[Callable[[], None]] = []
         self._link_task: asyncio.Task[None] | None = None
-        self._flusher: asyncio.Task[None] | None = None
-        self._writes: set[asyncio.Future[Any]] = set()
+        self._writer = AlarmWriter(db=db, publisher=publisher, clock=clock, books=self._books)
         self._closed = False
         #: frames not evaluated: older than the newest evaluated of their pass
         self.frames_late = 0
@@ -222,15 +128,16 @@ class AlarmService:
     async def close(self) -> None:
         """Stop watching; what is left to write is written."""
         self._closed = True
+        self._writer.closed = True
         for unhook in self._unhook:
             unhook()
         self._unhook = []
-        for task in (self._link_task, self._flusher, *self._loads()):
+        for task in (self._link_task, self._writer.flusher, *self._loads()):
             if task is not None:
                 task.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await task
-        self._flush(force=True)
+        self._writer.flush(force=True)
         await self.settled()
 
     def _loads(self) -> list[asyncio.Task[None]]:
@@ -244,8 +151,8 @@ class AlarmService:
             if loads:
                 await asyncio.gather(*loads, return_exceptions=True)
                 continue
-            if self._writes:
-                await asyncio.gather(*list(self._writes), return_exceptions=True)
+            if self._writer.pending:
+                await asyncio.gather(*list(self._writer.pending), return_exceptions=True)
                 await asyncio.sleep(0)
                 continue
             return
@@ -275,69 +182,20 @@ class AlarmService:
         elif was_watched and not monitor.watched and monitor.book is not None:
             why = f"the pass is {state}: the link is no longer watched for it"
             changes = monitor.book.clear_all(self._clock.time_ns(), why, LINK_QUANTITIES)
-            self._apply(changes, self._clock.monotonic())
+            self._writer.apply(changes, self._clock.monotonic())
 
-    def _monitor(self, pass_id: str) -> _Monitor:
+    def _monitor(self, pass_id: str) -> PassMonitor:
         monitor = self._monitors.get(pass_id)
         if monitor is None:
-            monitor = self._monitors[pass_id] = _Monitor(pass_id)
+            monitor = self._monitors[pass_id] = PassMonitor(pass_id)
             monitor.loading = asyncio.get_running_loop().create_task(
                 self._load(monitor), name=f"alarms-load-{pass_id}"
             )
         return monitor
 
-    async def _load(self, monitor: _Monitor) -> None:
-        pass_id = monitor.pass_id
-
-        def job(session: Session) -> _Loaded:
-            record = repo.get_pass(session=session, pass_id=pass_id)
-            document = repo.get_plan(session=session, plan_id=record.plan_id).document
-            # by tag (the listing's order): the interpolation needs them increasing
-            joints = [
-                c for c in repo.list_commands(session=session, pass_id=record.id)
-                if c.kind == "joints"
-            ]  # fmt: skip
-            listed = alarm_repo.listed_alarms(session=session, pass_id=record.id)
-            return _Loaded(
-                record.state,
-                document,
-                [c.execute_time_ns for c in joints],
-                [list(c.payload["joints_rad"]) for c in joints],
-                [alarm_repo.alarm_document(r) for r in listed if r.source == "limit"],
-            )
-
-        try:
-            loaded = await self._db.run(job)
-            robot_files = self._settings.robot_files
-
-            def build() -> tuple[FrameEvaluator, Limits, CommandedFn | None]:
-                plan = Plan.from_json(loaded.plan_document)
-                description = description_for_plan(plan, robot_files)
-                commanded = None
-                if loaded.tags_ns:
-                    commanded = interpolated_commands(
-                        np.asarray(loaded.tags_ns, dtype=np.int64),
-                        np.asarray(loaded.targets_rad, dtype=np.float64).reshape(
-                            len(loaded.tags_ns), -1
-                        ),
-                    )
-                evaluator = for_description(description, commanded=monitor.commanded_at)
-                return evaluator, description.limits, commanded
-
-            evaluator, limits, commanded = await asyncio.to_thread(build)
-        except asyncio.CancelledError:
-            raise
-        except Exception as exc:
-            log.warning("pass %s: its frames are not checked against limits: %s", pass_id, exc)
-            monitor.disabled = True
-            monitor.pending = []
+    async def _load(self, monitor: PassMonitor) -> None:
+        if not await monitor.load(self._db, self._settings.robot_files):
             return
-        if monitor.state is None:
-            monitor.state = loaded.state
-        monitor.limits, monitor.commanded = limits, commanded
-        monitor.book = AlarmBook(pass_id, _info(limits))
-        monitor.book.restore(Alarm.of_document(doc) for doc in loaded.alarms)
-        monitor.evaluator = evaluator
         pending, monitor.pending = monitor.pending, []
         if pending:
             self._evaluate(monitor, pending)
@@ -361,7 +219,7 @@ class AlarmService:
             return
         self._evaluate(monitor, frames)
 
-    def _evaluate(self, monitor: _Monitor, frames: list[TelemetryFrame]) -> None:
+    def _evaluate(self, monitor: PassMonitor, frames: list[TelemetryFrame]) -> None:
         last = monitor.last_seq
         fresh = [f for f in frames if f.seq > last]
         self.frames_late += len(frames) - len(fresh)
@@ -382,8 +240,8 @@ class AlarmService:
             return
         if not readings:
             return
-        changes = monitor.book.observe([_observation(r) for r in readings], self._clock.time_ns())
-        self._apply(changes, self._clock.monotonic())
+        changes = monitor.book.observe([observation(r) for r in readings], self._clock.time_ns())
+        self._writer.apply(changes, self._clock.monotonic())
 
     # -- the link's health -----------------------------------------------------------------
 
@@ -393,7 +251,7 @@ class AlarmService:
                 self._link_loop(), name="alarms-link-health"
             )
 
-    def _watched(self) -> _Monitor | None:
+    def _watched(self) -> PassMonitor | None:
         watched = [m for m in self._monitors.values() if m.watched and m.book is not None]
         return watched[-1] if watched else None
 
@@ -436,13 +294,13 @@ class AlarmService:
         found = {(r.quantity, r.channel) for r in readings}
         # a sample of the ground's, not of a frame: no seq, no onboard time
         observations = [
-            _observation(r)._replace(frame_seq=None, generation_time_ns=None) for r in readings
+            observation(r)._replace(frame_seq=None, generation_time_ns=None) for r in readings
         ]
         for quantity, value in values.items():
             if (quantity, "") not in found:
                 observations.append(Observation(quantity, "", value, None, None, None))
         changes = monitor.book.observe(observations, now_ns)
-        self._apply(changes, self._clock.monotonic())
+        self._writer.apply(changes, self._clock.monotonic())
 
     # -- the vehicle's safing --------------------------------------------------------------
 
@@ -487,7 +345,7 @@ class AlarmService:
         )
         now_ns = self._clock.time_ns()
         changes = self._vehicle_book(pass_id).observe([observation], now_ns, text, info)
-        self._apply(changes, self._clock.monotonic())
+        self._writer.apply(changes, self._clock.monotonic())
 
     def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None:
         """The vehicle left SAFE (``report.state`` ``nominal``): its safing alarm of that
@@ -497,87 +355,14 @@ class AlarmService:
             return
         observation = Observation(VEHICLE_SAFING, "", None, None, None, report.onboard_time_ns)
         changes = book.observe([observation], self._clock.time_ns())
-        self._apply(changes, self._clock.monotonic())
+        self._writer.apply(changes, self._clock.monotonic())
 
     # -- writes --------------------------------------------------------------------------
 
     def _books(self) -> list[AlarmBook]:
+        """Every book held (the passes' and the vehicle's): what the writer flushes."""
         books = [m.book for m in self._monitors.values() if m.book is not None]
         return books + list(self._vehicle.values())
-
-    def _apply(self, changes: list[Change], mono: float) -> None:
-        """Write the prompt changes now, the in-band updates once their second is up."""
-        due: list[Alarm] = []
-        events: list[Event] = []
-        waiting = False
-        for change in changes:
-            alarm = change.alarm
-            if change.kind == "updated" and mono - alarm.written_mono < IN_BAND_PERIOD_S:
-                waiting = True
-                continue
-            due.append(alarm)
-            event = _event(change)
-            if event is not None:
-                events.append(event)
-        if due:
-            self._write(due, events, mono)
-        if waiting:
-            self._flush_soon()
-
-    def _write(self, alarms: list[Alarm], events: list[Event], mono: float) -> None:
-        docs = [a.document() for a in alarms]
-        for alarm in alarms:
-            alarm.written_mono, alarm.dirty = mono, False
-        clock = self._clock
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            alarm_repo.save_alarms(session=session, documents=docs)
-            return [record(session, e, clock.time_ns()) for e in events]
-
-        future = asyncio.ensure_future(self._db.run(job))
-        self._writes.add(future)
-
-        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
-            self._writes.discard(future)
-            if f.cancelled():
-                return
-            if (exc := f.exception()) is not None:
-                log.error("alarms not written: %r", exc)
-                for alarm in alarms:
-                    alarm.dirty = True  # written again with the next flush
-                return
-            self._publisher.publish(f.result())
-            self._publisher.publish_alarms(docs)
-
-        future.add_done_callback(done)
-
-    def _flush_soon(self) -> None:
-        if self._flusher is None or self._flusher.done():
-            self._flusher = asyncio.get_running_loop().create_task(
-                self._flush_loop(), name="alarms-flush"
-            )
-
-    async def _flush_loop(self) -> None:
-        clock = self._clock
-        while not self._closed:
-            dirty = [a for b in self._books() for a in b.listed.values() if a.dirty]
-            if not dirty:
-                return
-            due_at = min(a.written_mono for a in dirty) + IN_BAND_PERIOD_S
-            await clock.sleep_until(due_at)
-            self._flush()
-
-    def _flush(self, *, force: bool = False) -> None:
-        """Write the alarms changed since their last write whose second is up."""
-        mono = self._clock.monotonic()
-        due = [
-            a
-            for b in self._books()
-            for a in b.listed.values()
-            if a.dirty and (force or mono - a.written_mono >= IN_BAND_PERIOD_S)
-        ]
-        if due:
-            self._write(due, [], mono)
 
     # -- acknowledgement -------------------------------------------------------------------
 
@@ -634,41 +419,6 @@ def _canonical(pass_id: str | None) -> str | None:
 def _ack_fields(doc: dict[str, Any]) -> dict[str, Any]:
     keys = ("acknowledged", "acknowledged_by", "acknowledged_time_ns", "comment")
     return {k: doc[k] for k in keys}
-
-
-def _event(change: Change) -> Event | None:
-    """The audit event of a change (none for a change of band or an in-band update)."""
-    a = change.alarm
-    actor = "vehicle" if a.source == "vehicle" else "ground"
-    last = a.timeline[-1] if a.timeline else {}
-    if change.kind in ("raised", "reopened"):
-        return AlarmRaised(
-            actor=actor,
-            pass_id=a.pass_id,
-            alarm_id=a.id,
-            source=a.source,
-            quantity=a.quantity,
-            channel=a.channel,
-            severity=a.current_severity or a.severity,
-            value=last.get("value"),
-            limit=a.limit,
-            frame_seq=last.get("frame_seq"),
-            generation_time_ns=last.get("generation_time_ns"),
-            reopened=change.kind == "reopened",
-            detail_text=a.detail,
-        )
-    if change.kind == "cleared":
-        return AlarmCleared(
-            actor=actor,
-            pass_id=a.pass_id,
-            alarm_id=a.id,
-            quantity=a.quantity,
-            channel=a.channel,
-            severity=a.severity,
-            value=a.last_value,
-            generation_time_ns=a.cleared_generation_time_ns,
-        )
-    return None
 
 
 def list_alarms(

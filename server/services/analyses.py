@@ -46,7 +46,8 @@ from sqlalchemy.orm import Session
 
 from planner.dynamics import DynamicsWorkspace
 from planner.model import INERTIA_PRODUCT_SIGN, RobotModel, default_model
-from server.schemas import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic, iso_from_ns
+from server.schemas import iso_from_ns
+from server.schemas.analyses import AnalysesPublic, AnalysisErrorPublic, AnalysisPublic
 from server.services.clearance import flown_clearance
 from server.services.errors import NotFoundError
 from server.services.events import AnalysesRun

@@ -31,7 +31,7 @@ from sqlalchemy.orm import Session
 from planner.errors import PlannerError
 from planner.flight_rules import FlightRulesReport, fits_pass_row
 from planner.plan import Plan
-from server.schemas import PlanPublic
+from server.schemas.plans import PlanPublic
 from server.services.clock import Clock
 from server.services.errors import ConflictError
 from server.services.events import PassStartRefusedFlightRules, PlanChecked

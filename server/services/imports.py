@@ -38,7 +38,8 @@ from pydantic import ValidationError
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session
 
-from server.schemas import AlarmPublic, PassImportPublic
+from server.schemas.alarms import AlarmPublic
+from server.schemas.analyses import PassImportPublic
 from server.services.errors import InvalidRequestError, UnavailableError
 from server.services.events import PassImported, with_written
 from server.services.events import record as record_event

@@ -36,9 +36,8 @@ from mission import (
     load_mission,
 )
 from mission.windows import MAX_EPOCH_DISTANCE_DAYS
-from server.schemas import (
-    EARLIEST,
-    LATEST,
+from server.schemas import EARLIEST, LATEST, ns_from_datetime
+from server.schemas.passes import (
     MissionPublic,
     MissionRelayPublic,
     MissionsPublic,
@@ -46,7 +45,6 @@ from server.schemas import (
     WindowPublic,
     WindowRef,
     WindowsPublic,
-    ns_from_datetime,
 )
 from server.services.errors import InvalidRequestError, NotFoundError
 from server.settings import Settings

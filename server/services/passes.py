@@ -24,14 +24,16 @@ from server.schemas import (
     LATEST,
     CommandPublic,
     CommandsPublic,
+    iso_from_ns,
+    ns_from_datetime,
+)
+from server.schemas.passes import (
     PassControlPublic,
     PassCreate,
     PassCreateFromWindow,
     PassesPublic,
     PassPublic,
     PassWindowPublic,
-    iso_from_ns,
-    ns_from_datetime,
 )
 from server.services.errors import ConflictError, InvalidRequestError
 from server.services.events import PassControlRefused, PassScheduled

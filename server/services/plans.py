@@ -30,7 +30,8 @@ from planner.description import RobotDescription, default_robot, load_robot
 from planner.errors import InvalidInput, PlannerError
 from planner.flight_rules import FlightRulesReport
 from planner.plan import Plan
-from server.schemas import (
+from server.schemas import iso_from_ns
+from server.schemas.plans import (
     FlightRulesPublic,
     PlanBrief,
     PlanCreate,
@@ -40,7 +41,6 @@ from server.schemas import (
     PlanValidation,
     SegmentPublic,
     ValidationIssue,
-    iso_from_ns,
 )
 from server.services.errors import DomainError, InvalidRequestError
 from server.services.events import PlanCreated

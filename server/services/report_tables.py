@@ -1,7 +1,9 @@
 """The tables of a pass report, built from stored analysis documents: pure (no database,
 no files), so the command line builds them from a recording file too.
 
-:func:`build_report` gives the :class:`~server.schemas.ReportPublic` that
+Each analysis's own tables come from :mod:`server.services.analysis_tables`; this module
+adds the paper's results against the pass's (or its plan's) and assembles the report.
+:func:`build_report` gives the :class:`~server.schemas.analyses.ReportPublic` that
 :mod:`server.services.reports` serves as JSON and renders as HTML; :data:`FIGURE_CAPTIONS`
 orders and captions the figures. A pass's alarms (their documents, docs/alarms.md) make two
 tables: the alarms, and their timeline (every change of band and every acknowledgement).
@@ -11,26 +13,15 @@ makes the ``commands`` table, after the paper's: ``nominal`` or ``degraded`` and
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from planner.plan import ETS7_ROBOT_HASH
-from server.schemas import (
-    ReportAnalysisPublic,
-    ReportPublic,
-    ReportTablePublic,
-    iso_from_ns,
-)
+from server.schemas import iso_from_ns
+from server.schemas.analyses import ReportAnalysisPublic, ReportPublic, ReportTablePublic
 from server.services.analyses import KINDS
-from telemetry.analysis.paper import (
-    Predicted,
-    Sources,
-    compare_with_flight,
-    compare_with_plan,
-    phase_plane_ordering,
-    reaction_ordering,
-)
-from telemetry.identification import INERTIA_PARAMETER_NAMES
+from server.services.analysis_tables import TABLES, cells, table
+from telemetry.analysis.paper import Predicted, Sources, compare_with_flight, compare_with_plan
 
 __all__ = ["FIGURE_CAPTIONS", "build_report", "predicted_of"]
 
@@ -60,353 +51,6 @@ FIGURE_CAPTIONS = {
     "endpoint": "Experiment 4 (Fig. 11): non-holonomic motion and its end-point errors.",
     "alarm_timeline": "Alarms: the band each alarm was in over the pass (plan clock), "
     "coloured by severity (watch, warning, distress, critical, severe).",
-}
-_RPY = ("roll", "pitch", "yaw")
-
-
-def _table(
-    id_: str, title: str, columns: Sequence[str], rows: list[list[Any]], notes: Sequence[str] = ()
-) -> ReportTablePublic:
-    return ReportTablePublic(
-        id=id_, title=title, columns=list(columns), rows=rows, notes=list(notes)
-    )
-
-
-def _records_table(
-    id_: str, title: str, columns: Sequence[str], records: Iterable[Mapping[str, Any]]
-) -> ReportTablePublic:
-    """A table with one row per record, each cell the record's value of its column."""
-    return _table(id_, title, columns, [_get(r, *columns) for r in records])
-
-
-def _get(doc: Mapping[str, Any], *keys: str) -> list[Any]:
-    return [doc.get(k) for k in keys]
-
-
-def _vector(values: Any, n: int) -> list[Any]:
-    return list(values) if isinstance(values, list) and len(values) == n else [None] * n
-
-
-def _pass_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    out = []
-    cov = doc.get("coverage") or {}
-    notes = [f"missing: {m}" for m in doc.get("missing", [])]
-    notes += [f"skipped (not in the plan): {s}" for s in doc.get("skipped", [])]
-    out.append(
-        _table(
-            "coverage",
-            "Telemetry coverage (plan clock)",
-            ["frames", "period_s", "first_t_s", "last_t_s", "plan_end_s", "gaps", "ends_early"],
-            [
-                [
-                    *_get(cov, "frames", "period_s", "first_t_s", "last_t_s", "plan_end_s"),
-                    len(cov.get("gaps_s", [])),
-                    cov.get("ends_early"),
-                ]
-            ],
-            notes,
-        )
-    )
-    pvf = doc.get("predicted_vs_flown")
-    if pvf:
-        out.append(
-            _records_table(
-                "predicted_vs_flown",
-                "Predicted against flown, per plan segment (flown minus the plan's prediction)",
-                [
-                    "segment",
-                    "kind",
-                    "frames",
-                    "attitude_rms_deg",
-                    "attitude_peak_deg",
-                    "joint_peak_max_deg",
-                ],
-                pvf.get("segments", []),
-            )
-        )
-    reaction = doc.get("reaction")
-    if reaction:
-        out.append(
-            _records_table(
-                "reaction",
-                f"Experiment 1: settling after each motion (band {reaction.get('settle_band_deg')}"
-                " deg)",
-                [
-                    "segment",
-                    "kind",
-                    "settling_time_s",
-                    "peak_excursion_deg",
-                    "peak_hand_speed_mps",
-                    "rms_reaction_momentum_nms",
-                    "peak_residual_deg",
-                    "note",
-                ],
-                reaction.get("motions", []),
-            )
-        )
-        rows, notes = reaction_ordering(reaction)
-        out.append(
-            _table(
-                "reaction_ordering",
-                "Experiment 1 (Fig. 5): the reaction on the reaction momentum |H~bm phi'| "
-                "beside the attitude; flight: the faster leg, the larger reaction",
-                ["measure", "unit", "ptp", "fast_leg", "slow_leg", "fast_leg_larger"],
-                rows,
-                notes,
-            )
-        )
-    tracking = doc.get("joint_tracking")
-    if tracking:
-        out.append(
-            _table(
-                "joint_tracking",
-                "Joint tracking: RMS of measured minus commanded "
-                f"({tracking.get('commanded_source')})",
-                [
-                    "segment",
-                    "kind",
-                    "frames",
-                    "worst_joint",
-                    *(f"j{j}_rms_error_deg" for j in range(1, 7)),
-                ],
-                [
-                    [
-                        *_get(s, "segment", "kind", "frames", "worst_joint"),
-                        *_vector(s.get("rms_error_deg"), 6),
-                    ]
-                    for s in tracking.get("segments", [])
-                ],
-            )
-        )
-    hand = doc.get("hand_attitude")
-    if hand:
-        out.append(
-            _records_table(
-                "hand_attitude",
-                "Experiment 2: hand attitude held in the orbit frame while the base turns",
-                [
-                    "span",
-                    "t_start_s",
-                    "t_end_s",
-                    "hand_change_max_deg",
-                    "base_change_max_deg",
-                    "hold_ratio",
-                ],
-                hand.get("holds", []),
-            )
-        )
-    plane = doc.get("phase_plane")
-    if plane:
-        out.append(
-            _records_table(
-                "phase_plane",
-                "Experiment 3: base pitch per attitude-control variant",
-                [
-                    "variant",
-                    "label",
-                    "start_pitch_deg",
-                    "pitch_min_deg",
-                    "pitch_max_deg",
-                    "pitch_range_deg",
-                    "first_dip_deg",
-                    "first_dip_t_s",
-                    "peak_deg",
-                    "peak_t_s",
-                    "settling_time_s",
-                    "settled",
-                    "note",
-                ],
-                plane.get("variants", []),
-            )
-        )
-        out.append(
-            _table(
-                "phase_plane_ordering",
-                "Experiment 3 (Fig. 9): the variants' ordering, ours against the flight's",
-                ["quantity", "ours", "flight", "same_as_flight"],
-                [r.row() for r in phase_plane_ordering(plane)],
-                [
-                    "first dip: the lowest pitch during the forward leg; peak: the highest "
-                    "over the variant's window; settling after the back leg, back within "
-                    f"{plane.get('settle_band_deg')} deg of the attitude target (the origin) "
-                    f"and inside over the last {plane.get('final_s')} s of its window"
-                ],
-            )
-        )
-    end = doc.get("endpoint")
-    if end:
-        rows = [
-            [
-                "attitude error (final against target)",
-                *_vector(end.get("attitude_error_deg"), 3),
-                end.get("attitude_error_angle_deg"),
-            ],
-            [
-                "attitude change error (flown against predicted change)",
-                *_vector(end.get("attitude_change_error_deg"), 3),
-                None,
-            ],
-            [
-                "attitude error against nominal",
-                *_vector(end.get("attitude_error_nominal_deg"), 3),
-                None,
-            ],
-            ["largest joint error", None, None, None, end.get("max_joint_error_deg")],
-        ]
-        out.append(
-            _table(
-                "endpoint",
-                "Experiment 4: non-holonomic end-point errors",
-                ["quantity", "roll_deg", "pitch_deg", "yaw_deg", "angle_deg"],
-                rows,
-            )
-        )
-    return out
-
-
-def _identification_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    estimate = doc.get("parameters_kgm2", {})
-    error = doc.get("standard_error_kgm2", {})
-    reference = (doc.get("reference") or {}).get("parameters_kgm2", {})
-    rows = []
-    for name in INERTIA_PARAMETER_NAMES:
-        value, sigma, truth = estimate.get(name), error.get(name), reference.get(name)
-        diff = None if value is None or truth is None else value - truth
-        ratio = None if diff is None or not sigma else diff / sigma
-        rows.append([name, value, sigma, truth, diff, ratio])
-    segments = doc.get("segments_s", [])
-    notes = [
-        f"{doc.get('n_blocks')} blocks of {doc.get('block_s')} s ({doc.get('n_samples')} "
-        f"samples) in {len(segments)} motion segments; condition number "
-        f"{doc.get('condition_number')}",
-        f"residual RMS per axis (orbit frame, N m s): {doc.get('residual_rms_nms')}",
-        f"reference: {(doc.get('reference') or {}).get('source', 'none')}",
-    ]
-    principal = [
-        [i + 1, value, sigma]
-        for i, (value, sigma) in enumerate(
-            zip(
-                doc.get("principal_moments_kgm2", []),
-                doc.get("principal_standard_error_kgm2", []),
-                strict=False,
-            )
-        )
-    ]
-    return [
-        _table(
-            "inertia_identification",
-            "Base inertia identified from momentum conservation (base frame, about the base CoM)",
-            [
-                "parameter",
-                "identified_kgm2",
-                "standard_error_kgm2",
-                "reference_kgm2",
-                "difference_kgm2",
-                "difference_sigma",
-            ],
-            rows,
-            notes,
-        ),
-        _table(
-            "inertia_principal",
-            "Principal moments of the identified inertia",
-            ["moment", "identified_kgm2", "standard_error_kgm2"],
-            principal,
-        ),
-    ]
-
-
-def _resim_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    rows = []
-    for seg in doc.get("segments", []):
-        for key, label in (("with_gg", "with eq. (11)"), ("without_gg", "without")):
-            run = seg.get(key) or {}
-            rows.append(
-                [
-                    seg.get("t_start_s"),
-                    seg.get("t_end_s"),
-                    label,
-                    *_vector(run.get("rms_residual_deg"), 3),
-                    run.get("rms_residual_angle_deg"),
-                    *_vector(run.get("final_residual_deg"), 3),
-                ]
-            )
-    return [
-        _table(
-            "gravity_gradient_resim",
-            "Free drift re-simulated with and without the gravity-gradient torque: residual "
-            "against the recorded attitude (base frame)",
-            [
-                "t_start_s",
-                "t_end_s",
-                "run",
-                *(f"rms_{a}_deg" for a in _RPY),
-                "rms_angle_deg",
-                *(f"final_{a}_deg" for a in _RPY),
-            ],
-            rows,
-            [
-                f"initial momentum and attitude from the first {doc.get('initial_window_s')} s of "
-                "each segment"
-            ],
-        )
-    ]
-
-
-def _bodies(value: Any) -> str | None:
-    return " / ".join(str(b) for b in value) if isinstance(value, list) else None
-
-
-def _clearance_tables(doc: Mapping[str, Any]) -> list[ReportTablePublic]:
-    """The clearance flown (measured joints) beside the plan's predicted one."""
-    flown = doc.get("flown") or {}
-    predicted = doc.get("predicted")
-    limit = doc.get("limit_m")
-    rows = [
-        [
-            "flown (measured joints)",
-            flown.get("value_m"),
-            flown.get("t_s"),
-            _bodies(flown.get("bodies")),
-            limit,
-            flown.get("verdict"),
-        ]
-    ]
-    if isinstance(predicted, Mapping):
-        value = predicted.get("value_m")
-        verdict = None if value is None or limit is None else ("pass" if value >= limit else "fail")
-        rows.append(
-            [
-                "predicted (the plan's flight rules)",
-                value,
-                predicted.get("t_s"),
-                _bodies(predicted.get("bodies")),
-                limit,
-                verdict,
-            ]
-        )
-    notes = [
-        f"{doc.get('n_frames')} of {doc.get('n_frames_total')} telemetry frames, "
-        f"{doc.get('n_pairs')} pairs of bodies, {doc.get('n_queries')} distance queries"
-    ]
-    if not isinstance(predicted, Mapping):
-        notes.append("the plan carries no flight-rules report: nothing predicted to compare")
-    return [
-        _table(
-            "clearance",
-            "Clearance: flown against predicted",
-            ["", "min_clearance_m", "t_s", "bodies", "limit_m", "verdict"],
-            rows,
-            notes,
-        )
-    ]
-
-
-_TABLES: dict[str, Callable[[Mapping[str, Any]], list[ReportTablePublic]]] = {
-    "pass_analysis": _pass_tables,
-    "inertia_identification": _identification_tables,
-    "gravity_gradient_resim": _resim_tables,
-    "flown_clearance": _clearance_tables,
 }
 
 
@@ -464,7 +108,7 @@ def _alarm_tables(
     by_severity = {s: sum(a.get("severity") == s for a in alarms) for s in _SEVERITIES}
     counts = ", ".join(f"{n} {s}" for s, n in by_severity.items() if n) or "none"
     return [
-        _table(
+        table(
             "alarms",
             "Alarms: the worst band each reached (latching: listed until acknowledged)",
             [
@@ -489,7 +133,7 @@ def _alarm_tables(
                 "link's health timed on the ground has none"
             ],
         ),
-        _table(
+        table(
             "alarm_timeline",
             "Alarm timeline: every change of band, and the acknowledgements",
             ["alarm", "band", "t_s", "frame_seq", "value", "unit", "ground_time_ns"],
@@ -525,7 +169,7 @@ def _flight_table(
     counts = {v: sum(r.verdict == v for r in rows) for v in dict.fromkeys(r.verdict for r in rows)}
     summary = ", ".join(f"{n} {v}" for v, n in counts.items())
     if plan is not None:
-        return _table(
+        return table(
             "plan_against_ours",
             f"Plan against ours: robot {plan.robot} is not ETS-VII, so each result of the "
             "paper is held against this pass's own plan, not the flight",
@@ -538,7 +182,7 @@ def _flight_table(
                 summary,
             ],
         )
-    return _table(
+    return table(
         "flight_against_ours",
         "Flight against ours: every result of the paper, measured on this pass",
         ["result", "paper", "flight", "ours", "criterion", "verdict"],
@@ -561,12 +205,12 @@ _OUTCOME_COLUMNS = (
 
 
 def _commands_table(outcome: Mapping[str, Any]) -> ReportTablePublic:
-    return _table(
+    return table(
         "commands",
         f"Commands: {outcome.get('outcome')} (nominal only when every command executed on "
         "board at its time tag)",
         _OUTCOME_COLUMNS,
-        [_get(outcome, *_OUTCOME_COLUMNS)],
+        [cells(outcome, *_OUTCOME_COLUMNS)],
         [str(outcome.get("text", ""))],
     )
 
@@ -600,7 +244,7 @@ def build_report(
         created = None if created_ns is None else iso_from_ns(created_ns)
         if doc.get("status") == "ok":
             statuses.append(ReportAnalysisPublic(kind=kind, status="ok", created_at=created))
-            tables += _TABLES[kind](doc.get("result") or {})
+            tables += TABLES[kind](doc.get("result") or {})
         else:
             error = doc.get("error") or {}
             reason = f"{error.get('type', 'error')}: {error.get('message', '')}"

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 
 from sqlalchemy.orm import Session
 
-from server.schemas import ReportCell, ReportPublic
+from server.schemas.analyses import ReportCell, ReportPublic
 from server.services import analyses
 from server.services.errors import NotFoundError
 from server.services.report_tables import FIGURE_CAPTIONS, build_report, predicted_of

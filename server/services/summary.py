@@ -24,7 +24,7 @@ from typing import Any, Literal
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from server.schemas import PassSummaryPublic
+from server.schemas.passes import PassSummaryPublic
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, TelemetryFrameRecord
 from server.storage.stages import AWAITING_ACK_STAGES, OPEN_STAGES

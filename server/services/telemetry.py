@@ -13,7 +13,8 @@ from typing import Any
 from pydantic import TypeAdapter
 from sqlalchemy.orm import Session
 
-from server.schemas import (
+from server.schemas import iso_from_ns
+from server.schemas.telemetry import (
     EventPublic,
     EventsPublic,
     QuantityAcrossPublic,
@@ -22,7 +23,6 @@ from server.schemas import (
     TelemetryBucketPublic,
     TelemetryPublic,
     TelemetryRowPublic,
-    iso_from_ns,
 )
 from server.services.errors import InvalidRequestError
 from server.services.passes import check_range

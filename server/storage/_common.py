@@ -7,9 +7,10 @@ from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from sqlalchemy.exc import IntegrityError, StatementError
 from sqlalchemy.orm import Session
 
-from server.storage.errors import InvalidArgument, NotFound
+from server.storage.errors import Conflict, InvalidArgument, NotFound
 from server.storage.models import PassRecord
 
 T = TypeVar("T")
@@ -76,3 +77,18 @@ def check_fields(fields: Iterable[str], allowed: Collection[str]) -> tuple[str, 
 def check_time_range(t0_ns: int, t1_ns: int) -> None:
     if not t1_ns > t0_ns:
         raise InvalidArgument(f"time range [{t0_ns}, {t1_ns}) ns is empty or reversed")
+
+
+def flush(session: Session, what: str) -> None:
+    """Flush the session's writes of ``what``: a constraint broken is :class:`Conflict`, a
+    value JSON cannot take (NaN) :class:`InvalidArgument`."""
+    try:
+        session.flush()
+    except IntegrityError as exc:
+        raise Conflict(f"{what}: {exc.orig}") from exc
+    except StatementError as exc:
+        if isinstance(exc.orig, ValueError):  # a value JSON cannot take (NaN), on SQLite
+            raise InvalidArgument(f"{what}: {exc.orig}") from exc
+        raise
+    except ValueError as exc:  # the same from psycopg, which dumps JSON itself
+        raise InvalidArgument(f"{what}: {exc}") from exc

@@ -8,7 +8,8 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
     plans      add_plan, get_plan, list_plans
     passes     add_pass, get_pass, list_passes, update_pass_state (optimistic lock),
                get_pass_layout (its telemetry's layout: the plan's robot)
-    commands   add_commands (bulk), get_command, update_command_stage, list_commands
+    commands   add_commands (bulk), get_command, update_command_stage, cancel_commands,
+               list_commands (from ``_commands``)
     events     add_event, list_events
     analysis   add_analysis, get_analysis, list_analyses
     import     add_frame_arrays, add_command_rows, add_event_rows: a whole recorded pass
@@ -19,21 +20,28 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Mapping
 from typing import Any
 
-from sqlalchemy import ColumnElement, func, insert, select, update
-from sqlalchemy.exc import IntegrityError, StatementError
+from sqlalchemy import ColumnElement, func, select
 from sqlalchemy.orm import Session, defer
 from sqlalchemy.orm.exc import StaleDataError
 
 from planner.plan import Plan
+from server.storage._commands import (
+    add_commands,
+    cancel_commands,
+    get_command,
+    list_commands,
+    update_command_stage,
+)
 from server.storage._common import (
     Page,
     canonical_id,
     check_one_of,
     check_page,
     check_time_range,
+    flush,
     new_id,
     require_pass,
 )
@@ -54,19 +62,14 @@ from server.storage._telemetry import (
 )
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 from server.storage.models import (
-    COMMAND_KINDS,
-    COMMAND_STAGES,
     PASS_STATES,
     AnalysisRecord,
-    CommandRecord,
     EventRecord,
     PassRecord,
     PlanRecord,
     stored_layout,
 )
-from server.storage.stages import OPEN_STAGES
 from telemetry.layout import FrameLayout
-from telemetry.wire import AcsCommandMsg, JointCommandMsg
 
 __all__ = [
     "Bucket",
@@ -80,6 +83,7 @@ __all__ = [
     "add_frame_arrays",
     "add_pass",
     "add_plan",
+    "cancel_commands",
     "count_frames",
     "frame_seqs",
     "get_analysis",
@@ -103,22 +107,6 @@ __all__ = [
     "update_command_stage",
     "update_pass_state",
 ]
-
-#: Fields of a wire command that have their own columns; the rest is the payload.
-_COMMAND_COLUMNS = {"v", "type", "kind", "seq", "execute_time_ns"}
-
-
-def _flush(session: Session, what: str) -> None:
-    try:
-        session.flush()
-    except IntegrityError as exc:
-        raise Conflict(f"{what}: {exc.orig}") from exc
-    except StatementError as exc:
-        if isinstance(exc.orig, ValueError):  # a value JSON cannot take (NaN), on SQLite
-            raise InvalidArgument(f"{what}: {exc.orig}") from exc
-        raise
-    except ValueError as exc:  # the same from psycopg, which dumps JSON itself
-        raise InvalidArgument(f"{what}: {exc}") from exc
 
 
 # --- plans ---------------------------------------------------------------------------------
@@ -147,7 +135,7 @@ def add_plan(
         n_joints=n_joints,
     )
     session.add(record)
-    _flush(session, f"plan {record.id}")
+    flush(session, f"plan {record.id}")
     return record
 
 
@@ -164,7 +152,7 @@ def set_plan_document(*, session: Session, plan_id: str, plan: Plan) -> PlanReco
             f"{(record.experiment, record.duration_s, record.n_joints)}"
         )
     record.document = plan.to_json()
-    _flush(session, f"plan {record.id}")
+    flush(session, f"plan {record.id}")
     return record
 
 
@@ -236,7 +224,7 @@ def add_pass(
         updated_at_ns=created_at_ns,
     )
     session.add(record)
-    _flush(session, f"pass {record.id}")
+    flush(session, f"pass {record.id}")
     return record
 
 
@@ -329,134 +317,6 @@ def update_pass_state(
     return record
 
 
-# --- commands ------------------------------------------------------------------------------
-
-
-def add_commands(
-    *,
-    session: Session,
-    pass_id: str,
-    commands: Sequence[JointCommandMsg | AcsCommandMsg],
-    queued_at_ns: int,
-) -> int:
-    """Queue ``commands`` for the pass in one bulk insert; the number stored.
-
-    A ``seq`` the pass already has raises :class:`Conflict` (and nothing of the batch is
-    kept once the session rolls back).
-    """
-    key = require_pass(session, pass_id)
-    rows = [
-        {
-            "pass_id": key,
-            "seq": command.seq,
-            "kind": command.kind,
-            "execute_time_ns": command.execute_time_ns,
-            "payload": command.model_dump(mode="json", exclude=_COMMAND_COLUMNS),
-            "stage": "queued",
-            "queued_at_ns": queued_at_ns,
-        }
-        for command in commands
-    ]
-    if not rows:
-        return 0
-    try:
-        session.execute(insert(CommandRecord), rows)
-    except IntegrityError as exc:
-        raise Conflict(f"commands of pass {key}: {exc.orig}") from exc
-    return len(rows)
-
-
-def get_command(*, session: Session, pass_id: str, seq: int) -> CommandRecord:
-    record = session.get(CommandRecord, (canonical_id(pass_id, what="pass"), seq))
-    if record is None:
-        raise NotFound(f"command {seq} of pass {pass_id!r} not found")
-    return record
-
-
-def update_command_stage(
-    *,
-    session: Session,
-    pass_id: str,
-    seq: int,
-    stage: str,
-    time_ns: int,
-    reject_reason: str | None = None,
-) -> CommandRecord:
-    """Set the command's stage and record ``time_ns`` as ``<stage>_at_ns``.
-
-    ``time_ns`` is on the clock the models name for that stage (onboard for ``received``,
-    ``executed``, ``rejected``). The stage is set as given, even backwards: acknowledgements
-    may arrive out of order, and which one wins is the service's rule.
-    """
-    check_one_of(stage, COMMAND_STAGES, what="command stage")
-    record = get_command(session=session, pass_id=pass_id, seq=seq)
-    record.stage = stage
-    setattr(record, f"{stage}_at_ns", time_ns)
-    if reject_reason is not None:
-        record.reject_reason = reject_reason
-    _flush(session, f"command {seq} of pass {pass_id}")
-    return record
-
-
-def cancel_commands(*, session: Session, pass_id: str, seqs: Collection[int], time_ns: int) -> int:
-    """Set these commands of the pass ``cancelled`` at ``time_ns`` (ground clock), those not
-    already in a final stage, in one statement per thousand seqs; how many changed."""
-    key = canonical_id(pass_id, what="pass")
-    wanted = sorted(set(seqs))
-    changed = 0
-    for lo in range(0, len(wanted), 1000):
-        result = session.execute(
-            update(CommandRecord)
-            .where(
-                CommandRecord.pass_id == key,
-                CommandRecord.seq.in_(wanted[lo : lo + 1000]),
-                CommandRecord.stage.in_(OPEN_STAGES),
-            )
-            .values(stage="cancelled", cancelled_at_ns=time_ns)
-            # objects of these rows already in the session are updated by evaluating the
-            # criteria in Python: an abort of a long pass does not fetch thousands back
-            .execution_options(synchronize_session="evaluate")
-        )
-        changed += int(result.rowcount or 0)  # type: ignore[attr-defined]
-    return changed
-
-
-def list_commands(
-    *,
-    session: Session,
-    pass_id: str,
-    stages: Collection[str] | None = None,
-    execute_from_ns: int | None = None,
-    execute_to_ns: int | None = None,
-    limit: int | None = None,
-    kinds: Collection[str] | None = None,
-) -> list[CommandRecord]:
-    """The pass's commands by time tag (then seq): only ``stages`` and ``kinds`` if given,
-    and only tags in ``[execute_from_ns, execute_to_ns)`` for the bounds given."""
-    where: list[ColumnElement[bool]] = [CommandRecord.pass_id == canonical_id(pass_id, what="pass")]
-    if stages is not None:
-        for stage in stages:
-            check_one_of(stage, COMMAND_STAGES, what="command stage")
-        where.append(CommandRecord.stage.in_(list(stages)))
-    if kinds is not None:
-        for kind in kinds:
-            check_one_of(kind, COMMAND_KINDS, what="command kind")
-        where.append(CommandRecord.kind.in_(list(kinds)))
-    if execute_from_ns is not None:
-        where.append(CommandRecord.execute_time_ns >= execute_from_ns)
-    if execute_to_ns is not None:
-        where.append(CommandRecord.execute_time_ns < execute_to_ns)
-    query = (
-        select(CommandRecord)
-        .where(*where)
-        .order_by(CommandRecord.execute_time_ns, CommandRecord.seq)
-    )
-    if limit is not None:
-        check_page(0, limit)
-        query = query.limit(limit)
-    return list(session.scalars(query))
-
-
 # --- events --------------------------------------------------------------------------------
 
 
@@ -478,7 +338,7 @@ def add_event(
         detail=dict(detail or {}),
     )
     session.add(record)
-    _flush(session, f"event {kind!r}")
+    flush(session, f"event {kind!r}")
     return record
 
 
@@ -539,7 +399,7 @@ def add_analysis(
         result=dict(result),
     )
     session.add(record)
-    _flush(session, f"analysis {kind!r} of pass {pass_id}")
+    flush(session, f"analysis {kind!r} of pass {pass_id}")
     return record
 
 

@@ -229,7 +229,7 @@ def test_a_plan_longer_than_its_window_is_refused_naming_pass_and_times(tmp_path
 def test_the_ground_replans_a_pass_from_its_plan_s_parameters_alone(campaign: Campaign) -> None:
     """POST /api/plans with experiment "pass" and the plan file's parameters: the start
     state and the orbit travel in them, so the ground's plan is the campaign's."""
-    from server.schemas import PlanCreate
+    from server.schemas.plans import PlanCreate
     from server.services.plans import plan as ground_plan
 
     mine = campaign.passes[1].plan

@@ -31,7 +31,7 @@ from planner.model import RobotModel, default_model
 from planner.simulation import default_servo_gains
 from planner.state import State
 from planner.urdf import urdf_xml
-from spacecraft.vehicle import SensorNoise
+from spacecraft.vehicle_config import SensorNoise
 from tests import reference_dynamics as ref
 
 ORIHIME_DESCRIPTION = EXAMPLES_DIR / "orihime" / "orihime.toml"

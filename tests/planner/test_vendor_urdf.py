@@ -416,7 +416,8 @@ def test_the_vehicle_holds_a_vendor_arm_at_its_reference_pose(
     """The vehicle of the description starts at the reference pose (the Panda's all-zero
     pose is outside its limits) and, with the description's servos, holds it: no sign of
     divergence in 30 s, every measured joint within 0.05 deg of its target."""
-    from spacecraft.vehicle import Vehicle, vehicle_config_for
+    from spacecraft.vehicle import Vehicle
+    from spacecraft.vehicle_config import vehicle_config_for
 
     _, _, description = loaded
     config = vehicle_config_for(description)

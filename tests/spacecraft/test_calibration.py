@@ -19,14 +19,11 @@ from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
 from planner.plan import Plan
-from spacecraft.calibration import (
-    fit_to_paper,
-    fit_to_recording,
-    gains_from_parameters,
-    write_acs_config,
-)
+from spacecraft.calibration import gains_from_parameters, write_acs_config
+from spacecraft.calibration_paper import fit_to_paper
+from spacecraft.calibration_recording import fit_to_recording
 from spacecraft.offline import fly_offline
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.mcap import write_mcap
 from telemetry.recording import PassRecording
 
@@ -249,7 +246,7 @@ def servo_pass() -> PassRecording:
     """A PTP from A to a pose that moves every joint, 40 s of settling, flown through the
     vehicle with SERVO_* and NOISE_DEG (seed 5)."""
     from planner.simulation import SimConfig, default_servo_gains
-    from spacecraft.vehicle import SensorNoise
+    from spacecraft.vehicle_config import SensorNoise
 
     workspace = DynamicsWorkspace(default_model())
     goal = (20.0, 15.0, -20.0, 30.0, 25.0, 40.0)

@@ -10,7 +10,7 @@ import pytest
 
 from planner.model import default_model
 from spacecraft.faults import Fault, FaultSpecError, check_faults, parse_fault
-from spacecraft.vehicle import VehicleConfig, VehicleError
+from spacecraft.vehicle_config import VehicleConfig, VehicleError
 
 
 @pytest.mark.parametrize(

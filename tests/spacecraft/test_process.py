@@ -23,7 +23,7 @@ import pytest
 from spacecraft.faults import parse_fault
 from spacecraft.link import LinkConfig, Outage
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.limits import attitude_error_deg
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,

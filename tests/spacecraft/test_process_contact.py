@@ -17,7 +17,7 @@ import numpy as np
 from spacecraft.contact import ContactPlan, ContactWindow
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import CommandStage, JointCommandMsg
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
 

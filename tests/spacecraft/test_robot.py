@@ -24,13 +24,8 @@ from planner.plan import Plan, Prediction, Segment
 from spacecraft.link import LinkConfig
 from spacecraft.offline import fly_offline
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from spacecraft.vehicle import (
-    SensorNoise,
-    Vehicle,
-    VehicleConfig,
-    VehicleError,
-    vehicle_config_for,
-)
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import SensorNoise, VehicleConfig, VehicleError, vehicle_config_for
 from telemetry.layout import FrameLayout
 from telemetry.wire import CommandStage, Hello, JointCommandMsg, RejectReason, encode
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
@@ -68,8 +63,8 @@ def test_the_vehicle_of_a_description_is_that_robot() -> None:
     # the wheels' limits (Orihime's 0.2 N m, 12 N m s, not ETS-VII's 0.3 and 20) bound the
     # law and the truth simulation's wheels
     assert (vehicle.gains.torque_limit_nm, vehicle.gains.momentum_limit_nms) == (0.2, 12.0)
-    assert vehicle._sim.config.wheel_torque_limit_nm == 0.2
-    assert vehicle._sim.config.wheel_momentum_limit_nms == 12.0
+    assert vehicle._truth.sim.config.wheel_torque_limit_nm == 0.2
+    assert vehicle._truth.sim.config.wheel_momentum_limit_nms == 12.0
     # an --acs-config table replaces the description's keys, the rest stays
     tuned = vehicle_config_for(d, acs_overrides={"torque_limit_nm": 0.1})
     assert tuned.acs_gains is not None and tuned.acs_gains.torque_limit_nm == 0.1

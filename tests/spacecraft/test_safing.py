@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation
 from planner.description import default_robot
 from planner.limits import ClearanceWatch, Limits
 from spacecraft.faults import parse_fault
-from spacecraft.vehicle import Vehicle, VehicleConfig
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.limits import attitude_error_deg
 from telemetry.wire import (
     AcsCommandMsg,
@@ -478,7 +479,7 @@ def test_a_nominal_ptp_flown_through_the_vehicle_never_safes_nor_alarms() -> Non
     commands uplinked as the ground does: the vehicle never safes, and the ground's
     evaluation of every frame finds nothing above the lowest band."""
     from spacecraft.nominal_limits import nominal_plan
-    from spacecraft.vehicle import vehicle_config_for
+    from spacecraft.vehicle_config import vehicle_config_for
     from telemetry.limits import for_description, interpolated_commands
     from telemetry.uplink import plan_commands
 

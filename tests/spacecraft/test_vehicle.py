@@ -18,7 +18,8 @@ from planner.model import default_model
 from planner.plan import Plan
 from planner.simulation import SimConfig
 from spacecraft._calibration import coordination_metrics, fly_plan, plan_messages
-from spacecraft.vehicle import SensorNoise, Vehicle, VehicleConfig, VehicleError
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import SensorNoise, VehicleConfig, VehicleError
 from telemetry.wire import (
     DEFAULT_SCHEDULE_CAPACITY,
     AcsCommandMsg,

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecraft.vehicle import Vehicle, VehicleConfig
+from spacecraft.vehicle import Vehicle
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.layout import DEFAULT_LAYOUT
 from telemetry.wire import CommandStage, JointCommandMsg, RejectReason
 

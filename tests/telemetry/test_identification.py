@@ -17,7 +17,7 @@ from planner.plan import AcsCommand, Plan, Prediction, Segment
 from planner.ptp import COMMAND_PERIOD_S, ptp_commands
 from spacecraft._sensors import SensorNoise
 from spacecraft.offline import fly_offline
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry._momentum import central_rates, momentum_samples, rotations_from_quats
 from telemetry.identification import (
     InertiaIdentification,

@@ -184,7 +184,7 @@ def test_pass_page_shows_the_failing_rules(
 
 
 def _server_returns_rules() -> bool:
-    from server.schemas import PlanValidation
+    from server.schemas.plans import PlanValidation
 
     return "flight_rules" in PlanValidation.model_fields
 

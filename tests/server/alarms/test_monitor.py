@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from planner.limits import Severity
-from server.services.alarms import IN_BAND_PERIOD_S
+from server.services.alarm_writes import IN_BAND_PERIOD_S
 from server.services.errors import ConflictError, NotFoundError
 from tests.server.alarms.rig import (
     PERIOD_NS,

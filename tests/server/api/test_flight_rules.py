@@ -267,6 +267,6 @@ def test_the_apis_rule_names_are_the_planners() -> None:
     from typing import get_args
 
     from planner.flight_rules import RULE_NAMES
-    from server.schemas import FlightRuleName
+    from server.schemas.plans import FlightRuleName
 
     assert get_args(FlightRuleName) == RULE_NAMES

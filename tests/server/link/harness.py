@@ -35,7 +35,7 @@ from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import TelemetryFrame
 
 TOKENS = {

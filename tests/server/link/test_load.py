@@ -66,7 +66,7 @@ OPERATOR = {"Authorization": f"Bearer {OPERATOR_TOKEN}"}
 #: pings and the abort each answer within this under the load (they took 12-15 s before
 #: the lanes; the targets, 1 s at p99, are the benchmark's).
 LOCKOUT_S = 10.0
-#: The vehicle's telemetry rate (onboard Hz: spacecraft/vehicle.py's 0.1 s period).
+#: The vehicle's telemetry rate (onboard Hz: spacecraft/vehicle_config.py's 0.1 s period).
 FRAME_RATE_HZ = 10.0
 #: A lag guard, in frames, not the target: the ground holds every frame but at most the
 #: lock-out guard's worth of the pass at its time scale (2,000 frames, 100 s onboard).

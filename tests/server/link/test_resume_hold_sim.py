@@ -4,7 +4,7 @@ reason) and the pass ends ``complete, degraded``; a gap in a holding segment, or
 shorter than the lead window, resumes as nominal.
 
 The rule: server/services/continuity.py (docs/protocol.md, "Resuming after a gap"). The
-vehicle here refuses a joint command as the real one does (spacecraft/vehicle.py): a move
+vehicle here refuses a joint command as the real one does (spacecraft/schedule.py): a move
 faster than its rate limit from the queued joint command before it (with none, from where
 its target stands now) or to the one after it is ``out_of_limits``.
 """

@@ -21,7 +21,7 @@ import httpx
 from server.storage import repository as repo
 from server.storage.models import AlarmRecord
 from spacecraft.faults import parse_fault
-from spacecraft.vehicle import VehicleConfig
+from spacecraft.vehicle_config import VehicleConfig
 from tests.server.link.harness import (
     OPERATOR,
     VIEWER,

@@ -11,7 +11,7 @@ import pytest
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
 from planner.description import EXAMPLES_DIR, load_robot
 from planner.plan import Plan
-from server.schemas import ReportPublic
+from server.schemas.analyses import ReportPublic
 from server.services.analyses import compute_analyses
 from server.services.report_tables import predicted_of
 from server.services.reports import build_report, render_html

@@ -305,7 +305,7 @@ def test_unknown_analysis_kinds_are_invalid_requests(module_client: TestClient, 
 def test_html_marks_what_the_flight_showed_and_we_did_not() -> None:
     """A verdict other than "reproduced" in the flight-against-ours table marks its row (red,
     grey); other tables' last cells are not verdicts; every text is escaped."""
-    from server.schemas import ReportPublic, ReportTablePublic
+    from server.schemas.analyses import ReportPublic, ReportTablePublic
     from server.services.reports import render_html
 
     flight = ReportTablePublic(
