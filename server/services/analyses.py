@@ -58,7 +58,6 @@ from server.storage import repository as repo
 from server.storage.errors import NotFound
 from server.storage.models import AnalysisRecord
 from telemetry.analysis import PassAnalysis, analyse_pass
-from telemetry.figures import alarm_timeline_figure, pass_figures
 from telemetry.identification import (
     INERTIA_PARAMETER_NAMES,
     InsufficientData,
@@ -207,6 +206,9 @@ def compute_analyses(
         return flown_clearance(recording, description)
 
     _, clearance_doc = _attempt("flown_clearance", clearance)
+    # matplotlib: imported by the worker that draws, not at the ground's start
+    from telemetry.figures import alarm_timeline_figure, pass_figures
+
     figures: dict[str, bytes] = {}
     if isinstance(analysis, PassAnalysis):
         try:

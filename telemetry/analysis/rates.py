@@ -12,7 +12,6 @@ seconds long) without lag. Runs shorter than the window fall back to central dif
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from telemetry.analysis._common import Array, nominal_period_s, runs
 
@@ -26,6 +25,8 @@ RATE_METHOD = (
 
 def joint_rates_radps(t_s: Array, joints_rad: Array, *, window_s: float = 1.5) -> Array:
     """Rates (n, joints) in rad/s of ``joints_rad`` (n, joints) sampled at ``t_s`` (n,)."""
+    from scipy.signal import savgol_filter  # 1-2 s to import: not at the ground's start
+
     joints = np.asarray(joints_rad, dtype=np.float64)
     rates = np.zeros_like(joints)
     if t_s.size == 0:
