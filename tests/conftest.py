@@ -49,48 +49,19 @@ def demo_recording(model: RobotModel) -> PassRecording:
     )
 
 
-#: Tests that fly a vehicle or serve a live link in wall time (a spacecraft process, a
-#: server with its link, a browser on a live pass, the console hub's pacing): their margins
-#: are onboard seconds divided by the time scale, tens of milliseconds of wall at 10x.
-#: Marked ``realtime`` at collection; they run one at a time across the workers (a
-#: ``flock`` held from setup to teardown), beside at most one test of the other kind: the
-#: one busy core they are written for. Two of them side by side on a slow machine starved
-#: each other (the 200-viewer load beside the live console). (xdist's ``loadgroup`` would
-#: put them on one worker, but xdist 3.8 cannot rename the node ids of pytest 9.)
 #: The PostgreSQL fixtures, for every directory (tests/postgres.py).
 pytest_plugins = ("tests.postgres",)
 
-REALTIME_MODULES = (
-    "tests/web/",
-    "tests/server/console/",
-    "tests/server/link/test_abort_consoles.py",
-    "tests/server/link/test_api.py",
-    "tests/server/link/test_db_outage_e2e.py",
-    "tests/server/link/test_e2e.py",
-    "tests/server/link/test_failover.py",
-    "tests/server/link/test_foxglove_live.py",
-    "tests/server/link/test_hostile.py",
-    "tests/server/link/test_load.py",
-    "tests/server/link/test_noise_e2e.py",
-    "tests/server/link/test_restart.py",
-    "tests/server/link/test_safing_e2e.py",
-    "tests/server/link/test_serve_logs.py",
-    "tests/server/link/test_soak.py",
-    "tests/server/link/test_takeover.py",
-    "tests/spacecraft/test_hostile.py",
-    "tests/spacecraft/test_process.py",
-    "tests/spacecraft/test_process_contact.py",
-    "tests/spacecraft/test_robot.py",
-    "tests/test_campaign_demo.py",
-    "tests/test_cli_demo.py",
-)
 
-
-def pytest_itemcollected(item: pytest.Item) -> None:
-    """Tests of :data:`REALTIME_MODULES` are marked ``realtime``."""
-    relative = item.path.relative_to(Path(str(item.config.rootpath))).as_posix()
-    if relative.startswith(REALTIME_MODULES):
-        item.add_marker(pytest.mark.realtime)
+#: Tests that fly a vehicle or serve a live link in wall time (a spacecraft process, a
+#: server with its link, a browser on a live pass, the console hub's pacing) are marked
+#: ``realtime`` (a module's ``pytestmark`` or the test's own mark): their margins are onboard
+#: seconds divided by the time scale, tens of milliseconds of wall at 10x. They run one at a
+#: time across the workers (a ``flock`` held from setup to teardown), beside at most one test
+#: of the other kind: the one busy core they are written for. Two of them side by side on a
+#: slow machine starved each other (the 200-viewer load beside the live console). (xdist's
+#: ``loadgroup`` would put them on one worker, but xdist 3.8 cannot rename the node ids of
+#: pytest 9.)
 
 
 def _realtime(item: pytest.Item) -> bool:

@@ -20,9 +20,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from hikoboshi.campaign_demo import run_campaign_demo
 from hikoboshi.campaign_passes import CampaignOptions
 from mission import MISSIONS_DIR, parse_utc
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_window(

@@ -31,6 +31,8 @@ from hikoboshi.demo_summary import (
 )
 from spacecraft.faults import parse_fault
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 
 def _ptp_demo(out: Path, *options: str, streams: list[str] | None = None) -> dict[str, Any]:
     """``hikoboshi demo --experiments ptp --speed 20 --json`` with ``options``, into ``out``:

@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from spacecraft.process import SpacecraftProcess
 from telemetry.wire import MAX_DEPTH, CommandStage, Ping, Pong, RejectReason
 from tests.spacecraft.ground_stub import GroundStub
 from tests.spacecraft.test_process import run_session
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def test_hostile_ground_messages_get_error_replies_and_the_link_stays_up() -> None:

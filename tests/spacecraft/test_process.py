@@ -36,6 +36,8 @@ from telemetry.wire import (
 )
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 SCALE = 20.0
 PERIOD_NS = 250_000_000
 

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from spacecraft.contact import ContactPlan, ContactWindow
 from spacecraft.link import LinkConfig
@@ -20,6 +21,8 @@ from spacecraft.process import ProcessConfig, SpacecraftProcess
 from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import CommandStage, JointCommandMsg
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 SCALE = 20.0
 #: Two windows with a 360 s gap (18 s of wall time at 20x; FAST mode flies it in a few).

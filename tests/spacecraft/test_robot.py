@@ -30,6 +30,8 @@ from telemetry.layout import FrameLayout
 from telemetry.wire import CommandStage, Hello, JointCommandMsg, RejectReason, encode
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
 EPOCH = 1_700_000_000_000_000_000
 SECOND = 1_000_000_000

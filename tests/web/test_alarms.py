@@ -36,6 +36,8 @@ from tests.server.link.harness import (
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 #: The banner's severities, worst first.
 WORST_FIRST = ["severe", "critical", "distress", "warning", "watch"]
 

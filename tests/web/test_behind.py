@@ -13,11 +13,15 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import pytest
+
 from server.services.console import ConsoleHub
 from server.services.console_messages import LagMsg, ResyncMsg
 from tests.server.link.harness import Ground
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import VIEWER_TOKEN, Console, stored_pass
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 BEHIND = "[data-test=behind]"
 

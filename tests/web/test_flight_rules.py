@@ -22,6 +22,8 @@ from server.storage import repository as repo
 from tests.server.link.harness import Ground, add_plan_and_pass
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 #: ETS-VII's base box half sizes (examples/robots/ets7/ets7.urdf, base_box) and hand sphere.
 BASE_HALF_M = (1.2, 1.0, 1.0)
 HAND_RADIUS_M = 0.08

@@ -3,9 +3,13 @@ plots and a J7 column; ETS-VII's shows six (the store takes n from the data, not
 
 from __future__ import annotations
 
+import pytest
+
 from tests.server.link.harness import Ground
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import VIEWER_TOKEN, Console, stored_pass
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def _stored_pass(ground: Ground, name: str, n_joints: int, n_frames: int) -> str:

@@ -14,10 +14,13 @@ import time
 from typing import Any
 
 import httpx
+import pytest
 
 from server.storage import repository as repo
 from tests.server.link.harness import VIEWER, Ground, pass_state, store_pass
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, FlyingSpacecraft
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def _wait_connected(ground: Ground) -> None:

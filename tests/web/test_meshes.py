@@ -18,6 +18,8 @@ from tests.server.link.harness import Ground, running_ground
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import VIEWER_TOKEN, Console, stored_pass
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 
 @pytest.fixture
 def ur5_toml(tmp_path: Path) -> Path:

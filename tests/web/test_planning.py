@@ -4,8 +4,12 @@ pass scheduled from it."""
 
 from __future__ import annotations
 
+import pytest
+
 from tests.server.link.harness import Ground
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def test_operator_validates_plans_previews_and_schedules(console: Console, ground: Ground) -> None:

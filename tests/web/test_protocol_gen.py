@@ -21,6 +21,8 @@ from server.services.command_stages import FINAL_STAGES, STAGE_RANK
 from server.storage.models import MAX_STORED_JOINTS
 from telemetry.layout import DEFAULT_LAYOUT, MAX_JOINTS, MAX_WHEELS, FrameLayout
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 WEB = Path(__file__).resolve().parents[2] / "web"
 SRC = WEB / "src"
 ESBUILD = WEB / "node_modules" / ".bin" / "esbuild"

@@ -10,9 +10,12 @@ import time
 from typing import Any
 
 import httpx
+import pytest
 
 from tests.server.link.harness import OPERATOR, VIEWER, Ground, pass_state, store_pass
 from tests.web.conftest import OPERATOR_TOKEN, Console, FlyingSpacecraft
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def _fly_to_completion(ground: Ground, name: str) -> str:

@@ -22,6 +22,8 @@ from tests.server.link.harness import Ground, running_ground
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, stored_pass
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
 
 

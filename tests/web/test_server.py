@@ -18,6 +18,8 @@ from planner.coordination import OFFSET_WINDOWS
 from server.api.errors import install_error_handlers
 from server.api.web import make_router
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 EXPERIMENTS_JSON = Path(__file__).resolve().parents[2] / "web/src/pages/experiments.json"
 
 

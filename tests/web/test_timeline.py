@@ -30,6 +30,8 @@ from tests.server.link.harness import OPERATOR, VIEWER, Ground, running_ground
 from tests.server.storage.factories import make_plan
 from tests.web.conftest import VIEWER_TOKEN, Console
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 START_1999 = "1999-09-30T00:00:00Z"
 #: The timeline's layout (web/src/pages/timeline.ts): the lanes' labels, the right margin.

@@ -16,12 +16,16 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from server.services._console_jetstream import AcrossGrounds
 from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
 from server.services.jetstream import BusConfig, LiveBus, token
 from server.services.link import LinkStatus
 from tests.nats_server import nats_server
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 N = 40
 

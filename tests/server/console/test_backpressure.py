@@ -17,6 +17,8 @@ from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 N_EVENTS = 50
 
 

@@ -9,6 +9,7 @@ from dataclasses import asdict
 from typing import Any
 
 import jsonschema
+import pytest
 from fastapi.testclient import TestClient
 from pydantic.json_schema import models_json_schema
 from starlette.testclient import WebSocketTestSession
@@ -46,6 +47,8 @@ from tests.server.console.conftest import (
 )
 from tests.server.console.test_replay import Flight, open_replay, send, until_finished
 from tests.server.storage.factories import make_frames
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 
 def test_messages_are_the_text_the_protocol_has_always_sent() -> None:

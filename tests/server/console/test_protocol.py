@@ -21,6 +21,8 @@ from tests.server.console.conftest import (
     welcome,
 )
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 SUBSCRIBE: dict[str, Any] = {"v": 1, "type": "subscribe"}
 
 

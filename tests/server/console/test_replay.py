@@ -43,6 +43,8 @@ from tests.server.console.conftest import (
 from tests.server.console.test_telemetry import frames_of
 from tests.server.storage.factories import make_frames, make_plan
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 #: ETS-VII's telemetry fields: the frames these tests fly.
 TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
 

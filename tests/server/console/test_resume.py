@@ -26,6 +26,8 @@ from tests.server.console.conftest import (
 )
 from tests.server.storage.factories import make_frames
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 
 class Console:
     """What a console keeps: the last seq per stream, and the payloads it accepted."""

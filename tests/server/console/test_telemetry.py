@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
 from fastapi.testclient import TestClient
 
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
@@ -17,6 +18,8 @@ from tests.server.console.conftest import (
     welcome,
 )
 from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 #: ETS-VII's telemetry fields: the frames these tests fly.
 TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields

@@ -34,6 +34,8 @@ from tests.server.link.harness import (
 )
 from tests.server.storage.factories import make_plan
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 N_COMMANDS = 14_000
 #: The abort sends the ``schedule_delete`` and writes one statement and one event, whatever
 #: the pass's length: it answers in a fraction of a second (bench/bench_isolation.py measures

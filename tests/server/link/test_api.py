@@ -20,6 +20,8 @@ from server.storage.db import sqlite_url
 from telemetry.wire import Hello, encode
 from tests.server.link.harness import OPERATOR, TOKENS, VIEWER, running_ground, store_pass
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 
 @pytest.fixture()
 def client(tmp_path: Path) -> Iterator[TestClient]:

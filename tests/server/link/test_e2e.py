@@ -35,6 +35,8 @@ from tests.server.link.harness import (
     wait_for,
 )
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 TARGETS = tuple(f"t{i}" for i in range(1, 7))
 
 

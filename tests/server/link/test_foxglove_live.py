@@ -32,6 +32,8 @@ from tests.server.link.harness import (
 from tests.telemetry.test_mcap import FOXGLOVE_FRAME_TRANSFORMS
 from tests.telemetry.test_mcap_alarms import FOXGLOVE_LOG
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 TOPICS = {"/tf", "/events", "/scene", "/robot_description"}
 
 

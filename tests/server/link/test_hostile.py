@@ -11,11 +11,14 @@ import time
 from typing import Any
 
 import httpx
+import pytest
 from websockets.asyncio.client import ClientConnection, connect
 
 from server.storage import repository as repo
 from telemetry.wire import MAX_DEPTH, Hello, Pong, encode
 from tests.server.link.harness import VIEWER, Ground, running_ground
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 #: ground s: the malformed messages' audit interval (5 s by default), short for the test
 INTERVAL_S = 0.5

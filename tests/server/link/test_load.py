@@ -50,6 +50,8 @@ from tests.server.link.load import (
     viewer_process,
 )
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 SCALE = 20.0
 OPERATOR_TOKEN = "operator-token-0123456789"
 SPACECRAFT_TOKEN = "spacecraft-token-01234567"

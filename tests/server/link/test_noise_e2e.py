@@ -29,6 +29,8 @@ from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
 from tests.server.link.harness import _free_port, serve_process, store_pass
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 SCALE = 20.0
 RATE = 400.0  # malformed messages a wall second
 #: wall s of flood: more than two audit intervals, and more malformed messages than the

@@ -43,6 +43,8 @@ from tests.server.link.harness import (
     wait_for,
 )
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 #: Slower than the other end-to-end tests: a restart takes seconds of wall time, and at 20x
 #: that would be a minute onboard. At 10x it is 20-40 s of a 130 s pass.
 SCALE = 10.0

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 from server.storage import repository as repo
 from server.storage.models import AlarmRecord
@@ -33,6 +34,8 @@ from tests.server.link.harness import (
     store_pass,
     wait_for,
 )
+
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 #: Joint 3 by 40 deg: a 28 s motion (the plan keeps the flight rules).
 GOAL_DEG = (0.0, 0.0, 40.0, 0.0, 0.0, 0.0)

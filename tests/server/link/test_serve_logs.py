@@ -23,6 +23,8 @@ from server.storage.db import make_engine, read_session_factory, session_factory
 from tests.server.link.harness import OPERATOR, _free_port, serve_process, store_pass
 from tests.server.link.load import spacecraft_process
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 #: The vehicle's time scale: the pass (600 s onboard, 30 s of wall) is aborted long before
 #: it ends.
 SCALE = 20.0

@@ -24,6 +24,8 @@ import pytest
 
 from tests.server.link.harness import _free_port, serve_process
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 SCALE = 20.0
 PASSES = 8
 #: The passes compared: after the warm-up (the first passes import, plan and fill caches).

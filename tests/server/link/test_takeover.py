@@ -15,6 +15,8 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.harness import Ground, running_ground
 
+pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
+
 TAKEOVERS = 15
 
 
