@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.catalogue import plan_experiment, resolve
+from planner.clearance_sampling import sampled_clearance
 from planner.collision import CollisionModel, ShapeSet, body_poses
 from planner.collision_segments import segment_collision_model
 from planner.description.build import build_robot, model_from_urdf
@@ -73,7 +74,6 @@ from planner.description.tables import head_from
 from planner.description.urdf_xml import Urdf
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
-from planner.flight_rules import sampled_clearance
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.model import RobotModel, WheelSpec
