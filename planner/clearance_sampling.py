@@ -74,7 +74,9 @@ def pair_motion_coefficients(
     collision: CollisionModel, model: RobotModel, pairs: Sequence[tuple[int, int]]
 ) -> Array:
     """``C[p, k]``: how far one body of pair p can move relative to the other per radian of
-    joint k (``rho[k, b]`` for the joints between them, 0 for the others)."""
+    joint k (``rho[k, b]``, the reach of joint k to the body b that the joints between them
+    move; 0 for the joints that move both or neither). The live clearance
+    (:class:`planner.clearance_watch.ClearanceWatch`) bounds its pairs with it too."""
     rho = reach_bounds(model, collision)
     coefficients = np.zeros((len(pairs), model.n_joints))
     for p, (a, b) in enumerate(pairs):

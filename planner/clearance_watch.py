@@ -25,12 +25,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.collision import (
-    CollisionModel,
-    CollisionShape,
-    check_collision_model,
-    reach_bounds,
-)
+from planner.clearance_sampling import pair_motion_coefficients
+from planner.collision import CollisionModel, CollisionShape, check_collision_model
 from planner.errors import InvalidInput
 from planner.model import RobotModel
 
@@ -84,7 +80,7 @@ class ClearanceWatch:
         self.pairs = self.collision.pairs
         n = model.n_joints
         #: C[p, k] (m/rad): pair p's relative motion per radian of joint k
-        self.lever = _pair_levers(self.collision, model, self.pairs)
+        self.lever = pair_motion_coefficients(self.collision, model, self.pairs)
         self._frame_of = [b.joint for b in self.collision.bodies]
         axes = np.array([link.joint_axis_robot for link in model.links], dtype=np.float64)
         kx = np.zeros((n, 3, 3))
@@ -257,18 +253,3 @@ class ClearanceWatch:
 
 def _transform(coal_module: Any, rot: Array, pos: Array, shape: CollisionShape) -> Any:
     return coal_module.Transform3s(rot @ shape.rot_robot_from_shape, rot @ shape.pos_robot_m + pos)
-
-
-def _pair_levers(
-    collision: CollisionModel, model: RobotModel, pairs: tuple[tuple[int, int], ...]
-) -> Array:
-    """``C[p, k]``: how far one body of pair p can move relative to the other per radian of
-    joint k (the reach of joint k to the body the joints between them move; 0 for the
-    joints that move both or neither)."""
-    rho = reach_bounds(model, collision)
-    out = np.zeros((len(pairs), model.n_joints))
-    for p, (a, b) in enumerate(pairs):
-        ja, jb = collision.bodies[a].joint, collision.bodies[b].joint
-        lo, hi, moving = (ja, jb, b) if ja < jb else (jb, ja, a)
-        out[p, lo:hi] = rho[lo:hi, moving]
-    return out
