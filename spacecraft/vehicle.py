@@ -43,7 +43,7 @@ sockets and the clock and calls :meth:`Vehicle.receive` with each uplinked comma
   repeated ``request_id`` is answered with the first report and does nothing.
 - **Attitude control** runs every ``control_period_s`` (and at each attitude command's tag) on
   the *measured* (noisy) attitude and rate with the law of ``acs_gains``
-  (:class:`planner.attitude_control.AttitudeController`, the planner's prediction's law: its
+  (:class:`planner.attitude_law.AttitudeController`, the planner's prediction's law: its
   integral and rate filter, if any, restart on entering feedback and on a new target); its
   feedforward is eq. (9) of the commanded motion (the servo target and its ramp rate).
   Wheel torque and momentum are limited in the simulator.
@@ -91,11 +91,11 @@ from numpy.typing import NDArray
 from planner.attitude_control import (
     AcsGains,
     AcsMode,
-    AttitudeController,
     acs_gains_from_config,
     default_acs_gains,
     reaction_rate_radps,
 )
+from planner.attitude_law import AttitudeController
 from planner.collision import CollisionModel
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import PlannerError
