@@ -12,8 +12,9 @@ Modules: ``model`` (the canonical description), ``robot`` (a loaded description)
 ``mujoco_conventions`` (the one place that speaks MuJoCo's), ``mjcf`` and ``urdf`` (exports),
 ``dynamics`` (quantities of SPEC section 2), ``gravity_gradient``, ``ik``, ``ptp``,
 ``free_drift`` (eq. 9-10 prediction) and ``simulation`` (the free-floating core); the
-planners ``experiments`` (PTP, reactionless), ``reactionless``, ``gjm``, ``coordination``,
-``nonholonomic``, ``servo_compensation`` and ``schedule``, on the shared ``plan``,
-``prediction``, ``attitude_control`` and ``closed_loop``; ``parameters`` (experiment
-parameters from text or JSON) and ``catalogue`` (the experiments by name).
+planners ``experiments`` (PTP, reactionless), ``reactionless`` (and ``reactionless_search``),
+``gjm``, ``coordination``, ``nonholonomic`` (its paths in ``nonholonomic_paths``),
+``servo_compensation`` and ``schedule``, on the shared ``plan``, ``prediction``,
+``attitude_control`` (run by ``attitude_law``) and ``closed_loop``; ``parameters``
+(experiment parameters from text or JSON) and ``catalogue`` (the experiments by name).
 """

@@ -3,9 +3,9 @@
 The same ingredients the spacecraft uses on board: lagging joint servos that follow the
 4 Hz commands (linear between them), the wheel law of :mod:`planner.attitude_control` run at
 the sample rate with the active attitude-control command (one
-:class:`~planner.attitude_control.AttitudeController`, its state advancing sample to
-sample), the feedforward's eq. (9) reaction rate computed from the commanded motion, wheel
-torque and momentum limits (the spacecraft adds sensor noise and gravity gradient).
+:class:`~planner.attitude_law.AttitudeController`, its state advancing sample to sample),
+the feedforward's eq. (9) reaction rate computed from the commanded motion, wheel torque
+and momentum limits (the spacecraft adds sensor noise and gravity gradient).
 Planners use it to evaluate and optimise against the closed loop.
 """
 
@@ -17,12 +17,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.attitude_control import (
-    AcsGains,
-    AcsMode,
-    AttitudeController,
-    reaction_rate_radps,
-)
+from planner.attitude_control import AcsGains, AcsMode, reaction_rate_radps
+from planner.attitude_law import AttitudeController
 from planner.dynamics import DynamicsWorkspace
 from planner.frames import IDENTITY_QUAT_XYZW
 from planner.plan import AcsCommand

@@ -1,4 +1,4 @@
-"""Live limits: the monitored quantities, their severity bands, and the live clearance.
+"""Live limits: the monitored quantities and their severity bands.
 
 What the ground watches on every frame and the vehicle on every control tick
 (docs/robots.md, "Limits"; SPEC 8, "live limits"): a catalogue of quantities
@@ -12,19 +12,9 @@ below). A red band (critical, severe) of a *safing* quantity makes the vehicle s
 :class:`Limits` is a robot's bands for every quantity: a description's ``[limits]`` table
 (:meth:`Limits.from_table`, which refuses bad tables with :class:`~planner.errors.
 InvalidInput`) over the built-in :data:`DEFAULT_LIMITS` (derived for ETS-VII from its
-nominal passes: ``hikoboshi model limits --fly``).
-
-:class:`ClearanceWatch` is the live hand clearance from measured joints with the flight
-rules' collision checker (:mod:`planner.collision`), asking coal only when the answer could
-matter: a pair's distance shrinks by no more than its bodies' relative path,
-``d_p(q') >= d_p(q) - sum_k C[p, k] |q'_k - q_k|`` (``C[p, k]``: the reach of joint k to the
-moving body of pair p, :func:`planner.collision.reach_bounds`), so a pair is asked again only
-when that lower bound is at or below the watched threshold, and every pair after
-``max_age`` answers from the bounds. A batch is first tried against one bound, the last
-answer less ``max_k C[:, k] . |q - q_last|`` (every pair was at least the last answer
-there): a still arm costs three numpy operations a batch. The value returned is exact
-whenever it is at or below the threshold, and otherwise an honest lower bound above it: the
-band it falls in is always the exact clearance's band.
+nominal passes: ``hikoboshi model limits --fly``). The live clearance, the one quantity
+that needs the robot's geometry, is measured by :class:`planner.clearance_watch.
+ClearanceWatch`.
 
 Pure: reads no file, imports nothing of the telemetry, the spacecraft or the server.
 """
@@ -32,23 +22,16 @@ Pure: reads no file, imports nothing of the telemetry, the spacecraft or the ser
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from types import MappingProxyType
-from typing import Any, Literal, Protocol
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.collision import (
-    CollisionModel,
-    CollisionShape,
-    check_collision_model,
-    reach_bounds,
-)
 from planner.errors import InvalidInput
-from planner.model import RobotModel
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -57,7 +40,6 @@ __all__ = [
     "SEVERITIES",
     "SEVERITY_RANK",
     "Bands",
-    "ClearanceWatch",
     "Limits",
     "QuantitySpec",
     "Severity",
@@ -372,238 +354,3 @@ DEFAULT_LIMITS: Limits = Limits(
         "DEFAULT_LIMITS",
     )
 )
-
-
-class _HasCollision(Protocol):
-    @property
-    def model(self) -> RobotModel: ...
-    @property
-    def collision(self) -> CollisionModel | None: ...
-
-
-class ClearanceWatch:
-    """Live clearance from measured joints with the flight-rules checker (coal), evaluated
-    only when needed (the module docstring): a pair is asked again when its lower bound
-    ``d - C |dq|`` is at or below ``threshold_m`` (the largest clearance threshold watched;
-    ``inf``: every pair at every call), and every pair after ``max_age`` answers from the
-    bounds.
-    ``source``: a robot description (its ``model`` and ``collision``) or a
-    ``(model, collision)`` pair. State: the pairs' last exact distances (one watch per
-    stream of joints; :meth:`reset` forgets them)."""
-
-    #: rows whose bounds are computed at once between two refreshes (a batch's look-ahead)
-    LOOKAHEAD = 16
-
-    def __init__(
-        self,
-        source: _HasCollision | tuple[RobotModel, CollisionModel],
-        threshold_m: float,
-        *,
-        max_age: int = 600,
-    ) -> None:
-        maybe: CollisionModel | None
-        if isinstance(source, tuple):
-            model, maybe = source
-            name = ""
-        else:
-            model, maybe = source.model, source.collision
-            name = str(getattr(source, "name", ""))
-        self.collision = check_collision_model(maybe, name or "robot")
-        self.model = model
-        if math.isnan(threshold_m) or threshold_m == -math.inf:
-            raise InvalidInput(f"clearance threshold must be a number, got {threshold_m!r}")
-        if max_age < 1:
-            raise InvalidInput(f"max_age must be >= 1, got {max_age!r}")
-        self.threshold_m = float(threshold_m)
-        self.max_age = int(max_age)
-        self.pairs = self.collision.pairs
-        n = model.n_joints
-        #: C[p, k] (m/rad): pair p's relative motion per radian of joint k
-        self.lever = _pair_levers(self.collision, model, self.pairs)
-        self._frame_of = [b.joint for b in self.collision.bodies]
-        axes = np.array([link.joint_axis_robot for link in model.links], dtype=np.float64)
-        kx = np.zeros((n, 3, 3))
-        kx[:, 0, 1], kx[:, 0, 2] = -axes[:, 2], axes[:, 1]
-        kx[:, 1, 0], kx[:, 1, 2] = axes[:, 2], -axes[:, 0]
-        kx[:, 2, 0], kx[:, 2, 1] = -axes[:, 1], axes[:, 0]
-        self._kx, self._kx2 = kx, kx @ kx
-        self._points = np.array([link.joint_pos_robot_m for link in model.links])
-        self._coal: tuple[Any, list[list[Any]], dict[int, list[Any]]] | None = None
-        self._distance: Array | None = None  # (P,) exact at _at
-        self._lever_max = self.lever.max(axis=0) if len(self.pairs) else np.zeros(n)
-        self._last_joints = np.zeros(n)  # the last row answered, and its answer
-        self._last_m = math.nan
-        self._at: Array = np.zeros((len(self.pairs), n))
-        self._age = 0
-        #: calls answered (joint vectors), refreshes (calls that asked coal), pairs asked
-        self.calls = 0
-        self.refreshes = 0
-        self.pair_queries = 0
-
-    def reset(self) -> None:
-        """Forget the last exact distances (the next call asks every pair)."""
-        self._distance = None
-        self._age = 0
-        self._last_m = math.nan
-
-    def pair_distances_m(self, joints_rad: Array) -> Array:
-        """Every checked pair's exact distance at ``joints_rad`` (``pairs`` order; no
-        skipping, no state)."""
-        R, t = self._poses(self._row(joints_rad))
-        return self._exact(R, t, range(len(self.pairs)))
-
-    def exact_m(self, joints_rad: Array) -> float:
-        """The exact least distance over every checked pair at ``joints_rad`` (what
-        :meth:`clearance_m` is tested against)."""
-        return float(np.min(self.pair_distances_m(joints_rad)))
-
-    def clearance_m(self, joints_rad: Array) -> float:
-        """The clearance at ``joints_rad``: exact when at or below the threshold, else a
-        lower bound of it above the threshold (NaN for non-finite joints)."""
-        return float(self.clearances_m(self._row(joints_rad)[None, :])[0])
-
-    def clearances_m(self, joints_rad: Array) -> Array:
-        """:meth:`clearance_m` of each row of ``joints_rad`` ``(m, n)``, in order (the
-        bounds of up to :attr:`LOOKAHEAD` rows at once)."""
-        q = np.atleast_2d(np.asarray(joints_rad, dtype=np.float64))
-        m = q.shape[0]
-        if q.shape[1] != self.model.n_joints:
-            raise InvalidInput(
-                f"joints have {q.shape[1]} values; the robot has {self.model.n_joints} joints"
-            )
-        if self._distance is not None and m <= self.max_age - self._age:
-            # The common case in three operations: every pair's distance at q is at least
-            # its distance at the last answered joints q_g less lever_max |q - q_g|, and
-            # the last answer was at most the least of them.
-            bound = self._last_m - np.abs(q - self._last_joints) @ self._lever_max
-            if np.all(bound > self.threshold_m):  # False for NaN
-                self.calls += m
-                self._age += m
-                out: Array = bound
-                return out
-        out = np.full(m, math.nan)
-        finite = np.all(np.isfinite(q), axis=1)
-        rows = np.flatnonzero(finite)
-        self.calls += int(rows.size)
-        i = 0
-        while i < rows.size:
-            if self._distance is None or self._age >= self.max_age:
-                stale: NDArray[np.intp] | None = None
-                first = 0
-            else:
-                block = rows[i : i + min(self.LOOKAHEAD, self.max_age - self._age)]
-                dq = np.abs(q[block][:, None, :] - self._at[None, :, :])
-                bound = self._distance[None, :] - np.einsum("rpk,pk->rp", dq, self.lever)
-                low = bound <= self.threshold_m
-                hit = np.flatnonzero(low.any(axis=1))
-                first = int(hit[0]) if hit.size else block.size
-                out[block[:first]] = bound[:first].min(axis=1)
-                self._age += first
-                i += first
-                if first == block.size:
-                    continue
-                stale = np.flatnonzero(low[first])
-            row = rows[i]
-            R, t = self._poses(q[row])
-            if stale is None:
-                self._distance = self._exact(R, t, range(len(self.pairs)))
-                self._at[:] = q[row]
-                self._age = 0
-                out[row] = float(np.min(self._distance))
-            else:
-                assert self._distance is not None
-                fresh = self._exact(R, t, stale)
-                self._distance[stale] = fresh
-                self._at[stale] = q[row]
-                self._age += 1
-                rest = bound[first].copy()
-                rest[stale] = fresh
-                out[row] = float(np.min(rest))
-            self.refreshes += 1
-            i += 1
-        if rows.size:
-            self._last_joints = q[rows[-1]].copy()
-            self._last_m = float(out[rows[-1]])
-        return out
-
-    def _row(self, joints_rad: Array) -> Array:
-        q = np.asarray(joints_rad, dtype=np.float64).reshape(-1)
-        if q.shape[0] != self.model.n_joints:
-            raise InvalidInput(
-                f"joints have {q.shape[0]} values; the robot has {self.model.n_joints} joints"
-            )
-        return q
-
-    def _poses(self, q: Array) -> tuple[Array, Array]:
-        """:func:`planner.collision.body_poses` at one joint vector ``q`` ``(n,)``: each
-        joint's moving frame ``(n + 1, 3, 3)``, ``(n + 1, 3)`` (the joints' skew matrices
-        kept from the constructor; every joint's rotation at once, then the chain)."""
-        n = q.shape[0]
-        s = np.sin(q)[:, None, None]
-        c = (1.0 - np.cos(q))[:, None, None]
-        rots = np.eye(3) + s * self._kx + c * self._kx2
-        offsets = self._points - np.einsum("jab,jb->ja", rots, self._points)
-        R = np.empty((n + 1, 3, 3))
-        t = np.empty((n + 1, 3))
-        R[0] = np.eye(3)
-        t[0] = 0.0
-        for j in range(n):
-            t[j + 1] = R[j] @ offsets[j] + t[j]
-            R[j + 1] = R[j] @ rots[j]
-        return R, t
-
-    def _exact(self, R: Array, t: Array, which: Iterable[int] | NDArray[np.intp]) -> Array:
-        """Each pair's exact distance with the body frames at ``(R, t)`` (one sample)."""
-        import coal  # imported where a distance is asked for, not with the planner
-
-        if self._coal is None:
-            request = coal.DistanceRequest()
-            request.enable_signed_distance = True
-            request.rel_err = 0.0
-            request.abs_err = 0.0
-            geometries = [[s.geometry() for s in b.shapes] for b in self.collision.bodies]
-            fixed = {
-                b: [_transform(coal, np.eye(3), np.zeros(3), s) for s in body.shapes]
-                for b, body in enumerate(self.collision.bodies)
-                if body.joint == 0
-            }
-            self._coal = (request, geometries, fixed)
-        request, geometries, fixed = self._coal
-        placed = dict(fixed)
-        result = coal.DistanceResult()
-        out = []
-        for p in which:
-            a, b = self.pairs[int(p)]
-            for body in (a, b):
-                if body not in placed:
-                    j = self._frame_of[body]
-                    placed[body] = [
-                        _transform(coal, R[j], t[j], s) for s in self.collision.bodies[body].shapes
-                    ]
-            best = math.inf
-            for ga, ta in zip(geometries[a], placed[a], strict=True):
-                for gb, tb in zip(geometries[b], placed[b], strict=True):
-                    result.clear()  # a result keeps the least distance it has seen
-                    best = min(best, float(coal.distance(ga, ta, gb, tb, request, result)))
-            out.append(best)
-        self.pair_queries += len(out)
-        return np.array(out, dtype=np.float64)
-
-
-def _transform(coal_module: Any, rot: Array, pos: Array, shape: CollisionShape) -> Any:
-    return coal_module.Transform3s(rot @ shape.rot_robot_from_shape, rot @ shape.pos_robot_m + pos)
-
-
-def _pair_levers(
-    collision: CollisionModel, model: RobotModel, pairs: tuple[tuple[int, int], ...]
-) -> Array:
-    """``C[p, k]``: how far one body of pair p can move relative to the other per radian of
-    joint k (the reach of joint k to the body the joints between them move; 0 for the
-    joints that move both or neither)."""
-    rho = reach_bounds(model, collision)
-    out = np.zeros((len(pairs), model.n_joints))
-    for p, (a, b) in enumerate(pairs):
-        ja, jb = collision.bodies[a].joint, collision.bodies[b].joint
-        lo, hi, moving = (ja, jb, b) if ja < jb else (jb, ja, a)
-        out[p, lo:hi] = rho[lo:hi, moving]
-    return out

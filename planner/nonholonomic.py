@@ -39,18 +39,19 @@ recalls). Tried on this model with several weights and dampings it stalled at 1e
 rad of attitude gap with joints driven past 180 deg. Moving whole paths uses loops as large
 as the paths and converges quadratically (4 iterations for the flight case).
 
-**Re-timing.** Each path is re-parametrised by ``sigma``, the time it takes at every joint's
-full rate limit (``d sigma = max_i |d phi_i| / rate_limit_i``), and run on the quintic
-``sigma(t) = L quintic(t / T)`` (zero rate and acceleration at both ends) with
-``T = 15/8 L / rate_fraction`` rounded up to whole 0.25 s periods; the arm stops at ``p``.
-Commands are samples of the curves, 0.25 s apart from t = 0, after ``lead_s`` at
-``phi_init`` and followed by ``tail_s`` at ``phi_end``.
+**Re-timing.** Each path is run at the joints' rate limits on a quintic, rounded up to whole
+0.25 s periods (:mod:`planner.nonholonomic_paths`); the arm stops at ``p``. Commands are
+samples of the curves, 0.25 s apart from t = 0, after ``lead_s`` at ``phi_init`` and
+followed by ``tail_s`` at ``phi_end``.
 
 **Final correction.** On board the joints move *linearly* between commands: chords, not the
 curve, and the attitude is path dependent. The rotation of the command sequence is integrated
 as :func:`planner.prediction.predict` does (RK4, 4 sub-steps per period) and ``x`` is
 corrected by Gauss-Newton steps (same ``J``, durations kept) until it, too, ends within
 ``attitude_tolerance_rad``.
+
+The paths themselves (their shape and rotation, the gap ``e``, its Jacobian and the seed,
+the re-timing) are :mod:`planner.nonholonomic_paths`'s; the solving and the plan are here.
 """
 
 from __future__ import annotations
@@ -70,12 +71,12 @@ from planner.frames import (
     matrix_from_quat_xyzw,
     matrix_from_rpy,
     quat_xyzw_from_matrix,
-    skew,
 )
 from planner.model import RobotModel
+from planner.nonholonomic_paths import MeetingProblem, commands, curve, grid_rotation
 from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
-from planner.ptp import COMMAND_PERIOD_S, QUINTIC_PEAK_RATE_FACTOR, quintic
+from planner.ptp import COMMAND_PERIOD_S
 
 if TYPE_CHECKING:
     from planner.robot import RobotDescription
@@ -93,10 +94,7 @@ Array = NDArray[np.float64]
 #: The flight plan's intermediate turning point (paper section 3.6), deg. For comparison only.
 PAPER_PHI_MID_DEG = (-36.4, 28.5, -20.3, -19.8, 54.3, 7.2)
 
-_FD_STEP = 1e-7  # rad, forward-difference step of J
-_RETIME_SAMPLES = 2001
 _PATH_SAMPLES = 401
-_SUB_STEPS = 4  # as planner.prediction.predict
 
 
 @dataclass(frozen=True)
@@ -182,169 +180,7 @@ class Meeting:
         return float(np.linalg.norm(np.degrees(self.joints_rad) - PAPER_PHI_MID_DEG))
 
 
-def _layout(n: int) -> tuple[slice, slice, slice]:
-    """``x``'s layout for n joints: p, then forward a_1, a_2, then backward b_1, b_2."""
-    return slice(0, n), slice(n, 3 * n), slice(3 * n, 5 * n)
-
-
-# --- paths and their rotation -------------------------------------------------------------
-
-
-def _curve(start: Array, p: Array, coeffs: Array, lam: Array) -> tuple[Array, Array]:
-    """Joints (m, n) and d phi / d lam (m, n) of a path at ``lam`` (m,); ``coeffs`` (2 n,)."""
-    c = coeffs.reshape(2, start.size)
-    k_pi = np.pi * np.arange(1, 3)[:, None]
-    shape = np.sin(k_pi * lam)  # (2, m)
-    joints = start + lam[:, None] * (p - start) + shape.T @ c
-    rates = (p - start) + (k_pi * np.cos(k_pi * lam)).T @ c
-    return joints, rates
-
-
-def _base_rates(ws: DynamicsWorkspace, joints: Array, rates: Array) -> Array:
-    """Eq. (9), base frame: ``A(phi) phi'`` per row (m, 3)."""
-    h_b = np.empty((joints.shape[0], 3, 3))
-    h_bm_rate = np.empty((joints.shape[0], 3))
-    for k, (q, r) in enumerate(zip(joints, rates, strict=True)):
-        hb, hbm = ws.momentum_blocks(q)
-        h_b[k], h_bm_rate[k] = hb, hbm @ r
-    return np.asarray(-np.linalg.solve(h_b, h_bm_rate[:, :, None])[:, :, 0], dtype=np.float64)
-
-
-def _omega_matrix(w: Array) -> Array:
-    """(m, 4, 4) with ``M @ q == quat_multiply_xyzw(q, (w, 0))``, scalar-last ``q``."""
-    x, y, z = w[:, 0], w[:, 1], w[:, 2]
-    o = np.zeros_like(x)
-    rows = [[o, z, -y, x], [-z, o, x, y], [y, -x, o, z], [-x, -y, -z, o]]
-    return np.moveaxis(np.array(rows), (0, 1), (1, 2))
-
-
-def _rk4_rotation(w0: Array, wm: Array, w1: Array, h: float) -> Array:
-    """``G`` (3, 3) of ``G' = G [w]x`` from the identity over steps of ``h`` with body rates at
-    each step's start, midpoint and end (n, 3) each; RK4 on the quaternion as in predict."""
-    m0, mm, m1 = (0.5 * _omega_matrix(w) for w in (w0, wm, w1))
-    q = np.array([0.0, 0.0, 0.0, 1.0])
-    for a, b, c in zip(m0, mm, m1, strict=True):
-        k1 = a @ q
-        y = q + 0.5 * h * k1
-        k2 = b @ _unit(y)
-        y = q + 0.5 * h * k2
-        k3 = b @ _unit(y)
-        y = q + h * k3
-        k4 = c @ _unit(y)
-        q = _unit(q + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
-    return matrix_from_quat_xyzw(q)
-
-
-def _unit(y: Array) -> Array:
-    """``y / np.linalg.norm(y)`` with the norm's own arithmetic, without its wrapper (the
-    loop above runs a hundred thousand times per meeting)."""
-    return y / math.sqrt(y.dot(y))
-
-
-def _path_rotation(ws: DynamicsWorkspace, start: Array, p: Array, coeffs: Array, n: int) -> Array:
-    lam = np.linspace(0.0, 1.0, 2 * n + 1)
-    w = _base_rates(ws, *_curve(start, p, coeffs, lam))
-    return _rk4_rotation(w[0:-1:2], w[1::2], w[2::2], 1.0 / n)
-
-
-def _grid_rotation(ws: DynamicsWorkspace, joints: Array) -> Array:
-    """Rotation of linearly interpolated 4 Hz commands (k, n), as predict integrates it."""
-    n = joints.shape[1]
-    step = np.diff(joints, axis=0)
-    moving = np.flatnonzero(np.any(step != 0.0, axis=1))
-    tau = np.linspace(0.0, 1.0, 2 * _SUB_STEPS + 1)
-    pts = joints[moving][:, None, :] + tau[None, :, None] * step[moving][:, None, :]
-    rates = np.broadcast_to(step[moving][:, None, :] / COMMAND_PERIOD_S, pts.shape)
-    w = _base_rates(ws, pts.reshape(-1, n), rates.reshape(-1, n)).reshape((*pts.shape[:2], 3))
-    h = COMMAND_PERIOD_S / _SUB_STEPS
-    return _rk4_rotation(
-        w[:, 0:-1:2].reshape(-1, 3), w[:, 1::2].reshape(-1, 3), w[:, 2::2].reshape(-1, 3), h
-    )
-
-
 # --- the meeting --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Problem:
-    ws: DynamicsWorkspace
-    start: Array
-    goal: Array
-    rot_init: Array  # rot_orbit_from_base at the start
-    rot_end: Array
-    steps: int
-
-    @property
-    def slices(self) -> tuple[slice, slice, slice]:
-        return _layout(self.start.size)
-
-    def rotations(self, x: Array) -> tuple[Array, Array]:
-        p, fwd, bwd = self.slices
-        g_f = _path_rotation(self.ws, self.start, x[p], x[fwd], self.steps)
-        g_b = _path_rotation(self.ws, self.goal, x[p], x[bwd], self.steps)
-        return g_f, g_b
-
-    def gap(self, g_f: Array, g_b: Array) -> Array:
-        """``e = log(R_b^T R_f)`` at the meeting (rad)."""
-        rot = (self.rot_end @ g_b).T @ self.rot_init @ g_f
-        return np.asarray(Rotation.from_matrix(rot).as_rotvec(), dtype=np.float64)
-
-    def jacobian(self, x: Array, g_f: Array, g_b: Array, e: Array) -> Array:
-        p, fwd, bwd = self.slices
-        jac = np.empty((3, x.size))
-        for i in range(x.size):
-            xi = x.copy()
-            xi[i] += _FD_STEP
-            if i < fwd.start:  # p moves both paths' ends
-                gf, gb = self.rotations(xi)
-            elif i < fwd.stop:
-                gf, gb = _path_rotation(self.ws, self.start, xi[p], xi[fwd], self.steps), g_b
-            else:
-                gf, gb = g_f, _path_rotation(self.ws, self.goal, xi[p], xi[bwd], self.steps)
-            jac[:, i] = (self.gap(gf, gb) - e) / _FD_STEP
-        return jac
-
-    def seed(self, mid: Array, e0: Array) -> Array:
-        """One loop per path in the plane of largest curvature about ``e0``'s axis."""
-        n = mid.size
-        x = np.concatenate([mid, np.zeros(4 * n)])
-        norm = float(np.linalg.norm(e0))
-        if norm == 0.0:
-            return x
-        eps = 1e-5
-        reaction = _reaction(self.ws, mid)
-        d_reaction = np.array(  # [i] = dA / dphi_i, (n, 3, n)
-            [
-                _reaction(self.ws, mid + eps * d) - _reaction(self.ws, mid - eps * d)
-                for d in np.eye(n)
-            ]
-        ) / (2.0 * eps)
-        # Curvature of w = A dphi, F_ij = d_i A_j - d_j A_i + A_i x A_j, along e0's axis.
-        axis = e0 / norm
-        grad = np.einsum("k,ikj->ij", axis, d_reaction)
-        curv = grad - grad.T - reaction.T @ skew(axis) @ reaction
-        # ``curv`` is antisymmetric: it turns its top invariant plane by 90 deg and scales it
-        # by the top singular value (a pair). Any orthonormal (u, v) of that plane serves; u is
-        # pinned to the joint axis closest to the plane so that round-off cannot turn it.
-        vecs, sing, _ = np.linalg.svd(curv)
-        proj = vecs[:, :2] @ vecs[:, :2].T
-        u = proj[:, int(np.argmax(np.diag(proj)))]
-        u = u / np.linalg.norm(u)
-        v = curv @ u / np.linalg.norm(curv @ u)
-        # A loop (s u sin(pi lam), s v sin(2 pi lam)) encloses 4/3 s^2; half of e0 per path.
-        s = math.sqrt(3.0 * norm / (8.0 * max(float(sing[0]), 1e-12)))
-        best, best_gap = x, math.inf
-        for sign in (1.0, -1.0):  # the loop's sense
-            cand = np.concatenate([mid, s * u, sign * s * v, s * u, -sign * s * v])
-            gap = float(np.linalg.norm(self.gap(*self.rotations(cand))))
-            if gap < best_gap:
-                best, best_gap = cand, gap
-        return best
-
-
-def _reaction(ws: DynamicsWorkspace, joints: Array) -> Array:
-    h_b, h_bm = ws.momentum_blocks(joints)
-    return np.asarray(-np.linalg.solve(h_b, h_bm))
 
 
 def _gauss_newton_step(jac: Array, e: Array, mu: float) -> Array:
@@ -354,7 +190,7 @@ def _gauss_newton_step(jac: Array, e: Array, mu: float) -> Array:
     return np.asarray(-jac.T @ np.linalg.pinv(jjt + damp * np.eye(3)) @ e)
 
 
-def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> _Problem:
+def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> MeetingProblem:
     model = ws.model
     joints = {}
     for name in ("phi_init_deg", "phi_end_deg"):
@@ -367,7 +203,7 @@ def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> _Problem:
             raise JointLimitExceeded(
                 exc.joint, exc.value, exc.limit, exc.unit, what=f"in {name} at"
             ) from exc
-    return _Problem(
+    return MeetingProblem(
         ws=ws,
         start=joints["phi_init_deg"],
         goal=joints["phi_end_deg"],
@@ -377,7 +213,7 @@ def _problem(ws: DynamicsWorkspace, params: NonholonomicParams) -> _Problem:
     )
 
 
-def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting, Array]:
+def _solve_meeting(prob: MeetingProblem, params: NonholonomicParams) -> tuple[Meeting, Array]:
     mid = 0.5 * (prob.start + prob.goal)
     p_slice, fwd, bwd = prob.slices
     straight = prob.gap(*prob.rotations(np.concatenate([mid, np.zeros(4 * mid.size)])))
@@ -417,8 +253,8 @@ def _solve_meeting(prob: _Problem, params: NonholonomicParams) -> tuple[Meeting,
     if not jac.any():
         jac = prob.jacobian(x, g_f, g_b, e)
     lam = np.linspace(0.0, 1.0, _PATH_SAMPLES)
-    forward = _curve(prob.start, x[p_slice], x[fwd], lam)[0]
-    backward = _curve(prob.goal, x[p_slice], x[bwd], lam)[0]
+    forward = curve(prob.start, x[p_slice], x[fwd], lam)[0]
+    backward = curve(prob.goal, x[p_slice], x[bwd], lam)[0]
     _check_path_limits(prob.ws.model, np.vstack([forward, backward]))
     meeting = Meeting(
         joints_rad=x[p_slice].copy(),
@@ -454,56 +290,15 @@ def find_meeting(ws: DynamicsWorkspace, params: NonholonomicParams | None = None
     return _solve_meeting(_problem(ws, params), params)[0]
 
 
-# --- re-timing and the plan ---------------------------------------------------------------
-
-
-def _path_commands(
-    model: RobotModel, start: Array, p: Array, coeffs: Array, rate_fraction: float, n: int | None
-) -> Array:
-    """Commands (n + 1, joints) along a path, 0.25 s apart, on the quintic in ``sigma``."""
-    lam = np.linspace(0.0, 1.0, _RETIME_SAMPLES)
-    rates = _curve(start, p, coeffs, lam)[1]
-    speed = np.max(np.abs(rates) / model.joint_rate_limit_radps, axis=1)  # s per unit lam
-    sigma = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(lam))])
-    if n is None:
-        full_s = QUINTIC_PEAK_RATE_FACTOR * sigma[-1] / rate_fraction
-        n = max(1, math.ceil(full_s / COMMAND_PERIOD_S - 1e-9))
-    s = sigma[-1] * quintic(np.arange(n + 1) / n)
-    joints = _curve(start, p, coeffs, np.interp(s, sigma, lam))[0]
-    joints[0], joints[-1] = start, p
-    return joints
-
-
-def _commands(
-    prob: _Problem, x: Array, params: NonholonomicParams, n: tuple[int, int] | None
-) -> tuple[Array, Array]:
-    """(forward, reversed backward) commands; each path's period count grows until every
-    joint stays within ``rate_fraction`` of its limit (sigma is sampled, not exact)."""
-    model = prob.ws.model
-    counts: list[int | None] = [None, None] if n is None else list(n)
-    legs = []
-    p, fwd, bwd = prob.slices
-    for leg, (start, coeffs) in enumerate(((prob.start, x[fwd]), (prob.goal, x[bwd]))):
-        for _ in range(4):
-            joints = _path_commands(model, start, x[p], coeffs, params.rate_fraction, counts[leg])
-            worst = np.max(
-                np.abs(np.diff(joints, axis=0))
-                / COMMAND_PERIOD_S
-                / (params.rate_fraction * model.joint_rate_limit_radps)
-            )
-            if n is not None or worst <= 1.0 + 1e-12:
-                break
-            counts[leg] = math.ceil((joints.shape[0] - 1) * worst)
-        legs.append(joints)
-    return legs[0], legs[1][::-1]
+# --- the final correction and the plan ----------------------------------------------------
 
 
 def _correct_on_grid(
-    prob: _Problem, params: NonholonomicParams, x: Array, jac: Array
+    prob: MeetingProblem, params: NonholonomicParams, x: Array, jac: Array
 ) -> tuple[Array, Array, tuple[int, int], int]:
     """Commands from ``phi_init`` to ``phi_end`` (k, n) whose 4 Hz linear interpolation ends
     at ``R_end``, the corrected ``x``, the period count of each path and the corrections."""
-    forward, backward = _commands(prob, x, params, None)
+    forward, backward = commands(prob, x, params.rate_fraction, None)
     counts = (forward.shape[0] - 1, backward.shape[0] - 1)
     e_grid = np.zeros(3)
     step = np.zeros_like(x)
@@ -512,10 +307,10 @@ def _correct_on_grid(
         if corrections:
             step = _gauss_newton_step(jac, e_grid, 0.0)
             x = x + step
-            forward, backward = _commands(prob, x, params, counts)
+            forward, backward = commands(prob, x, params.rate_fraction, counts)
         joints = np.vstack([forward, backward[1:]])
         # End error of the commands in e's terms: log(R_end^T R_final) = G_b e.
-        rot_final = prob.rot_init @ _grid_rotation(prob.ws, joints)
+        rot_final = prob.rot_init @ grid_rotation(prob.ws, joints)
         end_error = Rotation.from_matrix(prob.rot_end.T @ rot_final).as_rotvec()
         e_prev, e_grid = e_grid, np.asarray(prob.rotations(x)[1].T @ end_error, dtype=np.float64)
         if np.linalg.norm(e_grid) < params.attitude_tolerance_rad:

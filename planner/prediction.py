@@ -14,9 +14,9 @@ system centre of mass stays put (eq. 2 at zero linear momentum); positions are o
 coordinates with the origin at the initial base CoM. (The rotors' own share of the base's
 angular acceleration, ``I_w a . w_b'``, is left out of dh_w/dt: 0.15 kg m^2 against thousands.)
 
-The attitude-control law runs in continuous time (:func:`planner.attitude_control.law_rates`):
+The attitude-control law runs in continuous time (:func:`planner.attitude_law.law_rates`):
 its integral and rate-estimate states are appended to the ODE and restart, as on board
-(:class:`planner.attitude_control.AttitudeController`), at the first command time at which
+(:class:`planner.attitude_law.AttitudeController`), at the first command time at which
 the mode becomes ``feedback``; a change of target restarts the integral only.
 """
 
@@ -28,13 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.attitude_control import (
-    AcsGains,
-    AcsMode,
-    attitude_error_rad,
-    law_rates,
-    wheel_torque_nm,
-)
+from planner.attitude_control import AcsGains, AcsMode, attitude_error_rad
+from planner.attitude_law import law_rates, wheel_torque_nm
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
 from planner.frames import (

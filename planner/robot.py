@@ -33,7 +33,8 @@ from planner.attitude_control import AcsGains, acs_gains_from_config
 from planner.collision import CollisionModel
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput, PlannerError
-from planner.flight_rules import FlightRules, FlightRulesReport, ServoModel, check_plan
+from planner.flight_check import check_plan
+from planner.flight_rules import FlightRules, FlightRulesReport
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.limits import DEFAULT_LIMITS, Limits
@@ -41,6 +42,7 @@ from planner.meshes import MeshVisual
 from planner.mjcf import ServoGains
 from planner.model import RobotModel, arm_reach_m, default_model
 from planner.plan import Plan
+from planner.servo_response import ServoModel
 from planner.simulation import default_servo_gains
 from planner.state import State
 
@@ -189,7 +191,7 @@ class RobotDescription:
 
     def servo_model(self, ws: DynamicsWorkspace | None = None) -> ServoModel:
         """The servos as the flight rules model them: each joint's PD gains on its own
-        inertia ``H_m[i, i]`` at the reference pose (:class:`planner.flight_rules.ServoModel`)."""
+        inertia ``H_m[i, i]`` at the reference pose (:class:`planner.servo_response.ServoModel`)."""
         workspace = ws if ws is not None else DynamicsWorkspace(self.model)
         zeros = np.zeros(self.n_joints)
         reference = self.model.reference_joints
@@ -203,7 +205,7 @@ class RobotDescription:
     def check_plan(
         self, plan: Plan, *, window_s: float | None = None, ws: DynamicsWorkspace | None = None
     ) -> FlightRulesReport:
-        """``plan`` against this robot's flight rules (:func:`planner.flight_rules.
+        """``plan`` against this robot's flight rules (:func:`planner.flight_check.
         check_plan`); ``window_s``: its pass's window (None: ``[flight_rules]
         pass_window_s``). Refused (:class:`InvalidInput`) for a plan made for another robot
         or a robot without collision shapes."""

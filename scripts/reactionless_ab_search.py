@@ -1,6 +1,6 @@
 """Search globally for a reactionless path from pose A to pose B (issue #13 part 5).
 
-Runs :func:`planner.reactionless.search_reactionless_global` from A (all joints zero) to
+Runs :func:`planner.reactionless_search.search_reactionless_global` from A (all joints zero) to
 pose B's hand pose with the given seed and budget, prints its progress, and then explains
 the closest approach: at the best path's end it compares the joint motion the hand still
 needs with what the reaction null space (RNS) and its first Lie brackets can supply (the
@@ -28,7 +28,7 @@ from planner.experiments import POSE_B_POS_ROBOT_M, POSE_B_RPY_DEG, joints_at_po
 from planner.frames import matrix_from_rpy
 from planner.model import default_model
 from planner.prediction import predict
-from planner.reactionless import (
+from planner.reactionless_search import (
     reactionless_flow,
     search_reactionless_global,
     search_reactionless_path,

@@ -31,7 +31,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.catalogue import parse_assignments, plan_experiment, resolve
-from planner.limits import QUANTITIES, ClearanceWatch, Limits, channel_names
+from planner.clearance_watch import ClearanceWatch
+from planner.limits import QUANTITIES, Limits, channel_names
 from planner.plan import Plan
 from planner.robot import RobotDescription
 from spacecraft.vehicle import Vehicle

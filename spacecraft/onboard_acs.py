@@ -3,7 +3,7 @@ its law commands (SPEC section 6, docs/spacecraft.md).
 
 It runs every ``control_period_s`` (and at each attitude command's tag) on the *measured*
 (noisy) attitude and rate with the law of ``acs_gains``
-(:class:`planner.attitude_control.AttitudeController`, the planner's prediction's law: its
+(:class:`planner.attitude_law.AttitudeController`, the planner's prediction's law: its
 integral and rate filter, if any, restart on entering feedback and on a new target); its
 feedforward is eq. (9) of the commanded motion (the servo target and its ramp rate). Wheel
 torque and momentum are limited in the simulator. An attitude-control command switches
@@ -18,12 +18,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.attitude_control import (
-    AcsGains,
-    AcsMode,
-    AttitudeController,
-    reaction_rate_radps,
-)
+from planner.attitude_control import AcsGains, AcsMode, reaction_rate_radps
+from planner.attitude_law import AttitudeController
 from planner.dynamics import DynamicsWorkspace
 from planner.state import State
 from spacecraft._sensors import Measurement

@@ -13,7 +13,7 @@ servo target less the measured joints (the vehicle knows no plan):
 - ``wheel_momentum_fraction`` (``wheel1..k``): ``|I_w speed|`` over the momentum limit the
   truth simulation enforces on the wheels;
 - ``joint_tracking_error_deg`` (``joint1..n``): ``|servo target - measured|``;
-- ``clearance_m``: :class:`~planner.limits.ClearanceWatch` on the measured joints.
+- ``clearance_m``: :class:`~planner.clearance_watch.ClearanceWatch` on the measured joints.
 
 The first quantity in that order with a channel at or beyond its red threshold is the
 trigger (its worst channel). :class:`OnboardSafing` is the SAFE state the vehicle keeps: when
@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.clearance_watch import ClearanceWatch
 from planner.collision import CollisionModel
 from planner.errors import InvalidInput
-from planner.limits import DEFAULT_LIMITS, ClearanceWatch, Limits
+from planner.limits import DEFAULT_LIMITS, Limits
 from planner.model import RobotModel
 from telemetry.wire import Safing, SafingTrigger
 

@@ -18,7 +18,7 @@ Limits`:
   joint commands) and, where it gives none (NaN rows, or no callable), the frame's own
   ``joint_targets_rad`` (the vehicle's servo target);
 - ``joint_limit_distance_deg``: the measured angle's distance to the nearer limit;
-- ``clearance_m``: :class:`~planner.limits.ClearanceWatch` on the measured joints (NaN, so
+- ``clearance_m``: :class:`~planner.clearance_watch.ClearanceWatch` on the measured joints (NaN, so
   never in a band, without one);
 - ``schedule_occupancy``: ``buffer.queued / buffer.capacity`` (1024, the wire's default,
   where the frame does not say).
@@ -42,11 +42,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.clearance_watch import ClearanceWatch
 from planner.errors import InvalidInput
 from planner.limits import (
     QUANTITIES,
     SEVERITIES,
-    ClearanceWatch,
     Limits,
     Severity,
     channel_names,

@@ -31,8 +31,8 @@ from typer.testing import CliRunner, Result
 from hikoboshi import robot_cli
 from hikoboshi.cli import app
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
-from planner.description import load_robot, scaffold
-from planner.description.scaffold import NONHOLONOMIC_SCALES, nonholonomic_candidates
+from planner.description import load_robot, scaffold_experiments, scaffold_text
+from planner.description.scaffold_experiments import NONHOLONOMIC_SCALES, nonholonomic_candidates
 from planner.dynamics import DynamicsWorkspace
 from planner.flight_rules import FlightRulesReport
 from planner.plan import Plan
@@ -300,9 +300,12 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     no start keeps the UR5's non-holonomic path clear of the base: the file is written for
     the user to edit, but the exit status is 1, stderr names the experiment and the report
     gives the nearer candidate and the verdicts (in process, to narrow the candidates)."""
-    candidates = scaffold.nonholonomic_candidates
-    monkeypatch.setattr(scaffold, "NONHOLONOMIC_SCALES", (1.5,))
-    monkeypatch.setattr(scaffold, "nonholonomic_candidates", lambda n: candidates(n)[:2])
+    candidates = scaffold_experiments.nonholonomic_candidates
+    for module in (scaffold_experiments, scaffold_text):  # the candidates, the file's comment
+        monkeypatch.setattr(module, "NONHOLONOMIC_SCALES", (1.5,))
+    monkeypatch.setattr(
+        scaffold_experiments, "nonholonomic_candidates", lambda n: candidates(n)[:2]
+    )
     out = tmp_path / "ur5.toml"
     result = CliRunner().invoke(
         app, ["robot", "init", "--urdf", str(vendor_urdf("ur5")), "--hand", "tool0",

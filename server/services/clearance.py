@@ -5,7 +5,7 @@ flight rules predicted (docs/robots.md).
 The pass's frames are taken at most :data:`MAX_FRAMES` of them, evenly spread (the demo
 pass has about 12 000); at each the exact minimum over every checked pair of the robot's
 description (``description.collision.pairs``), by the planner's own
-:func:`planner.flight_rules.sampled_clearance` on the bodies posed at the measured joints
+:func:`planner.clearance_sampling.sampled_clearance` on the bodies posed at the measured joints
 (a pair is asked again only when the path its bodies may have travelled since its last
 exact distance could have brought it below the best found at that frame, each joint's path
 being what it measured between the two frames).
@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.clearance_sampling import sampled_clearance
 from planner.collision import body_poses
 from planner.errors import InvalidInput
-from planner.flight_rules import FlightRulesReport, sampled_clearance
+from planner.flight_rules import FlightRulesReport
 from planner.robot import RobotDescription
 from telemetry.recording import PassRecording
 

@@ -18,11 +18,10 @@ from planner.attitude_control import (
     DEFAULT_RATE_FILTER_TAU_S,
     AcsGains,
     AcsMode,
-    AttitudeController,
     acs_gains_from_config,
     default_acs_gains,
-    wheel_torque_nm,
 )
+from planner.attitude_law import AttitudeController, wheel_torque_nm
 from planner.closed_loop import fly
 from planner.description import load_acs_config
 from planner.dynamics import DynamicsWorkspace

@@ -26,7 +26,8 @@ from planner.experiments import (
 from planner.frames import matrix_from_rpy
 from planner.plan import Plan, check_plan_limits
 from planner.prediction import predict
-from planner.reactionless import reactionless_line, search_reactionless_path
+from planner.reactionless import reactionless_line
+from planner.reactionless_search import search_reactionless_path
 from planner.simulation import FreeFloatingSimulator, follow_commands
 from planner.state import State
 

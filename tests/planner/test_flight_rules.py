@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from planner.catalogue import parameters_from_values, plan_experiment, resolve
+from planner.clearance_sampling import joint_paths, sample_step_s, sampled_clearance
 from planner.collision import (
     CollisionBody,
     CollisionModel,
@@ -32,16 +33,11 @@ from planner.description import (
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
-from planner.flight_rules import (
-    _joint_paths,
-    sample_step_s,
-    sampled_clearance,
-    servo_response,
-)
 from planner.frames import matrix_from_rpy
 from planner.ik import solve_ik
 from planner.plan import Plan
 from planner.ptp import COMMAND_PERIOD_S
+from planner.servo_response import servo_response
 from planner.state import State
 
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"
@@ -167,7 +163,7 @@ def test_each_samples_minimum_is_exact_against_brute_force(ets7: RobotDescriptio
     R, t = body_poses(ets7.model, joints)
     pairs = list(ets7.collision.pairs)
     found = sampled_clearance(
-        ets7.collision, pairs, R, t, _joint_paths(ets7.servo_model(), plan, step, joints, rates),
+        ets7.collision, pairs, R, t, joint_paths(ets7.servo_model(), plan, step, joints, rates),
         ets7.model,
     )  # fmt: skip
     shapes = ShapeSet(ets7.collision)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.clearance_watch import ClearanceWatch
 from planner.collision import body_poses
 from planner.description import EXAMPLES_DIR, InvalidRobotDescription, default_robot, load_robot
 from planner.errors import InvalidInput
@@ -20,7 +21,6 @@ from planner.limits import (
     RED,
     SEVERITY_RANK,
     Bands,
-    ClearanceWatch,
     Limits,
     Severity,
     channel_names,

@@ -6,12 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from planner.attitude_control import (
-    AcsMode,
-    AttitudeController,
-    attitude_error_rad,
-    default_acs_gains,
-)
+from planner.attitude_control import AcsMode, attitude_error_rad, default_acs_gains
+from planner.attitude_law import AttitudeController
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput, JointLimitExceeded
 from planner.free_drift import predict_base_attitude

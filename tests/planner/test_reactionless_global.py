@@ -11,7 +11,7 @@ from planner.errors import InvalidInput
 from planner.frames import matrix_from_rpy
 from planner.model import default_model
 from planner.prediction import predict
-from planner.reactionless import (
+from planner.reactionless_search import (
     GlobalReactionlessSearch,
     reactionless_flow,
     search_reactionless_global,

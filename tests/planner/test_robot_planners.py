@@ -26,7 +26,7 @@ from planner.ik import solve_ik
 from planner.nonholonomic import NonholonomicParams, plan_nonholonomic
 from planner.plan import ETS7_ROBOT_HASH, Plan, check_plan_limits
 from planner.prediction import predict
-from planner.reactionless import search_reactionless_global, search_reactionless_path
+from planner.reactionless_search import search_reactionless_global, search_reactionless_path
 from planner.schedule import EXPERIMENTS, PassParams, plan_coordination_for, plan_pass
 from planner.simulation import FreeFloatingSimulator, SimConfig, follow_commands
 from planner.state import State

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from planner.clearance_watch import ClearanceWatch
 from planner.description import default_robot
-from planner.limits import ClearanceWatch, Limits
+from planner.limits import Limits
 from spacecraft.faults import parse_fault
 from spacecraft.vehicle import Vehicle
 from spacecraft.vehicle_config import VehicleConfig

@@ -10,8 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from planner.attitude_control import attitude_error_rad
+from planner.clearance_watch import ClearanceWatch
 from planner.description import default_robot
-from planner.limits import DEFAULT_LIMITS, ClearanceWatch, Limits, Severity
+from planner.limits import DEFAULT_LIMITS, Limits, Severity
 from planner.robot import RobotDescription
 from telemetry.limits import (
     FrameEvaluator,
