@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import os
 import signal
 import subprocess
 import tempfile
@@ -118,7 +117,7 @@ async def fly(options: Options, plan: Any, scenario: str, n: int, fraction: floa
         contextlib.ExitStack() as grounds,
     ):
         ports = {A: free_port(), B: free_port()}
-        stream = f"FAILOVER_{scenario.replace('-', '_').upper()}_{n}_{os.getpid()}"
+        stream = "FAILOVER"  # one for the bench's runs (its server is new each bench)
         nats = (options.nats_url, stream) if options.nats_url is not None else None
 
         def start(name: str) -> subprocess.Popen[bytes]:

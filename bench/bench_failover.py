@@ -69,6 +69,7 @@ import asyncio
 import contextlib
 import json
 import random
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -226,7 +227,8 @@ def main() -> None:
         server = args.database_url or servers.enter_context(own_postgres(args.out / "postgres"))
         nats = None
         if not args.no_nats:
-            (args.out / "nats").mkdir(exist_ok=True)
+            shutil.rmtree(args.out / "nats", ignore_errors=True)  # an earlier bench's streams
+            (args.out / "nats").mkdir()
             nats = servers.enter_context(nats_server(args.out / "nats"))
         print(f"servers: PostgreSQL {server}, NATS {nats or '-'}", file=sys.stderr, flush=True)
         options = Options(

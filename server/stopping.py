@@ -10,8 +10,10 @@ shutdown (:func:`server.app.create_app`) does the rest.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import socket
+import time
 
 import uvicorn
 from fastapi import FastAPI
@@ -46,6 +48,9 @@ async def begin_shutdown(app: FastAPI) -> None:
     workers: WorkerPool | None = getattr(app.state, "workers", None)
     if workers is not None:
         await workers.close()
+    authority: CommandAuthority | None = getattr(app.state, "authority", None)
+    if authority is not None:  # before the link closes: the vehicle does not come back here
+        authority.stop_commanding()
     link: GroundLink | None = getattr(app.state, "link", None)
     if link is not None:
         await link.going_away()
@@ -64,20 +69,61 @@ async def _give_up_command(app: FastAPI) -> None:
     runner: PassRunner | None = getattr(app.state, "runner", None)
     alarms: AlarmService | None = getattr(app.state, "alarms", None)
     db: Database | None = getattr(app.state, "db", None)
-    try:
+    steps: dict[str, float] = {}
+    began = time.monotonic()
+
+    def step(name: str) -> None:
+        nonlocal began
+        now = time.monotonic()
+        steps[name] = round(now - began, 2)
+        began = now
+
+    async def flush() -> None:
         if runner is not None:
             await runner.shutdown()
+            step("pass handed over")
         if alarms is not None:
             await alarms.close()
+            step("alarms written")
         if db is not None:
             await db.drain()
+            step("writes flushed")
         across: AcrossGrounds | None = getattr(app.state, "across", None)
         if across is not None:  # the consoles' last frames, before the next ground's
             await across.bus.flush(STOP_DATABASE_WAIT_S)
+            step("live messages published")
+
+    # A graceful stop hands over no later than a crash would: past the lease's time to
+    # live, the writes still queued are left (refused once the next ground holds the
+    # lease); that ground recovers the stages from the vehicle, as after a kill.
+    budget = authority.policy.ttl_s
+    flushing = asyncio.ensure_future(flush())
+    # still running past the budget, it ends in the lifespan's shutdown (its error logged)
+    flushing.add_done_callback(lambda f: f.cancelled() or f.exception())
+    try:
+        await asyncio.wait_for(asyncio.shield(flushing), budget)
+    except TimeoutError:
+        log.warning(
+            "stopping: the command path's writes not flushed within %g s (the lease's time "
+            "to live): the lease is released, the ground in command next asks the vehicle",
+            budget,
+            extra={"fields": {"event": "handover_unflushed", "journal": db.journal if db else 0}},
+        )
     except Exception:
         log.exception("the handover's flush failed: the lease is left to expire")
         return
     await authority.close()
+    step("lease released")
+    log.info(
+        "stopping: %s",
+        ", ".join(f"{name} in {s:g} s" for name, s in steps.items()),
+        extra={
+            "fields": {
+                "event": "handover_steps",
+                **{k.replace(" ", "_"): v for k, v in steps.items()},
+            }
+        },
+    )
 
 
 class GroundServer(uvicorn.Server):

@@ -154,6 +154,8 @@ class CommandAuthority:
         self._serial: asyncio.Lock | None = None
         #: a takeover's first steps run (the link waits: :meth:`settled`)
         self._settling = False
+        #: the service is stopping (:meth:`stop_commanding`)
+        self._stopping = False
         #: counted for /metrics
         self.acquisitions = 0
         self.losses = 0
@@ -174,7 +176,7 @@ class CommandAuthority:
     def may_command(self) -> bool:
         """Whether this ground may send to the vehicle now: it holds the lease and its last
         renewal is recent enough (see the module docstring)."""
-        if self._lease is None:
+        if self._lease is None or self._stopping:
             return False
         return self.policy.exclusive or self._monotonic() < self._valid_until
 
@@ -191,6 +193,13 @@ class CommandAuthority:
                 self.status(),
             )
         status = self.status()
+        if self._stopping:
+            return ConflictError(
+                "stopping",
+                "this ground is stopping: its pass is handed to the vehicle, and the ground in "
+                "command next resumes it",
+                status,
+            )
         if self._lease is not None:
             return ConflictError(
                 "command_lease_lapsing",
@@ -269,6 +278,12 @@ class CommandAuthority:
             extra={"fields": {"event": "lease_acquired", "token": got.token}},
         )
         return True
+
+    def stop_commanding(self) -> None:
+        """The service stops (SIGTERM): nothing more goes up, no start or abort is taken,
+        and the vehicle's link is refused in the handshake (it goes to the next ground);
+        the lease is kept until the last write (:meth:`close`)."""
+        self._stopping = True
 
     def settled(self) -> None:
         """A takeover's first steps are done (``on_acquired`` calls it): the vehicle's link

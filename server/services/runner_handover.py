@@ -195,8 +195,11 @@ class PassHandover(RunnerParts):
             )  # fmt: skip
             return [record(session, stopped, clock.time_ns())]
 
-        # after the stage writes queued so far (one worker, in order)
-        await self._db.write(job)
+        # Ahead of the stage writes still queued (a control job: a backlog of thousands on a
+        # loaded PostgreSQL held it 20 s): the record says at once what the vehicle holds,
+        # and those writes follow (or, past the stop's budget, the next ground asks the
+        # vehicle for them: server/stopping.py).
+        await self._db.write(job, control=True)
         tracker.close()
         if self._active is active:
             self._active = None

@@ -263,13 +263,17 @@ class _Step:
     def give_up(self, _: float) -> None:
         pass
 
+    def stop_commanding(self) -> None:
+        self._steps.append("stop commanding")
+
 
 def test_a_graceful_stop_beside_a_standby_releases_the_lease_after_the_last_write() -> None:
-    """SIGTERM of the holder: the link closes, the pass is handed to the vehicle, the alarms'
-    and the command path's last writes are flushed, and only then is the lease released, all
-    before uvicorn waits for its requests (``begin_shutdown``), so a standby takes over
-    within its next renewal, not after the whole stop. SQLite (one ground a file, the lease
-    its lock) releases nothing there."""
+    """SIGTERM of the holder: nothing more is commanded (the vehicle's link, refused from
+    now on, goes to the next ground), the link closes, the pass is handed to the vehicle,
+    the alarms' and the command path's last writes are flushed, and only then is the lease
+    released, all before uvicorn waits for its requests (``begin_shutdown``), so a standby
+    takes over within its next renewal, not after the whole stop. SQLite (one ground a
+    file, the lease its lock) releases nothing there."""
     from fastapi import FastAPI
 
     from server.services.authority import LeasePolicy
@@ -289,7 +293,9 @@ def test_a_graceful_stop_beside_a_standby_releases_the_lease_after_the_last_writ
 
     app, steps = app_of(exclusive=False)
     asyncio.run(begin_shutdown(app))
-    assert steps == ["workers", "link", "hand over", "alarms", "flush", "release"]
+    assert steps == [
+        "workers", "stop commanding", "link", "hand over", "alarms", "flush", "release"
+    ]  # fmt: skip
     app, steps = app_of(exclusive=True)
     asyncio.run(begin_shutdown(app))
-    assert steps == ["workers", "link"]
+    assert steps == ["workers", "stop commanding", "link"]
