@@ -239,6 +239,13 @@ class CommandAuthority:
         lease = self._lease
         if lease is not None:
             leases.fence(session, lease)
+        elif self._stopping:
+            # released at a graceful stop: what is still queued is the next ground's to
+            # recover from the vehicle, refused here at once rather than one by one
+            raise LeaseLost(
+                f"this ground ({self.policy.holder!r}) stopped and released the command lease "
+                f"{self.policy.name!r}; the transaction was refused"
+            )
         elif session.get_bind().dialect.name == "sqlite":
             # no standby on SQLite (one ground a file): not yet, or no longer, the holder
             raise LeaseLost(

@@ -251,6 +251,19 @@ def test_a_takeover_takes_no_link_until_its_first_steps_have_settled(engine: Eng
     assert seen == [(True, "taking_over"), (True, None)]
 
 
+def test_a_ground_stopped_and_released_refuses_its_queued_writes_at_once(engine: Engine) -> None:
+    """After a graceful stop's release, the command path's writes still queued are refused by
+    the fence as a whole (LeaseLost), not tried one by one as a standby's read-only ones."""
+    a = CommandAuthority(session_factory(engine), LeasePolicy(name=NAME, holder="ground-a"))
+    assert a.try_acquire()
+    a.stop_commanding()
+    refusal = a.refusal()
+    assert not a.may_command() and refusal is not None and refusal.code == "stopping"
+    asyncio.run(a.close())
+    with session_factory(engine)() as session, pytest.raises(LeaseLost, match="released"):
+        a.fence(session)
+
+
 def test_sqlite_refuses_a_second_ground_on_the_same_file(tmp_path: Path) -> None:
     database = tmp_path / "hikoboshi.sqlite3"
     first = hold_sqlite_file(database)
