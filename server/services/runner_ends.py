@@ -169,6 +169,7 @@ class PassEnds(RunnerParts):
         if self._active is active:
             self._active = None
         if deletion is not None or link.connected:
+            # asked about first, queued or taken as expired (their tags passed unheard)
             unfiled = sorted(sent - {c.seq for c in up.commands if c.transmissions} - set(cancel))
             self._background_task(
                 self._deletes.after_abort(

@@ -202,7 +202,7 @@ class ScheduleDeletes:
         then the stages of the commands before ``T`` as their tags pass (``safed``: the
         vehicle safed itself, so every command not final is asked about at once;
         ``ask_about``: commands the vehicle holds with no send on file, asked about
-        first)."""
+        first while still ``queued`` or only taken as ``expired``)."""
         try:
             if deletion is not None:
                 await self.complete(deletion, closing)

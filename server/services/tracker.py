@@ -16,7 +16,9 @@ again, commands lost on the uplink come back ``command_unknown`` and expire) unt
 left ``sent`` or ``received`` (or the queries are used up). It waits on its own state changing (an
 acknowledgement, the link back) and on the query timer of the injected clock. A pass resumed
 after a restart first asks, :data:`EXPIRED_QUERIES` times, about the commands taken as
-``expired``: the vehicle's own word (``executed``) replaces the guess.
+``expired``: the vehicle's own word (``executed``) replaces the guess. Aborted instead, it
+asks as many times about the commands the vehicle holds with no send on file
+(``ask_about``), those still ``queued`` and those its uplink took as ``expired`` alike.
 """
 
 from __future__ import annotations
@@ -257,7 +259,7 @@ class CommandTracker:
                 await self._ask_about(stop, lambda: self.in_stage("expired"))
             unfiled = set(ask_about)
             if unfiled:  # on board with no send on file: the vehicle's word, as acks
-                await self._ask_about(stop, lambda: sorted(unfiled & set(self.in_stage("queued"))))
+                await self._ask_about(stop, lambda: self._guessed(unfiled))
             queries = 0
             next_query = clock.monotonic()
             while True:
@@ -287,6 +289,12 @@ class CommandTracker:
             return len(self.outstanding())
         finally:
             watch.cancel()
+
+    def _guessed(self, seqs: set[int]) -> list[int]:
+        """Those of ``seqs`` the vehicle has not spoken of: still ``queued``, or taken as
+        ``expired`` by the ground (a resumed uplink expires, with no send on file, commands
+        the vehicle holds or ran: the vehicle's word replaces that guess)."""
+        return sorted(s for s in seqs if self.stage(s) in ("queued", "expired"))
 
     async def _ask_about(self, stop: asyncio.Event, which: Callable[[], list[int]]) -> None:
         """Ask the vehicle about ``which()`` commands, again while some are left (the relay
