@@ -39,9 +39,11 @@ async def begin_shutdown(app: FastAPI) -> None:
     """The server is stopping (SIGTERM): before the HTTP server waits for the requests in
     flight, stop the worker pool, so that every request waiting for a worker or running in
     one is answered 503 ``shutting_down`` at once and no job process is left running
-    (docs/operations.md "Stopping"); and close the spacecraft's link (1001), which its
-    handler records, rather than leave it to be cancelled. The lifespan's shutdown does the
-    rest."""
+    (docs/operations.md "Stopping"); stop commanding (the vehicle's link is refused from
+    here, so it goes to another ground); close the spacecraft's link (1001), which its
+    handler records, rather than leave it to be cancelled; and, beside a standby, hand the
+    pass over and release the lease (:func:`_give_up_command`). The lifespan's shutdown does
+    the rest."""
     db: Database | None = getattr(app.state, "db", None)
     if db is not None:  # a database away at the stop: its journal fails, loudly, not hangs
         db.give_up(STOP_DATABASE_WAIT_S)
@@ -61,8 +63,8 @@ async def _give_up_command(app: FastAPI) -> None:
     """A graceful stop beside a standby: the pass in flight is handed to the vehicle, the
     command path's last writes are flushed, and the lease is released at once, before the
     HTTP server waits for its requests and the consoles close, so the standby takes over
-    within its next renewal rather than after the whole stop (docs/operations.md
-    "Grounds"). On SQLite the file's lock is the lease: nothing to hand to anyone."""
+    within its next renewal rather than after the whole stop (docs/operations.md "One ground
+    in command"). On SQLite the file's lock is the lease: nothing to hand to anyone."""
     authority: CommandAuthority | None = getattr(app.state, "authority", None)
     if authority is None or authority.policy.exclusive or not authority.holder:
         return
@@ -99,7 +101,7 @@ async def _give_up_command(app: FastAPI) -> None:
     budget = authority.policy.ttl_s
     flushing = asyncio.ensure_future(flush())
     # still running past the budget, it ends in the lifespan's shutdown (its error logged)
-    flushing.add_done_callback(lambda f: f.cancelled() or f.exception())
+    flushing.add_done_callback(_log_failure)
     try:
         await asyncio.wait_for(asyncio.shield(flushing), budget)
     except TimeoutError:
@@ -124,6 +126,11 @@ async def _give_up_command(app: FastAPI) -> None:
             }
         },
     )
+
+
+def _log_failure(done: asyncio.Future[None]) -> None:
+    if not done.cancelled() and (error := done.exception()) is not None:
+        log.error("stopping: the handover's flush failed: %r", error)
 
 
 class GroundServer(uvicorn.Server):

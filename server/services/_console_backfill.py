@@ -41,13 +41,17 @@ LIMIT_ROWS = 40_000
 _END_NS = 2**63 - 1
 
 
-def _open_passes(session: Session) -> list[str]:
-    """The passes whose frames may still be arriving: unfinished, or their window open."""
+_UNFINISHED = ("aos", "running", "los")
+
+
+def _open_passes(session: Session) -> list[tuple[str, bool]]:
+    """The passes whose frames may still be arriving, and whether each is unfinished (else
+    its window is open)."""
     open_window = PassRecord.telemetry_start_ns.is_not(None) & PassRecord.telemetry_end_ns.is_(None)
-    query = select(PassRecord.id).where(
-        or_(PassRecord.state.in_(("aos", "running", "los")), open_window)
+    query = select(PassRecord.id, PassRecord.state).where(
+        or_(PassRecord.state.in_(_UNFINISHED), open_window)
     )
-    return list(session.scalars(query))
+    return [(str(pass_id), state in _UNFINISHED) for pass_id, state in session.execute(query)]
 
 
 def _after(last: bytes | None) -> tuple[int, int]:
@@ -81,14 +85,17 @@ async def backfill(across: AcrossGrounds, sessions: sessionmaker[Session]) -> in
     """Publish the open passes' archived frames that JetStream does not hold; how many."""
     bus = across.bus
 
-    def passes() -> list[str]:
+    def passes() -> list[tuple[str, bool]]:
         with sessions() as session:
             return _open_passes(session)
 
     total = 0
-    for pass_id in await asyncio.to_thread(passes):
+    for pass_id, unfinished in await asyncio.to_thread(passes):
         name = canonical_pass(pass_id) or pass_id
-        after_seq, after_ns = _after(await bus.last_on(bus.subject("telemetry", name)))
+        last = await bus.last_on(bus.subject("telemetry", name))
+        if last is None and not unfinished:
+            continue  # an ended pass the stream no longer holds (or never did): not live
+        after_seq, after_ns = _after(last)
         columns, rows = await asyncio.to_thread(
             _unpublished, sessions, pass_id, after_seq, after_ns
         )

@@ -154,8 +154,9 @@ class CommandAuthority:
         self._serial: asyncio.Lock | None = None
         #: a takeover's first steps run (the link waits: :meth:`settled`)
         self._settling = False
-        #: the service is stopping (:meth:`stop_commanding`)
+        #: the service is stopping (:meth:`stop_commanding`); it gave its lease up (:meth:`close`)
         self._stopping = False
+        self._released = False
         #: counted for /metrics
         self.acquisitions = 0
         self.losses = 0
@@ -239,7 +240,7 @@ class CommandAuthority:
         lease = self._lease
         if lease is not None:
             leases.fence(session, lease)
-        elif self._stopping:
+        elif self._released:
             # released at a graceful stop: what is still queued is the next ground's to
             # recover from the vehicle, refused here at once rather than one by one
             raise LeaseLost(
@@ -389,6 +390,7 @@ class CommandAuthority:
         with self._guard:
             self._lease = None
             self._valid_until = 0.0
+            self._released = True
 
         def give_up() -> bool:
             with self._sessions() as session:
