@@ -235,6 +235,22 @@ def test_the_outcome_is_nominal_only_when_every_command_executed_at_its_tag() ->
     assert table.notes == [mixed.sentence()]
 
 
+async def _killed_40_s_into_a_pass(
+    tmp_path: Path,
+) -> tuple[ManualClock, Any, SimulatedSpacecraft, str]:
+    """A ground flies a 400-command pass for 40 s of simulated time and is killed."""
+    clock = ManualClock()
+    sessions = make_sessions(tmp_path)
+    first = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
+    sc = SimulatedSpacecraft(clock)
+    await sc.connect(first)
+    pass_id = store_pass(sessions, 400, clock)
+    await first.runner.start(pass_id, "otto")
+    await sc.run(40.0)
+    await kill_ground(first, sc)
+    return clock, sessions, sc, pass_id
+
+
 @simulated
 async def test_an_abort_after_a_takeover_leaves_what_the_vehicle_holds_to_its_word(
     tmp_path: Path,
@@ -246,15 +262,7 @@ async def test_an_abort_after_a_takeover_leaves_what_the_vehicle_holds_to_its_wo
     tagged before its ``T`` are not cancelled but asked about, and every stage ends as the
     vehicle's word (found by bench/bench_failover.py's kill9-abort: executed commands
     filed ``cancelled``)."""
-    clock = ManualClock()
-    sessions = make_sessions(tmp_path)
-    first = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
-    sc = SimulatedSpacecraft(clock)
-    await sc.connect(first)
-    pass_id = store_pass(sessions, 400, clock)
-    await first.runner.start(pass_id, "otto")
-    await sc.run(40.0)
-    await kill_ground(first, sc)
+    clock, sessions, sc, pass_id = await _killed_40_s_into_a_pass(tmp_path)
     held = sorted(sc.vehicle.schedule)
     assert len(held) > 20
     with sessions() as session:  # the killed ground's sends never reached the database
@@ -298,15 +306,7 @@ async def test_an_abort_after_a_takeover_files_what_the_vehicle_executed_during_
     resume must still ask the vehicle, whose word is ``executed`` (found by
     bench/bench_failover.py's kill9-abort: 77-465 commands archived ``expired`` that the
     vehicle had executed)."""
-    clock = ManualClock()
-    sessions = make_sessions(tmp_path)
-    first = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
-    sc = SimulatedSpacecraft(clock)
-    await sc.connect(first)
-    pass_id = store_pass(sessions, 400, clock)
-    await first.runner.start(pass_id, "otto")
-    await sc.run(40.0)
-    await kill_ground(first, sc)
+    clock, sessions, sc, pass_id = await _killed_40_s_into_a_pass(tmp_path)
     held = sorted(sc.vehicle.schedule)
     # the killed ground's sends (and the vehicle's receipts of them) never reached the
     # database: its queued stage writes are lost from some point on
