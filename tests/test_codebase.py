@@ -51,12 +51,10 @@ MODULE_LINES_MAX = 500
 
 
 def test_every_module_is_at_most_500_lines() -> None:
-    packages = ("planner", "mission", "spacecraft", "telemetry", "server", "hikoboshi")
-    sizes = {
-        path.relative_to(ROOT).as_posix(): len(path.read_text().splitlines())
-        for package in packages
-        for path in (ROOT / package).rglob("*.py")
-    }
+    packages = ("planner", "mission", "spacecraft", "telemetry", "server", "hikoboshi", "bench")
+    modules = [path for package in packages for path in (ROOT / package).rglob("*.py")]
+    modules += list((ROOT / "web" / "src").rglob("*.ts"))  # the console's own, not its deps
+    sizes = {p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines()) for p in modules}
     assert len(sizes) > 100  # the packages were found
     over = {name: n for name, n in sorted(sizes.items()) if n > MODULE_LINES_MAX}
     assert over == {}, f"over {MODULE_LINES_MAX} lines: {over}"

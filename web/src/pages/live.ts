@@ -14,12 +14,13 @@ import {
 } from "../api";
 import { SEVERITY_COLORS, alarmLimit, alarmSubject, alarmValue, isActive } from "../alarms";
 import type { Ctx } from "../main";
-import { COMMAND_STAGES, FINAL_STAGES, STAGE_RANK, type CommandStage } from "../protocol.gen";
+import { STAGE_RANK, type CommandStage } from "../protocol.gen";
 import type { Message } from "../socket";
 import { frameJoints, frameMomentum, frameTargets, TelemetryStore } from "../store";
 import { clear, clock, fmt, h } from "../ui";
 import { groundNow, NextAcquisition, utcText, windowCountdown } from "../windows";
 import { passControls, stateReason } from "./control";
+import { renderCommands, renderSchedule } from "./live_panels";
 import { PassView, predictionColumns } from "./passview";
 
 /** No telemetry for this long (wall s) while the pass is live: STALE. */
@@ -29,18 +30,6 @@ const LINK_STALE_S = 10.0;
 const LIVE_STATES = new Set(["aos", "running", "los"]);
 /** The alarms the link panel shows (no plot shows what they watch). */
 const LINK_PANEL_QUANTITIES = new Set(["frames_behind", "frame_age_s", "schedule_occupancy"]);
-const STAGE_COLORS: Record<CommandStage, string> = {
-  queued: "#5a6272",
-  released: "#7e8aa3",
-  sent: "#4f8df7",
-  received: "#4fc3f7",
-  executed: "#81c784",
-  rejected: "#e57373",
-  expired: "#ffb74d",
-  cancelled: "#ba68c8",
-};
-/** The strip's mark under a command sent more than once. */
-const RESENT_COLOR = "#e6e9ef";
 /** Whether a pushed stage is one of the server's (command_stages.py, generated). */
 const isStage = (stage: unknown): stage is CommandStage =>
   typeof stage === "string" && Object.hasOwn(STAGE_RANK, stage);
@@ -297,7 +286,7 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
 
   function renderLink(): void {
     const s = link;
-    renderSchedule();
+    renderSchedule(scheduleBox, link, pass);
     clear(linkPanel);
     const stale = s !== null && (performance.now() - linkAtMs) / 1000 > LINK_STALE_S;
     linkPanel.classList.toggle("is-stale", stale || !ctx.socket.connected);
@@ -330,50 +319,6 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
 
   // The onboard schedule's fill and lead (from the newest frame's buffer, via the link
   // status) and the running pass's uplink: is the arm's motion loaded far enough ahead?
-  function renderSchedule(): void {
-    const s = link;
-    clear(scheduleBox);
-    scheduleBox.classList.toggle("is-stale", !s?.connected);
-    const sched = s?.schedule ?? null;
-    const up = s?.uplink && s.uplink.pass_id === pass.id ? s.uplink : null;
-    if (!sched && !up) {
-      scheduleBox.append(h("p.muted", {}, "No schedule report yet."));
-      return;
-    }
-    const windowS = up?.lead_window_s ?? null;
-    const gauge = (text: string, pct: number, test: string, value: number | null) =>
-      h("div.gauge", {},
-        h("div.bar", { style: `width:${Math.max(0, Math.min(100, pct)).toFixed(1)}%` }),
-        h("span.gtext", { "data-test": test, "data-value": value ?? "" }, text));
-    if (sched) {
-      const through = sched.last_tag_ns !== null && pass.epoch_ns !== null
-        ? `t = ${fmt((sched.last_tag_ns - pass.epoch_ns) / 1e9, 1)} s` : null;
-      const lead = sched.lead_s;
-      scheduleBox.append(
-        gauge(`schedule: ${sched.queued}/${sched.capacity} queued`, (100 * sched.queued) / sched.capacity,
-          "schedule-queued", sched.queued),
-        gauge(lead === null || through === null
-          ? "nothing loaded ahead"
-          : `loaded through ${through}, ${fmt(lead, 1)} s ahead` + (windowS !== null ? ` (lead window ${fmt(windowS, 0)} s)` : ""),
-        windowS !== null && lead !== null ? (100 * lead) / windowS : 0, "schedule-lead", lead),
-      );
-      if (!s?.connected) scheduleBox.append(h("p.muted.small", {}, "last report before the link went down"));
-    }
-    if (up) {
-      const row = (k: string, v: string, test: string, value: number | null) =>
-        h("div.kv", {}, h("span.k", {}, k), h("span.v", { "data-test": test, "data-value": value ?? "" }, v));
-      scheduleBox.append(
-        row("uplink", `sent ${up.sent}/${up.commands} · acknowledged ${up.acknowledged} · in flight ${up.in_flight}`
-          + (up.expired ? ` · expired ${up.expired}` : ""), "uplink-sent", up.sent),
-        row("retransmissions", String(up.retransmissions)
-          + (up.schedule_full_refusals ? ` · schedule full ${up.schedule_full_refusals}` : ""), "uplink-retx", up.retransmissions),
-        row("timer (ground s)", `RTO ${fmt(up.rto_s, 2)} · SRTT ${up.srtt_s === null ? "—" : fmt(up.srtt_s, 2)}`, "uplink-rto", up.rto_s),
-        row("min fill margin", up.min_fill_margin_s === null ? "—" : `${fmt(up.min_fill_margin_s, 1)} s`,
-          "uplink-margin", up.min_fill_margin_s),
-      );
-    }
-  }
-
   function renderValues(stale: boolean): void {
     const f = store.latest;
     valuesPanel.classList.toggle("is-stale", stale);
@@ -411,75 +356,6 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     const lo = Math.min(0, first ?? 0);
     const hi = Math.max(end ?? 0, last ?? 0);
     return hi > lo ? [lo, hi] : null;
-  }
-
-  function renderCommands(tNow: number | null): void {
-    const list = [...commands.values()].sort((a, b) => a.execute_time_ns - b.execute_time_ns);
-    const counts = new Map<string, number>();
-    for (const c of list) counts.set(c.stage, (counts.get(c.stage) ?? 0) + 1);
-    clear(stageCounts);
-    // Stages in the order a command reaches them (the final ones, the outcomes, last).
-    for (const stage of COMMAND_STAGES) {
-      const n = counts.get(stage) ?? 0;
-      const final = FINAL_STAGES.includes(stage);
-      stageCounts.append(h("span.stage", { "data-stage": stage, "data-count": n, "data-final": final, style: `--c:${STAGE_COLORS[stage]}` }, `${stage} ${n}`));
-    }
-    // Commands sent more than once (as of the last REST load: copies raise no event; the
-    // uplink's live total is under "retransmissions").
-    const again = list.filter((x) => (x.transmissions ?? 0) > 1).length;
-    stageCounts.append(h("span.stage", { "data-test": "resent", "data-count": again, style: `--c:${RESENT_COLOR}`, title: "sent more than once (white tick under the strip)" }, `sent ×2+ ${again}`));
-    cancelNote.hidden = lastCancel === null;
-    if (lastCancel !== null) {
-      const d = lastCancel;
-      cancelNote.textContent = `cancelled ${String(d.count)} (seq ${String(d.first_seq)}–${String(d.last_seq)}): ${String(d.reason ?? "")}`;
-    }
-    // The strip: one tick per command at its tag, coloured by stage; "now" in amber.
-    const c = timelineCanvas;
-    const w = c.clientWidth || 300;
-    const hgt = 36;
-    const dpr = devicePixelRatio;
-    c.width = Math.round(w * dpr);
-    c.height = Math.round(hgt * dpr);
-    const g = c.getContext("2d");
-    const range = planRange();
-    if (g && range && pass.epoch_ns !== null) {
-      g.setTransform(dpr, 0, 0, dpr, 0, 0);
-      g.clearRect(0, 0, w, hgt);
-      const px = (t: number) => ((t - range[0]) / (range[1] - range[0])) * w;
-      for (const cmd of list) {
-        g.fillStyle = STAGE_COLORS[cmd.stage] ?? "#888";
-        const x = px((cmd.execute_time_ns - pass.epoch_ns) / 1e9);
-        g.fillRect(x, cmd.kind === "acs" ? 2 : 10, 1.5, cmd.kind === "acs" ? 6 : 22);
-        if ((cmd.transmissions ?? 0) > 1) {
-          g.fillStyle = RESENT_COLOR;
-          g.fillRect(x, 33, 1.5, 3);
-        }
-      }
-      if (plan) {
-        g.fillStyle = "#aab";
-        g.font = "9px sans-serif";
-        for (const s of plan.segments) g.fillRect(px(s.t_start_s), 0, 1, hgt);
-      }
-      if (tNow !== null) {
-        g.fillStyle = "#e8b04a";
-        g.fillRect(px(tNow) - 1, 0, 2, hgt);
-      }
-    }
-    // Next two queued and the latest three past their tag.
-    clear(nextList);
-    const nowNs = pass.epoch_ns !== null && tNow !== null ? pass.epoch_ns + tNow * 1e9 : null;
-    const future = nowNs === null ? list.filter((x) => x.stage === "queued") : list.filter((x) => x.execute_time_ns > nowNs);
-    const past = nowNs === null ? [] : list.filter((x) => x.execute_time_ns <= nowNs);
-    const item = (cmd: CommandPublic, when: string) =>
-      h("li", { "data-stage": cmd.stage }, h("span.tag", {}, when), ` #${cmd.seq} ${cmd.kind} `,
-        h("span.stage", { style: `--c:${STAGE_COLORS[cmd.stage] ?? "#888"}` }, cmd.stage),
-        cmd.reject_reason ? h("span.error", {}, ` ${cmd.reject_reason}`) : null,
-        (cmd.transmissions ?? 0) > 1 ? h("span.muted", { title: "copies sent" }, ` ×${cmd.transmissions}`) : null);
-    const tagOf = (cmd: CommandPublic) =>
-      pass.epoch_ns === null ? "" : `t=${fmt((cmd.execute_time_ns - pass.epoch_ns) / 1e9, 2)} s`;
-    for (const cmd of past.slice(-3)) nextList.append(item(cmd, tagOf(cmd)));
-    for (const cmd of future.slice(0, 2)) nextList.append(item(cmd, tagOf(cmd) + (nowNs !== null ? ` (in ${fmt((cmd.execute_time_ns - nowNs) / 1e9 / (link?.time_scale ?? 1), 1)} s)` : "")));
-    if (!list.length) nextList.append(h("li.muted", {}, "No commands yet (they are made when the pass starts)."));
   }
 
   function segmentText(tNow: number | null): string {
@@ -541,7 +417,13 @@ function liveView(root: HTMLElement, ctx: Ctx, initial: PassPublic): () => void 
     if (performance.now() - linkAtMs > 1000) renderLink();
     if (commandsDirty || tNow !== null) {
       commandsDirty = false;
-      renderCommands(tNow);
+      renderCommands(
+        { stageCounts, cancelNote, timeline: timelineCanvas, nextList },
+        commands.values(),
+        lastCancel,
+        { pass, plan, range: planRange(), timeScale: link?.time_scale ?? 1 },
+        tNow,
+      );
     }
   };
 
