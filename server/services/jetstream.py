@@ -273,7 +273,10 @@ class LiveBus:
         )
         found: list[tuple[int, str, bytes]] = []
         try:
-            if (await sub.consumer_info()).num_pending == 0:
+            info = await sub.consumer_info()
+            # nothing pending and nothing delivered yet: none in range (a push consumer may
+            # have delivered them all before its info was read, pending 0 then too)
+            if info.num_pending == 0 and not (info.delivered and info.delivered.consumer_seq):
                 return []
             while True:
                 msg = await sub.next_msg(timeout=READ_TIMEOUT_S)
