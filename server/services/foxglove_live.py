@@ -83,6 +83,11 @@ QUEUE_ITEMS = 256
 #: The share of the time the view's thread may work (it sleeps the rest): the bound on
 #: what it takes from ingest when telemetry comes faster than it can follow.
 MAX_DUTY = 0.2
+#: Messages the SDK's server buffers for each client before it drops the oldest (its default
+#: is 1,024: a frame is five messages, /tf and the plots, so a client that stalled for a few
+#: seconds while a minute of backlog was sent lost /tf messages in the suite on a busy
+#: machine). A minute of 4 Hz telemetry at 10x is 12,000 messages, a few MB per client.
+CLIENT_BACKLOG = 16384
 _SCENE_PATH = "predicted_hand_path"
 _SCENE_ARM = "commanded_arm"
 #: The chain the commanded arm is drawn through (links the model lacks are skipped).
@@ -189,6 +194,7 @@ class FoxgloveLive:
                 port=self._port,
                 context=context,
                 server_listener=listener,
+                message_backlog_size=CLIENT_BACKLOG,
             )
         except Exception as exc:  # the SDK raises its own error for a port in use
             raise FoxgloveUnavailable(
