@@ -25,7 +25,7 @@ from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.stage_writes import StageMove, StageWrites
 from server.storage import repository as repo
 from server.storage.db import session_factory
-from telemetry.wire import CommandAck
+from telemetry.wire import CommandAck, CommandStage
 from tests.server.storage.factories import make_commands, make_plan
 
 #: A hang guard, not a timing: how long the test waits for a job that must finish.
@@ -79,7 +79,9 @@ def test_a_group_of_acknowledgements_costs_a_few_statements_not_three_each(
         held_job = asyncio.ensure_future(db.write(hold))
         assert await asyncio.to_thread(held.wait, HANG_GUARD_S)
         for seq in range(ACKS):
-            fates.file_ack(CommandAck(seq=seq, stage="received", onboard_time_ns=1000 + seq), "sc")
+            fates.file_ack(
+                CommandAck(seq=seq, stage=CommandStage.RECEIVED, onboard_time_ns=1000 + seq), "sc"
+            )
         event.listen(engine, "before_cursor_execute", count)
         release.set()
         await asyncio.wait_for(held_job, HANG_GUARD_S)
