@@ -12,22 +12,22 @@
 
 A seq belongs to the pass the runner registered it for (:meth:`CommandFates.expect`), else
 to the newest pass that queued it. Acknowledgements are queued on the database worker in
-order and not waited for (they share commits); the link tells the runner after filing.
+order and not waited for (they share commits, and a run of them its statements:
+:mod:`server.services.stage_writes`); the link tells the runner after filing.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
 from server.services.command_stages import set_command_stage
 from server.services.dbworker import Database
-from server.services.events import CommandAckUnknown, CommandDeferred, event_job, record
+from server.services.events import CommandDeferred, event_job
+from server.services.stage_writes import StageMove, StageWrites, newest_pass_of
 from server.storage import repository as repo
-from server.storage.models import CommandRecord
 from server.storage.stages import acked_stage, expires_unknown
 from telemetry.wire import CommandAck, CommandUnknown
 
@@ -38,6 +38,7 @@ class CommandFates:
     def __init__(self, *, db: Database, clock: Clock) -> None:
         self._db = db
         self._clock = clock
+        self._writes = StageWrites(clock)
         #: seq -> pass, for acknowledgements (registered by the runner)
         self._command_pass: dict[int, str] = {}
 
@@ -48,14 +49,7 @@ class CommandFates:
 
     def _pass_of(self, session: Session, seq: int) -> str | None:
         key = self._command_pass.get(seq)
-        if key is not None:
-            return key
-        return session.scalar(
-            select(CommandRecord.pass_id)
-            .where(CommandRecord.seq == seq)
-            .order_by(CommandRecord.queued_at_ns.desc())
-            .limit(1)
-        )
+        return key if key is not None else newest_pass_of(session, seq)
 
     def file_ack(self, ack: CommandAck, actor: str) -> None:
         """Queue the stage write of one ``command_ack`` (not awaited)."""
@@ -72,26 +66,19 @@ class CommandFates:
             return
         # cancelled: the ground's clock (the stage times of storage/models.py)
         at_ns = clock.time_ns() if filed == "cancelled" else ack.onboard_time_ns
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            key = self._pass_of(session, ack.seq)
-            if key is None:
-                unknown = CommandAckUnknown(actor=actor, seq=ack.seq, stage=stage)
-                return [record(session, unknown, clock.time_ns())]
-            return set_command_stage(
-                session,
-                clock=clock,
-                pass_id=key,
-                seq=ack.seq,
-                stage=filed,
-                time_ns=at_ns,
-                actor=actor,
-                reason=reason,
-                detail=ack.detail,
-            )
-
-        # Not awaited: acknowledgements queue behind each other in order, share commits.
-        self._db.submit(job)
+        move = StageMove(
+            pass_id=self._command_pass.get(ack.seq),  # None: the newest pass that queued it
+            seq=ack.seq,
+            stage=filed,
+            time_ns=at_ns,
+            actor=actor,
+            reason=reason,
+            detail=ack.detail,
+            acked=stage,
+        )
+        # Not awaited: acknowledgements queue behind each other in order, share commits
+        # and, consecutive, their statements.
+        self._db.submit(self._writes.job([move]))
 
     async def expire_unknown(self, message: CommandUnknown, actor: str) -> None:
         """The vehicle never received these: lost on the uplink; those whose tag has passed

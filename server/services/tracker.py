@@ -29,11 +29,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import update
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
-from server.services.command_stages import set_command_stage
 from server.services.dbworker import Database
 from server.services.link import (
     CommandAcked,
@@ -43,6 +41,7 @@ from server.services.link import (
     LinkUnavailable,
     LinkUp,
 )
+from server.services.stage_writes import StageMove, StageWrites
 from server.services.uplink import UplinkCommand
 from server.storage.models import CommandRecord
 from server.storage.stages import AWAITING_ACK_STAGES, acked_stage, expires_unknown, moves
@@ -97,6 +96,7 @@ class CommandTracker:
         self._link = link
         self._db = db
         self._clock = clock
+        self._writes = StageWrites(clock)
         #: Onboard ns between queries: a round trip and a second to answer.
         self._period_ns = round((2 * one_way_delay_s + 1.0) * 1e9)
         self._changed = asyncio.Event()
@@ -164,7 +164,8 @@ class CommandTracker:
             self._move(seq, "sent")
         # In jobs of STAGE_JOB_COMMANDS: an operator's control job waits for the job in
         # progress, and the start's first batch (hundreds of commands, three statements
-        # each) took 4-5 s in one job on a loaded PostgreSQL.
+        # each) took 4-5 s in one job on a loaded PostgreSQL. Consecutive jobs still share
+        # their statements (server.services.stage_writes).
         for lo in range(0, max(len(first), len(again)), STAGE_JOB_COMMANDS):
             hi = lo + STAGE_JOB_COMMANDS
             self._db.submit(self._sent_job(released_ns, first[lo:hi], again[lo:hi]))
@@ -173,34 +174,13 @@ class CommandTracker:
         self, released_ns: int, first: list[tuple[int, int]], counts: list[tuple[int, int]]
     ) -> Job:
         pass_id = self.pass_id
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            events: list[dict[str, Any]] = []
-            for seq, sent_ns in first:
-                for stage, at_ns in (("released", released_ns), ("sent", sent_ns)):
-                    events += set_command_stage(
-                        session,
-                        clock=self._clock,
-                        pass_id=pass_id,
-                        seq=seq,
-                        stage=stage,
-                        time_ns=at_ns,
-                        actor="ground",
-                        transmissions=1,
-                    )
-            for seq, n in counts:
-                session.execute(
-                    update(CommandRecord)
-                    .where(
-                        CommandRecord.pass_id == pass_id,
-                        CommandRecord.seq == seq,
-                        CommandRecord.transmissions < n,
-                    )
-                    .values(transmissions=n)
-                )
-            return events
-
-        return job
+        moves = [
+            StageMove(pass_id, seq, stage, at_ns, transmissions=1)
+            for seq, sent_ns in first
+            for stage, at_ns in (("released", released_ns), ("sent", sent_ns))
+        ]
+        moves += [StageMove(pass_id, seq, None, transmissions=n) for seq, n in counts]
+        return self._writes.job(moves)
 
     def record_expired(self, expired: list[UplinkCommand], now_ns: int) -> None:
         """These could not be sent early enough to arrive before their tag."""
@@ -211,24 +191,10 @@ class CommandTracker:
             self._db.submit(self._expired_job(now_ns, seqs[lo : lo + STAGE_JOB_COMMANDS]))
 
     def _expired_job(self, now_ns: int, seqs: list[int]) -> Job:
-        pass_id = self.pass_id
-
-        def job(session: Session) -> list[dict[str, Any]]:
-            events: list[dict[str, Any]] = []
-            for seq in seqs:
-                events += set_command_stage(
-                    session,
-                    clock=self._clock,
-                    pass_id=pass_id,
-                    seq=seq,
-                    stage="expired",
-                    time_ns=now_ns,
-                    actor="ground",
-                    detail="could not be sent early enough to arrive before its tag",
-                )
-            return events
-
-        return job
+        detail = "could not be sent early enough to arrive before its tag"
+        return self._writes.job(
+            StageMove(self.pass_id, seq, "expired", now_ns, detail=detail) for seq in seqs
+        )
 
     def cancelled(self, seqs: Iterable[int]) -> None:
         """These were cancelled (those not final), in a transaction of the caller's

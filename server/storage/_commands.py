@@ -6,11 +6,13 @@ transaction and never commit; :mod:`server.storage.repository` re-exports them.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
+from typing import Any, cast
 
-from sqlalchemy import ColumnElement, insert, select, update
+from sqlalchemy import ColumnElement, Table, bindparam, insert, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.attributes import set_committed_value
 
 from server.storage._common import canonical_id, check_one_of, check_page, flush, require_pass
 from server.storage.errors import Conflict, NotFound
@@ -23,7 +25,9 @@ __all__ = [
     "cancel_commands",
     "get_command",
     "list_commands",
+    "load_commands",
     "update_command_stage",
+    "update_commands",
 ]
 
 #: Fields of a wire command that have their own columns; the rest is the payload.
@@ -69,6 +73,63 @@ def get_command(*, session: Session, pass_id: str, seq: int) -> CommandRecord:
     if record is None:
         raise NotFound(f"command {seq} of pass {pass_id!r} not found")
     return record
+
+
+def load_commands(
+    *, session: Session, pass_id: str, seqs: Collection[int]
+) -> dict[int, CommandRecord]:
+    """These commands of the pass (those stored), by seq, as the transaction holds them, in
+    one statement per thousand seqs (objects already in the session are refreshed)."""
+    key = canonical_id(pass_id, what="pass")
+    wanted = sorted(set(seqs))
+    session.flush()  # what the session holds unwritten goes first: the rows read are current
+    out: dict[int, CommandRecord] = {}
+    for lo in range(0, len(wanted), 1000):
+        rows = session.scalars(
+            select(CommandRecord)
+            .where(CommandRecord.pass_id == key, CommandRecord.seq.in_(wanted[lo : lo + 1000]))
+            .execution_options(populate_existing=True)
+        )
+        out.update((row.seq, row) for row in rows)
+    return out
+
+
+def update_commands(
+    *, session: Session, records: Mapping[int, CommandRecord], values: Mapping[int, dict[str, Any]]
+) -> None:
+    """Set each command's columns to ``values[seq]`` (column -> value; ``records`` from
+    :func:`load_commands`), in one statement per set of columns however many commands (an
+    executemany): the command stages' writes of a whole group commit. The session's objects
+    are set to match (nothing of them is flushed again)."""
+    table = cast(Table, CommandRecord.__table__)
+    by_columns: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+    for seq, changed in values.items():
+        if not changed:
+            continue
+        record = records[seq]
+        for column, value in changed.items():
+            check_one_of(column, _STAGE_COLUMNS, what="command column")
+            set_committed_value(record, column, value)
+        params = {"k_pass": record.pass_id, "k_seq": seq, **changed}
+        by_columns.setdefault(tuple(sorted(changed)), []).append(params)
+    for rows in by_columns.values():
+        session.execute(
+            update(table).where(
+                table.c.pass_id == bindparam("k_pass", type_=table.c.pass_id.type),
+                table.c.seq == bindparam("k_seq"),
+            ),
+            rows,
+        )
+
+
+#: The columns :func:`update_commands` sets: a stage, its time, a refusal's reason, the count
+#: of transmissions.
+_STAGE_COLUMNS = (
+    "stage",
+    "reject_reason",
+    "transmissions",
+    *(f"{stage}_at_ns" for stage in COMMAND_STAGES),
+)
 
 
 def update_command_stage(

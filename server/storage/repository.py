@@ -9,8 +9,9 @@ Times are integer ns (see :mod:`server.storage.models` for which clock).
     passes     add_pass, get_pass, list_passes, update_pass_state (optimistic lock),
                get_pass_layout (its telemetry's layout: the plan's robot)
     commands   add_commands (bulk), get_command, update_command_stage, cancel_commands,
-               list_commands (from ``_commands``)
-    events     add_event, list_events
+               list_commands, load_commands and update_commands (many in a few statements;
+               from ``_commands``)
+    events     add_event, add_events (many in one statement), list_events
     analysis   add_analysis, get_analysis, list_analyses
     import     add_frame_arrays, add_command_rows, add_event_rows: a whole recorded pass
                (from ``_import``)
@@ -23,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 from typing import Any
 
-from sqlalchemy import ColumnElement, func, select
+from sqlalchemy import ColumnElement, func, insert, select
 from sqlalchemy.orm import Session, defer
 from sqlalchemy.orm.exc import StaleDataError
 
@@ -33,7 +34,9 @@ from server.storage._commands import (
     cancel_commands,
     get_command,
     list_commands,
+    load_commands,
     update_command_stage,
+    update_commands,
 )
 from server.storage._common import (
     Page,
@@ -80,6 +83,7 @@ __all__ = [
     "add_commands",
     "add_event",
     "add_event_rows",
+    "add_events",
     "add_frame_arrays",
     "add_pass",
     "add_plan",
@@ -98,6 +102,7 @@ __all__ = [
     "list_events",
     "list_passes",
     "list_plans",
+    "load_commands",
     "missing_seqs",
     "set_plan_document",
     "stored_among",
@@ -105,6 +110,7 @@ __all__ = [
     "telemetry_extent",
     "telemetry_range",
     "update_command_stage",
+    "update_commands",
     "update_pass_state",
 ]
 
@@ -340,6 +346,31 @@ def add_event(
     session.add(record)
     flush(session, f"event {kind!r}")
     return record
+
+
+def add_events(*, session: Session, rows: list[dict[str, Any]]) -> list[int]:
+    """Append many events to the audit log in one statement (each row as :func:`add_event`'s
+    arguments: ``time_ns``, ``kind``, ``actor``, ``detail``, ``pass_id``); their new ids,
+    in the rows' order."""
+    if not rows:
+        return []
+    keys: dict[str, str] = {}
+    values = []
+    for row in rows:
+        pass_id = row.get("pass_id")
+        if pass_id is not None and pass_id not in keys:
+            keys[pass_id] = require_pass(session, pass_id)
+        values.append(
+            {
+                "pass_id": None if pass_id is None else keys[pass_id],
+                "time_ns": row["time_ns"],
+                "kind": row["kind"],
+                "actor": row["actor"],
+                "detail": dict(row.get("detail") or {}),
+            }
+        )
+    statement = insert(EventRecord).returning(EventRecord.id, sort_by_parameter_order=True)
+    return list(session.scalars(statement, values))
 
 
 def list_events(
