@@ -10,9 +10,9 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
-from server.services.events import CommandsCancelled, CommandStage, record
+from server.services.events import CommandsCancelled, record
 from server.storage import repository as repo
-from server.storage.stages import FINAL_STAGES, STAGE_RANK, moves
+from server.storage.stages import FINAL_STAGES, STAGE_RANK
 
 __all__ = [
     "FINAL_STAGES",
@@ -36,32 +36,14 @@ def set_command_stage(
     transmissions: int | None = None,
 ) -> list[dict[str, Any]]:
     """Move a command forward to ``stage`` at ``time_ns`` (on the clock the storage models
-    name for it) and write the event; nothing if that would move it backwards."""
-    row = repo.get_command(session=session, pass_id=pass_id, seq=seq)
-    if transmissions is not None and transmissions > row.transmissions:
-        row.transmissions = transmissions
-    if not moves(row.stage, stage):
-        return []
-    previous = row.stage
-    repo.update_command_stage(
-        session=session,
-        pass_id=pass_id,
-        seq=seq,
-        stage=stage,
-        time_ns=time_ns,
-        reject_reason=reason,
-    )
-    event = CommandStage(
-        actor=actor,
-        pass_id=pass_id,
-        seq=seq,
-        from_stage=previous,
-        stage=stage,
-        time_ns=time_ns,
-        reason=reason,
-        detail_text=detail,
-    )
-    return [record(session, event, clock.time_ns())]
+    name for it) and write the event; nothing if that would move it backwards. One move of
+    :class:`~server.services.stage_writes.StageWrites`, whose rules the live path's batches
+    share."""
+    from server.services.stage_writes import StageMove, StageWrites
+
+    move = StageMove(pass_id, seq, stage, time_ns, actor, reason, detail, transmissions)
+    [events] = StageWrites(clock)(session, [[move]])
+    return events
 
 
 def cancel_commands(
