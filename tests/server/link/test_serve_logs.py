@@ -45,6 +45,8 @@ STAMP = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z"
 WRONG = "not-a-token-0123456789"
 #: Guards against a hang, not timing assertions.
 GUARD_S = 120.0
+#: Wall s one poll of the link's status waits for its answer before it is asked again.
+PROBE_S = 5.0
 
 
 def _until(check: Callable[[], bool], what: str) -> None:
@@ -91,8 +93,12 @@ def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str, plan: Pla
             )
 
             def connected() -> bool:
+                # A poll: a probe that gets no answer is given up soon and asked again. With
+                # the client's 30 s, a probe that timed out (a TransportError too) was asked
+                # again only 30 s later, and _until's guard, read between probes, let four
+                # such go by: a case could pass after some 150 s (one took 149 s).
                 try:
-                    status = client.get("/api/link/status", headers=OPERATOR)
+                    status = client.get("/api/link/status", headers=OPERATOR, timeout=PROBE_S)
                 except httpx.TransportError:  # a fresh process on a loaded machine
                     return False
                 return bool(status.json()["connected"])
