@@ -1,5 +1,6 @@
 """The campaign demo end to end, short: two ptp passes in the first two windows of
-1999-09-30 after 00:20 (TDRS-West, then TDRS-East; a 28-minute gap flown fast), at 10x with
+1999-09-30 after 00:24 (TDRS-West, then TDRS-East; 74 s before the first and a 34-minute
+gap flown fast; a 60 s acquisition margin, not the mission's 120 s), at 10x with
 10 % loss, through the code of ``hikoboshi demo --campaign`` (ground service, spacecraft
 process with ``--mission``). Both relays' windows, as the demo takes them: with TDRS-West's
 alone the gap flown fast was 90 minutes, most of the test's CPU time (the spacecraft
@@ -32,9 +33,15 @@ pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wa
 def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_window(
     tmp_path: Path,
 ) -> None:
+    # the shipped mission with a 60 s acquisition margin in place of its 120 s: each pass's
+    # AOS to net start is flown in wall time (12 s at 10x), the link is up in far less
+    mission = tmp_path / "ets7-1999.toml"
+    shipped = (MISSIONS_DIR / "ets7-1999.toml").read_text()
+    assert shipped.count("aos_margin_s = 120.0") == 1
+    mission.write_text(shipped.replace("aos_margin_s = 120.0", "aos_margin_s = 60.0"))
     options = CampaignOptions(
-        mission=MISSIONS_DIR / "ets7-1999.toml",
-        start_utc=parse_utc("1999-09-30T00:20:00Z"),
+        mission=mission,
+        start_utc=parse_utc("1999-09-30T00:24:00Z"),
         out=tmp_path / "campaign",
         speed=10.0,
         loss=0.1,
@@ -52,6 +59,8 @@ def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_wind
     assert [p["window"]["relay"] for p in passes] == ["TDRS-West", "TDRS-East"]
     assert passes[0]["window"]["aos_utc"] < passes[1]["window"]["aos_utc"]
     for p in passes:
+        w = p["window"]
+        assert (parse_utc(w["net_start_utc"]) - parse_utc(w["aos_utc"])).total_seconds() == 60.0
         assert p["state"] == "complete", p
         assert p["commands_total"] > 100
         assert p["commands_executed_at_tag"] == p["commands_total"]

@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import re
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 import pytest
 
 from server.storage import repository as repo
-from tests.server.link.harness import VIEWER, Ground, pass_state, store_pass
+from tests.server.link.harness import VIEWER, Ground, add_plan_and_pass, pass_state, store_pass
+from tests.server.link.long_pass import long_plan
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, FlyingSpacecraft
+
+if TYPE_CHECKING:
+    from tests.conftest import MadeOnce
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -53,10 +57,13 @@ def _confirm(page: Any, name: str, button: str) -> None:
 
 
 def test_operator_starts_watches_and_aborts_a_pass(
-    console: Console, ground: Ground, flying: FlyingSpacecraft
+    console: Console, ground: Ground, flying: FlyingSpacecraft, made_once: MadeOnce
 ) -> None:
-    # A long settle keeps the pass running while the test looks at it (400 s onboard = 20 s).
-    pass_id = store_pass(ground.sessions, "web-live", (4.0, 3.0, 0.0, 0.0, 0.0, 0.0), 400.0)
+    # A long settle keeps the pass running while the test looks at it (400 s onboard = 40 s
+    # at 10x): tests/server/link/long_pass.py's plan, planned once per run.
+    pass_id = add_plan_and_pass(
+        ground.sessions, long_plan(made_once), "web-live", now_ns=time.time_ns(), window_s=1200.0
+    )
     _wait_connected(ground)
     page = console.page
     console.sign_in(OPERATOR_TOKEN, f"#/live/{pass_id}")

@@ -274,7 +274,8 @@ def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -
         return process
 
     with running_ground(sqlite_url(tmp_path)) as ground:
-        # 80 s of motion: the abort comes with most of the plan loaded on board
+        # 74 s of plan (14 s of motion, 60 s of settle): the abort comes with most of the
+        # plan loaded on board
         pass_id = store_pass(ground.sessions, "abortive", (20.0, 0.0, 0.0, 20.0, 0.0, 0.0), 60.0)
         process = asyncio.run(scenario(ground, pass_id))
         from_ns = deleted_from_ns(ground, pass_id)

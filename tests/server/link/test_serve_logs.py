@@ -14,19 +14,30 @@ import re
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import httpx
 import pytest
 
+from planner.plan import Plan
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory, upgrade
-from tests.server.link.harness import OPERATOR, _free_port, serve_process, store_pass
+from tests.server.link.harness import (
+    OPERATOR,
+    _free_port,
+    add_plan_and_pass,
+    serve_process,
+)
 from tests.server.link.load import spacecraft_process
+from tests.server.link.long_pass import long_plan
+
+if TYPE_CHECKING:
+    from tests.conftest import MadeOnce
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
-#: The vehicle's time scale: the pass (600 s onboard, 30 s of wall) is aborted long before
-#: it ends.
+#: The vehicle's time scale: the pass (the long plan's 400 s of settle, 20 s of wall) is
+#: aborted long before it ends.
 SCALE = 20.0
 TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
 #: A timestamp of every line: UTC, milliseconds (server/logs.py).
@@ -34,6 +45,8 @@ STAMP = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z"
 WRONG = "not-a-token-0123456789"
 #: Guards against a hang, not timing assertions.
 GUARD_S = 120.0
+#: Wall s one poll of the link's status waits for its answer before it is asked again.
+PROBE_S = 5.0
 
 
 def _until(check: Callable[[], bool], what: str) -> None:
@@ -43,7 +56,13 @@ def _until(check: Callable[[], bool], what: str) -> None:
         time.sleep(0.1)
 
 
-def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str) -> str:
+@pytest.fixture(scope="module")
+def plan(made_once: MadeOnce) -> Plan:
+    """The pass's plan: tests/server/link/long_pass.py's, planned once per run."""
+    return long_plan(made_once)
+
+
+def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str, plan: Plan) -> str:
     """A pass started, aborted by the operator once 5 of its commands executed; its id.
     The server and the spacecraft are processes of their own."""
     port = _free_port()
@@ -62,18 +81,24 @@ def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str) -> str:
     env = {"HIKOBOSHI_TOKENS": TOKENS, "HIKOBOSHI_LOG_FORMAT": log_format}
     vehicle = None
     try:
+        # the vehicle's process starts beside the server's, not after it (each is seconds of
+        # imports on a loaded machine): it tries the link again until the server listens
+        vehicle = spacecraft_process(port, "s-token", SCALE, tmp_path / "spacecraft.log")
         with (
             serve_process(database_url, port, tmp_path / "server.log", env),
             httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30.0) as client,
         ):
-            pass_id = store_pass(
-                session_factory(engine), "logged", (5.0, 0.0, 0.0, 5.0, 0.0, 0.0), 600.0
+            pass_id = add_plan_and_pass(
+                session_factory(engine), plan, "logged", now_ns=time.time_ns(), window_s=1200.0
             )
-            vehicle = spacecraft_process(port, "s-token", SCALE, tmp_path / "spacecraft.log")
 
             def connected() -> bool:
+                # A poll: a probe that gets no answer is given up soon and asked again. With
+                # the client's 30 s, a probe that timed out (a TransportError too) was asked
+                # again only 30 s later, and _until's guard, read between probes, let four
+                # such go by: a case could pass after some 150 s (one took 149 s).
                 try:
-                    status = client.get("/api/link/status", headers=OPERATOR)
+                    status = client.get("/api/link/status", headers=OPERATOR, timeout=PROBE_S)
                 except httpx.TransportError:  # a fresh process on a loaded machine
                     return False
                 return bool(status.json()["connected"])
@@ -105,9 +130,9 @@ def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str) -> str:
 
 @pytest.mark.parametrize("log_format", ["text", "json"])
 def test_a_pass_started_and_aborted_on_a_real_serve_is_logged(
-    tmp_path: Path, log_format: str
+    tmp_path: Path, log_format: str, plan: Plan
 ) -> None:
-    pass_id = _fly_and_abort(f"sqlite:///{tmp_path / 'ground.db'}", tmp_path, log_format)
+    pass_id = _fly_and_abort(f"sqlite:///{tmp_path / 'ground.db'}", tmp_path, log_format, plan)
     text = (tmp_path / "server.log").read_text()
     assert WRONG not in text
     lines = [line for line in text.splitlines() if line.strip()]
