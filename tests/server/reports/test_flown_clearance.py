@@ -115,11 +115,14 @@ def test_the_report_sets_the_flown_clearance_beside_the_predicted(
     assert "flown (measured joints)" in page and "predicted (the plan&#x27;s flight rules)" in page
 
 
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_the_served_report_shows_the_flown_clearance(
     client: TestClient, checked_recording: PassRecording
 ) -> None:
-    """Through the API on both backends. An imported plan's report is not the ground's word
-    (it is stored without it): nothing predicted is set beside the flown clearance."""
+    """Through the API, on SQLite (the import, the analyses route and the report on both
+    backends are test_reports_api.py's round trip). An imported plan's report is not the
+    ground's word (it is stored without it): nothing predicted is set beside the flown
+    clearance."""
     bare = replace(checked_recording, plan=replace(checked_recording.plan, flight_rules=None))
     response = client.post("/api/passes/import", content=mcap_bytes(bare), headers=OPERATOR)
     assert response.status_code == 201, response.text

@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import io
 import re
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +17,11 @@ from sqlalchemy import select
 
 from planner.plan import Plan
 from server.app import create_app
-from server.services import analyses as analyses_service
 from server.services.analyses import AnalysisRun
 from server.services.clock import ManualClock
 from server.settings import Settings
 from server.storage import repository as repo
+from server.storage.db import sqlite_url
 from server.storage.models import AnalysisRecord, EventRecord
 from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
@@ -118,16 +119,28 @@ def test_export_import_round_trip_gives_identical_analyses(
     assert "gravity_gradient_resim: failed" in page
 
 
+@pytest.fixture(scope="module")
+def demo_analysed(
+    tmp_path_factory: pytest.TempPathFactory, demo_mcap: bytes
+) -> Iterator[tuple[TestClient, str, dict[str, dict[str, Any]]]]:
+    """The whole demo pass uploaded to an application on SQLite and analysed by its route
+    (in a worker process), once for the module: the application, the pass's id and what the
+    route answered. Seconds of analysis, once: the round trip above runs the same path on
+    both backends."""
+    data_dir = tmp_path_factory.mktemp("demo_app")
+    settings = Settings(data_dir=data_dir, database_url=sqlite_url(data_dir), tokens=TOKENS)
+    with TestClient(create_app(settings)) as client:
+        pass_id = upload(client, demo_mcap)["imported"]["id"]
+        yield client, pass_id, analyse(client, pass_id)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_demo_pass_analysed_from_the_database_equals_the_recording_analysed(
-    client: TestClient, demo_mcap: bytes, demo_run: AnalysisRun
+    demo_analysed: tuple[TestClient, str, dict[str, dict[str, Any]]], demo_run: AnalysisRun
 ) -> None:
     """The whole demo pass, uploaded, stored, loaded and analysed by the service: the same
-    numbers as the recording analysed in memory. Once, on SQLite (seconds of analysis);
-    the round trip above runs the same path on both backends."""
-    pass_id = upload(client, demo_mcap)["imported"]["id"]
-    stored = analyse(client, pass_id)
+    numbers as the recording analysed in memory."""
+    client, pass_id, stored = demo_analysed
     for kind in KINDS:
         assert stored[kind]["status"] == "ok", stored[kind]["error"]
         assert stored[kind]["result"] == demo_run.documents[kind]["result"], kind
@@ -136,19 +149,11 @@ def test_demo_pass_analysed_from_the_database_equals_the_recording_analysed(
 
 
 def test_demo_pass_report(
-    client: TestClient,
-    demo_mcap: bytes,
-    demo_run: AnalysisRun,
-    monkeypatch: pytest.MonkeyPatch,
+    demo_analysed: tuple[TestClient, str, dict[str, dict[str, Any]]], demo_run: AnalysisRun
 ) -> None:
-    """The report of the demo pass's analyses (computed once per session, stored here as
-    the route stores them: the route itself runs them in a worker process, where this
-    session's result cannot be handed in)."""
-    monkeypatch.setattr(analyses_service, "compute_analyses", lambda *_, **__: demo_run)
-    pass_id = upload(client, demo_mcap)["imported"]["id"]
-    with sessions(client)() as session:
-        analyses_service.run_analyses(session=session, pass_id=pass_id, actor="otto")
-
+    """The report of the demo pass as the route analysed and stored it (the pass of the
+    test above, on SQLite: the round trip above serves a report on both backends)."""
+    client, pass_id, _ = demo_analysed
     response = client.get(f"/api/passes/{pass_id}/report", headers=VIEWER)
     assert response.status_code == 200
     report = response.json()
