@@ -341,7 +341,8 @@ def viewer_process(
     """:func:`viewers` in a process of their own (``python -m tests.server.link.load``), so
     that their own work never delays this process's probes: the probes then time the
     server, not a client starved by 200 others. Stopped (SIGTERM) on leaving; the load's
-    counts are read back into the :class:`ViewerLoad` yielded."""
+    counts are read back into the :class:`ViewerLoad` yielded (meanwhile, ``out`` holds
+    them so far: :func:`viewer_answers`)."""
     load = ViewerLoad()
     args = [base, pass_id, str(clients_per_token), str(out), *tokens]
     proc = subprocess.Popen([sys.executable, "-m", "tests.server.link.load", *args])
@@ -359,26 +360,46 @@ def viewer_process(
         assert proc.returncode == 0 and not counts["errors"], counts["errors"]
 
 
+def viewer_answers(out: Path) -> Counter[int]:
+    """The viewers' answers by status so far, as their process last wrote them (every
+    :data:`PROGRESS_S`; empty before the first time)."""
+    try:
+        counts = json.loads(out.read_text())
+    except FileNotFoundError:
+        return Counter()
+    return Counter({int(k): v for k, v in counts["status"].items()})
+
+
+#: How often the viewers' process writes its counts so far (wall s).
+PROGRESS_S = 0.5
+
+
+def _write_counts(load: ViewerLoad, out: Path, errors: list[str]) -> None:
+    counts = {
+        "status": load.status,
+        "codes": load.codes,
+        "complete": load.complete,
+        "downloaded_bytes": load.downloaded_bytes,
+        "stale_connections": load.stale_connections,
+        "errors": errors[:5],
+    }
+    partial = out.with_suffix(".part")
+    partial.write_text(json.dumps(counts))
+    partial.replace(out)  # a reader never sees half a file
+
+
 async def _viewers_until_terminated(
     base: str, pass_id: str, clients: int, out: Path, tokens: list[str]
 ) -> None:
     load = ViewerLoad()
     asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, load.stop.set)
     tasks = viewers(base, tokens, clients, pass_id, load)
+    while not load.stop.is_set():
+        _write_counts(load, out, [])
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(load.stop.wait(), PROGRESS_S)
     done = await asyncio.gather(*tasks, return_exceptions=True)
-    errors = [repr(r) for r in done if isinstance(r, BaseException)]
-    out.write_text(
-        json.dumps(
-            {
-                "status": load.status,
-                "codes": load.codes,
-                "complete": load.complete,
-                "downloaded_bytes": load.downloaded_bytes,
-                "stale_connections": load.stale_connections,
-                "errors": errors[:5],
-            }
-        )
-    )
+    _write_counts(load, out, [repr(r) for r in done if isinstance(r, BaseException)])
 
 
 if __name__ == "__main__":
