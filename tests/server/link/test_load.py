@@ -56,6 +56,7 @@ from tests.server.link.load import (
     fly,
     peak_rss_bytes,
     spacecraft_process,
+    stored_pass,
     until,
     viewer_answers,
     viewer_process,
@@ -146,23 +147,33 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
         async with httpx.AsyncClient(
             base_url=base, timeout=300.0, headers=OPERATOR, limits=OPERATOR_LIMITS
         ) as op:
-            response = await op.post("/api/passes/import", content=buffer.getvalue())
-            assert response.status_code == 201, response.text
-            demo_id = response.json()["imported"]["id"]
-            response = await op.post(f"/api/passes/{demo_id}/analyses")
-            assert response.status_code == 201, response.text
-            mark("imported and analysed")
+            # the vehicle starts (a fresh interpreter) and the first pass is planned while
+            # the viewers' pass is imported and analysed (the second is planned between
+            # the passes, as an operator would, which lets the ground's writes catch up)
             vehicle = spacecraft_process(port, SPACECRAFT_TOKEN, SCALE, spacecraft_log)
+            planned = asyncio.create_task(asyncio.to_thread(stored_pass, sessions, "loaded", 230.0))
             try:
-                while not (await op.get("/api/link/status")).json()["connected"]:
-                    assert vehicle.poll() is None, spacecraft_log.read_text()[-2000:]
-                    await asyncio.sleep(0.1)
+                response = await op.post("/api/passes/import", content=buffer.getvalue())
+                assert response.status_code == 201, response.text
+                demo_id = response.json()["imported"]["id"]
+                response = await op.post(f"/api/passes/{demo_id}/analyses")
+                assert response.status_code == 201, response.text
+                mark("imported and analysed")
                 # the viewers in a process of their own: the probes here time the server
                 answers = tmp_path / "viewers.json"
                 with viewer_process(
                     base, VIEWER_TOKENS, CLIENTS_PER_TOKEN, demo_id, answers
                 ) as load:
-                    await asyncio.sleep(3.0)  # the load is on before the probes and the pass
+                    while not (await op.get("/api/link/status")).json()["connected"]:
+                        assert vehicle.poll() is None, spacecraft_log.read_text()[-2000:]
+                        await asyncio.sleep(0.1)
+                    # the load is on (the caps answering already) before the probes and
+                    # the pass
+                    await until(
+                        lambda: sum(viewer_answers(answers).values()) >= len(VIEWER_TOKENS),
+                        CAPS_GUARD_S,
+                        "the viewers answered",
+                    )
                     tasks = probes.start()
                     tasks.append(
                         asyncio.create_task(
@@ -172,7 +183,7 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
                     try:
                         mark("console opening, first pass starting")
                         # 10 s of motion, then 230 s holding: 13 s of wall at 20x
-                        flown = await fly(op, sessions, readers, "loaded", 230.0)
+                        flown = await fly(op, sessions, readers, "loaded", 230.0, await planned)
                         mark("first pass complete")
                         cut, answer, abort_s = await abort_mid_pass(op, sessions, readers, "cut")
                         assert answer.status_code == 200, answer.text
@@ -254,6 +265,9 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
     from_ns = int(delete.detail["from_time_ns"])
     later = [c for c in cut_commands if c.execute_time_ns >= from_ns]
     earlier = [c for c in cut_commands if c.execute_time_ns < from_ns]
-    assert later and {c.stage for c in later} == {"cancelled"}, len(later)
+    ran_on = [
+        (c.seq, c.stage, c.execute_time_ns - from_ns) for c in later if c.stage != "cancelled"
+    ]
+    assert later and not ran_on, (len(later), len(ran_on), ran_on[:5])
     assert earlier and {c.stage for c in earlier} == {"executed"}, len(earlier)
     assert peak < SERVER_RSS_BOUND, f"server peak RSS {peak / 2**20:.0f} MiB"
