@@ -28,14 +28,13 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 import websockets
-from sqlalchemy.orm import Session, sessionmaker
 
-from server.storage import repository as repo
-from tests.server.link.harness import store_pass
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session, sessionmaker
 
 #: The longest a viewer waits on a Retry-After (s): the server says 1 s (busy) or 5 s (a
 #: token's heavy reads); a longer wait would only lighten the load.
@@ -243,17 +242,37 @@ async def until(predicate: Callable[[], bool], timeout_s: float, what: str) -> N
         await asyncio.sleep(0.2)
 
 
+# The database and the planner are imported where they are used: the viewers' process
+# (``python -m tests.server.link.load``) imports neither, and starts in a fraction of the time.
+
+
 def state(readers: sessionmaker[Session], pass_id: str) -> str:
+    from server.storage import repository as repo
+
     with readers() as session:
         return repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
 
 
 def count(readers: sessionmaker[Session], pass_id: str, stages: tuple[str, ...]) -> int:
+    from server.storage import repository as repo
+
     with readers() as session:
         return len(repo.list_commands(session=session, pass_id=pass_id, stages=list(stages)))
 
 
 OPEN_STAGES = ("queued", "released", "sent", "received")
+#: The aborted pass's hold (onboard s, after 10 s of motion): the abort comes while the
+#: pass runs however slowly its first stages are stored
+CUT_HOLD_S = 600.0
+
+
+def stored_pass(sessions: sessionmaker[Session], name: str, hold_s: float) -> str:
+    """A scheduled pass of 10 s of motion (joints 1 and 4 by 10 degrees), then ``hold_s``
+    onboard s holding; its id. Planning a long hold takes seconds of CPU: a scenario may
+    store its passes while the server works on something else."""
+    from tests.server.link.harness import store_pass
+
+    return store_pass(sessions, name, (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), hold_s)
 
 
 async def fly(
@@ -262,10 +281,12 @@ async def fly(
     readers: sessionmaker[Session],
     name: str,
     hold_s: float,
+    flown: str | None = None,
 ) -> str:
-    """Store and start a pass (10 s of motion, then ``hold_s`` onboard s holding); its id
-    once it is ``complete``."""
-    flown = store_pass(sessions, name, (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), hold_s)
+    """Store and start a pass (10 s of motion, then ``hold_s`` onboard s holding; or start
+    ``flown``, stored so by :func:`stored_pass`); its id once it is ``complete``."""
+    if flown is None:
+        flown = stored_pass(sessions, name, hold_s)
     response = await op.post(f"/api/passes/{flown}/start", json={"confirm": f"START {name}"})
     assert response.status_code == 200, response.text
     await until(lambda: state(readers, flown) == "complete", 300.0, f"{name} complete")
@@ -277,12 +298,13 @@ async def abort_mid_pass(
     sessions: sessionmaker[Session],
     readers: sessionmaker[Session],
     name: str,
+    cut: str | None = None,
 ) -> tuple[str, httpx.Response, float]:
-    """Start a long pass, abort it once 12 commands executed: its id, the abort's answer
+    """Start a long pass (``cut``, if stored already: :func:`stored_pass` with
+    :data:`CUT_HOLD_S`), abort it once 12 commands executed: its id, the abort's answer
     and how long it took (s), once nothing of it is left open."""
-    # 10 s of motion and 600 s of holding: the abort comes while the pass runs however
-    # slowly its first stages are stored
-    cut = store_pass(sessions, name, (10.0, 0.0, 0.0, 10.0, 0.0, 0.0), 600.0)
+    if cut is None:
+        cut = stored_pass(sessions, name, CUT_HOLD_S)
     response = await op.post(f"/api/passes/{cut}/start", json={"confirm": f"START {name}"})
     assert response.status_code == 200, response.text
     await until(lambda: count(readers, cut, ("executed",)) >= 12, 120.0, "12 executed")
@@ -341,7 +363,8 @@ def viewer_process(
     """:func:`viewers` in a process of their own (``python -m tests.server.link.load``), so
     that their own work never delays this process's probes: the probes then time the
     server, not a client starved by 200 others. Stopped (SIGTERM) on leaving; the load's
-    counts are read back into the :class:`ViewerLoad` yielded."""
+    counts are read back into the :class:`ViewerLoad` yielded (meanwhile, ``out`` holds
+    them so far: :func:`viewer_answers`)."""
     load = ViewerLoad()
     args = [base, pass_id, str(clients_per_token), str(out), *tokens]
     proc = subprocess.Popen([sys.executable, "-m", "tests.server.link.load", *args])
@@ -359,26 +382,46 @@ def viewer_process(
         assert proc.returncode == 0 and not counts["errors"], counts["errors"]
 
 
+def viewer_answers(out: Path) -> Counter[int]:
+    """The viewers' answers by status so far, as their process last wrote them (every
+    :data:`PROGRESS_S`; empty before the first time)."""
+    try:
+        counts = json.loads(out.read_text())
+    except FileNotFoundError:
+        return Counter()
+    return Counter({int(k): v for k, v in counts["status"].items()})
+
+
+#: How often the viewers' process writes its counts so far (wall s).
+PROGRESS_S = 0.5
+
+
+def _write_counts(load: ViewerLoad, out: Path, errors: list[str]) -> None:
+    counts = {
+        "status": load.status,
+        "codes": load.codes,
+        "complete": load.complete,
+        "downloaded_bytes": load.downloaded_bytes,
+        "stale_connections": load.stale_connections,
+        "errors": errors[:5],
+    }
+    partial = out.with_suffix(".part")
+    partial.write_text(json.dumps(counts))
+    partial.replace(out)  # a reader never sees half a file
+
+
 async def _viewers_until_terminated(
     base: str, pass_id: str, clients: int, out: Path, tokens: list[str]
 ) -> None:
     load = ViewerLoad()
     asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, load.stop.set)
     tasks = viewers(base, tokens, clients, pass_id, load)
+    while not load.stop.is_set():
+        _write_counts(load, out, [])
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(load.stop.wait(), PROGRESS_S)
     done = await asyncio.gather(*tasks, return_exceptions=True)
-    errors = [repr(r) for r in done if isinstance(r, BaseException)]
-    out.write_text(
-        json.dumps(
-            {
-                "status": load.status,
-                "codes": load.codes,
-                "complete": load.complete,
-                "downloaded_bytes": load.downloaded_bytes,
-                "stale_connections": load.stale_connections,
-                "errors": errors[:5],
-            }
-        )
-    )
+    _write_counts(load, out, [repr(r) for r in done if isinstance(r, BaseException)])
 
 
 if __name__ == "__main__":

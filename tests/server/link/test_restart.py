@@ -11,6 +11,7 @@ spacecraft runs in the test's event loop and reconnects by itself, as in flight.
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import subprocess
 import time
@@ -64,6 +65,8 @@ SHORT_LEAD_WINDOW_S = 20.0
 #: a backlog on a PostgreSQL shared by five test runs. A guard against a hang only, at a
 #: service manager's usual stop timeout (systemd's 90 s), not a speed claim.
 EXIT_GUARD_S = 90.0
+#: The backends of the killed ground (both: ``HIKOBOSHI_TEST_KILLED_BACKENDS=sqlite,postgresql``)
+KILLED_BACKENDS = os.environ.get("HIKOBOSHI_TEST_KILLED_BACKENDS", "sqlite").split(",")
 
 
 @contextmanager
@@ -282,13 +285,20 @@ def test_a_gracefully_stopped_ground_hands_the_pass_over_and_resumes_it(
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("database_url", KILLED_BACKENDS, indirect=True)
 def test_a_ground_killed_for_longer_than_the_lead_window_ends_the_pass_degraded(
     database_url: str, tmp_path: Path
 ) -> None:
     """SIGKILL mid-pass with a short lead window: the restart takes longer than the window,
     so the vehicle runs out of loaded commands and the ones that could not go up in time
     expire. No committed row is lost, the pass resumes and completes ``degraded``, its
-    counts those of the database, and each stage is what the vehicle did."""
+    counts those of the database, and each stage is what the vehicle did.
+
+    On SQLite (:data:`KILLED_BACKENDS`): the database in the killed process's own files,
+    its writer killed mid-transaction. A ground killed on PostgreSQL, its pass resumed with
+    no row lost and every stage the vehicle's, is test_failover.py's (and
+    tests/server/console/test_across_grounds_e2e.py's); the expiries past the lead window
+    are test_handover_sim.py's rules, on the simulated clock."""
     run = _stop_and_restart(database_url, tmp_path, signal.SIGKILL, SHORT_LEAD_WINDOW_S, 90.0)
     assert run.exit_code == -signal.SIGKILL
     assert run.before["pass"].state == "running"
