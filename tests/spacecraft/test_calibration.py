@@ -275,11 +275,13 @@ def test_servo_fit_recovers_each_joint_s_lag_and_bandwidth(
     from spacecraft.servo_fit import fit_servo
 
     calls: list[int] = []
-    fit = fit_servo(servo_pass, workspace, progress=calls.append)
+    # three optimiser steps on the arm (40 simulations; left to converge, 79: the default
+    # budget of 20 stops at 6, with the same figures but joint 5's 7.86 rad/s)
+    fit = fit_servo(servo_pass, workspace, max_evaluations=3, progress=calls.append)
     assert calls == list(range(1, fit.evaluations + 1))
     # Measured (seed 5; the same with 40 s of settling): every lag within 0.1 % (0.2502,
-    # 0.1502, 0.4001, 0.6002, 0.2000, 0.3500 s); bandwidths 5.92, 5.05, -, 6.11, 7.86, 3.98
-    # rad/s (1 to 2 %). Joint 3's
+    # 0.1502, 0.4001, 0.6002, 0.2000, 0.3500 s); bandwidths 5.92, 5.05, -, 6.11, 7.76, 3.97
+    # rad/s (1 to 3 %). Joint 3's
     # (0.4 s at 7 rad/s, damping ratio 1.4) is not observable: its standard error is 2.2 rad/s,
     # over the 10 % the fit accepts, and the start's 6 rad/s is kept, said in its note.
     for joint, lag, bandwidth in zip(fit.joints, SERVO_LAG_S, SERVO_BANDWIDTH_RADPS, strict=True):
