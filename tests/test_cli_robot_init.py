@@ -299,13 +299,16 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     """With only ETS-VII's offsets at 1.5 times their size, as they are and reversed, to try,
     no start keeps the UR5's non-holonomic path clear of the base: the file is written for
     the user to edit, but the exit status is 1, stderr names the experiment and the report
-    gives the nearer candidate and the verdicts (in process, to narrow the candidates)."""
+    gives the nearer candidate and the verdicts (in process, to narrow the candidates, and
+    the experiments checked as written to the non-holonomic one: the others, planned on the
+    same poses, pass in the shared scaffold's run, test_every_experiment_plans_as_written)."""
     candidates = scaffold_experiments.nonholonomic_candidates
     for module in (scaffold_experiments, scaffold_text):  # the candidates, the file's comment
         monkeypatch.setattr(module, "NONHOLONOMIC_SCALES", (1.5,))
     monkeypatch.setattr(
         scaffold_experiments, "nonholonomic_candidates", lambda n: candidates(n)[:2]
     )
+    monkeypatch.setattr(scaffold_experiments, "EXPERIMENTS", ("nonholonomic",))
     out = tmp_path / "ur5.toml"
     result = CliRunner().invoke(
         app, ["robot", "init", "--urdf", str(vendor_urdf("ur5")), "--hand", "tool0",
@@ -313,7 +316,7 @@ def test_a_nonholonomic_start_that_fails_is_said_not_written_silently(
     )  # fmt: skip
     assert result.exit_code == 1, (result.stdout, result.stderr)
     report = json.loads(result.stdout)
-    assert report["failing_experiments"] == ["nonholonomic"]
+    assert list(report["experiments"]) == report["failing_experiments"] == ["nonholonomic"]
     nh = report["nonholonomic"]
     assert not nh["passed"] and nh["candidates_tried"] == 2 and nh["fully_checked"] == 0
     tried = [e["candidate"] for e in report["nonholonomic_tried"]]

@@ -12,13 +12,16 @@ from planner.dynamics import DynamicsWorkspace
 from planner.errors import InfeasibleGoal, InvalidInput
 from planner.plan import Plan, check_plan_limits
 from planner.schedule import EXPERIMENTS, PassParams, plan_pass
+from telemetry.recording import PassRecording
 
 
 @pytest.fixture(scope="module")
-def full_pass() -> Plan:
-    from planner.model import default_model
-
-    return plan_pass(DynamicsWorkspace(default_model()))
+def full_pass(demo_recording: PassRecording) -> Plan:
+    """ETS-VII's demo pass with the defaults (``plan_pass``): the plan the session's flown
+    demo pass (tests/conftest.py) planned, not planned a second time (read only)."""
+    plan = demo_recording.plan
+    assert isinstance(plan, Plan) and plan.experiment == "pass"
+    return plan
 
 
 @pytest.mark.slow
