@@ -3,8 +3,9 @@ on one worker (SQLite's, and PostgreSQL's before) or on a worker of their own
 (``frames_apart``, PostgreSQL's now), in the same run on one database.
 
 A stored pass and 950 queued commands; every command's four stage moves (``released``,
-``sent``, ``received``, ``executed``: what the uplink and the acknowledgements write, three
-statements each) are queued at once, one job each, as acknowledgements arrive under load;
+``sent``, ``received``, ``executed``: what the uplink and the acknowledgements write, as
+their batched moves, bench/bench_stage_writes.py) are queued at once, one job each, as
+acknowledgements arrive under load;
 meanwhile a telemetry message of 20 frames is handed to the worker every 0.1 s (200
 frames/s: 10 Hz at 20x) until the stage writes are done. Figures per mode: each frame
 job's wall time from hand-over to commit (p50, p99, max), the frames stored, and how long
@@ -29,10 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import emit
 from bench_ingest import make_frames
 from bench_load import _own_schema
+from bench_stage_writes import stage_job
 from sqlalchemy.orm import Session, sessionmaker
 
-from server.services.clock import SystemClock
-from server.services.command_stages import set_command_stage
 from server.services.dbworker import Database, Publisher
 from server.storage import repository as repo
 from server.storage.db import make_engine, session_factory, sqlite_url, upgrade
@@ -47,7 +47,6 @@ MESSAGE_PERIOD_S = 0.1
 
 
 async def _burst(sessions: sessionmaker[Session], pass_id: str, apart: bool) -> dict[str, Any]:
-    clock = SystemClock()
     with sessions() as session:  # queued, as a start queues them
         repo.add_commands(
             session=session, pass_id=pass_id, commands=make_commands(COMMANDS), queued_at_ns=0
@@ -63,18 +62,7 @@ async def _burst(sessions: sessionmaker[Session], pass_id: str, apart: bool) -> 
         stage_jobs = []
         for stage in STAGES:
             for seq in seqs:
-
-                def job(session: Session, seq: int = seq, stage: str = stage) -> list[Any]:
-                    return set_command_stage(
-                        session,
-                        clock=clock,
-                        pass_id=pass_id,
-                        seq=seq,
-                        stage=stage,
-                        time_ns=clock.time_ns(),
-                        actor="bench",
-                    )
-
+                job = stage_job(pass_id, seq, stage, batched=True)  # the live path's
                 stage_jobs.append(asyncio.ensure_future(db.write(job)))
         stages = asyncio.gather(*stage_jobs)
         k = 0

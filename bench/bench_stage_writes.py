@@ -22,7 +22,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -45,8 +44,12 @@ STAGES = ("released", "sent", "received", "executed")
 COMMANDS = 950
 
 
-def _one_each(pass_id: str, seq: int, stage: str) -> Callable[[Session], list[Any]]:
+def stage_job(pass_id: str, seq: int, stage: str, *, batched: bool) -> Any:
+    """The job that moves command ``seq`` of the pass to ``stage`` now: the live path's
+    (a batched :class:`StageMove`) or one :func:`set_command_stage` a job (before)."""
     clock = SystemClock()
+    if batched:
+        return StageWrites(clock).job([StageMove(pass_id, seq, stage, clock.time_ns(), "bench")])
 
     def job(session: Session) -> list[Any]:
         return set_command_stage(
@@ -63,8 +66,6 @@ def _one_each(pass_id: str, seq: int, stage: str) -> Callable[[Session], list[An
 
 
 async def _burst(sessions: sessionmaker[Session], pass_id: str, batched: bool) -> dict[str, Any]:
-    clock = SystemClock()
-    writes = StageWrites(clock)
     with sessions() as session:  # queued, as a start queues them
         repo.add_commands(
             session=session, pass_id=pass_id, commands=make_commands(COMMANDS), queued_at_ns=0
@@ -76,11 +77,7 @@ async def _burst(sessions: sessionmaker[Session], pass_id: str, batched: bool) -
         jobs = []
         for stage in STAGES:
             for seq in range(COMMANDS):
-                job: Any = (
-                    writes.job([StageMove(pass_id, seq, stage, clock.time_ns(), "bench")])
-                    if batched
-                    else _one_each(pass_id, seq, stage)
-                )
+                job = stage_job(pass_id, seq, stage, batched=batched)
                 jobs.append(asyncio.ensure_future(db.write(job)))
         await asyncio.gather(*jobs)  # a failed write fails the bench
         wall_s = time.perf_counter() - t0
