@@ -183,15 +183,19 @@ class Database:
         self.outage.tried += 1
         time.sleep(min(RETRY_MAX_S, RETRY_FIRST_S * 2 ** min(self.outage.tried, 8)))
 
-    def _reached(self) -> None:
-        """A transaction reached the database: an outage in progress ends (its journal is
-        replayed from here, in order), and a replay in progress finishes once nothing is
-        waiting."""
+    def _reached(self, tried_at: float) -> None:
+        """A transaction tried at ``tried_at`` (monotonic) reached the database: an outage
+        that began before it ends (its journal is replayed from here, in order), and a
+        replay in progress finishes once nothing is waiting. One that began after it was
+        tried goes on: the other worker's commit that finished as the connection was cut
+        ended an outage the moment it began (the consoles read "reachable" mid-outage)."""
         outage = self.outage
         if outage.down_since is None and outage.replay_since is None:
             return
         now = time.monotonic()
         with self._counts:
+            if outage.down_since is not None and outage.down_since > tried_at:
+                return
             if outage.down_since is not None:
                 waited = outage.end(now, len(self._pending), self.jobs)
                 log.warning(
@@ -282,9 +286,10 @@ class Database:
         commit what ran (the rest stays queued). How many jobs ran."""
         outcomes: list[tuple[bool, Any]] = []
         ran = 0
+        if self.outage.down_since is not None:
+            self._back_off()
+        tried_at = time.monotonic()
         try:
-            if self.outage.down_since is not None:
-                self._back_off()
             with self._sessions() as session:
                 try:
                     if self.fence is not None:
@@ -323,7 +328,7 @@ class Database:
                             ran = len(outcomes)
                             break
                         outcomes.append((False, exc))
-        self._reached()
+        self._reached(tried_at)
         with self._counts:
             self.groups += 1
             self.jobs += ran

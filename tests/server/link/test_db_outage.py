@@ -8,6 +8,7 @@ silence; at a stop a journal the database cannot take fails rather than hangs.""
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -112,3 +113,47 @@ def test_a_full_journal_refuses_a_write_loudly_and_a_stop_does_not_hang(migrated
     assert isinstance(refused, JournalFull) and "10 writes wait" in str(refused)
     assert db.outage.refused == 1
     assert all(isinstance(r, Exception) for r in results)  # failed, each one, not hung
+
+
+def test_a_frame_commit_that_finishes_as_the_outage_begins_does_not_end_it(
+    migrated: str,
+) -> None:
+    """The frames' worker (PostgreSQL's own) commits, the connection is cut, the command
+    worker's next write finds the database away, and only then does the frames' worker
+    report its commit: the outage goes on (it ended at once, and a console read the database
+    reachable mid-outage: the suite's failure of test_db_outage_e2e.py)."""
+    with cut_proxy(migrated) as (proxy, through):
+        engine = make_engine(through)
+        db = Database(session_factory(engine), Publisher(), frames_apart=True)
+        committed, outage_seen = threading.Event(), threading.Event()
+
+        def on_commit(_seconds: float) -> None:  # after a commit, before it is reported
+            if threading.current_thread().name == "ground-db-frames":
+                committed.set()
+                assert outage_seen.wait(30.0)
+
+        db.on_commit = on_commit
+
+        async def scenario() -> dict[str, Any]:
+            done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+            loop = asyncio.get_running_loop()
+            db.submit_then(_write(0), lambda _: loop.call_soon_threadsafe(done.set_result, None))
+            await _until(committed.is_set, 30.0)
+            proxy.cut()
+            write = asyncio.ensure_future(db.run(_write(1)))
+            await _until(lambda: db.outage.down_since is not None, 30.0)
+            outage_seen.set()
+            await asyncio.wait_for(done, 30.0)  # the frame's commit, reported
+            during = db.outage.status(db.journal)
+            proxy.restore()
+            await asyncio.wait_for(write, 60.0)
+            return during
+
+        try:
+            during = asyncio.run(scenario())
+        finally:
+            db.close()
+            engine.dispose()
+    assert during["reachable"] is False, during
+    after = db.outage.status(0)
+    assert after["reachable"] and after["outages"] == 1, after
