@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import pickle
 import shutil
 import tempfile
 import threading
@@ -37,16 +38,26 @@ def workspace(model: RobotModel) -> DynamicsWorkspace:
 
 
 @pytest.fixture(scope="session")
-def demo_recording(model: RobotModel) -> PassRecording:
+def demo_recording(made_once: MadeOnce) -> PassRecording:
     """A flown demo pass (the whole ETS-VII schedule through the real vehicle, default
     sensor noise and gravity gradient, perfect link), shared by the post-pass tests of a
-    session (telemetry and server): about 17 s to plan and fly, once."""
-    plan = plan_pass(DynamicsWorkspace(model))
-    flight = fly_offline(plan, seed=7)
-    assert not flight.rejected, flight.rejected[:3]
-    return PassRecording.from_frames(
-        "demo", plan, flight.epoch_ns, flight.frames, meta={"source": "offline flight, seed 7"}
+    run (telemetry and server): about 17 s to plan and fly, once for all the workers (a
+    pickle in the run's shared folder: our own objects, written and read by this run)."""
+
+    def make(folder: Path) -> None:
+        plan = plan_pass(DynamicsWorkspace(default_model()))
+        flight = fly_offline(plan, seed=7)
+        recording = PassRecording.from_frames(
+            "demo", plan, flight.epoch_ns, flight.frames, meta={"source": "offline flight, seed 7"}
+        )
+        (folder / "demo.pickle").write_bytes(pickle.dumps((flight.rejected, recording)))
+
+    rejected, recording = pickle.loads(
+        (made_once("demo-recording", make) / "demo.pickle").read_bytes()
     )
+    assert not rejected, rejected[:3]
+    assert isinstance(recording, PassRecording)
+    return recording
 
 
 #: The PostgreSQL fixtures, for every directory (tests/postgres.py).
