@@ -122,15 +122,7 @@ async def test_a_graceful_stop_hands_the_pass_to_the_vehicle_and_the_next_ground
 async def test_a_ground_down_longer_than_the_lead_window_ends_the_pass_degraded_with_counts(
     tmp_path: Path,
 ) -> None:
-    clock = ManualClock()
-    sessions = make_sessions(tmp_path)
-    first = ground(sessions, clock, uplink_lead_window_s=10.0)
-    sc = SimulatedSpacecraft(clock)
-    await sc.connect(first)
-    pass_id = store_pass(sessions, 400, clock)
-    await first.runner.start(pass_id, "otto")
-    await sc.run(40.0)
-    await kill_ground(first, sc)
+    clock, sessions, sc, pass_id = await _killed_40_s_into_a_pass(tmp_path, lead_s=10.0)
     await sc.run(30.0)  # three lead windows without a ground
     second = ground(sessions, clock, uplink_lead_window_s=10.0)
     await second.restarted()
@@ -236,12 +228,13 @@ def test_the_outcome_is_nominal_only_when_every_command_executed_at_its_tag() ->
 
 
 async def _killed_40_s_into_a_pass(
-    tmp_path: Path,
+    tmp_path: Path, lead_s: float = LEAD_S
 ) -> tuple[ManualClock, Any, SimulatedSpacecraft, str]:
-    """A ground flies a 400-command pass for 40 s of simulated time and is killed."""
+    """A ground with an uplink lead window of ``lead_s`` (onboard s) flies a 400-command
+    pass for 40 s of simulated time and is killed."""
     clock = ManualClock()
     sessions = make_sessions(tmp_path)
-    first = ground(sessions, clock, uplink_lead_window_s=LEAD_S)
+    first = ground(sessions, clock, uplink_lead_window_s=lead_s)
     sc = SimulatedSpacecraft(clock)
     await sc.connect(first)
     pass_id = store_pass(sessions, 400, clock)
