@@ -64,7 +64,8 @@ def demo(
         list[str] | None,
         typer.Option(
             help="A fault for the spacecraft, NAME@T[,key=value...], T in onboard s from the "
-            "spacecraft's start (as --outage): jointN-stuck, jointN-drift[,rate_degps=], "
+            "spacecraft's start (as --outage), or NAME@cmd+T, T after the first command "
+            "executed: jointN-stuck, jointN-drift[,rate_degps=], "
             "wheelN-fail, attitude-bias[,deg=][,axis=], bump[,nms=][,axis=]; repeatable "
             "(docs/spacecraft.md)"
         ),

@@ -2,8 +2,10 @@
 
 For rehearsals and tests (docs/spacecraft.md, "Faults"). ``hikoboshi spacecraft --fault
 SPEC`` (repeatable) takes ``NAME@T[,key=value...]``, ``T`` in onboard seconds from the
-spacecraft's start (as ``--outage``); the fault begins at the first step of the truth
-simulation at or after ``T``:
+spacecraft's start (as ``--outage``), or ``NAME@cmd+T[,...]``, ``T`` onboard seconds after the
+vehicle executes its first time-tagged command (a pass's first command: "20 s into the
+motion" whenever the ground starts it); the fault begins at the first step of the truth
+simulation at or after that time:
 
 - ``jointN-stuck@T``: joint N's servo holds where the joint is at T (it stops following its
   target);
@@ -79,6 +81,9 @@ class Fault:
     kind: FaultKind
     at_s: float
     index: int | None = None
+    #: ``at_s`` counts from the first time-tagged command executed on board (``@cmd+T``),
+    #: not from the spacecraft's start
+    after_first_command: bool = False
     rate_degps: float | None = None
     deg: float | None = None
     nms: float | None = None
@@ -99,7 +104,8 @@ class Fault:
             f"{key}={getattr(self, key):g}" if key != "axis" else f"axis={self.axis}"
             for key in _PARAMETERS[self.kind]
         ]
-        return ",".join([f"{self.name}@{self.at_s:g}", *params])
+        when = f"cmd+{self.at_s:g}" if self.after_first_command else f"{self.at_s:g}"
+        return ",".join([f"{self.name}@{when}", *params])
 
     def parameters(self) -> dict[str, Any]:
         """The kind's parameters, for the truth log."""
@@ -119,8 +125,8 @@ def parse_fault(text: str) -> Fault:
     head, sep, rest = text.strip().partition("@")
     if not sep:
         raise FaultSpecError(
-            f"{where}: needs NAME@T (T in onboard seconds from the spacecraft's start), "
-            "e.g. joint3-stuck@120"
+            f"{where}: needs NAME@T (T in onboard seconds from the spacecraft's start) or "
+            "NAME@cmd+T (T after the first command executed), e.g. joint3-stuck@120"
         )
     match = _NAME.match(head.strip())
     if match is None:
@@ -141,11 +147,13 @@ def parse_fault(text: str) -> Fault:
         if index < 1:
             raise FaultSpecError(f"{where}: {part}s are numbered from 1 ({part}1, {part}2, ...)")
     time_text, *pairs = rest.split(",")
-    at_s = _number(where, "T", time_text)
+    anchor, plus, after = time_text.strip().partition("+")
+    relative = bool(plus) and anchor.strip() == "cmd"
+    at_s = _number(where, "T", after if relative else time_text)
     if not 0.0 <= at_s <= _MAX_AT_S:
+        since = "the first command executed" if relative else "the spacecraft's start"
         raise FaultSpecError(
-            f"{where}: T = {at_s:g} s must lie in [0, {_MAX_AT_S:g}] (onboard seconds from "
-            "the spacecraft's start)"
+            f"{where}: T = {at_s:g} s must lie in [0, {_MAX_AT_S:g}] (onboard seconds from {since})"
         )
     allowed = _PARAMETERS[kind]
     values: dict[str, float | str] = dict(allowed)
@@ -169,7 +177,12 @@ def parse_fault(text: str) -> Fault:
             if key == "deg" and abs(number) >= 180.0:
                 raise FaultSpecError(f"{where}: deg = {number:g} must lie within +-180")
             values[key] = number
-    fault = Fault(kind=kind, at_s=at_s, index=index)  # type: ignore[arg-type]
+    fault = Fault(
+        kind=kind,  # type: ignore[arg-type]
+        at_s=at_s,
+        index=index,
+        after_first_command=relative,
+    )
     return replace(fault, **values)  # type: ignore[arg-type]
 
 
@@ -206,18 +219,39 @@ class FaultInjector:
     servo targets, wheel torques and sensor samples through it."""
 
     def __init__(self, faults: Sequence[Fault], *, epoch_ns: int, step_ns: int) -> None:
-        def onset(fault: Fault) -> int:
-            steps = math.ceil(round(fault.at_s * 1e9) / step_ns)
-            return epoch_ns + steps * step_ns
-
-        self._pending = sorted(((onset(f), i, f) for i, f in enumerate(faults)), reverse=True)
-        self._epoch_ns = epoch_ns
+        self._epoch_ns, self._step_ns = epoch_ns, step_ns
+        #: (onset ns, order given, fault), the next last; the ``@cmd+T`` faults join it
+        #: once the first command executes (:meth:`first_command`)
+        self._pending = sorted(
+            (
+                (self._onset(epoch_ns, f), i, f)
+                for i, f in enumerate(faults)
+                if not f.after_first_command
+            ),
+            reverse=True,
+        )
+        self._after_command = [(i, f) for i, f in enumerate(faults) if f.after_first_command]
         #: joint index (from 0) -> the angle its servo holds
         self.stuck: dict[int, float] = {}
         #: joint index (from 0) -> (bias rad at t0, bias rate rad/s, t0 ns)
         self.drift: dict[int, tuple[float, float, int]] = {}
         self.failed_wheels: set[int] = set()
         self._bias: Rotation | None = None
+
+    def _onset(self, since_ns: int, fault: Fault) -> int:
+        """The first step of the truth simulation at or after ``fault.at_s`` past
+        ``since_ns``."""
+        late_ns = since_ns - self._epoch_ns + round(fault.at_s * 1e9)
+        return self._epoch_ns + math.ceil(late_ns / self._step_ns) * self._step_ns
+
+    def first_command(self, t_ns: int) -> None:
+        """A time-tagged command executed at ``t_ns``: the first one sets the onsets of the
+        ``@cmd+T`` faults (later ones change nothing)."""
+        for i, fault in self._after_command:
+            self._pending.append((self._onset(t_ns, fault), i, fault))
+        if self._after_command:
+            self._after_command = []
+            self._pending.sort(reverse=True)
 
     @property
     def next_onset_ns(self) -> int | None:

@@ -94,6 +94,11 @@ class TruthSimulation:
         """The onset of the next fault (None: none left)."""
         return self._faults.next_onset_ns
 
+    def command_executed(self, t: int) -> None:
+        """A time-tagged command executed at ``t`` (the ``@cmd+T`` faults count from the
+        first)."""
+        self._faults.first_command(t)
+
     def begin_faults(self, t: int) -> None:
         """The faults due at ``t`` begin (the truth changes first: what is measured at ``t``
         shows it); the servos must be given their target again."""

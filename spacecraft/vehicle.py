@@ -396,6 +396,7 @@ class Vehicle:
                 # the switch takes effect at the tag, not at the next tick
                 self._acs.control(t, self._truth.measure, self._target)
             acks.append(self._schedule.executed(cmd.seq, t))
+            self._truth.command_executed(t)
         return acks
 
     def _ramp_to_next(self, now: int) -> None:

@@ -24,6 +24,8 @@ from spacecraft.vehicle_config import VehicleConfig, VehicleError
         ("attitude-bias@10,axis=z,deg=4", Fault("attitude-bias", 10.0, deg=4.0, axis="z")),
         ("bump@7", Fault("bump", 7.0, nms=10.0, axis="x")),
         (" bump@7, nms=30 , axis=y ", Fault("bump", 7.0, nms=30.0, axis="y")),
+        ("joint3-stuck@cmd+20", Fault("joint-stuck", 20.0, index=3, after_first_command=True)),
+        ("bump@cmd+0,nms=5", Fault("bump", 0.0, nms=5.0, axis="x", after_first_command=True)),
     ],
 )
 def test_a_fault_is_read_with_its_defaults(text: str, expected: Fault) -> None:
@@ -36,6 +38,7 @@ def test_the_spec_names_every_parameter() -> None:
     assert parse_fault("joint3-drift@12").spec == "joint3-drift@12,rate_degps=0.5"
     assert parse_fault("bump@1,axis=z").spec == "bump@1,nms=10,axis=z"
     assert parse_fault("wheel1-fail@2").name == "wheel1-fail"
+    assert parse_fault("joint3-stuck@cmd+20.5").spec == "joint3-stuck@cmd+20.5"
 
 
 @pytest.mark.parametrize(
@@ -48,6 +51,9 @@ def test_the_spec_names_every_parameter() -> None:
         ("joint0-stuck@1", "joints are numbered from 1"),
         ("bump@soon", "T = 'soon' is not a number"),
         ("bump@-1", "T = -1 s must lie in [0,"),
+        ("bump@cmd+-1", "T = -1 s must lie in [0, 3.15576e+07] (onboard seconds from the first"),
+        ("bump@cmd+soon", "T = 'soon' is not a number"),
+        ("bump@start+5", "T = 'start+5' is not a number"),
         ("bump@inf", "T = 'inf' is not finite"),
         ("bump@5,deg=3", "bump takes nms, axis; not 'deg'"),
         ("joint1-stuck@5,rate_degps=1", "joint-stuck takes no parameter; not 'rate_degps'"),

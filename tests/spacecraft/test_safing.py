@@ -175,6 +175,23 @@ def test_a_stuck_joint_during_a_ramp_safes_within_one_control_period_of_the_cros
     )
 
 
+def test_a_fault_after_the_first_command_counts_from_its_execution_not_the_start() -> None:
+    """``@cmd+T``: the fault's onset is T after the first time-tagged command executed on
+    board (here at 7 s: the same stuck joint 3 s into the ramp as ``joint3-stuck@10``),
+    whenever the commands were tagged; no command, no fault."""
+    v = _vehicle("joint3-stuck@cmd+3")
+    _received(v, _ramp(3, 1.0, 7.0, 20.0))
+    flight = _fly(v, 30.0)
+    fault, entry = flight.vehicle.take_truth_events()
+    assert fault["spec"] == "joint3-stuck@cmd+3" and fault["at_s"] == 3.0
+    assert fault["onboard_time_ns"] == EPOCH + 10 * SECOND
+    assert fault["held_deg"] == pytest.approx(3.0, abs=0.6)  # 3 s at 1 deg/s, the servo's lag
+    assert entry["event"] == "safing_entry" and entry["onboard_time_ns"] > EPOCH + 10 * SECOND
+    idle = _vehicle("joint3-stuck@cmd+3")
+    _fly(idle, 30.0)
+    assert not idle.safe and idle.take_truth_events() == []
+
+
 def test_after_safing_no_command_executes_and_the_arm_and_attitude_hold() -> None:
     flight = _stuck_flight()
     v, frames = flight.vehicle, flight.frames

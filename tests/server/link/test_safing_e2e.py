@@ -40,17 +40,10 @@ pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wa
 #: Joint 3 by 60 deg: a 41.75 s motion (the plan keeps the flight rules).
 GOAL_DEG = (0.0, 0.0, 60.0, 0.0, 0.0, 0.0)
 MOTION_S = 41.75
-#: Onboard s from the spacecraft's start at which the test asks for the start: the pass's
-#: t = 0 then comes START_LEAD_S or so later (the runner's start lead at 10x: 5 s of delay
-#: and margin and three first timeouts of 1.1 s wall, 38 s, and 1 s wall of slack; 52.25 s
-#: from the start was measured), give or take the REST round trip.
-START_AT_S = 4.0
-START_LEAD_S = 48.0
-#: The fault, 20 s into the motion as expected. A loaded machine starts the pass later
-#: (the REST round trip and the runner's wall timeouts, times 10: 12.75 s later than the
-#: lead in a suite beside a load test, when the fault was 8 s into a 28 s motion and fell
-#: before it). The test checks the fault fell inside the motion.
-FAULT_AT_S = START_AT_S + START_LEAD_S + 20.0
+#: The fault, 20 s into the motion: counted on board from the pass's first command (its
+#: tag is the pass's epoch), whenever the ground starts it. (As onboard seconds from the
+#: spacecraft's start, a loaded machine's later start put it 3.75 s before the epoch.)
+FAULT_AFTER_S = 20.0
 
 
 def _alarms(ground: Ground, pass_id: str) -> list[AlarmRecord]:
@@ -62,7 +55,7 @@ def test_a_joint_stuck_mid_motion_safes_the_vehicle_and_the_ground_files_the_pas
     database_url: str, tmp_path: Path
 ) -> None:
     truth_log = tmp_path / "truth.jsonl"
-    fault = parse_fault(f"joint3-stuck@{FAULT_AT_S:g}")
+    fault = parse_fault(f"joint3-stuck@cmd+{FAULT_AFTER_S:g}")
     with running_ground(database_url) as ground:
         pass_id = store_pass(ground.sessions, "stuck", GOAL_DEG, 2.0)
         other = store_pass(ground.sessions, "after", (0.0, 0.0, 0.0, 5.0, 0.0, 0.0), 1.0)
@@ -74,8 +67,6 @@ def test_a_joint_stuck_mid_motion_safes_the_vehicle_and_the_ground_files_the_pas
             try:
                 async with httpx.AsyncClient(base_url=ground.url) as client:
                     await connected(client)
-                    while process.onboard_s() < START_AT_S:
-                        await asyncio.sleep(0.02)
                     started = await client.post(
                         f"/api/passes/{pass_id}/start",
                         json={"confirm": "START stuck"},
@@ -126,8 +117,10 @@ def test_a_joint_stuck_mid_motion_safes_the_vehicle_and_the_ground_files_the_pas
     [left] = [r for r in truth if r["event"] == "safing_exit"]
     epoch_ns = int(result["epoch_ns"])  # type: ignore[call-overload]
     motion_end_ns = epoch_ns + round(MOTION_S * 1e9)
-    # the fault began inside the PTP motion, and the vehicle safed itself before it ended
-    assert epoch_ns < onset["onboard_time_ns"] < entry["onboard_time_ns"] < motion_end_ns
+    # the fault began 20 s into the PTP motion (its first command's tag is the epoch; the
+    # truth simulation's 10 ms grid), and the vehicle safed itself before the motion ended
+    assert 0 <= onset["onboard_time_ns"] - (epoch_ns + round(FAULT_AFTER_S * 1e9)) < 10_000_000
+    assert onset["onboard_time_ns"] < entry["onboard_time_ns"] < motion_end_ns
     assert entry["quantity"] == "joint_tracking_error_deg" and entry["channel"] == "joint3"
     assert entry["value"] >= entry["limit"]
     # the ground: safed, naming the trigger; the window runs on past the safing
