@@ -476,7 +476,7 @@ class GroundLink:
             duplicates=down.duplicates,
             frames_outside_pass=down.frames_outside_pass,
             highest_seq=down.held.highest(),
-            frames_behind=down.frames_behind(onboard_now),
+            frames_behind=down.frames_behind(onboard_now if self.connected else None),
             open_gaps=gaps[:100],
             frames_missing=sum(hi - lo + 1 for lo, hi in gaps),
             retransmit_requests=down.retransmit_requests,

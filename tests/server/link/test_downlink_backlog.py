@@ -110,3 +110,44 @@ def test_a_retransmission_s_frames_the_archive_held_are_published_once(tmp_path:
     assert stored == list(range(40))
     assert published == list(range(20, 40))
     assert held == set(range(10, 40))  # every frame received acknowledged, copies included
+
+
+def test_frames_behind_is_the_backlog_of_a_connected_link_and_absent_without_one(
+    tmp_path: Path,
+) -> None:
+    """The vehicle sends 10 frames at 10 Hz, then goes: ``frames_behind`` (the link's
+    status, ``/metrics``) is what the connected vehicle has made that the ground does not
+    hold, and absent once it has gone, however long it stays away (estimated from the
+    onboard clock, it grew for ever after every pass: an alert on it never cleared). The
+    alarms of a running pass watch the link on their own (docs/alarms.md)."""
+
+    async def scenario() -> list[int | None]:
+        clock = ManualClock()
+        sessions = make_sessions(tmp_path)
+        g = ground(sessions, clock)
+        sc = SimulatedSpacecraft(clock)
+        await sc.connect(g)
+        g.downlink.open_window(store_pass(sessions, 40, clock), 0)
+        start = sc.onboard_ns()
+        frames = [
+            f.model_copy(update={"generation_time_ns": start + f.seq * 100_000_000})
+            for f in make_frames(range(10))
+        ]
+        await g.link.handle(sc.conn, encode(TelemetryMsg(frames=frames)))  # type: ignore[arg-type]
+        await g.downlink.settled()
+        await g.db.drain()
+        seen: list[int | None] = []
+        for step_s in (1.0, 11.0):
+            clock.jump(step_s)
+            seen.append(g.link.status().frames_behind)
+        await sc.disconnect()
+        for step_s in (0.0, 100.0):
+            clock.jump(step_s)
+            seen.append(g.link.status().frames_behind)
+        return seen
+
+    up, later, gone, long_gone = asyncio.run(scenario())
+    # 1 s after the 10th frame: at least 10 more made, none held (the ground's idea of the
+    # onboard clock runs ahead of the frames by the relay's delay); 11 s on, 110 more
+    assert up is not None and up >= 10 and later == up + 110
+    assert gone is None and long_gone is None
