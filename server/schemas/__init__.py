@@ -25,10 +25,12 @@ OpenAPI name, ``server__schemas__CommandPublic`` (``server.api.ready`` has a
 
 from __future__ import annotations
 
+import re
+import unicodedata
 from datetime import UTC, datetime, timedelta
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, StringConstraints
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
 
 __all__ = [
     "EARLIEST",
@@ -37,11 +39,14 @@ __all__ = [
     "LINE_PATTERN",
     "MAX_NS",
     "NAME_PATTERN",
+    "NAME_RULE",
+    "NAME_TEXT_PATTERN",
     "TEXT_PATTERN",
     "CommandKind",
     "CommandPublic",
     "CommandStage",
     "CommandsPublic",
+    "DisplayName",
     "ErrorDetail",
     "ErrorPublic",
     "EventKind",
@@ -50,7 +55,9 @@ __all__ = [
     "PassState",
     "SafeLine",
     "SafeText",
+    "checked_name",
     "iso_from_ns",
+    "name_problem",
     "ns_from_datetime",
 ]
 
@@ -71,6 +78,54 @@ LINE_PATTERN = r"^[^\x00-\x1f\x7f]*$"
 SafeText = Annotated[str, StringConstraints(pattern=TEXT_PATTERN)]
 #: Free text in a path or query parameter; give it its ``max_length`` where it is used.
 SafeLine = Annotated[str, StringConstraints(pattern=LINE_PATTERN)]
+#: A name an operator reads and types back (a pass's, a plan's label): beyond TEXT_PATTERN's
+#: rule, no control character at all (C0, DEL, C1), no bidi control (they reorder what is
+#: shown: a confirmation could read as another pass's name), no zero-width or other invisible
+#: format character, no line or paragraph separator, no noncharacter of the Basic Multilingual
+#: Plane (those beyond it, and the tag characters of emoji flags, an ECMA pattern without the
+#: ``u`` flag cannot name: the OpenAPI document and the server keep the same rule).
+#: :func:`name_problem` checks it and says which character it found.
+NAME_TEXT_PATTERN = (
+    r"^[^\x00-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u206f\ufdd0-\ufdef"
+    r"\ufeff\ufff9-\ufffb\ufffe\uffff]*$"
+)
+_NAME_CHAR = re.compile(NAME_TEXT_PATTERN)
+
+
+def name_problem(text: str) -> str | None:
+    """Why ``text`` cannot be a name (:data:`NAME_TEXT_PATTERN`), or None: the first
+    character refused, by code point and Unicode name."""
+    for i, char in enumerate(text, start=1):
+        if _NAME_CHAR.fullmatch(char):
+            continue
+        point = ord(char)
+        kind = {
+            "Cc": "a control character",
+            "Cn": "a noncharacter",
+            "Zl": "a line separator",
+            "Zp": "a paragraph separator",
+        }.get(unicodedata.category(char), "an invisible format character")
+        named = unicodedata.name(char, "")
+        return (
+            f"character {i} is U+{point:04X}{f' {named}' if named else ''}, {kind}: a name may "
+            "hold no control, bidi-control, zero-width, separator or noncharacter code point"
+        )
+    return None
+
+
+def checked_name(text: str) -> str:
+    """``text``, if it can be a name; else ValueError (a validator's refusal) saying why."""
+    problem = name_problem(text)
+    if problem is not None:
+        raise ValueError(problem)
+    return text
+
+
+#: The name rule's parts, after a string's own constraints: the check, and its pattern stated
+#: in the OpenAPI document.
+NAME_RULE = (AfterValidator(checked_name), Field(json_schema_extra={"pattern": NAME_TEXT_PATTERN}))
+#: A name's type in a request body (:data:`NAME_TEXT_PATTERN`; its length where it is used).
+DisplayName = Annotated[str, NAME_RULE[0], NAME_RULE[1]]
 #: A mission's or a relay's name (``mission.file.NAME``): a request names one, never a file.
 NAME_PATTERN = r"^[A-Za-z0-9_.\-]+$"
 Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN, min_length=1, max_length=64)]

@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field
 
-from server.schemas import FromRecord, Name, SafeText
+from server.schemas import DisplayName, FromRecord, Name, SafeText
 
 __all__ = [
     "MissionPublic",
@@ -35,7 +35,7 @@ class PassCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     plan_id: SafeText = Field(max_length=64)
-    name: SafeText = Field(min_length=1, max_length=128)
+    name: DisplayName = Field(min_length=1, max_length=128)
     #: Acquisition and loss of signal, ISO-8601 with a zone (UTC).
     aos_time: AwareDatetime
     los_time: AwareDatetime
@@ -60,7 +60,7 @@ class PassCreateFromWindow(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     plan_id: SafeText = Field(max_length=64)
-    name: SafeText = Field(min_length=1, max_length=128)
+    name: DisplayName = Field(min_length=1, max_length=128)
     window: WindowRef
 
 

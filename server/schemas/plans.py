@@ -18,7 +18,7 @@ from pydantic import (
 )
 
 from planner.parameters import MAX_ITEMS
-from server.schemas import FromRecord, SafeText
+from server.schemas import NAME_RULE, FromRecord, SafeText
 
 __all__ = [
     "ClearanceTracePublic",
@@ -46,10 +46,11 @@ __all__ = [
 ParameterName = Annotated[SafeText, StringConstraints(max_length=64)]
 #: A parameter's value as JSON carries it: a number, boolean, string or null, or a list of
 #: them for a tuple (at most ``planner.parameters.MAX_ITEMS`` items, the planner's bound). A
-#: string is read as text (the console sends ``"10, 20, 30"``).
+#: string is read as text (the console sends ``"10, 20, 30"``) or is a name (a ``label``,
+#: shown and quoted to operators: a name's characters).
 #: Strict: a string that breaks its rule is refused, not read as a number.
 ParameterScalar = (
-    Annotated[SafeText, StringConstraints(max_length=1000), Strict()]
+    Annotated[str, StringConstraints(max_length=1000), Strict(), NAME_RULE[0], NAME_RULE[1]]
     | StrictBool
     | StrictInt
     | StrictFloat

@@ -38,6 +38,7 @@ from pydantic import ValidationError
 from sqlalchemy.exc import DataError, IntegrityError
 from sqlalchemy.orm import Session
 
+from server.schemas import name_problem
 from server.schemas.alarms import AlarmPublic
 from server.schemas.analyses import PassImportPublic
 from server.services.errors import InvalidRequestError, UnavailableError
@@ -163,6 +164,9 @@ def _check(recording: PassRecording) -> None:
             "recording_not_storable",
             f"plan experiment name of {len(recording.plan.experiment)} characters exceeds 64",
         )
+    problem = name_problem(recording.name[:128])
+    if problem is not None:  # shown and quoted to operators as any pass's name
+        raise InvalidRecording("recording_not_storable", f"pass name: {problem}")
     if not 0 <= recording.epoch_ns < _INT64:
         raise InvalidRecording("recording_not_storable", f"epoch {recording.epoch_ns} ns")
     for c in recording.commands:

@@ -22,10 +22,14 @@ from hypothesis import HealthCheck, given, settings
 from schemathesis.python.asgi import shutdown_lifespans
 
 from server.app import create_app
-from server.schemas import LINE_PATTERN, TEXT_PATTERN
+from server.schemas import LINE_PATTERN, NAME_TEXT_PATTERN, TEXT_PATTERN, name_problem
 from server.settings import Settings
 from tests.server.api.conftest import OPERATOR, TOKENS
 
+#: What a name may not hold beyond the body's rule (server.schemas.NAME_TEXT_PATTERN): C1,
+#: bidi controls, zero-width and invisible format characters, separators, noncharacters.
+NAME_REFUSED = ["\x85", "\x9f", "a\u202eb", "\u061c", "a\u200db", "\u2066", "\u2028",
+                "\ufeff", "\ufdd0", "\uffff"]  # fmt: skip
 #: Strings that probe the patterns: each C0 control, DEL, C1, and text that must pass.
 PROBES = [
     *(chr(c) for c in range(0x20)),
@@ -40,6 +44,8 @@ PROBES = [
     "軌道",
     "🛰 satellite",
     "",
+    "e\u0301",  # a combining accent: a name may hold it
+    *NAME_REFUSED,
 ]
 #: What the edge refuses in a JSON body's strings, and in a path or query string.
 _BODY_REFUSED = [chr(c) for c in [*range(0x09), 0x0B, 0x0C, *range(0x0E, 0x20), 0x7F]]
@@ -152,7 +158,9 @@ def test_request_bodies_take_no_keys_they_do_not_declare(document: dict[str, Any
     assert set(bodies) - closed == set()
 
 
-@pytest.mark.parametrize("pattern", [TEXT_PATTERN, LINE_PATTERN], ids=["text", "line"])
+@pytest.mark.parametrize(
+    "pattern", [TEXT_PATTERN, LINE_PATTERN, NAME_TEXT_PATTERN], ids=["text", "line", "name"]
+)
 def test_the_patterns_mean_the_same_in_python_and_ecma_262(pattern: str) -> None:
     node = shutil.which("node")
     if node is None:
@@ -178,11 +186,16 @@ def test_the_patterns_mean_the_same_in_python_and_ecma_262(pattern: str) -> None
     allowed = {s for s, ok in zip(PROBES, python, strict=True) if ok}
     body_controls = {"\t", "\n", "\r", "a\tb", "line\nbreak", "cr\r", "trailing\n"}
     assert {"\x00", "\x1b", "\x7f"} & allowed == set()
-    assert {"軌道", "🛰 satellite", "\x85", ""} <= allowed
+    assert {"軌道", "🛰 satellite", "e\u0301", ""} <= allowed
     if pattern == TEXT_PATTERN:
         assert body_controls <= allowed
     else:
         assert body_controls & allowed == set()
+    if pattern == NAME_TEXT_PATTERN:  # and the validator says the same, naming the character
+        assert set(NAME_REFUSED) & allowed == set()
+        assert [name_problem(s) is None for s in PROBES] == python
+    else:
+        assert set(NAME_REFUSED) <= allowed
 
 
 def test_schemathesis_generates_from_the_patterns(tmp_path: Path) -> None:

@@ -108,6 +108,37 @@ def test_a_refused_pass_names_its_reason_and_stores_nothing(
     _nothing_scheduled(client)
 
 
+def test_a_name_that_could_read_as_another_is_refused_naming_the_character(
+    client: TestClient, ptp_plan: Plan
+) -> None:
+    """Operators read a pass's name and type it back to start or abort it: a bidi control
+    (``START pass \u202e1`` reads as another pass), a zero-width or other invisible
+    character, a C1 control, a separator or a noncharacter is refused, 422 with the
+    character named; letters of any script and combining accents are names."""
+    plan_id = _stored_plan(client, ptp_plan)
+    window_s = ptp_plan.duration_s + LEAD_S
+    refused = {
+        "pass \u202e1 tnega": "U+202E RIGHT-TO-LEFT OVERRIDE",
+        "pass\u200d1": "U+200D ZERO WIDTH JOINER",
+        "pass\u2066x\u2069": "U+2066 LEFT-TO-RIGHT ISOLATE",
+        "pass\x851": "U+0085, a control character",
+        "two\u2028lines": "U+2028 LINE SEPARATOR",
+        "pass\uffff": "U+FFFF, a noncharacter",
+    }
+    for name, said in refused.items():
+        body = {**_request(plan_id, window_s), "name": name}
+        response = client.post("/api/passes", json=body, headers=OPERATOR)
+        assert response.status_code == 422, (name, response.text)
+        error = response.json()["error"]
+        assert error["code"] == "invalid_request" and said in error["message"], error
+    _nothing_scheduled(client)
+    for name in ("軌道 pass", "café́ 1", "🛰 pass"):
+        body = {**_request(plan_id, window_s), "name": name}
+        response = client.post("/api/passes", json=body, headers=OPERATOR)
+        assert response.status_code == 201, response.text
+        assert response.json()["name"] == name
+
+
 def test_tokens_and_roles(client: TestClient, ptp_plan: Plan) -> None:
     body = _request(_stored_plan(client, ptp_plan), 3600)
     assert client.post("/api/passes", json=body).status_code == 401

@@ -94,6 +94,19 @@ def test_a_malformed_body_is_422_in_the_error_shape(shared_client: TestClient) -
     _nothing_stored(shared_client)
 
 
+def test_a_label_that_could_read_as_another_is_422_naming_the_character(
+    shared_client: TestClient,
+) -> None:
+    """A plan's ``label`` is shown and quoted to operators: it keeps a name's rule."""
+    body = {"experiment": "ptp", "parameters": {"label": "A->B \u202eC"}}
+    response = shared_client.post("/api/plans", json=body, headers=OPERATOR)
+    assert response.status_code == 422, response.text
+    error = response.json()["error"]
+    assert error["code"] == "invalid_request"
+    assert "U+202E RIGHT-TO-LEFT OVERRIDE" in error["message"]
+    _nothing_stored(shared_client)
+
+
 def test_tokens_and_roles(shared_client: TestClient) -> None:
     assert shared_client.get("/api/plans").status_code == 401
     assert (

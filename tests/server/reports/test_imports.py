@@ -102,6 +102,20 @@ def test_a_row_the_database_refuses_is_reported_and_nothing_is_kept(
     assert row_counts(session) == before
 
 
+def test_a_recording_whose_pass_name_breaks_the_name_rule_is_refused_saying_why(
+    session: Session, short_recording: PassRecording
+) -> None:
+    """A name read from an archive is shown and quoted to operators as any pass's: one
+    that would reorder the text (a right-to-left override) is refused like a typed one."""
+    before = row_counts(session)
+    bad = dataclasses.replace(short_recording, name="pass \u202e1 tnega")
+    with pytest.raises(InvalidRecording) as caught:
+        store_recording(session, bad, "otto")
+    assert status_of(caught.value) == 422 and caught.value.code == "recording_not_storable"
+    assert "U+202E RIGHT-TO-LEFT OVERRIDE" in str(caught.value)
+    assert row_counts(session) == before
+
+
 @pytest.mark.parametrize(
     ("change", "reason"),
     [
