@@ -63,7 +63,8 @@ def spacecraft(
     garbage: Annotated[
         list[str] | None,
         typer.Option(
-            help="Noise toward the ground START:END:RATE: malformed messages (invalid JSON, "
+            # "\\:" for Markdown's ":": rich read ":END:" as an emoji code
+            help="Noise toward the ground START:END\\:RATE: malformed messages (invalid JSON, "
             "unknown types, wrong versions, malformed telemetry, in turn) at RATE per wall "
             "second while the onboard clock is in [START, END) s (as --outage); repeatable "
             "(docs/protocol.md, Malformed messages)"

@@ -7,8 +7,11 @@ import io
 import os
 import subprocess
 import sys
+from typing import Any
 
 import pytest
+import typer
+from rich._emoji_codes import EMOJI
 from rich.table import Table
 from typer.testing import CliRunner
 
@@ -40,6 +43,36 @@ def help_of(*command: str) -> str:
 )
 def test_help_keeps_bracketed_names(command: tuple[str, ...], bracketed: str) -> None:
     assert bracketed in help_of(*command)
+
+
+def _command_paths() -> list[tuple[str, ...]]:
+    """Every command and group of the command line, as the words that name it."""
+    paths: list[tuple[str, ...]] = []
+
+    def walk(command: Any, path: tuple[str, ...]) -> None:  # typer's own click's
+        paths.append(path)
+        if hasattr(command, "list_commands"):  # a group
+            context = type(command).context_class(command)
+            for name in command.list_commands(context):
+                sub = command.get_command(context, name)
+                if sub is not None and not sub.hidden:
+                    walk(sub, (*path, name))
+
+    walk(typer.main.get_command(app), ())
+    return paths
+
+
+def test_no_help_turns_a_colon_pair_into_an_emoji() -> None:
+    """Rich reads ``:name:`` in a help text as an emoji code: ``START:END:RATE`` was shown
+    ``START🔚RATE``. No command's help shows an emoji rich knows."""
+    emoji = set(EMOJI.values())
+    paths = _command_paths()
+    assert len(paths) > 20 and ("spacecraft",) in paths and ("model", "limits") in paths
+    for path in paths:
+        text = help_of(*path)
+        found = sorted(e for e in emoji if e in text)
+        assert not found, (path, found)
+    assert "START:END:RATE" in help_of("spacecraft")
 
 
 def test_top_level_help_is_prose_without_rst() -> None:
