@@ -63,7 +63,7 @@ def _sessions() -> Iterator[sessionmaker[Session]]:
     from server.services.errors import DomainError
     from server.settings import Settings
     from server.storage.db import make_engine, session_factory, upgrade
-    from server.storage.errors import StorageError
+    from server.storage.errors import NotFound, StorageError
 
     try:
         settings = Settings.from_env()
@@ -75,6 +75,12 @@ def _sessions() -> Iterator[sessionmaker[Session]]:
         yield session_factory(engine)
     except DomainError as exc:
         _fail(exc.message)
+    except NotFound as exc:  # which database was read, and how to read another
+        where = engine.url.render_as_string(hide_password=True)
+        _fail(
+            f"{exc} in the database {where} (HIKOBOSHI_DATA_DIR or DATABASE_URL name "
+            "another: the demo's is its --out folder, HIKOBOSHI_DATA_DIR=out/demo)"
+        )
     except StorageError as exc:
         _fail(str(exc))
     finally:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from sqlalchemy.engine import make_url
 from typer.testing import CliRunner
 
 from hikoboshi.cli import app
@@ -237,11 +238,16 @@ def test_export_refuses_what_it_cannot_write(env: Path, args: tuple[str, ...], r
     assert reason in result.output
 
 
-def test_export_of_an_unknown_pass_is_one_line_and_status_2(env: Path) -> None:
+def test_export_of_an_unknown_pass_is_one_line_and_status_2(env: Path, database_url: str) -> None:
     missing = "00000000-0000-4000-8000-000000000000"
     result = runner.invoke(app, ["export", "telemetry", missing, "--out", str(env / "x.csv")])
     assert result.exit_code == 2 and "not found" in result.output
     assert not (env / "x.csv").exists()
+    # which database was read (its password hidden), and how to name the demo's
+    where = make_url(database_url).render_as_string(hide_password=True)
+    assert f"not found in the database {where} (" in result.output
+    assert "HIKOBOSHI_DATA_DIR=out/demo" in result.output
+    assert len(result.output.strip().splitlines()) == 1
 
 
 def test_export_quantity_across_two_imported_passes(env: Path, short_mcap: bytes) -> None:
