@@ -303,8 +303,15 @@ def _print_demo(summary: dict[str, Any]) -> None:
     console.print(f"Recording (MCAP, opens in Foxglove): {summary['recording_mcap']}")
     if summary["analyses_failed"]:
         console.print(f"Analyses that failed (see the report): {summary['analyses_failed']}")
-    console.print(f"Summary: {summary['database'].rsplit('/', 1)[0]}/summary.json")
+    folder = summary["database"].rsplit("/", 1)[0]
+    console.print(f"Summary: {folder}/summary.json")
     console.print(f"Database: {summary['database']}")
+    console.print(  # what the post-pass commands take: the pass id and the data folder
+        f"Pass id: {summary['pass_id']} (HIKOBOSHI_DATA_DIR={folder} hikoboshi report "
+        f"{summary['pass_id']} --out report)",
+        highlight=False,
+        soft_wrap=True,
+    )
     console.print(f"To browse it again: {summary['serve_again']}")
 
 
