@@ -11,8 +11,10 @@ per stored frame in time order, with each column's unit.
   long pass streams in bounded memory.
 - **Parquet** (arro3, zstd): the bare column names, typed (int64, float64, utf8, bool);
   each field's unit as its ``unit`` metadata, and the file's key-value metadata
-  ``hikoboshi.units`` (JSON: column -> unit), ``hikoboshi.pass_id`` and
-  ``hikoboshi.layout``. Written whole (a Parquet footer follows the data), into a spooled
+  ``hikoboshi.units`` (JSON: column -> unit), ``hikoboshi.pass_id``, ``hikoboshi.pass_name``
+  and ``hikoboshi.layout``, the same on the stored Arrow schema (what pyarrow shows as the
+  table's metadata) with ``PANDAS_ATTRS`` (pandas' ``DataFrame.attrs``: the pass id, name
+  and units). Written whole (a Parquet footer follows the data), into a spooled
   file.
 
 Rows are read in pages on the caller's session factory, each page its own short read
@@ -191,7 +193,17 @@ def parquet_file(
         )
         for name in export.columns
     ]
-    schema = Schema(fields)
+    column_units = {c: units[c] for c in export.columns}
+    about = {
+        "hikoboshi.pass_id": export.pass_id,
+        "hikoboshi.pass_name": export.name,
+        "hikoboshi.layout": str(export.layout),
+        "hikoboshi.units": json.dumps(column_units),
+    }
+    # on the schema as well as the file: pyarrow (and pandas through it) read a table's
+    # metadata from the Arrow schema stored in the file, pandas its ``attrs`` from there
+    attrs = {"pass_id": export.pass_id, "pass_name": export.name, "units": column_units}
+    schema = Schema(fields, metadata={**about, "PANDAS_ATTRS": json.dumps(attrs)})
     batches = []
     for page in pages(sessions, export):
         columns = list(zip(*page, strict=True))
@@ -206,12 +218,7 @@ def parquet_file(
         table,
         out,
         compression="zstd(3)",
-        key_value_metadata={
-            "hikoboshi.pass_id": export.pass_id,
-            "hikoboshi.pass_name": export.name,
-            "hikoboshi.layout": str(export.layout),
-            "hikoboshi.units": json.dumps({c: units[c] for c in export.columns}),
-        },
+        key_value_metadata=about,
     )
     size = out.tell()
     out.seek(0)

@@ -12,6 +12,8 @@ import io
 import json
 from typing import Any
 
+import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 from arro3.io import read_parquet
 from fastapi.testclient import TestClient
@@ -133,6 +135,15 @@ def test_parquet_reads_back_with_the_rest_json_values_and_units(
     meta = schema.metadata_str
     assert meta["hikoboshi.pass_id"] == pass_id
     assert json.loads(meta["hikoboshi.units"]) == DEFAULT_LAYOUT.units
+    # as the outside readers users take show it: pyarrow's table metadata (from the Arrow
+    # schema stored in the file) and pandas' attrs, each column's unit on its field
+    arrow = pq.read_table(io.BytesIO(response.content))
+    assert arrow.schema.metadata[b"hikoboshi.pass_id"] == pass_id.encode()
+    assert json.loads(arrow.schema.metadata[b"hikoboshi.units"]) == DEFAULT_LAYOUT.units
+    assert arrow.schema.field("j1").metadata == {b"unit": b"rad"}
+    frame = pd.read_parquet(io.BytesIO(response.content))
+    assert frame.attrs["pass_id"] == pass_id and frame.attrs["units"] == DEFAULT_LAYOUT.units
+    assert frame["seq"].tolist() == arrow["seq"].to_pylist()
     table = reader.read_all()
     columns = {name: table[name].to_pylist() for name in schema.names}
     expected = rest_rows(client, pass_id)
