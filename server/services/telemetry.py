@@ -13,7 +13,7 @@ from typing import Any
 from pydantic import TypeAdapter
 from sqlalchemy.orm import Session
 
-from server.schemas import iso_from_ns
+from server.schemas import MAX_NS, iso_from_ns
 from server.schemas.telemetry import (
     EventPublic,
     EventsPublic,
@@ -74,7 +74,8 @@ def telemetry(
     limit: int,
 ) -> TelemetryPublic:
     """Frames with ``t0_ns <= generation_time_ns < t1_ns``: the first ``limit`` raw rows, or
-    ``buckets`` equal spans with min / max / mean per field (empty spans left out)."""
+    ``buckets`` equal spans with min / max / mean per field (empty spans left out; an open
+    end, 0 or :data:`MAX_NS`, at the stored frames' first or last)."""
     if t1_ns <= t0_ns:
         raise InvalidRequestError("empty_range", f"time range [{t0_ns}, {t1_ns}) ns is empty")
     allowed = BUCKET_FIELDS if buckets is not None else TELEMETRY_FIELDS
@@ -115,6 +116,14 @@ def telemetry(
     names = parse_fields(
         fields, allowed=layout.bucket_fields, what=f"{layout} numeric (bucketable)"
     )
+    # An open end (from 0, until MAX_NS: the defaults) is the stored frames' end: ten spans
+    # of [0, 2**63) were one of 29 years, dated 1999-03-25.
+    extent = repo.telemetry_extent(session=session, pass_id=pass_id)
+    if extent is not None:
+        start = extent.first_ns if t0_ns == 0 else t0_ns
+        end = extent.last_ns + 1 if t1_ns == MAX_NS else t1_ns
+        if start < end:  # else nothing is stored in the range asked: no span either way
+            t0_ns, t1_ns = start, end
     result = repo.telemetry_buckets(
         session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
     )

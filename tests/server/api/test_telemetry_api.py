@@ -77,6 +77,26 @@ def test_raw_rows_are_limited(
     assert "reception_time_ns" in body["rows"][0]["values"]  # every field by default
 
 
+def test_buckets_without_a_range_span_the_stored_frames(
+    client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]]
+) -> None:
+    """``?buckets=10`` alone: ten spans of the pass's frames (its first to its last), not of
+    [0, 2**63) (one bucket of 29 years dated 1999-03-25); an open end alone is the frames'."""
+    pass_id, frames = pass_with_frames
+    first, last = frames[0].generation_time_ns, frames[-1].generation_time_ns
+    url = f"/api/passes/{pass_id}/telemetry?fields=j2&buckets=10"
+    body = client.get(url, headers=VIEWER).json()
+    assert (body["t0_ns"], body["t1_ns"]) == (first, last + 1)
+    assert body["count"] == 10 and sum(b["count"] for b in body["buckets"]) == len(frames)
+    assert body["buckets"][0]["t_start_ns"] == first
+    half = first + (last - first) // 2
+    later = client.get(f"{url}&t0={half}", headers=VIEWER).json()
+    assert (later["t0_ns"], later["t1_ns"]) == (half, last + 1)
+    assert sum(b["count"] for b in later["buckets"]) == sum(
+        1 for f in frames if f.generation_time_ns >= half
+    )
+
+
 def test_buckets_match_numpy(
     client: TestClient, pass_with_frames: tuple[str, list[TelemetryFrame]]
 ) -> None:
