@@ -58,6 +58,7 @@ from server.services.console import ConsoleHub
 from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
+from server.services.event_lines import log_event
 from server.services.foxglove_live import FoxgloveLive
 from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
@@ -165,6 +166,7 @@ def build_live_path(
         authority=authority,
     )
     alarms.start()
+    publisher.subscribe(log_event)  # the operator's log lines, once committed
     return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
 
 

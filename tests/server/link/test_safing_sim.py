@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import logging
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
@@ -84,8 +85,9 @@ async def _safed_pass(
 
 @simulated
 async def test_a_safing_report_makes_the_pass_safed_and_stops_the_uplink(
-    tmp_path: Path,
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
+    caplog.set_level(logging.INFO, logger="hikoboshi.ground.events")
     sc, g, pass_id, safed_at = await _safed_pass(tmp_path)
     assert pass_state(g.sessions, pass_id) == "safed"
     with g.sessions() as session:
@@ -135,6 +137,14 @@ async def test_a_safing_report_makes_the_pass_safed_and_stops_the_uplink(
     assert status.vehicle_mode == "safe"
     assert status.safing is not None and status.safing["pass_id"] == pass_id
     assert status.safing["cancelled"] == sc.vehicle.cancelled_on_safing
+    # the ground's log says each once, as an operator must hear it (server.services.event_lines)
+    lines = [r.getMessage() for r in caplog.records if r.name == "hikoboshi.ground.events"]
+    said = [
+        f"pass {pass_id}: vehicle SAFE (on-board safing): joint_tracking_error_deg joint3 6.2",
+        f"pass {pass_id}: running -> safed: ",
+        f"pass {pass_id}: alarm CRITICAL: vehicle_safing",
+    ]
+    assert [sum(line.startswith(s) for line in lines) for s in said] == [1, 1, 1], lines
 
 
 @simulated
