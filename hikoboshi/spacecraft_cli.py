@@ -18,7 +18,6 @@ from hikoboshi.cli_common import (
     _configure_logging,
     _fail,
     _load,
-    err_console,
 )
 
 __all__ = ["register"]
@@ -170,6 +169,7 @@ def spacecraft(
     vehicle safes itself on a red limit unless --no-safing; --fault injects faults."""
     import asyncio
     import dataclasses
+    import logging
     import signal
 
     from server.redaction import install_redaction
@@ -255,10 +255,20 @@ def spacecraft(
             loop.add_signal_handler(sig, stop.set)
         process = SpacecraftProcess(config)
         await process.run(stop)
-        err_console.print(
-            f"spacecraft stopped: {process.store.unacked} frames unacknowledged, "
-            f"{process.connections} connections"
-            + (f", {process.garbage_sent} malformed messages sent" if garbage else "")
+        # a log record, in --log-format as every other line of the process (a plain line
+        # broke a JSON log)
+        logging.getLogger("hikoboshi.spacecraft").info(
+            "spacecraft stopped: %d frames unacknowledged, %d connections%s",
+            process.store.unacked,
+            process.connections,
+            f", {process.garbage_sent} malformed messages sent" if garbage else "",
+            extra={
+                "fields": {
+                    "event": "spacecraft_stopped",
+                    "frames_unacknowledged": process.store.unacked,
+                    "connections": process.connections,
+                }
+            },
         )
 
     asyncio.run(main_async())

@@ -296,6 +296,8 @@ def test_the_real_process_stops_cleanly_on_sigterm_with_nothing_lost() -> None:
             str(SCALE),
             "--loss",
             "0.05",
+            "--log-format",
+            "json",
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             env=env,
@@ -310,7 +312,11 @@ def test_the_real_process_stops_cleanly_on_sigterm_with_nothing_lost() -> None:
 
     stub, stderr, code = asyncio.run(main())
     assert code == 0, stderr
-    assert "spacecraft stopped: 0 frames unacknowledged" in stderr
+    # every line of its log is JSON, the last the stop's record (a plain line broke it)
+    records = [json.loads(line) for line in stderr.splitlines()]
+    stopped = [r for r in records if r.get("event") == "spacecraft_stopped"]
+    assert len(stopped) == 1 and stopped[0]["frames_unacknowledged"] == 0, records[-3:]
+    assert stopped[0]["message"].startswith("spacecraft stopped: 0 frames unacknowledged")
     assert sorted(stub.frames) == list(range(max(stub.frames) + 1))
 
 
