@@ -14,7 +14,7 @@ from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import Response
-from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from prometheus_client.exposition import choose_encoder
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import ViewerDep
@@ -33,10 +33,13 @@ _METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"
 
 @router.get(METRICS_PATH, include_in_schema=False)
 async def metrics(request: Request, _viewer: ViewerDep) -> Response:
-    """The Prometheus text exposition; its gauges are computed now, on the event loop,
-    from what the services hold (no database, no thread)."""
+    """The Prometheus exposition (OpenMetrics when the ``Accept`` header asks for it); its
+    figures are computed now, on the event loop, from what the services hold (no database,
+    no thread)."""
     registry = request.app.state.metrics.registry
-    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+    # OpenMetrics for a client that asks for it (Prometheus does), else the text format
+    encode, media_type = choose_encoder(request.headers.get("accept", ""))
+    return Response(encode(registry), media_type=media_type)
 
 
 class RequestTimer:
@@ -104,4 +107,10 @@ def connect_metrics(state: Any) -> None:
     }
     db = state.db
     sources.database = lambda: db.outage.status(db.journal)
+
+    def foxglove() -> tuple[int, int] | None:  # started after this, when it runs
+        live = getattr(state, "foxglove", None)
+        return None if live is None else (live.dropped, live.sent)
+
+    sources.foxglove = foxglove
     state.db.on_commit = metrics.db_commit_seconds.observe

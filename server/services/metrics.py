@@ -16,7 +16,14 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from prometheus_client import CollectorRegistry, Histogram
+from prometheus_client import (
+    CollectorRegistry,
+    GCCollector,
+    Histogram,
+    PlatformCollector,
+    ProcessCollector,
+    disable_created_metrics,
+)
 from prometheus_client.core import (
     CounterMetricFamily,
     GaugeMetricFamily,
@@ -30,6 +37,10 @@ from server.services.command_stages import STAGE_RANK
 __all__ = ["LEAD_BUCKETS_S", "GroundCollector", "GroundMetrics", "Sources"]
 
 log = logging.getLogger("hikoboshi.ground.metrics")
+
+# No ``_created`` series beside each counter and histogram: a gauge of when it was made,
+# which no alert reads (prometheus-client's switch; for the whole process).
+disable_created_metrics()  # type: ignore[no-untyped-call]
 
 #: Onboard s: the uplink lead's histogram buckets (the lead window is 120 s by default).
 LEAD_BUCKETS_S = (1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0, 90.0, 120.0, 180.0, 300.0)
@@ -49,11 +60,19 @@ class Sources:
     authority: Callable[[], dict[str, Any]] | None = None
     #: the database as the command path sees it (server.services.db_outage.Outage.status)
     database: Callable[[], dict[str, Any]] | None = None
+    #: the Foxglove live view's (dropped, sent); None when it does not run
+    foxglove: Callable[[], tuple[int, int] | None] | None = None
 
 
 def _gauge(name: str, doc: str, value: float | None) -> Iterator[Metric]:
     if value is not None:
         yield GaugeMetricFamily(name, doc, value=float(value))
+
+
+def _counter(name: str, doc: str, value: float | None) -> Iterator[Metric]:
+    """A count that only grows (exposed as ``name_total``)."""
+    if value is not None:
+        yield CounterMetricFamily(name, doc, value=float(value))
 
 
 class GroundCollector(Collector):
@@ -87,12 +106,13 @@ class GroundCollector(Collector):
                 "The link's measured round trip (wall s)",
                 st.round_trip_s,
             )
-            yield from _gauge(
+            yield from _counter(
                 "hikoboshi_downlink_frames_received",
-                "Telemetry frames held by the ground (since the service started)",
+                "Telemetry frames held by the ground (since the service started; from 0 again "
+                "when a new spacecraft process numbers its frames from 0)",
                 st.frames_received,
             )
-            yield from _gauge(
+            yield from _counter(
                 "hikoboshi_downlink_duplicates",
                 "Telemetry frames received again and dropped",
                 st.duplicates,
@@ -110,7 +130,7 @@ class GroundCollector(Collector):
                 "Frames inside the gaps in the frames held",
                 st.frames_missing,
             )
-            yield from _gauge(
+            yield from _counter(
                 "hikoboshi_downlink_retransmit_requests",
                 "Retransmit requests sent to the vehicle",
                 st.retransmit_requests,
@@ -166,6 +186,17 @@ class GroundCollector(Collector):
             yield from self._authority(s.authority())
         if s.database is not None:
             yield from self._database(s.database())
+        counts = None if s.foxglove is None else s.foxglove()
+        if counts is not None:
+            dropped, sent = counts
+            yield from _counter(
+                "hikoboshi_foxglove_dropped",
+                "Live items the Foxglove view dropped because its thread was behind",
+                dropped,
+            )
+            yield from _counter(
+                "hikoboshi_foxglove_sent", "Messages the Foxglove live view sent", sent
+            )
 
     @staticmethod
     def _database(d: dict[str, Any]) -> Iterator[Metric]:
@@ -176,7 +207,8 @@ class GroundCollector(Collector):
         )
         yield from _gauge(
             "hikoboshi_database_journal",
-            "Command-path writes waiting for the database (the journal during an outage)",
+            "The database worker's queue: command-path writes waiting for the database "
+            "(queued or in a transaction; the journal during an outage)",
             d["journal"],
         )
         yield from _gauge(
@@ -240,6 +272,10 @@ class GroundMetrics:
         self.registry = CollectorRegistry(auto_describe=False)
         self.sources = Sources()
         self.registry.register(GroundCollector(self.sources))
+        # the process's own: CPU, memory, file descriptors; Python's version and its GC
+        ProcessCollector(registry=self.registry)
+        PlatformCollector(registry=self.registry)
+        GCCollector(registry=self.registry)
         self.request_seconds = Histogram(
             "hikoboshi_http_request_duration_seconds",
             "HTTP requests' latency (wall s) by method, route and status class",

@@ -37,8 +37,8 @@ def test_the_gauges_are_the_services_figures(client: TestClient) -> None:
     status = state.link.status()  # what the console shows
     samples = _samples(client.get("/metrics", headers=VIEWER).text)
     assert samples[("hikoboshi_link_connected", ())] == float(status.connected) == 0.0
-    assert samples[("hikoboshi_downlink_frames_received", ())] == status.frames_received
-    assert samples[("hikoboshi_downlink_duplicates", ())] == status.duplicates
+    assert samples[("hikoboshi_downlink_frames_received_total", ())] == status.frames_received
+    assert samples[("hikoboshi_downlink_duplicates_total", ())] == status.duplicates
     assert samples[("hikoboshi_downlink_open_gaps", ())] == len(status.open_gaps)
     assert samples[("hikoboshi_worker_queue_capacity", ())] == state.workers.queue
     assert samples[("hikoboshi_consoles", ())] == state.console.clients == 0
@@ -54,6 +54,34 @@ def test_the_gauges_are_the_services_figures(client: TestClient) -> None:
     assert samples[("hikoboshi_database_reachable", ())] == 1.0
     assert samples[("hikoboshi_database_journal", ())] == state.db.journal
     assert samples[("hikoboshi_database_outages_total", ())] == 0.0
+
+
+def test_counts_are_counters_with_the_process_s_own_and_no_created_series(
+    client: TestClient,
+) -> None:
+    """What only grows is a counter (``_total``), what goes up and down a gauge; the
+    process's CPU, memory and descriptors and Python's GC are there; no ``_created``
+    series; OpenMetrics to a client that asks for it, the text format otherwise."""
+    text = client.get("/metrics", headers=VIEWER).text
+    families = {f.name: f.type for f in text_string_to_metric_families(text)}
+    for counter in ("hikoboshi_downlink_frames_received", "hikoboshi_downlink_duplicates",
+                    "hikoboshi_downlink_retransmit_requests", "hikoboshi_database_outages",
+                    "hikoboshi_command_lease_acquisitions"):  # fmt: skip
+        assert families[counter] == "counter", counter
+    for gauge in ("hikoboshi_link_connected", "hikoboshi_database_journal",
+                  "hikoboshi_commands", "hikoboshi_uplink_retransmissions"):  # fmt: skip
+        assert families.get(gauge, "gauge") == "gauge", gauge
+    assert {"process_cpu_seconds", "process_resident_memory_bytes", "process_open_fds",
+            "python_info", "python_gc_collections"} <= families.keys()  # fmt: skip
+    assert "_created" not in text
+    openmetrics = "application/openmetrics-text; version=1.0.0; charset=utf-8"
+    asked = client.get("/metrics", headers={**VIEWER, "Accept": openmetrics})
+    assert asked.headers["content-type"].startswith("application/openmetrics-text")
+    assert asked.text.endswith("# EOF\n")
+    from prometheus_client.openmetrics.parser import text_string_to_metric_families as om
+
+    names = {f.name for f in om(asked.text)}
+    assert {"hikoboshi_downlink_duplicates", "process_cpu_seconds"} <= names
 
 
 def test_requests_are_timed_by_route_and_commits_by_the_database_worker(
@@ -112,6 +140,12 @@ def test_a_running_pass_as_the_collector_reads_it() -> None:
     assert samples[("hikoboshi_downlink_open_gaps", ())] == 2.0
     assert samples[("hikoboshi_downlink_frames_missing", ())] == 4.0
     assert samples[("hikoboshi_uplink_retransmissions", ())] == 5.0
+    assert samples[("hikoboshi_downlink_retransmit_requests_total", ())] == 2.0
+    assert ("hikoboshi_foxglove_dropped_total", ()) not in samples  # it does not run
+    metrics.sources.foxglove = lambda: (4, 900)
+    more = _samples(generate_latest(metrics.registry).decode())
+    assert more[("hikoboshi_foxglove_dropped_total", ())] == 4.0
+    assert more[("hikoboshi_foxglove_sent_total", ())] == 900.0
     assert samples[("hikoboshi_uplink_lead_min_seconds", ())] == 41.5
     assert samples[("hikoboshi_commands", (("stage", "queued"),))] == 10.0
     assert samples[("hikoboshi_commands", (("stage", "executed"),))] == 6.0
