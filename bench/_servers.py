@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from tests.nats_server import _free_port
+from tests.support.processes import free_port
 
 __all__ = ["own_postgres"]
 
@@ -51,7 +51,7 @@ def own_postgres(root: Path) -> Iterator[str]:
     if root.exists():
         shutil.rmtree(root)
     root.mkdir(parents=True)
-    data, port = root / "data", _free_port()
+    data, port = root / "data", free_port()
     if os.geteuid() == 0:
         shutil.chown(root, "postgres")
     log = root / "postgres.log"

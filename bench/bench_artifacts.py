@@ -33,8 +33,8 @@ from typing import Any
 
 import httpx
 import uvicorn
-from _common import best_of, emit
-from bench_isolation import OPERATOR, OPERATOR_TOKEN, VIEWER, VIEWER_TOKEN, _demo_mcap, _free_port
+from _common import best_of, demo_mcap, emit, free_port
+from bench_isolation import OPERATOR, OPERATOR_TOKEN, VIEWER, VIEWER_TOKEN
 
 from server.app import create_app
 from server.services.artifacts import content_version
@@ -139,7 +139,7 @@ def main() -> None:
     parser.add_argument("--database-url", default=None, help="default: SQLite in a temp dir")
     args = parser.parse_args()
     print("flying the demo pass offline for a recording to serve", file=sys.stderr)
-    recording = _demo_mcap()
+    recording = demo_mcap()
     with tempfile.TemporaryDirectory() as tmp:
         tokens = {
             OPERATOR_TOKEN: ApiToken(name="otto", role=Role.OPERATOR),
@@ -147,7 +147,7 @@ def main() -> None:
         }
         settings = Settings(data_dir=Path(tmp), database_url=args.database_url, tokens=tokens)
         app = create_app(settings)
-        port = _free_port()
+        port = free_port()
         server = uvicorn.Server(
             uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", backlog=2048)
         )

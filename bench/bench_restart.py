@@ -45,11 +45,11 @@ from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
 from tests.server.link.harness import (
     OPERATOR,
-    _free_port,
     add_plan_and_pass,
     serve_process,
     wait_for,
 )
+from tests.support.processes import free_port
 
 TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
 
@@ -57,7 +57,7 @@ TOKENS = "o-token=otto:operator,v-token=vera:viewer,s-token=ets7:spacecraft"
 def run(
     database_url: str, down_s: float, scale: float, stop_after: int, log: Path
 ) -> dict[str, Any]:
-    port = _free_port()
+    port = free_port()
     engine = make_engine(database_url)
     upgrade(engine)
     sessions, readers = session_factory(engine), read_session_factory(engine)

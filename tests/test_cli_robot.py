@@ -192,7 +192,7 @@ def test_yourdfpy_sees_our_mass_com_and_inertia(
 
 def test_robot_check_prints_what_a_vendor_urdf_became(tmp_path: Path) -> None:
     """The Panda from example-robot-data, unchanged (tests/planner/test_vendor_urdf.py)."""
-    from tests.planner.test_vendor_urdf import copy_robot
+    from tests.support.vendor import copy_robot
 
     toml = copy_robot(tmp_path, "panda")
     result = run("robot", "check", str(toml))

@@ -38,7 +38,7 @@ from planner.flight_rules import FlightRulesReport
 from planner.plan import Plan
 from planner.robot import RobotDescription
 from planner.state import State
-from tests.planner.test_vendor_urdf import vendor_urdf
+from tests.support.vendor import vendor_urdf
 
 if TYPE_CHECKING:
     from tests.conftest import MadeOnce

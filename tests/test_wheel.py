@@ -7,7 +7,6 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import sysconfig
@@ -17,6 +16,8 @@ from pathlib import Path
 
 import httpx
 import pytest
+
+from tests.support.processes import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What the wheel is built from (the rest of the checkout is not needed for it).
@@ -42,12 +43,6 @@ CARRIED = [
     "server/api/console/index.html",
     "server/storage/migrations/env.py",
 ]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _run(*args: str | Path, env: dict[str, str] | None = None, cwd: Path | None = None) -> str:
@@ -129,7 +124,7 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
         Path(purelib) / "server" / "api" / "console",
     ]
 
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen(
         [venv / "bin" / "hikoboshi", "serve", "--port", str(port)],
         cwd=work,

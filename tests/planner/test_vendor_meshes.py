@@ -26,34 +26,7 @@ from planner.description import EXAMPLES_DIR, InvalidRobotDescription, load_robo
 from planner.description.files import MAX_FILE_BYTES
 from planner.plan import Plan
 from planner.robot import RobotDescription
-from tests.planner.test_vendor_urdf import HERE, URDFS, vendor_urdf
-
-PACKAGE = "example-robot-data"
-
-
-def package_root(robot: str) -> Path:
-    """The folder ``package://example-robot-data/`` means (share/example-robot-data)."""
-    return vendor_urdf(robot).parents[3]
-
-
-def meshed_robot(tmp_path: Path, robot: str, packages: str | None = None) -> Path:
-    """The test description of ``robot`` with the URDF's own collision meshes instead of
-    generated capsules: ``urdf_collision`` left at true, ``[packages]`` naming the package's
-    folder, and the generated allowed contacts."""
-    target = tmp_path / robot
-    target.mkdir()
-    shutil.copyfile(vendor_urdf(robot), target / Path(URDFS[robot]).name)
-    text = (HERE / f"{robot}.toml").read_text()
-    text = text.replace("urdf_collision = false  # its collision meshes are package:// files\n", "")
-    text, count = re.subn(r"\[generated_collision\]\n(?:.+\n)*\n", "", text)
-    assert count == 1
-    folder = packages if packages is not None else str(package_root(robot))
-    text += (
-        f'\n[packages]\n"{PACKAGE}" = "{folder}"\n\n'
-        "[flight_rules]\ngenerated_allowed_contact = true\n"
-    )
-    (target / f"{robot}.toml").write_text(text)
-    return target / f"{robot}.toml"
+from tests.support.vendor import meshed_robot, package_root
 
 
 @pytest.fixture(scope="module")

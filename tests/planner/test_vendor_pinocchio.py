@@ -86,7 +86,7 @@ def _rpy(rpy: np.ndarray) -> np.ndarray:
 
 
 def _copy(tmp: Path, robot: str, made_once: MadeOnce) -> Path:
-    from tests.planner.test_vendor_urdf import copy_robot
+    from tests.support.vendor import copy_robot
 
     if robot in INIT:  # read only: the scaffold is shared
         from tests.test_cli_robot_init import scaffold_once

@@ -35,7 +35,7 @@ from planner.prediction import predict
 from planner.robot import RobotDescription, derived_experiment_defaults
 from planner.schedule import EXPERIMENTS
 from planner.state import State
-from tests.planner.test_vendor_urdf import URDFS, copy_robot
+from tests.support.vendor import URDFS, copy_robot
 
 pytestmark = pytest.mark.slow
 

@@ -11,10 +11,8 @@ model's body to round-off; the hand frame (any orientation) agrees at a pose awa
 
 from __future__ import annotations
 
-import importlib.metadata
 import itertools
 import re
-import shutil
 from pathlib import Path
 
 import mujoco
@@ -25,28 +23,9 @@ from planner.description import InvalidRobotDescription, load_robot
 from planner.dynamics import DynamicsWorkspace
 from planner.robot import RobotDescription
 from planner.state import State
+from tests.support.vendor import URDFS, copy_robot, vendor_urdf
 
-HERE = Path(__file__).parent / "vendor"
-URDFS = {
-    "panda": "panda_description/urdf/panda.urdf",
-    "ur5": "ur_description/urdf/ur5_robot.urdf",
-}
 CUBE_KG, CUBE_M, MOUNT_Z_M = 300.0, 1.0, 0.5
-
-
-def vendor_urdf(robot: str) -> Path:
-    """The package's file (its installed path, found through the package's record)."""
-    files = importlib.metadata.files("example-robot-data") or []
-    (found,) = [f for f in files if str(f).endswith(URDFS[robot])]
-    return Path(str(found.locate()))
-
-
-def copy_robot(tmp_path: Path, robot: str) -> Path:
-    target = tmp_path / robot
-    target.mkdir()
-    shutil.copyfile(vendor_urdf(robot), target / Path(URDFS[robot]).name)
-    shutil.copyfile(HERE / f"{robot}.toml", target / f"{robot}.toml")
-    return target / f"{robot}.toml"
 
 
 @pytest.fixture(scope="module", params=list(URDFS))

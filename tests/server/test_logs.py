@@ -10,7 +10,6 @@ import json
 import logging
 import os
 import re
-import socket
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ import pytest
 
 from server.logs import configure_logging, current_pass
 from server.redaction import redact
+from tests.support.processes import free_port
 
 SECRET = "sEcReT-0123456789abcdef"
 #: UTC, ISO 8601, milliseconds
@@ -126,17 +126,11 @@ def test_unknown_format_or_level_is_refused() -> None:
         configure_logging("text", "loud")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.mark.parametrize("log_format", ["text", "json"])
 def test_a_real_serve_logs_its_start_and_a_failed_authentication(
     tmp_path: Path, log_format: str
 ) -> None:
-    port = _free_port()
+    port = free_port()
     env = {
         **os.environ,
         "HIKOBOSHI_DATA_DIR": str(tmp_path),

@@ -21,6 +21,7 @@ from server.api.http_server import uvicorn_config
 from server.app import create_app
 from server.redaction import RedactSecretsFilter, install_redaction, redact, redact_record
 from server.settings import ApiToken, Role, Settings
+from tests.support.processes import free_port
 
 SECRET = "s3cret-Tok_en.value"
 
@@ -154,7 +155,7 @@ def test_a_real_servers_accept_line_is_redacted(tmp_path: Path) -> None:
         data_dir=tmp_path, tokens={token: ApiToken(name="sc", role=Role.SPACECRAFT)}
     )
     factory = logging.getLogRecordFactory()
-    port = _free_port()
+    port = free_port()
     config = uvicorn_config(create_app(settings), settings, host="127.0.0.1", port=port)
     logger, stream, handler = _capture("uvicorn.error")
     server = uvicorn.Server(config)
@@ -182,15 +183,6 @@ def test_a_real_servers_accept_line_is_redacted(tmp_path: Path) -> None:
     text = stream.getvalue()
     assert '"WebSocket /api/link?token=[redacted]" [accepted]' in text, text
     assert SECRET not in text
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
 
 
 @pytest.mark.parametrize(

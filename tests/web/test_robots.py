@@ -17,9 +17,9 @@ import pytest
 from planner.description import EXAMPLES_DIR, default_robot, load_robot
 from planner.plan import plan_for_robot
 from server.storage.db import sqlite_url
-from tests.planner.test_vendor_urdf import copy_robot
 from tests.server.link.harness import Ground, running_ground
 from tests.server.storage.factories import make_plan
+from tests.support.vendor import copy_robot
 from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, stored_pass
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time

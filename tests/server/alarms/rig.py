@@ -8,6 +8,7 @@ the description's own limits, so the tests hold whatever thresholds it gives.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
 from typing import Any
 
@@ -143,3 +144,73 @@ def severities(alarm: dict[str, Any]) -> list[str | None]:
 
 def seqs(n: int, start: int = 0) -> Iterator[int]:
     return iter(range(start, start + n))
+
+
+def run(url: str, scenario: Any, **settings: Any) -> Any:
+    """``scenario(rig)`` on a connected :class:`Rig` of ``url``, closed after."""
+
+    async def main() -> Any:
+        rig = Rig(url, **settings)
+        await rig.connect()
+        try:
+            return await scenario(rig)
+        finally:
+            await rig.close()
+
+    return asyncio.run(main())
+
+
+async def start_pass(rig: Rig, joint_targets: list[tuple[int, list[float]]]) -> None:
+    """The pass goes running (as the runner's start writes it) with these joint commands
+    (tag, targets rad): the events the monitor follows, the rows it reads."""
+    from server.services.pass_states import transition
+    from server.storage import repository as repo
+    from telemetry.wire import JointCommandMsg
+
+    commands = [
+        JointCommandMsg(seq=k, execute_time_ns=tag, joints_rad=targets)
+        for k, (tag, targets) in enumerate(joint_targets)
+    ]
+    clock, pass_id = rig.clock, rig.pass_id
+
+    def job(session: Any) -> list[dict[str, Any]]:
+        repo.add_commands(
+            session=session, pass_id=pass_id, commands=commands, queued_at_ns=clock.time_ns()
+        )
+        now = clock.time_ns()
+        return [
+            transition(session, clock, pass_id, "aos", "op", "start", now),
+            transition(session, clock, pass_id, "running", "op", "start", now, T0_NS),
+        ]
+
+    await rig.live.db.write(job)
+    await rig.settled()
+
+
+async def end_pass(rig: Rig, state: str) -> None:
+    """The pass goes ``state`` with its ``pass_state`` event, written as a transition is
+    (whichever module owns the rule that gets it there)."""
+    from server.services.events import PassState, record
+    from server.storage import repository as repo
+
+    clock, pass_id = rig.clock, rig.pass_id
+
+    def job(session: Any) -> list[dict[str, Any]]:
+        old = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
+        was = old.state
+        new = repo.update_pass_state(
+            session=session,
+            pass_id=pass_id,
+            expected_version=old.version,
+            state=state,
+            updated_at_ns=clock.time_ns(),
+            reason="ended",
+        )
+        event = PassState(
+            actor="op", pass_id=pass_id, from_state=was, to=state, reason="ended",
+            version=new.version,
+        )  # fmt: skip
+        return [record(session, event, clock.time_ns())]
+
+    await rig.live.db.write(job)
+    await rig.settled()

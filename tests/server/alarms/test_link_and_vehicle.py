@@ -11,8 +11,18 @@ import pytest
 from planner.limits import Severity
 from server.services.alarms import LINK_PERIOD_S, VEHICLE_SAFING
 from telemetry.wire import Safing, SafingTrigger
-from tests.server.alarms.rig import PERIOD_NS, T0_NS, TRACKING, Rig, bands, frame, value_in
-from tests.server.alarms.test_monitor import _end, _start, run
+from tests.server.alarms.rig import (
+    PERIOD_NS,
+    T0_NS,
+    TRACKING,
+    Rig,
+    bands,
+    end_pass,
+    frame,
+    run,
+    start_pass,
+    value_in,
+)
 
 W = Severity.WATCH
 
@@ -26,7 +36,7 @@ def test_frame_age_raises_while_the_pass_runs_and_clears(database_url: str) -> N
     assert threshold is not None
 
     async def scenario(rig: Rig) -> None:
-        await _start(rig, [])
+        await start_pass(rig, [])
         await rig.send(*(frame(s) for s in range(10)))
         received_s = rig.clock.monotonic()
         await rig.clock.advance(threshold + 2 * LINK_PERIOD_S, step=LINK_PERIOD_S)
@@ -47,7 +57,7 @@ def test_frame_age_raises_while_the_pass_runs_and_clears(database_url: str) -> N
         await rig.clock.advance(threshold + 2 * LINK_PERIOD_S, step=LINK_PERIOD_S)
         await rig.settled()
         assert _of(rig, "frame_age_s")[0]["state"] == "triggered"
-        await _end(rig, "aborted")
+        await end_pass(rig, "aborted")
         [age] = _of(rig, "frame_age_s")
         assert age["state"] == "cleared" and "no longer watched" in age["detail"]
         await rig.clock.advance(threshold + 2 * LINK_PERIOD_S, step=LINK_PERIOD_S)
@@ -142,11 +152,11 @@ def test_link_alarms_clear_when_the_pass_stops_running(tmp_path: Any, state: str
     assert threshold is not None
 
     async def scenario(rig: Rig) -> None:
-        await _start(rig, [])
+        await start_pass(rig, [])
         await rig.clock.advance(threshold + 2 * LINK_PERIOD_S, step=LINK_PERIOD_S)
         await rig.settled()
         assert _of(rig, "frame_age_s")[0]["state"] == "triggered"
-        await _end(rig, state)
+        await end_pass(rig, state)
         assert _of(rig, "frame_age_s")[0]["state"] == "cleared"
         await rig.clock.advance(threshold + 2 * LINK_PERIOD_S, step=LINK_PERIOD_S)
         await rig.settled()

@@ -4,7 +4,6 @@ once a second while in its band; on SQLite and PostgreSQL, in simulated time."""
 
 from __future__ import annotations
 
-import asyncio
 from typing import Any
 
 import numpy as np
@@ -20,24 +19,15 @@ from tests.server.alarms.rig import (
     Rig,
     bands,
     below,
+    end_pass,
     frame,
+    run,
     severities,
+    start_pass,
     value_in,
 )
 
 W, A, C = Severity.WATCH, Severity.WARNING, Severity.CRITICAL
-
-
-def run(url: str, scenario: Any, **settings: Any) -> Any:
-    async def main() -> Any:
-        rig = Rig(url, **settings)
-        await rig.connect()
-        try:
-            return await scenario(rig)
-        finally:
-            await rig.close()
-
-    return asyncio.run(main())
 
 
 def test_a_crossing_raises_on_that_frame_escalates_and_clears(database_url: str) -> None:
@@ -189,62 +179,6 @@ def test_a_frame_older_than_the_newest_checked_is_not_checked_again(tmp_path: An
     run(sqlite_url(tmp_path), scenario)
 
 
-async def _start(rig: Rig, joint_targets: list[tuple[int, list[float]]]) -> None:
-    """The pass goes running (as the runner's start writes it) with these joint commands
-    (tag, targets rad): the events the monitor follows, the rows it reads."""
-    from server.services.pass_states import transition
-    from server.storage import repository as repo
-    from telemetry.wire import JointCommandMsg
-
-    commands = [
-        JointCommandMsg(seq=k, execute_time_ns=tag, joints_rad=targets)
-        for k, (tag, targets) in enumerate(joint_targets)
-    ]
-    clock, pass_id = rig.clock, rig.pass_id
-
-    def job(session: Any) -> list[dict[str, Any]]:
-        repo.add_commands(
-            session=session, pass_id=pass_id, commands=commands, queued_at_ns=clock.time_ns()
-        )
-        now = clock.time_ns()
-        return [
-            transition(session, clock, pass_id, "aos", "op", "start", now),
-            transition(session, clock, pass_id, "running", "op", "start", now, T0_NS),
-        ]
-
-    await rig.live.db.write(job)
-    await rig.settled()
-
-
-async def _end(rig: Rig, state: str) -> None:
-    """The pass goes ``state`` with its ``pass_state`` event, written as a transition is
-    (whichever module owns the rule that gets it there)."""
-    from server.services.events import PassState, record
-    from server.storage import repository as repo
-
-    clock, pass_id = rig.clock, rig.pass_id
-
-    def job(session: Any) -> list[dict[str, Any]]:
-        old = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
-        was = old.state
-        new = repo.update_pass_state(
-            session=session,
-            pass_id=pass_id,
-            expected_version=old.version,
-            state=state,
-            updated_at_ns=clock.time_ns(),
-            reason="ended",
-        )
-        event = PassState(
-            actor="op", pass_id=pass_id, from_state=was, to=state, reason="ended",
-            version=new.version,
-        )  # fmt: skip
-        return [record(session, event, clock.time_ns())]
-
-    await rig.live.db.write(job)
-    await rig.settled()
-
-
 def test_tracking_is_against_the_commands_while_the_pass_runs(database_url: str) -> None:
     """The plan commands joint 1 to a ramp the vehicle's frames do not follow (their own
     targets agree with the measured joints): the ground sees the error against the plan,
@@ -255,7 +189,7 @@ def test_tracking_is_against_the_commands_while_the_pass_runs(database_url: str)
         up = [float(np.radians(2 * watch))] + [0.0] * 5
         # from 0 at frame 14 to 2 x watch (deg) at frame 16: watch at frame 15, half way
         ramp = [(T0_NS + 14 * PERIOD_NS, [0.0] * 6), (T0_NS + 16 * PERIOD_NS, up)]
-        await _start(rig, ramp)
+        await start_pass(rig, ramp)
         await rig.send(*(frame(s) for s in range(0, 15)))
         assert rig.alarms() == []  # up to frame 14 the plan commands what the frames say
         await rig.send(*(frame(s) for s in range(15, 17)))
@@ -276,11 +210,11 @@ def test_after_an_abort_the_frames_own_targets_count(tmp_path: Any) -> None:
 
     async def scenario(rig: Rig) -> None:
         targets = [float(np.radians(3 * value_in(TRACKING, C)))] + [0.0] * 5
-        await _start(rig, [(T0_NS, targets), (T0_NS + 100 * PERIOD_NS, targets)])
+        await start_pass(rig, [(T0_NS, targets), (T0_NS + 100 * PERIOD_NS, targets)])
         await rig.send(frame(1))
         [alarm] = rig.alarms()
         assert alarm["current_severity"] == "critical"
-        await _end(rig, "aborted")
+        await end_pass(rig, "aborted")
         await rig.send(frame(2))  # the arm held where it is: the vehicle's targets
         assert rig.alarms()[0]["state"] == "cleared"
 

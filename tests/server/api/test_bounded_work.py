@@ -29,6 +29,7 @@ from server.storage.db import make_engine, read_session_factory
 from telemetry.mcap import read_mcap
 from tests.server.api.conftest import OPERATOR, VIEWER
 from tests.server.reports.conftest import short_mcap, short_recording  # noqa: F401
+from tests.support.processes import descendants, free_port
 
 #: Generous: a loaded 2-core machine may be slow; nothing here should take near this.
 PATIENCE_S = 60.0
@@ -255,27 +256,6 @@ def test_work_beyond_the_bounds_is_refused(
     assert validation["valid"] is False and reason in validation["errors"][0]["message"]
 
 
-def _descendants(pid: int) -> set[int]:
-    """Every process below ``pid`` (from /proc: psutil is not a dependency)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as stat:
-                fields = stat.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append(int(entry))
-    found: set[int] = set()
-    todo = [pid]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            found.add(child)
-            todo.append(child)
-    return found
-
-
 def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: Path) -> None:
     """``hikoboshi serve`` with 40 of the longest plans the bounds allow in flight: health
     answers within 1 s, the jobs go when their clients do, SIGTERM stops it within 5 s
@@ -286,9 +266,7 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
 
     import httpx
 
-    from tests.test_cli_serve import _free_port
-
-    port = _free_port()
+    port = free_port()
     env = {
         **os.environ,
         "HIKOBOSHI_DATA_DIR": str(tmp_path),
@@ -335,7 +313,7 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
         assert created.status_code == 201, created.text
         # The warm-up job has come and gone: what is left is the forkserver.
         time.sleep(3.0)
-        baseline = len(_descendants(proc.pid))
+        baseline = len(descendants(proc.pid))
         body = (
             b'{"experiment": "nonholonomic", "parameters": {"attitude_end_deg": [90, 90, 90],'
             b' "max_iterations": 200, "path_steps": 400, "max_corrections": 20}}'
@@ -348,7 +326,7 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
             s = socket.create_connection(("127.0.0.1", port), timeout=10)
             s.sendall(request)
             sockets.append(s)
-        _wait_for(lambda: len(_descendants(proc.pid)) > baseline, "jobs to start")
+        _wait_for(lambda: len(descendants(proc.pid)) > baseline, "jobs to start")
         for _ in range(5):
             t0 = time.monotonic()
             health = httpx.get(f"{base}/api/health", timeout=10.0)
@@ -370,7 +348,7 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
         assert time.monotonic() - t0 < LOCKED_OUT_S
         for s in sockets:
             s.close()
-        _wait_for(lambda: len(_descendants(proc.pid)) <= baseline, "the jobs to be killed")
+        _wait_for(lambda: len(descendants(proc.pid)) <= baseline, "the jobs to be killed")
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(timeout=30)

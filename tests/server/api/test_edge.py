@@ -37,6 +37,7 @@ from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
 from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, ClientAddress, add_pass, sessions
 from tests.server.storage.factories import make_plan
+from tests.support.processes import free_port
 
 MIB = 1024 * 1024
 JSON = {"Content-Type": "application/json"}
@@ -587,18 +588,11 @@ def test_security_headers(client: TestClient) -> None:
 # --- serving: a real uvicorn on loopback ----------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
 @contextlib.contextmanager
 def _serving(settings: Settings) -> Iterator[int]:
     """``settings``' service as ``serve`` runs it (:func:`uvicorn_config`), on a free
     loopback port, in a thread."""
-    port = _free_port()
+    port = free_port()
     config = uvicorn_config(
         create_app(settings), settings, host="127.0.0.1", port=port, log_level="warning"
     )

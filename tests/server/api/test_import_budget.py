@@ -23,7 +23,7 @@ from server.settings import Settings
 from tests.server.api.conftest import OPERATOR, TOKENS
 from tests.server.link.harness import running_ground
 from tests.server.reports.conftest import short_mcap, short_recording
-from tests.server.reports.test_imports import row_counts
+from tests.support.archive import row_counts
 
 __all__ = ["short_mcap", "short_recording"]  # fixtures, shared with the import tests
 

@@ -16,8 +16,8 @@ from fastapi.testclient import TestClient
 from planner.description import load_robot
 from server.app import create_app
 from server.settings import Settings
-from tests.planner.test_vendor_meshes import meshed_robot
 from tests.server.api.conftest import TOKENS, VIEWER
+from tests.support.vendor import meshed_robot
 
 
 @pytest.fixture(scope="module")

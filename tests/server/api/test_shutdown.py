@@ -22,9 +22,8 @@ from server.api.stopping import AnswerWhenStopping
 from server.services.errors import UnavailableError
 from server.services.workers import WorkerPool
 from server.storage.db import sqlite_url
-from tests.server.api.test_bounded_work import _descendants
 from tests.server.link.harness import serve_process
-from tests.test_cli_serve import _free_port
+from tests.support.processes import descendants, free_port
 
 #: A guard against a hang, not a timing: the stop itself takes uvicorn's graceful timeout
 #: (3 s) at most, with the pool stopped first it answers at once.
@@ -64,7 +63,7 @@ def _answer(sock: socket.socket) -> bytes:
 
 @pytest.mark.slow
 def test_sigterm_answers_waiting_plans_in_json_and_leaves_no_process(tmp_path: Path) -> None:
-    port = _free_port()
+    port = free_port()
     env = {
         "HIKOBOSHI_DATA_DIR": str(tmp_path),
         "HIKOBOSHI_TOKENS": "o-tok=otto:operator",
@@ -81,14 +80,14 @@ def test_sigterm_answers_waiting_plans_in_json_and_leaves_no_process(tmp_path: P
     with serve_process(sqlite_url(tmp_path), port, log, env) as proc:
         try:
             time.sleep(3.0)  # the warm-up job has come and gone: the forkserver is left
-            baseline = _descendants(proc.pid)
+            baseline = descendants(proc.pid)
             for _ in range(IN_FLIGHT):
                 s = socket.create_connection(("127.0.0.1", port), timeout=PATIENCE_S)
                 s.sendall(request)
                 sockets.append(s)
             # both workers run a plan: their processes are below the server's
-            _wait_for(lambda: len(_descendants(proc.pid) - baseline) >= 2, "jobs to start")
-            seen = _descendants(proc.pid)
+            _wait_for(lambda: len(descendants(proc.pid) - baseline) >= 2, "jobs to start")
+            seen = descendants(proc.pid)
             jobs = seen - baseline
             proc.send_signal(signal.SIGTERM)
             answers = [_answer(s) for s in sockets]

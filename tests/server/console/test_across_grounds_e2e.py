@@ -27,12 +27,12 @@ from server.storage.db import make_engine, read_session_factory, session_factory
 from tests.nats_server import nats_server
 from tests.server.link.harness import (
     OPERATOR,
-    _free_port,
     serve_process,
     spacecraft_of_grounds,
     store_pass,
     wait_for,
 )
+from tests.support.processes import free_port
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
@@ -120,7 +120,7 @@ def test_a_console_sees_the_holders_pass_on_the_standby_and_resumes_there_after_
     postgres_schema_url: str, tmp_path: Path
 ) -> None:
     (tmp_path / "nats").mkdir()
-    port_a, port_b = _free_port(), _free_port()
+    port_a, port_b = free_port(), free_port()
     engine = make_engine(postgres_schema_url)
     sessions, readers = session_factory(engine), read_session_factory(engine)
     process = spacecraft_of_grounds((port_a, port_b), scale=SCALE, seed=4, drain_timeout_s=5.0)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -37,6 +36,7 @@ from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
 from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import TelemetryFrame
+from tests.support.processes import free_port
 
 TOKENS = {
     "v-token": ApiToken(name="vera", role=Role.VIEWER),
@@ -64,13 +64,6 @@ class Ground:
         return self.url.replace("http://", "ws://") + "/api/link"
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
 @contextmanager
 def running_ground(database_url: str, **overrides: Any) -> Iterator[Ground]:
     # The flight defaults (but for ``overrides``, settings): the ground and the spacecraft
@@ -83,7 +76,7 @@ def running_ground(database_url: str, **overrides: Any) -> Iterator[Ground]:
         overrides["data_dir"] = Path(scratch.name)
     settings = Settings(database_url=database_url, tokens=TOKENS, **overrides)
     app = create_app(settings)
-    port = _free_port()
+    port = free_port()
     config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)

@@ -26,7 +26,6 @@ from server.storage.db import make_engine, read_session_factory, session_factory
 from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
-    _free_port,
     assert_every_frame_once,
     assert_stages_are_the_vehicles,
     executed_on_board,
@@ -37,6 +36,7 @@ from tests.server.link.harness import (
     store_pass,
     wait_for,
 )
+from tests.support.processes import free_port
 
 pytestmark = pytest.mark.realtime
 
@@ -71,7 +71,7 @@ def test_a_standby_writes_nothing_then_takes_over_from_a_killed_holder(
     postgres_schema_url: str, tmp_path: Path
 ) -> None:
     database_url = postgres_schema_url
-    port_a, port_b = _free_port(), _free_port()
+    port_a, port_b = free_port(), free_port()
     engine = make_engine(database_url)
     sessions, readers = session_factory(engine), read_session_factory(engine)
     process = spacecraft_of_grounds((port_a, port_b), scale=SCALE, seed=3, drain_timeout_s=90.0)

@@ -47,7 +47,7 @@ from server.storage.db import make_engine, read_session_factory, session_factory
 from spacecraft.offline import fly_offline
 from telemetry.mcap import write_mcap
 from telemetry.recording import PassRecording
-from tests.server.link.harness import _free_port, serve_process, with_flight_rules
+from tests.server.link.harness import serve_process, with_flight_rules
 from tests.server.link.load import (
     OPERATOR_LIMITS,
     Probes,
@@ -61,6 +61,7 @@ from tests.server.link.load import (
     viewer_answers,
     viewer_process,
 )
+from tests.support.processes import free_port
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -129,7 +130,7 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
     buffer = io.BytesIO()
     write_mcap(viewed_recording, buffer)
     assert len(viewed_recording.frames) >= 5000
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
     engine = make_engine(database_url)
     sessions = session_factory(engine)

@@ -34,7 +34,8 @@ import pytest
 from server.services.summary import pass_summary
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
-from tests.server.link.harness import _free_port, serve_process, store_pass
+from tests.server.link.harness import serve_process, store_pass
+from tests.support.processes import free_port
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -73,7 +74,7 @@ def _state(readers: object, pass_id: str) -> str:
 def test_a_pass_flies_untouched_through_400_malformed_messages_a_second(
     database_url: str, tmp_path: Path
 ) -> None:
-    port = _free_port()
+    port = free_port()
     engine = make_engine(database_url)
     sessions = session_factory(engine)
     readers = read_session_factory(engine)

@@ -33,7 +33,6 @@ from spacecraft.process import ProcessConfig, SpacecraftProcess
 from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
-    _free_port,
     assert_every_frame_once,
     assert_stages_are_the_vehicles,
     executed_on_board,
@@ -43,6 +42,7 @@ from tests.server.link.harness import (
     store_pass,
     wait_for,
 )
+from tests.support.processes import free_port
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -122,7 +122,7 @@ def _stop_and_restart(
     """A pass (10 s of motion, then ``hold_s`` holding) started, stopped by ``how`` once 30
     commands executed on board, the service started again; until the pass ended and the spacecraft
     drained its store."""
-    port = _free_port()
+    port = free_port()
     log = tmp_path / "server.log"
     base = f"http://127.0.0.1:{port}"
     engine = make_engine(database_url)

@@ -24,12 +24,12 @@ from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory, upgrade
 from tests.server.link.harness import (
     OPERATOR,
-    _free_port,
     add_plan_and_pass,
     serve_process,
 )
 from tests.server.link.load import spacecraft_process
 from tests.server.link.long_pass import long_plan
+from tests.support.processes import free_port
 
 if TYPE_CHECKING:
     from tests.conftest import MadeOnce
@@ -65,7 +65,7 @@ def plan(made_once: MadeOnce) -> Plan:
 def _fly_and_abort(database_url: str, tmp_path: Path, log_format: str, plan: Plan) -> str:
     """A pass started, aborted by the operator once 5 of its commands executed; its id.
     The server and the spacecraft are processes of their own."""
-    port = _free_port()
+    port = free_port()
     engine = make_engine(database_url)
     upgrade(engine)
     readers = read_session_factory(engine)

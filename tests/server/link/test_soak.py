@@ -22,7 +22,8 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.server.link.harness import _free_port, serve_process
+from tests.server.link.harness import serve_process
+from tests.support.processes import free_port
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -122,7 +123,7 @@ def _fly(
 def test_passes_back_to_back_leave_threads_files_and_memory_flat(
     database_url: str, tmp_path: Path
 ) -> None:
-    port = _free_port()
+    port = free_port()
     env = {"HIKOBOSHI_TOKENS": TOKENS, "HIKOBOSHI_DATA_DIR": str(tmp_path / "data")}
     figures: dict[int, tuple[int, int, int]] = {}
     summaries: list[dict[str, Any]] = []

@@ -24,7 +24,7 @@ from server.api.errors import status_of
 from server.services.imports import InvalidRecording, import_mcap
 from telemetry.mcap import RecordingFileError, read_mcap
 from tests.server.api.conftest import OPERATOR
-from tests.server.reports.test_imports import row_counts
+from tests.support.archive import row_counts
 
 GIB = 2**30
 MIB = 2**20

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
-from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from server.api.errors import status_of
@@ -14,22 +13,8 @@ from server.services import imports
 from server.services.imports import InvalidRecording, store_recording
 from server.services.recordings import load_recording
 from server.storage import repository as repo
-from server.storage.models import (
-    CommandRecord,
-    EventRecord,
-    PassRecord,
-    PlanRecord,
-    TelemetryFrameRecord,
-)
 from telemetry.recording import FRAME_ARRAYS, PassRecording
-
-TABLES = (PlanRecord, PassRecord, CommandRecord, TelemetryFrameRecord, EventRecord)
-
-
-def row_counts(session: Session) -> dict[str, int]:
-    return {
-        t.__tablename__: session.scalar(select(func.count()).select_from(t)) or 0 for t in TABLES
-    }
+from tests.support.archive import row_counts
 
 
 def test_a_stored_recording_loads_back_exactly(

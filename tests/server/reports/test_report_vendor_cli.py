@@ -16,7 +16,7 @@ from planner.description import load_robot
 from spacecraft.offline import fly_offline
 from telemetry.mcap import write_mcap
 from telemetry.recording import PassRecording
-from tests.planner.test_vendor_urdf import copy_robot
+from tests.support.vendor import copy_robot
 
 runner = CliRunner()
 
