@@ -20,8 +20,8 @@ from mission import MISSIONS_DIR, compute_windows, load_mission
 from mission.campaign import GRAVITY_MU_M3PS2, load_campaign
 from planner.frames import matrix_from_quat_xyzw
 from planner.plan import Plan
-from tests.mission.test_windows_independent import _doc, _satrec
 from tests.reference_dynamics import forward_kinematics, subtree_composites
+from tests.support.orbits import mission_doc, satrec
 
 ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 START = datetime(1999, 9, 30, tzinfo=UTC)
@@ -43,7 +43,7 @@ def independent_gravity_gradient_nms(
 ) -> np.ndarray:
     """``sum 3 mu / r^3 (r_hat x I r_hat) dt`` by the trapezoid rule every second, ``r``
     from plain sgp4, the base Earth-pointing (the Earth's centre along base +z)."""
-    sat = _satrec(_doc())
+    sat = satrec(mission_doc())
     span_s = (end - start).total_seconds()
     n = int(np.ceil(span_s))
     offsets = np.linspace(0.0, span_s, n + 1)

@@ -8,50 +8,20 @@ from __future__ import annotations
 
 import itertools
 import math
-import tomllib
 from datetime import UTC, datetime, timedelta
-from typing import Any
 
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-from sgp4.api import WGS72, Satrec, jday
+from sgp4.api import jday
 
-from mission import MISSIONS_DIR, Window, compute_windows, load_mission
+from mission import Window, compute_windows, load_mission
+from tests.support.orbits import ETS7, mission_doc, satrec
 
-ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 START = datetime(1999, 9, 30, tzinfo=UTC)
 C_KMPS = 299792.458
 R_GEO_KM = 42164.17
 TOLERANCE_S = 2.0
-
-
-def _doc() -> dict[str, Any]:
-    return tomllib.loads(ETS7.read_text())
-
-
-def _satrec(doc: dict[str, Any]) -> Satrec:
-    """The file's mean elements through sgp4's own initialiser."""
-    e = doc["vehicle"]["elements"]
-    epoch = datetime.fromisoformat(e["epoch"])
-    jd, fr = jday(epoch.year, epoch.month, epoch.day, epoch.hour, epoch.minute, epoch.second)
-    sat = Satrec()
-    sat.sgp4init(
-        WGS72,
-        "i",
-        1,
-        jd + fr - 2433281.5,
-        e.get("bstar_per_earth_radius", 0.0),
-        0.0,
-        0.0,
-        e["eccentricity"],
-        math.radians(e["argument_of_perigee_deg"]),
-        math.radians(e["inclination_deg"]),
-        math.radians(e["mean_anomaly_deg"]),
-        2.0 * math.pi / e["period_min"],
-        math.radians(e["raan_deg"]),
-    )
-    return sat
 
 
 def _gmst82_rad(jd_ut1: float) -> float:
@@ -67,8 +37,8 @@ class Independent:
     """Clearance of the vehicle->relay segment over the Earth's centre, in TEME."""
 
     def __init__(self) -> None:
-        doc = _doc()
-        self.sat = _satrec(doc)
+        doc = mission_doc()
+        self.sat = satrec(doc)
         self.radius_km = (
             doc["visibility"]["earth_radius_km"] + doc["visibility"]["grazing_height_km"]
         )

@@ -18,7 +18,7 @@ from planner.dynamics import DynamicsWorkspace, Quantities
 from planner.simulation import FreeFloatingSimulator, SimConfig, follow_commands
 from planner.state import State
 from tests import reference_dynamics as ref
-from tests.planner.test_dynamics_reference import (
+from tests.support.dynamics import (
     COMPARED,
     FD_ATOL,
     FD_STEP,

@@ -14,9 +14,7 @@ blow up on entries that are zero). The two float64 implementations agree to abou
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from operator import attrgetter
 
 import mujoco
 import numpy as np
@@ -37,34 +35,23 @@ from planner.mujoco_conventions import (
 )
 from planner.state import State
 from tests import reference_dynamics as ref
+from tests.support.dynamics import (
+    COMPARED,
+    FD_ATOL,
+    FD_STEP,
+    RTOL_REFERENCE,
+    RTOL_REFERENCE_METHODS,
+    random_unit_quat_xyzw,
+    relative_error,
+)
 
 Array = NDArray[np.float64]
 
-# Project vs reference: both are float64 and agree to ~1e-14; 1e-9 leaves room for another
-# BLAS or MuJoCo build while still catching any modelling slip (those show at >= 1e-4).
-RTOL_REFERENCE = 1e-9
-# The two reference methods (CRB vs sum over bodies) share only the kinematics.
-RTOL_REFERENCE_METHODS = 1e-12
 N_RANDOM_STATES = 24
 JOINT_RANGE_RAD = np.radians(170.0)
 
 
 # --- helpers --------------------------------------------------------------------------------
-
-
-def relative_error(actual: Array, expected: Array) -> float:
-    """Largest entry-wise error over the largest entry of ``expected``."""
-    actual, expected = np.asarray(actual, dtype=np.float64), np.asarray(expected)
-    assert actual.shape == expected.shape, f"shape {actual.shape} != {expected.shape}"
-    scale = float(np.max(np.abs(expected)))
-    assert scale > 0.0, "expected quantity is all zero; a relative comparison means nothing"
-    return float(np.max(np.abs(actual - expected))) / scale
-
-
-def random_unit_quat_xyzw(rng: np.random.Generator) -> Array:
-    """Uniform on the rotation group: a normalised 4-D Gaussian."""
-    quat = rng.normal(size=4)
-    return quat / np.linalg.norm(quat)
 
 
 def random_state(rng: np.random.Generator) -> State:
@@ -133,48 +120,6 @@ def cases(model: RobotModel, workspace: DynamicsWorkspace) -> list[Case]:
 
 # --- 1. project vs reference at random states --------------------------------------------
 
-Getter = Callable[[Quantities], Array]
-RefGetter = Callable[[ref.Reference], Array]
-
-COMPARED: dict[str, tuple[Getter, RefGetter]] = {
-    "hand.pos_robot_m": (lambda q: q.hand.pos_robot_m, lambda r: r.kinematics.hand_pos_robot_m),
-    "hand.rot_robot_from_hand": (
-        lambda q: q.hand.rot_robot_from_hand,
-        lambda r: r.kinematics.rot_robot_from_hand,
-    ),
-    "hand.pos_base_m": (lambda q: q.hand.pos_base_m, lambda r: r.kinematics.hand_pos_base_m),
-    "hand.rot_base_from_hand": (
-        lambda q: q.hand.rot_base_from_hand,
-        lambda r: r.kinematics.rot_base_from_hand,
-    ),
-    "hand.pos_orbit_m": (lambda q: q.hand.pos_orbit_m, lambda r: r.kinematics.hand_pos_orbit_m),
-    "hand.rot_orbit_from_hand": (
-        lambda q: q.hand.rot_orbit_from_hand,
-        lambda r: r.kinematics.rot_orbit_from_hand,
-    ),
-    "total_mass_kg": (lambda q: np.array(q.total_mass_kg), lambda r: np.array(r.total_mass_kg)),
-    "com_orbit_m": (lambda q: q.com_orbit_m, lambda r: r.com_orbit_m),
-    **{
-        name: (attrgetter(name), attrgetter(name))  # the same name on both sides
-        for name in (
-            "J_b",
-            "J_m",
-            "H_b",
-            "H_bm",
-            "H_m",
-            "linear_momentum_nms",
-            "angular_momentum_nms",
-            "H_b_tilde",
-            "H_bm_tilde",
-            "reaction_map",
-            "J_g",
-            "rns_projector",
-            "inertia_com_base_kgm2",
-            "gravity_gradient_torque_base_nm",
-        )
-    },
-}
-
 
 @pytest.mark.parametrize("name", list(COMPARED))
 def test_project_matches_reference(name: str, cases: list[Case]) -> None:
@@ -233,11 +178,6 @@ def test_reference_momentum_matches_its_inertia_matrix(
 
 
 # --- 3. finite differences of the project's hand kinematics ----------------------------------
-
-FD_STEP = 1e-6  # rad or m
-# Central differences: truncation ~ h^2 |x'''| / 6 ~ 1e-12; round-off ~ eps |x| / h ~ 1e-9
-# for hand positions of a few metres. 1e-7 sits well above both.
-FD_ATOL = 1e-7
 
 
 def hand_twist_fd(workspace: DynamicsWorkspace, plus: State, minus: State, nominal: State) -> Array:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from spacecraft.downlink import Downlink, DownlinkConfig
-from tests.telemetry.test_wire import _frame
+from tests.support.wire import frame as _frame
 
 
 def _sent(messages: list) -> list[int]:  # type: ignore[type-arg]

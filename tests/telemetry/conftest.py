@@ -14,6 +14,6 @@ def noise_free_free_drift(model: RobotModel) -> PassRecording:
     """The identification tests' free-drift plan flown without sensor noise
     (tests/telemetry/test_identification.py's ``fly(model, 0.0)``), flown once for its
     tests and the gravity-gradient resimulation's (read only)."""
-    from tests.telemetry.test_identification import fly
+    from tests.support.identification import fly
 
     return fly(model, 0.0)

@@ -16,7 +16,7 @@ from telemetry.analysis.paper import (
     compare_with_flight,
     compare_with_plan,
 )
-from tests.telemetry.test_paper import flight_like
+from tests.support.paper import flight_like
 
 
 def _with_ptp_settle(settle_s: float) -> Sources:

@@ -14,7 +14,6 @@ from telemetry.wire import (
     MAX_MESSAGE_BYTES,
     AcsCommandMsg,
     AcsModeName,
-    BufferState,
     CommandAck,
     CommandQuery,
     CommandStage,
@@ -33,28 +32,13 @@ from telemetry.wire import (
     encode,
     escape_controls,
 )
+from tests.support.wire import frame as _frame
+from tests.support.wire import telemetry_text as _telemetry_text
 
 GOLDEN_JOINT_COMMAND = (
     '{"v":2,"type":"command","kind":"joints","seq":7,"execute_time_ns":1000250000000,'
     '"joints_rad":[0.1,-0.2,0.3,0.0,0.5,-0.6]}'
 )
-
-
-def _frame(seq: int) -> TelemetryFrame:
-    return TelemetryFrame(
-        seq=seq,
-        generation_time_ns=10**12 + seq * 10**8,
-        joints_rad=[0.0] * 6,
-        joint_targets_rad=[0.0] * 6,
-        quat_orbit_from_base_xyzw=[0.0, 0.0, 0.0, 1.0],
-        omega_base_in_base_radps=[0.0, 1e-5, 0.0],
-        wheel_speeds_radps=[1.0, 2.0, 3.0],
-        wheel_momentum_nms=[0.15, 0.3, 0.45],
-        acs_mode=AcsModeName.FEEDBACK,
-        acs_target_quat_xyzw=[0.0, 0.0, 0.0, 1.0],
-        acs_feedforward=False,
-        buffer=BufferState(queued=3, next_execute_time_ns=10**12, last_executed_seq=6),
-    )
 
 
 def test_golden_joint_command() -> None:
@@ -300,13 +284,6 @@ def test_hello_names_the_robot_optionally_and_ets7s_hello_is_unchanged() -> None
     for bad in ({"n_joints": 0}, {"n_joints": 33}, {"robot": ""}, {"robot_hash": "x" * 129}):
         with pytest.raises(WireError, match="invalid hello"):
             decode_spacecraft(json.dumps({**HELLO, **bad}))
-
-
-def _telemetry_text(**changes: Any) -> str:
-    doc = json.loads(encode(TelemetryMsg(frames=[_frame(0), _frame(1)])))
-    for key, value in changes.items():
-        doc["frames"][1][key] = value
-    return json.dumps(doc)
 
 
 @pytest.mark.parametrize(

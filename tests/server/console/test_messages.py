@@ -45,8 +45,8 @@ from tests.server.console.conftest import (
     emit_events,
     welcome,
 )
-from tests.server.console.test_replay import Flight, open_replay, send, until_finished
 from tests.server.storage.factories import make_frames
+from tests.support.console import Flight, open_replay, send, until_finished
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -20,13 +20,11 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.testclient import WebSocketTestSession
 
-from planner.plan import Plan
 from server.services._console_replay import COLUMNS
 from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
 from server.storage import repository as repo
-from spacecraft.offline import OfflineFlight
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.uplink import plan_commands
 from tests.server.console.conftest import (
@@ -40,15 +38,14 @@ from tests.server.console.conftest import (
     subscribe,
     welcome,
 )
-from tests.server.console.test_telemetry import frames_of
 from tests.server.storage.factories import make_frames, make_plan
+from tests.support.console import Flight, frames_of, open_replay, send, until_finished, until_state
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 #: ETS-VII's telemetry fields: the frames these tests fly.
 TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
 
-Flight = tuple[Plan, OfflineFlight]
 VIEWER = {"Authorization": "Bearer v-token"}
 X10 = {"mode": "real_time", "factor": 10.0}
 STEP = {"mode": "step"}
@@ -56,37 +53,6 @@ STEP = {"mode": "step"}
 
 def fast(batch_frames: int = 100) -> dict[str, Any]:
     return {"mode": "as_fast_as_possible", "batch_frames": batch_frames}
-
-
-def send(ws: WebSocketTestSession, type_: str, **fields: Any) -> None:
-    ws.send_json({"v": 1, "type": type_, **fields})
-
-
-def open_replay(ws: WebSocketTestSession, pass_id: str, **fields: Any) -> dict[str, Any]:
-    send(ws, "replay_open", pass_id=pass_id, **fields)
-    reply: dict[str, Any] = ws.receive_json()
-    assert reply["type"] == "replay_opened", reply
-    return reply
-
-
-def until_state(
-    ws: WebSocketTestSession, done: Callable[[dict[str, Any]], bool]
-) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Replay data up to the first ``replay_state`` for which ``done`` holds (other states,
-    e.g. progress reports, are passed over)."""
-    data = []
-    while True:
-        message: dict[str, Any] = ws.receive_json()
-        if message.get("topic") == "replay":
-            data.append(message)
-        elif message["type"] == "replay_state" and done(message):
-            return data, message
-        else:
-            assert message["type"] == "replay_state", message
-
-
-def until_finished(ws: WebSocketTestSession) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    return until_state(ws, lambda m: bool(m["finished"]))
 
 
 def reply_to(ws: WebSocketTestSession, type_: str, **fields: Any) -> dict[str, Any]:

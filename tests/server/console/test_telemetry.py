@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import pytest
 from fastapi.testclient import TestClient
 
@@ -18,6 +16,7 @@ from tests.server.console.conftest import (
     welcome,
 )
 from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+from tests.support.console import frames_of
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -25,17 +24,6 @@ pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wa
 TELEMETRY_FIELDS = DEFAULT_LAYOUT.fields
 
 VIEWER = {"Authorization": "Bearer v-token"}
-
-
-def frames_of(messages: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
-    """Frame seq -> its values, from telemetry messages (columns to rows)."""
-    out: dict[int, dict[str, Any]] = {}
-    for message in messages:
-        columns = message["columns"]
-        assert all(len(c) == message["count"] for c in columns.values())
-        for i, seq in enumerate(columns["seq"]):
-            out[seq] = {name: values[i] for name, values in columns.items()}
-    return out
 
 
 def test_frames_arrive_as_columns_equal_to_what_is_stored(client: TestClient) -> None:

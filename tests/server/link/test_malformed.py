@@ -251,7 +251,7 @@ def test_a_diverged_vehicle_s_frames_are_refused_and_counted_by_their_reason(
     """Frames no real vehicle can send (a joint at 1e15 rad, a base turning at 1e30 rad/s:
     issue 28's diverged Panda) are refused before the archive, answered with the reason and
     counted as ``telemetry:unphysical``; a NaN stays ``telemetry:invalid``."""
-    from tests.telemetry.test_wire import _telemetry_text
+    from tests.support.wire import telemetry_text as _telemetry_text
 
     sessions = make_sessions(tmp_path)
     clock = ManualClock()

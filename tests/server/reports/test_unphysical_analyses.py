@@ -13,7 +13,7 @@ import pytest
 from planner.model import RobotModel
 from server.services.analyses import compute_analyses
 from telemetry.recording import PassRecording
-from tests.telemetry.test_identification import fly
+from tests.support.identification import fly
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,94 @@
+"""The comparison of the project's dynamics with the independent reference
+(tests/reference_dynamics.py): the quantities compared, their tolerances, and the random
+states they are compared at."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from operator import attrgetter
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.dynamics import Quantities
+from tests import reference_dynamics as ref
+
+Array = NDArray[np.float64]
+
+
+# Project vs reference: both are float64 and agree to ~1e-14; 1e-9 leaves room for another
+# BLAS or MuJoCo build while still catching any modelling slip (those show at >= 1e-4).
+RTOL_REFERENCE = 1e-9
+
+
+# The two reference methods (CRB vs sum over bodies) share only the kinematics.
+RTOL_REFERENCE_METHODS = 1e-12
+
+
+def relative_error(actual: Array, expected: Array) -> float:
+    """Largest entry-wise error over the largest entry of ``expected``."""
+    actual, expected = np.asarray(actual, dtype=np.float64), np.asarray(expected)
+    assert actual.shape == expected.shape, f"shape {actual.shape} != {expected.shape}"
+    scale = float(np.max(np.abs(expected)))
+    assert scale > 0.0, "expected quantity is all zero; a relative comparison means nothing"
+    return float(np.max(np.abs(actual - expected))) / scale
+
+
+def random_unit_quat_xyzw(rng: np.random.Generator) -> Array:
+    """Uniform on the rotation group: a normalised 4-D Gaussian."""
+    quat = rng.normal(size=4)
+    return quat / np.linalg.norm(quat)
+
+
+Getter = Callable[[Quantities], Array]
+
+
+RefGetter = Callable[[ref.Reference], Array]
+
+
+COMPARED: dict[str, tuple[Getter, RefGetter]] = {
+    "hand.pos_robot_m": (lambda q: q.hand.pos_robot_m, lambda r: r.kinematics.hand_pos_robot_m),
+    "hand.rot_robot_from_hand": (
+        lambda q: q.hand.rot_robot_from_hand,
+        lambda r: r.kinematics.rot_robot_from_hand,
+    ),
+    "hand.pos_base_m": (lambda q: q.hand.pos_base_m, lambda r: r.kinematics.hand_pos_base_m),
+    "hand.rot_base_from_hand": (
+        lambda q: q.hand.rot_base_from_hand,
+        lambda r: r.kinematics.rot_base_from_hand,
+    ),
+    "hand.pos_orbit_m": (lambda q: q.hand.pos_orbit_m, lambda r: r.kinematics.hand_pos_orbit_m),
+    "hand.rot_orbit_from_hand": (
+        lambda q: q.hand.rot_orbit_from_hand,
+        lambda r: r.kinematics.rot_orbit_from_hand,
+    ),
+    "total_mass_kg": (lambda q: np.array(q.total_mass_kg), lambda r: np.array(r.total_mass_kg)),
+    "com_orbit_m": (lambda q: q.com_orbit_m, lambda r: r.com_orbit_m),
+    **{
+        name: (attrgetter(name), attrgetter(name))  # the same name on both sides
+        for name in (
+            "J_b",
+            "J_m",
+            "H_b",
+            "H_bm",
+            "H_m",
+            "linear_momentum_nms",
+            "angular_momentum_nms",
+            "H_b_tilde",
+            "H_bm_tilde",
+            "reaction_map",
+            "J_g",
+            "rns_projector",
+            "inertia_com_base_kgm2",
+            "gravity_gradient_torque_base_nm",
+        )
+    },
+}
+
+
+FD_STEP = 1e-6  # rad or m
+
+
+# Central differences: truncation ~ h^2 |x'''| / 6 ~ 1e-12; round-off ~ eps |x| / h ~ 1e-9
+# for hand positions of a few metres. 1e-7 sits well above both.
+FD_ATOL = 1e-7
