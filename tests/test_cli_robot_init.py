@@ -17,10 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import subprocess
-import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,66 +34,15 @@ from planner.flight_rules import FlightRulesReport
 from planner.plan import Plan
 from planner.robot import RobotDescription
 from planner.state import State
+from tests.support.scaffold import CUBES, HANDS, INSIDE, run, scaffold_once
 from tests.support.vendor import vendor_urdf
 
 if TYPE_CHECKING:
     from tests.conftest import MadeOnce
 
-HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]
-HANDS = {"ur5": "tool0", "panda": "panda_hand_tcp"}
-#: The cube each shared scaffold asks for (kg, m; the UR5's the defaults, not given).
-CUBES = {"ur5": (300.0, 1.0), "panda": (500.0, 1.2)}
 #: The vendor's links lumped with the cube, their URDF <mass> (kg): the UR5's base_link (its
 #: root, world, has none), the Panda's panda_link0.
 LUMPED_KG = {"ur5": 4.0, "panda": 0.629769}
-#: The shared UR5's URDF, inside the description's folder.
-INSIDE = Path("urdf") / "ur5_robot.urdf"
-GUARD_S = 600  # a guard against a hang, not a timing assertion
-
-
-def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*HIKOBOSHI, *args], capture_output=True, text=True, timeout=GUARD_S)
-
-
-@dataclass(frozen=True)
-class Scaffolded:
-    """One ``robot init --json`` run: the file it was asked to write and what it said."""
-
-    out: Path
-    urdf: Path  # the --urdf given
-    returncode: int
-    stdout: str
-    stderr: str
-
-
-def scaffold_once(made_once: MadeOnce, robot: str) -> Scaffolded:
-    """``hikoboshi robot init`` (a real subprocess) of ``robot`` as :data:`CUBES` and
-    :data:`INSIDE` say, once per test run; readers must not change its folder."""
-
-    def make(folder: Path) -> None:
-        args = ["robot", "init", "--hand", HANDS[robot], "--json"]
-        if robot == "ur5":
-            urdf = folder / "arm" / INSIDE
-            urdf.parent.mkdir(parents=True)
-            shutil.copyfile(vendor_urdf(robot), urdf)
-        else:
-            urdf = vendor_urdf(robot)
-            mass, size = CUBES[robot]
-            args += ["--base-mass", f"{mass:g}", "--base-size", f"{size:g}"]
-        out = folder / "arm" / f"{robot}.toml"
-        result = run(*args, "--urdf", str(urdf), "--out", str(out))
-        said = {"out": str(out), "urdf": str(urdf), "returncode": result.returncode,
-                "stdout": result.stdout, "stderr": result.stderr}  # fmt: skip
-        (folder / "run.json").write_text(json.dumps(said))
-
-    said = json.loads((made_once(f"robot-init-{robot}", make) / "run.json").read_text())
-    return Scaffolded(
-        out=Path(said["out"]),
-        urdf=Path(said["urdf"]),
-        returncode=said["returncode"],
-        stdout=said["stdout"],
-        stderr=said["stderr"],
-    )
 
 
 @pytest.fixture(scope="module", params=list(HANDS))

@@ -89,7 +89,7 @@ def _copy(tmp: Path, robot: str, made_once: MadeOnce) -> Path:
     from tests.support.vendor import copy_robot
 
     if robot in INIT:  # read only: the scaffold is shared
-        from tests.test_cli_robot_init import scaffold_once
+        from tests.support.scaffold import scaffold_once
 
         done = scaffold_once(made_once, INIT[robot])
         assert done.returncode == 0, done.stderr

@@ -12,12 +12,17 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from websockets.asyncio.server import ServerConnection, serve
 from websockets.http11 import Request, Response
 
+from spacecraft.link import LinkConfig
+from spacecraft.process import ProcessConfig, SpacecraftProcess
+from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import (
     CommandAck,
     ErrorMsg,
@@ -128,3 +133,55 @@ class GroundStub:
             if time.monotonic() > deadline:
                 raise TimeoutError("condition not met in time")
             await asyncio.sleep(0.01)
+
+
+#: The spacecraft processes' time scale in these tests.
+SCALE = 20.0
+
+
+def process_config(
+    stub: GroundStub,
+    vehicle: VehicleConfig | None = None,
+    truth_log: Path | None = None,
+    **link: object,
+) -> ProcessConfig:
+    """A spacecraft process for ``stub`` at SCALE (its link's options ``link``)."""
+    return ProcessConfig(
+        ground_url=stub.url,
+        token=TOKEN,
+        time_scale=SCALE,
+        vehicle=vehicle or VehicleConfig(),
+        uplink=LinkConfig(seed=11, **link),  # type: ignore[arg-type]
+        downlink=LinkConfig(seed=12, **link),  # type: ignore[arg-type]
+        seed=3,
+        backoff_initial_s=0.05,
+        backoff_max_s=0.5,
+        drain_timeout_s=20.0,
+        truth_log=truth_log,
+    )
+
+
+def run_session(
+    scenario: Callable[[GroundStub, SpacecraftProcess], Awaitable[None]],
+    vehicle: VehicleConfig | None = None,
+    truth_log: Path | None = None,
+    **link: object,
+) -> tuple[GroundStub, SpacecraftProcess]:
+    """``scenario(stub, process)`` with a spacecraft process connected to a fresh stub."""
+
+    async def main() -> tuple[GroundStub, SpacecraftProcess]:
+        stub = GroundStub()
+        await stub.start()
+        process = SpacecraftProcess(process_config(stub, vehicle, truth_log, **link))
+        stop = asyncio.Event()
+        runner = asyncio.create_task(process.run(stop))
+        try:
+            await stub.wait_for(lambda: stub.hellos, timeout_s=10.0)
+            await scenario(stub, process)
+        finally:
+            stop.set()
+            await asyncio.wait_for(runner, timeout=30.0)
+            await stub.stop()
+        return stub, process
+
+    return asyncio.run(main())

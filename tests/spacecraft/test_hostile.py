@@ -11,8 +11,7 @@ import pytest
 
 from spacecraft.process import SpacecraftProcess
 from telemetry.wire import MAX_DEPTH, CommandStage, Ping, Pong, RejectReason
-from tests.spacecraft.ground_stub import GroundStub
-from tests.spacecraft.test_process import run_session
+from tests.spacecraft.ground_stub import GroundStub, run_session
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

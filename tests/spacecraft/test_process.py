@@ -14,15 +14,14 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from spacecraft.faults import parse_fault
-from spacecraft.link import LinkConfig, Outage
-from spacecraft.process import ProcessConfig, SpacecraftProcess
+from spacecraft.link import Outage
+from spacecraft.process import SpacecraftProcess
 from spacecraft.vehicle_config import VehicleConfig
 from telemetry.limits import attitude_error_deg
 from telemetry.wire import (
@@ -34,57 +33,11 @@ from telemetry.wire import (
     Safing,
     ScheduleDelete,
 )
-from tests.spacecraft.ground_stub import TOKEN, GroundStub
+from tests.spacecraft.ground_stub import SCALE, TOKEN, GroundStub, run_session
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
-SCALE = 20.0
 PERIOD_NS = 250_000_000
-
-
-def _config(
-    stub: GroundStub,
-    vehicle: VehicleConfig | None = None,
-    truth_log: Path | None = None,
-    **link: object,
-) -> ProcessConfig:
-    return ProcessConfig(
-        ground_url=stub.url,
-        token=TOKEN,
-        time_scale=SCALE,
-        vehicle=vehicle or VehicleConfig(),
-        uplink=LinkConfig(seed=11, **link),  # type: ignore[arg-type]
-        downlink=LinkConfig(seed=12, **link),  # type: ignore[arg-type]
-        seed=3,
-        backoff_initial_s=0.05,
-        backoff_max_s=0.5,
-        drain_timeout_s=20.0,
-        truth_log=truth_log,
-    )
-
-
-def run_session(
-    scenario: Callable[[GroundStub, SpacecraftProcess], Awaitable[None]],
-    vehicle: VehicleConfig | None = None,
-    truth_log: Path | None = None,
-    **link: object,
-) -> tuple[GroundStub, SpacecraftProcess]:
-    async def main() -> tuple[GroundStub, SpacecraftProcess]:
-        stub = GroundStub()
-        await stub.start()
-        process = SpacecraftProcess(_config(stub, vehicle, truth_log, **link))
-        stop = asyncio.Event()
-        runner = asyncio.create_task(process.run(stop))
-        try:
-            await stub.wait_for(lambda: stub.hellos, timeout_s=10.0)
-            await scenario(stub, process)
-        finally:
-            stop.set()
-            await asyncio.wait_for(runner, timeout=30.0)
-            await stub.stop()
-        return stub, process
-
-    return asyncio.run(main())
 
 
 def _next_tag(stub: GroundStub, lead_s: float) -> int:

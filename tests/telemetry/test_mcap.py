@@ -40,57 +40,7 @@ from telemetry.mcap import (
 from telemetry.mcap._schemas import TELEMETRY_SCHEMA, telemetry_schema
 from telemetry.recording import CommandRow, EventRow, PassRecording
 from tests.server.storage.factories import make_frames, make_plan
-
-# Foxglove's published foxglove.FrameTransforms, restated field by field (and closed with
-# additionalProperties: false so a misspelt or extra field fails here even where Foxglove's
-# own schema would let it pass).
-_XYZ = {k: {"type": "number"} for k in "xyz"}
-FOXGLOVE_FRAME_TRANSFORMS = {
-    "type": "object",
-    "required": ["transforms"],
-    "additionalProperties": False,
-    "properties": {
-        "transforms": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "additionalProperties": False,
-                "required": [
-                    "timestamp",
-                    "parent_frame_id",
-                    "child_frame_id",
-                    "translation",
-                    "rotation",
-                ],
-                "properties": {
-                    "timestamp": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["sec", "nsec"],
-                        "properties": {
-                            "sec": {"type": "integer", "minimum": 0},
-                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-                        },
-                    },
-                    "parent_frame_id": {"type": "string"},
-                    "child_frame_id": {"type": "string"},
-                    "translation": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["x", "y", "z"],
-                        "properties": _XYZ,
-                    },
-                    "rotation": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["x", "y", "z", "w"],
-                        "properties": _XYZ | {"w": {"type": "number"}},
-                    },
-                },
-            },
-        }
-    },
-}
+from tests.support.foxglove_schemas import FOXGLOVE_FRAME_TRANSFORMS
 
 
 def pose_in_orbit(transforms: list[dict[str, Any]], name: str) -> tuple[np.ndarray, np.ndarray]:

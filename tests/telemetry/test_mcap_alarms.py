@@ -17,29 +17,7 @@ from telemetry.mcap import METADATA_NAME, TOPIC_ALARMS, RecordingFileError, read
 from telemetry.mcap._alarms import ALARM_LOG_NAME
 from telemetry.recording import PassRecording
 from tests.server.storage.factories import make_plan
-
-# foxglove-sdk schemas/jsonschema/Log.json, restated and closed (additionalProperties false).
-FOXGLOVE_LOG = {
-    "type": "object",
-    "additionalProperties": False,
-    "required": ["timestamp", "level", "message", "name", "file", "line"],
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "additionalProperties": False,
-            "required": ["sec", "nsec"],
-            "properties": {
-                "sec": {"type": "integer", "minimum": 0},
-                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-            },
-        },
-        "level": {"enum": [0, 1, 2, 3, 4, 5]},
-        "message": {"type": "string"},
-        "name": {"type": "string"},
-        "file": {"type": "string"},
-        "line": {"type": "integer", "minimum": 0, "maximum": 4294967295},
-    },
-}
+from tests.support.foxglove_schemas import FOXGLOVE_LOG
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from telemetry.foxglove import LOG_LEVELS, event_level, event_log
 from telemetry.mcap import TOPIC_EVENT_LOG, TOPIC_EVENTS, read_mcap, write_mcap
 from telemetry.recording import EventRow, PassRecording
 from tests.server.storage.factories import make_plan
-from tests.telemetry.test_mcap_alarms import FOXGLOVE_LOG
+from tests.support.foxglove_schemas import FOXGLOVE_LOG
 
 EVENTS = (
     EventRow(1_700_000_000_123_456_789, "pass_state", "otto", {"from": "aos", "to": "running"}),

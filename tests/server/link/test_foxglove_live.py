@@ -29,8 +29,7 @@ from tests.server.link.harness import (
     store_pass,
     wait_for,
 )
-from tests.telemetry.test_mcap import FOXGLOVE_FRAME_TRANSFORMS
-from tests.telemetry.test_mcap_alarms import FOXGLOVE_LOG
+from tests.support.foxglove_schemas import FOXGLOVE_FRAME_TRANSFORMS, FOXGLOVE_LOG
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -16,8 +16,8 @@ from server.services.link import CommandAcked, CommandsUnknown, LinkEvent
 from server.services.tracker import MAX_COMMAND_QUERIES, CommandTracker
 from server.storage import stages
 from server.storage.models import COMMAND_STAGES, EventRecord
+from tests.server.link.sim_runs import run_pass
 from tests.server.link.simulated import pass_state
-from tests.server.link.test_uplink_sim import _run_pass
 
 
 def test_final_is_defined_once_from_the_ranks() -> None:
@@ -124,7 +124,7 @@ def test_every_event_of_a_pass_is_stamped_by_the_injected_clock(tmp_path: Path) 
     process's (this ManualClock's wall time starts in 2027, after any real clock here)."""
 
     async def scenario() -> tuple[list[EventRecord], int, str]:
-        _, g, pass_id = await _run_pass(tmp_path, 40, seconds=60)
+        _, g, pass_id = await run_pass(tmp_path, 40, seconds=60)
         with g.sessions() as session:  # type: ignore[attr-defined]
             rows = list(session.scalars(select(EventRecord).order_by(EventRecord.id)))
         return rows, g.link.clock.time_ns(), pass_state(g.sessions, pass_id)  # type: ignore[attr-defined]

@@ -23,6 +23,7 @@ from server.services.pass_states import MAX_REFUSED_IN_A_ROW, RefusalStreak
 from server.services.uplink import RttEstimator, Uplink
 from server.storage.models import EventRecord
 from telemetry.wire import JointCommandMsg
+from tests.server.link.sim_runs import run_pass
 from tests.server.link.simulated import (
     Outage,
     SimulatedSpacecraft,
@@ -156,53 +157,6 @@ async def test_restored_commands_go_again_at_once_and_new_ones_follow_in_tag_ord
 # --- the runner and the link, in simulated time ----------------------------------------------
 
 
-async def _run_pass(
-    tmp_path: Path,
-    n_commands: int,
-    *,
-    seconds: float,
-    abort_at_s: float | None = None,
-    stall: tuple[float, float] | None = None,
-    drop: tuple[float, float] | None = None,
-    settings: dict[str, float] | None = None,
-    **spacecraft_kw: object,
-) -> tuple[SimulatedSpacecraft, object, str]:
-    clock = ManualClock()
-    sessions = make_sessions(tmp_path)
-    g = ground(sessions, clock, **(settings or {}))
-    sc = SimulatedSpacecraft(clock, **spacecraft_kw)  # type: ignore[arg-type]
-    await sc.connect(g)
-    pass_id = store_pass(sessions, n_commands, clock)
-    await g.runner.start(pass_id, "otto")
-    t = 0.0
-    step = 1.0
-    while t < seconds:
-        if abort_at_s is not None and t <= abort_at_s < t + step:
-            await sc.run(abort_at_s - t)
-            await g.runner.abort(pass_id, "otto", "operator abort")
-            t = abort_at_s
-            abort_at_s = None
-            continue
-        if stall is not None and t <= stall[0] < t + step:
-            await sc.run(stall[0] - t)
-            await sc.stall_ground(stall[1])
-            t = stall[0] + stall[1]
-            stall = None
-            continue
-        if drop is not None and t <= drop[0] < t + step:
-            await sc.run(drop[0] - t)
-            await sc.disconnect()
-            await sc.run(drop[1])
-            await sc.connect(g)
-            t = drop[0] + drop[1]
-            drop = None
-            continue
-        await sc.run(step)
-        t += step
-    await g.db.drain()
-    return sc, g, pass_id
-
-
 def _stages(sessions: object, pass_id: str) -> dict[str, int]:
     out: dict[str, int] = {}
     for row in commands(sessions, pass_id):  # type: ignore[arg-type]
@@ -220,7 +174,7 @@ def _every_command_executed_once_at_its_tag(sc: SimulatedSpacecraft, rows: list)
 async def test_a_nominal_pass_loads_ahead_and_every_command_executes_at_its_tag(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=160)
+    sc, g, pass_id = await run_pass(tmp_path, 400, seconds=160)
     rows = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
     assert pass_state(g.sessions, pass_id) == "complete"  # type: ignore[attr-defined]
     assert _stages(g.sessions, pass_id) == {"executed": len(rows)}  # type: ignore[attr-defined]
@@ -235,7 +189,7 @@ async def test_a_nominal_pass_loads_ahead_and_every_command_executes_at_its_tag(
 async def test_under_loss_and_an_outage_every_command_still_executes_at_its_tag(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(
+    sc, g, pass_id = await run_pass(
         tmp_path, 600, seconds=240, loss=0.2, outages=(Outage(60.0, 120.0),), seed=4
     )
     rows = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
@@ -252,7 +206,7 @@ async def test_under_loss_and_an_outage_every_command_still_executes_at_its_tag(
 async def test_a_ground_stalled_for_5_s_loses_and_delays_nothing_loaded_ahead(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=160, stall=(40.0, 5.0))
+    sc, g, pass_id = await run_pass(tmp_path, 400, seconds=160, stall=(40.0, 5.0))
     rows = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
     assert _stages(g.sessions, pass_id) == {"executed": len(rows)}  # type: ignore[attr-defined]
     _every_command_executed_once_at_its_tag(sc, rows)
@@ -262,7 +216,7 @@ async def test_a_ground_stalled_for_5_s_loses_and_delays_nothing_loaded_ahead(
 async def test_the_schedule_never_exceeds_the_capacity_the_vehicle_announces(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=160, capacity=60)
+    sc, g, pass_id = await run_pass(tmp_path, 400, seconds=160, capacity=60)
     rows = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
     assert sc.vehicle.max_queued <= 60 and sc.vehicle.schedule_full == 0
     assert _stages(g.sessions, pass_id) == {"executed": len(rows)}  # type: ignore[attr-defined]
@@ -273,7 +227,7 @@ async def test_the_schedule_never_exceeds_the_capacity_the_vehicle_announces(
 async def test_abort_deletes_the_schedule_from_the_next_grid_tag_and_cancels_the_rest(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=160, abort_at_s=50.0, loss=0.1, seed=2)
+    sc, g, pass_id = await run_pass(tmp_path, 400, seconds=160, abort_at_s=50.0, loss=0.1, seed=2)
     assert pass_state(g.sessions, pass_id) == "aborted"  # type: ignore[attr-defined]
     with g.sessions() as session:  # type: ignore[attr-defined]
         events = session.scalars(select(EventRecord).where(EventRecord.pass_id == pass_id)).all()
@@ -316,7 +270,7 @@ async def test_a_pass_logs_its_start_and_its_abort_with_its_id(tmp_path: Path) -
     runner_log.addHandler(keep)
     runner_log.setLevel(logging.INFO)
     try:
-        _, g, pass_id = await _run_pass(tmp_path, 100, seconds=60, abort_at_s=20.0)
+        _, g, pass_id = await run_pass(tmp_path, 100, seconds=60, abort_at_s=20.0)
     finally:
         runner_log.removeHandler(keep)
         runner_log.setLevel(level)
@@ -334,7 +288,7 @@ async def test_a_pass_logs_its_start_and_its_abort_with_its_id(tmp_path: Path) -
 async def test_a_dropped_socket_leaves_the_loaded_schedule_running(tmp_path: Path) -> None:
     """LOS policy ``continue``: what was loaded ahead executes while the ground is away;
     the rest goes up when the link is back."""
-    sc, g, pass_id = await _run_pass(tmp_path, 400, seconds=170, drop=(30.0, 40.0))
+    sc, g, pass_id = await run_pass(tmp_path, 400, seconds=170, drop=(30.0, 40.0))
     rows = commands(g.sessions, pass_id)  # type: ignore[attr-defined]
     assert _stages(g.sessions, pass_id) == {"executed": len(rows)}  # type: ignore[attr-defined]
     _every_command_executed_once_at_its_tag(sc, rows)
@@ -344,7 +298,7 @@ async def test_a_dropped_socket_leaves_the_loaded_schedule_running(tmp_path: Pat
 async def test_commands_that_cannot_be_loaded_in_time_expire_and_the_rest_executes(
     tmp_path: Path,
 ) -> None:
-    sc, g, pass_id = await _run_pass(
+    sc, g, pass_id = await run_pass(
         tmp_path,
         400,
         seconds=170,
