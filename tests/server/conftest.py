@@ -8,6 +8,11 @@ answering, the PostgreSQL variants are skipped with the reason.
 ``module_database_url``: one fresh database per module and backend, for modules whose tests
 only read what they share (a file in a module's temporary directory; a schema dropped after
 the module's last test).
+
+``client``: an application per test on a fresh database of each backend, with a viewer's,
+an operator's and a spacecraft's token (tests/support/api.py); ``module_client``: one
+application per module and backend, for tests that share what they read; ``ptp_plan``: one
+real plan, planned once for the run.
 """
 
 from __future__ import annotations
@@ -16,10 +21,19 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
+from planner.catalogue import parameters_from_values, plan_experiment
+from planner.experiments import PtpParams
+from planner.plan import Plan
+from server.app import create_app
+from server.settings import Settings
 from server.storage.db import make_engine, session_factory, sqlite_url, upgrade
+from telemetry.recording import PassRecording
+from tests.support.api import CHEAP_PTP, TOKENS
+from tests.support.recordings import mcap_bytes, short_recording_of
 
 BACKENDS = ("sqlite", "postgresql")
 
@@ -69,3 +83,38 @@ def module_database_url(
         return sqlite_url(tmp_path_factory.mktemp("module_db"))
     url: str = request.getfixturevalue("module_postgres_schema_url")
     return url
+
+
+@pytest.fixture()
+def client(database_url: str, tmp_path: Path) -> Iterator[TestClient]:
+    settings = Settings(data_dir=tmp_path, database_url=database_url, tokens=TOKENS)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def module_client(
+    module_database_url: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[TestClient]:
+    data_dir = tmp_path_factory.mktemp("module_app")
+    settings = Settings(data_dir=data_dir, database_url=module_database_url, tokens=TOKENS)
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+@pytest.fixture(scope="session")
+def ptp_plan() -> Plan:
+    """A real planner output, planned once for the run."""
+    params = parameters_from_values(PtpParams, CHEAP_PTP["parameters"])
+    return plan_experiment("ptp", params)
+
+
+@pytest.fixture(scope="session")
+def short_recording(ptp_plan: Plan) -> PassRecording:
+    """The short recording (tests/support/recordings.py), made once for the run."""
+    return short_recording_of(ptp_plan)
+
+
+@pytest.fixture(scope="session")
+def short_mcap(short_recording: PassRecording) -> bytes:
+    return mcap_bytes(short_recording)

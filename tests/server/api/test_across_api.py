@@ -11,8 +11,8 @@ from server.api.lanes import is_heavy
 from server.storage import repository as repo
 from telemetry.layout import FrameLayout
 from telemetry.wire import TelemetryFrame
-from tests.server.api.conftest import VIEWER, sessions
 from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
+from tests.support.api import VIEWER, sessions
 
 RECEIVED_NS = 1_790_000_000_000_000_000
 

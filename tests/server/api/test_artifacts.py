@@ -34,9 +34,8 @@ from server.storage import fingerprints
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory
 from telemetry.mcap import read_mcap
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass, sessions
-from tests.server.reports.conftest import short_mcap, short_recording  # noqa: F401
 from tests.server.storage.factories import make_commands
+from tests.support.api import OPERATOR, TOKENS, VIEWER, add_pass, sessions
 
 #: A guard against a hang, not a timing assertion: a loaded 2-core machine may be slow.
 PATIENCE_S = 60.0
@@ -107,7 +106,7 @@ def _move(session: Session, pass_id: str, seq: int, stage: str, time_ns: int) ->
 def test_a_recording_is_computed_once_per_version_and_served_from_its_file(
     database_url: str,
     tmp_path: Path,
-    short_mcap: bytes,  # noqa: F811
+    short_mcap: bytes,
 ) -> None:
     with _app(database_url, tmp_path) as client:
         pass_id = _import(client, short_mcap)
@@ -170,7 +169,7 @@ def test_a_recording_is_computed_once_per_version_and_served_from_its_file(
 def test_the_report_its_page_and_figures_are_computed_once_per_run_of_the_analyses(
     database_url: str,
     tmp_path: Path,
-    short_mcap: bytes,  # noqa: F811
+    short_mcap: bytes,
 ) -> None:
     with _app(database_url, tmp_path) as client:
         pass_id = _import(client, short_mcap)
@@ -242,7 +241,7 @@ def test_the_report_its_page_and_figures_are_computed_once_per_run_of_the_analys
 def test_concurrent_requests_share_one_job_and_a_refused_one_is_not_stored(
     database_url: str,
     tmp_path: Path,
-    short_mcap: bytes,  # noqa: F811
+    short_mcap: bytes,
 ) -> None:
     # One viewer's twenty requests at once: the per-token and viewer caps of the capacity
     # lanes (tests/server/api/test_lanes.py) are raised here, so that the store alone is seen
@@ -292,7 +291,7 @@ def test_concurrent_requests_share_one_job_and_a_refused_one_is_not_stored(
 def test_the_bytes_kept_stay_within_the_bound_least_recently_served_first(
     database_url: str,
     tmp_path: Path,
-    short_mcap: bytes,  # noqa: F811
+    short_mcap: bytes,
 ) -> None:
     # Room for two recordings of the short pass (each about its imported size), not three.
     bound = len(short_mcap) * 5 // 2

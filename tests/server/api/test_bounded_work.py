@@ -27,8 +27,7 @@ from server.services.errors import DomainError
 from server.services.workers import WorkerPool
 from server.storage.db import make_engine, read_session_factory
 from telemetry.mcap import read_mcap
-from tests.server.api.conftest import OPERATOR, VIEWER
-from tests.server.reports.conftest import short_mcap, short_recording  # noqa: F401
+from tests.support.api import OPERATOR, VIEWER
 from tests.support.processes import descendants, free_port
 
 #: Generous: a loaded 2-core machine may be slow; nothing here should take near this.
@@ -120,7 +119,7 @@ def test_a_full_pool_answers_busy_at_once() -> None:
 def test_busy_over_http_has_retry_after(tmp_path: Path) -> None:
     from server.app import create_app
     from server.settings import Settings
-    from tests.server.api.conftest import TOKENS
+    from tests.support.api import TOKENS
 
     settings = Settings(data_dir=tmp_path, tokens=TOKENS, worker_processes=1, worker_queue=0)
     with TestClient(create_app(settings)) as client:
@@ -209,7 +208,7 @@ def test_a_crashed_or_oversized_job_leaves_the_pool_working() -> None:
 def test_recording_download_is_streamed_byte_identical(
     client: TestClient,
     database_url: str,
-    short_mcap: bytes,  # noqa: F811
+    short_mcap: bytes,
     tmp_path: Path,
 ) -> None:
     upload = client.post("/api/passes/import", content=short_mcap, headers=OPERATOR)

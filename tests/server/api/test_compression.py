@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from server.api.compression import MINIMUM_BYTES
 from server.app import create_app
 from server.settings import Settings
-from tests.server.api.conftest import TOKENS, VIEWER
+from tests.support.api import TOKENS, VIEWER
 
 
 @pytest.fixture()

@@ -19,7 +19,7 @@ from server.api.console import CLOSE_OVER_CAP
 from server.app import create_app
 from server.services.console_seats import ConsoleRefused, ConsoleSeats
 from server.settings import ApiToken, Role, Settings
-from tests.server.api.conftest import ClientAddress
+from tests.support.api import ClientAddress
 
 CONSOLE = "/api/console"
 TOKENS = {

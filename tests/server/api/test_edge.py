@@ -35,8 +35,8 @@ from server.app import create_app
 from server.redaction import RedactSecretsFilter
 from server.settings import ApiToken, Role, Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, ClientAddress, add_pass, sessions
 from tests.server.storage.factories import make_plan
+from tests.support.api import OPERATOR, TOKENS, VIEWER, ClientAddress, add_pass, sessions
 from tests.support.processes import free_port
 
 MIB = 1024 * 1024

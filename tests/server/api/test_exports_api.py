@@ -23,8 +23,8 @@ from server.api.lanes import is_heavy
 from server.services import exports
 from server.storage import repository as repo
 from telemetry.layout import DEFAULT_LAYOUT
-from tests.server.api.conftest import VIEWER, sessions
 from tests.server.storage.factories import T0_NS, make_commands, make_frames
+from tests.support.api import VIEWER, sessions
 
 N_FRAMES = 23
 RECEIVED_NS = 1_790_000_000_000_000_000

@@ -20,7 +20,7 @@ from planner.plan import Plan
 from server.app import create_app
 from server.settings import Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import CHEAP_PTP, OPERATOR, TOKENS, VIEWER, sessions
+from tests.support.api import CHEAP_PTP, OPERATOR, TOKENS, VIEWER, sessions
 
 #: The issue's plan: its hand ends inside ETS-VII's base box.
 INTO_THE_BASE: dict[str, Any] = {

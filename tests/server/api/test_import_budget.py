@@ -20,12 +20,9 @@ from sqlalchemy.orm import Session, sessionmaker
 from server.app import create_app
 from server.services.imports import SpoolBudget
 from server.settings import Settings
-from tests.server.api.conftest import OPERATOR, TOKENS
 from tests.server.link.harness import running_ground
-from tests.server.reports.conftest import short_mcap, short_recording
+from tests.support.api import OPERATOR, TOKENS
 from tests.support.archive import row_counts
-
-__all__ = ["short_mcap", "short_recording"]  # fixtures, shared with the import tests
 
 
 def _spools(client: TestClient) -> SpoolBudget:

@@ -12,7 +12,7 @@ from sqlalchemy import Engine, text
 from server.app import create_app
 from server.settings import Settings
 from server.storage.db import READ_ONLY_OPTION
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass
+from tests.support.api import OPERATOR, TOKENS, VIEWER, add_pass
 
 
 def test_a_full_readers_pool_answers_busy_and_control_goes_on(

@@ -24,7 +24,7 @@ from server.api.lanes import HEAVY_ROUTES, Admission, Lane, Refusal, Ticket, is_
 from server.app import create_app
 from server.settings import ApiToken, Role, Settings
 from server.storage.db import READ_ONLY_OPTION
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, add_pass
+from tests.support.api import OPERATOR, TOKENS, VIEWER, add_pass
 
 VIC = {"Authorization": "Bearer v2-token"}
 

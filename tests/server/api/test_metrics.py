@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
 from server.services.metrics import LEAD_BUCKETS_S, GroundMetrics
-from tests.server.api.conftest import OPERATOR, VIEWER
+from tests.support.api import OPERATOR, VIEWER
 
 
 def _samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:

@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from mission import MISSIONS_DIR, load_mission
 from server.app import create_app
 from server.settings import Settings
-from tests.server.api.conftest import TOKENS, VIEWER
+from tests.support.api import TOKENS, VIEWER
 
 ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 

@@ -24,7 +24,7 @@ from schemathesis.python.asgi import shutdown_lifespans
 from server.app import create_app
 from server.schemas import LINE_PATTERN, NAME_TEXT_PATTERN, TEXT_PATTERN, name_problem
 from server.settings import Settings
-from tests.server.api.conftest import OPERATOR, TOKENS
+from tests.support.api import OPERATOR, TOKENS
 
 #: What a name may not hold beyond the body's rule (server.schemas.NAME_TEXT_PATTERN): C1,
 #: bidi controls, zero-width and invisible format characters, separators, noncharacters.

@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 from planner.plan import Plan
 from server.settings import Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import OPERATOR, VIEWER, sessions
 from tests.server.storage.factories import T0_NS, make_commands
+from tests.support.api import OPERATOR, VIEWER, sessions
 
 AOS = datetime(2031, 3, 4, 5, 6, 7, 250000, tzinfo=UTC)
 #: The start lead of the default settings (``uplink_start_lead_s``): the first command is

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from planner.plan import Plan
 from server.storage import repository as repo
-from tests.server.api.conftest import CHEAP_PTP, OPERATOR, VIEWER, sessions
+from tests.support.api import CHEAP_PTP, OPERATOR, VIEWER, sessions
 
 NO_PLAN = "00000000-0000-0000-0000-000000000000"
 

@@ -13,7 +13,7 @@ from sqlalchemy import text
 
 from server.services.readiness import Readiness, ReadinessProbe
 from server.storage.db import head_revisions
-from tests.server.api.conftest import sessions
+from tests.support.api import sessions
 
 #: A PostgreSQL no one listens on: the connection is refused at once.
 NOWHERE = "postgresql://hikoboshi@127.0.0.1:1/none"

@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from planner.description import load_robot
 from server.app import create_app
 from server.settings import Settings
-from tests.server.api.conftest import TOKENS, VIEWER
+from tests.support.api import TOKENS, VIEWER
 from tests.support.vendor import meshed_robot
 
 
@@ -172,8 +172,8 @@ def test_the_recording_embeds_the_vendor_meshes_on_their_tf_frames(
     from server.storage import repository as repo
     from telemetry.layout import FrameLayout
     from telemetry.mcap import TOPIC_ROBOT_MESHES, TOPIC_TF
-    from tests.server.api.conftest import sessions
     from tests.server.storage.factories import make_frames, make_plan
+    from tests.support.api import sessions
 
     ur5 = load_robot(ur5_toml)
     frames = make_frames(range(8), layout=FrameLayout(6, 3))

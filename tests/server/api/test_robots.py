@@ -27,8 +27,8 @@ from server.services.robots import robot_urdf, urdf_for_plan
 from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.db import sqlite_url
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
 from tests.server.storage.factories import make_plan
+from tests.support.api import OPERATOR, TOKENS, VIEWER, sessions
 from tests.support.vendor import copy_robot
 
 ORIHIME = EXAMPLES_DIR / "orihime" / "orihime.toml"

@@ -16,9 +16,9 @@ from server.services.dbworker import Database
 from server.services.link import Connection, GroundLink
 from server.storage.models import EventRecord
 from telemetry.wire import Hello, SafeExit, Safing, SafingTrigger, decode_ground, encode
-from tests.server.api.conftest import OPERATOR, VIEWER, sessions
 from tests.server.link.harness import add_plan_and_pass
 from tests.server.storage.factories import T0_NS, make_plan
+from tests.support.api import OPERATOR, VIEWER, sessions
 
 TRIGGER = SafingTrigger(quantity="joint_tracking_error_deg", channel="joint3", value=6.2, limit=3.0)
 

@@ -69,7 +69,7 @@ from schemathesis.python.asgi import shutdown_lifespans
 
 from server.app import create_app
 from server.settings import Settings
-from tests.server.api.conftest import OPERATOR, TOKENS
+from tests.support.api import OPERATOR, TOKENS
 
 #: Examples per operation in the fuzzing phase (the examples and coverage phases are
 #: enumerations of the schema: their number of cases is the schema's).

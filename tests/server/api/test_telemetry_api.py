@@ -12,8 +12,8 @@ from planner.plan import Plan
 from server.storage import repository as repo
 from telemetry.layout import FrameLayout
 from telemetry.wire import TelemetryFrame
-from tests.server.api.conftest import VIEWER, sessions
 from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
+from tests.support.api import VIEWER, sessions
 
 N_FRAMES = 95
 RECEIVED_NS = 1_790_000_000_000_000_000

@@ -19,7 +19,7 @@ from planner.plan import Plan
 from server.app import create_app
 from server.settings import Settings
 from server.storage import repository as repo
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
+from tests.support.api import OPERATOR, TOKENS, VIEWER, sessions
 
 ETS7 = MISSIONS_DIR / "ets7-1999.toml"
 START = datetime(1999, 9, 30, tzinfo=UTC)

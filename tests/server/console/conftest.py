@@ -24,10 +24,7 @@ from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight, fly_offline
 from telemetry.uplink import plan_commands
 from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
-from tests.server.api.conftest import client, module_client
 from tests.server.storage.factories import T0_NS, make_plan
-
-__all__ = ["client", "module_client"]  # the fixtures, shared with the API tests
 
 CONSOLE = "/api/console"
 #: A viewer's token, in the header (there is no ?token=: a token in a URL ends up in logs).

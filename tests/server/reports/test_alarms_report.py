@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 from server.services.report_tables import build_report
 from telemetry.mcap import TOPIC_ALARMS, read_mcap
 from telemetry.recording import PassRecording
-from tests.server.api.conftest import OPERATOR, VIEWER
-from tests.server.reports.conftest import mcap_bytes
+from tests.support.api import OPERATOR, VIEWER
+from tests.support.recordings import mcap_bytes
 
 
 def _alarms(recording: PassRecording) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -18,8 +18,8 @@ from server.services.clearance import flown_clearance
 from server.services.reports import build_report, render_html
 from spacecraft.offline import fly_offline
 from telemetry.recording import PassRecording
-from tests.server.api.conftest import OPERATOR, VIEWER
-from tests.server.reports.conftest import mcap_bytes
+from tests.support.api import OPERATOR, VIEWER
+from tests.support.recordings import mcap_bytes
 
 
 @pytest.fixture(scope="module")

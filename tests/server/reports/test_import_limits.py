@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session
 from server.api.errors import status_of
 from server.services.imports import InvalidRecording, import_mcap
 from telemetry.mcap import RecordingFileError, read_mcap
-from tests.server.api.conftest import OPERATOR
+from tests.support.api import OPERATOR
 from tests.support.archive import row_counts
 
 GIB = 2**30

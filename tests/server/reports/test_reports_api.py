@@ -24,8 +24,8 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from server.storage.models import AnalysisRecord, EventRecord
 from telemetry.mcap import read_mcap
-from tests.server.api.conftest import OPERATOR, TOKENS, VIEWER, sessions
-from tests.server.reports.conftest import SHORT_NAME
+from tests.support.api import OPERATOR, TOKENS, VIEWER, sessions
+from tests.support.recordings import SHORT_NAME
 
 KINDS = (
     "pass_analysis",
