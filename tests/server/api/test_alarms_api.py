@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from planner.limits import Severity
 from server.services.alarms import AlarmService
 from tests.server.alarms.rig import TRACKING, frame, value_in
-from tests.server.console.conftest import (
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,

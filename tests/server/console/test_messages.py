@@ -35,18 +35,21 @@ from server.services.console_messages import (
     WelcomeMsg,
 )
 from server.services.link import LinkStatus, ScheduleStatus
-from tests.server.console.conftest import (
+from tests.server.storage.factories import make_frames
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
+    Flight,
     add_flown_pass,
     add_pass,
     drain,
     emit_events,
+    open_replay,
+    send,
+    until_finished,
     welcome,
 )
-from tests.server.storage.factories import make_frames
-from tests.support.console import Flight, open_replay, send, until_finished
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

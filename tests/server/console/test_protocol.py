@@ -9,7 +9,7 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from server.services.link import LinkStatus
-from tests.server.console.conftest import (
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     add_pass,

@@ -27,19 +27,24 @@ from server.services.link import LinkStatus
 from server.storage import repository as repo
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.uplink import plan_commands
-from tests.server.console.conftest import (
+from tests.server.storage.factories import make_frames, make_plan
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
+    Flight,
     add_flown_pass,
     add_pass,
     drain,
+    frames_of,
     hub,
+    open_replay,
+    send,
     subscribe,
+    until_finished,
+    until_state,
     welcome,
 )
-from tests.server.storage.factories import make_frames, make_plan
-from tests.support.console import Flight, frames_of, open_replay, send, until_finished, until_state
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -13,7 +13,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 import server.services.console as console_service
-from tests.server.console.conftest import (
+from tests.server.storage.factories import make_frames
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
@@ -24,7 +25,6 @@ from tests.server.console.conftest import (
     subscribe,
     welcome,
 )
-from tests.server.storage.factories import make_frames
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

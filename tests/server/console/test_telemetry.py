@@ -6,17 +6,17 @@ import pytest
 from fastapi.testclient import TestClient
 
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
-from tests.server.console.conftest import (
+from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     add_pass,
     drain,
+    frames_of,
     subscribe,
     welcome,
 )
-from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
-from tests.support.console import frames_of
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -1,8 +1,9 @@
 """Recordings for the report, analysis and import tests, made once per session.
 
-- ``short_recording`` (tests/server/conftest.py, tests/support/recordings.py): the cheap PTP plan (54 s, feedback attitude control) flown offline,
-  with commands (stage times, one rejected), audit events and the meta of an aborted pass.
-  Identification runs on it; the gravity-gradient resim cannot (no free drift).
+- ``short_recording`` (tests/server/conftest.py, made by tests/support/recordings.py): the
+  cheap PTP plan (54 s, feedback attitude control) flown offline, with commands (stage
+  times, one rejected), audit events and the meta of an aborted pass. Identification runs
+  on it; the gravity-gradient resim cannot (no free drift).
 - ``demo_recording`` (tests/conftest.py), its MCAP bytes, and its analyses computed once in
   memory (``demo_run``), the reference the stored ones must equal.
 """
