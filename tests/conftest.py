@@ -20,6 +20,7 @@ from planner.model import RobotModel, default_model
 from planner.schedule import plan_pass
 from spacecraft.offline import fly_offline
 from telemetry.recording import PassRecording
+from tests.support.made_once import MadeOnce
 
 # No test (nor a server it starts) reads a developer's ./.env or /run/secrets: every
 # setting a test wants it passes itself (server/settings.py).
@@ -111,11 +112,6 @@ _RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers on
 #: The lock file each ``realtime`` test holds from its setup to its teardown (an exclusive
 #: ``flock`` shared by the run's xdist workers).
 _REALTIME = _run_folder(_RUN_ID) / "realtime.lock" if _RUN_ID else None
-
-
-#: ``made_once(name, make)``: the folder ``name`` that ``make(folder)`` fills (a costly
-#: product several modules read, such as a vendor arm's ``robot init``).
-MadeOnce = Callable[[str, Callable[[Path], None]], Path]
 
 
 @pytest.fixture(scope="session")

@@ -38,7 +38,7 @@ from tests.support.scaffold import CUBES, HANDS, INSIDE, run, scaffold_once
 from tests.support.vendor import vendor_urdf
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 #: The vendor's links lumped with the cube, their URDF <mass> (kg): the UR5's base_link (its
 #: root, world, has none), the Panda's panda_link0.

@@ -12,17 +12,23 @@ TESTS = Path(__file__).parent
 
 
 def _test_modules_imported(source: str) -> list[str]:
-    """The test modules (``tests.….test_*``) that ``source`` imports, at any depth."""
+    """The test modules (``tests.….test_*``) and conftests that ``source`` imports, at any
+    depth (a conftest's fixtures reach its folder by pytest's scoping, its helpers belong in
+    a helper module)."""
     out = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.ImportFrom) and node.module:
             out.append(node.module)
         elif isinstance(node, ast.Import):
             out += [alias.name for alias in node.names]
-    return [m for m in out if m.startswith("tests.") and m.rsplit(".", 1)[-1].startswith("test_")]
+    return [
+        m
+        for m in out
+        if m.startswith("tests.") and m.rsplit(".", 1)[-1].startswith(("test_", "conftest"))
+    ]
 
 
-def test_no_module_of_the_suite_imports_a_test_module() -> None:
+def test_no_module_of_the_suite_imports_a_test_module_or_a_conftest() -> None:
     files = sorted(TESTS.rglob("*.py"))
     assert len(files) > 200
     found = [
@@ -34,3 +40,4 @@ def test_no_module_of_the_suite_imports_a_test_module() -> None:
     # and the check sees such an import where there is one, in a function too
     source = "from tests.a import b\ndef f():\n    from tests.x.test_y import z\n"
     assert _test_modules_imported(source) == ["tests.x.test_y"]
+    assert _test_modules_imported("import tests.x.conftest") == ["tests.x.conftest"]

@@ -64,7 +64,7 @@ from planner.robot import RobotDescription  # noqa: E402
 from planner.state import State  # noqa: E402
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 TOLERANCE = 1e-9
 POSES = 6

@@ -1,1 +1,2 @@
-"""What several test modules share (no test module imports another: docs/STYLE.md)."""
+"""What several test modules share: no module of the suite imports a test module or a
+conftest (STYLE.md, "Tests"; tests/test_suite_layout.py)."""

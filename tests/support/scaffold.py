@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from tests.support.vendor import vendor_urdf
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 
 HIKOBOSHI = [sys.executable, "-m", "hikoboshi"]

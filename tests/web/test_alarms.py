@@ -34,7 +34,7 @@ from tests.server.link.harness import (
     store_pass,
 )
 from tests.server.storage.factories import make_plan
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

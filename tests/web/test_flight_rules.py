@@ -20,7 +20,7 @@ from planner.flight_rules import FlightRulesReport, RuleRow
 from planner.plan import Plan
 from server.storage import repository as repo
 from tests.server.link.harness import Ground, add_plan_and_pass
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

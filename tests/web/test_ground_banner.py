@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from tests.server.link.harness import Ground, running_ground
-from tests.web.conftest import OPERATOR_TOKEN, Console
+from tests.support.web import OPERATOR_TOKEN, Console
 
 pytestmark = pytest.mark.realtime
 

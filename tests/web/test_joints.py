@@ -7,7 +7,7 @@ import pytest
 
 from tests.server.link.harness import Ground
 from tests.server.storage.factories import make_plan
-from tests.web.conftest import VIEWER_TOKEN, Console, stored_pass
+from tests.support.web import VIEWER_TOKEN, Console, stored_pass
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

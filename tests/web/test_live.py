@@ -19,10 +19,10 @@ import pytest
 from server.storage import repository as repo
 from tests.server.link.harness import VIEWER, Ground, add_plan_and_pass, pass_state, store_pass
 from tests.server.link.long_pass import long_plan
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, FlyingSpacecraft
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console, FlyingSpacecraft
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

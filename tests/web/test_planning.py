@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from tests.server.link.harness import Ground
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -13,7 +13,7 @@ import httpx
 import pytest
 
 from tests.server.link.harness import OPERATOR, VIEWER, Ground, pass_state, store_pass
-from tests.web.conftest import OPERATOR_TOKEN, Console, FlyingSpacecraft
+from tests.support.web import OPERATOR_TOKEN, Console, FlyingSpacecraft
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

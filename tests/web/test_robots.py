@@ -20,7 +20,7 @@ from server.storage.db import sqlite_url
 from tests.server.link.harness import Ground, running_ground
 from tests.server.storage.factories import make_plan
 from tests.support.vendor import copy_robot
-from tests.web.conftest import OPERATOR_TOKEN, VIEWER_TOKEN, Console, stored_pass
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console, stored_pass
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

@@ -28,7 +28,7 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.harness import OPERATOR, VIEWER, Ground, running_ground
 from tests.server.storage.factories import make_plan
-from tests.web.conftest import VIEWER_TOKEN, Console
+from tests.support.web import VIEWER_TOKEN, Console
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 

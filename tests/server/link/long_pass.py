@@ -21,7 +21,7 @@ from planner.plan import Plan
 from tests.server.link.harness import with_flight_rules
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 __all__ = ["GOAL_DEG", "SETTLE_S", "long_plan"]
 

@@ -32,7 +32,7 @@ from tests.server.link.long_pass import long_plan
 from tests.support.processes import free_port
 
 if TYPE_CHECKING:
-    from tests.conftest import MadeOnce
+    from tests.support.made_once import MadeOnce
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
