@@ -15,16 +15,13 @@ from server.settings import ApiToken, Role
 from server.storage import repository as repo
 from tests.server.storage.factories import make_plan
 
+#: A viewer's, an operator's and a spacecraft's token, and the headers of the first two.
 TOKENS = {
     "v-token": ApiToken(name="vera", role=Role.VIEWER),
     "o-token": ApiToken(name="otto", role=Role.OPERATOR),
     "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
 }
-
-
 VIEWER = {"Authorization": "Bearer v-token"}
-
-
 OPERATOR = {"Authorization": "Bearer o-token"}
 
 

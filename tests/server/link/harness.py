@@ -29,22 +29,20 @@ from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
 from planner.plan import Plan
 from server.app import create_app
-from server.settings import ApiToken, Role, Settings
+from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory, session_factory
 from spacecraft.link import LinkConfig
 from spacecraft.process import ProcessConfig, SpacecraftProcess
 from spacecraft.vehicle_config import VehicleConfig
 from telemetry.wire import TelemetryFrame
+
+# the tokens and headers, as the link tests have always imported them from here
+from tests.support.api import OPERATOR as OPERATOR
+from tests.support.api import TOKENS
+from tests.support.api import VIEWER as VIEWER
 from tests.support.processes import free_port
 
-TOKENS = {
-    "v-token": ApiToken(name="vera", role=Role.VIEWER),
-    "o-token": ApiToken(name="otto", role=Role.OPERATOR),
-    "s-token": ApiToken(name="ets7", role=Role.SPACECRAFT),
-}
-OPERATOR = {"Authorization": "Bearer o-token"}
-VIEWER = {"Authorization": "Bearer v-token"}
 #: 10x: the server and the spacecraft share one process (and its GIL) here, and at 20x a
 #: 50 ms stall of the ground's event loop on a loaded machine is a whole second onboard.
 SCALE = 10.0
