@@ -7,15 +7,17 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.table import Table
 
 from hikoboshi import limits_cli
 from hikoboshi.cli_common import RobotOption, _fail, _load, console
 from hikoboshi.output import HELP_MARKUP
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["model_app", "quantities_document", "register"]
 
@@ -62,6 +64,8 @@ def model_mjcf(robot: RobotOption = None) -> None:
 
 
 def _parse_joints_deg(text: str, n: int) -> np.ndarray:
+    import numpy as np
+
     parts = [p.strip() for p in text.split(",")]
     if len(parts) != n:
         _fail(f"--joints-deg needs {n} comma-separated angles, got {len(parts)}: {text!r}")
@@ -80,6 +84,8 @@ def _parse_joints_deg(text: str, n: int) -> np.ndarray:
 def quantities_document(joints_deg: np.ndarray, model: Any = None) -> dict[str, Any]:
     """The JSON object of ``hikoboshi model quantities`` (base at nominal, zero momentum);
     ``model`` is a RobotModel (default: ETS-VII)."""
+    import numpy as np
+
     from planner.dynamics import DynamicsWorkspace
     from planner.frames import rpy_from_matrix
     from planner.model import default_model
@@ -116,6 +122,8 @@ def model_quantities(
     robot: RobotOption = None,
 ) -> None:
     """Planning quantities at one arm pose, base at the orbit frame's nominal attitude."""
+    import numpy as np
+
     from planner.errors import PlannerError
 
     name, model = _robot(robot)

@@ -1,11 +1,16 @@
 """``hikoboshi plan``: an experiment's parameters from the command line to a plan file
 checked against the flight rules (exit 3 when it fails one), ``plan check FILE`` for a
-stored plan, and ``plan campaign`` (:mod:`hikoboshi.campaign_cli`)."""
+stored plan, and ``plan campaign`` (:mod:`hikoboshi.campaign_cli`).
+
+The planner (SciPy, MuJoCo: most of a second) is imported when a plan is made or the
+command's own help is shown, not when the command line starts: ``hikoboshi --help`` and
+every other command start without it (tests/test_cli_startup.py)."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import json
 import os
 import sys
@@ -17,12 +22,12 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.markup import escape
 from rich.table import Table
+from typer.core import TyperCommand
 
 from hikoboshi.cli_common import RobotOption, _fail, _load, console, err_console
-from planner.catalogue import experiments, parse_assignments, plan_experiment, resolve, type_name
-from planner.plan import Plan
 
 if TYPE_CHECKING:
+    from planner.plan import Plan
     from planner.robot import RobotDescription
 
 __all__ = ["make_plan", "parameters_help", "parse_parameters", "register", "write_atomically"]
@@ -30,6 +35,8 @@ __all__ = ["make_plan", "parameters_help", "parse_parameters", "register", "writ
 
 def parameters_help() -> str:
     """One paragraph per experiment: its parameters, types and defaults."""
+    from planner.catalogue import experiments, type_name
+
     lines = []
     for name, (params_type, _) in experiments().items():
         hints = typing.get_type_hints(params_type)
@@ -48,6 +55,8 @@ def _show(value: Any) -> str:
 
 
 def parse_parameters(params_type: type, assignments: list[str]) -> Any:
+    from planner.catalogue import parse_assignments
+
     return parse_assignments(params_type, assignments)
 
 
@@ -60,6 +69,8 @@ def make_plan(
 ) -> Plan:
     """The plan for ``robot`` (``None``: ETS-VII as built in): its ``[experiments.NAME]``
     table under the ``--set`` assignments, its poses."""
+    from planner.catalogue import parse_assignments, plan_experiment, resolve
+
     params_type, _ = resolve(experiment)
     defaults = None if robot is None else robot.experiment_defaults(experiment)
     params = parse_assignments(params_type, assignments, defaults=defaults)
@@ -81,16 +92,34 @@ def write_atomically(path: Path, text: str) -> None:
         raise
 
 
+#: The first paragraph of ``plan``'s help: what ``hikoboshi --help`` lists it with.
+_PLAN_SUMMARY = (
+    "Plan an experiment (ptp, reactionless, gjm, coordination, nonholonomic, pass) as a "
+    "4 Hz time-tagged command plan with its prediction, and write it as JSON; or a "
+    "campaign of passes over a mission's windows (plan campaign --mission FILE --start "
+    "ISO8601; docs/missions.md). Parameters "
+    "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
+    "paper's experiment. With --robot FILE the plan is for that robot: its poses, and "
+    "its [experiments.NAME] tables as the defaults."
+)
+
+
 def _plan_help() -> str:
-    return (
-        "Plan an experiment (ptp, reactionless, gjm, coordination, nonholonomic, pass) as a "
-        "4 Hz time-tagged command plan with its prediction, and write it as JSON; or a "
-        "campaign of passes over a mission's windows (plan campaign --mission FILE --start "
-        "ISO8601; docs/missions.md). Parameters "
-        "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
-        "paper's experiment. With --robot FILE the plan is for that robot: its poses, and "
-        "its [experiments.NAME] tables as the defaults.\n\nParameters:\n\n" + parameters_help()
-    )
+    return _PLAN_SUMMARY + "\n\nParameters:\n\n" + parameters_help()
+
+
+class _PlanCommand(TyperCommand):
+    """``plan``, whose help (its summary, then every experiment's parameters, which only
+    the planner knows) is made when it is read: by ``plan --help``, not at start-up.
+    ``hikoboshi --help`` lists the command by its summary (``short_help``)."""
+
+    @property
+    def help(self) -> str:
+        return inspect.cleandoc(_plan_help())
+
+    @help.setter
+    def help(self, _value: str | None) -> None:
+        """Typer sets the function's docstring; the help is the property's."""
 
 
 def plan_command(
@@ -347,4 +376,4 @@ def _exit_on_rules(report: Any, *, quiet: bool) -> None:
 
 def register(app: typer.Typer) -> None:
     """Add ``plan`` (an experiment, ``check`` and ``campaign``) to ``hikoboshi``."""
-    app.command("plan", help=_plan_help())(plan_command)
+    app.command("plan", cls=_PlanCommand, short_help=_PLAN_SUMMARY)(plan_command)

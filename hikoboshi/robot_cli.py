@@ -11,11 +11,10 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
-import numpy as np
 import typer
 
 from hikoboshi.output import HELP_MARKUP, make_console
-from planner.description.scaffold import DEFAULT_BASE_MASS_KG, DEFAULT_BASE_SIZE_M
+from planner.scaffold_defaults import DEFAULT_BASE_MASS_KG, DEFAULT_BASE_SIZE_M
 
 __all__ = ["register"]
 
@@ -35,6 +34,8 @@ def _fail(reason: str) -> NoReturn:
 
 def check_report(description: Any) -> dict[str, Any]:
     """What ``robot check`` prints, as one JSON-able dict."""
+    import numpy as np
+
     from planner.dynamics import DynamicsWorkspace
     from planner.errors import PlannerError
     from planner.frames import rpy_from_matrix

@@ -60,6 +60,7 @@ from planner.description.urdf_xml import Urdf
 from planner.dynamics import DynamicsWorkspace
 from planner.model import WheelSpec
 from planner.robot import RobotDescription
+from planner.scaffold_defaults import DEFAULT_BASE_MASS_KG, DEFAULT_BASE_SIZE_M
 from planner.state import State
 
 __all__ = [
@@ -68,11 +69,6 @@ __all__ = [
     "Scaffold",
     "scaffold_description",
 ]
-
-#: The cube the arm sits on where the user gives none: 300 kg, 1 m a side, our choice (the
-#: mount the vendor arms' tests use, tests/planner/vendor/*.toml).
-DEFAULT_BASE_MASS_KG = 300.0
-DEFAULT_BASE_SIZE_M = 1.0
 
 
 @dataclass(frozen=True)
