@@ -252,8 +252,12 @@ def test_concurrent_requests_share_one_job_and_a_refused_one_is_not_stored(
         url = f"/api/passes/{first_pass}/recording.mcap"
         assert client.portal is not None
         hold = functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
+        before_hold = pool.started
         held = client.portal.start_task_soon(hold)
-        _wait_for(lambda: pool.running == 1, "the held worker")
+        # Started, not only running: a process counts as running while its start (a thread)
+        # is still under way, and counted as started once it is (a loaded machine sampled
+        # ``started`` in between, and the held job's start was counted as the computation's).
+        _wait_for(lambda: pool.running == 1 and pool.started == before_hold + 1, "the held worker")
         started = pool.started
         with ThreadPoolExecutor(max_workers=20) as threads:
             futures = [threads.submit(client.get, url, headers=VIEWER) for _ in range(20)]
@@ -340,8 +344,12 @@ def test_a_live_pass_shares_the_computation_in_flight_whatever_its_version(
         url = f"/api/passes/{pass_id}/recording.mcap"
         assert client.portal is not None
         hold = functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
+        before_hold = pool.started
         held = client.portal.start_task_soon(hold)
-        _wait_for(lambda: pool.running == 1, "the held worker")
+        # Started, not only running: a process counts as running while its start (a thread)
+        # is still under way, and counted as started once it is (a loaded machine sampled
+        # ``started`` in between, and the held job's start was counted as the computation's).
+        _wait_for(lambda: pool.running == 1 and pool.started == before_hold + 1, "the held worker")
         started = pool.started
         with ThreadPoolExecutor(max_workers=2) as threads:
             early = threads.submit(client.get, url, headers=VIEWER)
