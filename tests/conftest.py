@@ -61,6 +61,18 @@ def demo_recording(made_once: MadeOnce) -> PassRecording:
     return recording
 
 
+@pytest.fixture(scope="session")
+def demo_mcap_file(made_once: MadeOnce, demo_recording: PassRecording) -> Path:
+    """``demo_recording`` written by ``write_mcap`` (a 17 MB file, seconds to write), once
+    per run for the MCAP tests and the report tests that upload it: read only."""
+    from telemetry.mcap import write_mcap
+
+    def make(folder: Path) -> None:
+        write_mcap(demo_recording, folder / "demo.mcap")
+
+    return made_once("demo-mcap", make) / "demo.mcap"
+
+
 #: The PostgreSQL fixtures, for every directory (tests/postgres.py).
 pytest_plugins = ("tests.postgres",)
 

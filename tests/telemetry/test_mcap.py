@@ -125,10 +125,10 @@ def small_recording(demo: PassRecording, n: int = 40) -> PassRecording:
 
 
 @pytest.fixture(scope="module")
-def demo_file(demo_recording: PassRecording, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("mcap") / "demo.mcap"
-    write_mcap(demo_recording, path)
-    return path
+def demo_file(demo_mcap_file: Path) -> Path:
+    """The demo pass as ``write_mcap`` wrote it (tests/conftest.py: once per run, shared
+    with the report tests)."""
+    return demo_mcap_file
 
 
 @pytest.fixture(scope="module")

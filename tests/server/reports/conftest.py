@@ -10,16 +10,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from server.services.analyses import AnalysisRun, compute_analyses
 from telemetry.recording import PassRecording
-from tests.support.recordings import mcap_bytes
 
 
 @pytest.fixture(scope="session")
-def demo_mcap(demo_recording: PassRecording) -> bytes:
-    return mcap_bytes(demo_recording)
+def demo_mcap(demo_mcap_file: Path) -> bytes:
+    return demo_mcap_file.read_bytes()
 
 
 @pytest.fixture(scope="session")
