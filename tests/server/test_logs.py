@@ -21,7 +21,7 @@ import pytest
 
 from server.logs import configure_logging, current_pass
 from server.redaction import redact
-from tests.support.processes import free_port
+from tests.support.processes import free_port, stderr_of_stopped
 
 SECRET = "sEcReT-0123456789abcdef"
 #: UTC, ISO 8601, milliseconds
@@ -160,7 +160,7 @@ def test_a_real_serve_logs_its_start_and_a_failed_authentication(
         assert httpx.get(f"{base}/api/passes?token={SECRET}", headers=wrong).status_code == 401
     finally:
         proc.terminate()
-        _, err = proc.communicate(timeout=30)
+        err = stderr_of_stopped(proc, 30.0)
     lines = [line for line in err.splitlines() if line.strip()]
     assert SECRET not in err
     if log_format == "json":

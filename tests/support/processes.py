@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
 
 
 def free_port() -> int:
@@ -33,3 +34,26 @@ def descendants(pid: int) -> set[int]:
             found.add(child)
             todo.append(child)
     return found
+
+
+def stderr_of_stopped(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    """Wait for ``proc`` (a ``hikoboshi serve``, ``stderr=PIPE``) to exit and return what it
+    wrote to stderr, without waiting for the pipe's end: its forkserver holds the pipe open
+    until it has finished its imports and seen the server gone, seconds after a server
+    stopped right after it started. Whatever the server wrote is in the pipe once it has
+    exited (Python flushes stderr at exit)."""
+    proc.wait(timeout=timeout_s)
+    assert proc.stderr is not None
+    fd = proc.stderr.fileno()
+    os.set_blocking(fd, False)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(fd, 1 << 16)
+        except BlockingIOError:  # all there is, the forkserver still holding the pipe
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    proc.stderr.close()
+    return b"".join(chunks).decode()
