@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import pickle
 import shutil
@@ -21,6 +20,7 @@ from planner.schedule import plan_pass
 from spacecraft.offline import fly_offline
 from telemetry.recording import PassRecording
 from tests.support.made_once import MadeOnce
+from tests.support.processes import flocked
 
 # No test (nor a server it starts) reads a developer's ./.env or /run/secrets: every
 # setting a test wants it passes itself (server/settings.py).
@@ -109,17 +109,6 @@ def _run_folder(run_id: str) -> Path:
     return folder
 
 
-@contextlib.contextmanager
-def _flocked(path: Path) -> Iterator[None]:
-    """An exclusive ``flock`` on the file ``path`` (made if missing) while inside."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)  # releases the lock
-
-
 _RUN_ID = os.environ.get("PYTEST_XDIST_TESTRUNUID")  # set in xdist's workers only
 #: The lock file each ``realtime`` test holds from its setup to its teardown (an exclusive
 #: ``flock`` shared by the run's xdist workers).
@@ -139,7 +128,7 @@ def made_once(tmp_path_factory: pytest.TempPathFactory) -> MadeOnce:
 
     def made(name: str, make: Callable[[Path], None]) -> Path:
         folder, done = base / name, base / f"{name}.done"
-        with _flocked(base / f"{name}.lock"):
+        with flocked(base / f"{name}.lock"):
             if not done.exists():
                 shutil.rmtree(folder, ignore_errors=True)
                 folder.mkdir()
@@ -159,7 +148,7 @@ TIMELINE = os.environ.get("HIKOBOSHI_TEST_TIMELINE")
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """A ``realtime`` test holds the real-time lock from setup to teardown; each test's
     times go to the timeline."""
-    held = _flocked(_REALTIME) if _REALTIME is not None and _realtime(item) else None
+    held = flocked(_REALTIME) if _REALTIME is not None and _realtime(item) else None
     with held or contextlib.nullcontext():
         start = time.time()
         yield

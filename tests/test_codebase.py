@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import _flocked
+from tests.support.processes import flocked
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -36,7 +36,7 @@ MYPY_CACHE = Path(sys.prefix) / ".mypy_cache"
 @pytest.mark.slow
 def test_mypy_is_clean() -> None:
     MYPY_CACHE.mkdir(exist_ok=True)
-    with _flocked(MYPY_CACHE / "hikoboshi-tests.lock"):
+    with flocked(MYPY_CACHE / "hikoboshi-tests.lock"):
         result = _run(
             str(BIN / "mypy"),
             "--cache-dir",

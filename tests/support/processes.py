@@ -1,10 +1,14 @@
-"""Ports and processes of the tests' servers."""
+"""Ports and processes of the tests' servers, and the lock processes share."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import socket
 import subprocess
+from collections.abc import Iterator
+from pathlib import Path
 
 
 def free_port() -> int:
@@ -57,3 +61,14 @@ def stderr_of_stopped(proc: subprocess.Popen[str], timeout_s: float) -> str:
         chunks.append(chunk)
     proc.stderr.close()
     return b"".join(chunks).decode()
+
+
+@contextlib.contextmanager
+def flocked(path: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on the file ``path`` (made if missing) while inside."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
