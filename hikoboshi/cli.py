@@ -4,6 +4,9 @@ added here. What the groups share is in :mod:`hikoboshi.cli_common`."""
 
 from __future__ import annotations
 
+import importlib.metadata
+from typing import Annotated
+
 import typer
 
 from hikoboshi import (
@@ -40,6 +43,24 @@ demo_cli.register(app)  # demo, ptp-demo
 spacecraft_cli.register(app)  # spacecraft
 serve_cli.register(app)  # serve
 calibrate_cli.register(app)  # calibrate
+
+
+def _version(shown: bool) -> None:
+    if shown:
+        typer.echo(f"hikoboshi {importlib.metadata.version('hikoboshi')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """The options of the command line as a whole."""
 
 
 def main() -> None:

@@ -121,3 +121,12 @@ def test_a_real_pipe_gets_whole_lines() -> None:
     rows = [line for line in result.stdout.splitlines() if "generalized_jacobian" in line]
     assert len(rows) == 1 and len(rows[0]) > 200, result.stdout
     assert rows[0].count("[") == 7  # the whole 6x6 list on the row
+
+
+def test_version_is_the_installed_package_s() -> None:
+    import importlib.metadata
+
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0, result.output
+    assert result.output == f"hikoboshi {importlib.metadata.version('hikoboshi')}\n"
+    assert "--version" in help_of()
