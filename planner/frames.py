@@ -73,21 +73,36 @@ def matrix_from_quat_xyzw(quat_xyzw: NDArray[np.float64]) -> NDArray[np.float64]
 
 
 def quat_xyzw_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Scalar-last unit quaternion with ``w >= 0``."""
-    quat = np.asarray(Rotation.from_matrix(rot).as_quat(), dtype=np.float64)
+    """Scalar-last unit quaternion with ``w >= 0``.
+
+    A rotation orthonormal to 1e-13 (a product of MuJoCo's frames), which scipy takes as it
+    is, goes through :func:`_quat_of` (scipy's steps in scalars: the same numbers, without
+    its objects, once per predicted row); any other through scipy (it re-orthogonalises
+    what is further off and refuses a reflection)."""
+    m = np.asarray(rot, dtype=np.float64)
+    if m.shape == (3, 3) and _orthonormal(m.tolist()):
+        quat = np.array(_quat_of(m))
+    else:
+        quat = np.asarray(Rotation.from_matrix(rot).as_quat(), dtype=np.float64)
     return quat if quat[3] >= 0.0 else -quat
 
 
-def rotation_angle_rad(rot: NDArray[np.float64]) -> float:
-    """Angle of a rotation matrix (0 to pi), robust near 0 and pi."""
-    return float(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
+def _orthonormal(rows: list[list[float]]) -> bool:
+    """``rows @ rows.T`` within 1e-13 of the identity and the determinant positive."""
+    for i in range(3):
+        for j in range(i, 3):
+            a, b = rows[i], rows[j]
+            dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+            if abs(dot - (1.0 if i == j else 0.0)) > 1e-13:
+                return False
+    (a, b, c), (d, e, f), (g, h, k) = rows
+    return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g) > 0.5
 
 
-def rotvec_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``Rotation.from_matrix(rot, assume_valid=True).as_rotvec()`` for one ``rot``
-    (orthonormal to round-off), in scalar arithmetic: scipy's steps in scipy's order, so the
-    same numbers to the bit, at a fifth of the cost of its objects (the reactionless line's
-    inner loop calls it at every Runge-Kutta stage)."""
+def _quat_of(rot: NDArray[np.float64]) -> tuple[float, float, float, float]:
+    """The unit quaternion (x, y, z, w) scipy's ``Rotation.from_matrix`` makes of an
+    orthonormal ``rot``: its branch on the largest of the diagonal and the trace, its
+    normalisation."""
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rot.tolist()
     trace = m00 + m11 + m22
     decision = (m00, m11, m22, trace)
@@ -101,7 +116,20 @@ def rotvec_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
     else:
         q = (m21 - m12, m02 - m20, m10 - m01, 1 + trace)
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    x, y, z, w = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+    return q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+
+
+def rotation_angle_rad(rot: NDArray[np.float64]) -> float:
+    """Angle of a rotation matrix (0 to pi), robust near 0 and pi."""
+    return float(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
+
+
+def rotvec_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``Rotation.from_matrix(rot, assume_valid=True).as_rotvec()`` for one ``rot``
+    (orthonormal to round-off), in scalar arithmetic: scipy's steps in scipy's order, so the
+    same numbers to the bit, at a fifth of the cost of its objects (the reactionless line's
+    inner loop calls it at every Runge-Kutta stage)."""
+    x, y, z, w = _quat_of(rot)
     if w < 0:  # the canonical quaternion, w >= 0
         x, y, z, w = -x, -y, -z, -w
     angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
