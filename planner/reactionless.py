@@ -90,11 +90,12 @@ def rns_basis(ws: DynamicsWorkspace, joints: Array) -> tuple[Array, float]:
 
 def _null_basis(h_bm: Array) -> tuple[Array, float]:
     """:func:`rns_basis` of ``H~_bm``: LAPACK's dgesdd, as ``np.linalg.svd`` calls it (the
-    same numbers) without numpy's wrapper."""
+    same numbers, laid out as numpy lays them: C order, which the products with the basis
+    follow to the bit) without numpy's wrapper."""
     _, sing, vt, info = lapack.dgesdd(h_bm)
     if info != 0:
         raise DidNotConverge(f"SVD of H~_bm failed (LAPACK dgesdd info {info})")
-    return vt[3:].T, float(sing[-1])
+    return np.ascontiguousarray(vt)[3:].T, float(sing[-1])
 
 
 def _speed_profile(t: Array, duration_s: float, ramp_s: float, speed: float) -> Array:
