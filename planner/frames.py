@@ -60,7 +60,7 @@ def rpy_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def matrix_from_quat_xyzw(quat_xyzw: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation matrix of a scalar-last unit quaternion."""
-    x, y, z, w = (float(c) for c in quat_xyzw)
+    x, y, z, w = np.asarray(quat_xyzw, dtype=np.float64).tolist()
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n
     return np.array(
