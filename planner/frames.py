@@ -124,12 +124,18 @@ def rotation_angle_rad(rot: NDArray[np.float64]) -> float:
     return float(np.linalg.norm(Rotation.from_matrix(rot).as_rotvec()))
 
 
-def rotvec_from_matrix(rot: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``Rotation.from_matrix(rot, assume_valid=True).as_rotvec()`` for one ``rot``
-    (orthonormal to round-off), in scalar arithmetic: scipy's steps in scipy's order, so the
-    same numbers to the bit, at a fifth of the cost of its objects (the reactionless line's
-    inner loop calls it at every Runge-Kutta stage)."""
-    x, y, z, w = _quat_of(rot)
+def rotvec_from_matrix(
+    rot: NDArray[np.float64], *, assume_valid: bool = False
+) -> NDArray[np.float64]:
+    """``Rotation.from_matrix(rot, assume_valid=assume_valid).as_rotvec()`` for one ``rot``:
+    where scipy takes ``rot`` as it is (``assume_valid``, or orthonormal to 1e-13: products
+    of MuJoCo's frames), its steps in scipy's order in scalars, so the same numbers to the
+    bit at a fifth of the cost of its objects (the planners' inner loops call it at every
+    step); any other ``rot`` goes to scipy."""
+    m = np.asarray(rot, dtype=np.float64)
+    if not assume_valid and not (m.shape == (3, 3) and _orthonormal(m.tolist())):
+        return np.asarray(Rotation.from_matrix(rot).as_rotvec(), dtype=np.float64)
+    x, y, z, w = _quat_of(m)
     if w < 0:  # the canonical quaternion, w >= 0
         x, y, z, w = -x, -y, -z, -w
     angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)

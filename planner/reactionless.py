@@ -154,7 +154,7 @@ def reactionless_line(
         zeta = a1 * (speed / (float(a1 @ a1) + _DAMPING))
         p1 = np.eye(basis.shape[1]) - _row_projector(a1)  # the RNS's n - 3 dimensions
         pos_err = lateral @ (start_pos - hand_pos)
-        rot_err = rotvec_from_matrix(rot0 @ hand_rot.T)
+        rot_err = rotvec_from_matrix(rot0 @ hand_rot.T, assume_valid=True)
         a2 = np.vstack([lateral @ a_v, orientation_weight_m * a_w])
         b2 = np.concatenate(
             [_LATERAL_GAIN_PS * pos_err, orientation_weight_m * _ORIENTATION_GAIN_PS * rot_err]

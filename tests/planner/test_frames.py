@@ -25,6 +25,8 @@ def _rotations(n: int) -> list[np.ndarray]:
 def test_rotvec_and_quaternion_are_scipy_s_to_the_bit() -> None:
     for rot in _rotations(3000):
         want = Rotation.from_matrix(rot, assume_valid=True).as_rotvec()
+        assert np.array_equal(rotvec_from_matrix(rot, assume_valid=True), want), rot
+        want = Rotation.from_matrix(rot).as_rotvec()
         assert np.array_equal(rotvec_from_matrix(rot), want), rot
         quat = Rotation.from_matrix(rot).as_quat()
         assert np.array_equal(quat_xyzw_from_matrix(rot), quat if quat[3] >= 0 else -quat), rot
@@ -36,5 +38,6 @@ def test_a_matrix_off_a_rotation_goes_to_scipy() -> None:
     quat = quat_xyzw_from_matrix(skewed)
     assert np.array_equal(quat, Rotation.from_matrix(skewed).as_quat())
     assert quat[2] != -1e-8 / np.sqrt(16.0 + 1e-16)  # the scalar path's (m10 - m01) / norm
+    assert np.array_equal(rotvec_from_matrix(skewed), Rotation.from_matrix(skewed).as_rotvec())
     with pytest.raises(ValueError, match="determinant"):
         quat_xyzw_from_matrix(np.diag([1.0, 1.0, -1.0]))  # a reflection is refused
