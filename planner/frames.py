@@ -20,6 +20,7 @@ __all__ = [
     "matrix_from_quat_xyzw",
     "matrix_from_rpy",
     "quat_xyzw_from_matrix",
+    "quat_xyzw_turned_by_rotvec",
     "rotation_angle_rad",
     "rotvec_from_matrix",
     "rpy_from_matrix",
@@ -145,3 +146,30 @@ def rotvec_from_matrix(
     else:
         scale = angle / math.sin(angle / 2)
     return np.array([scale * x, scale * y, scale * z])
+
+
+def quat_xyzw_turned_by_rotvec(
+    quat_xyzw: NDArray[np.float64], rotvec: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``(Rotation.from_quat(quat_xyzw) * Rotation.from_rotvec(rotvec)).as_quat()`` with
+    ``w >= 0``: scipy's steps in scipy's order (normalise, the rotation vector's quaternion,
+    the product, normalise) in scalars, the same numbers to the bit without its objects (the
+    vehicle's sensors call it at every sample)."""
+    x, y, z, w = np.asarray(quat_xyzw, dtype=np.float64).tolist()
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    rx, ry, rz = np.asarray(rotvec, dtype=np.float64).tolist()
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle <= 1e-3:  # scipy's Taylor series of sin(angle / 2) / angle
+        angle2 = angle * angle
+        scale = 0.5 - angle2 / 48 + angle2 * angle2 / 3840
+    else:
+        scale = math.sin(angle / 2) / angle
+    bx, by, bz, bw = scale * rx, scale * ry, scale * rz, math.cos(angle / 2)
+    cx = w * bx + bw * x + (y * bz - z * by)
+    cy = w * by + bw * y + (z * bx - x * bz)
+    cz = w * bz + bw * z + (x * by - y * bx)
+    cw = w * bw - x * bx - y * by - z * bz
+    norm = math.sqrt(cx * cx + cy * cy + cz * cz + cw * cw)
+    quat = np.array([cx / norm, cy / norm, cz / norm, cw / norm])
+    return -quat if quat[3] < 0.0 else quat
