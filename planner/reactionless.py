@@ -31,7 +31,7 @@ from scipy.linalg import lapack
 from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
-from planner.errors import DidNotConverge, InfeasibleGoal, InvalidInput, JointLimitExceeded
+from planner.errors import InfeasibleGoal, InvalidInput, JointLimitExceeded
 from planner.frames import rotvec_from_matrix
 from planner.ptp import COMMAND_PERIOD_S
 from planner.state import State
@@ -93,8 +93,8 @@ def _null_basis(h_bm: Array) -> tuple[Array, float]:
     same numbers, laid out as numpy lays them: C order, which the products with the basis
     follow to the bit) without numpy's wrapper."""
     _, sing, vt, info = lapack.dgesdd(h_bm)
-    if info != 0:
-        raise DidNotConverge(f"SVD of H~_bm failed (LAPACK dgesdd info {info})")
+    if info != 0:  # numpy's error, as before
+        raise np.linalg.LinAlgError("SVD did not converge")
     return np.ascontiguousarray(vt)[3:].T, float(sing[-1])
 
 
