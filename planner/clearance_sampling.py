@@ -118,7 +118,7 @@ def sampled_clearance(
     def exact(p: int, s: int) -> PairDistance:
         a, b = pairs[p]
         ja, jb = frame_of[a], frame_of[b]
-        return shapes.distance(a, b, R[s, ja], t[s, ja], R[s, jb], t[s, jb])
+        return shapes.distance(a, b, R[s, ja], t[s, ja], R[s, jb], t[s, jb], frames_key=s)
 
     last = [exact(p, 0) for p in range(len(pairs))]
     last_d = np.array([d.distance_m for d in last])

@@ -247,6 +247,8 @@ class ShapeSet:
         self._request.rel_err = 0.0
         self._request.abs_err = 0.0
         self.queries = 0
+        self._frames_key: object = None  # the bodies' coal frames at one key (a sample)
+        self._frames: dict[int, list[coal.Transform3s]] = {}
 
     def distance(
         self,
@@ -256,15 +258,18 @@ class ShapeSet:
         pos_a: Array,
         rot_b: Array,
         pos_b: Array,
+        *,
+        frames_key: object = None,
     ) -> PairDistance:
         """Bodies ``a`` and ``b`` (indices) with their frames at ``(rot, pos)`` (robot
-        frame): the smallest distance over their shape pairs."""
+        frame): the smallest distance over their shape pairs. Calls with the same
+        ``frames_key`` (not None; a sample's index), one after another, promise each body the
+        same frame: its shapes' coal frames are then made once for them all."""
         best: PairDistance | None = None
-        body_a, body_b = self.collision.bodies[a], self.collision.bodies[b]
-        for shape_a, geom_a in zip(body_a.shapes, self._geometries[a], strict=True):
-            ta = _transform(rot_a, pos_a, shape_a)
-            for shape_b, geom_b in zip(body_b.shapes, self._geometries[b], strict=True):
-                tb = _transform(rot_b, pos_b, shape_b)
+        frames_a = self._shape_frames(a, rot_a, pos_a, frames_key)
+        frames_b = self._shape_frames(b, rot_b, pos_b, frames_key)
+        for geom_a, ta in zip(self._geometries[a], frames_a, strict=True):
+            for geom_b, tb in zip(self._geometries[b], frames_b, strict=True):
                 result = self._coal.DistanceResult()
                 d = float(self._coal.distance(geom_a, ta, geom_b, tb, self._request, result))
                 self.queries += 1
@@ -278,6 +283,18 @@ class ShapeSet:
                     )
         assert best is not None  # every body has a shape
         return best
+
+    def _shape_frames(
+        self, body: int, rot: Array, pos: Array, key: object
+    ) -> list[coal.Transform3s]:
+        if key is not None and key == self._frames_key and body in self._frames:
+            return self._frames[body]
+        frames = [_transform(rot, pos, shape) for shape in self.collision.bodies[body].shapes]
+        if key is not None:
+            if key != self._frames_key:
+                self._frames_key, self._frames = key, {}
+            self._frames[body] = frames
+        return frames
 
 
 def _transform(rot: Array, pos: Array, shape: CollisionShape) -> coal.Transform3s:

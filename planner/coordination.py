@@ -35,7 +35,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
 from planner._builder import CommandBuilder
@@ -444,6 +443,10 @@ def optimise_offset(
     rather than cut off at the window's end. ``servo``: the joint servos flown (a robot's
     ``servo_gains()``; ``None``: the built-in design).
     """
+    # not at the module's import: every command-line run imports this module, and scipy's
+    # optimisers take about half a second to import (only --optimise-offset uses them)
+    from scipy.optimize import minimize
+
     gains = gains or default_acs_gains(ws)
     config = SimConfig(timestep_s=0.02, servo=servo)
     params = params_for(params, "offset", settle_s=max(params.settle_s, _OPTIMISATION_WINDOW_S))

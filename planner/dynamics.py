@@ -25,9 +25,19 @@ from planner.model import RobotModel
 from planner.mujoco_conventions import MjLayout, velocity_matrix_to_ours, write_state
 from planner.state import State
 
-__all__ = ["DynamicsWorkspace", "HandPose", "Quantities"]
+__all__ = ["DynamicsWorkspace", "HandPose", "Quantities", "solve_small"]
 
 Array = NDArray[np.float64]
+
+
+def solve_small(a: Array, b: Array) -> Array:
+    """``np.linalg.solve(a, b)`` of a small system: LAPACK's dgesv, which numpy calls (the
+    same numbers), without numpy's wrapper, a fifth of its cost (the predictions call it at
+    every Runge-Kutta stage). A singular ``a`` goes to numpy, to raise its error."""
+    _, _, x, info = lapack.dgesv(a, b)
+    if info != 0:
+        return np.asarray(np.linalg.solve(a, b))
+    return np.asarray(x)
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,13 +170,34 @@ class DynamicsWorkspace:
         The fast path for integrating eq. (9)-(10): in the base frame both depend on the
         joint angles only. ``reaction_map = -solve(H~_b, H~_bm)``.
         """
+        self._load_nominal(joints_rad)
+        return self._momentum_blocks_loaded()
+
+    def hand_and_coupling(self, joints_rad: Array) -> tuple[Array, Array, Array, Array]:
+        """The base at its nominal pose (at the origin, the orbit frame's attitude):
+        the hand's position (m) and orientation in the robot frame, ``J_m`` (6, n) and
+        ``H~_bm`` (3, n), the numbers of :meth:`hand_jacobian` (a :class:`State` of these
+        joints) and :meth:`momentum_blocks` from one kinematics pass and without a State's
+        checks (the reactionless line's inner loop)."""
+        d, site = self._load_nominal(joints_rad), self._layout.hand_site
+        # the robot frame is the base's, the base's the orbit's (as _hand_pose at identity)
+        pos = d.site_xpos[site] - self.model.pos_base_from_robot_m
+        rot = d.site_xmat[site].reshape(3, 3).copy()
+        mujoco.mj_jacSite(self._mjm, d, self._jac[:3], self._jac[3:], site)
+        J_m = self._jac[:, 6 : 6 + self._n].copy()  # the joints' columns: no conversion
+        return pos, rot, J_m, self._momentum_blocks_loaded()[1]
+
+    def _load_nominal(self, joints_rad: Array) -> mujoco.MjData:
         d = self._mjd
         d.qpos[:] = self._mjm.qpos0
         d.qpos[self._layout.joint_qpos] = joints_rad
         mujoco.mj_kinematics(self._mjm, d)
         mujoco.mj_comPos(self._mjm, d)
-        mujoco.mj_crb(self._mjm, d)
-        mujoco.mj_fullM(self._mjm, d, self._full_m)
+        return d
+
+    def _momentum_blocks_loaded(self) -> tuple[Array, Array]:
+        mujoco.mj_crb(self._mjm, self._mjd)
+        mujoco.mj_fullM(self._mjm, self._mjd, self._full_m)
         big_m = self._full_m  # base at identity: MuJoCo's coordinates are ours
         n = self._n
         tilde = big_m[3:6, 3 : 6 + n] - big_m[3:6, :3] @ big_m[:3, 3 : 6 + n] / (

@@ -26,8 +26,9 @@ Array = NDArray[np.float64]
 
 def quat_multiply_xyzw(a: Array, b: Array) -> Array:
     """Hamilton product ``a * b`` of scalar-last quaternions."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
+    # as Python floats: the same IEEE arithmetic as numpy's scalars, at a fraction of the cost
+    ax, ay, az, aw = np.asarray(a, dtype=np.float64).tolist()
+    bx, by, bz, bw = np.asarray(b, dtype=np.float64).tolist()
     return np.array(
         [
             aw * bx + ax * bw + ay * bz - az * by,

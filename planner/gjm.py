@@ -55,7 +55,7 @@ from scipy.spatial.transform import Rotation
 from planner.attitude_control import AcsMode
 from planner.dynamics import DynamicsWorkspace, Quantities
 from planner.errors import DidNotConverge, InfeasibleGoal, InvalidInput, JointLimitExceeded
-from planner.frames import IDENTITY_QUAT_XYZW, matrix_from_rpy
+from planner.frames import IDENTITY_QUAT_XYZW, matrix_from_rpy, rotvec_from_matrix
 from planner.gravity_gradient import Orbit
 from planner.ik import solve_ik
 from planner.model import arm_reach_m, default_model
@@ -175,7 +175,7 @@ def _hand_error(
     quant = ws.evaluate(State(joints_rad=q, quat_orbit_from_base_xyzw=quat))
     # Eq. (2) with P = 0: the whole system shifts so that its CoM stays at com0.
     pos = quant.hand.pos_orbit_m + com0 - quant.com_orbit_m
-    rot_err = Rotation.from_matrix(rot_goal @ quant.hand.rot_orbit_from_hand.T).as_rotvec()
+    rot_err = rotvec_from_matrix(rot_goal @ quant.hand.rot_orbit_from_hand.T)
     return np.concatenate([pos_goal - pos, rot_err]), quant
 
 

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import DidNotConverge, InfeasibleGoal, InvalidInput
+from planner.frames import rotvec_from_matrix
 from planner.state import State
 
 __all__ = ["IKSolution", "solve_ik"]
@@ -37,7 +37,7 @@ class IKSolution:
 def _pose_error(ws: DynamicsWorkspace, q: Array, pos: Array, rot: Array) -> tuple[Array, Array]:
     hand, _, J_m = ws.hand_jacobian(State(joints_rad=q))
     e_pos = pos - hand.pos_robot_m
-    e_rot = Rotation.from_matrix(rot @ hand.rot_robot_from_hand.T).as_rotvec()
+    e_rot = rotvec_from_matrix(rot @ hand.rot_robot_from_hand.T)
     return np.concatenate([e_pos, e_rot]), J_m
 
 

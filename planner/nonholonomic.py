@@ -71,6 +71,7 @@ from planner.frames import (
     matrix_from_quat_xyzw,
     matrix_from_rpy,
     quat_xyzw_from_matrix,
+    rotvec_from_matrix,
 )
 from planner.model import RobotModel
 from planner.nonholonomic_paths import MeetingProblem, commands, curve, grid_rotation
@@ -311,7 +312,7 @@ def _correct_on_grid(
         joints = np.vstack([forward, backward[1:]])
         # End error of the commands in e's terms: log(R_end^T R_final) = G_b e.
         rot_final = prob.rot_init @ grid_rotation(prob.ws, joints)
-        end_error = Rotation.from_matrix(prob.rot_end.T @ rot_final).as_rotvec()
+        end_error = rotvec_from_matrix(prob.rot_end.T @ rot_final)
         e_prev, e_grid = e_grid, np.asarray(prob.rotations(x)[1].T @ end_error, dtype=np.float64)
         if np.linalg.norm(e_grid) < params.attitude_tolerance_rad:
             return joints, x, counts, corrections

@@ -27,10 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
-from planner.frames import matrix_from_quat_xyzw, skew
+from planner.frames import matrix_from_quat_xyzw, rotvec_from_matrix, skew
 from planner.model import RobotModel
 from planner.ptp import COMMAND_PERIOD_S, QUINTIC_PEAK_RATE_FACTOR, quintic
 
@@ -151,7 +150,7 @@ class MeetingProblem:
     def gap(self, g_f: Array, g_b: Array) -> Array:
         """``e = log(R_b^T R_f)`` at the meeting (rad)."""
         rot = (self.rot_end @ g_b).T @ self.rot_init @ g_f
-        return np.asarray(Rotation.from_matrix(rot).as_rotvec(), dtype=np.float64)
+        return rotvec_from_matrix(rot)
 
     def jacobian(self, x: Array, g_f: Array, g_b: Array, e: Array) -> Array:
         p, fwd, bwd = self.slices

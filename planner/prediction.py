@@ -22,6 +22,7 @@ the mode becomes ``feedback``; a change of target restarts the integral only.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -30,7 +31,7 @@ from numpy.typing import NDArray
 
 from planner.attitude_control import AcsGains, AcsMode, attitude_error_rad
 from planner.attitude_law import law_rates, wheel_torque_nm
-from planner.dynamics import DynamicsWorkspace
+from planner.dynamics import DynamicsWorkspace, solve_small
 from planner.errors import InvalidInput
 from planner.frames import (
     IDENTITY_QUAT_XYZW,
@@ -123,8 +124,8 @@ def predict(
 
     def blocks(phi: Array) -> tuple[Array, Array]:
         # Holds evaluate the same pose many times over.
-        last = cache.get("last")
-        if last is None or not np.array_equal(last[0], phi):
+        last = cache.get("last")  # np.array_equal's test, without its wrapper
+        if last is None or last[0].shape != phi.shape or not (last[0] == phi).all():
             h_b, h_bm = ws.momentum_blocks(phi)
             cache["last"] = (phi.copy(), h_b, h_bm)
             return h_b, h_bm
@@ -136,7 +137,7 @@ def predict(
         h_b, h_bm = blocks(phi)
         rot = matrix_from_quat_xyzw(quat_now)
         reaction = h_bm @ rate
-        omega: Array = np.asarray(np.linalg.solve(h_b, rot.T @ l_now - reaction - h_now), float)
+        omega: Array = solve_small(h_b, rot.T @ l_now - reaction - h_now)
         return omega, rot, h_b, reaction
 
     stateful = acs_gains is not None and acs_gains.stateful
@@ -145,12 +146,13 @@ def predict(
         # eq. (9) of the commanded motion: the same as reaction_rate_radps()
         if not acs.feedforward:
             return None
-        return np.asarray(-np.linalg.solve(h_b, reaction), dtype=np.float64)
+        return -solve_small(h_b, reaction)
 
     def derivative(phi: Array, rate: Array, y: Array, acs: _Acs) -> Array:
-        quat_now, h_now, l_now = y[:4] / np.linalg.norm(y[:4]), y[4:7], y[7:10]
+        # y[:4] / np.linalg.norm(y[:4]): the norm's own arithmetic, without its wrapper
+        quat_now, h_now, l_now = y[:4] / math.sqrt(y[:4].dot(y[:4])), y[4:7], y[7:10]
         omega, rot, h_b, reaction = rates(phi, rate, quat_now, h_now, l_now)
-        dquat = 0.5 * quat_multiply_xyzw(quat_now, np.array([*omega, 0.0]))
+        dquat = 0.5 * quat_multiply_xyzw(quat_now, (*omega.tolist(), 0.0))
         torque = np.zeros(3)
         d_law: Array | None = np.zeros(6) if stateful else None
         if acs.mode is AcsMode.FEEDBACK:

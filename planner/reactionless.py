@@ -27,10 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import lapack
 from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InfeasibleGoal, InvalidInput, JointLimitExceeded
+from planner.frames import rotvec_from_matrix
 from planner.ptp import COMMAND_PERIOD_S
 from planner.state import State
 
@@ -83,9 +85,17 @@ def _rotation(rot: Array) -> Rotation:
 def rns_basis(ws: DynamicsWorkspace, joints: Array) -> tuple[Array, float]:
     """An orthonormal basis ``N`` (n, n - 3) of the null space of ``H~_bm`` at ``joints``,
     and ``H~_bm``'s smallest singular value."""
-    _, h_bm = ws.momentum_blocks(joints)
-    _, sing, vt = np.linalg.svd(h_bm)
-    return vt[3:].T, float(sing[-1])
+    return _null_basis(ws.momentum_blocks(joints)[1])
+
+
+def _null_basis(h_bm: Array) -> tuple[Array, float]:
+    """:func:`rns_basis` of ``H~_bm``: LAPACK's dgesdd, as ``np.linalg.svd`` calls it (the
+    same numbers, laid out as numpy lays them: C order, which the products with the basis
+    follow to the bit) without numpy's wrapper."""
+    _, sing, vt, info = lapack.dgesdd(h_bm)
+    if info != 0:  # numpy's error, as before
+        raise np.linalg.LinAlgError("SVD did not converge")
+    return np.ascontiguousarray(vt)[3:].T, float(sing[-1])
 
 
 def _speed_profile(t: Array, duration_s: float, ramp_s: float, speed: float) -> Array:
@@ -136,14 +146,15 @@ def reactionless_line(
     lo, hi = model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]
 
     def joint_rate(speed: float, phi: Array) -> tuple[Array, float]:
-        hand, _, J_m = ws.hand_jacobian(State(joints_rad=phi))
-        basis, sing = rns_basis(ws, phi)
+        hand_pos, hand_rot, J_m, h_bm = ws.hand_and_coupling(phi)
+        basis, sing = _null_basis(h_bm)
         a_v, a_w = J_m[:3] @ basis, J_m[3:] @ basis
         a1 = direction @ a_v
-        zeta = dls(a1[None, :], np.array([speed]))
+        # dls(a1[None, :], [speed]) of a single row: its 1x1 solve is a division
+        zeta = a1 * (speed / (float(a1 @ a1) + _DAMPING))
         p1 = np.eye(basis.shape[1]) - _row_projector(a1)  # the RNS's n - 3 dimensions
-        pos_err = lateral @ (start_pos - hand.pos_robot_m)
-        rot_err = _rotation(rot0 @ hand.rot_robot_from_hand.T).as_rotvec()
+        pos_err = lateral @ (start_pos - hand_pos)
+        rot_err = rotvec_from_matrix(rot0 @ hand_rot.T, assume_valid=True)
         a2 = np.vstack([lateral @ a_v, orientation_weight_m * a_w])
         b2 = np.concatenate(
             [_LATERAL_GAIN_PS * pos_err, orientation_weight_m * _ORIENTATION_GAIN_PS * rot_err]

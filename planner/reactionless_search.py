@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.frames import rotvec_from_matrix
 from planner.reactionless import ORIENTATION_WEIGHT_M, dls, rns_basis
 from planner.state import State
 
@@ -188,7 +189,7 @@ def _pose_residual(
 ) -> tuple[Array, float, float]:
     hand = ws.hand_pose(State(joints_rad=phi))
     e_pos = goal_pos - hand.pos_robot_m
-    e_rot = Rotation.from_matrix(goal_rot @ hand.rot_robot_from_hand.T).as_rotvec()
+    e_rot = rotvec_from_matrix(goal_rot @ hand.rot_robot_from_hand.T)
     res = np.concatenate([e_pos, weight_m * e_rot])
     return res, float(np.linalg.norm(e_pos)), float(np.linalg.norm(e_rot))
 

@@ -59,13 +59,19 @@ class State:
 
     def __post_init__(self) -> None:
         # The planners make one per evaluation (tens of thousands per plan): the checks use
-        # the arrays' own methods, not numpy's slower function wrappers.
-        for name, shape in _STATE_SHAPES:
-            value = np.asarray(getattr(self, name), dtype=np.float64)
-            if shape is not None and value.shape != shape:
-                raise InvalidInput(f"{name} must have shape {shape}, got {value.shape}")
-            if not np.isfinite(value).all():
-                raise InvalidInput(f"{name} must be finite, got {value.tolist()}")
+        # the arrays' own methods, not numpy's slower function wrappers, and all the arrays'
+        # finiteness is one check (field by field, to name the culprit, only when it fails).
+        values = [np.asarray(getattr(self, name), dtype=np.float64) for name, _ in _STATE_SHAPES]
+        shapes_ok = all(
+            s is None or v.shape == s for (_, s), v in zip(_STATE_SHAPES, values, strict=True)
+        )
+        if not (shapes_ok and np.isfinite(np.concatenate([v.ravel() for v in values])).all()):
+            for (name, shape), value in zip(_STATE_SHAPES, values, strict=True):
+                if shape is not None and value.shape != shape:
+                    raise InvalidInput(f"{name} must have shape {shape}, got {value.shape}")
+                if not np.isfinite(value).all():
+                    raise InvalidInput(f"{name} must be finite, got {value.tolist()}")
+        for (name, _), value in zip(_STATE_SHAPES, values, strict=True):
             object.__setattr__(self, name, value)
         rates = np.asarray(self.joint_rates_radps, dtype=np.float64)
         if self.joint_rates_radps is _UNSET_RATES:

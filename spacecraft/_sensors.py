@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
+from planner.frames import quat_xyzw_turned_by_rotvec
 from planner.state import State
 
 __all__ = ["Measurement", "SensorNoise", "measure"]
@@ -60,10 +60,7 @@ def measure(state: State, noise: SensorNoise, rng: np.random.Generator) -> Measu
     delta = rng.normal(0.0, noise.attitude_rad, 3)
     gyro = rng.normal(0.0, noise.rate_radps, 3)
     encoders = rng.normal(0.0, noise.joint_rad, state.joints_rad.shape)
-    rot = Rotation.from_quat(state.quat_orbit_from_base_xyzw) * Rotation.from_rotvec(delta)
-    quat = rot.as_quat()
-    if quat[3] < 0.0:
-        quat = -quat
+    quat = quat_xyzw_turned_by_rotvec(state.quat_orbit_from_base_xyzw, delta)
     omega_base = state.rot_orbit_from_base.T @ state.omega_base_orbit_radps
     return Measurement(
         quat_orbit_from_base_xyzw=np.asarray(quat, dtype=np.float64),
