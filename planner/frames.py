@@ -96,8 +96,9 @@ def _orthonormal(rows: list[list[float]]) -> bool:
             dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
             if abs(dot - (1.0 if i == j else 0.0)) > 1e-13:
                 return False
-    (a, b, c), (d, e, f), (g, h, k) = rows
-    return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g) > 0.5
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
+    det = r00 * (r11 * r22 - r12 * r21) - r01 * (r10 * r22 - r12 * r20)
+    return bool(det + r02 * (r10 * r21 - r11 * r20) > 0.5)
 
 
 def _quat_of(rot: NDArray[np.float64]) -> tuple[float, float, float, float]:

@@ -12,6 +12,8 @@ reaction map is evaluated once at the base's nominal attitude and rotated.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -24,7 +26,7 @@ __all__ = ["predict_base_attitude", "quat_multiply_xyzw"]
 Array = NDArray[np.float64]
 
 
-def quat_multiply_xyzw(a: Array, b: Array) -> Array:
+def quat_multiply_xyzw(a: Array | Sequence[float], b: Array | Sequence[float]) -> Array:
     """Hamilton product ``a * b`` of scalar-last quaternions."""
     # as Python floats: the same IEEE arithmetic as numpy's scalars, at a fraction of the cost
     ax, ay, az, aw = np.asarray(a, dtype=np.float64).tolist()
