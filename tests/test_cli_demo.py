@@ -184,11 +184,15 @@ def test_demo_with_a_joint_stuck_in_the_ptp_motion_ends_safed_and_says_when(
 ) -> None:
     """``demo --fault``: joint 3 stuck a fifth of the way through the PTP motion (its plan
     time after the ground's lead): the vehicle safes itself, the pass ends safed with every
-    band's crossing, the ground's alarm and the safing in the summary, and status 0."""
+    band's crossing, the ground's alarm and the safing in the summary, and status 0. With
+    ``--no-reports``: the summary alone (the analyses, report and recording are the Orihime
+    test's above; 6-10 s of this one's wall time, none of them asserted here)."""
     at_s = expected_epoch_s(20.0) + 0.2 * 53.75
     out = tmp_path / "demo"
-    summary = _ptp_demo(out, "--fault", f"joint3-stuck@{at_s:g}")
+    summary = _ptp_demo(out, "--fault", f"joint3-stuck@{at_s:g}", "--no-reports")
     assert summary["verdict"]["ok"] and summary["final_state"] == "safed"
+    assert summary["analyses_failed"] == [] and summary["report_html"] is None
+    assert not any((out / name).exists() for name in ("report.html", "report.json", "pass.mcap"))
     safing = summary["safing"]
     (fault,) = safing["truth_faults"]
     assert fault["spec"] == f"joint3-stuck@{at_s:g}"
