@@ -41,10 +41,7 @@ def main() -> None:
         doc = run_campaign_demo(options)
         wall_s = time.monotonic() - began
     passes = [
-        {
-            k: p[k]
-            for k in ("state", "commands_total", "commands_executed_at_tag", "frames_missing")
-        }
+        {k: p[k] for k in ("state", "commands_total", "commands_executed_at_tag", "frames_missing")}
         | {"relay": p["window"]["relay"], "aos_utc": p["window"]["aos_utc"]}
         for p in doc["passes"]
     ]
