@@ -32,9 +32,6 @@ from hikoboshi.campaign_demo import run_campaign_demo
 from hikoboshi.campaign_passes import CampaignOptions
 from mission import MISSIONS_DIR, parse_utc
 
-pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
-
-
 #: The acquisition margin flown here (onboard s; the shipped mission's is 120 s).
 AOS_MARGIN_S = 30.0
 #: Where TDRS-East is moved to (east longitude; it flew at -41.0): its first window of the
@@ -71,6 +68,7 @@ def short_campaign(
     )
 
 
+@pytest.mark.realtime  # flies a vehicle in wall time (the other test flies nothing)
 def test_a_short_campaign_flies_every_command_at_its_tag_and_none_outside_a_window(
     tmp_path: Path,
 ) -> None:
