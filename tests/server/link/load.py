@@ -363,9 +363,10 @@ def viewer_process(
     """:func:`viewers` in a process of their own (``python -m tests.server.link.load``), so
     that their own work never delays this process's probes: the probes then time the
     server, not a client starved by 200 others. Stopped (SIGTERM) on leaving, the reads in
-    flight cut (:func:`_viewers_until_terminated`); the load's counts are read back into the
+    flight cut once every kind of read completed (:func:`_viewers_until_terminated`); the
+    load's counts are read back into the
     :class:`ViewerLoad` yielded (meanwhile, ``out`` holds them so far:
-    :func:`viewer_answers`, :func:`viewer_reads_complete`)."""
+    :func:`viewer_answers`)."""
     load = ViewerLoad()
     args = [base, pass_id, str(clients_per_token), str(out), *tokens]
     proc = subprocess.Popen([sys.executable, "-m", "tests.server.link.load", *args])
@@ -383,24 +384,14 @@ def viewer_process(
         assert proc.returncode == 0 and not counts["errors"], counts["errors"]
 
 
-def _counts_so_far(out: Path) -> dict[str, Any]:
-    """The viewers' counts so far, as their process last wrote them (every
+def viewer_answers(out: Path) -> Counter[int]:
+    """The viewers' answers by status so far, as their process last wrote them (every
     :data:`PROGRESS_S`; empty before the first time)."""
     try:
-        counts: dict[str, Any] = json.loads(out.read_text())
+        counts = json.loads(out.read_text())
     except FileNotFoundError:
-        return {}
-    return counts
-
-
-def viewer_answers(out: Path) -> Counter[int]:
-    """The viewers' answers by status so far."""
-    return Counter({int(k): v for k, v in _counts_so_far(out).get("status", {}).items()})
-
-
-def viewer_reads_complete(out: Path) -> set[str]:
-    """The kinds of read (a route's last part) that some viewer has read whole so far."""
-    return set(_counts_so_far(out).get("complete", {}))
+        return Counter()
+    return Counter({int(k): v for k, v in counts["status"].items()})
 
 
 #: How often the viewers' process writes its counts so far (wall s).
@@ -431,9 +422,15 @@ async def _viewers_until_terminated(
         _write_counts(load, out, [])
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(load.stop.wait(), PROGRESS_S)
-    # The reads in flight are cut, not waited for (a heavy read queued behind the others
-    # took up to 16 s more of wall): what they would have answered is not counted.
-    for task in tasks:
+    # The reads in flight are waited for only until every kind of read has completed once
+    # (most often it has already): then they are cut, and what they would have answered is
+    # not counted (waiting them all out, heavy reads queued behind the others, took up to
+    # 16 s more of wall).
+    kinds = {path.split("?")[0].rsplit("/", 1)[-1] for path in viewer_paths(pass_id)}
+    pending = set(tasks)
+    while pending and not kinds <= set(load.complete):
+        _, pending = await asyncio.wait(pending, timeout=PROGRESS_S)
+    for task in pending:
         task.cancel()
     done = await asyncio.gather(*tasks, return_exceptions=True)
     errors = [
