@@ -1,9 +1,9 @@
-"""The short campaign of ``tests/test_campaign_demo.py`` on the shipped geometry: two ptp
-passes at 10x with 10 % loss, TDRS-West's first window of 1999-09-30 after 00:24 and then
-TDRS-East's where it flew (41 deg W), 34 minutes of onboard time later; a 60 s acquisition
-margin (``--aos-margin-s``). The test flies TDRS-East moved to 140 deg W (a 4-minute gap)
-and a 30 s margin; this is the long form, its gaps flown fast by the spacecraft process at
-the vehicle's full rate.
+"""The short campaign of ``tests/test_campaign_demo.py`` (tests/support/campaign.py) on the
+shipped geometry: two ptp passes at 10x with 10 % loss, TDRS-West's first window of
+1999-09-30 after 00:24 and then TDRS-East's where it flew (41 deg W), 34 minutes of onboard
+time later; a 60 s acquisition margin (``--aos-margin-s``). The test flies TDRS-East moved
+to 140 deg W (a 4-minute gap) and a 30 s margin; this is the long form, its gaps flown fast
+by the spacecraft process at the vehicle's full rate.
 
 Prints the campaign's verdict, each pass's state and counts, each gap flown fast (onboard
 s, the wall s it took and their ratio: how many times real time the vehicle was simulated)
@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import emit
 
 from hikoboshi.campaign_demo import run_campaign_demo
-from tests.test_campaign_demo import short_campaign
+from tests.support.campaign import short_campaign
 
 
 def main() -> None:

@@ -3,7 +3,7 @@
 acquisition margin, not the mission's 120 s), at 10x with 10 % loss, through the code of
 ``hikoboshi demo --campaign`` (ground service, spacecraft process with ``--mission``).
 Both relays' windows, as the demo takes them, with TDRS-East moved from 41 to 140 deg W
-(:data:`EAST_MOVED_DEG`): its first window opens 4 minutes after the first pass, not 34,
+(tests/support/campaign.py): its first window opens 4 minutes after the first pass, not 34,
 and that gap flown fast (the spacecraft process simulating it at the vehicle's full
 rate) was 19-30 s of the test's wall time; with TDRS-West's windows alone it was 90
 minutes. The shipped geometry's 34-minute gap is ``bench/bench_campaign.py``'s; which
@@ -31,41 +31,7 @@ import pytest
 from hikoboshi.campaign_demo import run_campaign_demo
 from hikoboshi.campaign_passes import CampaignOptions
 from mission import MISSIONS_DIR, parse_utc
-
-#: The acquisition margin flown here (onboard s; the shipped mission's is 120 s).
-AOS_MARGIN_S = 30.0
-#: Where TDRS-East is moved to (east longitude; it flew at -41.0): its first window of the
-#: day opens at 00:33:55, 4 minutes after the first pass's service ends, not at 01:04:50.
-EAST_MOVED_DEG = -140.0
-
-
-def short_campaign(
-    where: Path, *, aos_margin_s: float = AOS_MARGIN_S, east_deg: float | None = EAST_MOVED_DEG
-) -> CampaignOptions:
-    """The short campaign's options, its mission file (the shipped one with ``aos_margin_s``
-    and TDRS-East at ``east_deg``, None: where it flew) written under ``where``; shared with
-    bench/bench_campaign.py."""
-    shipped = (MISSIONS_DIR / "ets7-1999.toml").read_text()
-    assert shipped.count("aos_margin_s = 120.0") == shipped.count("longitude_deg = -41.0") == 1
-    text = shipped.replace("aos_margin_s = 120.0", f"aos_margin_s = {aos_margin_s!r}")
-    if east_deg is not None:
-        text = text.replace("longitude_deg = -41.0", f"longitude_deg = {east_deg!r}")
-    where.mkdir(parents=True, exist_ok=True)
-    mission = where / "ets7-1999.toml"
-    mission.write_text(text)
-    return CampaignOptions(
-        mission=mission,
-        start_utc=parse_utc("1999-09-30T00:24:00Z"),
-        out=where / "campaign",
-        speed=10.0,
-        loss=0.1,
-        port=0,
-        seed=5,
-        timeout_s=900.0,  # a hang guard, not a timing
-        pass_experiments=(("ptp",), ("ptp",)),
-        pass_parameters={"ptp_settle_s": 20.0},
-        service_tail_s=60.0,
-    )
+from tests.support.campaign import AOS_MARGIN_S, short_campaign
 
 
 @pytest.mark.realtime  # flies a vehicle in wall time (the other test flies nothing)
