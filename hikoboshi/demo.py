@@ -12,7 +12,9 @@
 5. The spacecraft is stopped (it drains its telemetry store), and the pass summary
    (``GET /api/passes/{id}/summary``) is printed and written to ``OUT/summary.json``.
 6. The post-pass analyses run on the server; the report (``report.html``, ``report.json``)
-   and the MCAP recording (``pass.mcap``) are written to ``OUT``.
+   and the MCAP recording (``pass.mcap``) are written to ``OUT`` (not with ``--no-reports``:
+   the summary alone, seconds sooner; ``hikoboshi report`` and ``hikoboshi mcap export`` make
+   them later from the database).
 
 Faults (``--fault SPEC``, repeatable, :mod:`spacecraft.faults`'s grammar) go to the
 spacecraft process as they are; it always writes its truth log to ``OUT/truth.jsonl``. The
@@ -113,6 +115,8 @@ class DemoOptions:
     log_level: str = "info"
     #: Stream the pass to Foxglove on this port (the ground's ``foxglove_port``); None: no.
     foxglove_port: int | None = None
+    #: The post-pass analyses, report and recording; False: the summary alone.
+    reports: bool = True
 
 
 def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str, Any]:
@@ -232,17 +236,7 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         truth = read_truth_log(truth_log)
         clock = sampler.clock(_truth_start_ns(truth))
         sections = _limits_and_safing(api, pass_id, link_end, truth, clock)
-        report("post-pass analyses, report and recording", 0, 3)
-        analyses = api.call("POST", f"/api/passes/{pass_id}/analyses", timeout_s=600.0)
-        failed = [a["kind"] for a in analyses["data"] if a["status"] != "ok"]
-        report("post-pass analyses, report and recording", 1, 3)
-        (out / "report.html").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report.html"))
-        (out / "report.json").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report"))
-        report("post-pass analyses, report and recording", 2, 3)
-        (out / "pass.mcap").write_bytes(
-            api.raw("GET", f"/api/passes/{pass_id}/recording.mcap", timeout_s=600.0)
-        )
-        report("post-pass analyses, report and recording", 3, 3)
+        failed = _reports(api, pass_id, out, report) if options.reports else []
         if options.serve_after:
             report(f"serving {base}/ until Ctrl-C", 0, 1)
             with contextlib.suppress(KeyboardInterrupt):
@@ -273,9 +267,10 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
             f"hikoboshi serve --port {port}"
         ),
         "analyses_failed": failed,
-        "report_html": str((out / "report.html").resolve()),
-        "report_json": str((out / "report.json").resolve()),
-        "recording_mcap": str((out / "pass.mcap").resolve()),
+        **{
+            key: str((out / name).resolve()) if options.reports else None
+            for key, name in REPORT_FILES.items()
+        },
         "console_url": f"{base}/",
         "tokens_file": str((out / "tokens").resolve()),
         "api_docs_url": f"{base}/docs",
@@ -285,6 +280,31 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
     result["verdict"] = verdict(result)
     (out / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
+
+
+#: The summary's keys of the files the post-pass step writes to ``OUT``.
+REPORT_FILES = {
+    "report_html": "report.html",
+    "report_json": "report.json",
+    "recording_mcap": "pass.mcap",
+}
+
+
+def _reports(api: _Api, pass_id: str, out: Path, report: Progress) -> list[str]:
+    """The post-pass analyses on the server, the report and the MCAP recording written to
+    ``out``; the kinds of the analyses that failed."""
+    report("post-pass analyses, report and recording", 0, 3)
+    analyses = api.call("POST", f"/api/passes/{pass_id}/analyses", timeout_s=600.0)
+    failed = [a["kind"] for a in analyses["data"] if a["status"] != "ok"]
+    report("post-pass analyses, report and recording", 1, 3)
+    (out / "report.html").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report.html"))
+    (out / "report.json").write_bytes(api.raw("GET", f"/api/passes/{pass_id}/report"))
+    report("post-pass analyses, report and recording", 2, 3)
+    (out / "pass.mcap").write_bytes(
+        api.raw("GET", f"/api/passes/{pass_id}/recording.mcap", timeout_s=600.0)
+    )
+    report("post-pass analyses, report and recording", 3, 3)
+    return failed
 
 
 def _limits_and_safing(

@@ -58,6 +58,14 @@ def demo(
     serve_after: Annotated[
         bool, typer.Option("--serve-after", help="Keep the service up afterwards (Ctrl-C).")
     ] = False,
+    reports: Annotated[
+        bool,
+        typer.Option(
+            "--reports/--no-reports",
+            help="Run the post-pass analyses and write the report and the MCAP recording "
+            "(--no-reports: the summary alone, sooner).",
+        ),
+    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON summary.")] = False,
     robot: RobotOption = None,
     fault: Annotated[
@@ -127,10 +135,10 @@ def demo(
         except ValueError as exc:
             _fail(f"--outage {window}: {exc}")
     if campaign or mission is not None:
-        if outage or fault or robot is not None or experiments or serve_after:
+        if outage or fault or robot is not None or experiments or serve_after or not reports:
             _fail(
                 "--campaign takes its windows and experiments from the mission: no --outage, "
-                "--fault, --robot, --experiments or --serve-after"
+                "--fault, --robot, --experiments, --serve-after or --no-reports"
             )
         _campaign_demo(mission, start, out, speed, loss, port, seed, as_json, log_format, log_level)
         return
@@ -155,6 +163,7 @@ def demo(
         seed=seed,
         experiments=chosen,
         serve_after=serve_after,
+        reports=reports,
         on_ready=None if as_json else _announce,
         log_format=log_format,
         log_level=log_level.lower(),
@@ -299,8 +308,9 @@ def _print_demo(summary: dict[str, Any]) -> None:
         console.print(note, highlight=False, soft_wrap=True)
     for problem in summary["verdict"]["problems"]:
         err_console.print(f"not sound: {problem}", highlight=False, soft_wrap=True)
-    console.print(f"Report: {summary['report_html']} (and report.json)")
-    console.print(f"Recording (MCAP, opens in Foxglove): {summary['recording_mcap']}")
+    if summary["report_html"] is not None:  # None with --no-reports
+        console.print(f"Report: {summary['report_html']} (and report.json)")
+        console.print(f"Recording (MCAP, opens in Foxglove): {summary['recording_mcap']}")
     if summary["analyses_failed"]:
         console.print(f"Analyses that failed (see the report): {summary['analyses_failed']}")
     folder = summary["database"].rsplit("/", 1)[0]

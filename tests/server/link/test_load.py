@@ -3,7 +3,8 @@ a token's 6 heavy reads and the viewers' 16 at once: both caps turn viewers away
 the heaviest reads of an imported, analysed pass (its recording, the report as JSON and
 HTML, its analyses, raw telemetry: a PTP pass of 5,000 frames, the raw telemetry read's
 whole page) while the ground flies a pass at 20x, then aborts a second one; the viewers go
-on until both caps have turned away a share of them (:data:`REFUSED_AT_LEAST`). Meanwhile
+on until both caps have turned away a share of them (:data:`REFUSED_AT_LEAST`), then stop
+(their reads in flight cut once every kind of read has completed). Meanwhile
 an operator's screen samples liveness and the link status and keeps a console websocket
 open (it connects while the load is on).
 
@@ -98,6 +99,11 @@ SERVER_RSS_BOUND = 768 * 1024 * 1024
 #: that never reached the caps (:data:`CAPS_GUARD_S`).
 REFUSED_AT_LEAST = {429: 20, 503: 20}
 CAPS_GUARD_S = 120.0
+
+
+#: Every kind of read the viewers make (a route's last part): each was read whole (the
+#: viewers stop once each has been, their other reads in flight cut).
+READS = {"recording.mcap", "report.html", "report", "analyses", "telemetry"}
 
 
 def _caps_refused(answers: dict[int, int]) -> bool:
@@ -239,13 +245,7 @@ def test_a_pass_flies_and_its_operators_keep_control_under_80_concurrent_viewer_
     # with other work a download can outlive its read deadline: 504 deadline_exceeded
     assert set(load.status) <= {200, 429, 503, 504}, (load.status, load.codes)
     assert set(load.codes) <= {"429 too_many_requests", "503 busy", "504 deadline_exceeded"}
-    assert set(load.complete) == {
-        "recording.mcap",
-        "report.html",
-        "report",
-        "analyses",
-        "telemetry",
-    }
+    assert set(load.complete) == READS
     assert _caps_refused(load.status), load.status
     assert load.stale_connections <= max(3, sum(load.status.values()) // 20), load
     # the operator's screen: liveness and link status always answered, never locked out
