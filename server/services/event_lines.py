@@ -94,12 +94,10 @@ def log_event(event: dict[str, Any]) -> None:
         return
     detail: dict[str, Any] = event.get("detail") or {}
     level, text = make(detail)
-    pass_id = event.get("pass_id")
-    where = f"pass {pass_id}: " if pass_id else ""
+    pass_id = event.get("pass_id")  # the line's pass, as every format shows it (server.logs)
     log.log(
         level,
-        "%s%s (%s)",
-        where,
+        "%s (%s)",
         text,
         event.get("actor") or "ground",
         extra={"pass_id": pass_id, "fields": {"event": event["kind"], "event_id": event.get("id")}},

@@ -39,7 +39,7 @@ CASES: list[tuple[Event, int, list[str]]] = [
         PassState(actor="otto", pass_id=P, from_state="running", to="aborted", reason="by hand",
                   version=3),
         logging.WARNING,
-        [f"pass {P}: running -> aborted: by hand (otto)"],
+        ["running -> aborted: by hand (otto)"],
     ),
     (
         PassState(actor="ground", pass_id=P, from_state="los", to="complete", reason="nominal",
@@ -129,8 +129,9 @@ def test_each_operator_event_is_one_line_saying_what_happened(
         assert record.levelno == level, (event.kind, line)
         for part in said:
             assert part in line, (event.kind, line)
-        assert (f"pass {P}: " in line) == (event.pass_id is not None)
-        assert "\n" not in text.format(record)
+        shown = text.format(record)  # the pass once, by the formatter, not in the message
+        assert (f"[pass {P}]" in shown) == (event.pass_id is not None) and P not in line
+        assert "\n" not in shown
         doc = json.loads(as_json.format(record))
         assert doc["event"] == event.kind and doc["message"] == line
         assert doc.get("pass_id") == event.pass_id
