@@ -35,18 +35,20 @@ def sessions(client: TestClient) -> sessionmaker[Session]:
     return factory
 
 
-def add_pass(client: TestClient, name: str) -> str:
-    """A scheduled pass of a small plan (stored directly), from now for 1000 s; its id."""
+def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str:
+    """A scheduled pass of a small plan of ``n_joints`` joints (stored directly), from now for
+    1000 s; its id."""
+    now = time.time_ns()
     with sessions(client)() as session:
-        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
+        plan = repo.add_plan(session=session, plan=make_plan(n_joints=n_joints), created_at_ns=now)
         record = repo.add_pass(
             session=session,
             name=name,
             plan_id=plan.id,
-            aos_time_ns=time.time_ns(),
-            los_time_ns=time.time_ns() + 10**12,
+            aos_time_ns=now,
+            los_time_ns=now + 10**12,
             relay="TDRS-W",
-            created_at_ns=0,
+            created_at_ns=now,
         )
         session.commit()
         return str(record.id)

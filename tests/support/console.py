@@ -26,7 +26,8 @@ from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight
 from telemetry.uplink import plan_commands
 from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
-from tests.server.storage.factories import T0_NS, make_plan
+from tests.server.storage.factories import T0_NS
+from tests.support.api import VIEWER
 
 
 def frames_of(messages: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
@@ -78,7 +79,7 @@ CONSOLE = "/api/console"
 
 
 #: A viewer's token, in the header (there is no ?token=: a token in a URL ends up in logs).
-AS_VIEWER = {"Authorization": "Bearer v-token"}
+AS_VIEWER = VIEWER
 
 
 def hub(client: TestClient) -> ConsoleHub:
@@ -94,23 +95,6 @@ def link(client: TestClient) -> GroundLink:
 def downlink(client: TestClient) -> GroundDownlink:
     ground_downlink: GroundDownlink = client.app.state.downlink  # type: ignore[attr-defined]
     return ground_downlink
-
-
-def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str:
-    now = time.time_ns()
-    with client.app.state.sessions() as session:  # type: ignore[attr-defined]
-        plan = repo.add_plan(session=session, plan=make_plan(n_joints=n_joints), created_at_ns=now)
-        record = repo.add_pass(
-            session=session,
-            name=name,
-            plan_id=plan.id,
-            aos_time_ns=now,
-            los_time_ns=now + 10**12,
-            relay="TDRS-W",
-            created_at_ns=now,
-        )
-        session.commit()
-        return record.id
 
 
 #: Ground time at which a flown pass's batches were received (batch k: + k ms).

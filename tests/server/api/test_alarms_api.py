@@ -12,15 +12,8 @@ from fastapi.testclient import TestClient
 from planner.limits import Severity
 from server.services.alarms import AlarmService
 from tests.server.alarms.rig import TRACKING, frame, value_in
-from tests.support.console import (
-    AS_VIEWER,
-    CONSOLE,
-    FakeSpacecraft,
-    add_pass,
-    drain,
-    subscribe,
-    welcome,
-)
+from tests.support.api import add_pass
+from tests.support.console import AS_VIEWER, CONSOLE, FakeSpacecraft, drain, subscribe, welcome
 
 VIEWER = {"Authorization": "Bearer v-token"}
 OPERATOR = {"Authorization": "Bearer o-token"}

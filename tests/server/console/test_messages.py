@@ -36,13 +36,13 @@ from server.services.console_messages import (
 )
 from server.services.link import LinkStatus, ScheduleStatus
 from tests.server.storage.factories import make_frames
+from tests.support.api import add_pass
 from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     Flight,
     add_flown_pass,
-    add_pass,
     drain,
     emit_events,
     open_replay,

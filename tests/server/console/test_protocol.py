@@ -9,10 +9,10 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from server.services.link import LinkStatus
+from tests.support.api import add_pass
 from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
-    add_pass,
     drain,
     emit_events,
     hub,

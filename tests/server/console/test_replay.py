@@ -28,13 +28,13 @@ from server.storage import repository as repo
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.uplink import plan_commands
 from tests.server.storage.factories import make_frames, make_plan
+from tests.support.api import add_pass
 from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
     Flight,
     add_flown_pass,
-    add_pass,
     drain,
     frames_of,
     hub,

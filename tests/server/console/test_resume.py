@@ -14,11 +14,11 @@ from fastapi.testclient import TestClient
 
 import server.services.console as console_service
 from tests.server.storage.factories import make_frames
+from tests.support.api import add_pass
 from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
-    add_pass,
     drain,
     emit_events,
     hub,

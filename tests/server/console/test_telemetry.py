@@ -7,11 +7,11 @@ from fastapi.testclient import TestClient
 
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from tests.server.storage.factories import FRAME_PERIOD_NS, make_frames
+from tests.support.api import add_pass
 from tests.support.console import (
     AS_VIEWER,
     CONSOLE,
     FakeSpacecraft,
-    add_pass,
     drain,
     frames_of,
     subscribe,
