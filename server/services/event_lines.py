@@ -12,17 +12,16 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from planner.limits import Severity
+
 __all__ = ["ALARM_LEVELS", "LOGGED_KINDS", "log_event"]
 
 log = logging.getLogger("hikoboshi.ground.events")
 
-#: An alarm's severity (docs/alarms.md) as the level of its raise's line.
-ALARM_LEVELS = {
-    "watch": logging.INFO,
-    "warning": logging.WARNING,
-    "distress": logging.ERROR,
-    "critical": logging.ERROR,
-}
+#: An alarm's severity (planner.limits.Severity, Yamcs's five) as the level of its raise's
+#: line: watch is information, warning a warning, distress and worse errors.
+_BELOW_ERROR = {Severity.WATCH: logging.INFO, Severity.WARNING: logging.WARNING}
+ALARM_LEVELS: dict[str, int] = {s.value: _BELOW_ERROR.get(s, logging.ERROR) for s in Severity}
 
 
 def _value(value: Any) -> str:

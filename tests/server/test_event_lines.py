@@ -10,8 +10,9 @@ import logging
 
 import pytest
 
+from planner.limits import Severity
 from server.logs import JsonFormatter, TextFormatter
-from server.services.event_lines import LOGGED_KINDS, log_event
+from server.services.event_lines import ALARM_LEVELS, LOGGED_KINDS, log_event
 from server.services.events import (
     AlarmAcknowledged,
     AlarmCleared,
@@ -105,6 +106,12 @@ CASES: list[tuple[Event, int, list[str]]] = [
         ["safe exit 4 not confirmed after 5 copies"],
     ),
 ]  # fmt: skip
+
+
+def test_every_severity_has_its_level_watch_the_least() -> None:
+    assert list(ALARM_LEVELS) == [s.value for s in Severity]
+    assert ALARM_LEVELS["watch"] < ALARM_LEVELS["warning"] < ALARM_LEVELS["severe"]
+    assert ALARM_LEVELS["severe"] == ALARM_LEVELS["critical"] == logging.ERROR
 
 
 def test_each_operator_event_is_one_line_saying_what_happened(
