@@ -40,6 +40,7 @@ from server.api import windows as windows_api
 from server.api.compression import Compression
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.foxglove_gate import close_foxglove, open_foxglove
 from server.api.metrics import connect_metrics, install_metrics
 from server.api.openapi import operation_id
 from server.api.stopping import AnswerWhenStopping
@@ -59,7 +60,6 @@ from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
 from server.services.event_lines import log_event
-from server.services.foxglove_live import FoxgloveLive
 from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
 from server.services.jetstream import BusConfig, LiveBus
@@ -168,23 +168,6 @@ def build_live_path(
     alarms.start()
     publisher.subscribe(log_event)  # the operator's log lines, once committed
     return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
-
-
-def _foxglove_live(
-    settings: Settings, publisher: Publisher, sessions: sessionmaker[Session]
-) -> FoxgloveLive | None:
-    """The Foxglove live view when ``foxglove_port`` is set, listening (docs/mcap.md)."""
-    if settings.foxglove_port is None:
-        return None
-    view = FoxgloveLive(
-        host=settings.foxglove_host,
-        port=settings.foxglove_port,
-        publisher=publisher,
-        sessions=sessions,
-        robot_files=tuple(str(p) for p in settings.robot_files),
-    )
-    view.start()
-    return view
 
 
 def _authority(settings: Settings, url: str) -> tuple[CommandAuthority, Engine, IO[str] | None]:
@@ -378,12 +361,13 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
         app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
         connect_metrics(app.state)  # GET /metrics reads the services (server/api/metrics.py)
-        app.state.foxglove = _foxglove_live(settings, live.publisher, app.state.read_sessions)
+        app.state.foxglove, app.state.foxglove_gate = open_foxglove(
+            settings, live.publisher, app.state.read_sessions
+        )
         try:
             yield
         finally:
-            if app.state.foxglove is not None:
-                app.state.foxglove.close()
+            close_foxglove(app.state.foxglove, app.state.foxglove_gate)
             app.state.readiness.close()
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs

@@ -289,8 +289,8 @@ class Settings(BaseSettings):
     ground process; needs the ``hikoboshi[foxglove]`` extra; ``hikoboshi serve
     --foxglove-port``; 0: a free port). None: no live view."""
     foxglove_host: str = "127.0.0.1"
-    """The address the Foxglove live view listens on (no token is asked there: keep it on
-    loopback or a trusted network)."""
+    """The address the Foxglove live view listens on; a viewer's token is asked there
+    (``Authorization: Bearer`` or ``?token=``: server/api/foxglove_gate.py)."""
 
     @field_validator("tokens", mode="before")
     @classmethod
