@@ -391,6 +391,8 @@ def create_app(settings: Settings) -> FastAPI:
         description="Plans, passes, the 4 Hz uplink, the telemetry archive and the link.",
         lifespan=lifespan,
         generate_unique_id_function=operation_id,  # start_pass, list_passes, ...
+        docs_url=None,  # /docs is served from the console's build (server/api/web.py)
+        redoc_url=None,  # ReDoc would load from a CDN: /docs and /openapi.json are the docs
     )
     install_error_handlers(app)
     install_edge(app, settings)  # auth, limits and text checks before any route
