@@ -24,7 +24,7 @@ EXPERIMENTS_JSON = Path(__file__).resolve().parents[2] / "web/src/pages/experime
 
 
 def _client(dist: Path) -> TestClient:
-    app = FastAPI()
+    app = FastAPI(docs_url=None, redoc_url=None)  # as the service: /docs is the build's
     install_error_handlers(app)
     app.include_router(make_router(dist))
     return TestClient(app)
