@@ -42,7 +42,7 @@ from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
 from server.api.foxglove_gate import close_foxglove, open_foxglove
 from server.api.metrics import connect_metrics, install_metrics
-from server.api.openapi import operation_id
+from server.api.openapi import document_problems, operation_id
 from server.api.stopping import AnswerWhenStopping
 from server.services._console_backfill import backfill
 from server.services._console_jetstream import AcrossGrounds
@@ -395,6 +395,7 @@ def create_app(settings: Settings) -> FastAPI:
         redoc_url=None,  # ReDoc would load from a CDN: /docs and /openapi.json are the docs
     )
     install_error_handlers(app)
+    document_problems(app)  # errors are application/problem+json (RFC 9457)
     install_edge(app, settings)  # auth, limits and text checks before any route
     app.add_middleware(Compression)  # gzip over 1 KB when accepted (server/api/compression.py)
     install_metrics(app)  # times every request, refused ones too; GET /metrics

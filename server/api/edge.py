@@ -65,7 +65,7 @@ from server.api.edge_checks import (
     _too_large,
     check_json,
 )
-from server.api.errors import HttpError, error_body
+from server.api.errors import PROBLEM_JSON, HttpError, problem
 from server.api.lanes import Admission, Refusal, is_heavy, lane_of, set_lane
 from server.services.clock import Clock, SystemClock
 from server.services.events import AuthBlocked, record
@@ -170,13 +170,13 @@ async def _respond(
     detail: Any = None,
     headers: Iterable[tuple[bytes, bytes]] = (),
 ) -> None:
-    body = json.dumps(error_body(code, message, detail)).encode()
+    body = json.dumps(problem(status, code, message, detail)).encode()
     await send(
         {
             "type": "http.response.start",
             "status": status,
             "headers": [
-                (b"content-type", b"application/json"),
+                (b"content-type", PROBLEM_JSON.encode()),
                 (b"content-length", str(len(body)).encode()),
                 *headers,
             ],
