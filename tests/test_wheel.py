@@ -186,6 +186,9 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
         )
         assert robots.status_code == 200, robots.text
         assert {"ets7", "orihime"} <= {r["name"] for r in robots.json()["data"]}
+        # the shipped robots by name, from the wheel's own copy
+        checked = _run(venv / "bin" / "hikoboshi", "robot", "check", "orihime", "--json", env=env)
+        assert str(Path(purelib) / "planner" / "description" / "robots") in checked
     finally:
         proc.terminate()
         proc.wait(timeout=20)

@@ -241,7 +241,8 @@ def test_a_request_cut_short_by_the_stop_answers_json() -> None:
     start, body = sent
     assert start["status"] == 503
     headers = dict(start["headers"])
-    assert headers[b"content-type"] == b"application/problem+json" and int(headers[b"retry-after"]) > 0
+    assert headers[b"content-type"] == b"application/problem+json"
+    assert int(headers[b"retry-after"]) > 0
     assert json.loads(body["body"])["error"]["code"] == "shutting_down"
     sent, cancelled = asyncio.run(call("/started"))
     assert cancelled and [m["status"] for m in sent] == [200]
