@@ -169,29 +169,23 @@ def test_the_recording_embeds_the_vendor_meshes_on_their_tf_frames(
 
     from planner.frames import matrix_from_quat_xyzw, rpy_from_matrix
     from planner.plan import plan_for_robot
-    from server.storage import repository as repo
     from telemetry.layout import FrameLayout
     from telemetry.mcap import TOPIC_ROBOT_MESHES, TOPIC_TF
-    from tests.server.storage.factories import make_frames, make_plan
+    from tests.server.storage.factories import make_frames, make_plan, store_pass
     from tests.support.api import sessions
 
     ur5 = load_robot(ur5_toml)
     frames = make_frames(range(8), layout=FrameLayout(6, 3))
     with sessions(ur5_client)() as session:
-        plan = repo.add_plan(
-            session=session, plan=plan_for_robot(make_plan(n_joints=6), ur5), created_at_ns=0
-        )
-        record = repo.add_pass(
-            session=session,
+        record = store_pass(
+            session,
+            plan_for_robot(make_plan(n_joints=6), ur5),
             name="ur5-flown",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
             relay="TDRS-W",
-            created_at_ns=0,
+            frames=frames,
+            reception_time_ns=0,
         )
         record.epoch_ns = int(frames[0].generation_time_ns)
-        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
         session.commit()
         pass_id = record.id
     response = ur5_client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)

@@ -212,25 +212,20 @@ def test_the_grounds_recording_of_an_orihime_pass_attaches_orihime_urdf(
 
     from telemetry.layout import FrameLayout
     from telemetry.mcap import read_mcap, read_urdf
-    from tests.server.storage.factories import make_frames
+    from tests.server.storage.factories import make_frames, store_pass
 
     orihime = load_robot(ORIHIME)
     frames = make_frames(range(12), layout=FrameLayout(7, 3))
     with sessions(client)() as session:
-        plan = repo.add_plan(
-            session=session, plan=plan_for_robot(make_plan(n_joints=7), orihime), created_at_ns=0
-        )
-        record = repo.add_pass(
-            session=session,
+        record = store_pass(
+            session,
+            plan_for_robot(make_plan(n_joints=7), orihime),
             name="orihime-flown",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
             relay="TDRS-W",
-            created_at_ns=0,
+            frames=frames,
+            reception_time_ns=0,
         )
         record.epoch_ns = int(frames[0].generation_time_ns)  # flown
-        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
         session.commit()
         pass_id = record.id
     response = client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
