@@ -27,14 +27,11 @@ FRAME_PERIOD_NS = 100_000_000
 RECEIVED_NS = 1_790_000_000_000_000_000
 
 
-def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -> Plan:
-    """A small plan of a robot of ``n_joints`` (ETS-VII: 6): joint commands 0.25 s apart,
-    one ACS command, a short prediction."""
-    times_s = np.arange(n_commands, dtype=np.float64) * 0.25
-    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(n_joints)
-    k = 5
-    prediction = Prediction(
-        t_s=np.linspace(0.0, float(times_s[-1]), k),
+def still_prediction(duration_s: float, n_joints: int, k: int) -> Prediction:
+    """A short prediction: ``k`` samples over ``duration_s`` of an arm of ``n_joints`` at
+    zero, the base and the hand still."""
+    return Prediction(
+        t_s=np.linspace(0.0, duration_s, k),
         joints_rad=np.zeros((k, n_joints)),
         quat_orbit_from_base_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
         rpy_base_rad=np.zeros((k, 3)),
@@ -44,6 +41,14 @@ def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -
         reaction_momentum_orbit_nms=np.zeros((k, 3)),
         wheel_momentum_nms=np.zeros((k, 3)),
     )
+
+
+def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -> Plan:
+    """A small plan of a robot of ``n_joints`` (ETS-VII: 6): joint commands 0.25 s apart,
+    one ACS command, a short prediction."""
+    times_s = np.arange(n_commands, dtype=np.float64) * 0.25
+    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(n_joints)
+    prediction = still_prediction(float(times_s[-1]), n_joints, 5)
     return Plan(
         experiment=experiment,
         parameters={"out_speed_mps": 0.01, "label": "A->B"},
