@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.dynamics import Quantities
+from planner.state import State
 from tests import reference_dynamics as ref
 
 Array = NDArray[np.float64]
@@ -92,3 +93,36 @@ FD_STEP = 1e-6  # rad or m
 # Central differences: truncation ~ h^2 |x'''| / 6 ~ 1e-12; round-off ~ eps |x| / h ~ 1e-9
 # for hand positions of a few metres. 1e-7 sits well above both.
 FD_ATOL = 1e-7
+
+
+def random_state(rng: np.random.Generator, joints_rad: Array) -> State:
+    """A random state at ``joints_rad`` (drawn first, from ``rng``): attitude, base position
+    and every rate random, at the scales of a pass (wheels at about 100 rad/s)."""
+    n = len(joints_rad)
+    return State(
+        joints_rad=joints_rad,
+        quat_orbit_from_base_xyzw=random_unit_quat_xyzw(rng),
+        pos_base_orbit_m=rng.uniform(-5.0, 5.0, 3),
+        vel_base_orbit_mps=rng.normal(scale=0.05, size=3),
+        omega_base_orbit_radps=rng.normal(scale=0.01, size=3),
+        joint_rates_radps=rng.normal(scale=0.05, size=n),
+        wheel_rates_radps=rng.normal(scale=100.0, size=3),
+    )
+
+
+def reference_at(
+    state: State, wheel_spin_inertia_kgm2: Array, robot: ref.RobotData = ref.ETS7
+) -> ref.Reference:
+    """The reference's quantities of ``robot`` at ``state``, with the wheels' spin inertia
+    given (the reference leaves the rotors to the model)."""
+    return ref.evaluate(
+        joints_rad=state.joints_rad,
+        quat_orbit_from_base_xyzw=state.quat_orbit_from_base_xyzw,
+        pos_base_orbit_m=state.pos_base_orbit_m,
+        vel_base_orbit_mps=state.vel_base_orbit_mps,
+        omega_base_orbit_radps=state.omega_base_orbit_radps,
+        joint_rates_radps=state.joint_rates_radps,
+        wheel_rates_radps=state.wheel_rates_radps,
+        wheel_spin_inertia_kgm2=wheel_spin_inertia_kgm2,
+        robot=robot,
+    )
