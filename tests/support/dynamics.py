@@ -4,6 +4,7 @@ states they are compared at."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from operator import attrgetter
 
@@ -115,14 +116,6 @@ def reference_at(
 ) -> ref.Reference:
     """The reference's quantities of ``robot`` at ``state``, with the wheels' spin inertia
     given (the reference leaves the rotors to the model)."""
-    return ref.evaluate(
-        joints_rad=state.joints_rad,
-        quat_orbit_from_base_xyzw=state.quat_orbit_from_base_xyzw,
-        pos_base_orbit_m=state.pos_base_orbit_m,
-        vel_base_orbit_mps=state.vel_base_orbit_mps,
-        omega_base_orbit_radps=state.omega_base_orbit_radps,
-        joint_rates_radps=state.joint_rates_radps,
-        wheel_rates_radps=state.wheel_rates_radps,
-        wheel_spin_inertia_kgm2=wheel_spin_inertia_kgm2,
-        robot=robot,
-    )
+    # the state's fields are the reference's arguments of the same names
+    values = {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    return ref.evaluate(**values, wheel_spin_inertia_kgm2=wheel_spin_inertia_kgm2, robot=robot)
