@@ -11,7 +11,6 @@ import shutil
 import subprocess
 import sys
 import sysconfig
-import time
 import zipfile
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
-from tests.support.processes import free_port
+from tests.support.processes import free_port, health_when_up
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What the wheel is built from (the rest of the checkout is not needed for it).
@@ -169,15 +168,7 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
     )
     try:
         base = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 60.0  # a guard, not a timing assertion
-        while True:
-            try:
-                httpx.get(f"{base}/api/health", timeout=2.0)
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline, "the server did not come up"
-                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-                time.sleep(0.2)
+        health_when_up(proc, base, request_timeout_s=2.0)
         page = httpx.get(f"{base}/", timeout=10.0)
         assert page.status_code == 200
         assert page.content == (src / "web" / "dist" / "index.html").read_bytes()

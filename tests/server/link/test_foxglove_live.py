@@ -15,7 +15,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import httpx
 import jsonschema_rs
 import pytest
 from typer.testing import CliRunner
@@ -26,12 +25,12 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.foxglove_client import Received, listen
 from tests.server.link.harness import (
-    OPERATOR,
     VIEWER,
-    connected,
+    in_contact,
     running_ground,
     settled,
     spacecraft,
+    start_pass,
     store_pass,
     wait_for,
 )
@@ -75,31 +74,25 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
         line = await asyncio.wait_for(asyncio.to_thread(node.stdout.readline), 30.0)  # guard
         assert json.loads(line or "{}").get("event") == "subscribed", (line, node.stderr)
         process, _ = spacecraft(ground)
-        stop = asyncio.Event()
-        flight = asyncio.create_task(process.run(stop))
         try:
-            await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
-            async with httpx.AsyncClient(base_url=ground_url) as rest:
-                await connected(rest)
-                response = await rest.post(
-                    f"/api/passes/{pass_id}/start",
-                    json={"confirm": "START fox-1"},
-                    headers=OPERATOR,
-                )
-                assert response.status_code == 200, response.text
+            async with in_contact(process, ground_url) as rest:
+                await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
+                await start_pass(rest, pass_id, "fox-1")
                 await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
 
-            def completed_seen() -> bool:
-                return any('"to": "complete"' in d["message"] for _, d in received.json("/events"))
+                def completed_seen() -> bool:
+                    return any(
+                        '"to": "complete"' in d["message"] for _, d in received.json("/events")
+                    )
 
-            await wait_for(completed_seen, 20.0, "the pass's completion on /events")
+                await wait_for(completed_seen, 20.0, "the pass's completion on /events")
 
-            def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
-                with ground.readers() as session:
-                    stored = repo.count_frames(session=session, pass_id=pass_id)
-                return len(received.messages.get("/tf", [])) >= stored
+                def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
+                    with ground.readers() as session:
+                        stored = repo.count_frames(session=session, pass_id=pass_id)
+                    return len(received.messages.get("/tf", [])) >= stored
 
-            await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
+                await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
             with ground.readers() as session:  # the client waits for every one of them
                 frames = repo.count_frames(session=session, pass_id=pass_id)
             done = asyncio.to_thread(node.communicate, f"{frames}\n")
@@ -109,8 +102,6 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
         finally:
             if node.poll() is None:
                 node.kill()
-            stop.set()
-            await asyncio.wait_for(flight, 40.0)
             client.cancel()
             await asyncio.gather(client, return_exceptions=True)
 
