@@ -368,11 +368,8 @@ def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
     """Put :class:`EdgeMiddleware` in front of ``app``; its :class:`AuthGuard` is also
     ``app.state.auth_guard`` (the websockets count their failures there; tests move its
     clock), its :class:`~server.api.lanes.Admission` ``app.state.admission``."""
-    guard = AuthGuard(
-        limit=settings.auth_failure_limit,
-        window_s=settings.auth_failure_window_s,
-        max_addresses=settings.auth_tracked_addresses,
-        on_blocked=lambda address, failures, left: _record_block(app, address, failures, left),
+    guard = AuthGuard.of(
+        settings, lambda address, failures, left: _record_block(app, address, failures, left)
     )
     app.state.auth_guard = guard
     admission = Admission.of(settings)

@@ -249,11 +249,7 @@ def open_foxglove(
         port=settings.foxglove_port,
         upstream_port=view.port,
         tokens=settings.tokens,
-        guard=AuthGuard(
-            limit=settings.auth_failure_limit,
-            window_s=settings.auth_failure_window_s,
-            max_addresses=settings.auth_tracked_addresses,
-        ),
+        guard=AuthGuard.of(settings),
     )
     try:
         gate.start()
