@@ -15,6 +15,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import IO
 
@@ -44,6 +45,7 @@ from server.api.foxglove_gate import close_foxglove, open_foxglove
 from server.api.metrics import connect_metrics, install_metrics
 from server.api.openapi import document_problems, operation_id
 from server.api.stopping import AnswerWhenStopping
+from server.operations.windows import start_lead_s
 from server.services._console_backfill import backfill
 from server.services._console_jetstream import AcrossGrounds
 from server.services.alarms import AlarmService
@@ -162,6 +164,7 @@ def build_live_path(
         trackers=trackers,
         settings=settings,
         clock=clock,
+        start_lead=partial(start_lead_s, settings),
         alarms=alarms,
         authority=authority,
     )
