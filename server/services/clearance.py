@@ -33,6 +33,7 @@ __all__ = ["FlownClearance", "flown_clearance"]
 
 Array = NDArray[np.float64]
 
+
 @dataclass(frozen=True)
 class FlownClearance:
     """The least flown clearance (m), when (plan clock, s) and between which bodies; the
