@@ -12,7 +12,6 @@ recomputed afterwards from the stored frames first falls to the watch band; the 
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 import time
@@ -41,11 +40,9 @@ from tests.server.link.harness import (
     VIEWER,
     Ground,
     add_plan_and_pass,
-    connected,
+    fly_pass,
     running_ground,
-    settled,
     spacecraft,
-    wait_for,
     with_flight_rules,
 )
 
@@ -126,25 +123,7 @@ def test_a_servo_offset_on_a_near_miss_raises_the_live_clearance_alarm_at_the_cr
         )
         process, _ = spacecraft(ground, vehicle=VehicleConfig(faults=(fault,)), truth_log=truth_log)
 
-        async def fly() -> int:
-            stop = asyncio.Event()
-            task = asyncio.create_task(process.run(stop))
-            try:
-                async with httpx.AsyncClient(base_url=ground.url) as client:
-                    await connected(client)
-                    started = await client.post(
-                        f"/api/passes/{pass_id}/start",
-                        json={"confirm": "START near-miss"},
-                        headers=OPERATOR,
-                    )
-                    assert started.status_code == 200, started.text
-                    await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
-                    return int(started.json()["epoch_ns"])
-            finally:
-                stop.set()
-                await asyncio.wait_for(task, 40.0)
-
-        epoch_ns = asyncio.run(fly())
+        epoch_ns = fly_pass(ground, process, pass_id, "near-miss")
         # the live alarm, before any analysis was asked for
         alarm = _clearance_alarm(ground, pass_id)
         with ground.readers() as session:
