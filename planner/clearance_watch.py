@@ -13,6 +13,12 @@ there): a still arm costs three numpy operations a batch. The value returned is 
 whenever it is at or below the threshold, and otherwise an honest lower bound above it: the
 band it falls in is always the exact clearance's band.
 
+The bodies are posed by :class:`planner.collision.PoseChain` and their distances asked through
+:class:`planner.collision.ShapeSet`, as the flight rules' fine grid and the post-pass flown
+clearance (``server.services.clearance``) do: one engine, so a value at or below the
+threshold is the analysis's at that frame. The watch evaluates every row it is given; what
+it cannot see is the motion between two rows (docs/robots.md, "Limits": the bound).
+
 Pure: reads no file, imports nothing of the telemetry, the spacecraft or the server.
 """
 
