@@ -268,32 +268,6 @@ async def connected(client: httpx.AsyncClient) -> None:
         await asyncio.sleep(0.05)
 
 
-def fly_pass(ground: Ground, process: SpacecraftProcess, pass_id: str, name: str) -> int:
-    """Run the spacecraft ``process`` until the pass ``pass_id`` (called ``name``), started by
-    an operator once the spacecraft is connected, has :func:`settled`; the pass's epoch
-    (onboard ns, the start's answer)."""
-
-    async def flight() -> int:
-        stop = asyncio.Event()
-        task = asyncio.create_task(process.run(stop))
-        try:
-            async with httpx.AsyncClient(base_url=ground.url) as client:
-                await connected(client)
-                started = await client.post(
-                    f"/api/passes/{pass_id}/start",
-                    json={"confirm": f"START {name}"},
-                    headers=OPERATOR,
-                )
-                assert started.status_code == 200, started.text
-                await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
-                return int(started.json()["epoch_ns"])
-        finally:
-            stop.set()
-            await asyncio.wait_for(task, 40.0)
-
-    return asyncio.run(flight())
-
-
 def deleted_from_ns(ground: Ground, pass_id: str) -> int:
     """The tag from which the abort's ``schedule_delete`` deleted the schedule."""
     with ground.readers() as session:

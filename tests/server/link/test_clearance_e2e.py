@@ -12,6 +12,7 @@ recomputed afterwards from the stored frames first falls to the watch band; the 
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import time
@@ -40,9 +41,12 @@ from tests.server.link.harness import (
     VIEWER,
     Ground,
     add_plan_and_pass,
-    fly_pass,
+    in_contact,
     running_ground,
+    settled,
     spacecraft,
+    start_pass,
+    wait_for,
     with_flight_rules,
 )
 
@@ -123,7 +127,13 @@ def test_a_servo_offset_on_a_near_miss_raises_the_live_clearance_alarm_at_the_cr
         )
         process, _ = spacecraft(ground, vehicle=VehicleConfig(faults=(fault,)), truth_log=truth_log)
 
-        epoch_ns = fly_pass(ground, process, pass_id, "near-miss")
+        async def fly() -> int:
+            async with in_contact(process, ground.url) as client:
+                started = await start_pass(client, pass_id, "near-miss")
+                await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
+                return int(started.json()["epoch_ns"])
+
+        epoch_ns = asyncio.run(fly())
         # the live alarm, before any analysis was asked for
         alarm = _clearance_alarm(ground, pass_id)
         with ground.readers() as session:
