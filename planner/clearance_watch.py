@@ -13,6 +13,12 @@ there): a still arm costs three numpy operations a batch. The value returned is 
 whenever it is at or below the threshold, and otherwise an honest lower bound above it: the
 band it falls in is always the exact clearance's band.
 
+The bodies are posed by :class:`planner.collision.PoseChain` and their distances asked through
+:class:`planner.collision.ShapeSet`, as the flight rules' fine grid and the post-pass flown
+clearance (``server.services.clearance``) do: one engine, so a value at or below the
+threshold is the analysis's at that frame. The watch evaluates every row it is given; what
+it cannot see is the motion between two rows (docs/robots.md, "Limits": the bound).
+
 Pure: reads no file, imports nothing of the telemetry, the spacecraft or the server.
 """
 
@@ -20,13 +26,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.clearance_sampling import pair_motion_coefficients
-from planner.collision import CollisionModel, CollisionShape, check_collision_model
+from planner.collision import CollisionModel, PoseChain, ShapeSet, check_collision_model
 from planner.errors import InvalidInput
 from planner.model import RobotModel
 
@@ -81,15 +87,8 @@ class ClearanceWatch:
         n = model.n_joints
         #: C[p, k] (m/rad): pair p's relative motion per radian of joint k
         self.lever = pair_motion_coefficients(self.collision, model, self.pairs)
-        self._frame_of = [b.joint for b in self.collision.bodies]
-        axes = np.array([link.joint_axis_robot for link in model.links], dtype=np.float64)
-        kx = np.zeros((n, 3, 3))
-        kx[:, 0, 1], kx[:, 0, 2] = -axes[:, 2], axes[:, 1]
-        kx[:, 1, 0], kx[:, 1, 2] = axes[:, 2], -axes[:, 0]
-        kx[:, 2, 0], kx[:, 2, 1] = -axes[:, 1], axes[:, 0]
-        self._kx, self._kx2 = kx, kx @ kx
-        self._points = np.array([link.joint_pos_robot_m for link in model.links])
-        self._coal: tuple[Any, list[list[Any]], dict[int, list[Any]]] | None = None
+        self._chain = PoseChain(model)
+        self._shapes: ShapeSet | None = None  # made at the first exact distance (coal)
         self._distance: Array | None = None  # (P,) exact at _at
         self._lever_max = self.lever.max(axis=0) if len(self.pairs) else np.zeros(n)
         self._last_joints = np.zeros(n)  # the last row answered, and its answer
@@ -120,8 +119,13 @@ class ClearanceWatch:
 
     def clearance_m(self, joints_rad: Array) -> float:
         """The clearance at ``joints_rad``: exact when at or below the threshold, else a
-        lower bound of it above the threshold (NaN for non-finite joints)."""
-        return float(self.clearances_m(self._row(joints_rad)[None, :])[0])
+        lower bound of it above the threshold (NaN for non-finite joints). (The vehicle asks
+        at every control tick: a still arm costs the bound alone.)"""
+        q = self._row(joints_rad)
+        still = self._still(q, 1)
+        if still is not None:
+            return float(still)
+        return float(self.clearances_m(q[None, :])[0])
 
     def clearances_m(self, joints_rad: Array) -> Array:
         """:meth:`clearance_m` of each row of ``joints_rad`` ``(m, n)``, in order (the
@@ -132,16 +136,10 @@ class ClearanceWatch:
             raise InvalidInput(
                 f"joints have {q.shape[1]} values; the robot has {self.model.n_joints} joints"
             )
-        if self._distance is not None and m <= self.max_age - self._age:
-            # The common case in three operations: every pair's distance at q is at least
-            # its distance at the last answered joints q_g less lever_max |q - q_g|, and
-            # the last answer was at most the least of them.
-            bound = self._last_m - np.abs(q - self._last_joints) @ self._lever_max
-            if np.all(bound > self.threshold_m):  # False for NaN
-                self.calls += m
-                self._age += m
-                out: Array = bound
-                return out
+        still = self._still(q, m)
+        if still is not None:
+            out: Array = still
+            return out
         out = np.full(m, math.nan)
         finite = np.all(np.isfinite(q), axis=1)
         rows = np.flatnonzero(finite)
@@ -187,6 +185,21 @@ class ClearanceWatch:
             self._last_m = float(out[rows[-1]])
         return out
 
+    def _still(self, q: Array, m: int) -> Array | None:
+        """The common case in three operations: every pair's distance at ``q`` (a row, or
+        ``m`` rows) is at least its distance at the last answered joints ``q_g`` less
+        ``lever_max |q - q_g|``, and the last answer was at most the least of them. That
+        bound when it is above the threshold at every row, else None."""
+        if self._distance is None or m > self.max_age - self._age:
+            return None
+        bound = self._last_m - np.abs(q - self._last_joints) @ self._lever_max
+        if not (bound > self.threshold_m).all():  # False for NaN
+            return None
+        self.calls += m
+        self._age += m
+        out: Array = bound
+        return out
+
     def _row(self, joints_rad: Array) -> Array:
         q = np.asarray(joints_rad, dtype=np.float64).reshape(-1)
         if q.shape[0] != self.model.n_joints:
@@ -196,60 +209,15 @@ class ClearanceWatch:
         return q
 
     def _poses(self, q: Array) -> tuple[Array, Array]:
-        """:func:`planner.collision.body_poses` at one joint vector ``q`` ``(n,)``: each
-        joint's moving frame ``(n + 1, 3, 3)``, ``(n + 1, 3)`` (the joints' skew matrices
-        kept from the constructor; every joint's rotation at once, then the chain)."""
-        n = q.shape[0]
-        s = np.sin(q)[:, None, None]
-        c = (1.0 - np.cos(q))[:, None, None]
-        rots = np.eye(3) + s * self._kx + c * self._kx2
-        offsets = self._points - np.einsum("jab,jb->ja", rots, self._points)
-        R = np.empty((n + 1, 3, 3))
-        t = np.empty((n + 1, 3))
-        R[0] = np.eye(3)
-        t[0] = 0.0
-        for j in range(n):
-            t[j + 1] = R[j] @ offsets[j] + t[j]
-            R[j + 1] = R[j] @ rots[j]
-        return R, t
+        """The body frames at one joint vector ``q`` ``(n,)`` (:class:`planner.collision.
+        PoseChain`): ``(n + 1, 3, 3)``, ``(n + 1, 3)``."""
+        R, t = self._chain.poses(q[None, :])
+        return R[0], t[0]
 
     def _exact(self, R: Array, t: Array, which: Iterable[int] | NDArray[np.intp]) -> Array:
         """Each pair's exact distance with the body frames at ``(R, t)`` (one sample)."""
-        import coal  # imported where a distance is asked for, not with the planner
-
-        if self._coal is None:
-            request = coal.DistanceRequest()
-            request.enable_signed_distance = True
-            request.rel_err = 0.0
-            request.abs_err = 0.0
-            geometries = [[s.geometry() for s in b.shapes] for b in self.collision.bodies]
-            fixed = {
-                b: [_transform(coal, np.eye(3), np.zeros(3), s) for s in body.shapes]
-                for b, body in enumerate(self.collision.bodies)
-                if body.joint == 0
-            }
-            self._coal = (request, geometries, fixed)
-        request, geometries, fixed = self._coal
-        placed = dict(fixed)
-        result = coal.DistanceResult()
-        out = []
-        for p in which:
-            a, b = self.pairs[int(p)]
-            for body in (a, b):
-                if body not in placed:
-                    j = self._frame_of[body]
-                    placed[body] = [
-                        _transform(coal, R[j], t[j], s) for s in self.collision.bodies[body].shapes
-                    ]
-            best = math.inf
-            for ga, ta in zip(geometries[a], placed[a], strict=True):
-                for gb, tb in zip(geometries[b], placed[b], strict=True):
-                    result.clear()  # a result keeps the least distance it has seen
-                    best = min(best, float(coal.distance(ga, ta, gb, tb, request, result)))
-            out.append(best)
-        self.pair_queries += len(out)
-        return np.array(out, dtype=np.float64)
-
-
-def _transform(coal_module: Any, rot: Array, pos: Array, shape: CollisionShape) -> Any:
-    return coal_module.Transform3s(rot @ shape.rot_robot_from_shape, rot @ shape.pos_robot_m + pos)
+        if self._shapes is None:
+            self._shapes = ShapeSet(self.collision)
+        pairs = [self.pairs[int(p)] for p in which]
+        self.pair_queries += len(pairs)
+        return self._shapes.pair_distances_m(pairs, R, t)

@@ -186,41 +186,64 @@ class CollisionModel:
 def joint_rotations(axes: Array, angles: Array) -> Array:
     """Rodrigues' rotation for each sample and joint: ``(S, n, 3, 3)`` from unit ``axes``
     ``(n, 3)`` and ``angles`` ``(S, n)``."""
+    kx, kx2 = _skews(axes)
+    return _rotations(kx, kx2, angles)
+
+
+def _skews(axes: Array) -> tuple[Array, Array]:
+    """Each unit axis's cross-product matrix ``[k]x`` and its square, ``(n, 3, 3)`` each."""
     k = np.asarray(axes, dtype=np.float64)
     kx = np.zeros((k.shape[0], 3, 3))
     kx[:, 0, 1], kx[:, 0, 2] = -k[:, 2], k[:, 1]
     kx[:, 1, 0], kx[:, 1, 2] = k[:, 2], -k[:, 0]
     kx[:, 2, 0], kx[:, 2, 1] = -k[:, 1], k[:, 0]
-    kx2 = kx @ kx
+    return kx, kx @ kx
+
+
+def _rotations(kx: Array, kx2: Array, angles: Array) -> Array:
     s = np.sin(angles)[..., None, None]
     c = (1.0 - np.cos(angles))[..., None, None]
     out: Array = np.eye(3) + s * kx + c * kx2
     return out
 
 
+class PoseChain:
+    """A robot's joints as a product of exponentials, the parts that do not depend on the
+    angles made once: :meth:`poses` is :func:`body_poses` (the flight rules' fine grid, the
+    post-pass clearance and the live watch all pose the bodies with it)."""
+
+    def __init__(self, model: RobotModel) -> None:
+        self.n_joints = model.n_joints
+        self._kx, self._kx2 = _skews(np.array([link.joint_axis_robot for link in model.links]))
+        self._points = np.array([link.joint_pos_robot_m for link in model.links])
+
+    def poses(self, joints_rad: Array) -> tuple[Array, Array]:
+        """:func:`body_poses` of ``joints_rad`` ``(S, n)``: ``(S, n + 1, 3, 3)``,
+        ``(S, n + 1, 3)``."""
+        q = np.atleast_2d(np.asarray(joints_rad, dtype=np.float64))
+        samples, n = q.shape
+        if n != self.n_joints:
+            raise InvalidInput(f"joints have {n} columns; the robot has {self.n_joints} joints")
+        rots = _rotations(self._kx, self._kx2, q)
+        # exp(xi q) = [Rq, p - Rq p]; G_j = G_{j-1} exp(xi_j q_j)
+        offsets = self._points - np.einsum("sjab,jb->sja", rots, self._points)
+        R = np.empty((samples, n + 1, 3, 3))
+        t = np.empty((samples, n + 1, 3))
+        R[:, 0] = np.eye(3)
+        t[:, 0] = 0.0
+        for j in range(n):
+            t[:, j + 1] = np.einsum("sab,sb->sa", R[:, j], offsets[:, j]) + t[:, j]
+            R[:, j + 1] = R[:, j] @ rots[:, j]
+        return R, t
+
+
 def body_poses(model: RobotModel, joints_rad: Array) -> tuple[Array, Array]:
     """The pose of every joint's moving frame at each sample, robot frame: rotations
     ``(S, n + 1, 3, 3)`` and translations ``(S, n + 1, 3)``; index 0 is the base (identity)
     and index j the product of exponentials of joints 1..j (a point ``x`` at the zero pose
-    of a body rigid with link j is at ``R[:, j] @ x + t[:, j]``)."""
-    q = np.atleast_2d(np.asarray(joints_rad, dtype=np.float64))
-    samples, n = q.shape
-    if n != model.n_joints:
-        raise InvalidInput(f"joints have {n} columns; the robot has {model.n_joints} joints")
-    axes = np.array([link.joint_axis_robot for link in model.links])
-    points = np.array([link.joint_pos_robot_m for link in model.links])
-    rots = joint_rotations(axes, q)
-    R = np.empty((samples, n + 1, 3, 3))
-    t = np.empty((samples, n + 1, 3))
-    R[:, 0] = np.eye(3)
-    t[:, 0] = 0.0
-    for j in range(n):
-        # exp(xi q) = [Rq, p - Rq p]; G_j = G_{j-1} exp(xi_j q_j)
-        Rq = rots[:, j]
-        offset = points[j] - Rq @ points[j]
-        R[:, j + 1] = R[:, j] @ Rq
-        t[:, j + 1] = np.einsum("sab,sb->sa", R[:, j], offset) + t[:, j]
-    return R, t
+    of a body rigid with link j is at ``R[:, j] @ x + t[:, j]``). A caller that poses the
+    same robot again and again keeps its :class:`PoseChain`."""
+    return PoseChain(model).poses(joints_rad)
 
 
 @dataclass(frozen=True)
@@ -249,6 +272,37 @@ class ShapeSet:
         self.queries = 0
         self._frames_key: object = None  # the bodies' coal frames at one key (a sample)
         self._frames: dict[int, list[coal.Transform3s]] = {}
+        self._result = coal.DistanceResult()  # reused by pair_distances_m (cleared)
+        #: the bodies rigid with the base: at the identity in every sample of body_poses
+        self._fixed = {
+            b: [_transform(np.eye(3), np.zeros(3), s) for s in body.shapes]
+            for b, body in enumerate(collision.bodies)
+            if body.joint == 0
+        }
+
+    def pair_distances_m(
+        self, pairs: Sequence[tuple[int, int]], R: Array, t: Array
+    ) -> NDArray[np.float64]:
+        """Each pair's signed distance (no nearest points: the cheaper query) with every
+        body's frame at its joint's ``(R[joint], t[joint])``, one sample of
+        :func:`body_poses` (``(n + 1, 3, 3)``, ``(n + 1, 3)``; index 0 the identity)."""
+        placed = dict(self._fixed)
+        bodies = self.collision.bodies
+        coal, request, result = self._coal, self._request, self._result
+        out = np.empty(len(pairs))
+        for p, (a, b) in enumerate(pairs):
+            for body in (a, b):
+                if body not in placed:
+                    j = bodies[body].joint
+                    placed[body] = [_transform(R[j], t[j], s) for s in bodies[body].shapes]
+            best = math.inf
+            for ga, ta in zip(self._geometries[a], placed[a], strict=True):
+                for gb, tb in zip(self._geometries[b], placed[b], strict=True):
+                    result.clear()  # a result keeps the least distance it has seen
+                    best = min(best, float(coal.distance(ga, ta, gb, tb, request, result)))
+                    self.queries += 1
+            out[p] = best
+        return out
 
     def distance(
         self,

@@ -88,13 +88,7 @@ def segment_collision_model(
         *(AllowedContact((names[i], names[i + 1]), _ADJACENT) for i in range(len(names) - 1)),
     ]
     trial = CollisionModel(tuple(bodies), tuple(contacts))
-    shapes = ShapeSet(trial)
-    rots, trans = body_poses(model, model.reference_joints)
-    for i, j in trial.pairs:
-        a, b = bodies[i].joint, bodies[j].joint
-        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
-        if d.distance_m < clearance_m:
-            contacts.append(AllowedContact((names[i], names[j]), _TOUCHING))
+    contacts += _touching(model, trial, clearance_m)
     return CollisionModel(tuple(bodies), tuple(contacts))
 
 
@@ -111,11 +105,18 @@ def generated_contacts(
         if abs(bodies[i].joint - bodies[j].joint) == 1:
             contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _ADJACENT))
     trial = CollisionModel(bodies, tuple(contacts))
-    shapes = ShapeSet(trial)
-    rots, trans = body_poses(model, model.reference_joints)
-    for i, j in trial.pairs:
-        a, b = bodies[i].joint, bodies[j].joint
-        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
-        if d.distance_m < clearance_m:
-            contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _TOUCHING))
+    contacts += _touching(model, trial, clearance_m)
     return CollisionModel(bodies, tuple(contacts))
+
+
+def _touching(model: RobotModel, trial: CollisionModel, clearance_m: float) -> list[AllowedContact]:
+    """The checked pairs of ``trial`` nearer than ``clearance_m`` at the reference pose,
+    allowed as touching."""
+    rots, trans = body_poses(model, model.reference_joints)
+    distances = ShapeSet(trial).pair_distances_m(trial.pairs, rots[0], trans[0])
+    names = [b.name for b in trial.bodies]
+    return [
+        AllowedContact((names[i], names[j]), _TOUCHING)
+        for (i, j), d in zip(trial.pairs, distances, strict=True)
+        if d < clearance_m
+    ]

@@ -12,6 +12,12 @@ simulation at or after that time:
 - ``jointN-drift@T[,rate_degps=0.5]``: a bias growing at that rate is added to the servo
   target joint N's hardware applies (the onboard software's target, the one telemetry
   reports in ``joint_targets_rad``, is unchanged);
+- ``jointN-offset@T[,deg=1.0]``: a constant bias of that angle is added to the same servo
+  target from T on (a step, where a drift is a ramp: a zero offset in the joint's servo
+  electronics; a negative angle turns the other way). The servo follows it as it follows a
+  command, so the measured joint settles ``deg`` away from the software's target, and a
+  link's nearest point moves about ``deg`` (in rad) times its lever toward or away from what
+  it passes. An offset and a drift on one joint add up;
 - ``wheelN-fail@T``: reaction wheel N gives no torque from T (it spins on freely);
 - ``attitude-bias@T[,deg=3.0][,axis=x]``: the attitude sensor reads the attitude rotated by
   that angle about that base axis (``x``, ``y`` or ``z``; a negative angle turns the other
@@ -50,21 +56,31 @@ __all__ = [
 ]
 
 Array = NDArray[np.float64]
-FaultKind = Literal["joint-stuck", "joint-drift", "wheel-fail", "attitude-bias", "bump"]
+FaultKind = Literal[
+    "joint-stuck", "joint-drift", "joint-offset", "wheel-fail", "attitude-bias", "bump"
+]
 Axis = Literal["x", "y", "z"]
 
 #: The fault kinds, as their names are written (N: the joint's or wheel's number, from 1).
-FAULT_KINDS = ("jointN-stuck", "jointN-drift", "wheelN-fail", "attitude-bias", "bump")
+FAULT_KINDS = (
+    "jointN-stuck",
+    "jointN-drift",
+    "jointN-offset",
+    "wheelN-fail",
+    "attitude-bias",
+    "bump",
+)
 #: Each kind's parameters and their defaults.
 _PARAMETERS: dict[str, dict[str, float | str]] = {
     "joint-stuck": {},
     "joint-drift": {"rate_degps": 0.5},
+    "joint-offset": {"deg": 1.0},
     "wheel-fail": {},
     "attitude-bias": {"deg": 3.0, "axis": "x"},
     "bump": {"nms": 10.0, "axis": "x"},
 }
 _AXES: dict[str, int] = {"x": 0, "y": 1, "z": 2}
-_NAME = re.compile(r"^(?:(joint|wheel)(\d+)-(stuck|drift|fail)|(attitude-bias|bump))$")
+_NAME = re.compile(r"^(?:(joint|wheel)(\d+)-(stuck|drift|offset|fail)|(attitude-bias|bump))$")
 #: A fault after this many onboard seconds is a typing error (a year).
 _MAX_AT_S = 365.25 * 86400.0
 
@@ -92,7 +108,7 @@ class Fault:
     @property
     def name(self) -> str:
         """``joint3-stuck``, ``wheel2-fail``, ``attitude-bias``, ``bump``."""
-        if self.kind in ("joint-stuck", "joint-drift", "wheel-fail"):
+        if self.kind in ("joint-stuck", "joint-drift", "joint-offset", "wheel-fail"):
             part, _, what = self.kind.partition("-")
             return f"{part}{self.index}-{what}"
         return self.kind
@@ -233,8 +249,9 @@ class FaultInjector:
         self._after_command = [(i, f) for i, f in enumerate(faults) if f.after_first_command]
         #: joint index (from 0) -> the angle its servo holds
         self.stuck: dict[int, float] = {}
-        #: joint index (from 0) -> (bias rad at t0, bias rate rad/s, t0 ns)
-        self.drift: dict[int, tuple[float, float, int]] = {}
+        #: joint index (from 0) -> (bias rad at t0, bias rate rad/s, t0 ns): the drifts' and
+        #: offsets' sum on each joint's servo target
+        self.bias: dict[int, tuple[float, float, int]] = {}
         self.failed_wheels: set[int] = set()
         self._bias: Rotation | None = None
 
@@ -283,13 +300,13 @@ class FaultInjector:
             j = fault.index - 1
             angle = self.stuck.setdefault(j, float(sim.state().joints_rad[j]))
             return {"held_deg": math.degrees(angle)}
-        if fault.kind == "joint-drift":
-            assert fault.index is not None and fault.rate_degps is not None
+        if fault.kind in ("joint-drift", "joint-offset"):
+            assert fault.index is not None
             j = fault.index - 1
-            bias, rate, since = self.drift.get(j, (0.0, 0.0, t_ns))
-            # a second drift on the joint adds its rate from now on
-            bias += rate * (t_ns - since) / 1e9
-            self.drift[j] = (bias, rate + math.radians(fault.rate_degps), t_ns)
+            bias, rate, since = self.bias.get(j, (0.0, 0.0, t_ns))
+            # the bias so far, then this fault's step or rate added from now on
+            bias += rate * (t_ns - since) / 1e9 + math.radians(fault.deg or 0.0)
+            self.bias[j] = (bias, rate + math.radians(fault.rate_degps or 0.0), t_ns)
             return {}
         if fault.kind == "wheel-fail":
             assert fault.index is not None
@@ -308,11 +325,11 @@ class FaultInjector:
 
     def servo(self, target_rad: Array, rate_radps: Array, t_ns: int) -> tuple[Array, Array]:
         """The target (and its rate) the joint servos' hardware applies, from the onboard
-        software's: a stuck joint holds its angle, a drifting one adds its growing bias."""
-        if not self.stuck and not self.drift:
+        software's: a stuck joint holds its angle, a drifting or offset one adds its bias."""
+        if not self.stuck and not self.bias:
             return target_rad, rate_radps
         target, rate = target_rad.copy(), rate_radps.copy()
-        for j, (bias, bias_rate, since) in self.drift.items():
+        for j, (bias, bias_rate, since) in self.bias.items():
             target[j] += bias + bias_rate * (t_ns - since) / 1e9
             rate[j] += bias_rate
         for j, angle in self.stuck.items():

@@ -31,13 +31,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.catalogue import parse_assignments, plan_experiment, resolve
-from planner.clearance_watch import ClearanceWatch
 from planner.limits import QUANTITIES, Limits, channel_names
 from planner.plan import Plan
 from planner.robot import RobotDescription
 from spacecraft.vehicle import Vehicle
 from spacecraft.vehicle_config import vehicle_config_for
-from telemetry.limits import FRAME_QUANTITIES, FrameEvaluator, interpolated_commands
+from telemetry.limits import FRAME_QUANTITIES, for_description, interpolated_commands
 from telemetry.uplink import plan_commands
 from telemetry.wire import CommandStage, JointCommandMsg, TelemetryFrame
 
@@ -161,18 +160,11 @@ def fly_nominal(
     )
     vehicle = Vehicle(config, epoch_ns=epoch_ns, seed=seed)
     limits = limits or description.limits
-    watch = None
-    if description.collision is not None:
-        threshold = math.inf if exact_clearance else limits["clearance_m"].least
-        watch = ClearanceWatch(description, threshold)
-    evaluator = FrameEvaluator(
-        limits,
-        n_joints=description.n_joints,
-        joint_limits_rad=np.asarray(description.model.joint_limit_rad),
-        wheel_spin_inertia_kgm2=np.array([w.spin_inertia_kgm2 for w in description.model.wheels]),
-        wheel_momentum_limit_nms=np.array([w.momentum_limit_nms for w in description.wheel_limits]),
-        clearance=watch,
+    evaluator = for_description(
+        description,
         commanded=commanded,
+        limits=limits,
+        clearance_threshold_m=math.inf if exact_clearance else None,
     )
     end_ns = max(c.execute_time_ns for c in commands) + round(AFTER_S * 1e9)
     lead_ns = round((lead_window_s - delay_s) * 1e9)

@@ -96,11 +96,6 @@ class SafingMonitor:
                 self.clearance = ClearanceWatch(clearance_shapes, self.red["clearance_m"])
             except InvalidInput:  # shapes that cannot show the arm clear: not watched
                 self.clearance = None
-        #: each joint's largest lever over the pairs (m/rad), and the last clearance asked
-        self._lever = (
-            np.zeros(model.n_joints) if self.clearance is None else self.clearance.lever.max(axis=0)
-        )
-        self._last_clearance: tuple[Array, float] | None = None
 
     def check(
         self,
@@ -157,7 +152,8 @@ class SafingMonitor:
                 )
         limit = red.get("clearance_m")
         if limit is not None and self.clearance is not None:
-            clearance = self._clearance_m(joints_rad, limit)
+            # exact at or below the red limit; above it a bound the watch keeps cheap
+            clearance = self.clearance.clearance_m(joints_rad)
             if clearance <= limit:
                 return SafingTrigger(
                     quantity="clearance_m",
@@ -168,20 +164,6 @@ class SafingMonitor:
                     f"{limit:g} m",
                 )
         return None
-
-    def _clearance_m(self, joints_rad: Array, limit: float) -> float:
-        """The watch's clearance, or (cheaper than asking it at every tick) a lower bound
-        above ``limit`` from the last one: no pair gets nearer than the joints' motion since
-        then times the largest lever of each joint."""
-        assert self.clearance is not None
-        if self._last_clearance is not None:
-            q0, c0 = self._last_clearance
-            bound = c0 - float(self._lever @ np.abs(joints_rad - q0))
-            if bound > limit:
-                return bound
-        clearance = self.clearance.clearance_m(joints_rad)
-        self._last_clearance = (np.array(joints_rad, dtype=np.float64), clearance)
-        return clearance
 
 
 def monitor_for(

@@ -335,16 +335,25 @@ def link_readings(
 
 
 def for_description(
-    description: RobotDescription, *, commanded: CommandedFn | None = None
+    description: RobotDescription,
+    *,
+    commanded: CommandedFn | None = None,
+    limits: Limits | None = None,
+    clearance_threshold_m: float | None = None,
 ) -> FrameEvaluator:
-    """The evaluator of a robot description: its limits, joint limits, wheels and (when it
-    has collision shapes) a clearance watch on its least severe clearance threshold."""
-    limits = description.limits
+    """The evaluator of a robot description: its limits (or ``limits``), joint limits,
+    wheels and (when it has collision shapes) a clearance watch, exact at or below
+    ``clearance_threshold_m`` (None: the least severe clearance threshold; ``inf``: exact
+    at every frame)."""
+    limits = limits or description.limits
     bands = limits.get("clearance_m")
+    threshold = clearance_threshold_m
+    if threshold is None and bands is not None:
+        threshold = bands.least
     watch = None
-    if bands is not None and description.collision is not None:
+    if threshold is not None and description.collision is not None:
         try:
-            watch = ClearanceWatch(description, bands.least)
+            watch = ClearanceWatch(description, threshold)
         except InvalidInput:  # shapes that cannot show the arm clear: no live clearance
             watch = None
     return FrameEvaluator(

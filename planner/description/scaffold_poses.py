@@ -108,21 +108,10 @@ class Clearance:
         self.model = model
         self.pairs = list(collision.pairs)
         self.ignored: set[tuple[int, int]] = set()
-        self._evaluations = 0  # each distances() call's frames key
 
     def distances(self, q: Array) -> Array:
         rots, trans = body_poses(self.model, q)
-        bodies = self.collision.bodies
-        out = np.empty(len(self.pairs))
-        self._evaluations += 1
-        for k, (i, j) in enumerate(self.pairs):
-            a, b = bodies[i].joint, bodies[j].joint
-            d = self.shapes.distance(
-                i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b],
-                frames_key=self._evaluations,
-            )  # fmt: skip
-            out[k] = d.distance_m
-        return out
+        return self.shapes.pair_distances_m(self.pairs, rots[0], trans[0])
 
     def joined_at(self, q: Array) -> set[tuple[int, int]]:
         """The pairs the flight rules join at reference pose ``q`` (nearer than their

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from planner.clearance_watch import ClearanceWatch
 from planner.collision import ShapeSet, body_poses
 from planner.description import default_robot
 from planner.plan import Plan
@@ -67,11 +68,20 @@ def test_the_flown_minimum_is_exact_and_close_to_the_predicted(
     assert set(flown.bodies) == set(flown.predicted_bodies)
 
 
-def test_fewer_frames_taken_never_find_less_than_all(checked_recording: PassRecording) -> None:
-    full = flown_clearance(checked_recording, default_robot())
-    sparse = flown_clearance(checked_recording, default_robot(), max_frames=50)
-    assert sparse.n_frames == 50 and sparse.n_frames_total == full.n_frames
-    assert sparse.value_m >= full.value_m - 1e-12
+def test_the_live_watch_finds_the_same_minimum_at_the_same_frame(
+    checked_recording: PassRecording,
+) -> None:
+    """One engine: the live watch, fed the frames in the link's batches and watching a
+    threshold above the pass's minimum, is exact there and finds the analysis's minimum."""
+    description = default_robot()
+    flown = flown_clearance(checked_recording, description)
+    watch = ClearanceWatch(description, flown.value_m + 0.002)
+    joints = np.asarray(checked_recording.frames.joints_rad)
+    live = np.concatenate(
+        [watch.clearances_m(joints[i : i + 10]) for i in range(0, len(joints), 10)]
+    )
+    assert float(live.min()) == pytest.approx(flown.value_m, abs=1e-9)
+    assert float(checked_recording.t_s()[int(np.argmin(live))]) == flown.t_s
 
 
 def test_a_plan_without_a_report_has_nothing_predicted(checked_recording: PassRecording) -> None:
