@@ -73,7 +73,7 @@ def demo(
         typer.Option(
             help="A fault for the spacecraft, NAME@T[,key=value...], T in onboard s from the "
             "spacecraft's start (as --outage), or NAME@cmd+T, T after the first command "
-            "executed: jointN-stuck, jointN-drift[,rate_degps=], "
+            "executed: jointN-stuck, jointN-drift[,rate_degps=], jointN-offset[,deg=], "
             "wheelN-fail, attitude-bias[,deg=][,axis=], bump[,nms=][,axis=]; repeatable "
             "(docs/spacecraft.md)"
         ),

@@ -105,7 +105,8 @@ def spacecraft(
         typer.Option(
             help="A fault injected in the truth simulation, NAME@T[,key=value...], T in onboard "
             "s from the start, or NAME@cmd+T, T after the first command executed: "
-            "jointN-stuck@T, jointN-drift@T[,rate_degps=0.5], wheelN-fail@T, "
+            "jointN-stuck@T, jointN-drift@T[,rate_degps=0.5], jointN-offset@T[,deg=1.0], "
+            "wheelN-fail@T, "
             "attitude-bias@T[,deg=3.0][,axis=x], bump@T[,nms=10][,axis=x]; repeatable "
             "(docs/spacecraft.md)"
         ),
