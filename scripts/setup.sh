@@ -3,8 +3,8 @@
 # (web/dist); safe to run again.
 #   scripts/setup.sh          what the main job needs
 #   scripts/setup.sh --test   also the test and lint tools, and Chromium for the browser tests
-# Node.js and npm (and, with --test, Chromium) come from apt-get when missing and this runs
-# as root; otherwise install them first.
+# Node.js and npm (and, with --test, Chromium and promtool) come from apt-get when missing and
+# this runs as root; otherwise install them first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -38,6 +38,10 @@ apt_packages=()
 command -v npm >/dev/null 2>&1 || apt_packages+=(nodejs npm)
 if [ "$testing" = 1 ] && [ ! -x /usr/bin/chromium ]; then
   apt_packages+=(chromium)
+fi
+# promtool (Debian's prometheus package): the alert rules' checks and unit tests
+if [ "$testing" = 1 ] && ! command -v promtool >/dev/null 2>&1; then
+  apt_packages+=(prometheus)
 fi
 if [ "${#apt_packages[@]}" -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
