@@ -104,6 +104,9 @@ class DemoOptions:
     #: Called once the service is up: (console URL, the file holding its tokens). Never
     #: the tokens: what is printed ends up in logs.
     on_ready: Callable[[str, Path], None] | None = None
+    #: With ``serve_after``: called with the summary (and its verdict) once the pass is over,
+    #: before the service goes on serving until Ctrl-C.
+    on_summary: Callable[[dict[str, Any]], None] | None = None
     extra_spacecraft_args: tuple[str, ...] = field(default=())
     #: A robot description (TOML) to fly instead of the built-in ETS-VII.
     robot: Path | None = None
@@ -237,48 +240,51 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         clock = sampler.clock(_truth_start_ns(truth))
         sections = _limits_and_safing(api, pass_id, link_end, truth, clock)
         failed = _reports(api, pass_id, out, report) if options.reports else []
+        result = {
+            **summary,
+            "final_state": state,
+            "robot": robot_name or "ets7",
+            "vehicle_robot": link.get("robot"),
+            "plan_duration_s": duration_s,
+            "speed": options.speed,
+            "loss": options.loss,
+            "outages": list(options.outages),
+            "faults": list(options.faults),
+            "epoch_onboard_s": clock.since_start_s(epoch_ns),
+            "segments": segments_section(plan.get("segments", []), epoch_ns, clock),
+            **sections,
+            "truth_log": str(truth_log.resolve()),
+            "wall_time_s": round(time.monotonic() - started, 1),
+            "round_trip_s": link.get("round_trip_s"),
+            "retransmit_requests": link.get("retransmit_requests"),
+            "database": str((out / "hikoboshi.sqlite3").resolve()),
+            "database_url": sqlite_url(out),
+            "spacecraft_log": str((out / "spacecraft.log").resolve()),
+            "serve_again": (
+                f"HIKOBOSHI_DATA_DIR={out} HIKOBOSHI_TOKENS=$(cat {out}/tokens) "
+                f"hikoboshi serve --port {port}"
+            ),
+            "analyses_failed": failed,
+            **{
+                key: str((out / name).resolve()) if options.reports else None
+                for key, name in REPORT_FILES.items()
+            },
+            "console_url": f"{base}/",
+            "tokens_file": str((out / "tokens").resolve()),
+            "api_docs_url": f"{base}/docs",
+            "pass_url": f"{base}/api/passes/{pass_id}",
+            "summary_url": f"{base}/api/passes/{pass_id}/summary",
+        }
+        result["verdict"] = verdict(result)
+        (out / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
         if options.serve_after:
+            # the verdict first: what the operator waits for is printed before the serving
+            if options.on_summary is not None:
+                options.on_summary(result)
             report(f"serving {base}/ until Ctrl-C", 0, 1)
             with contextlib.suppress(KeyboardInterrupt):
                 while True:
                     time.sleep(1.0)
-    result = {
-        **summary,
-        "final_state": state,
-        "robot": robot_name or "ets7",
-        "vehicle_robot": link.get("robot"),
-        "plan_duration_s": duration_s,
-        "speed": options.speed,
-        "loss": options.loss,
-        "outages": list(options.outages),
-        "faults": list(options.faults),
-        "epoch_onboard_s": clock.since_start_s(epoch_ns),
-        "segments": segments_section(plan.get("segments", []), epoch_ns, clock),
-        **sections,
-        "truth_log": str(truth_log.resolve()),
-        "wall_time_s": round(time.monotonic() - started, 1),
-        "round_trip_s": link.get("round_trip_s"),
-        "retransmit_requests": link.get("retransmit_requests"),
-        "database": str((out / "hikoboshi.sqlite3").resolve()),
-        "database_url": sqlite_url(out),
-        "spacecraft_log": str((out / "spacecraft.log").resolve()),
-        "serve_again": (
-            f"HIKOBOSHI_DATA_DIR={out} HIKOBOSHI_TOKENS=$(cat {out}/tokens) "
-            f"hikoboshi serve --port {port}"
-        ),
-        "analyses_failed": failed,
-        **{
-            key: str((out / name).resolve()) if options.reports else None
-            for key, name in REPORT_FILES.items()
-        },
-        "console_url": f"{base}/",
-        "tokens_file": str((out / "tokens").resolve()),
-        "api_docs_url": f"{base}/docs",
-        "pass_url": f"{base}/api/passes/{pass_id}",
-        "summary_url": f"{base}/api/passes/{pass_id}/summary",
-    }
-    result["verdict"] = verdict(result)
-    (out / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
 
 

@@ -152,6 +152,20 @@ def demo(
         check_fault_specs(fault or (), robot)
     except DemoError as exc:
         _fail(str(exc))
+    shown: list[dict[str, Any]] = []
+
+    def show(summary: dict[str, Any]) -> None:
+        """The summary and its verdict, once: when the pass is over (before --serve-after's
+        serving), or at the end."""
+        if shown:
+            return
+        shown.append(summary)
+        if as_json:
+            sys.stdout.write(json.dumps(summary) + "\n")
+            sys.stdout.flush()
+        else:
+            _print_demo(summary)
+
     options = DemoOptions(
         faults=tuple(fault or ()),
         robot=robot,
@@ -168,6 +182,7 @@ def demo(
         log_format=log_format,
         log_level=log_level.lower(),
         foxglove_port=foxglove_port,
+        on_summary=show,
     )
     out.mkdir(parents=True, exist_ok=True)
     if foxglove_port is not None and not as_json:
@@ -182,10 +197,7 @@ def demo(
             summary = run_demo(options, on_progress)
         except DemoError as exc:
             _fail(f"demo stopped: {exc} (logs in {out})")
-    if as_json:
-        sys.stdout.write(json.dumps(summary) + "\n")
-    else:
-        _print_demo(summary)
+    show(summary)
     if not summary["verdict"]["ok"]:
         raise typer.Exit(1)
 
