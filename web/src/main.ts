@@ -183,6 +183,8 @@ function shell(ctx: Ctx): void {
     const page = ROUTES[name] ?? livePage;
     for (const a of nav.querySelectorAll("a")) a.classList.toggle("active", a.dataset.route === name);
     cleanup?.();
+    // a dialog belongs to the page it was opened on: leaving the page closes it
+    for (const dialog of document.querySelectorAll("div.backdrop")) dialog.remove();
     clear(main);
     for (const k of Object.keys(main.dataset)) delete main.dataset[k];
     cleanup = page(main, ctx, params.map(decodeURIComponent));
