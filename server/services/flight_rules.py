@@ -13,36 +13,29 @@ pass stays ``scheduled`` and nothing reaches the link. There is no override.
 The start never computes: it compares numbers the ground stored. A plan stored without a
 report (before the rules existed, or imported from a recording, whose report is not the
 ground's word) is refused with ``flight_rules_unchecked``, saying how to check it:
-``POST /api/plans/{id}/check`` (:func:`check_stored_plan`, in a worker process as planning
-is), which stores the ground's report in the plan's document (``plan_checked``). So an
-operator's start never waits for a worker that viewers may be keeping busy.
+``POST /api/plans/{id}/check`` (:func:`server.operations.plans.check_stored_plan`, in a
+worker process as planning is), which stores the ground's report in the plan's document
+(``plan_checked``). So an operator's start never waits for a worker that viewers may be
+keeping busy.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from sqlalchemy.orm import Session
 
-from planner.errors import PlannerError
 from planner.flight_rules import FlightRulesReport, fits_pass_row
-from planner.plan import Plan
-from server.schemas.plans import PlanPublic
 from server.services.clock import Clock
-from server.services.errors import ConflictError
-from server.services.events import PassStartRefusedFlightRules, PlanChecked
+from server.services.events import PassStartRefusedFlightRules
 from server.services.events import record as record_event
 from server.services.plans import (
     FLIGHT_RULE_VIOLATION,
-    check_flight_rules,
-    get_plan,
     violation_message,
 )
-from server.services.robots import description_for_plan
 from server.storage import repository as repo
 from server.storage.models import PassRecord
 
@@ -50,7 +43,6 @@ __all__ = [
     "FLIGHT_RULES_UNCHECKED",
     "Refusal",
     "StartGate",
-    "check_stored_plan",
     "pass_window_s",
     "start_gate_job",
 ]
@@ -136,40 +128,3 @@ def start_gate_job(
         return StartGate(record.plan_id, refusal=refusal, events=[written])
 
     return job
-
-
-def check_stored_plan(
-    *,
-    session: Session,
-    plan_id: str,
-    actor: str,
-    now_ns: int,
-    robot_files: Sequence[str] = (),
-) -> PlanPublic:
-    """Check stored plan ``plan_id`` against its robot's flight rules (the robot found by the
-    plan's description hash among those the server knows), store the report in its document
-    and audit ``plan_checked``; the plan as ``GET /api/plans/{id}`` gives it. A plan that
-    cannot be checked raises the reason (``robot_unknown``, ``no_collision_geometry``). A
-    worker process's job: it holds no transaction while it computes."""
-    plan = Plan.from_json(repo.get_plan(session=session, plan_id=plan_id).document)
-    session.rollback()  # no transaction (no SQLite write lock) while the plan is checked
-    try:
-        description = description_for_plan(plan, [Path(p) for p in robot_files])
-        checked, report = check_flight_rules(description, plan)
-    except PlannerError as exc:
-        raise ConflictError("plan_cannot_be_checked", str(exc)) from exc
-    try:
-        repo.set_plan_document(session=session, plan_id=plan_id, plan=checked)
-        checked_event = PlanChecked(
-            actor=actor,
-            plan_id=plan_id,
-            robot=description.name,
-            passed=report.passed,
-            failing=[row.rule for row in report.failing],
-        )
-        record_event(session, checked_event, now_ns)
-        session.commit()
-    except BaseException:
-        session.rollback()
-        raise
-    return get_plan(session=session, plan_id=plan_id)

@@ -230,13 +230,13 @@ def test_the_ground_replans_a_pass_from_its_plan_s_parameters_alone(campaign: Ca
     """POST /api/plans with experiment "pass" and the plan file's parameters: the start
     state and the orbit travel in them, so the ground's plan is the campaign's."""
     from server.schemas.plans import PlanCreate
-    from server.services.plans import plan as ground_plan
+    from server.operations.plans import plan_request
 
     mine = campaign.passes[1].plan
     parameters = json.loads(json.dumps(mine.parameters))
     assert parameters["start_wheel_momentum_nms"] != [0.0, 0.0, 0.0]
     assert parameters["gravity_gradient_radius_m"] > 6.9e6
-    theirs, _ = ground_plan(PlanCreate(experiment="pass", parameters=parameters))
+    theirs = plan_request(PlanCreate(experiment="pass", parameters=parameters))
     np.testing.assert_array_equal(theirs.command_joints_rad, mine.command_joints_rad)
     np.testing.assert_allclose(
         theirs.prediction.wheel_momentum_nms, mine.prediction.wheel_momentum_nms, atol=1e-12
