@@ -229,8 +229,8 @@ def test_a_plan_longer_than_its_window_is_refused_naming_pass_and_times(tmp_path
 def test_the_ground_replans_a_pass_from_its_plan_s_parameters_alone(campaign: Campaign) -> None:
     """POST /api/plans with experiment "pass" and the plan file's parameters: the start
     state and the orbit travel in them, so the ground's plan is the campaign's."""
-    from server.schemas.plans import PlanCreate
     from server.operations.plans import plan_request
+    from server.schemas.plans import PlanCreate
 
     mine = campaign.passes[1].plan
     parameters = json.loads(json.dumps(mine.parameters))
