@@ -11,13 +11,11 @@ every other command start without it (tests/test_cli_startup.py)."""
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import inspect
 import json
 import os
 import sys
 import tempfile
-import typing
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -31,28 +29,7 @@ from hikoboshi.cli_common import RobotOption, _fail, _load, console, err_console
 if TYPE_CHECKING:
     pass
 
-__all__ = ["parameters_help", "register", "write_atomically"]
-
-
-def parameters_help() -> str:
-    """One paragraph per experiment: its parameters, types and defaults."""
-    from planner.catalogue import experiments, type_name
-
-    lines = []
-    for name, (params_type, _) in experiments().items():
-        hints = typing.get_type_hints(params_type)
-        fields = ", ".join(
-            f"{f.name}={_show(f.default)} ({type_name(hints[f.name])})"
-            for f in dataclasses.fields(params_type)
-        )
-        lines.append(f"{name}: {fields}")
-    return "\n\n".join(lines)
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, tuple):
-        return ",".join(str(v) for v in value) if value else "''"
-    return str(value)
+__all__ = ["register", "write_atomically"]
 
 
 def write_atomically(path: Path, text: str) -> None:
@@ -83,6 +60,8 @@ _PLAN_SUMMARY = (
 
 
 def _plan_help() -> str:
+    from server.operations.planning import parameters_help
+
     return _PLAN_SUMMARY + "\n\nParameters:\n\n" + parameters_help()
 
 

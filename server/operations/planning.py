@@ -4,6 +4,7 @@ flight rules, or check a plan someone else made, in one call for every caller (i
     plan_checked(experiment, params, robot=, window_s=)  -> CheckedPlan   plan, then check
     check(plan, description, window_s=)                  -> CheckedPlan   check (never trust)
     experiment_parameters(experiment, robot, values=|assignments=)        the typed parameters
+    parameters_help()                                    every experiment's parameters
 
 ``hikoboshi plan`` and ``plan check``, ``POST /api/plans`` (and ``/validate``, ``/{id}/check``,
 ``/documents``), the demo (through the API) and the campaign (:mod:`server.operations.campaign`)
@@ -26,6 +27,8 @@ Nothing here is imported before it is called (the command line starts without th
 
 from __future__ import annotations
 
+import dataclasses
+import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -43,6 +46,7 @@ __all__ = [
     "CheckedPlan",
     "check",
     "experiment_parameters",
+    "parameters_help",
     "plan_checked",
 ]
 
@@ -65,6 +69,28 @@ class CheckedPlan:
     @property
     def passed(self) -> bool:
         return self.report.passed
+
+
+def parameters_help() -> str:
+    """One paragraph per experiment: its parameters, types and defaults (``hikoboshi plan
+    --help``)."""
+    from planner.catalogue import experiments, type_name
+
+    lines = []
+    for name, (params_type, _) in experiments().items():
+        hints = typing.get_type_hints(params_type)
+        fields = ", ".join(
+            f"{f.name}={_show(f.default)} ({type_name(hints[f.name])})"
+            for f in dataclasses.fields(params_type)
+        )
+        lines.append(f"{name}: {fields}")
+    return "\n\n".join(lines)
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value) if value else "''"
+    return str(value)
 
 
 def experiment_parameters(
