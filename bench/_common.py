@@ -7,15 +7,14 @@ import io
 import json
 import platform
 import resource
-import socket
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
+from tests.support.processes import free_port as free_port
+from tests.support.processes import health_when_up, serve_command
 
 
 def best_of(fn: Callable[[], object], *, repeat: int = 5) -> float:
@@ -39,13 +38,6 @@ def emit(name: str, figures: dict[str, Any], targets: dict[str, bool]) -> None:
         "machine": platform.machine(),
     }
     print(json.dumps(doc, indent=2))
-
-
-def free_port() -> int:
-    """A TCP port free on loopback now (for a server the bench starts)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def demo_mcap() -> bytes:
@@ -72,21 +64,11 @@ def serve_process(env: dict[str, str], log: Path) -> Iterator[tuple[subprocess.P
     port = free_port()
     with log.open("wb") as out:
         server = subprocess.Popen(
-            [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-            env=env,
-            stdout=out,
-            stderr=subprocess.STDOUT,
+            serve_command(port), env=env, stdout=out, stderr=subprocess.STDOUT
         )
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60.0
-        while True:
-            try:
-                httpx.get(f"{base}/api/health", timeout=1.0)
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline and server.poll() is None, "no server"
-                time.sleep(0.2)
+        health_when_up(server, base, output=lambda: log.read_text()[-3000:])
         yield server, base
     finally:
         server.terminate()

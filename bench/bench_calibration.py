@@ -22,8 +22,7 @@ from planner.dynamics import DynamicsWorkspace
 from planner.experiments import PtpParams, plan_ptp
 from planner.model import default_model
 from planner.plan import Plan
-from planner.prediction import predict
-from spacecraft.calibration import gains_from_parameters
+from spacecraft.calibration import gains_from_parameters, predict_with
 from spacecraft.calibration_recording import fit_to_recording
 from spacecraft.offline import fly_offline
 from spacecraft.vehicle_config import VehicleConfig
@@ -74,14 +73,7 @@ def main() -> None:
     plan = plan_ptp(ws, PtpParams(settle_s=60.0))
     figures: dict[str, float] = {
         "baseline_prediction_s": best_of(
-            lambda: predict(
-                ws,
-                plan.command_times_s,
-                plan.command_joints_rad,
-                acs_commands=plan.acs_commands,
-                acs_gains=gains_from_parameters(ws, {}),
-                initial_quat_orbit_from_base_xyzw=plan.initial_quat_orbit_from_base_xyzw,
-            ),
+            lambda: predict_with(ws, plan, gains_from_parameters(ws, {})),
             repeat=2,
         )
     }

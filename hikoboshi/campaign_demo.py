@@ -83,6 +83,9 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         missions_dir=options.mission.parent.resolve(),
         plan_deadline_s=900.0,
         post_pass_deadline_s=1800.0,
+        # the windows are the mission's day, which the vehicle's clock reads (its onboard
+        # clock starts at the campaign's start, UTC), not the ground's wall (docs/missions.md)
+        window_clock="vehicle",
     )
     truth_log = out / "truth.jsonl"
     results: list[dict[str, Any]] = []

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from hikoboshi.demo_harness import DemoError
+from server.operations.windows import PassWindow, check_fit
 
 __all__ = [
     "PAPER_ORDER",
@@ -143,17 +144,20 @@ def _service_windows(
     of the pass (its net start, the start allowance and the plan) and ``tail_s``
     (:data:`SERVICE_TAIL_S`), never past the window's LOS nor the next window's AOS (one
     relay at a time). Raises DemoError when a pass does not fit its window's net time."""
-    from mission import format_utc
 
     services = []
     for i, (spec, duration_s) in enumerate(zip(specs, durations_s, strict=True)):
         w = spec.window
         allowance_s = _allowance_s(speed)
-        if duration_s + allowance_s > w.net_s:
-            raise DemoError(
-                f"pass {i + 1} ({duration_s:.0f} s) does not fit the {w.net_s:.0f} s of net "
-                f"time of its window {w.relay} {format_utc(w.aos_utc)}"
-            )
+        misfit = check_fit(
+            PassWindow.of_mission(w),
+            plan_id=f"of pass {i + 1}",
+            plan_s=duration_s,
+            lead_s=allowance_s,
+            available_s=w.net_s,
+        )
+        if misfit is not None:
+            raise DemoError(misfit.message)
         end = w.net_start_utc + timedelta(seconds=allowance_s + duration_s + tail_s)
         end = min(end, w.los_utc)
         if i + 1 < len(specs):

@@ -72,7 +72,8 @@ RobotOption = Annotated[
     Path | None,
     typer.Option(
         "--robot",
-        help="Robot description (TOML, docs/robots.md); default: ETS-VII as built in.",
+        help="Robot description (TOML, docs/robots.md) or a shipped robot's name (ets7, "
+        "orihime); default: ETS-VII as built in.",
     ),
 ]
 

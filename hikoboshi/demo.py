@@ -368,20 +368,13 @@ def check_fault_specs(specs: Sequence[str], robot: Path | None) -> None:
 
 def expected_epoch_s(speed: float, settings: Settings | None = None) -> float:
     """Where the plan's ``t = 0`` will fall, in onboard s from the spacecraft's start, before
-    the demo runs (to put a ``--fault`` inside an experiment): the ground puts it ahead of the
-    onboard clock at the start request by its start lead (the larger of
-    ``uplink_start_lead_s`` and the time for the first command to go up three times,
-    ``server.services.runner``) and a second of wall time, rounded up to the 4 Hz grid; the
-    demo asks about :data:`CONNECT_WALL_S` after the spacecraft started. The summary's
-    ``epoch_onboard_s`` is what it was."""
-    from server.services.pass_states import START_SLACK_WALL_S
-    from server.services.runner import START_TRANSMISSIONS
-    from server.services.uplink import RttEstimator
+    the demo runs (to put a ``--fault`` inside an experiment): the ground puts it on the
+    0.25 s grid at most its start lead after the onboard clock at the start request
+    (:func:`server.operations.windows.start_lead_s` at the demo's speed: the larger of
+    ``uplink_start_lead_s`` and the time for the first command to go up three times, a
+    second of wall time and the grid step); the demo asks about :data:`CONNECT_WALL_S`
+    after the spacecraft started. The summary's ``epoch_onboard_s`` is what it was."""
+    from server.operations.windows import start_lead_s
 
-    s = settings or Settings()
-    first_rto_s = RttEstimator(2 * s.link_one_way_delay_s / speed).rto_s
-    lead_s = max(
-        s.uplink_start_lead_s,
-        s.link_one_way_delay_s + s.uplink_margin_s + START_TRANSMISSIONS * first_rto_s * speed,
-    )
-    return math.ceil((CONNECT_WALL_S * speed + lead_s + START_SLACK_WALL_S * speed) * 4) / 4
+    lead_s = start_lead_s(settings or Settings(), speed)
+    return math.floor((CONNECT_WALL_S * speed + lead_s) * 4) / 4

@@ -171,7 +171,10 @@ def demo(
     )
     out.mkdir(parents=True, exist_ok=True)
     if foxglove_port is not None and not as_json:
-        console.print(f"Foxglove live view: ws://127.0.0.1:{foxglove_port}")
+        console.print(
+            f"Foxglove live view: ws://127.0.0.1:{foxglove_port}/?token=TOKEN (a viewer's "
+            f"token of {out / 'tokens'})"
+        )
     ground_log = (out / "ground.log").open("a", encoding="utf-8")  # open until the exit
     _configure_logging(log_format, log_level, stream=ground_log)
     with _phase_bars(as_json, {"pass": "pass (onboard s)"}) as on_progress:

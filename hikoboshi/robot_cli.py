@@ -118,7 +118,13 @@ def check_report(description: Any) -> dict[str, Any]:
 
 @robot_app.command("check")
 def robot_check(
-    file: Annotated[Path, typer.Argument(help="Robot description (TOML, docs/robots.md).")],
+    file: Annotated[
+        Path,
+        typer.Argument(
+            help="Robot description (TOML, docs/robots.md), or a shipped robot's name (ets7, "
+            "orihime)."
+        ),
+    ],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Load FILE and print what was lumped, locked and renamed, the limits, the reference

@@ -6,6 +6,7 @@ a mission's contact windows, and its token."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -135,8 +136,8 @@ def spacecraft(
     mission_start: Annotated[
         str | None,
         typer.Option(
-            help="With --mission: the UTC (ISO 8601) of the spacecraft's onboard second 0 "
-            "(default: the mission's elements' epoch)"
+            help="With --mission: the UTC (ISO 8601) of the spacecraft's onboard second 0, "
+            "which its onboard clock reads (default: the mission's elements' epoch)"
         ),
     ] = None,
     windows: Annotated[
@@ -226,9 +227,9 @@ def spacecraft(
             vehicle = VehicleConfig(**vehicle_fields)
         if vehicle_config is not None:
             vehicle = _with_vehicle_tables(vehicle, vehicle_config)
-        contact = None
+        contact = epoch_ns = None
         if mission is not None:
-            contact = _contact(mission, mission_start, windows, relay or (), hours)
+            contact, epoch_ns = _contact(mission, mission_start, windows, relay or (), hours)
         elif any(o is not None for o in (mission_start, windows, relay, fast_scale)):
             raise ValueError("--mission-start, --windows, --relay and --fast-scale need --mission")
         config = ProcessConfig(
@@ -244,6 +245,7 @@ def spacecraft(
             garbage=tuple(parse_garbage(g) for g in garbage or ()),
             contact=contact,
             fast_scale=fast_scale,
+            epoch_ns=epoch_ns,
         )
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -276,8 +278,11 @@ def spacecraft(
 
 def _contact(
     mission: Path, start: str | None, windows: Path | None, relays: Sequence[str], hours: float
-) -> Any:
-    """The spacecraft's contact plan from its --mission options (ValueError: one line)."""
+) -> tuple[Any, int]:
+    """The spacecraft's contact plan from its --mission options (ValueError: one line), and
+    its onboard clock at its start: the mission's start in UTC ns, so that the onboard clock
+    reads the mission's time (the ground judges the windows on it with
+    ``window_clock = "vehicle"``, docs/missions.md)."""
     from mission import MissionError, load_mission, parse_utc
     from spacecraft.contact import load_contact
 
@@ -285,7 +290,9 @@ def _contact(
         start_utc = load_mission(mission).orbit.epoch_utc if start is None else parse_utc(start)
     except MissionError as exc:
         raise ValueError(str(exc)) from None
-    return load_contact(mission, start_utc, windows_path=windows, relays=relays, hours=hours)
+    contact = load_contact(mission, start_utc, windows_path=windows, relays=relays, hours=hours)
+    since_1970 = start_utc - datetime(1970, 1, 1, tzinfo=UTC)
+    return contact, since_1970 // timedelta(microseconds=1) * 1000
 
 
 def _spacecraft_token(token: str | None, token_file: Path | None) -> str:

@@ -80,3 +80,13 @@ if command -v npm >/dev/null 2>&1; then
   fi
   (cd web && npm run --silent build)
 fi
+
+# --- the tests' outside Node clients (Foxglove's own websocket client): locked ------------
+if [ "$testing" = 1 ]; then
+  stamp=tests/clients/node_modules/.hikoboshi-lock.sha256
+  want=$(sha256sum tests/clients/package-lock.json | cut -d' ' -f1)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    (cd tests/clients && npm ci --no-audit --no-fund --loglevel=error)
+    echo "$want" > "$stamp"
+  fi
+fi

@@ -15,6 +15,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import IO
 
@@ -40,9 +41,11 @@ from server.api import windows as windows_api
 from server.api.compression import Compression
 from server.api.edge import install_edge
 from server.api.errors import install_error_handlers
+from server.api.foxglove_gate import close_foxglove, open_foxglove
 from server.api.metrics import connect_metrics, install_metrics
-from server.api.openapi import operation_id
+from server.api.openapi import document_problems, operation_id
 from server.api.stopping import AnswerWhenStopping
+from server.operations.windows import start_lead_s
 from server.services._console_backfill import backfill
 from server.services._console_jetstream import AcrossGrounds
 from server.services.alarms import AlarmService
@@ -59,7 +62,6 @@ from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
 from server.services.event_lines import log_event
-from server.services.foxglove_live import FoxgloveLive
 from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
 from server.services.jetstream import BusConfig, LiveBus
@@ -162,29 +164,13 @@ def build_live_path(
         trackers=trackers,
         settings=settings,
         clock=clock,
+        start_lead=partial(start_lead_s, settings),
         alarms=alarms,
         authority=authority,
     )
     alarms.start()
     publisher.subscribe(log_event)  # the operator's log lines, once committed
     return LivePath(clock, publisher, db, downlink, link, trackers, runner, alarms)
-
-
-def _foxglove_live(
-    settings: Settings, publisher: Publisher, sessions: sessionmaker[Session]
-) -> FoxgloveLive | None:
-    """The Foxglove live view when ``foxglove_port`` is set, listening (docs/mcap.md)."""
-    if settings.foxglove_port is None:
-        return None
-    view = FoxgloveLive(
-        host=settings.foxglove_host,
-        port=settings.foxglove_port,
-        publisher=publisher,
-        sessions=sessions,
-        robot_files=tuple(str(p) for p in settings.robot_files),
-    )
-    view.start()
-    return view
 
 
 def _authority(settings: Settings, url: str) -> tuple[CommandAuthority, Engine, IO[str] | None]:
@@ -378,12 +364,13 @@ def create_app(settings: Settings) -> FastAPI:
         app.state.import_spools = SpoolBudget(settings.import_spool_budget_bytes)
         app.state.readiness = ReadinessProbe(url)  # GET /api/ready (server/api/ready.py)
         connect_metrics(app.state)  # GET /metrics reads the services (server/api/metrics.py)
-        app.state.foxglove = _foxglove_live(settings, live.publisher, app.state.read_sessions)
+        app.state.foxglove, app.state.foxglove_gate = open_foxglove(
+            settings, live.publisher, app.state.read_sessions
+        )
         try:
             yield
         finally:
-            if app.state.foxglove is not None:
-                app.state.foxglove.close()
+            close_foxglove(app.state.foxglove, app.state.foxglove_gate)
             app.state.readiness.close()
             await app.state.artifacts.close()
             await app.state.workers.close()  # kills running jobs
@@ -407,8 +394,11 @@ def create_app(settings: Settings) -> FastAPI:
         description="Plans, passes, the 4 Hz uplink, the telemetry archive and the link.",
         lifespan=lifespan,
         generate_unique_id_function=operation_id,  # start_pass, list_passes, ...
+        docs_url=None,  # /docs is served from the console's build (server/api/web.py)
+        redoc_url=None,  # ReDoc would load from a CDN: /docs and /openapi.json are the docs
     )
     install_error_handlers(app)
+    document_problems(app)  # errors are application/problem+json (RFC 9457)
     install_edge(app, settings)  # auth, limits and text checks before any route
     app.add_middleware(Compression)  # gzip over 1 KB when accepted (server/api/compression.py)
     install_metrics(app)  # times every request, refused ones too; GET /metrics

@@ -20,7 +20,7 @@ import os
 import sys
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 from pydantic_settings import (
@@ -117,6 +117,11 @@ class Settings(BaseSettings):
     """A pass's first command is tagged this long (onboard s) after the start, so that it
     too can be sent again before its tag if the relay loses it (the runner lengthens it at
     high time scales, so that the first command can go up three times)."""
+    window_clock: Literal["ground", "vehicle"] = "ground"
+    """Whose clock a pass's contact window (UTC) is judged on at its start: the ground's
+    (``ground``), or the vehicle's onboard clock as the ground reads it (``vehicle``: a
+    simulation flying a mission's day, whose onboard clock reads the mission's UTC, as
+    ``hikoboshi spacecraft --mission`` does; the campaign demo). docs/missions.md."""
     command_period_s: float = 0.25
     """Onboard seconds between a plan's commands, as the runner tags them."""
     api_pool_size: int = Field(default=8, ge=1, le=100)
@@ -293,8 +298,8 @@ class Settings(BaseSettings):
     ground process; needs the ``hikoboshi[foxglove]`` extra; ``hikoboshi serve
     --foxglove-port``; 0: a free port). None: no live view."""
     foxglove_host: str = "127.0.0.1"
-    """The address the Foxglove live view listens on (no token is asked there: keep it on
-    loopback or a trusted network)."""
+    """The address the Foxglove live view listens on; a viewer's token is asked there
+    (``Authorization: Bearer`` or ``?token=``: server/api/foxglove_gate.py)."""
 
     @field_validator("tokens", mode="before")
     @classmethod

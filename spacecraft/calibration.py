@@ -39,6 +39,8 @@ from planner.attitude_control import (
 )
 from planner.dynamics import DynamicsWorkspace
 from planner.errors import InvalidInput
+from planner.plan import Plan, Prediction
+from planner.prediction import predict
 from spacecraft.servo_fit import NoiseEstimate, ServoFit
 
 __all__ = [
@@ -49,7 +51,9 @@ __all__ = [
     "check_parameters",
     "gains_from_parameters",
     "memoised",
+    "predict_with",
     "solve",
+    "start_values",
     "write_acs_config",
 ]
 
@@ -161,6 +165,27 @@ def gains_from_parameters(ws: DynamicsWorkspace, values: Mapping[str, float]) ->
     )
 
 
+def start_values(names: Sequence[str], start: Mapping[str, float] | None) -> dict[str, float]:
+    """A fit's start: each of ``names`` at its default, or at ``start``'s value where given
+    (``start``'s other names left out)."""
+    first = {n: PARAMETERS[n].default for n in names}
+    first.update({k: float(v) for k, v in (start or {}).items() if k in names})
+    return first
+
+
+def predict_with(ws: DynamicsWorkspace, plan: Plan, gains: AcsGains) -> Prediction:
+    """``plan``'s prediction (ideal tracking) under the law of ``gains``, from the plan's
+    initial attitude."""
+    return predict(
+        ws,
+        plan.command_times_s,
+        plan.command_joints_rad,
+        acs_commands=plan.acs_commands,
+        acs_gains=gains,
+        initial_quat_orbit_from_base_xyzw=plan.initial_quat_orbit_from_base_xyzw,
+    )
+
+
 def write_acs_config(path: str | Path, values: Mapping[str, float]) -> None:
     """An ``[acs]`` TOML table (:func:`planner.description.load_acs_config` reads it);
     an infinite ``integral_time_s`` (no integral term) is left out."""
@@ -203,6 +228,33 @@ class CalibrationResult:
     #: a recording's joint servos and sensor noise (``fit_to_recording(servo_and_noise=True)``)
     servo: ServoFit | None = None
     sensor_noise: NoiseEstimate | None = None
+
+    @classmethod
+    def of_fit(
+        cls,
+        kind: str,
+        start: dict[str, float],
+        fit: tuple[_Objective, dict[str, float], dict[str, float] | None, Array, str],
+        r_start: Array,
+        targets: list[TargetRow],
+        **more: Any,
+    ) -> CalibrationResult:
+        """The result of ``fit`` (what :func:`solve` returned) from ``start``, whose
+        residuals were ``r_start``."""
+        objective, values, stderr, r, message = fit
+        return cls(
+            kind=kind,
+            parameters=values,
+            start=dict(start),
+            standard_error=stderr,
+            cost_start=0.5 * float(r_start @ r_start),
+            cost=0.5 * float(r @ r),
+            residual_rms=float(np.sqrt(np.mean(r**2))),
+            evaluations=objective.evaluations,
+            targets=targets,
+            message=message,
+            **more,
+        )
 
     def to_dict(self) -> dict[str, Any]:
         def clean(value: Any) -> Any:

@@ -26,7 +26,6 @@ from planner.attitude_control import AcsGains
 from planner.dynamics import DynamicsWorkspace
 from planner.model import default_model
 from planner.plan import Plan
-from planner.prediction import predict
 from spacecraft._calibration import (
     SETTLE_BAND_DEG,
     Flight,
@@ -35,14 +34,15 @@ from spacecraft._calibration import (
     ptp_settling_s,
 )
 from spacecraft.calibration import (
-    PARAMETERS,
     CalibrationResult,
     Progress,
     TargetRow,
     check_parameters,
     gains_from_parameters,
     memoised,
+    predict_with,
     solve,
+    start_values,
 )
 
 __all__ = ["fit_to_paper"]
@@ -77,6 +77,26 @@ def _paper_limits() -> dict[str, Mapping[str, float]]:
 def _others(m: Mapping[str, Mapping[str, float]], key: str, but: str) -> float:
     names = ("coordination_feedback", "coordination_feedforward", "coordination_offset")
     return min(m[n][key] for n in names if n != but)
+
+
+def _feedback_pitch(
+    extreme: str, word: str, paper_deg: float, tolerance_deg: float
+) -> _PaperTarget:
+    """Experiment 3's feedback-only pitch ``extreme`` ("min" or "max") within the paper's
+    tolerance of the paper's value."""
+    key = f"pitch_{extreme}_deg"
+
+    def value(m: Mapping[str, Mapping[str, float]]) -> float:
+        return m["coordination_feedback"][key]
+
+    return _PaperTarget(
+        f"coordination_feedback_{extreme}",
+        f"(a) feedback only: pitch {word} {paper_deg:+.2f} deg",
+        f"+-{tolerance_deg} deg",
+        value,
+        lambda m: abs(value(m) - paper_deg) <= tolerance_deg,
+        lambda m: [(value(m) - paper_deg) / tolerance_deg],
+    )
 
 
 def _paper_targets() -> list[_PaperTarget]:
@@ -119,21 +139,9 @@ def _paper_targets() -> list[_PaperTarget]:
             lambda m: worst_start(m) <= start["max_deg"],
             lambda m: [max(0.0, worst_start(m) + _MARGIN_DEG - start["max_deg"]) / 0.02],
         ),
-        _PaperTarget(
-            "coordination_feedback_min",
-            f"(a) feedback only: pitch minimum {fb['min_deg']:+.2f} deg",
-            f"+-{fb['tolerance_deg']} deg",
-            lambda m: m[fbk]["pitch_min_deg"],
-            lambda m: abs(m[fbk]["pitch_min_deg"] - fb["min_deg"]) <= fb["tolerance_deg"],
-            lambda m: [(m[fbk]["pitch_min_deg"] - fb["min_deg"]) / fb["tolerance_deg"]],
-        ),
-        _PaperTarget(
-            "coordination_feedback_max",
-            f"(a) feedback only: pitch maximum {fb['max_deg']:+.2f} deg",
-            f"+-{fb['tolerance_deg']} deg",
-            lambda m: m[fbk]["pitch_max_deg"],
-            lambda m: abs(m[fbk]["pitch_max_deg"] - fb["max_deg"]) <= fb["tolerance_deg"],
-            lambda m: [(m[fbk]["pitch_max_deg"] - fb["max_deg"]) / fb["tolerance_deg"]],
+        *(
+            _feedback_pitch(extreme, word, fb[f"{extreme}_deg"], fb["tolerance_deg"])
+            for extreme, word in (("min", "minimum"), ("max", "maximum"))
         ),
         _PaperTarget(
             "coordination_feedforward_dip",
@@ -186,14 +194,7 @@ def _paper_targets() -> list[_PaperTarget]:
 
 
 def _flight_of(plan: Plan, gains: AcsGains, ws: DynamicsWorkspace) -> Flight:
-    pred = predict(
-        ws,
-        plan.command_times_s,
-        plan.command_joints_rad,
-        acs_commands=plan.acs_commands,
-        acs_gains=gains,
-        initial_quat_orbit_from_base_xyzw=plan.initial_quat_orbit_from_base_xyzw,
-    )
+    pred = predict_with(ws, plan, gains)
     return Flight(
         t_s=pred.t_s,
         quat_orbit_from_base_xyzw=pred.quat_orbit_from_base_xyzw,
@@ -204,11 +205,12 @@ def _flight_of(plan: Plan, gains: AcsGains, ws: DynamicsWorkspace) -> Flight:
     )
 
 
-def _predicted_metrics(
-    ws: DynamicsWorkspace, plans: Mapping[str, Plan], gains: AcsGains
+def _metrics(
+    fly: Callable[[Plan], Flight], plans: Mapping[str, Plan]
 ) -> dict[str, dict[str, float]]:
+    """The targets' metrics of the PTP and experiment 3 as ``fly`` flies them."""
     ptp = plans["ptp"]
-    flight = _flight_of(ptp, gains, ws)
+    flight = fly(ptp)
     out = {
         "ptp": {
             "peak_attitude_deg": float(np.max(flight.attitude_deg)),
@@ -216,10 +218,16 @@ def _predicted_metrics(
         }
     }
     coordination = plans["coordination"]
-    flight = _flight_of(coordination, gains, ws)
+    flight = fly(coordination)
     for label, name in (("(a)", "feedback"), ("(b)", "feedforward"), ("(c)", "offset")):
         out[f"coordination_{name}"] = coordination_metrics(flight, coordination, label)
     return out
+
+
+def _predicted_metrics(
+    ws: DynamicsWorkspace, plans: Mapping[str, Plan], gains: AcsGains
+) -> dict[str, dict[str, float]]:
+    return _metrics(lambda plan: _flight_of(plan, gains, ws), plans)
 
 
 def _unfitted_rows(ws: DynamicsWorkspace) -> list[TargetRow]:
@@ -264,19 +272,31 @@ def _vehicle_metrics(
     from spacecraft.vehicle_config import VehicleConfig
 
     config = VehicleConfig(acs_gains=gains_from_parameters(ws, values))
-    ptp = plans["ptp"]
-    flight = fly_plan(ptp, config)
-    out = {
-        "ptp": {
-            "peak_attitude_deg": float(np.max(flight.attitude_deg)),
-            "settling_time_s": ptp_settling_s(flight, ptp),
-        }
-    }
-    coordination = plans["coordination"]
-    flight = fly_plan(coordination, config)
-    for label, name in (("(a)", "feedback"), ("(b)", "feedforward"), ("(c)", "offset")):
-        out[f"coordination_{name}"] = coordination_metrics(flight, coordination, label)
-    return out
+    return _metrics(lambda plan: fly_plan(plan, config), plans)
+
+
+def _rows(
+    targets: Sequence[_PaperTarget],
+    start: Mapping[str, Mapping[str, float]],
+    fit: Mapping[str, Mapping[str, float]],
+    source: str,
+    note: Callable[[_PaperTarget], str] = lambda t: "",
+) -> list[TargetRow]:
+    """Each target's row: its value and verdict at the start's and the fit's metrics."""
+    return [
+        TargetRow(
+            t.id,
+            t.target,
+            t.tolerance,
+            float(t.value(start)),
+            float(t.value(fit)),
+            bool(t.holds(start)),
+            bool(t.holds(fit)),
+            source,
+            note(t),
+        )
+        for t in targets
+    ]
 
 
 def _faithful_note(
@@ -312,8 +332,7 @@ def fit_to_paper(
     # 3 as the demo pass flies it (spacecraft._calibration.calibration_plans)
     plans = calibration_plans(ws)
     targets = _paper_targets()
-    first = {n: PARAMETERS[n].default for n in names}
-    first.update({k: float(v) for k, v in (start or {}).items() if k in names})
+    first = start_values(names, start)
 
     @memoised
     def metrics(values: dict[str, float]) -> dict[str, dict[str, float]]:
@@ -326,46 +345,12 @@ def fit_to_paper(
     objective, values, _, r, message = solve(names, first, residuals, max_evaluations, progress)
     m0, m1 = metrics(first), metrics(values)
     r0 = np.array([x for t in targets for x in t.residuals(m0)])
-    rows = [
-        TargetRow(
-            t.id,
-            t.target,
-            t.tolerance,
-            float(t.value(m0)),
-            float(t.value(m1)),
-            bool(t.holds(m0)),
-            bool(t.holds(m1)),
-            "prediction",
-        )
-        for t in targets
-    ]
+    rows = _rows(targets, m0, m1, "prediction")
     rows += _unfitted_rows(ws)
     if check_vehicle:
         flown = memoised(lambda v: _vehicle_metrics(v, ws, plans))
         v0, v1 = flown(first), flown(values)
-        for t in targets:
-            rows.append(
-                TargetRow(
-                    t.id,
-                    t.target,
-                    t.tolerance,
-                    float(t.value(v0)),
-                    float(t.value(v1)),
-                    bool(t.holds(v0)),
-                    bool(t.holds(v1)),
-                    "vehicle",
-                    _faithful_note(t, m1, v1),
-                )
-            )
-    return CalibrationResult(
-        kind="paper",
-        parameters=values,
-        start=dict(first),
-        standard_error=None,
-        cost_start=0.5 * float(r0 @ r0),
-        cost=0.5 * float(r @ r),
-        residual_rms=float(np.sqrt(np.mean(r**2))),
-        evaluations=objective.evaluations,
-        targets=rows,
-        message=message,
-    )
+        rows += _rows(targets, v0, v1, "vehicle", lambda t: _faithful_note(t, m1, v1))
+    # no standard errors: the targets' residuals are hinges and tolerances, not noise
+    fit = (objective, values, None, r, message)
+    return CalibrationResult.of_fit("paper", first, fit, r0, rows)

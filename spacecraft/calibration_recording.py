@@ -29,16 +29,16 @@ from planner.errors import InvalidInput
 from planner.mjcf import ServoGains
 from planner.model import default_model
 from planner.plan import Plan
-from planner.prediction import predict
 from spacecraft.calibration import (
-    PARAMETERS,
     CalibrationResult,
     Progress,
     TargetRow,
     check_parameters,
     gains_from_parameters,
     memoised,
+    predict_with,
     solve,
+    start_values,
 )
 from spacecraft.servo_fit import NoiseEstimate, ServoFit, estimate_sensor_noise, fit_servo
 
@@ -86,28 +86,18 @@ def fit_to_recording(
     ws = ws or DynamicsWorkspace(default_model())
     t_obs, q_obs = _observed(recording)
     rot_obs = Rotation.from_quat(q_obs)
-    first = {n: PARAMETERS[n].default for n in names}
-    first.update({k: float(v) for k, v in (start or {}).items() if k in names})
+    first = start_values(names, start)
 
     @memoised
     def residuals(values: dict[str, float]) -> Array:
-        gains = gains_from_parameters(ws, values)
-        pred = predict(
-            ws,
-            plan.command_times_s,
-            plan.command_joints_rad,
-            acs_commands=plan.acs_commands,
-            acs_gains=gains,
-            initial_quat_orbit_from_base_xyzw=plan.initial_quat_orbit_from_base_xyzw,
-        )
+        pred = predict_with(ws, plan, gains_from_parameters(ws, values))
         slerp = Slerp(pred.t_s, Rotation.from_quat(pred.quat_orbit_from_base_xyzw))
         t = np.clip(t_obs, pred.t_s[0], pred.t_s[-1])
         diff = (slerp(t).inv() * rot_obs).as_rotvec()
         return np.asarray(np.degrees(diff).ravel(), dtype=np.float64)
 
-    objective, values, stderr, r, message = solve(
-        names, first, residuals, max_evaluations, progress
-    )
+    fit = solve(names, first, residuals, max_evaluations, progress)
+    r = fit[3]
     r0 = residuals(dict(first))
     rows = [
         TargetRow(
@@ -133,19 +123,8 @@ def fit_to_recording(
         )
         noise = estimate_sensor_noise(recording)
         rows += _servo_rows(servo) + _noise_rows(noise)
-    return CalibrationResult(
-        kind="recording",
-        parameters=values,
-        start=dict(first),
-        standard_error=stderr,
-        cost_start=0.5 * float(r0 @ r0),
-        cost=0.5 * float(r @ r),
-        residual_rms=float(np.sqrt(np.mean(r**2))),
-        evaluations=objective.evaluations,
-        targets=rows,
-        message=message,
-        servo=servo,
-        sensor_noise=noise,
+    return CalibrationResult.of_fit(
+        "recording", first, fit, r0, rows, servo=servo, sensor_noise=noise
     )
 
 

@@ -18,7 +18,7 @@ binary CCSDS Space Packet encoding is only another codec.
 The models check each field's shape and range; the codec (:mod:`telemetry.wire`: the
 decoders, their cheap refusals before any model sees a message, the physical bounds of a
 frame, and :func:`~telemetry.wire.encode`) is the way in and out, and re-exports every name
-of this module.
+of this module: its ``__all__`` lists them, once (this module has none of its own).
 """
 
 from __future__ import annotations
@@ -27,41 +27,6 @@ from enum import StrEnum
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
-
-__all__ = [
-    "DEFAULT_SCHEDULE_CAPACITY",
-    "MAX_FRAMES_PER_MESSAGE",
-    "MAX_JOINTS",
-    "MAX_WHEELS",
-    "PROTOCOL_VERSION",
-    "SPACECRAFT_TYPES",
-    "AcsCommandMsg",
-    "AcsModeName",
-    "BufferState",
-    "CommandAck",
-    "CommandQuery",
-    "CommandStage",
-    "CommandUnknown",
-    "ErrorMsg",
-    "GroundMessage",
-    "GroundMessageT",
-    "Hello",
-    "JointCommandMsg",
-    "Ping",
-    "Pong",
-    "RejectReason",
-    "Retransmit",
-    "SafeExit",
-    "Safing",
-    "SafingTrigger",
-    "ScheduleDelete",
-    "SpacecraftMessage",
-    "SpacecraftMessageT",
-    "TelemetryAck",
-    "TelemetryFrame",
-    "TelemetryMsg",
-    "Verification",
-]
 
 PROTOCOL_VERSION = 2
 #: Commands the onboard schedule holds unless ``hello`` announces otherwise.

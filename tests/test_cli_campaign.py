@@ -5,9 +5,7 @@ campaign file); bad input refused with status 2 and one line naming the fault.""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -16,37 +14,13 @@ from mission import MISSIONS_DIR
 from mission.campaign import load_campaign
 from planner.plan import Plan
 from server.operations.campaign import DEFAULT_ASSIGNMENT
+from tests.support.offline import run_offline
 
-ROOT = Path(__file__).resolve().parents[1]
 ETS7 = str(MISSIONS_DIR / "ets7-1999.toml")
-
-_OFFLINE = """
-import socket, sys
-
-
-class NoNetwork(socket.socket):
-    def __init__(self, *args, **kwargs):
-        raise OSError("network unreachable")
-
-
-socket.socket = NoNetwork
-sys.argv = ["hikoboshi", *sys.argv[1:]]
-from hikoboshi.cli import main
-
-main()
-"""
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    # a guard against a hang, not a timing assertion
-    return subprocess.run(
-        [sys.executable, "-c", _OFFLINE, *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        cwd=cwd,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    return run_offline(*args, cwd=cwd, timeout_s=900)
 
 
 @pytest.mark.slow

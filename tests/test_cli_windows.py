@@ -4,52 +4,19 @@ fresh process with every socket refused; bad input refused with status 2 and the
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from mission import MISSIONS_DIR, compute_windows, load_mission
+from tests.support.offline import run_offline
 
-ROOT = Path(__file__).resolve().parents[1]
 ETS7 = str(MISSIONS_DIR / "ets7-1999.toml")
-
-#: The command line in a fresh interpreter whose sockets all raise: imports, the time scale
-#: and the windows with the network unreachable.
-_OFFLINE = """
-import socket, sys
-
-
-class NoNetwork(socket.socket):
-    def __init__(self, *args, **kwargs):
-        raise OSError("network unreachable")
-
-
-socket.socket = NoNetwork
-sys.argv = ["hikoboshi", *sys.argv[1:]]
-from hikoboshi.cli import main
-
-main()
-"""
-
-
-def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    # a guard against a hang, not a timing assertion
-    return subprocess.run(
-        [sys.executable, "-c", _OFFLINE, *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=cwd,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
 
 
 def test_the_issue_s_command_offline(tmp_path: Path) -> None:
-    result = run(
+    result = run_offline(
         "windows",
         "--mission",
         ETS7,
@@ -82,7 +49,9 @@ def test_the_issue_s_command_offline(tmp_path: Path) -> None:
 
 
 def test_the_table() -> None:
-    result = run("windows", "--mission", ETS7, "--start", "1999-09-30T00:00:00Z", "--hours", "3")
+    result = run_offline(
+        "windows", "--mission", ETS7, "--start", "1999-09-30T00:00:00Z", "--hours", "3"
+    )
     assert result.returncode == 0, result.stderr
     assert "ETS-VII: 4 windows from 1999-09-30T00:00:00Z, 3 h" in result.stdout
     assert "TDRS-West  09-30  00:25:14  01:22:58" in result.stdout
@@ -101,7 +70,7 @@ def test_the_table() -> None:
     ],
 )
 def test_bad_input_is_refused_with_the_reason(args: list[str], reason: str) -> None:
-    result = run("windows", "--mission", ETS7, *args)
+    result = run_offline("windows", "--mission", ETS7, *args)
     assert result.returncode == 2
     assert result.stderr.startswith("error: ") and reason in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
@@ -110,6 +79,6 @@ def test_bad_input_is_refused_with_the_reason(args: list[str], reason: str) -> N
 def test_a_bad_mission_file_is_refused_with_file_key_and_reason(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(Path(ETS7).read_text().replace("inclination_deg = 35.0", "inclination_deg = -1"))
-    result = run("windows", "--mission", str(bad), "--start", "1999-09-30T00:00:00Z")
+    result = run_offline("windows", "--mission", str(bad), "--start", "1999-09-30T00:00:00Z")
     assert result.returncode == 2
     assert f"{bad}: vehicle.elements.inclination_deg: -1 is outside [0, 180]" in result.stderr

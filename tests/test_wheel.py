@@ -1,6 +1,7 @@
 """The wheel: built from a copy of the source, installed into a fresh venv outside the
-checkout, it carries the console's build, the shipped robots and missions (setup.py), and
-``hikoboshi serve`` from it serves the console and lists the robots."""
+checkout, it asks for version ranges (the locks keep the pins), carries the console's build,
+the shipped robots and missions (setup.py), and ``hikoboshi serve`` from it serves the
+console and lists the robots."""
 
 from __future__ import annotations
 
@@ -10,14 +11,15 @@ import shutil
 import subprocess
 import sys
 import sysconfig
-import time
 import zipfile
 from pathlib import Path
 
 import httpx
 import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
 
-from tests.support.processes import free_port
+from tests.support.processes import free_port, health_when_up
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What the wheel is built from (the rest of the checkout is not needed for it).
@@ -74,6 +76,37 @@ def _source(tmp_path: Path) -> Path:
     return src
 
 
+def _locked(path: Path) -> dict[str, str]:
+    """The lock file's pins, by canonical name."""
+    pins = {}
+    for line in path.read_text().splitlines():
+        name, sep, version = line.partition("==")
+        if sep and not line.startswith("#"):
+            pins[canonicalize_name(name.split("[")[0].strip())] = version.split()[0].strip()
+    return pins
+
+
+def _requirements_are_ranges_that_hold_the_locks(wheel: Path) -> None:
+    """The wheel asks its environment for ranges, never exact pins (they are the lock files'),
+    and every lock's pin lies in its range (the main lock for the dependencies, the dev lock
+    for the extras too)."""
+    with zipfile.ZipFile(wheel) as archive:
+        (metadata,) = [n for n in archive.namelist() if n.endswith(".dist-info/METADATA")]
+        lines = archive.read(metadata).decode().splitlines()
+    requires = [
+        Requirement(line.partition(":")[2]) for line in lines if line.startswith("Requires-Dist:")
+    ]
+    assert len(requires) > 20
+    main, dev = _locked(ROOT / "requirements.lock"), _locked(ROOT / "requirements-dev.lock")
+    for requirement in requires:
+        assert not any(s.operator in ("==", "===") for s in requirement.specifier), requirement
+        assert requirement.specifier, f"{requirement} has no range"
+        name = canonicalize_name(requirement.name)
+        extra = requirement.marker is not None and "extra" in str(requirement.marker)
+        pinned = dev[name] if extra else main[name]
+        assert requirement.specifier.contains(pinned, prereleases=True), (requirement, pinned)
+
+
 @pytest.mark.slow
 def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: Path) -> None:
     src = _source(tmp_path)
@@ -91,6 +124,7 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
     assert not missing, f"the wheel lacks {missing}"
     assert any(name.endswith(".dist-info/LICENSE") for name in names), sorted(names)[-8:]
     assert not any(name.startswith(("examples/", "web/", "tests/")) for name in names)
+    _requirements_are_ranges_that_hold_the_locks(wheel)
 
     # A fresh venv outside the checkout; the dependencies are this environment's, added as a
     # site directory after the venv's own (so the wheel's packages, not the checkout's
@@ -134,15 +168,7 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
     )
     try:
         base = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 60.0  # a guard, not a timing assertion
-        while True:
-            try:
-                httpx.get(f"{base}/api/health", timeout=2.0)
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline, "the server did not come up"
-                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-                time.sleep(0.2)
+        health_when_up(proc, base, request_timeout_s=2.0)
         page = httpx.get(f"{base}/", timeout=10.0)
         assert page.status_code == 200
         assert page.content == (src / "web" / "dist" / "index.html").read_bytes()
@@ -151,6 +177,9 @@ def test_the_installed_wheel_serves_the_console_and_lists_the_robots(tmp_path: P
         )
         assert robots.status_code == 200, robots.text
         assert {"ets7", "orihime"} <= {r["name"] for r in robots.json()["data"]}
+        # the shipped robots by name, from the wheel's own copy
+        checked = _run(venv / "bin" / "hikoboshi", "robot", "check", "orihime", "--json", env=env)
+        assert str(Path(purelib) / "planner" / "description" / "robots") in checked
     finally:
         proc.terminate()
         proc.wait(timeout=20)

@@ -37,6 +37,13 @@ const html = readFileSync(join(root, "index.html"), "utf8")
   .replace("%APP_CSS%", `/assets/${css}`);
 writeFileSync(join(dist, "index.html"), html);
 if (existsSync(join(root, "public"))) cpSync(join(root, "public"), dist, { recursive: true });
+// The API's documentation page (/docs) loads Swagger UI from here, never from a CDN, so that
+// it works offline as the rest does (swagger-ui-dist, pinned in package.json).
+const swagger = join(root, "node_modules", "swagger-ui-dist");
+mkdirSync(join(dist, "swagger"), { recursive: true });
+for (const name of ["swagger-ui-bundle.js", "swagger-ui.css", "favicon-32x32.png", "LICENSE"]) {
+  cpSync(join(swagger, name), join(dist, "swagger", name === "LICENSE" ? "LICENSE.txt" : name));
+}
 // The model for the 3D view, exported by the project's own command when it is installed
 // (scripts/setup.sh installs it before building); without it the console says the 3D view
 // is not available.

@@ -34,7 +34,12 @@ element and what is wrong; nothing is cached or changed by a failing (or a passi
 from planner.description.acs_file import load_acs_config
 from planner.description.build import MIN_ARM_JOINTS
 from planner.description.checks import InvalidRobotDescription
-from planner.description.files import ETS7_DESCRIPTION, EXAMPLES_DIR, MAX_FILE_BYTES
+from planner.description.files import (
+    ETS7_DESCRIPTION,
+    EXAMPLES_DIR,
+    MAX_FILE_BYTES,
+    shipped_robots,
+)
 from planner.description.load import (
     VehicleTables,
     default_robot,
@@ -67,4 +72,5 @@ __all__ = [
     "load_robot",
     "load_vehicle_tables",
     "servo_gains_of",
+    "shipped_robots",
 ]

@@ -28,6 +28,7 @@ __all__ = [
     "read_limited_size",
     "read_mesh_points",
     "read_toml",
+    "shipped_robots",
     "urdf_path_of",
 ]
 
@@ -46,6 +47,18 @@ EXAMPLES_DIR = (
     _PACKAGED if _PACKAGED.is_dir() else Path(__file__).resolve().parents[2] / "examples" / "robots"
 )
 ETS7_DESCRIPTION = EXAMPLES_DIR / "ets7" / "ets7.toml"
+
+
+def shipped_robots() -> dict[str, Path]:
+    """The shipped descriptions by name (``ets7``, ``orihime``: each its folder's
+    ``NAME/NAME.toml`` under :data:`EXAMPLES_DIR`), from a checkout and a wheel alike."""
+    if not EXAMPLES_DIR.is_dir():
+        return {}
+    return {
+        path.parent.name: path
+        for path in sorted(EXAMPLES_DIR.glob("*/*.toml"))
+        if path.stem == path.parent.name
+    }
 
 
 def read_limited_size(path: Path, what: str) -> int:

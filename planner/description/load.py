@@ -20,6 +20,7 @@ from planner.description.files import (
     read_limited_size,
     read_mesh_points,
     read_toml,
+    shipped_robots,
     urdf_path_of,
 )
 from planner.description.tables import head_from, sensor_noise_from, servo_from
@@ -30,14 +31,29 @@ from planner.robot import RobotDescription, SensorNoiseSpec, ServoSpec
 __all__ = ["VehicleTables", "default_robot", "load_robot", "load_vehicle_tables"]
 
 
+def _named(path: Path) -> Path:
+    """``path``, or, when it names no file and is a bare name (no folder, no suffix), the
+    shipped robot of that name; a bare name that is neither is refused naming them."""
+    if path.exists() or path.parent != Path(".") or path.suffix:
+        return path
+    shipped = shipped_robots()
+    if str(path) in shipped:
+        return shipped[str(path)]
+    known = ", ".join(shipped) or "none here"
+    raise InvalidRobotDescription(
+        path, "description", f"no such file, nor a shipped robot of that name ({known})"
+    )
+
+
 def load_robot(path: str | Path) -> RobotDescription:
-    """Load and validate the robot description at ``path`` (a TOML file; ``docs/robots.md``).
+    """Load and validate the robot description at ``path`` (a TOML file; ``docs/robots.md``),
+    or of the shipped robot ``path`` names (``ets7``, ``orihime``: :func:`shipped_robots`).
 
     Raises :class:`~planner.description.checks.InvalidRobotDescription` (an
     :class:`~planner.errors.InvalidInput`) for any fault, naming the file, the element and
     what is wrong.
     """
-    toml_path = Path(path)
+    toml_path = _named(Path(path))
     c, doc = read_toml(toml_path, "description")
     head = head_from(c, doc, lambda urdf_name: urdf_path_of(c, toml_path, urdf_name))
     urdf = Urdf(head.urdf_path, read_limited(head.urdf_path, "URDF"))

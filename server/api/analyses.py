@@ -26,6 +26,7 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
+from server.api.openapi import file_content
 from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
 from server.schemas import ERROR_RESPONSES, SafeLine
 from server.schemas.analyses import AnalysesPublic, AnalysisKind, AnalysisPublic, ReportPublic
@@ -112,7 +113,10 @@ async def get_report(
     response_class=HTMLResponse,
     responses={
         **_JSON_ERRORS,
-        200: {"content": {"text/html": {}}, "description": "One self-contained page"},
+        200: {
+            "content": file_content("text/html", text=True),
+            "description": "One self-contained page",
+        },
         **NOT_MODIFIED,
     },
 )
@@ -133,7 +137,10 @@ async def get_report_html(
 @router.get(
     "/{pass_id}/report/figures/{name}.png",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}, "description": "The figure"}, **NOT_MODIFIED},
+    responses={
+        200: {"content": file_content("image/png"), "description": "The figure"},
+        **NOT_MODIFIED,
+    },
 )
 async def get_figure(
     pass_id: IdPath,

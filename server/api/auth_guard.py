@@ -16,6 +16,8 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from server.settings import Settings
+
 __all__ = ["AuthGuard", "fingerprint"]
 
 audit = logging.getLogger("hikoboshi.audit")
@@ -107,6 +109,18 @@ class AuthGuard:
         self.clock = clock
         self._addresses = _Windows(window_s, max_addresses)
         self._credentials = _Windows(window_s, max_addresses)
+
+    @classmethod
+    def of(
+        cls, settings: Settings, on_blocked: Callable[[str, int, float], None] | None = None
+    ) -> AuthGuard:
+        """A guard with the settings' limit, window and tracked addresses."""
+        return cls(
+            limit=settings.auth_failure_limit,
+            window_s=settings.auth_failure_window_s,
+            max_addresses=settings.auth_tracked_addresses,
+            on_blocked=on_blocked,
+        )
 
     def __len__(self) -> int:
         """Addresses tracked."""

@@ -14,10 +14,12 @@
 
 A start is refused 409 ``vehicle_safe`` while the vehicle is in SAFE.
 
-A start is refused 409 ``flight_rule_violation`` when the pass's plan fails a flight rule
-(the failing rows in the error's detail; :mod:`server.services.flight_rules`), before the
-runner is asked: the pass stays ``scheduled``, nothing is uplinked. A plan stored without a
-report is checked first, in a worker process, as planning is.
+A start is refused 409 ``outside_window`` before the pass's window opens or after it closed,
+409 ``plan_exceeds_window`` when its plan's last command would fall after the window's end,
+and 409 ``flight_rule_violation`` when the pass's plan fails a flight rule (the failing rows
+in the error's detail), before the runner is asked (:mod:`server.operations.start_gate`):
+the pass stays ``scheduled``, nothing is uplinked. A plan stored without a report is
+refused ``flight_rules_unchecked``, naming the check route.
 
 The confirmation must spell the action and the pass's exact name, so a stale console tab
 or a copied request cannot start or abort the wrong pass. Missing: 422 ``invalid_request``;
@@ -48,15 +50,16 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
+from server.operations.start_gate import start_gate_job
+from server.operations.windows import start_lead_s, window_time
 from server.schemas import ERROR_RESPONSES, SafeText
 from server.schemas.passes import PassControlPublic
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.errors import ConflictError, InvalidRequestError, UnavailableError
 from server.services.events import PassControlRefused, event_job
-from server.services.flight_rules import Refusal, start_gate_job
-from server.services.link import LinkUnavailable, SafeExitRefused
-from server.services.passes import check_confirmation, control_state, start_lead_s
+from server.services.link import GroundLink, LinkUnavailable, SafeExitRefused
+from server.services.passes import check_confirmation, control_state
 from server.services.runner import PassRunner
 from server.services.workers import WorkerPool
 from server.settings import Settings
@@ -140,6 +143,7 @@ class _Ground:
     runner: PassRunner
     settings: Settings
     workers: WorkerPool
+    link: GroundLink
 
 
 def _ground(
@@ -149,23 +153,24 @@ def _ground(
     runner: RunnerDep,
     settings: SettingsDep,
     workers: WorkersDep,
+    link: LinkDep,
 ) -> _Ground:
-    return _Ground(db, publisher, clock, runner, settings, workers)
+    return _Ground(db, publisher, clock, runner, settings, workers, link)
 
 
-def _refused(refusal: Refusal) -> ConflictError:
-    return ConflictError(refusal.code, refusal.message, refusal.detail)
-
-
-async def _flight_rules_kept(ground: _Ground, pass_id: str, actor: str) -> None:
-    """Refuse (409, audited) a start whose plan fails a flight rule or was never checked
-    (server.services.flight_rules); a database job of the command path, no computation."""
-    lead_s = start_lead_s(ground.settings)
-    job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s)
+async def _may_start(ground: _Ground, pass_id: str, actor: str) -> None:
+    """Refuse (409, audited) a start outside the pass's window, too late in it for its
+    plan, or whose plan fails a flight rule or was never checked
+    (server.operations.start_gate); a database job of the command path, no computation.
+    The window is read on the ground's injected clock, the lead at the link's time scale."""
+    link = ground.link
+    lead_s = start_lead_s(ground.settings, link.time_scale if link.connected else 1.0)
+    at = window_time(ground.settings, ground.clock.time_ns(), link)
+    job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s, at=at)
     gate = await ground.db.run(job, control=True)
     ground.publisher.publish(gate.events)
     if gate.refusal is not None:
-        raise _refused(gate.refusal)
+        raise gate.refusal.error()
 
 
 GroundDep = Annotated[_Ground, Depends(_ground)]
@@ -176,7 +181,7 @@ async def start_pass(
     pass_id: IdPath, body: StartRequest, who: OperatorDep, ground: GroundDep
 ) -> PassControlPublic:
     key = await _confirmed(ground, pass_id, "START", body.confirm, who.name)
-    await _flight_rules_kept(ground, key, who.name)
+    await _may_start(ground, key, who.name)
     try:
         await ground.runner.start(key, who.name)
     except LinkUnavailable as exc:

@@ -66,7 +66,7 @@ from server.api.edge_checks import (
     _too_large,
     check_json,
 )
-from server.api.errors import HttpError, error_body
+from server.api.errors import PROBLEM_JSON, HttpError, problem
 from server.api.lanes import Admission, Refusal, is_heavy, lane_of, set_lane
 from server.services.clock import Clock, SystemClock
 from server.services.events import AuthBlocked, record
@@ -172,13 +172,13 @@ async def _respond(
     detail: Any = None,
     headers: Iterable[tuple[bytes, bytes]] = (),
 ) -> None:
-    body = json.dumps(error_body(code, message, detail)).encode()
+    body = json.dumps(problem(status, code, message, detail)).encode()
     await send(
         {
             "type": "http.response.start",
             "status": status,
             "headers": [
-                (b"content-type", b"application/json"),
+                (b"content-type", PROBLEM_JSON.encode()),
                 (b"content-length", str(len(body)).encode()),
                 *headers,
             ],
@@ -370,11 +370,8 @@ def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
     """Put :class:`EdgeMiddleware` in front of ``app``; its :class:`AuthGuard` is also
     ``app.state.auth_guard`` (the websockets count their failures there; tests move its
     clock), its :class:`~server.api.lanes.Admission` ``app.state.admission``."""
-    guard = AuthGuard(
-        limit=settings.auth_failure_limit,
-        window_s=settings.auth_failure_window_s,
-        max_addresses=settings.auth_tracked_addresses,
-        on_blocked=lambda address, failures, left: _record_block(app, address, failures, left),
+    guard = AuthGuard.of(
+        settings, lambda address, failures, left: _record_block(app, address, failures, left)
     )
     app.state.auth_guard = guard
     admission = Admission.of(settings)

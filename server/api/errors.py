@@ -1,7 +1,16 @@
-"""One JSON error shape for every failure the API reports, and the one map to it from the
-errors of the layers below.
+"""One error shape for every failure the API reports, problem details (RFC 9457,
+``application/problem+json``), and the one map to it from the errors of the layers below.
 
-    {"error": {"code": "not_found", "message": "pass 1234 does not exist", "detail": ...}}
+    {"type": "urn:hikoboshi:problem:not_found", "title": "Not Found", "status": 404,
+     "detail": "pass 1234 does not exist", "code": "not_found", "data": ...,
+     "error": {"code": "not_found", "message": "pass 1234 does not exist", "detail": ...}}
+
+``type`` names the code (:data:`PROBLEM_TYPE` + code: a name, not a page to fetch),
+``title`` is the status's phrase, ``detail`` the message for a person; the extension members
+are ``code`` (the machine-readable reason clients switch on) and ``data`` (what the refusal
+carries beside its message, when it carries anything: the failing rows, the window, the
+retry time). ``error`` is the shape before problem details, kept as a member so that clients
+written against it go on working (docs/security.md "Errors").
 
 The statuses (:func:`describe`): a service's refusal (:mod:`server.services.errors`) by its
 kind: not found 404, conflict 409, invalid request 422, unavailable 503 (with
@@ -18,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+from http import HTTPStatus
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -40,7 +50,16 @@ from server.services.errors import (
 )
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 
-__all__ = ["HttpError", "describe", "error_body", "install_error_handlers", "status_of"]
+__all__ = [
+    "PROBLEM_JSON",
+    "PROBLEM_TYPE",
+    "HttpError",
+    "ProblemResponse",
+    "describe",
+    "install_error_handlers",
+    "problem",
+    "status_of",
+]
 
 log = logging.getLogger("hikoboshi.ground.errors")
 
@@ -95,12 +114,47 @@ def status_of(exc: BaseException) -> int:
     return 500 if described is None else described[0]
 
 
-def error_body(code: str, message: str, detail: Any = None) -> dict[str, Any]:
-    return {"error": {"code": code, "message": message, "detail": detail}}
+#: The media type of every error the API answers (RFC 9457).
+PROBLEM_JSON = "application/problem+json"
+#: A problem's ``type``: this and its code.
+PROBLEM_TYPE = "urn:hikoboshi:problem:"
+#: Phrases HTTPStatus does not give: RFC 9110's names (Python 3.11 has the older ones) and
+#: nginx's 499.
+_TITLES = {413: "Content Too Large", 422: "Unprocessable Content", 499: "Client Closed Request"}
+
+
+def _title(status: int) -> str:
+    if status in _TITLES:
+        return _TITLES[status]
+    try:
+        return HTTPStatus(status).phrase
+    except ValueError:
+        return "Error"
+
+
+def problem(status: int, code: str, message: str, detail: Any = None) -> dict[str, Any]:
+    """The body of an error: problem details with the code, and the shape before them."""
+    body: dict[str, Any] = {
+        "type": PROBLEM_TYPE + code,
+        "title": _title(status),
+        "status": status,
+        "detail": message,
+        "code": code,
+    }
+    if detail is not None:
+        body["data"] = detail
+    body["error"] = {"code": code, "message": message, "detail": detail}
+    return body
+
+
+class ProblemResponse(JSONResponse):
+    """A JSON response as ``application/problem+json``."""
+
+    media_type = PROBLEM_JSON
 
 
 def _json(status: int, code: str, message: str, detail: Any = None) -> JSONResponse:
-    return JSONResponse(status_code=status, content=error_body(code, message, detail))
+    return ProblemResponse(status_code=status, content=problem(status, code, message, detail))
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -126,9 +180,11 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
         code = {401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed"}
-        return JSONResponse(
+        return ProblemResponse(
             status_code=exc.status_code,
-            content=error_body(code.get(exc.status_code, "http_error"), str(exc.detail)),
+            content=problem(
+                exc.status_code, code.get(exc.status_code, "http_error"), str(exc.detail)
+            ),
             headers=getattr(exc, "headers", None),
         )
 
@@ -146,9 +202,9 @@ def install_error_handlers(app: FastAPI) -> None:
         # Every connection of the readers' pool is in use (the command path has its own):
         # come back shortly, rather than wait and hold a thread.
         log.warning("readers' pool full: %s %s", request.method, request.url.path)
-        return JSONResponse(
+        return ProblemResponse(
             status_code=503,
-            content=error_body("busy", "every database connection for requests is in use"),
+            content=problem(503, "busy", "every database connection for requests is in use"),
             headers={"Retry-After": "2"},
         )
 
@@ -165,9 +221,9 @@ def install_error_handlers(app: FastAPI) -> None:
             if cancelled
             else "the database is not available"
         )
-        return JSONResponse(
+        return ProblemResponse(
             status_code=503,
-            content=error_body("busy" if cancelled else "database_unavailable", message),
+            content=problem(503, "busy" if cancelled else "database_unavailable", message),
             headers={"Retry-After": "5"},
         )
 

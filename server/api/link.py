@@ -17,10 +17,9 @@ import asyncio
 import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
-from fastapi.responses import JSONResponse
 
 from server.api.deps import AuthorityDep, ClockDep, LinkDep, websocket_principal
-from server.api.errors import HttpError, error_body
+from server.api.errors import HttpError, ProblemResponse, problem
 from server.services.link import Connection
 from server.settings import Role
 
@@ -39,8 +38,8 @@ async def spacecraft_link(
         # a standby (or a lease lapsing): refused in the handshake, before the vehicle says
         # hello or sends what it kept for the ground; it goes on to its next ground's URL
         await websocket.send_denial_response(
-            JSONResponse(
-                error_body(refusal.code, refusal.message, refusal.detail),
+            ProblemResponse(
+                problem(503, refusal.code, refusal.message, refusal.detail),
                 status_code=503,
                 headers={"Retry-After": "1"},
             )

@@ -9,22 +9,27 @@ started, points the collector at the services (:func:`connect_metrics`).
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import time
 from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import Response
 from prometheus_client.exposition import choose_encoder
+from sqlalchemy.exc import SQLAlchemyError
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.deps import ViewerDep
 from server.services.metrics import GroundMetrics
+from server.services.record_counts import RecordCounter
 
 __all__ = ["METRICS_PATH", "RequestTimer", "connect_metrics", "install_metrics"]
 
 METRICS_PATH = "/metrics"
 
 router = APIRouter()
+log = logging.getLogger("hikoboshi.ground.metrics")
 
 #: The methods named in the latency's labels; any other is ``other`` (a client chooses the
 #: method: its labels must not grow without bound).
@@ -34,8 +39,16 @@ _METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"
 @router.get(METRICS_PATH, include_in_schema=False)
 async def metrics(request: Request, _viewer: ViewerDep) -> Response:
     """The Prometheus exposition (OpenMetrics when the ``Accept`` header asks for it); its
-    figures are computed now, on the event loop, from what the services hold (no database,
-    no thread)."""
+    figures are computed now, on the event loop, from what the services hold, but the
+    archive's counts: those are asked of the database in a thread when older than a few
+    seconds (a database that does not answer leaves them out, and says so in the log)."""
+    counter: RecordCounter | None = getattr(request.app.state, "record_counter", None)
+    if counter is not None:
+        try:
+            await asyncio.to_thread(counter.refresh)
+        except SQLAlchemyError as exc:
+            counter.latest = None
+            log.warning("metrics: the archive's counts are left out: %s", exc)
     registry = request.app.state.metrics.registry
     # OpenMetrics for a client that asks for it (Prometheus does), else the text format
     encode, media_type = choose_encoder(request.headers.get("accept", ""))
@@ -113,4 +126,7 @@ def connect_metrics(state: Any) -> None:
         return None if live is None else (live.dropped, live.sent)
 
     sources.foxglove = foxglove
+    counter = state.record_counter = RecordCounter(state.read_sessions)
+    sources.records = lambda: counter.latest
+    sources.data_dir = state.settings.data_dir
     state.db.on_commit = metrics.db_commit_seconds.observe

@@ -14,6 +14,7 @@ from fastapi.responses import Response
 
 from planner.description import default_robot
 from server.api.deps import ViewerDep
+from server.api.openapi import file_content
 from server.schemas import ERROR_RESPONSES
 from server.services import robots as service
 
@@ -30,7 +31,12 @@ def _urdf() -> str:
 @router.get(
     "/urdf",
     response_class=Response,
-    responses={200: {"content": {"application/xml": {}}, "description": "The URDF document"}},
+    responses={
+        200: {
+            "content": file_content("application/xml", text=True),
+            "description": "The URDF document",
+        }
+    },
 )
 def get_urdf(_: ViewerDep) -> Response:
     return Response(_urdf(), media_type="application/xml")

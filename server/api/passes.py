@@ -17,6 +17,7 @@ from server.api.deps import (
     SettingsDep,
     ViewerDep,
 )
+from server.operations.scheduling import schedule_pass as schedule
 from server.schemas import (
     ERROR_RESPONSES,
     MAX_NS,
@@ -53,9 +54,9 @@ def schedule_pass(
     """Schedule a pass of a stored plan in a window given by hand (``aos_time``,
     ``los_time``) or named (``window``: mission, relay, AOS time; the pass then runs in the
     window's net time, and the window is stored with it). The window must hold the plan and
-    the uplink lead: 422 ``window_too_short`` by hand, 409 ``plan_exceeds_window`` named;
-    404 ``unknown_mission``, ``unknown_relay``, ``no_such_window``."""
-    scheduled = service.schedule_pass(
+    the start lead: 409 ``plan_exceeds_window`` (either kind, docs/missions.md); 404
+    ``unknown_mission``, ``unknown_relay``, ``no_such_window``."""
+    scheduled = schedule(
         session=session, settings=settings, request=request, actor=who.name, now_ns=clock.time_ns()
     )
     # committed: its event goes to the consoles, on the event loop (this route runs in a

@@ -11,10 +11,9 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from fastapi import APIRouter, Request
-from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 
-from server.api.errors import error_body
+from server.api.errors import ProblemResponse, problem
 from server.schemas import ErrorPublic
 from server.services.readiness import ReadinessProbe
 
@@ -43,8 +42,8 @@ async def ready(request: Request) -> Any:
     503 with the reason otherwise (``/api/health`` is liveness and touches nothing)."""
     probe: ReadinessProbe | None = getattr(request.app.state, "readiness", None)
     if probe is None:  # the application has not started (or has stopped)
-        return JSONResponse(
-            error_body("starting", "the service is not started"),
+        return ProblemResponse(
+            problem(503, "starting", "the service is not started"),
             status_code=503,
             headers={"Retry-After": "2"},
         )
@@ -52,8 +51,8 @@ async def ready(request: Request) -> Any:
     if answer.ready:
         role = request.app.state.authority.status()["role"]
         return ReadyPublic(status="ready", migration=answer.detail["migration"], command=role)
-    return JSONResponse(
-        error_body(answer.code, answer.message, answer.detail or None),
+    return ProblemResponse(
+        problem(503, answer.code, answer.message, answer.detail or None),
         status_code=503,
         headers={"Retry-After": "5"},
     )
@@ -79,15 +78,15 @@ async def command(request: Request) -> Any:
     ``replicas`` profile); public, like ``/api/ready``."""
     authority = getattr(request.app.state, "authority", None)
     if authority is None:
-        return JSONResponse(
-            error_body("starting", "the service is not started"),
+        return ProblemResponse(
+            problem(503, "starting", "the service is not started"),
             status_code=503,
             headers={"Retry-After": "2"},
         )
     refusal = authority.refusal()
     if refusal is not None:
-        return JSONResponse(
-            error_body(refusal.code, refusal.message, refusal.detail),
+        return ProblemResponse(
+            problem(503, refusal.code, refusal.message, refusal.detail),
             status_code=503,
             headers={"Retry-After": "1"},
         )

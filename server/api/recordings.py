@@ -26,6 +26,7 @@ from server.api.deps import (
     WorkersDep,
 )
 from server.api.errors import HttpError
+from server.api.openapi import file_content
 from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
 from server.schemas import ERROR_RESPONSES, ErrorPublic
 from server.schemas.analyses import PassImportPublic
@@ -46,7 +47,7 @@ async def _spools(connection: HTTPConnection) -> SpoolBudget:
 
 SpoolsDep = Annotated[SpoolBudget, Depends(_spools)]
 
-_BINARY = {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}
+_BINARY = file_content("application/octet-stream")
 
 
 def _filename(name: str) -> str:

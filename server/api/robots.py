@@ -31,6 +31,7 @@ from planner.errors import PlannerError
 from planner.meshes import mesh_media_type
 from planner.plan import ETS7_ROBOT_NAME
 from server.api.deps import SettingsDep, ViewerDep
+from server.api.openapi import file_content
 from server.schemas import ERROR_RESPONSES
 from server.schemas.plans import RobotPosePublic, RobotPublic, RobotsPublic
 from server.services import robots as service
@@ -40,7 +41,7 @@ __all__ = ["router"]
 router = APIRouter(prefix="/api/robots", tags=["robots"], responses=ERROR_RESPONSES)
 
 _URDF_RESPONSE: dict[int | str, dict[str, Any]] = {
-    200: {"content": {"application/xml": {}}, "description": "The URDF document"}
+    200: {"content": file_content("application/xml", text=True), "description": "The URDF document"}
 }
 RobotName = Annotated[str, Path(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")]
 RobotHash = Annotated[str, Path(pattern=r"^[0-9a-f]{64}$")]
@@ -141,7 +142,7 @@ def get_robot_urdf_by_hash(robot_hash: RobotHash, settings: SettingsDep, _: View
 
 _MESH_RESPONSE: dict[int | str, dict[str, Any]] = {
     200: {
-        "content": {"model/stl": {}, "model/vnd.collada+xml": {}, "model/obj": {}},
+        "content": file_content("model/stl", "model/vnd.collada+xml", "model/obj"),
         "description": "The mesh file as the vendor wrote it",
     }
 }

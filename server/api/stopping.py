@@ -18,7 +18,7 @@ import math
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server.api.errors import error_body
+from server.api.errors import PROBLEM_JSON, problem
 from server.services.workers import STOPPING_RETRY_AFTER_S
 
 __all__ = ["AnswerWhenStopping"]
@@ -56,7 +56,8 @@ class AnswerWhenStopping:
 
 async def _answer(send: Send) -> None:
     body = json.dumps(
-        error_body(
+        problem(
+            503,
             "shutting_down",
             "the service is shutting down; the request was stopped, try again after it restarts",
             {"retry_after_s": STOPPING_RETRY_AFTER_S},
@@ -67,7 +68,7 @@ async def _answer(send: Send) -> None:
             "type": "http.response.start",
             "status": 503,
             "headers": [
-                (b"content-type", b"application/json"),
+                (b"content-type", PROBLEM_JSON.encode()),
                 (b"content-length", str(len(body)).encode()),
                 (b"retry-after", str(math.ceil(STOPPING_RETRY_AFTER_S)).encode()),
                 (b"connection", b"close"),

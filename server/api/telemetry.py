@@ -27,6 +27,7 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
+from server.api.openapi import file_content
 from server.schemas import ERROR_RESPONSES, MAX_NS, EventKind, SafeLine
 from server.schemas.telemetry import EventsPublic, QuantityAcrossPublic, TelemetryPublic
 from server.services import exports
@@ -144,10 +145,8 @@ def _attachment(export: exports.TelemetryExport, suffix: str) -> dict[str, str]:
 
 
 _EXPORT_CONTENT = {
-    "csv": {"text/csv": {"schema": {"type": "string"}}},
-    "parquet": {
-        "application/vnd.apache.parquet": {"schema": {"type": "string", "format": "binary"}}
-    },
+    "csv": file_content("text/csv", text=True),
+    "parquet": file_content("application/vnd.apache.parquet"),
 }
 
 

@@ -4,7 +4,10 @@ carries them as package data (setup.py).
 
 ``/`` (and ``/index.html``) is the console's page; ``/assets/...`` its content-hashed
 bundles (cached for good); ``/model/...`` the model files the setup script exports next to
-it. Without a build, ``/`` answers 503 with a page that says how to build it, so an
+it. ``/docs`` is the API's documentation page, Swagger UI served from the same build
+(``/swagger/...``: ``swagger-ui-dist``, pinned in web/package.json), never from a CDN, so it
+works offline as the rest does; without a build it answers 503 and points to
+``/openapi.json``. Without a build, ``/`` answers 503 with a page that says how to build it, so an
 operator never mistakes a missing console for a dead server. Nothing here is under
 ``/api`` and nothing is in the OpenAPI document. The pages' Content-Security-Policy and the
 other security headers are the edge's (server/api/edge.py, docs/security.md).
@@ -15,6 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fastapi import APIRouter
+from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, Response
 
 from server.api.errors import HttpError
@@ -47,7 +51,16 @@ _TYPES = {
     ".map": "application/json",
     ".txt": "text/plain",
     ".urdf": "application/xml",
+    ".png": "image/png",
 }
+
+_DOCS_NOT_BUILT = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>Hikoboshi: API docs not built</title>
+</head><body><h1>The API's documentation page is not built</h1>
+<p>Its Swagger UI comes with the console's build, which is missing in <code>{dist}</code>
+(<code>bash scripts/setup.sh</code>). The API's description is at
+<a href="/openapi.json">/openapi.json</a>.</p></body></html>
+"""
 
 
 def _file(root: Path, name: str, cache: str) -> Response:
@@ -83,5 +96,22 @@ def make_router(dist: Path = DEFAULT_DIST) -> APIRouter:
     @router.get("/model/{name}")
     def model(name: str) -> Response:
         return _file(dist / "model", name, "no-cache")
+
+    @router.get("/docs")
+    def docs() -> Response:
+        if not (dist / "swagger" / "swagger-ui-bundle.js").is_file():
+            return HTMLResponse(_DOCS_NOT_BUILT.format(dist=dist), status_code=503)
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title="Hikoboshi ground service: API",
+            swagger_js_url="/swagger/swagger-ui-bundle.js",
+            swagger_css_url="/swagger/swagger-ui.css",
+            swagger_favicon_url="/swagger/favicon-32x32.png",
+        )
+
+    @router.get("/swagger/{name}")
+    def swagger(name: str) -> Response:
+        # Named by the pinned package, not by content: revalidated.
+        return _file(dist / "swagger", name, "no-cache")
 
     return router

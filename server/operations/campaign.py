@@ -20,8 +20,8 @@ campaign_gap`'s. Each pass is planned and checked by the one checked planning ca
 The rules it keeps:
 
 - Pass k takes the first window whose net time (after the mission's AOS margin) starts at
-  or after the previous pass's last command; its first command is tagged ``start_lead_s``
-  after the net start (the ground's ``uplink_start_lead_s``, 30 s by default), and the plan
+  or after the previous pass's last command; its plan starts ``start_lead_s`` after the net
+  start (the ground's start lead, 31.25 s with its default settings), and the plan
   with that lead must fit the net time (else :class:`CampaignInfeasible`, naming the pass).
 - The default assignment is the paper's four experiments in its order (SPEC 3: 1
   reactionless with its PTP baseline, 2 GJM, 3 attitude coordination, 4 non-holonomic)
@@ -61,7 +61,10 @@ from mission.errors import MissionError
 from mission.file import Mission
 from mission.windows import Window, compute_windows, format_utc
 from server.operations.campaign_gap import GRAVITY_MU_M3PS2, gap_transition
+from server.operations.windows import PassWindow, check_fit
+from server.operations.windows import start_lead_s as ground_start_lead_s
 from server.services.errors import DomainError
+from server.settings import Settings
 
 if TYPE_CHECKING:
     from planner.flight_rules import FlightRulesReport
@@ -89,9 +92,10 @@ DEFAULT_ASSIGNMENT: tuple[tuple[str, ...], ...] = (
     ("coordination",),
     ("nonholonomic",),
 )
-#: The ground's default ``uplink_start_lead_s`` (server/settings.py): a pass's first command
-#: is tagged this long after the window's net start.
-DEFAULT_START_LEAD_S = 30.0
+#: The ground's start lead at time scale 1 with its default settings
+#: (:func:`server.operations.windows.start_lead_s`): a pass's plan starts this long after
+#: the window's net start at most.
+DEFAULT_START_LEAD_S = ground_start_lead_s(Settings())
 #: How far from the start the windows are searched (a LEO-GEO window comes every orbit).
 SEARCH_HOURS = 24.0
 #: At most this many passes in one campaign.
@@ -320,17 +324,27 @@ def plan_campaign(
             "experiments": experiments,
             "gravity_gradient_radius_m": _pass_radius_m(mission, plan_start, window.net_end_utc),
         }
+        pass_window = PassWindow.of_mission(window, mission.name)
         try:
             params = (
                 PassParams(**others)
                 if start_state is None
                 else PassParams.starting_at(start_state, **others)
             )
-            if check_rules:  # against the flight rules, fits_pass with the usable time
-                checked = plan_checked("pass", params, robot=robot, window_s=usable_s)
-                plan, report = checked.plan, checked.report
+            if check_rules:  # the flight rules and the window-fit rule, in the one call
+                checked = plan_checked(
+                    "pass", params, robot=robot, window=pass_window, lead_s=start_lead_s
+                )
+                plan, report, misfit = checked.plan, checked.report, checked.misfit
             else:  # the windows and states alone (the tests of those)
                 plan, report = plan_experiment("pass", params, robot=robot), None
+                misfit = check_fit(
+                    pass_window,
+                    plan_id=f"of pass {k}",
+                    plan_s=plan.duration_s,
+                    lead_s=start_lead_s,
+                    available_s=pass_window.usable_s,
+                )
         except DomainError as exc:
             raise CampaignInfeasible(f"{where}: {exc.message}") from exc
         except PlannerError as exc:
@@ -340,11 +354,8 @@ def plan_campaign(
                     f"{start_lead_s:g} s start lead ({usable_s:.1f} s): {exc}"
                 ) from exc
             raise CampaignInfeasible(f"{where}: {exc}") from exc
-        if plan.duration_s > usable_s:
-            raise CampaignInfeasible(
-                f"{where}: the plan needs {plan.duration_s:.1f} s, more than the window's "
-                f"net time less the {start_lead_s:g} s start lead ({usable_s:.1f} s)"
-            )
+        if misfit is not None:
+            raise CampaignInfeasible(f"{where}: {misfit.message}")
         end_state = VehicleState.at_end_of(plan.prediction)
         current = CampaignPass(
             index=k,

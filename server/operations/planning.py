@@ -10,16 +10,17 @@ flight rules, or check a plan someone else made, in one call for every caller (i
 ``/documents``), the demo (through the API) and the campaign (:mod:`server.operations.campaign`)
 all plan and check here. A checked plan carries the report in its document
 (``"flight_rules"``), passing or not: a plan that fails a rule is still a plan, which a
-person may look at; a pass of it will not start (:mod:`server.services.flight_rules`).
+person may look at; a pass of it will not start (:mod:`server.operations.start_gate`).
 
 The check is the ground's own: whatever report a plan arrives with is replaced by the one
 computed here. A robot without collision shapes cannot be shown clear of the spacecraft: the
 invalid request ``no_collision_geometry``.
 
-The window: ``window_s`` is the time the plan's pass leaves it (its window's net time less
-the start lead); the flight rules' ``fits_pass`` row holds the plan's duration to it (None:
-the robot's ``[flight_rules] pass_window_s``). The window-fit rule of a scheduled pass (one
-error code, the start lead) is :mod:`server.operations.windows`'s.
+The window: given a ``window`` (:class:`server.operations.windows.PassWindow`) and the start
+lead, the plan is held to the window-fit rule (:func:`server.operations.windows.check_fit`,
+``plan_exceeds_window``: :attr:`CheckedPlan.misfit`) and the flight rules' ``fits_pass``
+row to the window's usable time less the lead; or ``window_s`` gives that time alone (None:
+the robot's ``[flight_rules] pass_window_s``).
 
 Planning takes seconds of CPU and reads no database: a server runs it in a worker process.
 Nothing here is imported before it is called (the command line starts without the planner).
@@ -33,6 +34,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from server.operations.windows import PassWindow, Refusal, check_fit
 from server.services.errors import DomainError, InvalidRequestError
 
 if TYPE_CHECKING:
@@ -65,6 +67,8 @@ class CheckedPlan:
     plan: Plan
     report: FlightRulesReport
     description: RobotDescription
+    #: the window-fit rule's refusal (``plan_exceeds_window``) when planned for a window
+    misfit: Refusal | None = None
 
     @property
     def passed(self) -> bool:
@@ -118,11 +122,14 @@ def plan_checked(
     *,
     robot: RobotDescription | None = None,
     window_s: float | None = None,
+    window: PassWindow | None = None,
+    lead_s: float = 0.0,
     optimise_offset: bool = False,
 ) -> CheckedPlan:
     """Plan ``experiment`` with ``params`` for ``robot`` (None: ETS-VII, its shipped
-    description checks it) and :func:`check` the plan. The planner's own errors propagate;
-    any other numerical failure is the invalid request ``planning_failed``."""
+    description checks it) and :func:`check` the plan; with a ``window``, fit it there after
+    ``lead_s`` (module docstring). The planner's own errors propagate; any other numerical
+    failure is the invalid request ``planning_failed``."""
     from planner.catalogue import plan_experiment
     from planner.description import default_robot
     from planner.errors import PlannerError
@@ -131,9 +138,20 @@ def plan_checked(
         plan = plan_experiment(
             experiment, params, optimise_offset_flag=optimise_offset, robot=robot
         )
+        if window is not None and window_s is None:
+            window_s = window.usable_s - lead_s
         checked = check(plan, robot or default_robot(), window_s=window_s)
         checked.plan.to_json()  # refuses NaN and infinity: what the ground stores and flies
-        return checked
+        if window is None:
+            return checked
+        misfit = check_fit(
+            window,
+            plan_id=f"of {experiment}",
+            plan_s=plan.duration_s,
+            lead_s=lead_s,
+            available_s=window.usable_s,
+        )
+        return dataclasses.replace(checked, misfit=misfit)
     except (PlannerError, DomainError):
         raise
     except (ValueError, ArithmeticError) as exc:

@@ -191,15 +191,27 @@ class CommandsPublic(BaseModel):
 
 
 class ErrorDetail(BaseModel):
+    """The error shape before problem details: the code, the message and what it carries."""
+
     code: str
     message: str
     detail: Any = None
 
 
 class ErrorPublic(BaseModel):
-    """The one error shape (:mod:`server.api.errors`)."""
+    """The one error shape: problem details (RFC 9457, ``application/problem+json``) with the
+    code as an extension member (:mod:`server.api.errors`)."""
 
-    error: ErrorDetail
+    type: str = Field(description="urn:hikoboshi:problem: and the code")
+    title: str = Field(description="The HTTP status's phrase")
+    status: int
+    detail: str = Field(description="What went wrong, for a person")
+    code: str = Field(description="The machine-readable reason (not_found, window_reversed...)")
+    data: Any = Field(default=None, description="What the refusal carries beside its message")
+    error: ErrorDetail = Field(
+        description="The shape before problem details (code, message, detail), kept for the "
+        "clients written against it"
+    )
 
 
 #: Documented on every router, so the OpenAPI document describes the replies clients get.

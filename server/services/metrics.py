@@ -3,7 +3,10 @@
 Nothing on the live path is counted twice: the figures the console shows (the link's state,
 the downlink's counts, the running pass's uplink and commands by stage, the worker pool's
 and the consoles' numbers) are read at scrape time from the services that already hold
-them, by :class:`GroundCollector`; only what no service keeps is observed as it happens,
+them, by :class:`GroundCollector`; the archive's passes by state and its unacknowledged
+alarms come from one grouped count, refreshed at most every few seconds in a thread
+(:mod:`server.services.record_counts`), and the data folder's volume from the file system;
+only what no service keeps is observed as it happens,
 into prometheus-client's own histograms: each HTTP request's latency by route
 (``server/api/metrics.py``) and each database commit's (the link's database worker,
 ``server/services/dbworker.py``). One registry per application (tests build many).
@@ -12,8 +15,10 @@ into prometheus-client's own histograms: each HTTP request's latency by route
 from __future__ import annotations
 
 import logging
+import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from prometheus_client import (
@@ -33,6 +38,7 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 
 from server.services.command_stages import STAGE_RANK
+from server.services.record_counts import RecordCounts
 
 __all__ = ["LEAD_BUCKETS_S", "GroundCollector", "GroundMetrics", "Sources"]
 
@@ -62,6 +68,10 @@ class Sources:
     database: Callable[[], dict[str, Any]] | None = None
     #: the Foxglove live view's (dropped, sent); None when it does not run
     foxglove: Callable[[], tuple[int, int] | None] | None = None
+    #: the archive's latest counts (server.services.record_counts); None before the first
+    records: Callable[[], RecordCounts | None] | None = None
+    #: the folder the recordings, reports and (SQLite) database are kept in
+    data_dir: Path | None = None
 
 
 def _gauge(name: str, doc: str, value: float | None) -> Iterator[Metric]:
@@ -186,6 +196,9 @@ class GroundCollector(Collector):
             yield from self._authority(s.authority())
         if s.database is not None:
             yield from self._database(s.database())
+        yield from self._records(None if s.records is None else s.records())
+        if s.data_dir is not None:
+            yield from self._volume(s.data_dir)
         counts = None if s.foxglove is None else s.foxglove()
         if counts is not None:
             dropped, sent = counts
@@ -197,6 +210,43 @@ class GroundCollector(Collector):
             yield from _counter(
                 "hikoboshi_foxglove_sent", "Messages the Foxglove live view sent", sent
             )
+
+    @staticmethod
+    def _records(counts: RecordCounts | None) -> Iterator[Metric]:
+        if counts is None:
+            return
+        passes = GaugeMetricFamily(
+            "hikoboshi_passes", "Passes in the archive by state", labels=["state"]
+        )
+        for state, n in counts.passes.items():
+            passes.add_metric([state], float(n))
+        yield passes
+        alarms = GaugeMetricFamily(
+            "hikoboshi_alarms_unacknowledged",
+            "Alarms no operator has acknowledged, by the severity they reached (raised or "
+            "latched after clearing)",
+            labels=["severity"],
+        )
+        for severity, n in counts.unacknowledged_alarms.items():
+            alarms.add_metric([severity], float(n))
+        yield alarms
+
+    @staticmethod
+    def _volume(folder: Path) -> Iterator[Metric]:
+        try:
+            usage = shutil.disk_usage(folder)
+        except OSError:  # not made yet, or gone: nothing to say of its volume
+            return
+        yield from _gauge(
+            "hikoboshi_data_volume_free_bytes",
+            "Bytes free to the service on the volume of its data folder",
+            usage.free,
+        )
+        yield from _gauge(
+            "hikoboshi_data_volume_size_bytes",
+            "Size of the volume of the data folder, bytes",
+            usage.total,
+        )
 
     @staticmethod
     def _database(d: dict[str, Any]) -> Iterator[Metric]:

@@ -10,9 +10,10 @@ made for): ``aos`` then ``running`` in one transaction. A plan made for another 
 description's hash, or its joint count, differs from what the vehicle's ``hello`` announced;
 a ``hello`` naming no robot is ETS-VII's) is refused 409 ``robot_mismatch`` with both robots
 named, and the refusal is audited (``pass_start_refused``); the pass stays ``scheduled``.
-The plan's ``t = 0`` is put at ``epoch_ns`` = onboard now + the start lead
-(``uplink_start_lead_s``, at least one-way delay + margin) + the onboard time of 1 s wall
-for the start transaction, rounded up to the 0.25 s grid, so that even the first command
+The plan's ``t = 0`` is put at ``epoch_ns``, on the 0.25 s grid at most the start lead
+after onboard now (:func:`server.operations.windows.start_lead_s`: ``uplink_start_lead_s``,
+at least one-way delay + margin + three first retransmission timeouts, and the onboard time
+of 1 s wall for the start transaction and the grid step), so that even the first command
 can be sent again before its tag if the relay loses it. The plan's joint and ACS commands
 are queued with ``seq`` from one past the highest the vehicle or the archive has seen, in
 tag order. The pass's telemetry window opens at onboard now.
@@ -32,7 +33,6 @@ commands before ``T`` are resolved in the background as their tags pass.
 from __future__ import annotations
 
 import asyncio
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -58,7 +58,6 @@ from telemetry.wire import AcsCommandMsg, JointCommandMsg
 __all__ = [
     "MAX_REFUSED_IN_A_ROW",
     "REFUSALS",
-    "START_SLACK_WALL_S",
     "TRANSITIONS",
     "ActivePass",
     "RefusalStreak",
@@ -82,9 +81,6 @@ TRANSITIONS = {
     "aborted": {"scheduled", "aos", "running", "los"},
     "safed": {"aos", "running", "los"},
 }
-#: Wall s allowed for the start transaction itself (its first use of a fresh PostgreSQL
-#: connection can take a few hundred ms: at 20x that is seconds onboard).
-START_SLACK_WALL_S = 1.0
 #: Refusals that mean the arm no longer follows the plan, and how many in a row stop it
 #: (2 s of joint commands).
 REFUSALS = ("out_of_limits", "late")
@@ -198,9 +194,11 @@ def start_job(
     telemetry_start_ns: int,
 ) -> Callable[[Session], tuple[list[dict[str, Any]], Started | None, str | None]]:
     """The start transaction: (events, the pass started or None, why it was refused). The
-    plan's ``t = 0`` is put at onboard now + ``lead_s`` + the onboard time of
-    :data:`START_SLACK_WALL_S` wall, rounded up to the 0.25 s grid; its commands are
-    queued with ``seq`` from one past the highest the vehicle or the archive has seen."""
+    plan's ``t = 0`` is put on the 0.25 s grid at most ``lead_s`` after onboard now (the
+    start lead, :func:`server.operations.windows.start_lead_s`: it holds the onboard time
+    of 1 s wall for this transaction and the grid step); its
+    commands are queued with ``seq`` from one past the highest the vehicle or the archive
+    has seen."""
 
     def job(session: Session) -> tuple[list[dict[str, Any]], Started | None, str | None]:
         record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
@@ -220,8 +218,7 @@ def start_job(
         connected = f"{vehicle} connected"
         events = [transition(session, clock, record.id, "aos", actor, connected, now_wall)]
         now_ns = link.onboard_now_ns()
-        slack_s = lead_s + START_SLACK_WALL_S * link.time_scale
-        epoch_ns = math.ceil((now_ns + round(slack_s * 1e9)) / GRID_NS) * GRID_NS
+        epoch_ns = (now_ns + round(lead_s * 1e9)) // GRID_NS * GRID_NS
         used = session.scalar(select(func.max(CommandRecord.seq)))
         first_seq = max(-1 if used is None else used, link.last_command_seq) + 1
         commands = plan_commands(plan, epoch_ns=epoch_ns, first_seq=first_seq)

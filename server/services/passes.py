@@ -1,14 +1,8 @@
-"""Passes: schedule one against a stored plan, list and read them, list their commands.
+"""Passes: store a scheduled one, list and read them, list their commands.
 
-A window must hold the whole plan and the start lead before its first command: the
-first command is tagged ``uplink_start_lead_s`` (at least one-way delay + margin, SPEC 6)
-after the start, so that it too can be sent again if the relay loses it, and nothing can be
-sent before AOS.
-
-A window is given by hand (``aos_time``, ``los_time``) or named (mission, relay, AOS time:
-:mod:`server.services.missions` computes it); a named window's pass runs in its net time
-(the window less the mission's margins), the window is stored with the pass, and a plan
-that does not fit the net time is the conflict ``plan_exceeds_window`` (docs/missions.md).
+Scheduling (a window given by hand or named, the plan fitted to it) is an operator's rule:
+:mod:`server.operations.scheduling`; the row and its ``pass_scheduled`` event are stored
+here (:func:`add_scheduled`).
 """
 
 from __future__ import annotations
@@ -20,48 +14,31 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from server.schemas import (
-    EARLIEST,
-    LATEST,
     CommandPublic,
     CommandsPublic,
     iso_from_ns,
-    ns_from_datetime,
 )
 from server.schemas.passes import (
     PassControlPublic,
-    PassCreate,
-    PassCreateFromWindow,
     PassesPublic,
     PassPublic,
     PassWindowPublic,
 )
-from server.services.errors import ConflictError, InvalidRequestError
+from server.services.errors import InvalidRequestError
 from server.services.events import PassControlRefused, PassScheduled
 from server.services.events import record as record_event
-from server.settings import Settings
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, PassRecord
 
 __all__ = [
+    "add_scheduled",
     "check_confirmation",
     "control_state",
     "get_pass",
     "list_commands",
     "list_passes",
-    "schedule_pass",
-    "start_lead_s",
+    "public",
 ]
-
-
-def start_lead_s(settings: Settings) -> float:
-    """The part of a pass's window before its plan's first command (s): the start lead
-    (``uplink_start_lead_s``, at least the one-way delay, the margin and 1 s for the start
-    itself). A window must hold it and the plan; the rest is the plan's to use
-    (the flight rule ``fits_pass`` at start)."""
-    return max(
-        settings.uplink_start_lead_s,
-        settings.link_one_way_delay_s + settings.uplink_margin_s + 1.0,
-    )
 
 
 def _window(record: PassRecord) -> PassWindowPublic | None:
@@ -103,64 +80,7 @@ def public(record: PassRecord) -> PassPublic:
     )
 
 
-def schedule_pass(
-    *,
-    session: Session,
-    settings: Settings,
-    request: PassCreate | PassCreateFromWindow,
-    actor: str,
-    now_ns: int,
-) -> PassPublic:
-    """Store a ``scheduled`` pass and the audit event ``pass_scheduled`` in one transaction.
-
-    Storage's ``NotFound`` for an unknown plan; an invalid request for a window that is
-    reversed, outside 1970..2200 or too short for the plan; for a named window, the
-    refusals of :mod:`server.services.missions` and the conflict ``plan_exceeds_window``.
-    """
-    if isinstance(request, PassCreateFromWindow):
-        return _schedule_in_window(
-            session=session, settings=settings, request=request, actor=actor, now_ns=now_ns
-        )
-    for label, value in (("aos_time", request.aos_time), ("los_time", request.los_time)):
-        if not EARLIEST <= value < LATEST:
-            raise InvalidRequestError(
-                "time_out_of_range", f"{label} {value.isoformat()} is outside 1970..2200"
-            )
-    aos_ns = ns_from_datetime(request.aos_time)
-    los_ns = ns_from_datetime(request.los_time)
-    if los_ns <= aos_ns:
-        raise InvalidRequestError(
-            "window_reversed",
-            f"los_time {request.los_time.isoformat()} is not after "
-            f"aos_time {request.aos_time.isoformat()}",
-        )
-    try:
-        plan = repo.get_plan(session=session, plan_id=request.plan_id)
-        lead_s = start_lead_s(settings)
-        window_s = (los_ns - aos_ns) / 1e9
-        if window_s < plan.duration_s + lead_s:
-            raise InvalidRequestError(
-                "window_too_short",
-                f"window of {window_s:.3f} s is shorter than plan {plan.id}'s "
-                f"{plan.duration_s:.3f} s plus the {lead_s:.3f} s start lead",
-            )
-        record = _add_scheduled(
-            session,
-            actor,
-            now_ns,
-            name=request.name,
-            plan_id=plan.id,
-            aos_time_ns=aos_ns,
-            los_time_ns=los_ns,
-            relay=request.relay,
-        )
-    except BaseException:
-        session.rollback()
-        raise
-    return public(record)
-
-
-def _add_scheduled(session: Session, actor: str, now_ns: int, **fields: Any) -> PassRecord:
+def add_scheduled(session: Session, actor: str, now_ns: int, **fields: Any) -> PassRecord:
     """The pass row of ``fields`` and its ``pass_scheduled`` event, committed together."""
     record = repo.add_pass(session=session, created_at_ns=now_ns, **fields)
     scheduled = PassScheduled(
@@ -175,50 +95,6 @@ def _add_scheduled(session: Session, actor: str, now_ns: int, **fields: Any) -> 
     record_event(session, scheduled, now_ns)
     session.commit()
     return record
-
-
-def _schedule_in_window(
-    *,
-    session: Session,
-    settings: Settings,
-    request: PassCreateFromWindow,
-    actor: str,
-    now_ns: int,
-) -> PassPublic:
-    from server.services.missions import window_for_pass
-
-    window, document = window_for_pass(settings, request.window)
-    aos_ns = ns_from_datetime(window.net_start_utc)
-    los_ns = ns_from_datetime(window.net_end_utc)
-    try:
-        plan = repo.get_plan(session=session, plan_id=request.plan_id)
-        lead_s = start_lead_s(settings)
-        if window.net_s < plan.duration_s + lead_s:
-            raise ConflictError(
-                "plan_exceeds_window",
-                f"plan {plan.id} needs {plan.duration_s + lead_s:.3f} s ({plan.duration_s:.3f} s "
-                f"and the {lead_s:.3f} s start lead); {window.relay}'s window at "
-                f"{window.aos_utc.isoformat()} holds {window.net_s:.3f} s net "
-                f"({window.duration_s:.3f} s less {window.aos_margin_s:g} s after AOS and "
-                f"{window.los_margin_s:g} s before LOS)",
-                {"needed_s": plan.duration_s + lead_s, "net_s": window.net_s},
-            )
-        record = _add_scheduled(
-            session,
-            actor,
-            now_ns,
-            name=request.name,
-            plan_id=plan.id,
-            aos_time_ns=aos_ns,
-            los_time_ns=los_ns,
-            relay=window.relay,
-            window_mission=document["mission"],
-            window_detail=document,
-        )
-    except BaseException:
-        session.rollback()
-        raise
-    return public(record)
 
 
 def get_pass(*, session: Session, pass_id: str) -> PassPublic:

@@ -5,7 +5,7 @@ Planning and checking are :mod:`server.operations.planning`'s (one checked plann
 every caller); the jobs that plan or check and then store are :mod:`server.operations.plans`'s.
 Every stored plan carries the ground's flight-rules report in its document
 (``"flight_rules"``, docs/robots.md). A plan that fails a rule is still stored, so that the
-user can look at it (a pass of it will not start: :mod:`server.services.flight_rules`);
+user can look at it (a pass of it will not start: :mod:`server.operations.start_gate`);
 validation calls it invalid (``flight_rule_violation``) and returns the table.
 """
 

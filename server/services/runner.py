@@ -100,7 +100,7 @@ from server.services.runner_handover import PassHandover
 from server.services.schedule_delete import ScheduleDeletes
 from server.services.summary import command_outcome
 from server.services.tracker import LINK_DOWN_POLL_S, Trackers
-from server.services.uplink import RttEstimator, UplinkCommand
+from server.services.uplink import UplinkCommand
 from server.settings import Settings
 from server.storage._common import canonical_id
 from server.storage.errors import Conflict
@@ -119,10 +119,6 @@ __all__ = [
 
 log = logging.getLogger("hikoboshi.ground.runner")
 
-#: A pass starts late enough for its first command to go up this many times (the first
-#: timeout, before any round-trip sample) before its last chance.
-START_TRANSMISSIONS = 3
-
 
 class PassRunner(PassEnds, PassHandover):
     def __init__(
@@ -135,6 +131,7 @@ class PassRunner(PassEnds, PassHandover):
         trackers: Trackers,
         settings: Settings,
         clock: Clock,
+        start_lead: Callable[[float], float],
         alarms: SafingAlarms | None = None,
         authority: Authority | None = None,
     ):
@@ -148,7 +145,9 @@ class PassRunner(PassEnds, PassHandover):
         self._trackers = trackers
         self._clock = clock
         self._settings = settings
-        self._delay_s = settings.link_one_way_delay_s
+        #: onboard s from a start to its plan's t = 0 at a time scale (the composition root
+        #: hands it: server.operations.windows.start_lead_s)
+        self._start_lead = start_lead
         self._lead_ns = round((settings.link_one_way_delay_s + settings.uplink_margin_s) * 1e9)
         self._settle_ns = round(SETTLE_S * 1e9)
         self._active: ActivePass | None = None
@@ -258,13 +257,7 @@ class PassRunner(PassEnds, PassHandover):
             window = self._downlink.open_window(
                 canonical_id(pass_id, what="pass"), link.onboard_now_ns()
             )
-            # onboard s: the first command's last chance, then its first copies before it
-            first_rto_s = RttEstimator(2 * self._delay_s / link.time_scale).rto_s
-            lead_s = max(
-                self._settings.uplink_start_lead_s,
-                self._lead_ns / 1e9 + START_TRANSMISSIONS * first_rto_s * link.time_scale,
-            )
-
+            lead_s = self._start_lead(link.time_scale)
             job = start_job(
                 pass_id=pass_id,
                 actor=actor,

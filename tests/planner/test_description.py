@@ -608,6 +608,16 @@ def test_missing_description(tmp_path: Path) -> None:
     _expect(tmp_path / "nothing.toml", "nothing.toml", "no such file")
 
 
+def test_a_shipped_robot_loads_by_its_name_and_an_unknown_name_says_which_exist(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # no file of that name here: the name is the shipped robot's
+    assert load_robot("orihime").path == (EXAMPLES_DIR / "orihime" / "orihime.toml")
+    _expect(Path("ets8"), "ets8", "nor a shipped robot of that name (ets7, orihime)")
+    (tmp_path / "orihime").write_text("")  # a file of that name wins, and is read
+    _expect(Path("orihime"), "orihime: name: missing")
+
+
 def test_a_directory_is_not_a_description(tmp_path: Path) -> None:
     _expect(tmp_path, str(tmp_path), "not a regular file")
 

@@ -18,13 +18,13 @@ from planner.dynamics import DynamicsWorkspace, Quantities
 from planner.simulation import FreeFloatingSimulator, SimConfig, follow_commands
 from planner.state import State
 from tests import reference_dynamics as ref
+from tests.support import dynamics
 from tests.support.dynamics import (
     COMPARED,
     FD_ATOL,
     FD_STEP,
     RTOL_REFERENCE,
     RTOL_REFERENCE_METHODS,
-    random_unit_quat_xyzw,
     relative_error,
 )
 
@@ -51,33 +51,13 @@ def robot(request: pytest.FixtureRequest) -> Robot:
 
 
 def random_state(rng: np.random.Generator, description: RobotDescription) -> State:
-    model = description.model
-    n = model.n_joints
-    return State(
-        joints_rad=rng.uniform(model.joint_limit_rad[:, 0], model.joint_limit_rad[:, 1]),
-        quat_orbit_from_base_xyzw=random_unit_quat_xyzw(rng),
-        pos_base_orbit_m=rng.uniform(-5.0, 5.0, 3),
-        vel_base_orbit_mps=rng.normal(scale=0.05, size=3),
-        omega_base_orbit_radps=rng.normal(scale=0.01, size=3),
-        joint_rates_radps=rng.normal(scale=0.05, size=n),
-        wheel_rates_radps=rng.normal(scale=100.0, size=3),
-    )
+    limits = description.model.joint_limit_rad
+    return dynamics.random_state(rng, rng.uniform(limits[:, 0], limits[:, 1]))
 
 
 def reference_at(robot: Robot, state: State) -> ref.Reference:
-    return ref.evaluate(
-        joints_rad=state.joints_rad,
-        quat_orbit_from_base_xyzw=state.quat_orbit_from_base_xyzw,
-        pos_base_orbit_m=state.pos_base_orbit_m,
-        vel_base_orbit_mps=state.vel_base_orbit_mps,
-        omega_base_orbit_radps=state.omega_base_orbit_radps,
-        joint_rates_radps=state.joint_rates_radps,
-        wheel_rates_radps=state.wheel_rates_radps,
-        wheel_spin_inertia_kgm2=np.array(
-            [w.spin_inertia_kgm2 for w in robot.description.model.wheels]
-        ),
-        robot=robot.reference,
-    )
+    wheels = np.array([w.spin_inertia_kgm2 for w in robot.description.model.wheels])
+    return dynamics.reference_at(state, wheels, robot.reference)
 
 
 @pytest.fixture(scope="module")

@@ -35,6 +35,7 @@ from planner.mujoco_conventions import (
 )
 from planner.state import State
 from tests import reference_dynamics as ref
+from tests.support import dynamics
 from tests.support.dynamics import (
     COMPARED,
     FD_ATOL,
@@ -55,29 +56,12 @@ JOINT_RANGE_RAD = np.radians(170.0)
 
 
 def random_state(rng: np.random.Generator) -> State:
-    return State(
-        joints_rad=rng.uniform(-JOINT_RANGE_RAD, JOINT_RANGE_RAD, 6),
-        quat_orbit_from_base_xyzw=random_unit_quat_xyzw(rng),
-        pos_base_orbit_m=rng.uniform(-5.0, 5.0, 3),
-        vel_base_orbit_mps=rng.normal(scale=0.05, size=3),
-        omega_base_orbit_radps=rng.normal(scale=0.01, size=3),
-        joint_rates_radps=rng.normal(scale=0.05, size=6),
-        wheel_rates_radps=rng.normal(scale=100.0, size=3),
-    )
+    return dynamics.random_state(rng, rng.uniform(-JOINT_RANGE_RAD, JOINT_RANGE_RAD, 6))
 
 
 def reference_at(model: RobotModel, state: State) -> ref.Reference:
-    return ref.evaluate(
-        joints_rad=state.joints_rad,
-        quat_orbit_from_base_xyzw=state.quat_orbit_from_base_xyzw,
-        pos_base_orbit_m=state.pos_base_orbit_m,
-        vel_base_orbit_mps=state.vel_base_orbit_mps,
-        omega_base_orbit_radps=state.omega_base_orbit_radps,
-        joint_rates_radps=state.joint_rates_radps,
-        wheel_rates_radps=state.wheel_rates_radps,
-        # The one parameter taken from the model: SPEC leaves the rotors unpublished.
-        wheel_spin_inertia_kgm2=np.array([w.spin_inertia_kgm2 for w in model.wheels]),
-    )
+    # The one parameter taken from the model: SPEC leaves the rotors unpublished.
+    return dynamics.reference_at(state, np.array([w.spin_inertia_kgm2 for w in model.wheels]))
 
 
 def with_(state: State, **changes: Array) -> State:

@@ -8,11 +8,8 @@ import asyncio
 import io
 import json
 import logging
-import os
 import re
 import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -21,7 +18,13 @@ import pytest
 
 from server.logs import configure_logging, current_pass
 from server.redaction import redact
-from tests.support.processes import free_port, stderr_of_stopped
+from tests.support.processes import (
+    free_port,
+    health_when_up,
+    serve_command,
+    serve_env,
+    stderr_of_stopped,
+)
 
 SECRET = "sEcReT-0123456789abcdef"
 #: UTC, ISO 8601, milliseconds
@@ -131,31 +134,14 @@ def test_a_real_serve_logs_its_start_and_a_failed_authentication(
     tmp_path: Path, log_format: str
 ) -> None:
     port = free_port()
-    env = {
-        **os.environ,
-        "HIKOBOSHI_DATA_DIR": str(tmp_path),
-        "HIKOBOSHI_TOKENS": "v-token-0123456789=vera:viewer",
-        "HIKOBOSHI_LOG_FORMAT": log_format,  # as a container sets it
-    }
-    env.pop("DATABASE_URL", None)
+    # the log format as a container sets it
+    env = serve_env(tmp_path, "v-token-0123456789=vera:viewer", HIKOBOSHI_LOG_FORMAT=log_format)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
+        serve_command(port), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
     )
     try:
         base = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 60.0  # a guard, not a timing assertion
-        while True:
-            try:
-                httpx.get(f"{base}/api/health", timeout=2.0)
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline, "the server did not come up"
-                assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-                time.sleep(0.2)
+        health_when_up(proc, base, request_timeout_s=2.0)
         wrong = {"Authorization": f"Bearer {SECRET}"}
         assert httpx.get(f"{base}/api/passes?token={SECRET}", headers=wrong).status_code == 401
     finally:

@@ -28,6 +28,7 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "uplink_margin_s": ("1.5", 1.5),
     "uplink_lead_window_s": ("90", 90.0),
     "uplink_start_lead_s": ("20", 20.0),
+    "window_clock": ("vehicle", "vehicle"),
     "command_period_s": ("0.5", 0.5),
     "api_pool_size": ("5", 5),
     "api_pool_overflow": ("1", 1),

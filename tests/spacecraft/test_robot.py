@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from planner.description import EXAMPLES_DIR, RobotDescription, load_robot
-from planner.plan import Plan, Prediction, Segment
+from planner.plan import Plan, Segment
 from spacecraft.link import LinkConfig
 from spacecraft.offline import fly_offline
 from spacecraft.process import ProcessConfig, SpacecraftProcess
@@ -28,6 +28,7 @@ from spacecraft.vehicle import Vehicle
 from spacecraft.vehicle_config import SensorNoise, VehicleConfig, VehicleError, vehicle_config_for
 from telemetry.layout import FrameLayout
 from telemetry.wire import CommandStage, Hello, JointCommandMsg, RejectReason, encode
+from tests.server.storage.factories import still_prediction
 from tests.spacecraft.ground_stub import TOKEN, GroundStub
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
@@ -105,18 +106,7 @@ def _plan(n_joints: int, n_commands: int = 40) -> Plan:
     """A slow ramp of every joint (0.5 deg/s) from the all-zero pose, free drift."""
     times = np.arange(n_commands) * 0.25
     joints = np.radians(0.5) * times[:, None] * np.ones(n_joints)
-    k = 3
-    prediction = Prediction(
-        t_s=np.linspace(0.0, float(times[-1]), k),
-        joints_rad=np.zeros((k, n_joints)),
-        quat_orbit_from_base_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
-        rpy_base_rad=np.zeros((k, 3)),
-        omega_base_orbit_radps=np.zeros((k, 3)),
-        hand_pos_orbit_m=np.ones((k, 3)),
-        quat_orbit_from_hand_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
-        reaction_momentum_orbit_nms=np.zeros((k, 3)),
-        wheel_momentum_nms=np.zeros((k, 3)),
-    )
+    prediction = still_prediction(float(times[-1]), n_joints, 3)
     return Plan(
         experiment="ptp",
         parameters={},

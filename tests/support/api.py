@@ -11,9 +11,12 @@ from fastapi.testclient import TestClient
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from planner.description import RobotDescription
+from planner.plan import plan_for_robot
 from server.settings import ApiToken, Role
 from server.storage import repository as repo
-from tests.server.storage.factories import make_plan
+from telemetry.layout import FrameLayout
+from tests.server.storage.factories import make_frames, make_plan, store_pass
 
 #: A viewer's, an operator's and a spacecraft's token, and the headers of the first two.
 TOKENS = {
@@ -52,6 +55,28 @@ def add_pass(client: TestClient, name: str = "pass-1", n_joints: int = 6) -> str
         )
         session.commit()
         return str(record.id)
+
+
+def recording_of_a_flown_pass(client: TestClient, robot: RobotDescription, n_frames: int) -> bytes:
+    """The ground's recording (``recording.mcap``) of a pass of a small plan of ``robot``,
+    flown: ``n_frames`` frames stored, its epoch the first's time."""
+    n_joints = robot.model.n_joints
+    frames = make_frames(range(n_frames), layout=FrameLayout(n_joints, 3))
+    with sessions(client)() as session:
+        record = store_pass(
+            session,
+            plan_for_robot(make_plan(n_joints=n_joints), robot),
+            name=f"{robot.name}-flown",
+            relay="TDRS-W",
+            frames=frames,
+            reception_time_ns=0,
+        )
+        record.epoch_ns = int(frames[0].generation_time_ns)
+        session.commit()
+        pass_id = record.id
+    response = client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
+    assert response.status_code == 200, response.text
+    return response.content
 
 
 class ClientAddress:

@@ -4,6 +4,7 @@ states they are compared at."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from operator import attrgetter
 
@@ -11,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.dynamics import Quantities
+from planner.state import State
 from tests import reference_dynamics as ref
 
 Array = NDArray[np.float64]
@@ -92,3 +94,28 @@ FD_STEP = 1e-6  # rad or m
 # Central differences: truncation ~ h^2 |x'''| / 6 ~ 1e-12; round-off ~ eps |x| / h ~ 1e-9
 # for hand positions of a few metres. 1e-7 sits well above both.
 FD_ATOL = 1e-7
+
+
+def random_state(rng: np.random.Generator, joints_rad: Array) -> State:
+    """A random state at ``joints_rad`` (drawn first, from ``rng``): attitude, base position
+    and every rate random, at the scales of a pass (wheels at about 100 rad/s)."""
+    n = len(joints_rad)
+    return State(
+        joints_rad=joints_rad,
+        quat_orbit_from_base_xyzw=random_unit_quat_xyzw(rng),
+        pos_base_orbit_m=rng.uniform(-5.0, 5.0, 3),
+        vel_base_orbit_mps=rng.normal(scale=0.05, size=3),
+        omega_base_orbit_radps=rng.normal(scale=0.01, size=3),
+        joint_rates_radps=rng.normal(scale=0.05, size=n),
+        wheel_rates_radps=rng.normal(scale=100.0, size=3),
+    )
+
+
+def reference_at(
+    state: State, wheel_spin_inertia_kgm2: Array, robot: ref.RobotData = ref.ETS7
+) -> ref.Reference:
+    """The reference's quantities of ``robot`` at ``state``, with the wheels' spin inertia
+    given (the reference leaves the rotors to the model)."""
+    # the state's fields are the reference's arguments of the same names
+    values = {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    return ref.evaluate(**values, wheel_spin_inertia_kgm2=wheel_spin_inertia_kgm2, robot=robot)

@@ -1,4 +1,5 @@
-"""Ports and processes of the tests' servers, and the lock processes share."""
+"""Ports and processes of the tests' servers (``hikoboshi serve``: its command, its
+environment, its health once up), and the lock processes share."""
 
 from __future__ import annotations
 
@@ -7,8 +8,13 @@ import fcntl
 import os
 import socket
 import subprocess
-from collections.abc import Iterator
+import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
+
+import httpx
 
 
 def free_port() -> int:
@@ -17,6 +23,47 @@ def free_port() -> int:
         sock.bind(("127.0.0.1", 0))
         port: int = sock.getsockname()[1]
         return port
+
+
+def serve_command(port: int) -> list[str]:
+    """``hikoboshi serve`` on ``port``, run by this interpreter."""
+    return [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)]
+
+
+def serve_env(data_dir: Path, tokens: str, **more: str) -> dict[str, str]:
+    """This environment for a ``hikoboshi serve`` of its own: its data (SQLite database
+    included: no ``DATABASE_URL``) in ``data_dir``, the API tokens ``tokens``."""
+    env = {
+        **os.environ,
+        "HIKOBOSHI_DATA_DIR": str(data_dir),
+        "HIKOBOSHI_TOKENS": tokens,
+        **more,
+    }
+    env.pop("DATABASE_URL", None)
+    return env
+
+
+def health_when_up(
+    proc: subprocess.Popen[Any],
+    base: str,
+    *,
+    guard_s: float = 60.0,
+    request_timeout_s: float = 1.0,
+    output: Callable[[], str] | None = None,
+) -> httpx.Response:
+    """The answer of the server at ``base`` (``proc``) to ``/api/health``, asked again until
+    it comes; a failure if the process ends first (with ``output()``, else its stderr if
+    piped) or after ``guard_s`` (a hang guard, not a timing assertion)."""
+    deadline = time.monotonic() + guard_s
+    while True:
+        try:
+            return httpx.get(f"{base}/api/health", timeout=request_timeout_s)
+        except httpx.TransportError:
+            if proc.poll() is not None:
+                said = output() if output else proc.stderr.read() if proc.stderr else ""
+                raise AssertionError(f"the server exited: {said}") from None
+            assert time.monotonic() < deadline, "the server did not come up"
+            time.sleep(0.1)
 
 
 def descendants(pid: int) -> set[int]:

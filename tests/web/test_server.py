@@ -24,7 +24,7 @@ EXPERIMENTS_JSON = Path(__file__).resolve().parents[2] / "web/src/pages/experime
 
 
 def _client(dist: Path) -> TestClient:
-    app = FastAPI()
+    app = FastAPI(docs_url=None, redoc_url=None)  # as the service: /docs is the build's
     install_error_handlers(app)
     app.include_router(make_router(dist))
     return TestClient(app)
@@ -99,3 +99,11 @@ def test_the_console_offers_the_planner_parameters_with_their_defaults(name: str
     if name == "coordination":
         (window,) = (p for p in table[name]["params"] if p["name"] == "offset_window")
         assert window["choices"] == list(OFFSET_WINDOWS)
+
+
+def test_without_a_build_the_api_docs_answer_503_and_point_to_the_document(
+    tmp_path: Path,
+) -> None:
+    response = _client(tmp_path / "dist").get("/docs")
+    assert response.status_code == 503
+    assert 'href="/openapi.json"' in response.text and "scripts/setup.sh" in response.text

@@ -28,7 +28,7 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.harness import OPERATOR, VIEWER, Ground, running_ground
 from tests.server.storage.factories import make_plan
-from tests.support.web import VIEWER_TOKEN, Console
+from tests.support.web import OPERATOR_TOKEN, VIEWER_TOKEN, Console
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -56,7 +56,8 @@ def _clock(seconds: float) -> str:
 @pytest.fixture
 def ground(tmp_path: Path) -> Iterator[Ground]:
     """The ground with, beside the shipped 1999 mission, ETS-VII's elements moved to this
-    minute (``today``): its windows are around the ground's now."""
+    minute (``today``): its windows are around the ground's now; and the 1999 mission as
+    ``short``: an AOS margin of 3000 s leaves each window 5 to 9 minutes of net time."""
     folder = tmp_path / "missions"
     folder.mkdir()
     epoch = datetime.now(UTC).replace(second=0, microsecond=0).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -64,13 +65,17 @@ def ground(tmp_path: Path) -> Iterator[Ground]:
     moved = text.replace('epoch = "1999-09-30T00:00:00Z"', f'epoch = "{epoch}"')
     assert moved != text
     (folder / "today.toml").write_text(moved)
+    short = text.replace("aos_margin_s = 120.0", "aos_margin_s = 3000.0")
+    assert short != text
+    (folder / "short.toml").write_text(short)
     with running_ground(sqlite_url(tmp_path), missions_dir=folder) as g:
         yield g
 
 
-def _plan_id(ground: Ground) -> str:
+def _plan_id(ground: Ground, n_commands: int = 9) -> str:
     with ground.sessions() as session:
-        plan_id = str(repo.add_plan(session=session, plan=make_plan(), created_at_ns=0).id)
+        plan = make_plan(n_commands=n_commands)
+        plan_id = str(repo.add_plan(session=session, plan=plan, created_at_ns=0).id)
         session.commit()
         return plan_id
 
@@ -107,6 +112,72 @@ def _in_window(ground: Ground, name: str, mission: str, window: dict[str, Any]) 
             },
         },
     )
+
+
+def test_an_operator_schedules_a_stored_plan_into_a_window_from_the_timeline(
+    console: Console, ground: Ground
+) -> None:
+    """From a listed window's row: a stored plan too long for its net time is refused with
+    the ground's message and code, nothing stored; a plan that fits is scheduled into that
+    window (POST /api/passes naming it) and drawn in it."""
+    hours = 6.0
+    windows = _windows(ground, "short", START_1999, hours)["data"]
+    third = windows[2]
+    fits = _plan_id(ground)  # 2 s
+    too_long = _plan_id(ground, n_commands=2400)  # 600 s
+    assert 33.25 < third["net_s"] < 599.75
+    page = console.page
+    console.sign_in(OPERATOR_TOKEN, f"#/timeline/short/{START_1999}/{hours:g}")
+    console.wait(
+        f"() => document.querySelectorAll('[data-test=tl-window]').length === {len(windows)}",
+        "the windows drawn",
+    )
+    page.click('[data-test=tl-schedule][data-index="2"]')
+    title = page.text_content("[data-test=tl-schedule-title]") or ""
+    assert title.startswith(f"Schedule a pass in {third['relay']}'s window: AOS 1999-09-30 ")
+    page.wait_for_selector(f'[data-test=tl-plan] option[value="{too_long}"]', state="attached")
+    page.select_option("[data-test=tl-plan]", too_long)
+    page.fill("[data-test=tl-pass-name]", "from the timeline")
+    page.click("[data-test=tl-schedule-submit]")
+    console.wait(
+        "() => document.querySelector('[data-test=tl-schedule-result]')?.dataset.code"
+        " === 'plan_exceeds_window'",
+        "the refusal shown",
+    )
+    refusal = page.text_content("[data-test=tl-schedule-result]") or ""
+    assert refusal.startswith(f"plan {too_long} needs ")
+    assert f"{third['relay']}'s window of mission short" in refusal
+    assert refusal.endswith("(plan_exceeds_window)")
+    listed = httpx.get(f"{ground.url}/api/passes", headers=VIEWER, timeout=60.0).json()
+    assert listed["count"] == 0
+    # the refusal is expected: the browser's two reports of it are not errors here
+    deadline = time.monotonic() + 10.0
+    while len(refused := [e for e in console.errors if "409" in e]) < 2:
+        assert time.monotonic() < deadline, console.errors
+        page.wait_for_timeout(50)
+    assert f"HTTP 409 POST {ground.url}/api/passes" in refused, refused
+    for e in refused:
+        console.errors.remove(e)
+
+    page.select_option("[data-test=tl-plan]", fits)
+    page.click("[data-test=tl-schedule-submit]")
+    console.wait(
+        "() => document.querySelector('[data-test=tl-pass][data-name=\"from the timeline\"]')"
+        "?.dataset.windowIndex === '2'",
+        "the pass drawn in its window",
+    )
+    console.screenshot("timeline-scheduled")
+    [scheduled] = httpx.get(f"{ground.url}/api/passes", headers=VIEWER, timeout=60.0).json()["data"]
+    assert scheduled["name"] == "from the timeline" and scheduled["plan_id"] == fits
+    assert scheduled["window"]["mission"] == "short"
+    assert scheduled["window"]["relay"] == third["relay"]
+    assert _ms(scheduled["window"]["aos_time"]) == _ms(third["aos_time"])
+    assert _ms(scheduled["aos_time"]) == _ms(third["net_start_time"])
+    assert _ms(scheduled["los_time"]) == _ms(third["net_end_time"])
+    result = page.get_attribute("[data-test=tl-schedule-result]", "data-pass")
+    assert result == scheduled["id"]
+    row_pass = page.text_content('[data-test=tl-row][data-index="2"] [data-test=tl-row-pass]')
+    assert row_pass == "from the timeline (scheduled)"
 
 
 def test_the_timeline_shows_the_windows_the_api_returns_and_the_passes_in_them(

@@ -1,4 +1,4 @@
-// REST client: the token from the sign-in, the server's one error shape, and the
+// REST client: the token from the sign-in, the server's one error shape (RFC 9457), and the
 // feature probe (which optional endpoints this server offers, from its OpenAPI document).
 
 import type { CommandStage, LinkStatus as LinkStatusDoc, ScheduleStatus } from "./protocol.gen";
@@ -276,11 +276,14 @@ export async function request<T>(method: string, path: string, body?: unknown): 
     parsed = null;
   }
   if (!response.ok) {
-    const error = (parsed as { error?: { code?: string; message?: string } } | null)?.error;
+    // Problem details (RFC 9457): ``code`` and ``detail`` (the message).
+    const problem = parsed as { code?: string; detail?: unknown } | null;
     throw new ApiError(
       response.status,
-      error?.code ?? `http_${response.status}`,
-      error?.message ?? `${method} ${path}: HTTP ${response.status}`,
+      problem?.code ?? `http_${response.status}`,
+      typeof problem?.detail === "string"
+        ? problem.detail
+        : `${method} ${path}: HTTP ${response.status}`,
     );
   }
   return parsed as T;

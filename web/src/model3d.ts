@@ -238,7 +238,7 @@ function fetchText(url: string, what: string): Promise<UrdfResult> {
         if (r.ok) return { urdf: await r.text(), reason: "", url };
         let message = `HTTP ${r.status}`;
         try {
-          message = ((await r.json()) as { error?: { message?: string } }).error?.message ?? message;
+          message = ((await r.json()) as { detail?: string }).detail ?? message; // RFC 9457
         } catch {
           // not the server's error shape
         }

@@ -8,35 +8,23 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.api.lanes import is_heavy
-from server.storage import repository as repo
 from telemetry.layout import FrameLayout
 from telemetry.wire import TelemetryFrame
-from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
+from tests.server.storage.factories import (
+    FRAME_PERIOD_NS,
+    T0_NS,
+    make_frames,
+    make_plan,
+    store_pass,
+)
 from tests.support.api import VIEWER, sessions
-
-RECEIVED_NS = 1_790_000_000_000_000_000
 
 
 def stored_pass(
     client: TestClient, name: str, frames: list[TelemetryFrame], n_joints: int = 6
 ) -> str:
     with sessions(client)() as session:
-        plan_id = repo.add_plan(
-            session=session, plan=make_plan(n_joints=n_joints), created_at_ns=0
-        ).id
-        key = repo.add_pass(
-            session=session,
-            name=name,
-            plan_id=plan_id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS",
-            created_at_ns=0,
-        ).id
-        if frames:
-            repo.ingest_frames(
-                session=session, pass_id=key, frames=frames, reception_time_ns=RECEIVED_NS
-            )
+        key = store_pass(session, make_plan(n_joints=n_joints), name=name, frames=frames).id
         session.commit()
     return str(key)
 

@@ -12,7 +12,7 @@ import functools
 import io
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -66,6 +66,23 @@ def _pool(client: TestClient) -> WorkerPool:
 def _store(client: TestClient) -> ArtifactStore:
     store: ArtifactStore = client.app.state.artifacts  # type: ignore[attr-defined]
     return store
+
+
+def _hold(pool: WorkerPool) -> Callable[[], Any]:
+    """A job that holds a worker 60 s, unless cancelled."""
+    return functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
+
+
+def _hold_the_worker(client: TestClient, pool: WorkerPool) -> Future[Any]:
+    """:func:`_hold` on the pool's one worker, started."""
+    assert client.portal is not None
+    before_hold = pool.started
+    held = client.portal.start_task_soon(_hold(pool))
+    # Started, not only running: a process counts as running while its start (a thread)
+    # is still under way, and counted as started once it is (a loaded machine sampled
+    # ``started`` in between, and the held job's start was counted as the computation's).
+    _wait_for(lambda: pool.running == 1 and pool.started == before_hold + 1, "the held worker")
+    return held
 
 
 def _import(client: TestClient, data: bytes) -> str:
@@ -250,14 +267,7 @@ def test_concurrent_requests_share_one_job_and_a_refused_one_is_not_stored(
         first_pass, second_pass = _import(client, short_mcap), _import(client, short_mcap)
         pool, store = _pool(client), _store(client)
         url = f"/api/passes/{first_pass}/recording.mcap"
-        assert client.portal is not None
-        hold = functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
-        before_hold = pool.started
-        held = client.portal.start_task_soon(hold)
-        # Started, not only running: a process counts as running while its start (a thread)
-        # is still under way, and counted as started once it is (a loaded machine sampled
-        # ``started`` in between, and the held job's start was counted as the computation's).
-        _wait_for(lambda: pool.running == 1 and pool.started == before_hold + 1, "the held worker")
+        held = _hold_the_worker(client, pool)
         started = pool.started
         with ThreadPoolExecutor(max_workers=20) as threads:
             futures = [threads.submit(client.get, url, headers=VIEWER) for _ in range(20)]
@@ -272,7 +282,7 @@ def test_concurrent_requests_share_one_job_and_a_refused_one_is_not_stored(
         # A full pool refuses the computation: 503 to every request, nothing stored, and
         # the next request after the pool frees up computes it.
         _wait_for(lambda: pool.admitted == 0, "the pool to be free")
-        holds = [client.portal.start_task_soon(hold) for _ in range(2)]
+        holds = [client.portal.start_task_soon(_hold(pool)) for _ in range(2)]
         _wait_for(lambda: pool.admitted == 2 and pool.running == 1, "a full pool")
         second = f"/api/passes/{second_pass}/recording.mcap"
         with ThreadPoolExecutor(max_workers=5) as threads:
@@ -342,14 +352,7 @@ def test_a_live_pass_shares_the_computation_in_flight_whatever_its_version(
             session.commit()
         pool, store = _pool(client), _store(client)
         url = f"/api/passes/{pass_id}/recording.mcap"
-        assert client.portal is not None
-        hold = functools.partial(pool.run, time.sleep, 60, deadline_s=120, what="hold")
-        before_hold = pool.started
-        held = client.portal.start_task_soon(hold)
-        # Started, not only running: a process counts as running while its start (a thread)
-        # is still under way, and counted as started once it is (a loaded machine sampled
-        # ``started`` in between, and the held job's start was counted as the computation's).
-        _wait_for(lambda: pool.running == 1 and pool.started == before_hold + 1, "the held worker")
+        held = _hold_the_worker(client, pool)
         started = pool.started
         with ThreadPoolExecutor(max_workers=2) as threads:
             early = threads.submit(client.get, url, headers=VIEWER)

@@ -28,7 +28,7 @@ from server.services.workers import WorkerPool
 from server.storage.db import make_engine, read_session_factory
 from telemetry.mcap import read_mcap
 from tests.support.api import OPERATOR, VIEWER
-from tests.support.processes import descendants, free_port
+from tests.support.processes import descendants, free_port, health_when_up, serve_command, serve_env
 
 #: Generous: a loaded 2-core machine may be slow; nothing here should take near this.
 PATIENCE_S = 60.0
@@ -261,34 +261,18 @@ def test_serve_stays_healthy_under_planning_load_and_stops_on_sigterm(tmp_path: 
     after the lifespan's shutdown (the runner's) ran."""
     import socket
     import subprocess
-    import sys
 
     import httpx
 
     port = free_port()
-    env = {
-        **os.environ,
-        "HIKOBOSHI_DATA_DIR": str(tmp_path),
-        "HIKOBOSHI_TOKENS": "v-tok=vera:viewer,o-tok=otto:operator",
-    }
-    env.pop("DATABASE_URL", None)
+    env = serve_env(tmp_path, "v-tok=vera:viewer,o-tok=otto:operator")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        serve_command(port), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
     )
     base = f"http://127.0.0.1:{port}"
     sockets: list[socket.socket] = []
     try:
-        deadline = time.monotonic() + PATIENCE_S
-        while True:
-            try:
-                httpx.get(f"{base}/api/health", timeout=1.0)
-                break
-            except httpx.TransportError:
-                assert time.monotonic() < deadline and proc.poll() is None, "no server"
-                time.sleep(0.2)
+        health_when_up(proc, base, guard_s=PATIENCE_S)
         # A scheduled pass to abort while the planning requests are in flight.
         operator = {"Authorization": "Bearer o-tok"}
         plan = httpx.post(

@@ -44,7 +44,7 @@ JSON = {"Content-Type": "application/json"}
 
 
 def _error(response: Any) -> str:
-    assert response.headers["content-type"] == "application/json", response.text
+    assert response.headers["content-type"] == "application/problem+json", response.text
     code: str = response.json()["error"]["code"]
     return code
 

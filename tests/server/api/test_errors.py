@@ -108,12 +108,19 @@ def test_the_api_answers_refusals_in_the_one_shape() -> None:
         busy = client.get("/busy")
         assert busy.status_code == 503
         assert busy.headers["Retry-After"] == "3"
-        assert busy.json() == {
+        assert busy.headers["content-type"] == "application/problem+json"
+        assert busy.json() == {  # RFC 9457, and the shape before it as a member
+            "type": "urn:hikoboshi:problem:busy",
+            "title": "Service Unavailable",
+            "status": 503,
+            "detail": "every worker is busy",
+            "code": "busy",
+            "data": {"retry_after_s": 2.5},
             "error": {
                 "code": "busy",
                 "message": "every worker is busy",
                 "detail": {"retry_after_s": 2.5},
-            }
+            },
         }
         conflict = client.get("/conflict")
         assert conflict.status_code == 409 and "Retry-After" not in conflict.headers
@@ -125,6 +132,11 @@ def test_the_api_answers_refusals_in_the_one_shape() -> None:
         planner = client.get("/planner")
         assert planner.status_code == 422
         assert planner.json()["error"]["code"] == "InfeasibleGoal"
+        assert "data" not in planner.json()  # nothing carried beside the message
+        assert planner.json()["title"] == "Unprocessable Content"
+        unknown = client.get("/no-such-route")
+        assert unknown.status_code == 404 and unknown.json()["type"].endswith(":not_found")
+        assert unknown.headers["content-type"] == "application/problem+json"
 
 
 # Job functions: module-level, so that the worker can import them.

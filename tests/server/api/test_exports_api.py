@@ -23,11 +23,15 @@ from server.api.lanes import is_heavy
 from server.services import exports
 from server.storage import repository as repo
 from telemetry.layout import DEFAULT_LAYOUT
-from tests.server.storage.factories import T0_NS, make_commands, make_frames
+from tests.server.storage.factories import (
+    T0_NS,
+    make_commands,
+    make_frames,
+    store_pass,
+)
 from tests.support.api import VIEWER, sessions
 
 N_FRAMES = 23
-RECEIVED_NS = 1_790_000_000_000_000_000
 
 
 @pytest.fixture(scope="module")
@@ -48,19 +52,7 @@ def stored_pass_id(client: TestClient, ptp_plan: Plan) -> str:
     """A pass with N_FRAMES frames, 9 commands and events of three kinds by two actors."""
     frames = make_frames(range(N_FRAMES), seed=3)
     with sessions(client)() as session:
-        plan_id = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id
-        key = repo.add_pass(
-            session=session,
-            name="export me",
-            plan_id=plan_id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS",
-            created_at_ns=0,
-        ).id
-        repo.ingest_frames(
-            session=session, pass_id=key, frames=frames, reception_time_ns=RECEIVED_NS
-        )
+        key = store_pass(session, ptp_plan, name="export me", frames=frames).id
         repo.add_commands(session=session, pass_id=key, commands=make_commands(9), queued_at_ns=0)
         for i, (kind, actor) in enumerate(
             [
@@ -179,16 +171,7 @@ def test_exports_refuse_like_the_other_reads(client: TestClient, suffix: str) ->
 
 def test_an_empty_pass_exports_its_header_only(client: TestClient, ptp_plan: Plan) -> None:
     with sessions(client)() as session:
-        plan_id = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id
-        key = repo.add_pass(
-            session=session,
-            name="empty",
-            plan_id=plan_id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS",
-            created_at_ns=0,
-        ).id
+        key = store_pass(session, ptp_plan, name="empty").id
         session.commit()
     text = client.get(f"/api/passes/{key}/telemetry.csv", headers=VIEWER).text
     assert text.count("\n") == 1 and text.startswith("seq,generation_time_ns [ns],")

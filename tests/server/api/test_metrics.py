@@ -3,14 +3,18 @@ hold (the console's), read at scrape time; requests and database commits are tim
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
+from planner.limits import Severity
 from server.services.metrics import LEAD_BUCKETS_S, GroundMetrics
-from tests.support.api import OPERATOR, VIEWER
+from server.services.record_counts import REFRESH_S
+from tests.support.api import OPERATOR, VIEWER, add_pass
 
 
 def _samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
@@ -173,3 +177,38 @@ def test_a_failing_source_leaves_the_scrape_answered() -> None:
     text = generate_latest(metrics.registry).decode()
     assert "hikoboshi_link_connected" not in text
     assert "hikoboshi_http_request_duration_seconds" in text
+
+
+def test_the_archives_counts_and_the_data_volume_are_exported(
+    client: TestClient, tmp_path: Path
+) -> None:
+    """Passes by state and unacknowledged alarms by severity, every label present; the data
+    folder's volume; refreshed at most every few seconds (the counter's injected clock)."""
+    state: Any = client.app.state  # type: ignore[attr-defined]
+    counter = state.record_counter
+    now = [1000.0]
+    counter._clock = lambda: now[0]  # the counter's clock, moved by the test
+    counter.latest = None
+    first = _samples(client.get("/metrics", headers=VIEWER).text)
+    assert first[("hikoboshi_passes", (("state", "scheduled"),))] == 0.0
+    assert {
+        s for (name, labels), _ in first.items() if name == "hikoboshi_passes" for _, s in labels
+    } == {"scheduled", "aos", "running", "los", "complete", "aborted", "safed"}
+    severities = {
+        labels: v
+        for (name, labels), v in first.items()
+        if name == "hikoboshi_alarms_unacknowledged"
+    }
+    assert {dict(labels)["severity"] for labels in severities} == {s.value for s in Severity}
+    assert set(severities.values()) == {0.0}
+    usage = shutil.disk_usage(tmp_path)
+    assert first[("hikoboshi_data_volume_size_bytes", ())] == usage.total
+    assert 0 < first[("hikoboshi_data_volume_free_bytes", ())] <= usage.total
+
+    add_pass(client, "counted")
+    now[0] += REFRESH_S / 2
+    cached = _samples(client.get("/metrics", headers=VIEWER).text)
+    assert cached[("hikoboshi_passes", (("state", "scheduled"),))] == 0.0  # not asked again
+    now[0] += REFRESH_S / 2
+    fresh = _samples(client.get("/metrics", headers=VIEWER).text)
+    assert fresh[("hikoboshi_passes", (("state", "scheduled"),))] == 1.0

@@ -323,3 +323,35 @@ def test_auth_answers_as_before_behind_the_declared_scheme(
     response = client.post("/api/passes/x/start", headers=headers, json={})
     assert response.status_code == status, response.text
     assert response.json()["error"]["message"].startswith(message)
+
+
+def test_every_file_response_is_documented_as_a_string(document: dict[str, Any]) -> None:
+    """A generated client drops a response whose content has no schema: every success
+    response that is not JSON (MCAP, Parquet, CSV, PNG, URDF, meshes, the report page) is a
+    string, binary unless its media type is text."""
+    files = {}
+    for path, methods in document["paths"].items():
+        for method, operation in methods.items():
+            for status, response in operation["responses"].items():
+                if not status.startswith("2"):
+                    continue
+                for media_type, content in response.get("content", {}).items():
+                    assert "schema" in content, (method, path, status, media_type)
+                    if media_type != "application/json":
+                        files[(path, media_type)] = content["schema"]
+    textual = ("text/", "application/xml")
+    for (path, media_type), schema in files.items():
+        assert schema["type"] == "string", (path, media_type)
+        assert (schema.get("format") == "binary") != media_type.startswith(textual), (
+            path,
+            media_type,
+        )
+    assert {media_type for _, media_type in files} >= {
+        "application/octet-stream",
+        "application/vnd.apache.parquet",
+        "image/png",
+        "model/stl",
+        "text/csv",
+        "application/xml",
+        "text/html",
+    }

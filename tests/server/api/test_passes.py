@@ -10,15 +10,17 @@ import pytest
 from fastapi.testclient import TestClient
 
 from planner.plan import Plan
+from server.operations.windows import start_lead_s
 from server.settings import Settings
 from server.storage import repository as repo
 from tests.server.storage.factories import T0_NS, make_commands
 from tests.support.api import OPERATOR, VIEWER, sessions
 
 AOS = datetime(2031, 3, 4, 5, 6, 7, 250000, tzinfo=UTC)
-#: The start lead of the default settings (``uplink_start_lead_s``): the first command is
-#: tagged this long after the start, so that it can be sent again if the relay loses it.
-LEAD_S = Settings().uplink_start_lead_s
+#: The start lead of the default settings at time scale 1 (31.25 s: ``uplink_start_lead_s``,
+#: 1 s for the start and the grid step): the plan starts at most this long after the start,
+#: so that its first command can be sent again if the relay loses it.
+LEAD_S = start_lead_s(Settings())
 
 
 def _stored_plan(client: TestClient, plan: Plan) -> str:
@@ -80,7 +82,7 @@ def plan_to_refuse(module_client: TestClient, ptp_plan: Plan) -> tuple[TestClien
     [
         ({"window_s": -1.0}, 422, "window_reversed"),
         ({"window_s": 0.0}, 422, "window_reversed"),
-        ({"short_by_s": 0.25}, 422, "window_too_short"),
+        ({"short_by_s": 0.25}, 409, "plan_exceeds_window"),
         ({"name": ""}, 422, "invalid_request"),
         ({"name": "x" * 129}, 422, "invalid_request"),
         ({"relay": ""}, 422, "invalid_request"),

@@ -168,36 +168,13 @@ def test_the_recording_embeds_the_vendor_meshes_on_their_tf_frames(
     from mcap.reader import make_reader
 
     from planner.frames import matrix_from_quat_xyzw, rpy_from_matrix
-    from planner.plan import plan_for_robot
-    from server.storage import repository as repo
-    from telemetry.layout import FrameLayout
     from telemetry.mcap import TOPIC_ROBOT_MESHES, TOPIC_TF
-    from tests.server.storage.factories import make_frames, make_plan
-    from tests.support.api import sessions
+    from tests.support.api import recording_of_a_flown_pass
 
     ur5 = load_robot(ur5_toml)
-    frames = make_frames(range(8), layout=FrameLayout(6, 3))
-    with sessions(ur5_client)() as session:
-        plan = repo.add_plan(
-            session=session, plan=plan_for_robot(make_plan(n_joints=6), ur5), created_at_ns=0
-        )
-        record = repo.add_pass(
-            session=session,
-            name="ur5-flown",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS-W",
-            created_at_ns=0,
-        )
-        record.epoch_ns = int(frames[0].generation_time_ns)
-        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
-        session.commit()
-        pass_id = record.id
-    response = ur5_client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
-    assert response.status_code == 200, response.text
+    recording = recording_of_a_flown_pass(ur5_client, ur5, 8)
     updates, tf_children = [], set()
-    for schema, channel, message in make_reader(io.BytesIO(response.content)).iter_messages(
+    for schema, channel, message in make_reader(io.BytesIO(recording)).iter_messages(
         topics=[TOPIC_ROBOT_MESHES, TOPIC_TF]
     ):
         doc = json.loads(message.data)

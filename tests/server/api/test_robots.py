@@ -210,33 +210,13 @@ def test_the_grounds_recording_of_an_orihime_pass_attaches_orihime_urdf(
 ) -> None:
     import io
 
-    from telemetry.layout import FrameLayout
     from telemetry.mcap import read_mcap, read_urdf
-    from tests.server.storage.factories import make_frames
+    from tests.support.api import recording_of_a_flown_pass
 
     orihime = load_robot(ORIHIME)
-    frames = make_frames(range(12), layout=FrameLayout(7, 3))
-    with sessions(client)() as session:
-        plan = repo.add_plan(
-            session=session, plan=plan_for_robot(make_plan(n_joints=7), orihime), created_at_ns=0
-        )
-        record = repo.add_pass(
-            session=session,
-            name="orihime-flown",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS-W",
-            created_at_ns=0,
-        )
-        record.epoch_ns = int(frames[0].generation_time_ns)  # flown
-        repo.ingest_frames(session=session, pass_id=record.id, frames=frames, reception_time_ns=0)
-        session.commit()
-        pass_id = record.id
-    response = client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER)
-    assert response.status_code == 200, response.text
-    assert read_urdf(io.BytesIO(response.content)) == ("orihime.urdf", robot_urdf(orihime))
-    assert read_mcap(io.BytesIO(response.content)).plan.robot == "orihime"
+    recording = recording_of_a_flown_pass(client, orihime, 12)
+    assert read_urdf(io.BytesIO(recording)) == ("orihime.urdf", robot_urdf(orihime))
+    assert read_mcap(io.BytesIO(recording)).plan.robot == "orihime"
 
 
 @pytest.fixture()

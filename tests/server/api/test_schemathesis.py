@@ -16,9 +16,9 @@ Exclusions, each narrowed to its operation, status and error codes (the check
   experiment's parameter names, ranges and feasibility are the planner's, per experiment
   and per robot (``planner/parameters.py``), and no JSON Schema states whether a goal can
   be reached; ``unknown_robot``: the robots are the server's files.
-- ``POST /api/passes`` 422 ``window_reversed``, ``window_too_short``, ``time_out_of_range``:
-  rules between two fields (los after aos), against the stored plan (its duration), and a
-  date-time range, none of which JSON Schema states.
+- ``POST /api/passes`` 422 ``window_reversed``, ``time_out_of_range``: rules between two
+  fields (los after aos) and a date-time range, none of which JSON Schema states (a window
+  too short for the stored plan is a conflict, 409 ``plan_exceeds_window``).
 - ``GET /api/passes/{pass_id}/telemetry`` 422 ``empty_range``, ``unknown_field``,
   ``repeated_field``: ``t1`` after ``t0`` and the fields of the pass's robot.
 - ``POST /api/passes/import`` 422 ``invalid_recording``: the body is an MCAP file, which a
@@ -130,11 +130,8 @@ EXCUSES = (
         "/api/passes",
         "positive_data_acceptance",
         422,
-        frozenset(
-            {"window_reversed", "window_too_short", "time_out_of_range", "span_outside_elements"}
-        ),
-        "los after aos, a window that holds the stored plan, a date-time range, a named "
-        "window's time near its mission's epoch",
+        frozenset({"window_reversed", "time_out_of_range", "span_outside_elements"}),
+        "los after aos, a date-time range, a named window's time near its mission's epoch",
     ),
     Excuse(
         "GET",

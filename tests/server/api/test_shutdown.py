@@ -106,7 +106,7 @@ def test_sigterm_answers_waiting_plans_in_json_and_leaves_no_process(tmp_path: P
         status_line, *headers = head.decode().split("\r\n")
         fields = {k.lower(): v.strip() for k, _, v in (h.partition(":") for h in headers)}
         assert status_line.split()[1] == "503", raw[:500]
-        assert fields["content-type"] == "application/json", raw[:500]
+        assert fields["content-type"] == "application/problem+json", raw[:500]
         assert int(fields["retry-after"]) > 0
         error = json.loads(body)["error"]
         assert error["code"] == "shutting_down", error
@@ -241,7 +241,8 @@ def test_a_request_cut_short_by_the_stop_answers_json() -> None:
     start, body = sent
     assert start["status"] == 503
     headers = dict(start["headers"])
-    assert headers[b"content-type"] == b"application/json" and int(headers[b"retry-after"]) > 0
+    assert headers[b"content-type"] == b"application/problem+json"
+    assert int(headers[b"retry-after"]) > 0
     assert json.loads(body["body"])["error"]["code"] == "shutting_down"
     sent, cancelled = asyncio.run(call("/started"))
     assert cancelled and [m["status"] for m in sent] == [200]

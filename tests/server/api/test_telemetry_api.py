@@ -9,14 +9,18 @@ import pytest
 from fastapi.testclient import TestClient
 
 from planner.plan import Plan
-from server.storage import repository as repo
 from telemetry.layout import FrameLayout
 from telemetry.wire import TelemetryFrame
-from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
+from tests.server.storage.factories import (
+    FRAME_PERIOD_NS,
+    T0_NS,
+    make_frames,
+    make_plan,
+    store_pass,
+)
 from tests.support.api import VIEWER, sessions
 
 N_FRAMES = 95
-RECEIVED_NS = 1_790_000_000_000_000_000
 
 
 @pytest.fixture(scope="module")
@@ -28,19 +32,7 @@ def client(module_client: TestClient) -> TestClient:
 def pass_with_frames(client: TestClient, ptp_plan: Plan) -> tuple[str, list[TelemetryFrame]]:
     frames = make_frames(range(N_FRAMES), seed=7)
     with sessions(client)() as session:
-        plan_id = repo.add_plan(session=session, plan=ptp_plan, created_at_ns=0).id
-        pass_id = repo.add_pass(
-            session=session,
-            name="p",
-            plan_id=plan_id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS",
-            created_at_ns=0,
-        ).id
-        repo.ingest_frames(
-            session=session, pass_id=pass_id, frames=frames, reception_time_ns=RECEIVED_NS
-        )
+        pass_id = store_pass(session, ptp_plan, frames=frames).id
         session.commit()
     return pass_id, frames
 
@@ -165,19 +157,7 @@ def test_a_seven_joint_pass_answers_its_own_fields_raw_and_decimated(client: Tes
     seven = FrameLayout(7, 3)
     frames = make_frames(range(40), seed=2, layout=seven)
     with sessions(client)() as session:
-        plan_id = repo.add_plan(session=session, plan=make_plan(n_joints=7), created_at_ns=0).id
-        pass_id = repo.add_pass(
-            session=session,
-            name="seven",
-            plan_id=plan_id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS",
-            created_at_ns=0,
-        ).id
-        repo.ingest_frames(
-            session=session, pass_id=pass_id, frames=frames, reception_time_ns=RECEIVED_NS
-        )
+        pass_id = store_pass(session, make_plan(n_joints=7), name="seven", frames=frames).id
         session.commit()
     body = client.get(f"/api/passes/{pass_id}/telemetry", headers=VIEWER).json()
     assert body["fields"] == list(seven.fields) and body["count"] == 40

@@ -17,6 +17,8 @@ from fastapi.testclient import TestClient
 from mission import MISSIONS_DIR, compute_windows, load_mission
 from planner.plan import Plan
 from server.app import create_app
+from server.operations.windows import start_lead_s
+from server.services.clock import ManualClock
 from server.settings import Settings
 from server.storage import repository as repo
 from tests.support.api import OPERATOR, TOKENS, VIEWER, sessions
@@ -166,7 +168,7 @@ def test_a_pass_named_by_its_window_runs_in_its_net_time_and_keeps_it(
 
 def test_a_plan_longer_than_the_net_time_is_a_conflict(client: TestClient, ptp_plan: Plan) -> None:
     first = _windows(client, mission="tight").json()["data"][0]
-    assert first["net_s"] < ptp_plan.duration_s + Settings().uplink_start_lead_s
+    assert first["net_s"] < ptp_plan.duration_s + start_lead_s(Settings())
     plan_id = _plan_id(client, ptp_plan)
     aos = datetime.fromisoformat(first["aos_time"])
     response = client.post(
@@ -175,8 +177,12 @@ def test_a_plan_longer_than_the_net_time_is_a_conflict(client: TestClient, ptp_p
     assert response.status_code == 409, response.text
     error = response.json()["error"]
     assert error["code"] == "plan_exceeds_window"
-    assert "less 3400 s after AOS" in error["message"]
+    assert "3400 s after AOS" in error["message"]
     assert error["detail"]["net_s"] == pytest.approx(first["net_s"])
+    needed_s = ptp_plan.duration_s + start_lead_s(Settings())
+    assert error["detail"]["needed_s"] == pytest.approx(needed_s)
+    assert _utc(error["detail"]["aos_time"]) == _utc(first["aos_time"])
+    assert _utc(error["detail"]["los_time"]) == _utc(first["los_time"])
     assert client.get("/api/passes", headers=VIEWER).json()["count"] == 0
     assert client.get("/api/events", headers=VIEWER).json()["count"] == 0
 
@@ -237,3 +243,71 @@ def test_the_server_s_folder_comes_from_the_environment_and_shadows_a_shipped_mi
     monkeypatch.delenv("HIKOBOSHI_MISSIONS_DIR")
     assert Settings.from_env().missions_dir is None
     assert known_missions(Settings())["ets7-1999"] == ETS7.resolve()
+
+
+def _utc(text: str) -> datetime:
+    return datetime.fromisoformat(text)
+
+
+def _ground_time(client: TestClient, at: datetime) -> str:
+    """The ground's injected clock (the routes' ClockDep) set to ``at``; ``at`` as the
+    refusals write it."""
+    wall_ns = (at - datetime(1970, 1, 1, tzinfo=UTC)) // timedelta(microseconds=1) * 1000
+    client.app.state.clock = ManualClock(wall_ns=wall_ns)  # type: ignore[attr-defined]
+    return at.isoformat().replace("+00:00", "Z")
+
+
+def _start(client: TestClient, pass_id: str) -> Any:
+    body = {"confirm": "START campaign pass 1"}
+    return client.post(f"/api/passes/{pass_id}/start", json=body, headers=OPERATOR)
+
+
+def test_a_pass_starts_only_inside_its_window_and_early_enough_for_its_plan(
+    own_client: TestClient, ptp_plan: Plan
+) -> None:
+    """A pass scheduled in the 1999 window: at the ground's time (its injected clock) before
+    the net time opens, after it closed, and too late in it for the plan's last command to
+    fall before LOS less the margin, the start is refused naming the window and the ground's
+    time, audited, and the pass stays scheduled; inside it, the window lets it by (to the
+    next gate: this plan was never checked against the flight rules)."""
+    client = own_client
+    first = _windows(client).json()["data"][0]
+    plan_id = _plan_id(client, ptp_plan)
+    aos = datetime.fromisoformat(first["aos_time"])
+    request = _window_request(plan_id, "ets7-1999", first["relay"], aos)
+    pass_id = client.post("/api/passes", json=request, headers=OPERATOR).json()["id"]
+    net_start = _utc(first["net_start_time"])
+    net_end = _utc(first["net_end_time"])
+    latest = net_end - timedelta(seconds=ptp_plan.duration_s + start_lead_s(Settings()))
+
+    refused = []
+    for at, code, says in [
+        (datetime(2026, 5, 1, 12, tzinfo=UTC), "outside_window", "has closed"),
+        (net_start - timedelta(seconds=1), "outside_window", "has not opened yet"),
+        (net_end, "outside_window", "has closed"),
+        (latest + timedelta(seconds=1), "plan_exceeds_window", "its last command would fall"),
+    ]:
+        ground_time = _ground_time(client, at)
+        response = _start(client, pass_id)
+        assert response.status_code == 409, response.text
+        error = response.json()["error"]
+        assert error["code"] == code and says in error["message"], error
+        assert "TDRS-West's window of mission ets7-1999 (AOS 1999-09-30T00:25:" in error["message"]
+        assert f"the ground's time is {ground_time}" in error["message"]
+        assert error["detail"]["ground_time"] == ground_time
+        assert _utc(error["detail"]["aos_time"]) == _utc(first["aos_time"])
+        assert _utc(error["detail"]["los_time"]) == _utc(first["los_time"])
+        refused.append((code, error["message"]))
+    late = response.json()["error"]["detail"]
+    assert late["needed_s"] > late["available_s"]
+    assert abs(_utc(late["latest_start_time"]) - latest) < timedelta(milliseconds=1)
+
+    events = client.get("/api/events?kind=pass_start_refused", headers=VIEWER).json()["data"]
+    got = sorted((e["detail"]["reason"], e["detail"]["message"]) for e in events)
+    assert got == sorted(refused)
+    assert client.get(f"/api/passes/{pass_id}", headers=VIEWER).json()["state"] == "scheduled"
+
+    for at in (net_start, latest - timedelta(seconds=1)):
+        _ground_time(client, at)
+        response = _start(client, pass_id)
+        assert response.json()["error"]["code"] == "flight_rules_unchecked", response.text

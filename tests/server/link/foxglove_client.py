@@ -44,13 +44,14 @@ async def listen(
     received: Received,
     subscribed: asyncio.Event,
     required: set[str] | None = None,
+    headers: dict[str, str] | None = None,
 ) -> None:
     """Connect, subscribe to ``topics`` as they are advertised (``subscribed`` is set once
     all of ``required``, default all of them, are), and collect into ``received`` until
-    cancelled."""
+    cancelled. ``headers``: the handshake's own (the viewer's ``Authorization``)."""
     required = topics if required is None else required
     offered: Any = list(SUBPROTOCOLS)
-    async with connect(url, subprotocols=offered) as ws:
+    async with connect(url, subprotocols=offered, additional_headers=headers) as ws:
         assert ws.subprotocol in SUBPROTOCOLS
         received.subprotocol = ws.subprotocol
         by_subscription: dict[int, str] = {}

@@ -9,12 +9,11 @@ from __future__ import annotations
 import asyncio
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping
+from contextlib import asynccontextmanager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +40,8 @@ from telemetry.wire import TelemetryFrame
 from tests.support.api import OPERATOR as OPERATOR
 from tests.support.api import TOKENS
 from tests.support.api import VIEWER as VIEWER
-from tests.support.processes import free_port
+from tests.support.flight import flying
+from tests.support.processes import free_port, health_when_up, serve_command
 
 #: 10x: the server and the spacecraft share one process (and its GIL) here, and at 20x a
 #: 50 ms stall of the ground's event loop on a loaded machine is a whole second onboard.
@@ -108,21 +108,10 @@ def serve_process(
     environment = {**os.environ, "DATABASE_URL": database_url, **env}
     with log.open("ab") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "hikoboshi", "serve", "--port", str(port)],
-            env=environment,
-            stdout=out,
-            stderr=subprocess.STDOUT,
+            serve_command(port), env=environment, stdout=out, stderr=subprocess.STDOUT
         )
     try:
-        deadline = time.monotonic() + 60.0
-        while True:
-            try:
-                httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=1.0)
-                break
-            except httpx.TransportError:
-                assert proc.poll() is None, log.read_text()[-3000:]
-                assert time.monotonic() < deadline, "the server did not come up"
-                time.sleep(0.1)
+        health_when_up(proc, f"http://127.0.0.1:{port}", output=lambda: log.read_text()[-3000:])
         yield proc
     finally:
         if proc.poll() is None:
@@ -243,6 +232,29 @@ async def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str) ->
 def pass_state(ground: Ground, pass_id: str) -> str:
     with ground.readers() as session:
         return repo.get_pass(session=session, pass_id=pass_id).state
+
+
+@asynccontextmanager
+async def in_contact(
+    process: SpacecraftProcess, url: str, *, timeout_s: float = 5.0, drain_s: float = 40.0
+) -> AsyncIterator[httpx.AsyncClient]:
+    """``process`` flying (:func:`tests.support.flight.flying`) and a REST client of the
+    ground at ``url`` (``timeout_s`` a request), given once the spacecraft is connected."""
+    async with (
+        flying(process, drain_s),
+        httpx.AsyncClient(base_url=url, timeout=timeout_s) as client,
+    ):
+        await connected(client)
+        yield client
+
+
+async def start_pass(client: httpx.AsyncClient, pass_id: str, name: str) -> httpx.Response:
+    """The operator's confirmed start of the pass ``name``, which must be accepted."""
+    response = await client.post(
+        f"/api/passes/{pass_id}/start", json={"confirm": f"START {name}"}, headers=OPERATOR
+    )
+    assert response.status_code == 200, response.text
+    return response
 
 
 async def connected(client: httpx.AsyncClient) -> None:

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 import websockets
 
@@ -26,10 +25,11 @@ from tests.server.link.harness import (
     OPERATOR,
     Ground,
     add_plan_and_pass,
-    connected,
     deleted_from_ns,
+    in_contact,
     running_ground,
     spacecraft,
+    start_pass,
     wait_for,
 )
 from tests.server.storage.factories import make_plan
@@ -97,17 +97,11 @@ def _stages(ground: Ground, pass_id: str) -> dict[str, int]:
 def test_abort_of_a_long_pass_is_one_event_and_keeps_every_console(tmp_path: Path) -> None:
     async def scenario(ground: Ground, pass_id: str) -> tuple[float, list[Console]]:
         process, _ = spacecraft(ground)
-        stop = asyncio.Event()
-        task = asyncio.create_task(process.run(stop))
         consoles: list[Console] = []
         try:
-            async with httpx.AsyncClient(base_url=ground.url, timeout=60.0) as client:
-                await connected(client)
+            async with in_contact(process, ground.url, timeout_s=60.0, drain_s=60.0) as client:
                 consoles = [await Console.open(ground) for _ in range(3)]
-                response = await client.post(
-                    f"/api/passes/{pass_id}/start", json={"confirm": "START long"}, headers=OPERATOR
-                )
-                assert response.status_code == 200, response.text
+                await start_pass(client, pass_id, "long")
                 await wait_for(
                     lambda: _stages(ground, pass_id).get("executed", 0) >= 20,
                     60.0,
@@ -130,8 +124,6 @@ def test_abort_of_a_long_pass_is_one_event_and_keeps_every_console(tmp_path: Pat
                 for console in consoles:
                     await console.sync()  # still connected: the pong comes back
         finally:
-            stop.set()
-            await asyncio.wait_for(task, 60.0)
             for console in consoles:
                 await console.ws.close()
         return answered_s, consoles

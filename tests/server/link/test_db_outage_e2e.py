@@ -19,7 +19,6 @@ from server.storage import repository as repo
 from server.storage.db import make_engine, read_session_factory
 from tests.server.cut_proxy import cut_proxy
 from tests.server.link.harness import (
-    OPERATOR,
     VIEWER,
     assert_every_frame_once,
     assert_stages_are_the_vehicles,
@@ -28,9 +27,11 @@ from tests.server.link.harness import (
     pass_resolved,
     running_ground,
     spacecraft,
+    start_pass,
     store_pass,
     wait_for,
 )
+from tests.support.flight import flying
 
 pytestmark = pytest.mark.realtime
 
@@ -60,46 +61,37 @@ def test_a_pass_rides_a_database_outage_through(postgres_schema_url: str) -> Non
         seen: dict[str, Any] = {}
 
         async def scenario() -> None:
-            stop = asyncio.Event()
-            task = asyncio.create_task(process.run(stop))
-            try:
-                async with httpx.AsyncClient(base_url=ground.url, timeout=30.0) as client:
-                    await connected(client)
-                    started = await client.post(
-                        f"/api/passes/{pass_id}/start",
-                        json={"confirm": "START outage"},
-                        headers=OPERATOR,
-                    )
-                    assert started.status_code == 200, started.text
-                    await wait_for(on_board_30, 60.0, "30 commands executed")
-                    proxy.cut()
-                    cut_at = time.monotonic()
-                    db = ground.app.state.db
-                    await wait_for(lambda: db.outage.down_since is not None, 30.0, "the outage")
-                    # the link's status (no database needed) shows it to the consoles
-                    status = (await client.get("/api/link/status", headers=VIEWER)).json()
-                    assert status["ground"]["database"]["reachable"] is False
-                    authority = ground.app.state.authority
-                    await wait_for(lambda: not authority.may_command(), 30.0, "lease lapsing")
-                    status = (await client.get("/api/link/status", headers=VIEWER)).json()
-                    assert status["ground"]["command"]["commanding"] is False
-                    seen["journal_during"] = db.journal
-                    await asyncio.sleep(max(0.0, OUTAGE_S - (time.monotonic() - cut_at)))
-                    proxy.restore()
-                    await wait_for(ended, 180.0, "the pass ended, resolved")
-                    metrics = (await client.get("/metrics", headers=VIEWER)).text
-                    assert "hikoboshi_database_reachable 1.0" in metrics
-                    assert "hikoboshi_database_outages_total 1.0" in metrics
-                    summary = await client.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
-                    assert summary.status_code == 200, summary.text
-                    seen["summary"] = summary.json()
-                    seen["outage"] = db.outage.status(db.journal)
-                    stop.set()
-                    await asyncio.wait_for(task, 60.0)
-                    assert process.store.unacked == 0
-            finally:
-                stop.set()
-                await asyncio.wait_for(task, 60.0)
+            async with (
+                flying(process, drain_s=60.0) as land,
+                httpx.AsyncClient(base_url=ground.url, timeout=30.0) as client,
+            ):
+                await connected(client)
+                await start_pass(client, pass_id, "outage")
+                await wait_for(on_board_30, 60.0, "30 commands executed")
+                proxy.cut()
+                cut_at = time.monotonic()
+                db = ground.app.state.db
+                await wait_for(lambda: db.outage.down_since is not None, 30.0, "the outage")
+                # the link's status (no database needed) shows it to the consoles
+                status = (await client.get("/api/link/status", headers=VIEWER)).json()
+                assert status["ground"]["database"]["reachable"] is False
+                authority = ground.app.state.authority
+                await wait_for(lambda: not authority.may_command(), 30.0, "lease lapsing")
+                status = (await client.get("/api/link/status", headers=VIEWER)).json()
+                assert status["ground"]["command"]["commanding"] is False
+                seen["journal_during"] = db.journal
+                await asyncio.sleep(max(0.0, OUTAGE_S - (time.monotonic() - cut_at)))
+                proxy.restore()
+                await wait_for(ended, 180.0, "the pass ended, resolved")
+                metrics = (await client.get("/metrics", headers=VIEWER)).text
+                assert "hikoboshi_database_reachable 1.0" in metrics
+                assert "hikoboshi_database_outages_total 1.0" in metrics
+                summary = await client.get(f"/api/passes/{pass_id}/summary", headers=VIEWER)
+                assert summary.status_code == 200, summary.text
+                seen["summary"] = summary.json()
+                seen["outage"] = db.outage.status(db.journal)
+                await land()
+                assert process.store.unacked == 0
 
         try:
             asyncio.run(scenario())

@@ -26,11 +26,12 @@ from telemetry.wire import TelemetryFrame
 from tests.server.link.harness import (
     OPERATOR,
     Ground,
-    connected,
     deleted_from_ns,
+    in_contact,
     running_ground,
     settled,
     spacecraft,
+    start_pass,
     store_pass,
     wait_for,
 )
@@ -63,22 +64,12 @@ async def _fly(
     """Start the pass over REST (``started`` is given the process and the started pass),
     wait for it to complete, stop the spacecraft (drain)."""
     process, generated = spacecraft(ground, **link)
-    stop = asyncio.Event()
-    task = asyncio.create_task(process.run(stop))
-    try:
-        async with httpx.AsyncClient(base_url=ground.url) as client:
-            await connected(client)
-            response = await client.post(
-                f"/api/passes/{pass_id}/start", json={"confirm": f"START {name}"}, headers=OPERATOR
-            )
-            assert response.status_code == 200, response.text
-            assert response.json()["state"] == "running"
-            if started is not None:
-                started(process, response.json())
-            await wait_for(lambda: settled(ground, pass_id), timeout_s, "the pass settled")
-    finally:
-        stop.set()
-        await asyncio.wait_for(task, 40.0)
+    async with in_contact(process, ground.url) as client:
+        response = await start_pass(client, pass_id, name)
+        assert response.json()["state"] == "running"
+        if started is not None:
+            started(process, response.json())
+        await wait_for(lambda: settled(ground, pass_id), timeout_s, "the pass settled")
     assert process.store.unacked == 0  # drained: every frame acknowledged
     return generated, process
 
@@ -224,53 +215,39 @@ def test_a_plan_the_vehicle_refuses_is_stopped_and_the_arm_held(tmp_path: Path) 
 def test_abort_mid_pass_deletes_the_schedule_and_holds_the_arm(tmp_path: Path) -> None:
     async def scenario(ground: Ground, pass_id: str) -> SpacecraftProcess:
         process, _ = spacecraft(ground, loss=0.1)
-        stop = asyncio.Event()
-        task = asyncio.create_task(process.run(stop))
-        try:
-            async with httpx.AsyncClient(base_url=ground.url) as client:
-                await connected(client)
-                response = await client.post(
-                    f"/api/passes/{pass_id}/start",
-                    json={"confirm": "START abortive"},
-                    headers=OPERATOR,
-                )
-                assert response.status_code == 200, response.text
+        async with in_contact(process, ground.url) as client:
+            await start_pass(client, pass_id, "abortive")
 
-                def executed() -> int:
-                    with ground.readers() as session:
-                        rows = repo.list_commands(
-                            session=session, pass_id=pass_id, stages=["executed"]
-                        )
-                        return len(rows)
+            def executed() -> int:
+                with ground.readers() as session:
+                    rows = repo.list_commands(session=session, pass_id=pass_id, stages=["executed"])
+                    return len(rows)
 
-                await wait_for(lambda: executed() >= 12, 30.0, "12 commands executed")
-                response = await client.post(
-                    f"/api/passes/{pass_id}/abort",
-                    json={"confirm": "ABORT abortive", "reason": "test abort"},
-                    headers=OPERATOR,
-                )
-                assert response.status_code == 200, response.text
-                assert response.json()["state"] == "aborted"
+            await wait_for(lambda: executed() >= 12, 30.0, "12 commands executed")
+            response = await client.post(
+                f"/api/passes/{pass_id}/abort",
+                json={"confirm": "ABORT abortive", "reason": "test abort"},
+                headers=OPERATOR,
+            )
+            assert response.status_code == 200, response.text
+            assert response.json()["state"] == "aborted"
 
-                def verified() -> bool:
-                    with ground.readers() as session:
-                        page = repo.list_events(
-                            session=session, pass_id=pass_id, kinds=["schedule_deleted"]
-                        )
-                    return page.count > 0
+            def verified() -> bool:
+                with ground.readers() as session:
+                    page = repo.list_events(
+                        session=session, pass_id=pass_id, kinds=["schedule_deleted"]
+                    )
+                return page.count > 0
 
-                await wait_for(verified, 30.0, "the schedule_delete verified")
-                from_ns = deleted_from_ns(ground, pass_id)
+            await wait_for(verified, 30.0, "the schedule_delete verified")
+            from_ns = deleted_from_ns(ground, pass_id)
 
-                def seen_past_the_delete() -> bool:
-                    newest = ground.app.state.downlink.newest
-                    return newest is not None and newest[1] >= from_ns + 5 * 10**9
+            def seen_past_the_delete() -> bool:
+                newest = ground.app.state.downlink.newest
+                return newest is not None and newest[1] >= from_ns + 5 * 10**9
 
-                await wait_for(seen_past_the_delete, 30.0, "telemetry past the delete")
-                await wait_for(lambda: not ground.app.state.runner.resolving, 30.0, "resolved")
-        finally:
-            stop.set()
-            await asyncio.wait_for(task, 40.0)
+            await wait_for(seen_past_the_delete, 30.0, "telemetry past the delete")
+            await wait_for(lambda: not ground.app.state.runner.resolving, 30.0, "resolved")
         return process
 
     with running_ground(sqlite_url(tmp_path)) as ground:
@@ -320,22 +297,15 @@ def test_a_plan_into_the_base_is_refused_with_the_vehicle_connected_and_it_never
 
     async def attempt(ground: Ground, pass_id: str) -> tuple[httpx.Response, list[Any]]:
         process, generated = spacecraft(ground)
-        stop = asyncio.Event()
-        task = asyncio.create_task(process.run(stop))
-        try:
-            async with httpx.AsyncClient(base_url=ground.url) as client:
-                await connected(client)
-                response = await client.post(
-                    f"/api/passes/{pass_id}/start",
-                    json={"confirm": "START into-the-base"},
-                    headers=OPERATOR,
-                )
-                seen = len(generated)
-                # 20 onboard seconds of telemetry after the refusal
-                await wait_for(lambda: len(generated) >= seen + 40, 30.0, "telemetry")
-        finally:
-            stop.set()
-            await asyncio.wait_for(task, 40.0)
+        async with in_contact(process, ground.url) as client:
+            response = await client.post(
+                f"/api/passes/{pass_id}/start",
+                json={"confirm": "START into-the-base"},
+                headers=OPERATOR,
+            )
+            seen = len(generated)
+            # 20 onboard seconds of telemetry after the refusal
+            await wait_for(lambda: len(generated) >= seen + 40, 30.0, "telemetry")
         return response, list(generated)
 
     with running_ground(database_url) as ground:

@@ -1,16 +1,20 @@
-"""The Foxglove live view: a client speaking Foxglove's websocket protocol (our own, with the
-``websockets`` package) receives ``/tf`` and ``/events`` while a real pass flies through the
-real ground (uvicorn, loopback) from the spacecraft process at 10x; and without the extra,
-``--foxglove-port`` is refused with one line naming it."""
+"""The Foxglove live view: two clients receive ``/tf`` and ``/events`` while a real pass
+flies through the real ground (uvicorn, loopback) from the spacecraft process at 10x, behind
+the gate (server/api/foxglove_gate.py) with the viewer's token: Foxglove's own client
+(``@foxglove/ws-protocol`` in Node, tests/clients, offering only ``foxglove.websocket.v1``)
+and a protocol client of ours (the ``websockets`` package, offering both names); the gate
+refuses a handshake without a viewer's token or without a Foxglove subprotocol; and without
+the extra, ``--foxglove-port`` is refused with one line naming it."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
-import httpx
 import jsonschema_rs
 import pytest
 from typer.testing import CliRunner
@@ -21,11 +25,12 @@ from server.storage import repository as repo
 from server.storage.db import sqlite_url
 from tests.server.link.foxglove_client import Received, listen
 from tests.server.link.harness import (
-    OPERATOR,
-    connected,
+    VIEWER,
+    in_contact,
     running_ground,
     settled,
     spacecraft,
+    start_pass,
     store_pass,
     wait_for,
 )
@@ -34,54 +39,91 @@ from tests.support.foxglove_schemas import FOXGLOVE_FRAME_TRANSFORMS, FOXGLOVE_L
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
 TOPICS = {"/tf", "/events", "/scene", "/robot_description"}
+CLIENTS = Path(__file__).resolve().parents[2] / "clients"  # tests/clients: npm, locked
+
+
+def official_client(url: str, token: str) -> subprocess.Popen[str]:
+    """Foxglove's own client in Node, subscribed to every channel (tests/clients/
+    foxglove_subscribe.mjs): it prints a line once subscribed, and its counts once it has
+    as many ``/tf`` messages as standard input says (then closed)."""
+    node = shutil.which("node")
+    assert node is not None, "node is missing: scripts/setup.sh --test installs it"
+    assert (CLIENTS / "node_modules" / "@foxglove" / "ws-protocol").is_dir(), (
+        "tests/clients is not installed: scripts/setup.sh --test"
+    )
+    return subprocess.Popen(
+        [node, str(CLIENTS / "foxglove_subscribe.mjs"), url, token],
+        cwd=CLIENTS,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) -> None:
     pytest.importorskip("foxglove", reason="the foxglove extra (hikoboshi[foxglove])")
     received = Received()
+    official: dict[str, object] = {}
 
     async def scenario(ws_url: str, ground_url: str, pass_id: str) -> None:
         subscribed = asyncio.Event()
-        client = asyncio.create_task(listen(ws_url, TOPICS, received, subscribed))
+        client = asyncio.create_task(listen(ws_url, TOPICS, received, subscribed, headers=VIEWER))
+        node = official_client(ws_url, VIEWER["Authorization"].removeprefix("Bearer "))
+        assert node.stdout is not None and node.stdin is not None
+        line = await asyncio.wait_for(asyncio.to_thread(node.stdout.readline), 30.0)  # guard
+        assert json.loads(line or "{}").get("event") == "subscribed", (line, node.stderr)
         process, _ = spacecraft(ground)
-        stop = asyncio.Event()
-        flight = asyncio.create_task(process.run(stop))
         try:
-            await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
-            async with httpx.AsyncClient(base_url=ground_url) as rest:
-                await connected(rest)
-                response = await rest.post(
-                    f"/api/passes/{pass_id}/start",
-                    json={"confirm": "START fox-1"},
-                    headers=OPERATOR,
-                )
-                assert response.status_code == 200, response.text
+            async with in_contact(process, ground_url) as rest:
+                await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
+                await start_pass(rest, pass_id, "fox-1")
                 await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
 
-            def completed_seen() -> bool:
-                return any('"to": "complete"' in d["message"] for _, d in received.json("/events"))
+                def completed_seen() -> bool:
+                    return any(
+                        '"to": "complete"' in d["message"] for _, d in received.json("/events")
+                    )
 
-            await wait_for(completed_seen, 20.0, "the pass's completion on /events")
+                await wait_for(completed_seen, 20.0, "the pass's completion on /events")
 
-            def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
-                with ground.readers() as session:
-                    stored = repo.count_frames(session=session, pass_id=pass_id)
-                return len(received.messages.get("/tf", [])) >= stored
+                def every_frame_seen() -> bool:  # the view's queue and the SDK's are FIFOs
+                    with ground.readers() as session:
+                        stored = repo.count_frames(session=session, pass_id=pass_id)
+                    return len(received.messages.get("/tf", [])) >= stored
 
-            await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
+                await wait_for(every_frame_seen, 20.0, "a /tf message for every stored frame")
+            with ground.readers() as session:  # the client waits for every one of them
+                frames = repo.count_frames(session=session, pass_id=pass_id)
+            done = asyncio.to_thread(node.communicate, f"{frames}\n")
+            out, err = await asyncio.wait_for(done, 30.0)  # a guard
+            assert node.returncode == 0, err
+            official.update(json.loads(out.strip().splitlines()[-1]))
         finally:
-            stop.set()
-            await asyncio.wait_for(flight, 40.0)
+            if node.poll() is None:
+                node.kill()
             client.cancel()
             await asyncio.gather(client, return_exceptions=True)
 
     with running_ground(sqlite_url(tmp_path), foxglove_port=0) as ground:
         live = ground.app.state.foxglove
         pass_id = store_pass(ground.sessions, "fox-1", (6.0, -3.0, 0.0, 6.0, 0.0, 0.0), 2.0)
-        asyncio.run(scenario(f"ws://127.0.0.1:{live.port}", ground.url, pass_id))
+        gate = ground.app.state.foxglove_gate
+        asyncio.run(scenario(f"ws://127.0.0.1:{gate.port}", ground.url, pass_id))
         with ground.readers() as session:
             stored = load_recording(session=session, pass_id=pass_id).frames.generation_time_ns
         dropped = live.dropped
+
+    # Foxglove's own client, on the protocol's first name: every channel, every frame
+    assert received.subprotocol == "foxglove.sdk.v1"
+    assert official["subprotocol"] == "foxglove.websocket.v1"
+    assert official["channels"] == {t: c["schemaName"] for t, c in received.channels.items()}
+    counts = official["counts"]
+    assert isinstance(counts, dict)
+    assert counts["/tf"] == len(stored)  # advertised before the pass: every frame's
+    assert 0 < counts["/plot/joints"] <= len(stored)  # advertised at the pass's first frame
+    assert counts["/events"] == len(received.messages["/events"]) > 0
+    assert counts["/robot_description"] >= 1 and counts["/scene"] > 10
 
     channels = received.channels
     assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
@@ -130,6 +172,43 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
     scene = received.messages["/scene"]
     assert any(b"predicted_hand_path" in m for _, m in scene)
     assert sum(b"commanded_arm" in m for _, m in scene) > 10
+
+
+def test_the_gate_asks_a_viewers_token_and_a_foxglove_subprotocol(tmp_path: Path) -> None:
+    """401 without a token or with an unknown one, 403 for the spacecraft's, 400 for a client
+    that offers neither subprotocol; a token in the URL (the Foxglove app's only way) with the
+    protocol's first name is let in and hears the SDK's serverInfo."""
+    pytest.importorskip("foxglove", reason="the foxglove extra (hikoboshi[foxglove])")
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import InvalidStatus
+
+    async def refused(url: str, **kwargs: object) -> tuple[int, str]:
+        with pytest.raises(InvalidStatus) as caught:
+            async with connect(url, **kwargs):  # type: ignore[arg-type]
+                pass
+        response = caught.value.response
+        return response.status_code, response.body.decode() if response.body else ""
+
+    async def scenario(url: str) -> None:
+        v1 = ["foxglove.websocket.v1"]
+        status, body = await refused(url, subprotocols=v1)
+        assert status == 401 and "viewer's token is required" in body
+        status, body = await refused(f"{url}/?token=guess", subprotocols=v1)
+        assert status == 401 and "unknown token (given in the url)" in body
+        spacecraft_token = {"Authorization": "Bearer s-token"}
+        status, body = await refused(url, subprotocols=v1, additional_headers=spacecraft_token)
+        assert status == 403 and "'spacecraft' may not watch" in body
+        status, _ = await refused(url, subprotocols=["ros1"], additional_headers=VIEWER)
+        assert status == 400
+        async with connect(f"{url}/?token=v-token", subprotocols=v1) as ws:  # type: ignore[list-item]
+            assert ws.subprotocol == "foxglove.websocket.v1"
+            hello = json.loads(await asyncio.wait_for(ws.recv(), 10.0))  # a guard
+            assert hello["op"] == "serverInfo" and hello["name"] == "hikoboshi"
+
+    with running_ground(sqlite_url(tmp_path), foxglove_port=0) as ground:
+        gate = ground.app.state.foxglove_gate
+        asyncio.run(scenario(f"ws://127.0.0.1:{gate.port}"))
+        assert gate.connections == 1
 
 
 def test_without_the_extra_the_port_is_refused_with_one_line(

@@ -16,7 +16,6 @@ import json
 import time
 from pathlib import Path
 
-import httpx
 import pytest
 
 from server.storage import repository as repo
@@ -27,10 +26,11 @@ from tests.server.link.harness import (
     OPERATOR,
     VIEWER,
     Ground,
-    connected,
+    in_contact,
     running_ground,
     settled,
     spacecraft,
+    start_pass,
     store_pass,
     wait_for,
 )
@@ -62,47 +62,35 @@ def test_a_joint_stuck_mid_motion_safes_the_vehicle_and_the_ground_files_the_pas
         process, _ = spacecraft(ground, vehicle=VehicleConfig(faults=(fault,)), truth_log=truth_log)
 
         async def scenario() -> dict[str, object]:
-            stop = asyncio.Event()
-            task = asyncio.create_task(process.run(stop))
-            try:
-                async with httpx.AsyncClient(base_url=ground.url) as client:
-                    await connected(client)
-                    started = await client.post(
-                        f"/api/passes/{pass_id}/start",
-                        json={"confirm": "START stuck"},
-                        headers=OPERATOR,
-                    )
-                    assert started.status_code == 200, started.text
-                    epoch_ns = int(started.json()["epoch_ns"])
-                    await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
-                    status = (await client.get("/api/link/status", headers=VIEWER)).json()
-                    # while safe, no pass starts
-                    refused = await client.post(
-                        f"/api/passes/{other}/start", json={"confirm": "START after"},
-                        headers=OPERATOR,
-                    )  # fmt: skip
-                    assert refused.status_code == 409, refused.text
-                    assert refused.json()["error"]["code"] == "vehicle_safe"
-                    # the operator's exit: the vehicle answers, the link says nominal
-                    exit_ = await client.post(
-                        "/api/vehicle/safe-exit",
-                        json={"confirm": "EXIT SAFE ETS-VII"},
-                        headers=OPERATOR,
-                    )
-                    assert exit_.status_code == 202, exit_.text
+            async with in_contact(process, ground.url) as client:
+                started = await start_pass(client, pass_id, "stuck")
+                epoch_ns = int(started.json()["epoch_ns"])
+                await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
+                status = (await client.get("/api/link/status", headers=VIEWER)).json()
+                # while safe, no pass starts
+                refused = await client.post(
+                    f"/api/passes/{other}/start", json={"confirm": "START after"},
+                    headers=OPERATOR,
+                )  # fmt: skip
+                assert refused.status_code == 409, refused.text
+                assert refused.json()["error"]["code"] == "vehicle_safe"
+                # the operator's exit: the vehicle answers, the link says nominal
+                exit_ = await client.post(
+                    "/api/vehicle/safe-exit",
+                    json={"confirm": "EXIT SAFE ETS-VII"},
+                    headers=OPERATOR,
+                )
+                assert exit_.status_code == 202, exit_.text
 
-                    async def nominal() -> bool:
-                        reply = await client.get("/api/link/status", headers=VIEWER)
-                        return bool(reply.json()["vehicle_mode"] == "nominal")
+                async def nominal() -> bool:
+                    reply = await client.get("/api/link/status", headers=VIEWER)
+                    return bool(reply.json()["vehicle_mode"] == "nominal")
 
-                    deadline = time.monotonic() + 30.0  # a guard, not a timing assertion
-                    while not await nominal():
-                        assert time.monotonic() < deadline, "the vehicle never left SAFE"
-                        await asyncio.sleep(0.05)
-                    return {"epoch_ns": epoch_ns, "status": status, "exit": exit_.json()}
-            finally:
-                stop.set()
-                await asyncio.wait_for(task, 40.0)
+                deadline = time.monotonic() + 30.0  # a guard, not a timing assertion
+                while not await nominal():
+                    assert time.monotonic() < deadline, "the vehicle never left SAFE"
+                    await asyncio.sleep(0.05)
+                return {"epoch_ns": epoch_ns, "status": status, "exit": exit_.json()}
 
         result = asyncio.run(scenario())
         with ground.readers() as session:

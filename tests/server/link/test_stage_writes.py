@@ -26,7 +26,7 @@ from server.services.stage_writes import StageMove, StageWrites
 from server.storage import repository as repo
 from server.storage.db import session_factory
 from telemetry.wire import CommandAck, CommandStage
-from tests.server.storage.factories import make_commands, make_plan
+from tests.server.storage.factories import make_commands, store_pass
 
 #: A hang guard, not a timing: how long the test waits for a job that must finish.
 HANG_GUARD_S = 60.0
@@ -35,16 +35,7 @@ ACKS = 128
 
 def _pass(sessions: sessionmaker[Session], n: int) -> str:
     with sessions() as session:
-        plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
-        record = repo.add_pass(
-            session=session,
-            name="p",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=10**12,
-            relay="TDRS-W",
-            created_at_ns=0,
-        )
+        record = store_pass(session, relay="TDRS-W")
         repo.add_commands(
             session=session, pass_id=record.id, commands=make_commands(n), queued_at_ns=0
         )

@@ -1,11 +1,17 @@
-"""Small, valid objects to store: a plan, wire commands, telemetry frames."""
+"""Small, valid objects to store: a plan, wire commands, telemetry frames; a pass stored
+with its plan (and its frames)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+from sqlalchemy.orm import Session
 
 from planner.attitude_control import AcsMode
 from planner.plan import AcsCommand, Plan, Prediction, Segment
+from server.storage import repository as repo
+from server.storage.models import PassRecord
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import (
     AcsCommandMsg,
@@ -17,16 +23,15 @@ from telemetry.wire import (
 #: Onboard time of frame 0, and the 10 Hz frame period.
 T0_NS = 5_000_000_000_000
 FRAME_PERIOD_NS = 100_000_000
+#: When the ground received the frames a test stores.
+RECEIVED_NS = 1_790_000_000_000_000_000
 
 
-def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -> Plan:
-    """A small plan of a robot of ``n_joints`` (ETS-VII: 6): joint commands 0.25 s apart,
-    one ACS command, a short prediction."""
-    times_s = np.arange(n_commands, dtype=np.float64) * 0.25
-    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(n_joints)
-    k = 5
-    prediction = Prediction(
-        t_s=np.linspace(0.0, float(times_s[-1]), k),
+def still_prediction(duration_s: float, n_joints: int, k: int) -> Prediction:
+    """A short prediction: ``k`` samples over ``duration_s`` of an arm of ``n_joints`` at
+    zero, the base and the hand still."""
+    return Prediction(
+        t_s=np.linspace(0.0, duration_s, k),
         joints_rad=np.zeros((k, n_joints)),
         quat_orbit_from_base_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)),
         rpy_base_rad=np.zeros((k, 3)),
@@ -36,6 +41,14 @@ def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -
         reaction_momentum_orbit_nms=np.zeros((k, 3)),
         wheel_momentum_nms=np.zeros((k, 3)),
     )
+
+
+def make_plan(n_commands: int = 9, experiment: str = "ptp", n_joints: int = 6) -> Plan:
+    """A small plan of a robot of ``n_joints`` (ETS-VII: 6): joint commands 0.25 s apart,
+    one ACS command, a short prediction."""
+    times_s = np.arange(n_commands, dtype=np.float64) * 0.25
+    joints_rad = np.linspace(0.0, 0.2, n_commands)[:, None] * np.ones(n_joints)
+    prediction = still_prediction(float(times_s[-1]), n_joints, 5)
     return Plan(
         experiment=experiment,
         parameters={"out_speed_mps": 0.01, "label": "A->B"},
@@ -103,3 +116,38 @@ def make_frames(
 ) -> list[TelemetryFrame]:
     rng = np.random.default_rng(seed)
     return [make_frame(s, rng, layout) for s in seqs]
+
+
+def store_pass(
+    session: Session,
+    plan: Plan | None = None,
+    *,
+    name: str = "p",
+    los_time_ns: int = 10**12,
+    relay: str = "TDRS",
+    frames: Sequence[TelemetryFrame] = (),
+    reception_time_ns: int = RECEIVED_NS,
+) -> PassRecord:
+    """A pass of ``plan`` (``make_plan()`` by default), stored with it at time 0, from AOS 0
+    to ``los_time_ns``, and its ``frames`` ingested (received at ``reception_time_ns``); not
+    committed."""
+    plan_id = repo.add_plan(
+        session=session, plan=plan if plan is not None else make_plan(), created_at_ns=0
+    ).id
+    record = repo.add_pass(
+        session=session,
+        name=name,
+        plan_id=plan_id,
+        aos_time_ns=0,
+        los_time_ns=los_time_ns,
+        relay=relay,
+        created_at_ns=0,
+    )
+    if frames:
+        repo.ingest_frames(
+            session=session,
+            pass_id=record.id,
+            frames=frames,
+            reception_time_ns=reception_time_ns,
+        )
+    return record

@@ -220,14 +220,21 @@ def _children(engine: Engine) -> list[tuple[object, ...]]:
         ]
 
 
+def _upgraded_with_children(engine: Engine, revision: str) -> tuple[str, list[tuple[object, ...]]]:
+    """At ``revision``, a pass and a row of each table that refers to it; then upgraded to
+    the head: the pass's id and those rows as they were before the upgrade."""
+    upgrade(engine, revision)
+    pass_id = _insert_plan_and_pass(engine)
+    _insert_children(engine, pass_id)
+    before = _children(engine)
+    upgrade(engine)
+    return pass_id, before
+
+
 def test_0005_keeps_passes_and_what_refers_to_them_and_allows_safed(
     empty_engine: Engine,
 ) -> None:
-    upgrade(empty_engine, "0004")
-    pass_id = _insert_plan_and_pass(empty_engine)
-    _insert_children(empty_engine, pass_id)
-    before = _children(empty_engine)
-    upgrade(empty_engine)
+    _, before = _upgraded_with_children(empty_engine, "0004")
     assert schema_diff(empty_engine) == []
     assert _children(empty_engine) == before
     with empty_engine.connect() as conn:
@@ -252,11 +259,7 @@ def test_0005_keeps_passes_and_what_refers_to_them_and_allows_safed(
 def test_0005_downgrades_a_safed_pass_to_aborted_and_keeps_the_rest(
     empty_engine: Engine,
 ) -> None:
-    upgrade(empty_engine, "0004")
-    pass_id = _insert_plan_and_pass(empty_engine)
-    _insert_children(empty_engine, pass_id)
-    before = _children(empty_engine)
-    upgrade(empty_engine)
+    pass_id, before = _upgraded_with_children(empty_engine, "0004")
     with empty_engine.begin() as conn:
         conn.execute(text("UPDATE passes SET state = 'safed', state_reason = 'joint3 red'"))
         conn.execute(
@@ -285,11 +288,7 @@ def test_0005_downgrades_a_safed_pass_to_aborted_and_keeps_the_rest(
 def test_0006_gives_passes_an_empty_window_and_keeps_what_refers_to_them(
     empty_engine: Engine,
 ) -> None:
-    upgrade(empty_engine, "0005")
-    pass_id = _insert_plan_and_pass(empty_engine)
-    _insert_children(empty_engine, pass_id)
-    before = _children(empty_engine)
-    upgrade(empty_engine)
+    _, before = _upgraded_with_children(empty_engine, "0005")
     assert schema_diff(empty_engine) == []
     assert _children(empty_engine) == before
     with empty_engine.connect() as conn:

@@ -21,27 +21,18 @@ from server.storage.models import (
 from telemetry.wire import TelemetryFrame
 from tests.server.storage.factories import (
     FRAME_PERIOD_NS,
+    RECEIVED_NS,
     T0_NS,
     make_frame,
     make_frames,
-    make_plan,
+    store_pass,
 )
 
-RECEIVED_NS = 1_790_000_000_000_000_000
 NO_PASS = "00000000-0000-0000-0000-000000000000"
 
 
 def _new_pass(session: Session) -> str:
-    plan = repo.add_plan(session=session, plan=make_plan(), created_at_ns=0)
-    return repo.add_pass(
-        session=session,
-        name="p",
-        plan_id=plan.id,
-        aos_time_ns=0,
-        los_time_ns=1,
-        relay="TDRS",
-        created_at_ns=0,
-    ).id
+    return store_pass(session, los_time_ns=1).id
 
 
 def _ingest(session: Session, pass_id: str, frames: list[TelemetryFrame]) -> repo.IngestResult:

@@ -11,27 +11,26 @@ from sqlalchemy.orm import Session
 from server.services.recordings import _frames as stored_frame_arrays
 from server.storage import repository as repo
 from server.storage.errors import InvalidArgument
-from server.storage.models import MAX_STORED_JOINTS, TelemetryFrameRecord
+from server.storage.models import MAX_STORED_JOINTS, PlanRecord, TelemetryFrameRecord
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.recording import frames_to_arrays
-from tests.server.storage.factories import FRAME_PERIOD_NS, T0_NS, make_frames, make_plan
+from tests.server.storage.factories import (
+    FRAME_PERIOD_NS,
+    RECEIVED_NS,
+    T0_NS,
+    make_frames,
+    make_plan,
+    store_pass,
+)
 
-RECEIVED_NS = 1_790_000_000_000_000_000
 SEVEN = FrameLayout(7, 3)
 
 
 def _new_pass(session: Session, n_joints: int, name: str = "p") -> str:
-    plan = repo.add_plan(session=session, plan=make_plan(n_joints=n_joints), created_at_ns=0)
-    assert plan.n_joints == n_joints
-    return repo.add_pass(
-        session=session,
-        name=name,
-        plan_id=plan.id,
-        aos_time_ns=0,
-        los_time_ns=1,
-        relay="TDRS",
-        created_at_ns=0,
-    ).id
+    record = store_pass(session, make_plan(n_joints=n_joints), name=name, los_time_ns=1)
+    plan = session.get(PlanRecord, record.plan_id)
+    assert plan is not None and plan.n_joints == n_joints
+    return record.id
 
 
 def test_a_seven_joint_stream_is_stored_and_read_back_exactly(session: Session) -> None:

@@ -3,8 +3,9 @@
 // time (what a pass may use) inside and its times marked; the passes scheduled in those
 // windows placed in them, coloured by state (a click opens the pass); passes given by hand
 // in a lane of their own; the ground's "now". Below, every window as a row with its
-// numbers. The mission and the span (start, hours) are chosen at the top and kept in the
-// address (#/timeline/MISSION/START/HOURS).
+// numbers; an operator schedules a pass of a stored plan into one from its row
+// (./timeline_schedule.ts). The mission and the span (start, hours) are chosen at the top
+// and kept in the address (#/timeline/MISSION/START/HOURS).
 
 import {
   ApiError, get, getAll,
@@ -13,6 +14,7 @@ import {
 import type { Ctx } from "../main";
 import { clear, fmt, h } from "../ui";
 import { groundNow, utcText } from "../windows";
+import { WindowScheduler } from "./timeline_schedule";
 
 const SVG = "http://www.w3.org/2000/svg";
 const GUTTER = 130; // the lanes' labels (px)
@@ -84,7 +86,9 @@ export function timelinePage(root: HTMLElement, ctx: Ctx, params: string[]): () 
   const summary = h("p.small", { "data-test": "tl-summary" });
   const chart = h("div.tl-chart", { "data-test": "tl-chart" });
   const table = h("table.list.tl-table", { "data-test": "tl-table" });
-  root.append(h("h1", {}, "Timeline"), form, formError, summary, chart, h("h3", {}, "Windows"), table);
+  const schedulePanel = h("div.panel", { "data-test": "tl-schedule-panel" });
+  root.append(h("h1", {}, "Timeline"), form, formError, summary, chart, schedulePanel, h("h3", {}, "Windows"), table);
+  const scheduler = new WindowScheduler(schedulePanel, () => reloadPasses());
 
   const selected = (): MissionPublic | undefined => missions.find((m) => m.name === missionSel.value);
 
@@ -109,6 +113,7 @@ export function timelinePage(root: HTMLElement, ctx: Ctx, params: string[]): () 
   // --- the span ---------------------------------------------------------------------------
   function show(): void {
     formError.textContent = "";
+    scheduler.close();
     const mission = selected();
     const start = startIn.value.trim();
     const hours = Number(hoursIn.value);
@@ -306,7 +311,9 @@ export function timelinePage(root: HTMLElement, ctx: Ctx, params: string[]): () 
       + (byHand.length ? `, ${byHand.length} given by hand in the span` : "")
       + (elsewhere ? `; ${elsewhere} of other missions not shown` : "") + ".";
     clear(table);
-    table.append(h("tr", {}, ...["#", "Relay", "AOS", "LOS", "Duration", "Net start", "Net end", "Net", "Range km", "Light time ms", "Pass"].map((t) => h("th", {}, t))));
+    const columns = ["#", "Relay", "AOS", "LOS", "Duration", "Net start", "Net end", "Net", "Range km", "Light time ms", "Pass"];
+    if (ctx.canCommand) columns.push("");
+    table.append(h("tr", {}, ...columns.map((t) => h("th", {}, t))));
     windows.forEach((w, index) => {
       const ps = occupant.get(index) ?? [];
       table.append(h("tr", { "data-test": "tl-row", "data-index": index, "data-relay": w.relay, "data-aos": w.aos_time, "data-los": w.los_time },
@@ -321,9 +328,17 @@ export function timelinePage(root: HTMLElement, ctx: Ctx, params: string[]): () 
         h("td", {}, `${fmt(w.min_range_km, 0)}–${fmt(w.max_range_km, 0)}`),
         h("td", {}, `${fmt(w.light_time_min_s * 1000, 0)}–${fmt(w.light_time_max_s * 1000, 0)}`),
         h("td", {}, ...ps.flatMap((p, i) => [i ? ", " : "", h("a", { href: `#/live/${p.id}`, "data-test": "tl-row-pass" }, `${p.name} (${p.state})`)])),
+        ...(ctx.canCommand ? [h("td", {}, scheduleButton(mission.name, w, index))] : []),
       ));
     });
-    if (!windows.length) table.append(h("tr", {}, h("td.muted", { colspan: 11 }, "No window acquires in this span.")));
+    if (!windows.length) table.append(h("tr", {}, h("td.muted", { colspan: columns.length }, "No window acquires in this span.")));
+  }
+
+  function scheduleButton(mission: string, w: WindowPublic, index: number): HTMLElement {
+    const button = h("button", { type: "button", "data-test": "tl-schedule", "data-index": index,
+      title: `schedule a pass of a stored plan in this window's net time` }, "Schedule…");
+    button.addEventListener("click", () => scheduler.open(mission, w, index));
+    return button;
   }
 
   function moveNow(): void {
