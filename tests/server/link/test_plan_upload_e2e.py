@@ -30,6 +30,7 @@ from tests.server.link.harness import (
     spacecraft,
     wait_for,
 )
+from tests.support.flight import flying
 
 pytestmark = pytest.mark.realtime  # flies a vehicle over a live link in wall time
 
@@ -52,19 +53,13 @@ def _hikoboshi(*args: str, env: dict[str, str] | None = None) -> str:
 
 async def _fly(ground: Ground, pass_id: str, name: str) -> SpacecraftProcess:
     process, _ = spacecraft(ground)
-    stop = asyncio.Event()
-    task = asyncio.create_task(process.run(stop))
-    try:
-        async with httpx.AsyncClient(base_url=ground.url) as client:
-            await connected(client)
-            response = await client.post(
-                f"/api/passes/{pass_id}/start", json={"confirm": f"START {name}"}, headers=OPERATOR
-            )
-            assert response.status_code == 200, response.text
-            await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
-    finally:
-        stop.set()
-        await asyncio.wait_for(task, 40.0)
+    async with flying(process), httpx.AsyncClient(base_url=ground.url) as client:
+        await connected(client)
+        response = await client.post(
+            f"/api/passes/{pass_id}/start", json={"confirm": f"START {name}"}, headers=OPERATOR
+        )
+        assert response.status_code == 200, response.text
+        await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
     return process
 
 
