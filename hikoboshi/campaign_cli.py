@@ -1,5 +1,5 @@
 """``hikoboshi plan campaign``: the experiments over consecutive contact windows, one plan
-file per pass and a campaign file (hikoboshi/campaign.py; docs/missions.md, Campaigns)."""
+file per pass and a campaign file (server/operations/campaign.py; docs/missions.md, Campaigns)."""
 
 from __future__ import annotations
 
@@ -40,8 +40,8 @@ def run_campaign(
 ) -> None:
     """Plan the campaign, write its files, print the passes (exit 3 when a plan fails a
     flight rule: the files are still written, with each plan's rules table)."""
-    from hikoboshi.campaign import parse_assignment, plan_campaign
     from mission import MissionError, load_mission, parse_utc
+    from server.operations.campaign import parse_assignment, plan_campaign
 
     if mission_file is None:
         _fail("plan campaign needs --mission FILE (a mission file, docs/missions.md)")
@@ -73,7 +73,7 @@ def run_campaign(
     except MissionError as exc:
         _fail(str(exc))
     try:
-        path = campaign.write(out_dir)
+        path = write_campaign(campaign, out_dir)
     except OSError as exc:
         _fail(f"cannot write to {out_dir}: {exc.strerror}")
     if as_json:
@@ -85,6 +85,19 @@ def run_campaign(
         _print(campaign, path)
     if not campaign.passed:
         raise typer.Exit(code=3)
+
+
+def write_campaign(campaign: Any, out_dir: Path) -> Path:
+    """``pass-N.plan.json`` for each pass (the plan format ``hikoboshi plan pass`` writes)
+    and ``campaign.json``, in ``out_dir``; campaign.json's path."""
+    from hikoboshi.planning_cli import write_atomically
+
+    out_dir = Path(out_dir)
+    for p in campaign.passes:
+        write_atomically(out_dir / p.plan_file, p.plan.to_json())
+    path = out_dir / "campaign.json"
+    write_atomically(path, json.dumps(campaign.to_dict(), allow_nan=False, indent=1) + "\n")
+    return path
 
 
 def _print(campaign: Any, path: Path) -> None:

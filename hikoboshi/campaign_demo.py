@@ -1,19 +1,19 @@
 """The campaign demo: a mission's passes flown back to back across its computed windows
 (``hikoboshi demo --campaign``; docs/missions.md "The campaign demo").
 
-1. The campaign: ``hikoboshi.campaign.plan_campaign`` (the experiments assigned to
+1. The campaign: ``server.operations.campaign.plan_campaign`` (the experiments assigned to
    consecutive windows, each pass's predicted start state and the wheel momentum gravity
-   gradient loads between passes), each pass's plan made by the ground from the campaign
-   plan's parameters; or, given experiments per pass (a shorter campaign: the tests),
-   those over the first windows that hold them, with no prediction.
+   gradient loads between passes), each pass planned once: its plan document is uploaded
+   (``POST /api/plans/documents``), the ground checks it and flies its commands; or, given
+   experiments per pass (a shorter campaign: the tests), those planned by the ground
+   (``POST /api/plans``) over the first windows that hold them, with no prediction.
 2. The ground service starts (as ``hikoboshi demo``), the spacecraft process starts with
    ``--mission`` and the campaign's windows (``--windows``): its onboard second 0 is the
    campaign's start in UTC, its link is up only inside those windows with the geometry's
    delay, and it flies the time before and between windows in FAST mode.
-3. For each pass: its plan is made (``POST /api/plans``, the pass's experiments) and the
-   pass scheduled in its window (``POST /api/passes`` naming the window); once the onboard
-   clock reaches the window's net start the operator starts it; the job follows it to its
-   end.
+3. For each pass: its stored plan (uploaded, or planned by the ground), the pass scheduled
+   in its window (``POST /api/passes`` naming the window); once the onboard clock reaches
+   the window's net start the operator starts it; the job follows it to its end.
 4. The spacecraft stops; each pass's summary, analyses and report go to ``OUT/pass-N/``
    (after the last pass: one pass's analyses may outlast the gap to the next window);
    ``OUT/campaign.json`` and ``OUT/campaign.md`` hold per pass the
@@ -75,8 +75,8 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     operator = _token_of(tokens, Role.OPERATOR)
     port = _port(options.port)
     base = f"http://127.0.0.1:{port}"
-    # Three passes planned again from their parameters: on a loaded 2-core machine one took
-    # over the default 120 s deadline.
+    # Three uploaded passes checked again by the ground: on a loaded 2-core machine a
+    # whole pass's planning took over the default 120 s deadline.
     settings = Settings(
         data_dir=out,
         tokens=tokens,
@@ -94,32 +94,40 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         api = _Api(base, operator)
         plans: dict[str, dict[str, Any]] = {}
 
-        def make_plan(parameters: dict[str, Any]) -> dict[str, Any]:
+        def make_plan(parameters: dict[str, Any], document: str | None = None) -> dict[str, Any]:
+            """The stored plan: ``document`` uploaded (the campaign's, planned once), else
+            ``parameters`` planned by the ground; once each."""
             key = json.dumps(parameters, sort_keys=True)
             if key not in plans:
-                body = {"experiment": "pass", "parameters": parameters}
-                # planning runs in the ground's workers: minutes on a loaded machine
-                plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
+                # planning and checking run in the ground's workers: minutes when loaded
+                if document is not None:
+                    data = document.encode()
+                    plans[key] = api.call(
+                        "POST", "/api/plans/documents", data=data, timeout_s=900.0
+                    )
+                else:
+                    body = {"experiment": "pass", "parameters": parameters}
+                    plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
             return plans[key]
 
         def parameters_for(experiments: tuple[str, ...]) -> dict[str, Any]:
             return {"experiments": list(experiments), **(options.pass_parameters or {})}
 
-        def parameters_of(spec: _PassSpec) -> dict[str, Any]:
+        def plan_of(spec: _PassSpec) -> dict[str, Any]:
             if spec.parameters is not None:
-                return spec.parameters
-            return parameters_for(spec.experiments)
+                return make_plan(spec.parameters, spec.document)
+            return make_plan(parameters_for(spec.experiments))
 
         report("planning the campaign", 0, 1)
         specs = _campaign(options, lambda e: float(make_plan(parameters_for(e))["duration_s"]))
         report("planning the campaign", 1, 1)
-        report("the ground plans each pass", 0, len(specs))
+        report("the ground stores and checks each pass's plan", 0, len(specs))
         for k, spec in enumerate(specs, start=1):
-            make_plan(parameters_of(spec))
-            report("the ground plans each pass", k, len(specs))
+            plan_of(spec)
+            report("the ground stores and checks each pass's plan", k, len(specs))
         flown = _service_windows(
             specs,
-            [float(make_plan(parameters_of(s))["duration_s"]) for s in specs],
+            [float(plan_of(s)["duration_s"]) for s in specs],
             options.speed,
             options.service_tail_s,
         )
@@ -150,7 +158,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             start_ns = _truth_start(truth_log, proc)
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
-                plan = make_plan(parameters_of(spec))
+                plan = plan_of(spec)
                 duration_s = float(plan["duration_s"])
                 name = f"{mission.name} pass {i} {format_utc(window.aos_utc)}"
                 record = api.call(

@@ -1,7 +1,8 @@
 """What the campaign demo flies (:mod:`hikoboshi.campaign_demo`): its options, and its
 passes: which experiments go in which window (the campaign planner's,
-:func:`hikoboshi.campaign.plan_campaign`, or given experiments over the first windows that
-hold them) and the relay service each pass books in its window.
+:func:`server.operations.campaign.plan_campaign`, whose plan documents the demo uploads,
+or given experiments over the first windows that hold them) and the relay service each
+pass books in its window.
 
 The relay is booked per pass, as TDRS time was (shared among NASA's users): the link is up
 from the window's AOS to the end of its pass and :data:`SERVICE_TAIL_S`, never past the
@@ -10,7 +11,6 @@ window's LOS nor the next pass's AOS (one relay at a time); the rest is flown fa
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -28,7 +28,8 @@ __all__ = [
     "default_start",
 ]
 
-#: Without mission.campaign: the experiments of each pass, the paper's order over three.
+#: With a relay given and no experiments: the experiments of each pass, the paper's order
+#: over three.
 PAPER_ORDER: tuple[tuple[str, ...], ...] = (
     ("ptp", "reactionless"),
     ("gjm", "coordination"),
@@ -80,24 +81,24 @@ class _PassSpec:
     #: the plan's parameters (the campaign's: its start state and orbit), else None: the
     #: ground plans ``experiments`` from the nominal start
     parameters: dict[str, Any] | None = None
+    #: the campaign's plan, as a document (None: the ground plans ``parameters``)
+    document: str | None = None
     #: the campaign's predicted wheel momentum at the plan's start and end (N m s)
     predicted_start_h: list[float] | None = None
     predicted_end_h: list[float] | None = None
 
 
 def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
-    """The passes: the campaign planner's (:func:`hikoboshi.campaign.plan_campaign`), or,
+    """The passes: the campaign planner's (:func:`server.operations.campaign.plan_campaign`,
+    each with its plan document), or,
     with ``pass_experiments`` or ``relay``, those experiments over the first windows (from
     the start, 24 h; the relay's only) whose net time holds each pass's plan."""
     from mission import compute_windows, load_mission
+    from server.operations.campaign import plan_campaign
 
     mission = load_mission(options.mission)
-    try:
-        module: Any = importlib.import_module("hikoboshi.campaign")
-    except ImportError:
-        module = None
-    if module is not None and options.pass_experiments is None and options.relay is None:
-        campaign = module.plan_campaign(mission, options.start_utc)
+    if options.pass_experiments is None and options.relay is None:
+        campaign = plan_campaign(mission, options.start_utc)
 
         def floats(values: Any) -> list[float]:
             return [float(x) for x in values]
@@ -108,6 +109,7 @@ def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
                 experiments=tuple(p.experiments),
                 gap_momentum_nms=floats(p.gap_momentum_nms) if p.index > 1 else None,
                 parameters=dict(p.plan.parameters),
+                document=p.plan.to_json(),
                 predicted_start_h=floats(p.start_state.wheel_momentum_nms),
                 predicted_end_h=floats(p.end_state.wheel_momentum_nms),
             )

@@ -1,7 +1,7 @@
 """``hikoboshi demo`` (the ground service, the simulated spacecraft and a whole pass:
 :mod:`hikoboshi.demo`; with ``--campaign`` a mission's passes: :mod:`hikoboshi.campaign_demo`)
 and ``hikoboshi ptp-demo`` (one PTP motion on the free-floating model:
-:mod:`hikoboshi.foundation_demo`): their options, progress bars and printed summaries."""
+:mod:`server.operations.foundation_demo`): their options, progress bars and printed summaries."""
 
 from __future__ import annotations
 
@@ -411,7 +411,7 @@ def ptp_demo(
 ) -> None:
     """Simulate PTP A->B on the free-floating model (no ground, no link) and report the
     base's attitude response against the eq. (10) prediction."""
-    from hikoboshi import foundation_demo
+    from server.operations import foundation_demo
 
     with Progress(
         TextColumn("[bold]PTP A->B, free drift"),

@@ -40,17 +40,39 @@ class DemoError(RuntimeError):
 
 
 class _Api:
-    """A small JSON client for the ground's REST API (the standard library's urllib)."""
+    """A small JSON client for the ground's REST API (the standard library's urllib);
+    ``logs``: where its log is, said when the ground does not answer."""
 
-    def __init__(self, base: str, token: str) -> None:
+    def __init__(
+        self, base: str, token: str, logs: str = "its log is ground.log in the output folder"
+    ) -> None:
         self.base = base
         self._token = token
+        self._logs = logs
 
-    def call(self, method: str, path: str, body: Any = None, timeout_s: float = 120.0) -> Any:
-        return json.loads(self.raw(method, path, body, timeout_s))
+    def call(
+        self,
+        method: str,
+        path: str,
+        body: Any = None,
+        timeout_s: float = 120.0,
+        *,
+        data: bytes | None = None,
+    ) -> Any:
+        """The answer's JSON; ``body`` sent as JSON, or ``data`` (JSON already) as it is."""
+        return json.loads(self.raw(method, path, body, timeout_s, data=data))
 
-    def raw(self, method: str, path: str, body: Any = None, timeout_s: float = 120.0) -> bytes:
-        data = None if body is None else json.dumps(body).encode()
+    def raw(
+        self,
+        method: str,
+        path: str,
+        body: Any = None,
+        timeout_s: float = 120.0,
+        *,
+        data: bytes | None = None,
+    ) -> bytes:
+        if data is None and body is not None:
+            data = json.dumps(body).encode()
         request = urllib.request.Request(
             self.base + path,
             data=data,
@@ -68,7 +90,7 @@ class _Api:
             reason = getattr(exc, "reason", exc)  # URLError's reason, or the timeout itself
             raise DemoError(
                 f"{method} {path}: no answer from the ground service within {timeout_s:g} s"
-                f" ({reason}); its log is ground.log in the output folder"
+                f" ({reason}); {self._logs}"
             ) from None
 
 

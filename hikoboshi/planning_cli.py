@@ -1,6 +1,8 @@
 """``hikoboshi plan``: an experiment's parameters from the command line to a plan file
 checked against the flight rules (exit 3 when it fails one), ``plan check FILE`` for a
-stored plan, and ``plan campaign`` (:mod:`hikoboshi.campaign_cli`).
+stored plan, ``plan upload FILE`` to store it on a ground service, and ``plan campaign``
+(:mod:`hikoboshi.campaign_cli`). Planning and checking are the ground's own
+(:mod:`server.operations.planning`): the command line computes nothing of its own.
 
 The planner (SciPy, MuJoCo: most of a second) is imported when a plan is made or the
 command's own help is shown, not when the command line starts: ``hikoboshi --help`` and
@@ -9,13 +11,11 @@ every other command start without it (tests/test_cli_startup.py)."""
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import inspect
 import json
 import os
 import sys
 import tempfile
-import typing
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -27,56 +27,9 @@ from typer.core import TyperCommand
 from hikoboshi.cli_common import RobotOption, _fail, _load, console, err_console
 
 if TYPE_CHECKING:
-    from planner.plan import Plan
-    from planner.robot import RobotDescription
+    pass
 
-__all__ = ["make_plan", "parameters_help", "parse_parameters", "register", "write_atomically"]
-
-
-def parameters_help() -> str:
-    """One paragraph per experiment: its parameters, types and defaults."""
-    from planner.catalogue import experiments, type_name
-
-    lines = []
-    for name, (params_type, _) in experiments().items():
-        hints = typing.get_type_hints(params_type)
-        fields = ", ".join(
-            f"{f.name}={_show(f.default)} ({type_name(hints[f.name])})"
-            for f in dataclasses.fields(params_type)
-        )
-        lines.append(f"{name}: {fields}")
-    return "\n\n".join(lines)
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, tuple):
-        return ",".join(str(v) for v in value) if value else "''"
-    return str(value)
-
-
-def parse_parameters(params_type: type, assignments: list[str]) -> Any:
-    from planner.catalogue import parse_assignments
-
-    return parse_assignments(params_type, assignments)
-
-
-def make_plan(
-    experiment: str,
-    assignments: list[str],
-    *,
-    optimise_offset_flag: bool,
-    robot: RobotDescription | None = None,
-) -> Plan:
-    """The plan for ``robot`` (``None``: ETS-VII as built in): its ``[experiments.NAME]``
-    table under the ``--set`` assignments, its poses."""
-    from planner.catalogue import parse_assignments, plan_experiment, resolve
-
-    params_type, _ = resolve(experiment)
-    defaults = None if robot is None else robot.experiment_defaults(experiment)
-    params = parse_assignments(params_type, assignments, defaults=defaults)
-    return plan_experiment(
-        experiment, params, optimise_offset_flag=optimise_offset_flag, robot=robot
-    )
+__all__ = ["register", "write_atomically"]
 
 
 def write_atomically(path: Path, text: str) -> None:
@@ -100,11 +53,15 @@ _PLAN_SUMMARY = (
     "ISO8601; docs/missions.md). Parameters "
     "are set with --set NAME=VALUE (tuples comma-separated); the defaults reproduce the "
     "paper's experiment. With --robot FILE the plan is for that robot: its poses, and "
-    "its [experiments.NAME] tables as the defaults."
+    "its [experiments.NAME] tables as the defaults. plan check FILE checks a plan file; "
+    "plan upload FILE stores it on a ground service (--url, --token), which checks it again "
+    "and flies exactly its commands."
 )
 
 
 def _plan_help() -> str:
+    from server.operations.planning import parameters_help
+
     return _PLAN_SUMMARY + "\n\nParameters:\n\n" + parameters_help()
 
 
@@ -127,12 +84,11 @@ def plan_command(
         str,
         typer.Argument(
             help="ptp, reactionless, gjm, coordination, nonholonomic or pass; or check, to "
-            "evaluate a stored plan FILE against the flight rules"
+            "evaluate a plan FILE against the flight rules; or upload, to store a plan FILE "
+            "on a ground service"
         ),
     ],
-    file: Annotated[
-        Path | None, typer.Argument(help="check: the plan JSON file to evaluate.")
-    ] = None,
+    file: Annotated[Path | None, typer.Argument(help="check, upload: the plan JSON file.")] = None,
     out: Annotated[
         Path | None,
         typer.Option("--out", help="Plan JSON file to write (planning); campaign: a directory."),
@@ -165,11 +121,26 @@ def plan_command(
             "ptp,reactionless,gjm/coordination/nonholonomic).",
         ),
     ] = None,
+    url: Annotated[
+        str,
+        typer.Option("--url", envvar="HIKOBOSHI_URL", help="upload: the ground service's address."),
+    ] = "http://127.0.0.1:8000",
+    token: Annotated[
+        str | None,
+        typer.Option(
+            "--token",
+            envvar="HIKOBOSHI_TOKEN",
+            help="upload: an operator's API token (better given as HIKOBOSHI_TOKEN).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Plan (exit 3 when the plan fails a flight rule: the file is still written, with its
-    rules table, so that it can be looked at), or ``plan check FILE``, or ``plan campaign
-    --mission FILE --start ISO8601 [--out DIR]``: one plan per pass over consecutive windows
-    and a campaign.json (docs/missions.md)."""
+    rules table, so that it can be looked at), or ``plan check FILE``, or ``plan upload
+    FILE`` (through the ground service's REST API, as any client: the ground checks the
+    plan again and prints the stored plan's id; exit 3 when its check fails), or ``plan
+    campaign --mission FILE --start ISO8601 [--out DIR]``: one plan per pass over
+    consecutive windows and a campaign.json (docs/missions.md)."""
     if experiment == "campaign":
         from hikoboshi.campaign_cli import run_campaign
 
@@ -188,37 +159,37 @@ def plan_command(
         return
     if mission_file is not None or start is not None or assignment is not None:
         _fail("--mission, --start and --assign are for plan campaign")
-    if experiment == "check":
+    if experiment in ("check", "upload"):
         if file is None:
-            _fail("plan check needs the plan FILE to evaluate")
-        _plan_check(file, robot, as_json=as_json)
+            _fail(f"plan {experiment} needs the plan FILE")
+        if experiment == "upload":
+            _plan_upload(file, url, token, as_json=as_json)
+        else:
+            _plan_check(file, robot, as_json=as_json)
         return
     if file is not None:
-        _fail(f"unexpected argument {str(file)!r} (only plan check takes a FILE)")
+        _fail(f"unexpected argument {str(file)!r} (only plan check and upload take a FILE)")
     if out is None:
         _fail("give --out FILE: where to write the plan")
     from planner.errors import PlannerError
+    from server.operations.planning import experiment_parameters, plan_checked
+    from server.services.errors import DomainError
 
-    description = _load(robot) if robot is not None else _default_description()
+    description = _load(robot) if robot is not None else None
     try:
         status = (
             contextlib.nullcontext()
             if as_json
-            else console.status(f"planning {experiment}", spinner="dots")
+            else console.status(f"planning {experiment}, then the flight rules", spinner="dots")
         )
         with status:
-            plan = make_plan(
-                experiment,
-                assignments or [],
-                optimise_offset_flag=optimise_offset_flag,
-                robot=None if robot is None else description,
+            params = experiment_parameters(experiment, description, assignments=assignments or [])
+            checked = plan_checked(
+                experiment, params, robot=description, optimise_offset=optimise_offset_flag
             )
-        if not as_json:
-            status = console.status("checking the flight rules", spinner="dots")
-        with status:
-            plan, report = description.checked(plan)
-    except PlannerError as exc:
+    except (PlannerError, DomainError) as exc:
         _fail(str(exc))
+    plan, report = checked.plan, checked.report
     write_atomically(out, plan.to_json())
     if as_json:
         sys.stdout.write(
@@ -246,17 +217,6 @@ def plan_command(
     _print_rules(report)
     console.print(f"wrote {out}" + ("" if report.passed else " (it FAILS the flight rules)"))
     _exit_on_rules(report, quiet=False)
-
-
-def _default_description() -> Any:
-    """ETS-VII's description file (its collision geometry and flight rules)."""
-    from planner.description import default_robot
-    from planner.errors import PlannerError
-
-    try:
-        return default_robot()
-    except PlannerError as exc:
-        _fail(str(exc))
 
 
 def _description_for(plan: Any, robot: Path | None) -> Any:
@@ -293,6 +253,8 @@ def _description_for(plan: Any, robot: Path | None) -> Any:
 def _plan_check(file: Path, robot: Path | None, *, as_json: bool) -> None:
     from planner.errors import PlannerError
     from planner.plan import Plan
+    from server.operations.planning import check
+    from server.services.errors import DomainError
 
     try:
         plan = Plan.from_json(file.read_text(encoding="utf-8"))
@@ -308,14 +270,51 @@ def _plan_check(file: Path, robot: Path | None, *, as_json: bool) -> None:
             else console.status("checking the flight rules", spinner="dots")
         )
         with status:
-            report = description.check_plan(plan)
-    except PlannerError as exc:
+            report = check(plan, description).report
+    except (PlannerError, DomainError) as exc:
         _fail(str(exc))
     if as_json:
         sys.stdout.write(json.dumps({"plan": str(file), **_rules_summary(report)}) + "\n")
     else:
         console.print(
             f"{file}: {plan.experiment} for {plan.robot}, {plan.duration_s:.2f} s", highlight=False
+        )
+        _print_rules(report)
+    _exit_on_rules(report, quiet=as_json)
+
+
+def _plan_upload(file: Path, url: str, token: str | None, *, as_json: bool) -> None:
+    """POST the file to ``/api/plans/documents`` as it is; the stored plan's id and the
+    ground's verdict (exit 3 when its check fails: stored, but a pass of it will not start)."""
+    from hikoboshi.demo_harness import DemoError, _Api
+    from planner.flight_rules import FlightRulesReport
+
+    if not token:
+        _fail("plan upload needs an operator's token: HIKOBOSHI_TOKEN or --token")
+    try:
+        data = file.read_bytes()
+    except OSError as exc:
+        _fail(f"{file}: {exc.strerror}")
+    api = _Api(url.rstrip("/"), token, logs=f"is the ground service at {url} running?")
+    try:
+        status = (
+            contextlib.nullcontext()
+            if as_json
+            else console.status(f"the ground checks {file.name}", spinner="dots")
+        )
+        with status:
+            stored = api.call("POST", "/api/plans/documents", data=data, timeout_s=900.0)
+    except DemoError as exc:
+        _fail(str(exc))
+    report = FlightRulesReport.from_dict(stored["flight_rules"])
+    if as_json:
+        sys.stdout.write(json.dumps(stored) + "\n")
+    else:
+        console.print(
+            f"stored plan {stored['id']}: {stored['experiment']}, {stored['n_commands']} "
+            f"commands, {stored['duration_s']:.2f} s; the ground's flight rules: "
+            + ("pass" if report.passed else "FAIL (a pass of it will not start)"),
+            highlight=False,
         )
         _print_rules(report)
     _exit_on_rules(report, quiet=as_json)
@@ -375,5 +374,6 @@ def _exit_on_rules(report: Any, *, quiet: bool) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``plan`` (an experiment, ``check`` and ``campaign``) to ``hikoboshi``."""
+    """Add ``plan`` (an experiment, ``check``, ``upload`` and ``campaign``) to
+    ``hikoboshi``."""
     app.command("plan", cls=_PlanCommand, short_help=_PLAN_SUMMARY)(plan_command)

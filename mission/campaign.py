@@ -3,7 +3,7 @@ between two passes, and the campaign file read back (docs/missions.md, Campaigns
 sections 2 and 8).
 
     next_window(windows, not_before_utc, needed_s) -> Window | None
-    gravity_gradient_momentum_nms(mission, start_utc, end_utc, inertia, quat) -> (3,)
+    inverse_cube_radius_s_per_m3(mission, start_utc, end_utc) -> float   integral |r|^-3 dt
     load_campaign(path) -> CampaignRecord            campaign.json, as written
 
 Between passes the arm rests and attitude control holds the base at its target in the
@@ -15,9 +15,10 @@ seen from the held attitude. As in the passes' predictions, the orbit frame is t
 inertial (SPEC 2): the orbit rate's gyroscopic share is left out (docs/missions.md says how
 large it is).
 
-The package imports nothing else of ours (an import contract), so the planning itself,
-which needs the planner, lives in ``hikoboshi/campaign.py`` (``plan_campaign``); this module
-holds what needs only the mission. Nothing is read at import.
+The package imports nothing else of ours (an import contract), so the planning itself and
+eq. (11) over a gap, which need the planner, live in :mod:`server.operations.campaign`
+(``plan_campaign``) and :mod:`server.operations.campaign_gap`; this module holds what needs
+only the orbit. Nothing is read at import.
 """
 
 from __future__ import annotations
@@ -40,20 +41,17 @@ from mission.windows import Window, format_utc, parse_utc
 __all__ = [
     "CAMPAIGN_FORMAT_VERSION",
     "GAP_STEP_S",
-    "GRAVITY_MU_M3PS2",
     "CampaignPassRecord",
     "CampaignRecord",
     "InvalidCampaign",
     "StateRecord",
-    "gravity_gradient_momentum_nms",
+    "inverse_cube_radius_s_per_m3",
     "load_campaign",
     "next_window",
     "orbit_radius_m",
     "window_from_dict",
 ]
 
-#: SPEC section 2: the gravitational parameter of eq. (11)-(13), m^3/s^2 (WGS-84's).
-GRAVITY_MU_M3PS2 = 3.986004418e14
 #: The longest step of the gap's integration (Simpson's rule over SGP4 radii); the radius
 #: changes over an orbit of about 5700 s, so the rule's error is far below a micro-N m s.
 GAP_STEP_S = 10.0
@@ -96,57 +94,27 @@ def orbit_radius_m(mission: Mission, times_utc: Sequence[datetime]) -> Array:
     return np.asarray(np.linalg.norm(positions_km, axis=1) * 1000.0, dtype=np.float64)
 
 
-def gravity_gradient_momentum_nms(
-    mission: Mission,
-    start_utc: datetime,
-    end_utc: datetime,
-    inertia_com_base_kgm2: Array,
-    quat_orbit_from_base_xyzw: Array | Sequence[float] = (0.0, 0.0, 0.0, 1.0),
-    *,
-    max_step_s: float = GAP_STEP_S,
-) -> Array:
-    """The angular momentum (N m s, base frame) the wheels take up from ``start_utc`` to
-    ``end_utc`` while attitude control holds the base at ``quat_orbit_from_base_xyzw`` and
-    the arm rests (``inertia_com_base_kgm2``: the whole system's inertia about its centre of
-    mass, base frame, H_c of eq. 11): ``integral 3 mu / |r|^3 dt * r_hat x (H_c r_hat)``,
-    ``|r|`` from SGP4 every ``max_step_s`` at most, Simpson's rule."""
+def inverse_cube_radius_s_per_m3(
+    mission: Mission, start_utc: datetime, end_utc: datetime, *, max_step_s: float = GAP_STEP_S
+) -> float:
+    """``integral |r|^-3 dt`` from ``start_utc`` to ``end_utc`` (s/m^3): ``|r|`` from SGP4
+    every ``max_step_s`` at most, Simpson's rule. Eq. (11)'s torque over a gap, ``3 mu /
+    |r|^3 * r_hat x (H_c r_hat)`` with the attitude held, is this times ``3 mu r_hat x (H_c
+    r_hat)`` (:func:`server.operations.campaign_gap.gravity_gradient_momentum_nms`)."""
     span_s = (end_utc - start_utc).total_seconds()
     if not math.isfinite(span_s) or span_s < 0.0:
         raise MissionError(
             f"a gap from {format_utc(start_utc)} to {format_utc(end_utc)} runs backwards"
         )
-    inertia = np.asarray(inertia_com_base_kgm2, dtype=np.float64)
-    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
-        raise MissionError(f"the inertia must be a finite 3x3 matrix, got shape {inertia.shape}")
-    quat = np.asarray(quat_orbit_from_base_xyzw, dtype=np.float64)
-    quat = quat / np.linalg.norm(quat)
     if span_s == 0.0:
-        return np.zeros(3)
+        return 0.0
     intervals = max(2, 2 * math.ceil(span_s / (2.0 * max_step_s)))  # even, for Simpson
     offsets_s = np.linspace(0.0, span_s, intervals + 1)
     radius_m = orbit_radius_m(mission, [start_utc + timedelta(seconds=float(s)) for s in offsets_s])
     weights = np.ones(intervals + 1)
     weights[1:-1:2] = 4.0
     weights[2:-1:2] = 2.0
-    integral = float(np.sum(weights * radius_m**-3.0)) * (span_s / intervals) / 3.0
-    # The unit vector from the Earth's centre to the vehicle is -z of the orbit frame; in
-    # the base frame, the third row of rot_orbit_from_base, negated (as in
-    # planner/gravity_gradient.py; its sign does not matter, the torque is even in it).
-    r_hat = -_rot_orbit_from_base(quat)[2, :]
-    return np.asarray(
-        3.0 * GRAVITY_MU_M3PS2 * integral * np.cross(r_hat, inertia @ r_hat), dtype=np.float64
-    )
-
-
-def _rot_orbit_from_base(q: Array) -> Array:
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return float(np.sum(weights * radius_m**-3.0)) * (span_s / intervals) / 3.0
 
 
 def window_from_dict(doc: Mapping[str, Any]) -> Window:

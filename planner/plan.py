@@ -37,6 +37,7 @@ class Described(Protocol):
 
 
 __all__ = [
+    "DOCUMENT_KEYS",
     "ETS7_ROBOT_HASH",
     "ETS7_ROBOT_NAME",
     "SEGMENT_KINDS",
@@ -63,6 +64,22 @@ SEGMENT_KINDS = (
 )
 
 PLAN_FORMAT_VERSION = 1
+#: The keys of a plan document (:meth:`Plan.to_dict`; ``flight_rules`` once checked).
+DOCUMENT_KEYS = (
+    "format_version",
+    "experiment",
+    "robot",
+    "robot_hash",
+    "parameters",
+    "initial_joints_rad",
+    "initial_quat_orbit_from_base_xyzw",
+    "commands",
+    "acs_commands",
+    "segments",
+    "prediction",
+    "metrics",
+    "flight_rules",
+)
 
 #: The robot a plan is for when a document does not say (documents without a robot field):
 #: ETS-VII, ``examples/robots/ets7/ets7.toml``'s name, and that description's
@@ -207,6 +224,50 @@ class Plan:
         object.__setattr__(self, "command_times_s", times)
         object.__setattr__(self, "command_joints_rad", joints)
 
+    def check_consistent(self) -> None:
+        """The checks of a plan read from outside (a file, an upload), beyond the ones every
+        plan passes when made: its commands start on the 4 Hz grid, its attitude commands are
+        finite, in time order and within the plan, its prediction has a finite row for every
+        command in the widths its columns take, its quaternions are unit and its metrics and
+        segments finite. :class:`InvalidInput` naming the first part that disagrees."""
+        times = self.command_times_s
+        n = self.command_joints_rad.shape[1] if self.command_joints_rad.ndim == 2 else -1
+        if n < 1:
+            raise InvalidInput("plan commands must each hold one angle per joint")
+        if float(times[0]) % COMMAND_PERIOD_S != 0.0:
+            raise InvalidInput(
+                f"plan commands start at {float(times[0])!r} s, off the {COMMAND_PERIOD_S} s grid"
+            )
+        _check_vector(self.initial_joints_rad, (n,), "initial_joints_rad")
+        _check_vector(self.initial_quat_orbit_from_base_xyzw, (4,), "initial quaternion", unit=True)
+        last = -math.inf
+        for i, c in enumerate(self.acs_commands):
+            if not (math.isfinite(c.t_s) and times[0] <= c.t_s <= times[-1] and c.t_s >= last):
+                raise InvalidInput(
+                    f"acs_commands[{i}] at {c.t_s!r} s is out of time order or outside the "
+                    f"plan's {float(times[0])}..{float(times[-1])} s"
+                )
+            last = c.t_s
+            _check_vector(c.target_quat_orbit_from_base_xyzw, (4,), f"acs_commands[{i}]", unit=True)
+        wheels = np.shape(self.prediction.wheel_momentum_nms)
+        widths = {
+            "joints_rad": n,
+            "quat_orbit_from_base_xyzw": 4,
+            "quat_orbit_from_hand_xyzw": 4,
+            "wheel_momentum_nms": wheels[1] if len(wheels) == 2 and wheels[1] > 0 else 3,
+        }
+        for name, ndim in _PREDICTION_COLUMNS.items():
+            shape = (times.size,) if ndim == 1 else (times.size, widths.get(name, 3))
+            _check_vector(getattr(self.prediction, name), shape, f"prediction {name}")
+        if not np.allclose(self.prediction.t_s, times, rtol=0.0, atol=1e-9):
+            raise InvalidInput("the prediction's times are not the commands' times")
+        for name, value in self.metrics.items():
+            if not math.isfinite(value):
+                raise InvalidInput(f"metric {name!r} is not finite: {value!r}")
+        for seg in self.segments:
+            if not (math.isfinite(seg.t_start_s) and math.isfinite(seg.t_end_s)):
+                raise InvalidInput(f"segment {seg.name!r} has a time that is not finite")
+
     @property
     def duration_s(self) -> float:
         return float(self.command_times_s[-1] - self.command_times_s[0])
@@ -286,6 +347,14 @@ class Plan:
         if not isinstance(doc, dict):
             raise InvalidInput("plan JSON must be an object")
         return cls.from_dict(doc)
+
+
+def _check_vector(value: Array, shape: tuple[int, ...], what: str, *, unit: bool = False) -> None:
+    array = np.asarray(value)
+    if array.shape != shape or not np.all(np.isfinite(array)):
+        raise InvalidInput(f"plan {what}: shape {array.shape}, expected {shape}, all finite")
+    if unit and abs(float(np.linalg.norm(array)) - 1.0) > 1e-6:
+        raise InvalidInput(f"plan {what}: a quaternion of norm {float(np.linalg.norm(array))!r}")
 
 
 def _rules_doc(value: object) -> Mapping[str, Any] | None:

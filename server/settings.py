@@ -167,6 +167,10 @@ class Settings(BaseSettings):
     max_import_bytes: int = 256 * 1024 * 1024
     """The largest MCAP recording ``POST /api/passes/import`` accepts (the 20-minute demo
     pass is 14 MB)."""
+    max_plan_document_bytes: int = Field(default=32 * 1024 * 1024, gt=0)
+    """The largest plan document ``POST /api/plans/documents`` accepts (a whole pass of the
+    four experiments, ``hikoboshi plan pass``, is about 5 MB; a campaign's hour-long pass
+    less than twice that)."""
     max_import_uncompressed_bytes: int = Field(default=2 * 1024**3, ge=1)
     """The most an imported recording's chunks may hold uncompressed, together (8 x the
     upload limit; recordings compress about 4:1), checked before anything is decompressed;

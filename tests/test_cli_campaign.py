@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from hikoboshi.campaign import DEFAULT_ASSIGNMENT
 from mission import MISSIONS_DIR
 from mission.campaign import load_campaign
 from planner.plan import Plan
+from server.operations.campaign import DEFAULT_ASSIGNMENT
 from tests.support.offline import run_offline
 
 ETS7 = str(MISSIONS_DIR / "ets7-1999.toml")

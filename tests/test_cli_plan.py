@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -163,3 +164,33 @@ def test_plan_check_passes_a_good_plan_and_refuses_another_robots(
     assert other.returncode == 2
     assert "not 'orihime'" in other.stderr
     assert run("plan", "check").returncode == 2  # no FILE
+
+
+def test_plan_upload_refuses_with_one_line_before_it_reaches_a_ground(
+    tmp_path: Path, ptp_planned: tuple[Path, str]
+) -> None:
+    """No token, no file, no ground: status 2 and the reason (the upload itself, to a
+    running ground: tests/server/link/test_plan_upload_e2e.py)."""
+    out, _ = ptp_planned
+    env = {k: v for k, v in os.environ.items() if k != "HIKOBOSHI_TOKEN"}
+    cases = [
+        (["plan", "upload", str(out)], env, "needs an operator's token"),
+        (["plan", "upload"], {**env, "HIKOBOSHI_TOKEN": "t"}, "plan upload needs the plan FILE"),
+        (
+            ["plan", "upload", str(tmp_path / "none.json")],
+            {**env, "HIKOBOSHI_TOKEN": "t"},
+            "none.json: No such file",
+        ),
+        (
+            ["plan", "upload", str(out), "--url", "http://127.0.0.1:9"],
+            {**env, "HIKOBOSHI_TOKEN": "t"},
+            "is the ground service at http://127.0.0.1:9 running?",
+        ),
+    ]
+    for args, environment, reason in cases:
+        result = subprocess.run(
+            [*HIKOBOSHI, *args], capture_output=True, text=True, timeout=600, env=environment
+        )
+        assert result.returncode == 2, (args, result.stderr)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and reason in lines[0], result.stderr

@@ -27,7 +27,8 @@
    ``Retry-After`` and before a byte of the body is read;
 5. 413 ``request_too_large`` to a body over ``max_request_bytes``: at once for a declared
    ``Content-Length``, else as soon as the streamed body grows past it.
-   ``POST /api/passes/import`` streams through with its own limit (``max_import_bytes``);
+   ``POST /api/passes/import`` and ``POST /api/plans/documents`` stream through, each
+   with its own limit (``max_import_bytes``, ``max_plan_document_bytes``) and checks;
 6. for the authenticated routes, a JSON body (or one without a content type, which FastAPI
    reads as JSON) is read (bounded), parsed once and refused with 400 ``invalid_json``,
    ``json_too_deep`` (over ``max_json_depth``) or ``invalid_text`` (a string or key holding a
@@ -82,8 +83,9 @@ log = logging.getLogger("hikoboshi.ground.edge")
 PUBLIC_PATHS = frozenset({"/api/health", "/api/ready", "/api/command"})
 #: Outside /api, yet authenticated here like it (a viewer's token: docs/security.md).
 PROTECTED_PATHS = frozenset({"/metrics"})
-#: Streams its body through with its own, larger limit (server/api/recordings.py).
-IMPORT_PATH = "/api/passes/import"
+#: Stream their bodies through with their own, larger limits (server/api/recordings.py,
+#: server/api/plans.py), and check them themselves.
+STREAMED_PATHS = frozenset({"/api/passes/import", "/api/plans/documents"})
 #: The console's HTML pages: they get the Content-Security-Policy.
 CONSOLE_PAGES = frozenset({"/", "/index.html"})
 
@@ -310,7 +312,7 @@ class EdgeMiddleware:
         declared: int | None,
         close: tuple[tuple[bytes, bytes], ...],
     ) -> None:
-        if scope["path"] == IMPORT_PATH:
+        if scope["path"] in STREAMED_PATHS:
             await self.app(scope, receive, send)  # streamed; the route enforces its limit
             return
         limit = self.settings.max_request_bytes

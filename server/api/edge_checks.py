@@ -14,53 +14,27 @@ from urllib.parse import unquote_to_bytes
 from starlette.types import Message, Receive, Scope
 
 from server.api.errors import HttpError
+from server.schemas.json_text import json_problem
 
-__all__ = ["check_json"]
+__all__ = ["check_json", "request_too_large"]
 
 _CONTROL_BYTES = re.compile(rb"[\x00-\x1f\x7f]")
 _CONTROL_TEXT = re.compile(r"[\x00-\x1f\x7f]")
-#: In JSON strings: control characters except tab, newline, carriage return; and lone
-#: surrogates (``"\ud800"`` parses, but no database stores it).
-_BAD_JSON_TEXT = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff]")
 
 
 def check_json(body: bytes, max_depth: int) -> tuple[str, str, Any] | None:
     """``(code, message, detail)`` when ``body`` is not JSON the service takes, else None.
 
     Parsed once with :func:`json.loads` (a RecursionError from the parser is too deep);
-    depth and strings are then checked iteratively."""
+    depth and strings are then checked iteratively (:func:`server.schemas.json_text.
+    json_problem`)."""
     try:
         document = json.loads(body)
     except RecursionError:
         return "json_too_deep", f"the JSON body is nested deeper than {max_depth}", None
     except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
         return "invalid_json", f"the body is not JSON: {exc}", None
-    stack: list[tuple[Any, int, tuple[str | int, ...]]] = [(document, 1, ())]
-    while stack:
-        value, depth, loc = stack.pop()
-        if isinstance(value, str):
-            bad = _BAD_JSON_TEXT.search(value)
-            if bad:
-                return _bad_text(bad.group(), loc)
-        elif isinstance(value, list | dict):
-            if depth > max_depth:
-                message = f"the JSON body is nested deeper than {max_depth}"
-                return "json_too_deep", message, {"loc": list(loc)}
-            if isinstance(value, list):
-                stack.extend((item, depth + 1, (*loc, i)) for i, item in enumerate(value))
-            else:
-                for key, item in value.items():
-                    bad = _BAD_JSON_TEXT.search(key)
-                    if bad:
-                        return _bad_text(bad.group(), (*loc, key.encode("unicode_escape").decode()))
-                    stack.append((item, depth + 1, (*loc, key)))
-    return None
-
-
-def _bad_text(char: str, loc: tuple[str | int, ...]) -> tuple[str, str, Any]:
-    where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc) or "the body"
-    message = f"a JSON string holds a control character (U+{ord(char):04X}) at {where}"
-    return "invalid_text", message, {"loc": list(loc), "char": f"U+{ord(char):04X}"}
+    return json_problem(document, max_depth)
 
 
 def _bad_target(scope: Scope) -> str | None:
@@ -78,6 +52,11 @@ def _bad_target(scope: Scope) -> str | None:
 
 def _too_large(size: int, limit: int) -> str:
     return f"a request body of {size} bytes or more exceeds the limit of {limit} bytes"
+
+
+def request_too_large(size: int, limit: int) -> HttpError:
+    """413 ``request_too_large``: a body of ``size`` bytes or more, over ``limit``."""
+    return HttpError(413, "request_too_large", _too_large(size, limit))
 
 
 async def _read_body(receive: Receive, limit: int) -> bytes | None:
@@ -116,7 +95,7 @@ def _limited(receive: Receive, limit: int) -> Receive:
         if message["type"] == "http.request":
             received += len(message.get("body", b""))
             if received > limit:
-                raise HttpError(413, "request_too_large", _too_large(received, limit))
+                raise request_too_large(received, limit)
         return message
 
     return limited

@@ -1,11 +1,14 @@
-"""``/api/plans``: plan an experiment (operator), validate a request, read plans (viewer).
+"""``/api/plans``: plan an experiment or store a plan document (operator), validate a
+request, read plans (viewer).
 
 Planning (``POST /api/plans``, ``POST /api/plans/validate``) runs in a worker process
 (:mod:`server.services.workers`): never in the server's threads, where it would hold the
 GIL the link's event loop needs. At most ``worker_processes`` at once, each killed past
 ``plan_deadline_s`` or when its client goes away; a full pool answers 503 ``busy`` at once.
 The parameters are checked first, in the server (milliseconds): a refused request never
-takes a worker. The reads are plain functions (FastAPI's threadpool).
+takes a worker. A plan document (``POST /api/plans/documents``) is read whole, within
+``max_plan_document_bytes``, and read and checked in a worker. The reads are plain
+functions (FastAPI's threadpool).
 """
 
 from __future__ import annotations
@@ -26,12 +29,14 @@ from server.api.deps import (
     ViewerDep,
     WorkersDep,
 )
-from server.schemas import ERROR_RESPONSES, SafeLine
+from server.api.edge_checks import request_too_large
+from server.operations import plans as operations
+from server.operations.plan_documents import document_schema
+from server.schemas import ERROR_RESPONSES, ErrorPublic, SafeLine
 from server.schemas.plans import PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
 from server.services.errors import DomainError
 from server.services.events import with_written
-from server.services.flight_rules import check_stored_plan
 from server.services.jobs import session_job
 from server.services.robots import resolve_robot
 
@@ -62,13 +67,70 @@ async def create_plan(
     plan, events = await workers.run(
         session_job,
         settings.resolved_database_url(),
-        partial(with_written, service.create_plan),
+        partial(with_written, operations.create_plan),
         request=request,
         actor=who.name,
         now_ns=clock.time_ns(),
         robot_path=None if robot_path is None else str(robot_path),
         deadline_s=settings.plan_deadline_s,
         what=f"planning {request.experiment}",
+        client=http,
+    )
+    publisher.publish(events)
+    return plan
+
+
+_DOCUMENT = {"application/json": {"schema": document_schema()}}
+
+
+@router.post(
+    "/documents",
+    status_code=201,
+    response_model=PlanPublic,
+    openapi_extra={"requestBody": {"required": True, "content": _DOCUMENT}},
+    responses={413: {"model": ErrorPublic, "description": "Over max_plan_document_bytes"}},
+)
+async def upload_plan_document(
+    http: Request,
+    settings: SettingsDep,
+    who: OperatorDep,
+    workers: WorkersDep,
+    clock: ClockDep,
+    publisher: PublisherDep,
+) -> PlanPublic:
+    """Store a plan document (the body: the file ``hikoboshi plan ... --out FILE`` wrote,
+    ``hikoboshi plan upload FILE`` sends it) exactly as its commands are: a pass of it flies
+    them. Its robot is the one its ``robot_hash`` names (422 ``unknown_robot`` when the
+    server has no such description); the document's own flight-rules report is never
+    trusted: the ground checks the plan again and stores its own report (a failing plan is
+    stored, and a pass of it will not start). A document that is not a plan is refused with
+    422 ``invalid_plan_document`` and the reason, nothing stored; 413 over
+    ``max_plan_document_bytes``; 503 ``busy`` and 504 as planning."""
+    limit = settings.max_plan_document_bytes
+    declared = http.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > limit:
+        raise request_too_large(int(declared), limit)
+    chunks: list[bytes] = []
+    size = 0
+    async for chunk in http.stream():
+        size += len(chunk)
+        if size > limit:
+            raise request_too_large(size, limit)
+        chunks.append(chunk)
+    plan: PlanPublic
+    events: list[dict[str, Any]]
+    plan, events = await workers.run(
+        session_job,
+        settings.resolved_database_url(),
+        partial(with_written, operations.upload_document),
+        data=b"".join(chunks),
+        actor=who.name,
+        now_ns=clock.time_ns(),
+        robot_files=tuple(str(p) for p in settings.robot_files),
+        max_bytes=limit,
+        max_depth=settings.max_json_depth,
+        deadline_s=settings.plan_deadline_s,
+        what="checking an uploaded plan document",
         client=http,
     )
     publisher.publish(events)
@@ -92,7 +154,7 @@ async def validate_plan(
     except (PlannerError, DomainError) as exc:
         return service.invalid(exc)
     return await workers.run(
-        service.validate,
+        operations.validate,
         request,
         None if robot_path is None else str(robot_path),
         deadline_s=settings.plan_deadline_s,
@@ -121,7 +183,7 @@ async def check_plan(
     plan, events = await workers.run(
         session_job,
         settings.resolved_database_url(),
-        partial(with_written, check_stored_plan),
+        partial(with_written, operations.check_stored_plan),
         plan_id=plan_id,
         actor=who.name,
         now_ns=clock.time_ns(),

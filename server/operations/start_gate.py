@@ -17,7 +17,7 @@ the pass stays ``scheduled`` and nothing reaches the link):
 The start never computes: it compares numbers the ground stored. A plan stored without a
 report (before the rules existed, or imported from a recording, whose report is not the
 ground's word) is refused with ``flight_rules_unchecked``, saying how to check it:
-``POST /api/plans/{id}/check`` (:func:`server.services.flight_rules.check_stored_plan`).
+``POST /api/plans/{id}/check`` (:func:`server.operations.plans.check_stored_plan`).
 """
 
 from __future__ import annotations

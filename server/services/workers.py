@@ -81,7 +81,7 @@ PRELOAD = (
     "planner.description",
     "sqlalchemy",
     "planner.catalogue",
-    "server.services.plans",
+    "server.operations.plans",
     "server.services.recordings",
     "server.services.reports",
     "server.services.telemetry",

@@ -1,4 +1,4 @@
-"""The campaign planner (hikoboshi/campaign.py over mission/campaign.py): each pass in the
+"""The campaign planner (server/operations/campaign.py over mission/campaign.py): each pass in the
 first window after the one before, fitting its net time; each pass starting where the one
 before left the vehicle plus the gap; the gap's gravity-gradient momentum against an
 independent integration (plain sgp4 radii every second, the textbook torque, the reference
@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 from sgp4.api import jday
 
-from hikoboshi.campaign import Campaign, CampaignInfeasible, plan_campaign
+from hikoboshi.campaign_cli import write_campaign
 from mission import MISSIONS_DIR, compute_windows, load_mission
-from mission.campaign import GRAVITY_MU_M3PS2, load_campaign
+from mission.campaign import load_campaign
 from planner.frames import matrix_from_quat_xyzw
 from planner.plan import Plan
+from server.operations.campaign import Campaign, CampaignInfeasible, plan_campaign
+from server.operations.campaign_gap import GRAVITY_MU_M3PS2
 from tests.reference_dynamics import forward_kinematics, subtree_composites
 from tests.support.orbits import mission_doc, satrec
 
@@ -150,7 +152,8 @@ def test_the_gap_momentum_matches_an_independent_integration(campaign: Campaign)
 def test_the_gravity_gradient_uses_the_real_orbit_not_a_constant_radius() -> None:
     """The mean-elements orbit is near-circular: the radius varies, and the loaded momentum
     follows it (against the SPEC's 550 km circle it differs by the radius's cube)."""
-    from mission.campaign import gravity_gradient_momentum_nms, orbit_radius_m
+    from mission.campaign import orbit_radius_m
+    from server.operations.campaign_gap import gravity_gradient_momentum_nms
 
     mission = load_mission(ETS7)
     inertia = reference_inertia_kgm2(np.zeros(6))
@@ -168,7 +171,7 @@ def test_the_gravity_gradient_uses_the_real_orbit_not_a_constant_radius() -> Non
 
 @pytest.mark.slow
 def test_the_files_are_plans_and_read_back(campaign: Campaign, tmp_path: Path) -> None:
-    path = campaign.write(tmp_path)
+    path = write_campaign(campaign, tmp_path)
     assert path == tmp_path / "campaign.json"
     record = load_campaign(path)
     assert record.mission == "ets7-1999"
@@ -229,14 +232,14 @@ def test_a_plan_longer_than_its_window_is_refused_naming_pass_and_times(tmp_path
 def test_the_ground_replans_a_pass_from_its_plan_s_parameters_alone(campaign: Campaign) -> None:
     """POST /api/plans with experiment "pass" and the plan file's parameters: the start
     state and the orbit travel in them, so the ground's plan is the campaign's."""
+    from server.operations.plans import plan_request
     from server.schemas.plans import PlanCreate
-    from server.services.plans import plan as ground_plan
 
     mine = campaign.passes[1].plan
     parameters = json.loads(json.dumps(mine.parameters))
     assert parameters["start_wheel_momentum_nms"] != [0.0, 0.0, 0.0]
     assert parameters["gravity_gradient_radius_m"] > 6.9e6
-    theirs, _ = ground_plan(PlanCreate(experiment="pass", parameters=parameters))
+    theirs = plan_request(PlanCreate(experiment="pass", parameters=parameters))
     np.testing.assert_array_equal(theirs.command_joints_rad, mine.command_joints_rad)
     np.testing.assert_allclose(
         theirs.prediction.wheel_momentum_nms, mine.prediction.wheel_momentum_nms, atol=1e-12

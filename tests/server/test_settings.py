@@ -44,6 +44,7 @@ EVERY_SETTING: dict[str, tuple[str, object]] = {
     "consoles_per_token": ("5", 5),
     "consoles_per_address": ("6", 6),
     "max_import_bytes": ("1000000", 1_000_000),
+    "max_plan_document_bytes": ("3000000", 3_000_000),
     "max_import_uncompressed_bytes": ("8000000", 8_000_000),
     "import_spool_budget_bytes": ("2000000", 2_000_000),
     "worker_processes": ("3", 3),

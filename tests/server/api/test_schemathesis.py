@@ -23,6 +23,9 @@ Exclusions, each narrowed to its operation, status and error codes (the check
   ``repeated_field``: ``t1`` after ``t0`` and the fields of the pass's robot.
 - ``POST /api/passes/import`` 422 ``invalid_recording``: the body is an MCAP file, which a
   schema can call binary but not check.
+- ``POST /api/plans/documents`` 422 ``invalid_plan_document``, ``unknown_robot``: a plan's
+  numbers agree with each other (a prediction row per command, tags on the 4 Hz grid) and
+  its robot hash is one of the server's files, which no JSON Schema states.
 - ``GET /api/windows`` and ``POST /api/passes`` 422 ``span_outside_elements``: a time more
   than 60 days from the mission's elements' epoch, which is the mission file's, not the
   schema's.
@@ -145,6 +148,14 @@ EXCUSES = (
         422,
         frozenset({"empty_range", "unknown_field", "repeated_field"}),
         "t1 after t0, and the fields of the pass's robot",
+    ),
+    Excuse(
+        "POST",
+        "/api/plans/documents",
+        "positive_data_acceptance",
+        422,
+        frozenset({"invalid_plan_document", "unknown_robot"}),
+        "a plan's numbers agree with each other and its robot is one of the server's files",
     ),
     Excuse(
         "POST",

@@ -6,13 +6,16 @@ SPEC sections 3, 5 and 8).
         -> Campaign
     Campaign.passes[i]: .index .window .experiments .plan .start_state .end_state
         .gap_momentum_nms (and .gap_gravity_gradient_nms, .gap_s, .flight_rules)
-    Campaign.write(out_dir) -> out_dir/campaign.json (and pass-N.plan.json beside it)
+    Campaign.to_dict() -> campaign.json (hikoboshi plan campaign writes it with each plan)
     load_campaign(path) -> mission.campaign.CampaignRecord
 
 Why it lives here: planning needs the planner and the windows need the mission, and the
 ``mission`` package imports nothing else of ours (an import contract in pyproject.toml);
-the command line may import both. What needs only the mission (the windows' chaining, the
-gravity-gradient momentum of a gap, the file read back) is in ``mission/campaign.py``.
+operations may import both, and the command line, the ground and the campaign demo use it
+alike. What needs only the orbit (the windows' chaining, ``|r|^-3`` over a gap, the file read
+back) is in ``mission/campaign.py``; the gap's arithmetic is :mod:`server.operations.
+campaign_gap`'s. Each pass is planned and checked by the one checked planning call
+(:func:`server.operations.planning.plan_checked`).
 
 The rules it keeps:
 
@@ -30,7 +33,7 @@ The rules it keeps:
 - Between passes the arm rests where the pass left it and attitude control holds the base at
   the pass's last attitude target: the base's own residual momentum settles into the wheels
   (angular momentum is conserved), and the gravity-gradient torque over the gap, from the
-  mission's SGP4 orbit, loads them (:func:`mission.campaign.gravity_gradient_momentum_nms`).
+  mission's SGP4 orbit, loads them (:func:`server.operations.campaign_gap.gap_transition`).
   So pass k+1 starts at pass k's joints, the held attitude, at rest, with pass k's wheel
   momentum plus ``gap_momentum_nms``.
 - Each plan is checked against the robot's flight rules (``fits_pass`` against the net
@@ -39,11 +42,9 @@ The rules it keeps:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -52,8 +53,6 @@ from numpy.typing import NDArray
 from mission.campaign import (
     CAMPAIGN_FORMAT_VERSION,
     GAP_STEP_S,
-    GRAVITY_MU_M3PS2,
-    gravity_gradient_momentum_nms,
     load_campaign,
     next_window,
     orbit_radius_m,
@@ -61,12 +60,13 @@ from mission.campaign import (
 from mission.errors import MissionError
 from mission.file import Mission
 from mission.windows import Window, compute_windows, format_utc
+from server.operations.campaign_gap import GRAVITY_MU_M3PS2, gap_transition
 from server.operations.windows import PassWindow, check_fit
 from server.operations.windows import start_lead_s as ground_start_lead_s
+from server.services.errors import DomainError
 from server.settings import Settings
 
 if TYPE_CHECKING:
-    from planner.dynamics import DynamicsWorkspace
     from planner.flight_rules import FlightRulesReport
     from planner.plan import Plan
     from planner.robot import RobotDescription
@@ -79,7 +79,6 @@ __all__ = [
     "Campaign",
     "CampaignInfeasible",
     "CampaignPass",
-    "gap_transition",
     "load_campaign",
     "parse_assignment",
     "plan_campaign",
@@ -192,18 +191,6 @@ class Campaign:
             "passes": [p.to_dict() for p in self.passes],
         }
 
-    def write(self, out_dir: Path) -> Path:
-        """``pass-N.plan.json`` for each pass (the plan format ``hikoboshi plan pass``
-        writes) and ``campaign.json``, in ``out_dir``; returns campaign.json's path."""
-        from hikoboshi.planning_cli import write_atomically
-
-        out_dir = Path(out_dir)
-        for p in self.passes:
-            write_atomically(out_dir / p.plan_file, p.plan.to_json())
-        path = out_dir / "campaign.json"
-        write_atomically(path, json.dumps(self.to_dict(), allow_nan=False, indent=1) + "\n")
-        return path
-
 
 def parse_assignment(text: str) -> tuple[tuple[str, ...], ...]:
     """``"ptp,reactionless/gjm/coordination"``: passes split by ``/``, experiments by ``,``."""
@@ -229,44 +216,6 @@ def _check_assignment(assignment: Sequence[Sequence[str]]) -> tuple[tuple[str, .
                     f"pass {k}: unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})"
                 )
     return passes
-
-
-def gap_transition(
-    ws: DynamicsWorkspace,
-    mission: Mission,
-    end_state: VehicleState,
-    held_quat_orbit_from_base_xyzw: Array,
-    start_utc: datetime,
-    end_utc: datetime,
-) -> tuple[VehicleState, Array]:
-    """The vehicle at ``end_utc`` after a gap from ``start_utc`` in which the arm rests at
-    ``end_state``'s joints and attitude control holds the base at
-    ``held_quat_orbit_from_base_xyzw``; and the gravity-gradient share of its wheel momentum.
-
-    Settling: the total angular momentum ``R (H~_b w_b + h_w)`` (orbit frame, arm at rest,
-    eq. 3) is kept while the base comes to rest at the held attitude, so the wheels then hold
-    ``R_held^T R_end (H~_b w_b + h_w)``. Loading: eq. (14) over the gap with the mission's
-    orbit (:func:`mission.campaign.gravity_gradient_momentum_nms`)."""
-    from planner.frames import matrix_from_quat_xyzw
-    from planner.state import VehicleState
-
-    joints = end_state.joints_rad
-    inertia_base = ws.momentum_blocks(joints)[0]  # H~_b at rest is H_c (eq. 11), base frame
-    rot_end = matrix_from_quat_xyzw(end_state.quat_orbit_from_base_xyzw)
-    rot_held = matrix_from_quat_xyzw(np.asarray(held_quat_orbit_from_base_xyzw, dtype=float))
-    omega_base = rot_end.T @ end_state.omega_base_orbit_radps
-    momentum_orbit = rot_end @ (inertia_base @ omega_base + end_state.wheel_momentum_nms)
-    settled = rot_held.T @ momentum_orbit
-    loaded = gravity_gradient_momentum_nms(
-        mission, start_utc, end_utc, inertia_base, held_quat_orbit_from_base_xyzw
-    )
-    start = VehicleState(
-        joints_rad=joints.copy(),
-        quat_orbit_from_base_xyzw=np.asarray(held_quat_orbit_from_base_xyzw, dtype=float),
-        omega_base_orbit_radps=np.zeros(3),
-        wheel_momentum_nms=settled + loaded,
-    )
-    return start, loaded
 
 
 def _pass_radius_m(mission: Mission, start_utc: datetime, end_utc: datetime) -> float:
@@ -306,18 +255,19 @@ def plan_campaign(
     pass and the quantity when a pass has no window within ``SEARCH_HOURS``, a plan does not
     fit its window or an experiment is unknown; a planner's own refusal is re-raised as one,
     naming the pass."""
-    from planner.description import default_robot
+    from planner.catalogue import plan_experiment
     from planner.dynamics import DynamicsWorkspace
     from planner.errors import PlannerError
     from planner.model import default_model
-    from planner.schedule import PassParams, plan_pass
+    from planner.schedule import PassParams
     from planner.state import VehicleState
+    from server.operations.planning import plan_checked
 
     passes_wanted = _check_assignment(DEFAULT_ASSIGNMENT if assignment is None else assignment)
     if not 0.0 <= start_lead_s <= 600.0:
         raise CampaignInfeasible(f"start lead {start_lead_s:g} s is outside [0, 600] s")
     start_utc = start_utc.astimezone(UTC)
-    total = 1 + len(passes_wanted) * (2 if check_rules else 1)
+    total = 1 + len(passes_wanted)
     done = 0
 
     def step(what: str) -> None:
@@ -328,7 +278,6 @@ def plan_campaign(
 
     step("computing the windows")
     windows = compute_windows(mission, start_utc, SEARCH_HOURS)
-    description = robot if robot is not None else (default_robot() if check_rules else None)
     ws = DynamicsWorkspace(robot.model if robot is not None else default_model())
     passes: list[CampaignPass] = []
     not_before = start_utc
@@ -367,7 +316,7 @@ def plan_campaign(
             gap_momentum = start_state.wheel_momentum_nms - state.wheel_momentum_nms
         else:
             start_state = None
-        step(f"planning pass {k}: {', '.join(experiments)}")
+        step(f"planning and checking pass {k}: {', '.join(experiments)}")
         # The start and the orbit go in as parameters, so that the plan records them and the
         # ground re-plans the same pass from them (POST /api/plans, experiment "pass").
         others: dict[str, Any] = {
@@ -375,13 +324,29 @@ def plan_campaign(
             "experiments": experiments,
             "gravity_gradient_radius_m": _pass_radius_m(mission, plan_start, window.net_end_utc),
         }
+        pass_window = PassWindow.of_mission(window, mission.name)
         try:
             params = (
                 PassParams(**others)
                 if start_state is None
                 else PassParams.starting_at(start_state, **others)
             )
-            plan = plan_pass(ws, params, robot=robot)
+            if check_rules:  # the flight rules and the window-fit rule, in the one call
+                checked = plan_checked(
+                    "pass", params, robot=robot, window=pass_window, lead_s=start_lead_s
+                )
+                plan, report, misfit = checked.plan, checked.report, checked.misfit
+            else:  # the windows and states alone (the tests of those)
+                plan, report = plan_experiment("pass", params, robot=robot), None
+                misfit = check_fit(
+                    pass_window,
+                    plan_id=f"of pass {k}",
+                    plan_s=plan.duration_s,
+                    lead_s=start_lead_s,
+                    available_s=pass_window.usable_s,
+                )
+        except DomainError as exc:
+            raise CampaignInfeasible(f"{where}: {exc.message}") from exc
         except PlannerError as exc:
             if "window" in str(exc):
                 raise CampaignInfeasible(
@@ -389,23 +354,8 @@ def plan_campaign(
                     f"{start_lead_s:g} s start lead ({usable_s:.1f} s): {exc}"
                 ) from exc
             raise CampaignInfeasible(f"{where}: {exc}") from exc
-        misfit = check_fit(
-            PassWindow.of_mission(window, mission.name),
-            plan_id=f"of pass {k}",
-            plan_s=plan.duration_s,
-            lead_s=start_lead_s,
-            available_s=window.net_s,
-        )
         if misfit is not None:
             raise CampaignInfeasible(f"{where}: {misfit.message}")
-        report = None
-        if check_rules:
-            assert description is not None
-            step(f"checking pass {k} against the flight rules")
-            try:
-                plan, report = description.checked(plan, window_s=usable_s, ws=ws)
-            except PlannerError as exc:
-                raise CampaignInfeasible(f"{where}: {exc}") from exc
         end_state = VehicleState.at_end_of(plan.prediction)
         current = CampaignPass(
             index=k,
