@@ -84,14 +84,28 @@ class _Api:
                 body_out: bytes = response.read()
                 return body_out
         except urllib.error.HTTPError as exc:
-            raise DemoError(f"{method} {path}: {exc.code} {exc.read().decode()[:500]}") from None
+            raise DemoError(f"{method} {path}: {exc.code} {_problem(exc.read())}") from None
         except (TimeoutError, urllib.error.URLError) as exc:
             # a ground that does not answer (overloaded, or gone): a reason, not a traceback
             reason = getattr(exc, "reason", exc)  # URLError's reason, or the timeout itself
+            if isinstance(reason, ConnectionRefusedError):
+                raise DemoError(
+                    f"{method} {path}: {self.base} refused the connection; {self._logs}"
+                ) from None
             raise DemoError(
                 f"{method} {path}: no answer from the ground service within {timeout_s:g} s"
                 f" ({reason}); {self._logs}"
             ) from None
+
+
+def _problem(body: bytes) -> str:
+    """An error's answer in one line: ``code: detail`` of its problem details (RFC 9457),
+    else its first 500 characters."""
+    try:
+        problem = json.loads(body)
+        return f"{problem['code']}: {problem['detail']}"
+    except (ValueError, KeyError, TypeError):
+        return body.decode(errors="replace")[:500]
 
 
 def _port(preferred: int) -> int:
