@@ -108,7 +108,11 @@ def plan_command(
     ] = False,
     robot: RobotOption = None,
     mission_file: Annotated[
-        Path | None, typer.Option("--mission", help="campaign: the mission file (TOML).")
+        Path | None,
+        typer.Option(
+            "--mission",
+            help="campaign: the mission file (TOML), or a shipped mission's name (ets7-1999).",
+        ),
     ] = None,
     start: Annotated[
         str | None, typer.Option("--start", help="campaign: from when, ISO 8601 with offset.")

@@ -29,7 +29,11 @@ def _fail(reason: str) -> NoReturn:
 
 def windows(
     mission_file: Annotated[
-        Path, typer.Option("--mission", help="Mission file (TOML, docs/missions.md).")
+        Path,
+        typer.Option(
+            "--mission",
+            help="Mission file (TOML, docs/missions.md), or a shipped mission's name (ets7-1999).",
+        ),
     ],
     start: Annotated[
         str, typer.Option("--start", help="Start of the span, ISO 8601 with offset (…Z).")

@@ -26,6 +26,7 @@ from typing import Any
 from sgp4.api import WGS72, Satrec
 
 from mission.errors import InvalidMission
+from mission.shipped import mission_file
 
 __all__ = [
     "EARTH_MU_KM3PS2",
@@ -175,8 +176,9 @@ class Mission:
 
 
 def load_mission(path: Path | str) -> Mission:
-    """The mission file at ``path``, read and checked; :class:`InvalidMission` on any fault."""
-    path = Path(path)
+    """The mission file at ``path`` (or the shipped mission it names: ``ets7-1999``), read
+    and checked; :class:`InvalidMission` on any fault."""
+    path = mission_file(path, MISSIONS_DIR)
     raw = _read_limited(path)
     try:
         doc = tomllib.loads(raw.decode("utf-8"))

@@ -119,6 +119,13 @@ def test_faults_name_the_file_the_key_and_the_reason(
     assert str(caught.value).startswith(f"{path}: {key}: ")
 
 
+def test_a_shipped_mission_by_its_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # no file of that name here: the name is the shipped mission's
+    assert load_mission("ets7-1999") == load_mission(ETS7)
+    with pytest.raises(InvalidMission, match=r"nor a shipped mission \(ets7-1999\)"):
+        load_mission("ets7-2000")
+
+
 def test_files_that_are_not_missions(tmp_path: Path) -> None:
     with pytest.raises(InvalidMission, match="no such file"):
         load_mission(tmp_path / "absent.toml")
