@@ -55,6 +55,26 @@ def _segment(start: Array, end: Array, radius_m: float) -> CollisionShape:
     return CollisionShape("capsule", (radius_m, length), _frozen(rot), _frozen(0.5 * (start + end)))
 
 
+def _with_touching(
+    model: RobotModel,
+    bodies: tuple[CollisionBody, ...],
+    contacts: list[AllowedContact],
+    clearance_m: float,
+) -> CollisionModel:
+    """``bodies`` with ``contacts`` allowed and, besides, every pair they leave checked that
+    is nearer than ``clearance_m`` at the reference pose."""
+    trial = CollisionModel(bodies, tuple(contacts))
+    shapes = ShapeSet(trial)
+    rots, trans = body_poses(model, model.reference_joints)
+    touching = []
+    for i, j in trial.pairs:
+        a, b = bodies[i].joint, bodies[j].joint
+        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
+        if d.distance_m < clearance_m:
+            touching.append(AllowedContact((bodies[i].name, bodies[j].name), _TOUCHING))
+    return CollisionModel(bodies, (*contacts, *touching))
+
+
 def segment_collision_model(
     model: RobotModel,
     *,
@@ -87,15 +107,7 @@ def segment_collision_model(
         *allowed,
         *(AllowedContact((names[i], names[i + 1]), _ADJACENT) for i in range(len(names) - 1)),
     ]
-    trial = CollisionModel(tuple(bodies), tuple(contacts))
-    shapes = ShapeSet(trial)
-    rots, trans = body_poses(model, model.reference_joints)
-    for i, j in trial.pairs:
-        a, b = bodies[i].joint, bodies[j].joint
-        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
-        if d.distance_m < clearance_m:
-            contacts.append(AllowedContact((names[i], names[j]), _TOUCHING))
-    return CollisionModel(tuple(bodies), tuple(contacts))
+    return _with_touching(model, tuple(bodies), contacts, clearance_m)
 
 
 def generated_contacts(
@@ -110,12 +122,4 @@ def generated_contacts(
     for i, j in collision.pairs:
         if abs(bodies[i].joint - bodies[j].joint) == 1:
             contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _ADJACENT))
-    trial = CollisionModel(bodies, tuple(contacts))
-    shapes = ShapeSet(trial)
-    rots, trans = body_poses(model, model.reference_joints)
-    for i, j in trial.pairs:
-        a, b = bodies[i].joint, bodies[j].joint
-        d = shapes.distance(i, j, rots[0, a], trans[0, a], rots[0, b], trans[0, b])
-        if d.distance_m < clearance_m:
-            contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _TOUCHING))
-    return CollisionModel(bodies, tuple(contacts))
+    return _with_touching(model, bodies, contacts, clearance_m)
