@@ -59,7 +59,6 @@ def paged(
     session: Session,
     model: type[R],
     where: Sequence[ColumnElement[bool]],
-    *,
     order_by: Sequence[Any],
     offset: int,
     limit: int,

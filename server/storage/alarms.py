@@ -161,14 +161,8 @@ def list_alarms(
         where.append(AlarmRecord.pass_id == canonical_id(pass_id, what="pass"))
     if active is not None:
         where.append(_active() if active else ~_active())
-    return paged(
-        session,
-        AlarmRecord,
-        where,
-        order_by=(AlarmRecord.raised_time_ns.desc(), AlarmRecord.id),
-        offset=offset,
-        limit=limit,
-    )
+    order = (AlarmRecord.raised_time_ns.desc(), AlarmRecord.id)
+    return paged(session, AlarmRecord, where, order, offset, limit)
 
 
 def listed_alarms(*, session: Session, pass_id: str | None) -> list[AlarmRecord]:

@@ -178,15 +178,9 @@ def list_plans(
     where: list[ColumnElement[bool]] = []
     if experiment is not None:
         where.append(PlanRecord.experiment == experiment)
-    return paged(
-        session,
-        PlanRecord,
-        where,
-        order_by=(PlanRecord.created_at_ns.desc(), PlanRecord.id),
-        offset=offset,
-        limit=limit,
-        options=(defer(PlanRecord.document, raiseload=True),),
-    )
+    order = (PlanRecord.created_at_ns.desc(), PlanRecord.id)
+    options = (defer(PlanRecord.document, raiseload=True),)
+    return paged(session, PlanRecord, where, order, offset, limit, options)
 
 
 # --- passes --------------------------------------------------------------------------------
@@ -258,14 +252,8 @@ def list_passes(
         for state in states:
             check_one_of(state, PASS_STATES, what="pass state")
         where.append(PassRecord.state.in_(list(states)))
-    return paged(
-        session,
-        PassRecord,
-        where,
-        order_by=(PassRecord.aos_time_ns, PassRecord.id),
-        offset=offset,
-        limit=limit,
-    )
+    order = (PassRecord.aos_time_ns, PassRecord.id)
+    return paged(session, PassRecord, where, order, offset, limit)
 
 
 def update_pass_state(
@@ -392,14 +380,8 @@ def list_events(
     if t0_ns is not None and t1_ns is not None:
         check_time_range(t0_ns, t1_ns)
     where += within(EventRecord.time_ns, t0_ns, t1_ns)
-    return paged(
-        session,
-        EventRecord,
-        where,
-        order_by=(EventRecord.time_ns, EventRecord.id),
-        offset=offset,
-        limit=limit,
-    )
+    order = (EventRecord.time_ns, EventRecord.id)
+    return paged(session, EventRecord, where, order, offset, limit)
 
 
 # --- analysis ------------------------------------------------------------------------------
