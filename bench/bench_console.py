@@ -33,13 +33,12 @@ from typing import Any
 import numpy as np
 import uvicorn
 from _common import emit
+from bench_ingest import new_pass
 from websockets.asyncio.client import connect
 
 from server.app import create_app
 from server.services.link import GroundLink, TelemetryWindow
 from server.settings import ApiToken, Role, Settings
-from server.storage import repository as repo
-from server.storage.models import PlanRecord
 from telemetry.layout import DEFAULT_LAYOUT
 from telemetry.wire import Hello, TelemetryFrame, TelemetryMsg, encode
 
@@ -113,32 +112,6 @@ def _console_process(
 # --- the ground and the spacecraft (this process) --------------------------------------------
 
 
-def _new_pass(app: Any) -> str:
-    with app.state.sessions() as session:
-        plan = PlanRecord(
-            id="00000000-0000-4000-8000-000000000001",
-            experiment="bench",
-            parameters={},
-            document="{}",
-            duration_s=DURATION_S,
-            n_commands=0,
-            created_at_ns=0,
-        )
-        session.merge(plan)
-        session.flush()
-        record = repo.add_pass(
-            session=session,
-            name=f"bench-{time.time_ns()}",
-            plan_id=plan.id,
-            aos_time_ns=0,
-            los_time_ns=1,
-            relay="TDRS",
-            created_at_ns=0,
-        )
-        session.commit()
-        return record.id
-
-
 async def _spacecraft(
     ws_url: str, first_seq: int, n_frames: int, acked: dict[int, int], sent: dict[int, int]
 ) -> None:
@@ -188,7 +161,7 @@ def _percentiles(values_ms: list[float]) -> dict[str, float]:
 
 def run(app: Any, base_url: str, n_consoles: int, first_seq: int) -> dict[str, Any]:
     link: GroundLink = app.state.link
-    pass_id = _new_pass(app)
+    pass_id = new_pass(app.state.sessions, duration_s=DURATION_S, name=f"bench-{time.time_ns()}")
     link.windows.append(TelemetryWindow(pass_id=pass_id, start_ns=0))
     n_frames = round(DURATION_S * RATE_HZ)
     last_seq = first_seq + n_frames - 1

@@ -36,6 +36,7 @@ from server.app import create_app
 from server.services.console import ConsoleHub
 from server.services.dbworker import Publisher
 from server.settings import ApiToken, Role, Settings
+from tests.support.console import stage_event
 
 TOKENS = {"v-token": ApiToken(name="bench-console", role=Role.VIEWER)}
 BURST_HZ, BURST_S, SLOW_HZ = 1000, 8.0, 20.0
@@ -46,17 +47,6 @@ ACK = "--no-ack" not in sys.argv
 ACK_EVERY_S = 0.25
 
 
-def _event(n: int) -> dict[str, Any]:
-    detail = {"seq": n, "from": "released", "stage": "sent", "time_ns": n}
-    return {
-        "kind": "command_stage",
-        "actor": "ground",
-        "detail": detail,
-        "pass_id": PASS,
-        "time_ns": n,
-    }
-
-
 async def _burst(publisher: Publisher, marks: dict[str, float]) -> int:
     """In the server's loop: the events at BURST_HZ, the abort halfway; how many."""
     start = marks["start"] = time.monotonic()
@@ -64,7 +54,7 @@ async def _burst(publisher: Publisher, marks: dict[str, float]) -> int:
     while (elapsed := time.monotonic() - start) < BURST_S:
         while n < int(elapsed * BURST_HZ):
             n += 1
-            publisher.publish([_event(n)])
+            publisher.publish([stage_event(n, PASS)])
         if "abort" not in marks and elapsed >= BURST_S / 2:
             detail = {"from": "running", "to": "aborted", "reason": "operator abort"}
             publisher.publish(

@@ -86,14 +86,17 @@ def best_with_setup(setup: Callable[[], None], run: Callable[[], None]) -> float
     return best
 
 
-def new_pass(factory: sessionmaker[Session]) -> str:
+def new_pass(
+    factory: sessionmaker[Session], *, duration_s: float = 1200.0, name: str = "bench"
+) -> str:
+    """A pass (of a bare plan of ``duration_s``, no commands) to write frames into."""
     with factory() as session:
         plan = PlanRecord(
             id=str(uuid.uuid4()),
             experiment="bench",
             parameters={},
             document="{}",
-            duration_s=1200.0,
+            duration_s=duration_s,
             n_commands=0,
             created_at_ns=0,
         )
@@ -101,7 +104,7 @@ def new_pass(factory: sessionmaker[Session]) -> str:
         session.flush()
         record = repo.add_pass(
             session=session,
-            name="bench",
+            name=name,
             plan_id=plan.id,
             aos_time_ns=0,
             los_time_ns=1,

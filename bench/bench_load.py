@@ -32,7 +32,6 @@ import os
 import statistics
 import sys
 import tempfile
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -150,20 +149,12 @@ def _own_schema(url: str | None) -> Iterator[str | None]:
     if not url:
         yield None
         return
-    import psycopg
     from sqlalchemy import make_url
 
-    parsed = make_url(url)
-    conninfo = parsed.set(drivername="postgresql").render_as_string(hide_password=False)
-    schema = f"bench_load_{uuid.uuid4().hex[:12]}"
-    with psycopg.connect(conninfo, autocommit=True) as conn:
-        conn.execute(f"CREATE SCHEMA {schema}")  # a name we made: hex digits only
-    try:
-        scoped = parsed.update_query_dict({"options": f"-csearch_path={schema}"})
-        yield scoped.render_as_string(hide_password=False)
-    finally:
-        with psycopg.connect(conninfo, autocommit=True) as conn:
-            conn.execute(f"DROP SCHEMA {schema} CASCADE")
+    from tests.postgres import own_schema
+
+    with own_schema(make_url(url), "bench_load") as scoped:
+        yield scoped
 
 
 def _bench(args: argparse.Namespace, recording: bytes, database_url: str | None) -> None:

@@ -279,6 +279,24 @@ def compute_windows(
     return _with_ranges(mission, spans, vehicle_itrs_km, ts)
 
 
+def _terminal_itrs_km(mission: Mission) -> NDArray[np.float64]:
+    """The ground terminal's position, Earth-fixed (ITRS), km."""
+    from skyfield.api import wgs84
+
+    terminal = mission.ground.terminal
+    return np.asarray(
+        wgs84.latlon(
+            terminal.latitude_deg, terminal.longitude_deg, elevation_m=terminal.altitude_m
+        ).itrs_xyz.km,
+        dtype=np.float64,
+    )
+
+
+def _sample_grid(duration_s: float, step_s: float) -> NDArray[np.float64]:
+    """Seconds from 0 to ``duration_s``, both included, at most ``step_s`` apart."""
+    return np.linspace(0.0, duration_s, max(2, math.ceil(duration_s / step_s) + 1))
+
+
 def _with_ranges(
     mission: Mission,
     spans: list[tuple[Relay, datetime, datetime]],
@@ -287,22 +305,12 @@ def _with_ranges(
 ) -> list[Window]:
     """Each span with its minimum and maximum range and light time, all spans' samples
     propagated in one call."""
-    from skyfield.api import wgs84
-
     if not spans:
         return []
-    terminal = mission.ground.terminal
-    terminal_km = np.asarray(
-        wgs84.latlon(
-            terminal.latitude_deg, terminal.longitude_deg, elevation_m=terminal.altitude_m
-        ).itrs_xyz.km,
-        dtype=np.float64,
-    )
+    terminal_km = _terminal_itrs_km(mission)
     grids: list[NDArray[np.float64]] = []
     for _, aos, los in spans:
-        duration_s = (los - aos).total_seconds()
-        n = max(2, math.ceil(duration_s / RANGE_STEP_S) + 1)
-        grids.append(np.linspace(0.0, duration_s, n))
+        grids.append(_sample_grid((los - aos).total_seconds(), RANGE_STEP_S))
     seconds = np.concatenate(
         [
             (aos - spans[0][1]).total_seconds() + g
@@ -341,7 +349,7 @@ def light_times(
     ``window``, sampled every ``step_s`` (at least) from its acquisition to its loss, both
     included: ``(seconds since aos_utc, light time s)``. The link emulator interpolates it
     (spacecraft/contact.py)."""
-    from skyfield.api import EarthSatellite, wgs84
+    from skyfield.api import EarthSatellite
     from skyfield.framelib import itrs
     from skyfield.nutationlib import iau2000b_radians
 
@@ -352,21 +360,13 @@ def light_times(
         raise InvalidSpan(f"window relay {window.relay!r} is not one of the mission's relays")
     ts = _timescale()
     sat = EarthSatellite.from_satrec(mission.orbit.satrec(), ts)
-    duration_s = window.duration_s
-    n = max(2, math.ceil(duration_s / step_s) + 1)
-    seconds = np.linspace(0.0, duration_s, n)
+    seconds = _sample_grid(window.duration_s, step_s)
     t0 = ts.from_datetime(window.aos_utc)
     t = ts.tt_jd(t0.tt + seconds / 86400.0)
     t._nutation_angles_radians = iau2000b_radians(t)  # as compute_windows places it
     vehicle_km = np.asarray(sat.at(t).frame_xyz(itrs).km, dtype=np.float64).reshape(3, -1).T
     relay_km = np.array(relay.position_itrs_km())
-    terminal = mission.ground.terminal
-    terminal_km = np.asarray(
-        wgs84.latlon(
-            terminal.latitude_deg, terminal.longitude_deg, elevation_m=terminal.altitude_m
-        ).itrs_xyz.km,
-        dtype=np.float64,
-    )
+    terminal_km = _terminal_itrs_km(mission)
     path_km = np.linalg.norm(vehicle_km - relay_km, axis=1) + float(
         np.linalg.norm(relay_km - terminal_km)
     )

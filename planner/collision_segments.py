@@ -55,6 +55,25 @@ def _segment(start: Array, end: Array, radius_m: float) -> CollisionShape:
     return CollisionShape("capsule", (radius_m, length), _frozen(rot), _frozen(0.5 * (start + end)))
 
 
+def _with_touching(
+    model: RobotModel,
+    bodies: tuple[CollisionBody, ...],
+    contacts: list[AllowedContact],
+    clearance_m: float,
+) -> CollisionModel:
+    """``bodies`` with ``contacts`` allowed and, besides, every pair they leave checked that
+    is nearer than ``clearance_m`` at the reference pose."""
+    trial = CollisionModel(bodies, tuple(contacts))
+    rots, trans = body_poses(model, model.reference_joints)
+    distances = ShapeSet(trial).pair_distances_m(trial.pairs, rots[0], trans[0])
+    touching = [
+        AllowedContact((bodies[i].name, bodies[j].name), _TOUCHING)
+        for (i, j), d in zip(trial.pairs, distances, strict=True)
+        if d < clearance_m
+    ]
+    return CollisionModel(bodies, (*contacts, *touching))
+
+
 def segment_collision_model(
     model: RobotModel,
     *,
@@ -87,9 +106,7 @@ def segment_collision_model(
         *allowed,
         *(AllowedContact((names[i], names[i + 1]), _ADJACENT) for i in range(len(names) - 1)),
     ]
-    trial = CollisionModel(tuple(bodies), tuple(contacts))
-    contacts += _touching(model, trial, clearance_m)
-    return CollisionModel(tuple(bodies), tuple(contacts))
+    return _with_touching(model, tuple(bodies), contacts, clearance_m)
 
 
 def generated_contacts(
@@ -104,19 +121,4 @@ def generated_contacts(
     for i, j in collision.pairs:
         if abs(bodies[i].joint - bodies[j].joint) == 1:
             contacts.append(AllowedContact((bodies[i].name, bodies[j].name), _ADJACENT))
-    trial = CollisionModel(bodies, tuple(contacts))
-    contacts += _touching(model, trial, clearance_m)
-    return CollisionModel(bodies, tuple(contacts))
-
-
-def _touching(model: RobotModel, trial: CollisionModel, clearance_m: float) -> list[AllowedContact]:
-    """The checked pairs of ``trial`` nearer than ``clearance_m`` at the reference pose,
-    allowed as touching."""
-    rots, trans = body_poses(model, model.reference_joints)
-    distances = ShapeSet(trial).pair_distances_m(trial.pairs, rots[0], trans[0])
-    names = [b.name for b in trial.bodies]
-    return [
-        AllowedContact((names[i], names[j]), _TOUCHING)
-        for (i, j), d in zip(trial.pairs, distances, strict=True)
-        if d < clearance_m
-    ]
+    return _with_touching(model, bodies, contacts, clearance_m)

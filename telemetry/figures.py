@@ -285,21 +285,17 @@ def predicted_vs_flown_figure(result: PredictedVsFlown) -> bytes:
 
 
 def pass_figures(analysis: PassAnalysis) -> dict[str, bytes]:
-    """Every figure that applies to ``analysis``, by name."""
-    out: dict[str, bytes] = {}
-    if analysis.reaction is not None:
-        out["reaction"] = reaction_figure(analysis.reaction)
-    if analysis.joint_tracking is not None:
-        out["joint_tracking"] = joint_tracking_figure(analysis.joint_tracking)
-    if analysis.hand_attitude is not None:
-        out["hand_attitude"] = hand_attitude_figure(analysis.hand_attitude)
-    if analysis.phase_plane is not None:
-        out["phase_plane"] = phase_plane_figure(analysis.phase_plane)
-    if analysis.endpoint is not None:
-        out["endpoint"] = endpoint_figure(analysis.endpoint)
-    if analysis.predicted_vs_flown is not None:
-        out["predicted_vs_flown"] = predicted_vs_flown_figure(analysis.predicted_vs_flown)
-    return out
+    """Every figure that applies to ``analysis``, by name (its part of ``analysis``)."""
+    figures: dict[str, Callable[[Any], bytes]] = {
+        "reaction": reaction_figure,
+        "joint_tracking": joint_tracking_figure,
+        "hand_attitude": hand_attitude_figure,
+        "phase_plane": phase_plane_figure,
+        "endpoint": endpoint_figure,
+        "predicted_vs_flown": predicted_vs_flown_figure,
+    }
+    parts = {name: getattr(analysis, name) for name in figures}
+    return {name: figures[name](part) for name, part in parts.items() if part is not None}
 
 
 #: Band colours of the alarm timeline, lowest severity first (Yamcs's five levels).

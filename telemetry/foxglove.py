@@ -70,71 +70,56 @@ _XYZ = ("x", "y", "z")
 _XYZW = ("x", "y", "z", "w")
 
 
+def _object(
+    title: str, properties: dict[str, Any], description: str | None = None
+) -> dict[str, Any]:
+    """A schema object of ``properties``, every one required."""
+    head = {"title": title} if description is None else {"title": title, "description": description}
+    return {**head, "type": "object", "properties": properties, "required": list(properties)}
+
+
 def _numbers_object(title: str, keys: tuple[str, ...]) -> dict[str, Any]:
-    return {
-        "title": title,
-        "type": "object",
-        "properties": {k: {"type": "number"} for k in keys},
-        "required": list(keys),
-    }
+    return _object(title, {k: {"type": "number"} for k in keys})
 
 
-FRAME_TRANSFORMS_SCHEMA: dict[str, Any] = {
-    "title": FRAME_TRANSFORMS_SCHEMA_NAME,
-    "description": "An array of FrameTransform messages",
+_TIME: dict[str, Any] = {
     "type": "object",
     "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+    },
+}
+_TITLED_TIME: dict[str, Any] = {"title": "time", **_TIME}
+
+FRAME_TRANSFORMS_SCHEMA: dict[str, Any] = _object(
+    FRAME_TRANSFORMS_SCHEMA_NAME,
+    {
         "transforms": {
             "type": "array",
-            "items": {
-                "title": "foxglove.FrameTransform",
-                "description": "The pose of a child frame in a parent frame",
-                "type": "object",
-                "properties": {
-                    "timestamp": {
-                        "title": "time",
-                        "type": "object",
-                        "properties": {
-                            "sec": {"type": "integer", "minimum": 0},
-                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
-                        },
-                    },
+            "items": _object(
+                "foxglove.FrameTransform",
+                {
+                    "timestamp": _TITLED_TIME,
                     "parent_frame_id": {"type": "string"},
                     "child_frame_id": {"type": "string"},
                     "translation": _numbers_object("foxglove.Vector3", _XYZ),
                     "rotation": _numbers_object("foxglove.Quaternion", _XYZW),
                 },
-                "required": [
-                    "timestamp",
-                    "parent_frame_id",
-                    "child_frame_id",
-                    "translation",
-                    "rotation",
-                ],
-            },
+                "The pose of a child frame in a parent frame",
+            ),
         }
     },
-    "required": ["transforms"],
-}
+    "An array of FrameTransform messages",
+)
 
 #: ``foxglove.Log`` (foxglove-sdk ``schemas/jsonschema/Log.json``): what Foxglove's Log panel
 #: shows. ``level`` is ``foxglove.LogLevel``: these names, 0 to 5.
 LOG_SCHEMA_NAME = "foxglove.Log"
 LOG_LEVELS = {"UNKNOWN": 0, "DEBUG": 1, "INFO": 2, "WARNING": 3, "ERROR": 4, "FATAL": 5}
-LOG_SCHEMA: dict[str, Any] = {
-    "title": LOG_SCHEMA_NAME,
-    "description": "A log message",
-    "type": "object",
-    "properties": {
-        "timestamp": {
-            "title": "time",
-            "type": "object",
-            "properties": {
-                "sec": {"type": "integer", "minimum": 0},
-                "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
-            },
-            "description": "Timestamp of log message",
-        },
+LOG_SCHEMA: dict[str, Any] = _object(
+    LOG_SCHEMA_NAME,
+    {
+        "timestamp": {**_TITLED_TIME, "description": "Timestamp of log message"},
         "level": {
             "title": "foxglove.LogLevel",
             "description": "Log level",
@@ -145,15 +130,10 @@ LOG_SCHEMA: dict[str, Any] = {
         "file": {"type": "string", "description": "Filename"},
         "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
     },
-    "required": ["timestamp", "level", "message", "name", "file", "line"],
-}
+    "A log message",
+)
 
-STRING_SCHEMA: dict[str, Any] = {
-    "title": STRING_SCHEMA_NAME,
-    "type": "object",
-    "properties": {"data": {"type": "string"}},
-    "required": ["data"],
-}
+STRING_SCHEMA: dict[str, Any] = _object(STRING_SCHEMA_NAME, {"data": {"type": "string"}})
 
 
 def urdf_tree(urdf: str) -> list[tuple[str, str]]:
@@ -398,13 +378,6 @@ def event_log(time_ns: int, kind: str, actor: str, detail: Mapping[str, Any]) ->
 
 
 SCENE_UPDATE_SCHEMA_NAME = "foxglove.SceneUpdate"
-_TIME: dict[str, Any] = {
-    "type": "object",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
-    },
-}
 _VEC3: dict[str, Any] = {"type": "object", "properties": {k: {"type": "number"} for k in _XYZ}}
 _QUAT: dict[str, Any] = {"type": "object", "properties": {k: {"type": "number"} for k in _XYZW}}
 _COLOR: dict[str, Any] = {

@@ -6,6 +6,7 @@ afterwards. With no server answering, the tests that need it are skipped with th
 
 from __future__ import annotations
 
+import contextlib
 import os
 import uuid
 from collections.abc import Iterator
@@ -40,13 +41,16 @@ def postgres_server() -> URL:
     return url
 
 
-def _schema_url(postgres_server: URL) -> Iterator[str]:
-    schema = f"test_{uuid.uuid4().hex[:16]}"
-    conninfo = libpq_conninfo(postgres_server)
+@contextlib.contextmanager
+def own_schema(server: URL, prefix: str = "test") -> Iterator[str]:
+    """A URL of ``server`` whose connections see only a fresh, empty schema of their own
+    (named ``prefix`` and random hex digits), dropped after (the tests' and a benchmark's)."""
+    schema = f"{prefix}_{uuid.uuid4().hex[:16]}"
+    conninfo = libpq_conninfo(server)
     with psycopg.connect(conninfo, autocommit=True) as conn:
         conn.execute(f"CREATE SCHEMA {schema}")  # a name we made: hex digits only
     try:
-        url = postgres_server.update_query_dict({"options": f"-csearch_path={schema}"})
+        url = server.update_query_dict({"options": f"-csearch_path={schema}"})
         yield url.render_as_string(hide_password=False)
     finally:
         with psycopg.connect(conninfo, autocommit=True) as conn:
@@ -56,10 +60,12 @@ def _schema_url(postgres_server: URL) -> Iterator[str]:
 @pytest.fixture()
 def postgres_schema_url(postgres_server: URL) -> Iterator[str]:
     """A URL whose connections see only a fresh, empty schema (dropped after the test)."""
-    yield from _schema_url(postgres_server)
+    with own_schema(postgres_server) as url:
+        yield url
 
 
 @pytest.fixture(scope="module")
 def module_postgres_schema_url(postgres_server: URL) -> Iterator[str]:
     """``postgres_schema_url`` for a whole module (dropped after its last test)."""
-    yield from _schema_url(postgres_server)
+    with own_schema(postgres_server) as url:
+        yield url

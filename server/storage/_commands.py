@@ -9,13 +9,20 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any, cast
 
-from sqlalchemy import ColumnElement, Table, bindparam, insert, select, update
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy import ColumnElement, Table, bindparam, select, update
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.attributes import set_committed_value
 
-from server.storage._common import canonical_id, check_one_of, check_page, flush, require_pass
-from server.storage.errors import Conflict, NotFound
+from server.storage._common import (
+    canonical_id,
+    check_one_of,
+    check_page,
+    flush,
+    insert_rows,
+    require_pass,
+    within,
+)
+from server.storage.errors import NotFound
 from server.storage.models import COMMAND_KINDS, COMMAND_STAGES, CommandRecord
 from server.storage.stages import OPEN_STAGES
 from telemetry.wire import AcsCommandMsg, JointCommandMsg
@@ -59,13 +66,7 @@ def add_commands(
         }
         for command in commands
     ]
-    if not rows:
-        return 0
-    try:
-        session.execute(insert(CommandRecord), rows)
-    except IntegrityError as exc:
-        raise Conflict(f"commands of pass {key}: {exc.orig}") from exc
-    return len(rows)
+    return insert_rows(session, CommandRecord, rows, what=f"commands of pass {key}")
 
 
 def get_command(*, session: Session, pass_id: str, seq: int) -> CommandRecord:
@@ -201,10 +202,7 @@ def list_commands(
         for kind in kinds:
             check_one_of(kind, COMMAND_KINDS, what="command kind")
         where.append(CommandRecord.kind.in_(list(kinds)))
-    if execute_from_ns is not None:
-        where.append(CommandRecord.execute_time_ns >= execute_from_ns)
-    if execute_to_ns is not None:
-        where.append(CommandRecord.execute_time_ns < execute_to_ns)
+    where += within(CommandRecord.execute_time_ns, execute_from_ns, execute_to_ns)
     query = (
         select(CommandRecord)
         .where(*where)

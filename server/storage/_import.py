@@ -16,11 +16,9 @@ import uuid
 from collections.abc import Sequence
 from typing import Any
 
-from sqlalchemy import insert
-from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from server.storage._common import require_pass
+from server.storage._common import insert_rows, require_pass
 from server.storage._telemetry import pass_layout, write_rows
 from server.storage.errors import Conflict, InvalidArgument
 from server.storage.models import COMMAND_STAGES, CommandRecord, EventRecord
@@ -71,13 +69,7 @@ def add_command_rows(*, session: Session, pass_id: str, commands: Sequence[Comma
         for stage in COMMAND_STAGES:
             row[f"{stage}_at_ns"] = command.stage_times_ns.get(stage)
         rows.append(row)
-    if not rows:
-        return 0
-    try:
-        session.execute(insert(CommandRecord), rows)
-    except IntegrityError as exc:
-        raise Conflict(f"commands of pass {key}: {exc.orig}") from exc
-    return len(rows)
+    return insert_rows(session, CommandRecord, rows, what=f"commands of pass {key}")
 
 
 def add_event_rows(*, session: Session, pass_id: str, events: Sequence[EventRow]) -> int:
@@ -93,6 +85,4 @@ def add_event_rows(*, session: Session, pass_id: str, events: Sequence[EventRow]
         }
         for event in events
     ]
-    if rows:
-        session.execute(insert(EventRecord), rows)
-    return len(rows)
+    return insert_rows(session, EventRecord, rows, what=f"events of pass {key}")

@@ -22,11 +22,11 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from sqlalchemy import ColumnElement, false, func, or_, select
+from sqlalchemy import ColumnElement, false, or_, select
 from sqlalchemy.orm import Session
 
-from server.storage._common import Page, canonical_id, check_page
-from server.storage.errors import Conflict, InvalidArgument, NotFound
+from server.storage._common import Page, canonical_id, check_page, paged, stored
+from server.storage.errors import Conflict, InvalidArgument
 from server.storage.models import (
     ALARM_DIRECTIONS,
     ALARM_SEVERITIES,
@@ -142,10 +142,7 @@ def save_alarms(*, session: Session, documents: Iterable[Mapping[str, Any]]) -> 
 
 
 def get_alarm(*, session: Session, alarm_id: str) -> AlarmRecord:
-    record = session.get(AlarmRecord, canonical_id(alarm_id, what="alarm"))
-    if record is None:
-        raise NotFound(f"alarm {alarm_id!r} not found")
-    return record
+    return stored(session, AlarmRecord, alarm_id, what="alarm")
 
 
 def list_alarms(
@@ -164,15 +161,8 @@ def list_alarms(
         where.append(AlarmRecord.pass_id == canonical_id(pass_id, what="pass"))
     if active is not None:
         where.append(_active() if active else ~_active())
-    query = (
-        select(AlarmRecord)
-        .where(*where)
-        .order_by(AlarmRecord.raised_time_ns.desc(), AlarmRecord.id)
-        .offset(offset)
-        .limit(limit)
-    )
-    count = session.scalar(select(func.count()).select_from(AlarmRecord).where(*where)) or 0
-    return Page(items=list(session.scalars(query)), count=count)
+    order = (AlarmRecord.raised_time_ns.desc(), AlarmRecord.id)
+    return paged(session, AlarmRecord, where, order, offset, limit)
 
 
 def listed_alarms(*, session: Session, pass_id: str | None) -> list[AlarmRecord]:
@@ -192,9 +182,7 @@ def acknowledge(
     """Acknowledge the alarm (``actor`` at ``time_ns``, ground, with ``comment``);
     :class:`NotFound` for an unknown alarm, :class:`Conflict` for one already
     acknowledged."""
-    record = session.get(AlarmRecord, canonical_id(alarm_id, what="alarm"), with_for_update=True)
-    if record is None:
-        raise NotFound(f"alarm {alarm_id!r} not found")
+    record = stored(session, AlarmRecord, alarm_id, what="alarm", with_for_update=True)
     if record.acknowledged:
         raise Conflict(f"alarm {record.id} was already acknowledged by {record.acknowledged_by!r}")
     record.acknowledged = True

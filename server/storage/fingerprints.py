@@ -29,9 +29,8 @@ from typing import Any
 from sqlalchemy import case, func, select
 from sqlalchemy.orm import Session
 
-from server.storage._common import canonical_id
+from server.storage._common import stored
 from server.storage.alarms import alarm_document
-from server.storage.errors import NotFound
 from server.storage.models import (
     COMMAND_STAGES,
     AlarmRecord,
@@ -54,10 +53,7 @@ __all__ = [
 
 def pass_row(session: Session, pass_id: str) -> PassRecord:
     """The pass, read afresh (its ``version`` names its content); ``NotFound`` if none."""
-    record = session.get(PassRecord, canonical_id(pass_id, what="pass"), populate_existing=True)
-    if record is None:
-        raise NotFound(f"pass {pass_id!r} not found")
-    return record
+    return stored(session, PassRecord, pass_id, what="pass", populate_existing=True)
 
 
 def _row(session: Session, *columns: Any, where: Any) -> list[int | None]:

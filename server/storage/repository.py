@@ -24,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 from typing import Any
 
-from sqlalchemy import ColumnElement, func, insert, select
+from sqlalchemy import ColumnElement, insert, select
 from sqlalchemy.orm import Session, defer
 from sqlalchemy.orm.exc import StaleDataError
 
@@ -46,7 +46,10 @@ from server.storage._common import (
     check_time_range,
     flush,
     new_id,
+    paged,
     require_pass,
+    stored,
+    within,
 )
 from server.storage._import import add_command_rows, add_event_rows, add_frame_arrays
 from server.storage._telemetry import (
@@ -164,10 +167,7 @@ def set_plan_document(*, session: Session, plan_id: str, plan: Plan) -> PlanReco
 
 def get_plan(*, session: Session, plan_id: str) -> PlanRecord:
     """The plan, document included (``Plan.from_json(record.document)`` rebuilds it)."""
-    record = session.get(PlanRecord, canonical_id(plan_id, what="plan"))
-    if record is None:
-        raise NotFound(f"plan {plan_id!r} not found")
-    return record
+    return stored(session, PlanRecord, plan_id, what="plan")
 
 
 def list_plans(
@@ -178,16 +178,9 @@ def list_plans(
     where: list[ColumnElement[bool]] = []
     if experiment is not None:
         where.append(PlanRecord.experiment == experiment)
-    query = (
-        select(PlanRecord)
-        .where(*where)
-        .options(defer(PlanRecord.document, raiseload=True))
-        .order_by(PlanRecord.created_at_ns.desc(), PlanRecord.id)
-        .offset(offset)
-        .limit(limit)
-    )
-    count = session.scalar(select(func.count()).select_from(PlanRecord).where(*where)) or 0
-    return Page(items=list(session.scalars(query)), count=count)
+    order = (PlanRecord.created_at_ns.desc(), PlanRecord.id)
+    options = (defer(PlanRecord.document, raiseload=True),)
+    return paged(session, PlanRecord, where, order, offset, limit, options)
 
 
 # --- passes --------------------------------------------------------------------------------
@@ -236,10 +229,7 @@ def add_pass(
 
 def get_pass(*, session: Session, pass_id: str, refresh: bool = False) -> PassRecord:
     """The pass; ``refresh`` re-reads it even when the session already holds it."""
-    record = session.get(PassRecord, canonical_id(pass_id, what="pass"), populate_existing=refresh)
-    if record is None:
-        raise NotFound(f"pass {pass_id!r} not found")
-    return record
+    return stored(session, PassRecord, pass_id, what="pass", populate_existing=refresh)
 
 
 def get_pass_layout(*, session: Session, pass_id: str) -> FrameLayout:
@@ -262,15 +252,8 @@ def list_passes(
         for state in states:
             check_one_of(state, PASS_STATES, what="pass state")
         where.append(PassRecord.state.in_(list(states)))
-    query = (
-        select(PassRecord)
-        .where(*where)
-        .order_by(PassRecord.aos_time_ns, PassRecord.id)
-        .offset(offset)
-        .limit(limit)
-    )
-    count = session.scalar(select(func.count()).select_from(PassRecord).where(*where)) or 0
-    return Page(items=list(session.scalars(query)), count=count)
+    order = (PassRecord.aos_time_ns, PassRecord.id)
+    return paged(session, PassRecord, where, order, offset, limit)
 
 
 def update_pass_state(
@@ -396,19 +379,9 @@ def list_events(
         where.append(EventRecord.actor.in_(list(actors)))
     if t0_ns is not None and t1_ns is not None:
         check_time_range(t0_ns, t1_ns)
-    if t0_ns is not None:
-        where.append(EventRecord.time_ns >= t0_ns)
-    if t1_ns is not None:
-        where.append(EventRecord.time_ns < t1_ns)
-    query = (
-        select(EventRecord)
-        .where(*where)
-        .order_by(EventRecord.time_ns, EventRecord.id)
-        .offset(offset)
-        .limit(limit)
-    )
-    count = session.scalar(select(func.count()).select_from(EventRecord).where(*where)) or 0
-    return Page(items=list(session.scalars(query)), count=count)
+    where += within(EventRecord.time_ns, t0_ns, t1_ns)
+    order = (EventRecord.time_ns, EventRecord.id)
+    return paged(session, EventRecord, where, order, offset, limit)
 
 
 # --- analysis ------------------------------------------------------------------------------

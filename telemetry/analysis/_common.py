@@ -53,6 +53,11 @@ def json_array(values: Array | Sequence[float]) -> list[Any]:
     return [json_array(row) if arr.ndim > 1 else json_number(float(row)) for row in arr]
 
 
+def json_array_or_none(values: Array | Sequence[float] | None) -> list[Any] | None:
+    """:func:`json_array`, or ``None`` for a value that is missing."""
+    return None if values is None else json_array(values)
+
+
 def experiment_segments(plan: Plan, experiment: str) -> tuple[Segment, ...]:
     """The segments of ``experiment``: all of a single-experiment plan's, or those a pass
     schedule named ``"<experiment>: ..."`` (planner.schedule)."""

@@ -29,6 +29,7 @@ from telemetry.analysis._common import (
     deviation_rad,
     experiment_segments,
     json_array,
+    json_array_or_none,
     json_number,
     mean_quat_xyzw,
     rpy_rad,
@@ -71,9 +72,6 @@ class EndpointAnalysis:
         return max(abs(v) for v in self.joint_error_deg)
 
     def to_dict(self) -> dict[str, Any]:
-        def vec(v: tuple[float, ...] | None) -> list[Any] | None:
-            return None if v is None else json_array(v)
-
         return {
             "motion_start_s": json_number(self.motion_start_s),
             "motion_end_s": json_number(self.motion_end_s),
@@ -81,12 +79,12 @@ class EndpointAnalysis:
             "final_frames": self.final_frames,
             "target_joints_deg": json_array(self.target_joints_deg),
             "target_rpy_deg": json_array(self.target_rpy_deg),
-            "joint_error_deg": vec(self.joint_error_deg),
+            "joint_error_deg": json_array_or_none(self.joint_error_deg),
             "max_joint_error_deg": json_number(self.max_joint_error_deg),
-            "attitude_error_deg": vec(self.attitude_error_deg),
+            "attitude_error_deg": json_array_or_none(self.attitude_error_deg),
             "attitude_error_angle_deg": json_number(self.attitude_error_angle_deg),
-            "attitude_change_error_deg": vec(self.attitude_change_error_deg),
-            "attitude_error_nominal_deg": vec(self.attitude_error_nominal_deg),
+            "attitude_change_error_deg": json_array_or_none(self.attitude_change_error_deg),
+            "attitude_error_nominal_deg": json_array_or_none(self.attitude_error_nominal_deg),
             "series": {
                 "t_s": json_array(self.t_s),
                 "joints_deg": json_array(self.joints_deg),

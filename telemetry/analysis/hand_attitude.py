@@ -31,6 +31,7 @@ from telemetry.analysis._common import (
     deviation_rad,
     experiment_segments,
     json_array,
+    json_array_or_none,
     json_number,
     mean_quat_xyzw,
     moving_average,
@@ -62,9 +63,6 @@ class HandHold:
         return self.hand_change_max_deg / self.base_change_max_deg
 
     def to_dict(self) -> dict[str, Any]:
-        def pair(v: tuple[float, float] | None) -> list[Any] | None:
-            return None if v is None else json_array(v)
-
         return {
             "span": self.span,
             "t_start_s": json_number(self.t_start_s),
@@ -73,8 +71,8 @@ class HandHold:
             "hand_change_max_deg": json_number(self.hand_change_max_deg),
             "base_change_max_deg": json_number(self.base_change_max_deg),
             "hold_ratio": json_number(self.hold_ratio),
-            "hand_pitch_change_range_deg": pair(self.hand_pitch_change_range_deg),
-            "base_pitch_change_range_deg": pair(self.base_pitch_change_range_deg),
+            "hand_pitch_change_range_deg": json_array_or_none(self.hand_pitch_change_range_deg),
+            "base_pitch_change_range_deg": json_array_or_none(self.base_pitch_change_range_deg),
         }
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from telemetry.analysis._common import (
     Array,
     json_array,
+    json_array_or_none,
     json_number,
     relative_rotvec,
     rms,
@@ -52,19 +53,16 @@ class SegmentDifference:
         return None if self.joint_peak_deg is None else max(self.joint_peak_deg)
 
     def to_dict(self) -> dict[str, Any]:
-        def vec(v: tuple[float, ...] | None) -> list[Any] | None:
-            return None if v is None else json_array(v)
-
         return {
             "segment": self.segment,
             "kind": self.kind,
             "frames": self.frames,
-            "joint_rms_deg": vec(self.joint_rms_deg),
-            "joint_peak_deg": vec(self.joint_peak_deg),
+            "joint_rms_deg": json_array_or_none(self.joint_rms_deg),
+            "joint_peak_deg": json_array_or_none(self.joint_peak_deg),
             "joint_peak_max_deg": json_number(self.joint_peak_max_deg),
             "attitude_rms_deg": json_number(self.attitude_rms_deg),
             "attitude_peak_deg": json_number(self.attitude_peak_deg),
-            "attitude_axis_peak_deg": vec(self.attitude_axis_peak_deg),
+            "attitude_axis_peak_deg": json_array_or_none(self.attitude_axis_peak_deg),
         }
 
 

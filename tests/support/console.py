@@ -236,3 +236,16 @@ def welcome(ws: WebSocketTestSession) -> dict[str, Any]:
     message: dict[str, Any] = ws.receive_json()
     assert message["type"] == "welcome", message
     return message
+
+
+def stage_event(n: int, pass_id: str | None = None) -> dict[str, Any]:
+    """The ``n``-th command's move from released to sent, at ``n`` ns, as the database
+    worker publishes it to the consoles."""
+    detail = {"seq": n, "from": "released", "stage": "sent", "time_ns": n}
+    return {
+        "kind": "command_stage",
+        "actor": "ground",
+        "detail": detail,
+        "pass_id": pass_id,
+        "time_ns": n,
+    }

@@ -4,79 +4,57 @@ misspelt or extra field fails even where Foxglove's own schema would let it pass
 
 from __future__ import annotations
 
-# Foxglove's published foxglove.FrameTransforms, restated field by field (and closed with
-# additionalProperties: false so a misspelt or extra field fails here even where Foxglove's
-# own schema would let it pass).
-_XYZ = {k: {"type": "number"} for k in "xyz"}
+from typing import Any
 
 
-FOXGLOVE_FRAME_TRANSFORMS = {
-    "type": "object",
-    "required": ["transforms"],
-    "additionalProperties": False,
-    "properties": {
+def _closed(properties: dict[str, Any]) -> dict[str, Any]:
+    """An object of exactly ``properties``, every one required, no other."""
+    return {
+        "type": "object",
+        "additionalProperties": False,
+        "required": list(properties),
+        "properties": properties,
+    }
+
+
+def _numbers(keys: str) -> dict[str, Any]:
+    return _closed({k: {"type": "number"} for k in keys})
+
+
+_STRING = {"type": "string"}
+_TIME = _closed(
+    {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+    }
+)
+
+# foxglove-sdk schemas/jsonschema/FrameTransforms.json
+FOXGLOVE_FRAME_TRANSFORMS = _closed(
+    {
         "transforms": {
             "type": "array",
-            "items": {
-                "type": "object",
-                "additionalProperties": False,
-                "required": [
-                    "timestamp",
-                    "parent_frame_id",
-                    "child_frame_id",
-                    "translation",
-                    "rotation",
-                ],
-                "properties": {
-                    "timestamp": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["sec", "nsec"],
-                        "properties": {
-                            "sec": {"type": "integer", "minimum": 0},
-                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-                        },
-                    },
-                    "parent_frame_id": {"type": "string"},
-                    "child_frame_id": {"type": "string"},
-                    "translation": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["x", "y", "z"],
-                        "properties": _XYZ,
-                    },
-                    "rotation": {
-                        "type": "object",
-                        "additionalProperties": False,
-                        "required": ["x", "y", "z", "w"],
-                        "properties": _XYZ | {"w": {"type": "number"}},
-                    },
-                },
-            },
+            "items": _closed(
+                {
+                    "timestamp": _TIME,
+                    "parent_frame_id": _STRING,
+                    "child_frame_id": _STRING,
+                    "translation": _numbers("xyz"),
+                    "rotation": _numbers("xyzw"),
+                }
+            ),
         }
-    },
-}
+    }
+)
 
-
-# foxglove-sdk schemas/jsonschema/Log.json, restated and closed (additionalProperties false).
-FOXGLOVE_LOG = {
-    "type": "object",
-    "additionalProperties": False,
-    "required": ["timestamp", "level", "message", "name", "file", "line"],
-    "properties": {
-        "timestamp": {
-            "type": "object",
-            "additionalProperties": False,
-            "required": ["sec", "nsec"],
-            "properties": {
-                "sec": {"type": "integer", "minimum": 0},
-                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-            },
-        },
+# foxglove-sdk schemas/jsonschema/Log.json
+FOXGLOVE_LOG = _closed(
+    {
+        "timestamp": _TIME,
         "level": {"enum": [0, 1, 2, 3, 4, 5]},
-        "message": {"type": "string"},
-        "name": {"type": "string"},
-        "file": {"type": "string"},
+        "message": _STRING,
+        "name": _STRING,
+        "file": _STRING,
         "line": {"type": "integer", "minimum": 0, "maximum": 4294967295},
-    },
-}
+    }
+)

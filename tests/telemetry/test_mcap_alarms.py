@@ -17,6 +17,7 @@ from telemetry.mcap import METADATA_NAME, TOPIC_ALARMS, RecordingFileError, read
 from telemetry.mcap._alarms import ALARM_LOG_NAME
 from telemetry.recording import PassRecording
 from tests.server.storage.factories import make_plan
+from tests.support.alarms import cleared_alarm
 from tests.support.foxglove_schemas import FOXGLOVE_LOG
 
 
@@ -31,40 +32,27 @@ def _alarms(flight: OfflineFlight) -> tuple[dict[str, Any], dict[str, Any]]:
     and a link alarm (ground-timed entries: no frame)."""
     gen = [f.generation_time_ns for f in flight.frames]
     entry = {"time_ns": 1_000, "value": 2.5}
-    tracking = {
-        "id": "0f0e0d0c-0000-4000-8000-000000000001",
-        "pass_id": None,
-        "quantity": "joint_tracking_error_deg",
-        "channel": "joint3",
-        "label": "joint tracking error",
-        "unit": "deg",
-        "direction": "high",
-        "source": "limit",
-        "severity": "critical",
-        "current_severity": None,
-        "state": "cleared",
-        "acknowledged": True,
-        "acknowledged_by": "olga",
-        "acknowledged_time_ns": 2_000,
-        "comment": "joint 3 stuck",
-        "limit": 5.0,
-        "trigger_value": 2.5,
-        "worst_value": 6.0,
-        "last_value": 0.1,
-        "count": 10,
-        "raised_frame_seq": 10,
-        "raised_generation_time_ns": gen[10],
-        "raised_time_ns": 1_000,
-        "updated_time_ns": 2_000,
-        "cleared_generation_time_ns": gen[20],
-        "cleared_time_ns": 1_500,
-        "timeline": [
+    tracking = cleared_alarm(
+        None,
+        id="0f0e0d0c-0000-4000-8000-000000000001",
+        acknowledged_by="olga",
+        acknowledged_time_ns=2_000,
+        comment="joint 3 stuck",
+        worst_value=6.0,
+        last_value=0.1,
+        count=10,
+        raised_frame_seq=10,
+        raised_generation_time_ns=gen[10],
+        raised_time_ns=1_000,
+        updated_time_ns=2_000,
+        cleared_generation_time_ns=gen[20],
+        cleared_time_ns=1_500,
+        timeline=[
             {**entry, "severity": "watch", "generation_time_ns": gen[10], "frame_seq": 10},
             {**entry, "severity": "critical", "generation_time_ns": gen[12], "frame_seq": 12},
             {**entry, "severity": None, "generation_time_ns": gen[20], "frame_seq": 20},
         ],
-        "detail": None,
-    }
+    )
     link = {
         **tracking,
         "id": "0f0e0d0c-0000-4000-8000-000000000002",

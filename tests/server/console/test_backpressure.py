@@ -16,6 +16,7 @@ from server.services.clock import Clock, ManualClock, SystemClock
 from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
 from server.services.link import LinkStatus
+from tests.support.console import stage_event
 
 pytestmark = pytest.mark.realtime  # flies a vehicle or serves a live link in wall time
 
@@ -39,17 +40,6 @@ class Socket:
 
     async def close(self, code: int, reason: str) -> None:
         raise AssertionError(f"closed {code} {reason}")
-
-
-def _event(n: int) -> dict[str, Any]:
-    detail = {"seq": n, "from": "released", "stage": "sent", "time_ns": n}
-    return {
-        "kind": "command_stage",
-        "actor": "ground",
-        "detail": detail,
-        "pass_id": None,
-        "time_ns": n,
-    }
 
 
 async def _settle() -> None:
@@ -80,7 +70,7 @@ def test_a_slow_console_is_dropped_without_holding_up_the_publisher() -> None:
             await hub.handle(clients[name], json.dumps(subscribe))
         returned = []
         for n in range(1, N_EVENTS + 1):
-            publisher.publish([_event(n)])  # synchronous: it cannot wait for a socket
+            publisher.publish([stage_event(n)])  # synchronous: it cannot wait for a socket
             returned.append(True)
             await asyncio.sleep(0)  # the link awaits its database between batches
         # The slow console catches up (its socket drains) and resumes where it was dropped.
@@ -178,7 +168,7 @@ def test_pass_states_jump_the_queue_and_each_stream_stays_in_order() -> None:
         slow = Recorder(clock)
         await _connect(hub, slow, "slow", ["commands", "passes", "events"])
         for n in range(1, N_EVENTS + 1):
-            publisher.publish([_event(n)])
+            publisher.publish([stage_event(n)])
             if n == 10:
                 publisher.publish([{**_abort(PASS), "time_ns": n}])
         await _settle()
@@ -215,14 +205,14 @@ def test_a_console_behind_is_told_by_how_much_then_resynced() -> None:
         client = await _connect(hub, slow, "slow", ["commands", "passes"])
         await _connect(hub, fast, "fast", ["commands", "passes"])
         for n in range(1, 21):
-            publisher.publish([_event(n)])
+            publisher.publish([stage_event(n)])
         await clock.advance(1.0)  # behind by 1 s: told (lag), nothing dropped
         await clock.advance(limits.behind_resync_s)  # past the bound: the backlog goes
         resyncs = client.resyncs
         slow.open.set()
         await _settle()
         for n in range(21, 26):  # live again, after the resync's seq
-            publisher.publish([_event(n)])
+            publisher.publish([stage_event(n)])
         await clock.advance(1.0)  # caught up: told so, once
         await clock.advance(1.0)
         await hub.close()
@@ -300,7 +290,7 @@ def test_a_slow_console_beside_fast_ones_sees_the_abort_and_how_far_behind_it_is
             due = int(elapsed * BURST_HZ)
             while n < due:
                 n += 1
-                publisher.publish([_event(n)])
+                publisher.publish([stage_event(n)])
                 if n % batch == 0:
                     await asyncio.sleep(0)
             if abort_at < 0 and elapsed >= BURST_S / 2:
@@ -367,7 +357,7 @@ def test_a_console_that_acknowledges_holds_no_more_than_its_window_in_the_socket
         for topic in ("commands", "passes"):
             await hub.handle(client, json.dumps({"v": 1, "type": "subscribe", "topic": topic}))
         for n in range(1, 41):
-            publisher.publish([_event(n)])
+            publisher.publish([stage_event(n)])
         await _settle()
         out: dict[str, Any] = {"held": list(socket.received), "queued": client.queued}
         publisher.publish([{**_abort(PASS), "time_ns": 41}])  # a control message: not held

@@ -14,9 +14,11 @@ vehicle and spacecraft process are exercised by ``test_e2e.py``.
 from __future__ import annotations
 
 import asyncio
+import functools
 import heapq
 import itertools
 import random
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -448,6 +450,20 @@ def close_grounds() -> None:
     event loop: their threads would idle on for the rest of the run)."""
     while _OPEN:
         _OPEN.pop().close()
+
+
+def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
+    """Run an async test on a fresh event loop (its time is the ManualClock's), then close
+    the grounds it made."""
+
+    @functools.wraps(test)
+    def run(*args: Any, **kwargs: Any) -> None:
+        try:
+            asyncio.run(test(*args, **kwargs))
+        finally:
+            close_grounds()
+
+    return run
 
 
 def store_pass(sessions: sessionmaker[Session], n_commands: int, clock: ManualClock) -> str:

@@ -9,9 +9,7 @@ decisions of server/services/recovery.py, the outcome of server/services/summary
 from __future__ import annotations
 
 import asyncio
-import functools
 import time
-from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +26,7 @@ from tests.server.link.simulated import (
     kill_ground,
     make_sessions,
     pass_state,
+    simulated,
     store_pass,
 )
 from tests.server.storage.factories import make_plan
@@ -35,14 +34,6 @@ from tests.server.storage.factories import make_plan
 #: The uplink's lead window here (onboard s): a 100 s pass stopped 30-40 s in still has
 #: commands never sent.
 LEAD_S = 40.0
-
-
-def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
-    @functools.wraps(test)
-    def run(*args: Any, **kwargs: Any) -> None:
-        asyncio.run(test(*args, **kwargs))
-
-    return run
 
 
 def _stages(rows: list[Any]) -> dict[str, int]:

@@ -11,11 +11,9 @@ its target stands now) or to the one after it is ``out_of_limits``.
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Coroutine
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -37,6 +35,7 @@ from tests.server.link.simulated import (
     ground,
     make_sessions,
     pass_state,
+    simulated,
 )
 from tests.server.storage.factories import make_plan
 
@@ -46,14 +45,6 @@ RATE_LIMIT_RADPS = math.radians(3.0)
 MOTION_RAD = 1.0
 N_COMMANDS = 400  # 100 s at 4 Hz
 LEAD_S = 10.0
-
-
-def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
-    @functools.wraps(test)
-    def run(*args: Any, **kwargs: Any) -> None:
-        asyncio.run(test(*args, **kwargs))
-
-    return run
 
 
 class RateLimitedSpacecraft(SimulatedSpacecraft):

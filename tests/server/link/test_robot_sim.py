@@ -9,9 +9,6 @@ pass is aborted. The scripted relay and vehicle of ``simulated.py`` run on a Man
 
 from __future__ import annotations
 
-import asyncio
-import functools
-from collections.abc import Callable, Coroutine
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -32,20 +29,13 @@ from tests.server.link.simulated import (
     ground,
     make_sessions,
     pass_state,
+    simulated,
 )
 from tests.server.storage.factories import make_plan
 
 ORIHIME_HASH = "3b" * 32  # any description hash other than ETS-VII's
 OTHER_HASH = "c0" * 32
 ORIHIME = {"robot": "orihime", "robot_hash": ORIHIME_HASH, "n_joints": 7}
-
-
-def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
-    @functools.wraps(test)
-    def run(*args: Any, **kwargs: Any) -> None:
-        asyncio.run(test(*args, **kwargs))
-
-    return run
 
 
 class RecordingSpacecraft(SimulatedSpacecraft):

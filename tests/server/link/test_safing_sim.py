@@ -8,9 +8,7 @@ safing is tested in tests/spacecraft and end to end in test_e2e.py."""
 from __future__ import annotations
 
 import asyncio
-import functools
 import logging
-from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -28,26 +26,15 @@ from telemetry.wire import SafingTrigger
 from tests.server.link.simulated import (
     EPOCH_NS,
     SimulatedSpacecraft,
-    close_grounds,
     commands,
     ground,
     make_sessions,
     pass_state,
+    simulated,
     store_pass,
 )
 
 TRIGGER = SafingTrigger(quantity="joint_tracking_error_deg", channel="joint3", value=6.2, limit=5.0)
-
-
-def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
-    @functools.wraps(test)
-    def run(*args: Any, **kwargs: Any) -> None:
-        try:
-            asyncio.run(test(*args, **kwargs))
-        finally:
-            close_grounds()
-
-    return run
 
 
 def _events(g: Any, kind: str) -> list[EventRecord]:

@@ -8,10 +8,9 @@ scripted relay and vehicle of ``simulated.py`` run on it. Each test names the ru
 from __future__ import annotations
 
 import asyncio
-import functools
 import threading
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,18 +31,9 @@ from tests.server.link.simulated import (
     kill_ground,
     make_sessions,
     pass_state,
+    simulated,
     store_pass,
 )
-
-
-def simulated(test: Callable[..., Coroutine[Any, Any, None]]) -> Callable[..., None]:
-    """Run an async test on a fresh event loop (its time is the ManualClock's)."""
-
-    @functools.wraps(test)
-    def run(*args: Any, **kwargs: Any) -> None:
-        asyncio.run(test(*args, **kwargs))
-
-    return run
 
 
 def _joints(n: int, first_tag_ns: int = 100 * 10**9) -> list[JointCommandMsg]:

@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 from server.services.report_tables import build_report
 from telemetry.mcap import TOPIC_ALARMS, read_mcap
 from telemetry.recording import PassRecording
+from tests.support.alarms import cleared_alarm
 from tests.support.api import OPERATOR, VIEWER
 from tests.support.recordings import mcap_bytes
 
@@ -31,36 +32,24 @@ def _alarms(recording: PassRecording) -> tuple[dict[str, Any], dict[str, Any]]:
             "value": value,
         }
 
-    tracking = {
-        "id": "a1a1a1a1-0000-4000-8000-000000000001",
-        "pass_id": recording.meta.get("pass_id"),
-        "quantity": "joint_tracking_error_deg",
-        "channel": "joint3",
-        "label": "joint tracking error",
-        "unit": "deg",
-        "direction": "high",
-        "source": "limit",
-        "severity": "critical",
-        "current_severity": None,
-        "state": "cleared",
-        "acknowledged": True,
-        "acknowledged_by": "otto",
-        "acknowledged_time_ns": 20_000,
-        "comment": "stuck joint",
-        "limit": 5.0,
-        "trigger_value": 2.1,
-        "worst_value": 6.5,
-        "last_value": 0.3,
-        "count": 30,
-        "raised_frame_seq": int(seq[100]),
-        "raised_generation_time_ns": int(gen[100]),
-        "raised_time_ns": 10_100,
-        "updated_time_ns": 20_000,
-        "cleared_generation_time_ns": int(gen[130]),
-        "cleared_time_ns": 10_130,
-        "timeline": [at(100, "watch", 2.1), at(110, "critical", 5.5), at(130, None, 0.3)],
-        "detail": None,
-    }
+    tracking = cleared_alarm(
+        recording.meta.get("pass_id"),
+        id="a1a1a1a1-0000-4000-8000-000000000001",
+        acknowledged_by="otto",
+        acknowledged_time_ns=20_000,
+        comment="stuck joint",
+        trigger_value=2.1,
+        worst_value=6.5,
+        last_value=0.3,
+        count=30,
+        raised_frame_seq=int(seq[100]),
+        raised_generation_time_ns=int(gen[100]),
+        raised_time_ns=10_100,
+        updated_time_ns=20_000,
+        cleared_generation_time_ns=int(gen[130]),
+        cleared_time_ns=10_130,
+        timeline=[at(100, "watch", 2.1), at(110, "critical", 5.5), at(130, None, 0.3)],
+    )
     safing = {
         **tracking,
         "id": "a1a1a1a1-0000-4000-8000-000000000002",

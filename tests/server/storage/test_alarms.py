@@ -12,6 +12,7 @@ from server.storage import alarms as repo_alarms
 from server.storage import repository as repo
 from server.storage.errors import Conflict, InvalidArgument, NotFound
 from tests.server.storage.factories import make_plan
+from tests.support.alarms import alarm_doc as support_alarm_doc
 
 NOW_NS = 1_790_000_000_000_000_000
 
@@ -31,47 +32,7 @@ def _pass(session: Session) -> str:
 
 
 def alarm_doc(pass_id: str | None, **overrides: Any) -> dict[str, Any]:
-    """A triggered watch alarm of joint3's tracking error, raised at frame 5."""
-    doc: dict[str, Any] = {
-        "id": str(uuid.uuid4()),
-        "pass_id": pass_id,
-        "quantity": "joint_tracking_error_deg",
-        "channel": "joint3",
-        "label": "joint tracking error",
-        "unit": "deg",
-        "direction": "high",
-        "source": "limit",
-        "severity": "watch",
-        "current_severity": "watch",
-        "state": "triggered",
-        "acknowledged": False,
-        "acknowledged_by": None,
-        "acknowledged_time_ns": None,
-        "comment": None,
-        "limit": 2.0,
-        "trigger_value": 2.5,
-        "worst_value": 2.5,
-        "last_value": 2.5,
-        "count": 1,
-        "raised_frame_seq": 5,
-        "raised_generation_time_ns": 500,
-        "raised_time_ns": NOW_NS,
-        "updated_time_ns": NOW_NS,
-        "cleared_generation_time_ns": None,
-        "cleared_time_ns": None,
-        "timeline": [
-            {
-                "severity": "watch",
-                "generation_time_ns": 500,
-                "time_ns": NOW_NS,
-                "frame_seq": 5,
-                "value": 2.5,
-            }
-        ],
-        "detail": None,
-    }
-    doc.update(overrides)
-    return doc
+    return support_alarm_doc(pass_id, now_ns=NOW_NS, **overrides)
 
 
 def test_an_alarm_round_trips_and_updates(session: Session) -> None:
