@@ -85,6 +85,18 @@ if command -v npm >/dev/null 2>&1; then
   (cd web && npm run --silent build)
 fi
 
+# --- the generated API client's tool (openapi-python-client), in a venv of its own ------
+if [ "$testing" = 1 ]; then
+  tool=tools/openapi-client
+  stamp=$tool/.venv/.hikoboshi-lock.sha256
+  want=$(sha256sum $tool/requirements.lock | cut -d' ' -f1)
+  if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    "$python" -m venv --clear $tool/.venv
+    $tool/.venv/bin/python -m pip install --quiet --disable-pip-version-check -r $tool/requirements.lock
+    echo "$want" > "$stamp"
+  fi
+fi
+
 # --- the tests' outside Node clients (Foxglove's own websocket client): locked ------------
 if [ "$testing" = 1 ]; then
   stamp=tests/clients/node_modules/.hikoboshi-lock.sha256

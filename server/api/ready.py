@@ -58,7 +58,7 @@ async def ready(request: Request) -> Any:
     )
 
 
-class CommandPublic(BaseModel):
+class CommandLeasePublic(BaseModel):
     #: always ``holder`` in a 200 answer
     role: Literal["holder"]
     ground: str
@@ -68,7 +68,7 @@ class CommandPublic(BaseModel):
 
 @router.get(
     "/api/command",
-    response_model=CommandPublic,
+    response_model=CommandLeasePublic,
     responses={503: {"model": ErrorPublic, "description": "A standby, and who holds the lease"}},
 )
 async def command(request: Request) -> Any:
@@ -91,6 +91,6 @@ async def command(request: Request) -> Any:
             headers={"Retry-After": "1"},
         )
     status = authority.status()
-    return CommandPublic(
+    return CommandLeasePublic(
         role="holder", ground=status["ground"], lease=status["lease"], token=status["token"]
     )
