@@ -21,8 +21,9 @@ from server.services._console_limits import (
 )
 from server.services._console_replay import TelemetryRows, telemetry_rows
 from server.services._console_streams import LinkReport, Payload, Stream
-from server.services.console_messages import ConsoleAlarm, ConsoleEvent
+from server.services.console_messages import ConsoleEvent
 from server.services.link import LinkStatus
+from telemetry.alarm import AlarmPublic
 from telemetry.wire import TelemetryFrame
 
 if TYPE_CHECKING:
@@ -114,10 +115,10 @@ class StreamBook:
     ) -> None:
         self.push(self.stream("telemetry", pass_id), key, batch, seq)
 
-    def on_alarm(self, alarm: dict[str, Any]) -> None:
-        self.deliver_alarm(ConsoleAlarm.model_validate(alarm))
+    def on_alarm(self, alarm: AlarmPublic) -> None:
+        self.deliver_alarm(alarm)
 
-    def deliver_alarm(self, alarm: ConsoleAlarm, seq: int | None = None) -> None:
+    def deliver_alarm(self, alarm: AlarmPublic, seq: int | None = None) -> None:
         self.push(self.stream("alarms"), None, alarm, seq)
 
     def deliver_link(self, report: LinkReport, seq: int | None = None) -> None:

@@ -40,7 +40,7 @@ from sqlalchemy.orm import Session
 
 from planner.limits import QUANTITIES, Severity
 from server.schemas.alarms import AlarmPublic, AlarmsPublic
-from server.services.alarm_book import Alarm, AlarmBook, Observation, QuantityInfo
+from server.services.alarm_book import AlarmBook, Observation, QuantityInfo
 from server.services.alarm_monitor import PassMonitor, observation
 from server.services.alarm_writes import AlarmWriter
 from server.services.clock import Clock
@@ -101,7 +101,7 @@ class AlarmService:
         self._vehicle: dict[str | None, AlarmBook] = {}
         self._unhook: list[Callable[[], None]] = []
         self._link_task: asyncio.Task[None] | None = None
-        self._writer = AlarmWriter(db=db, publisher=publisher, clock=clock, books=self._books)
+        self._writer = AlarmWriter(db=db, publisher=publisher, clock=clock)
         self._closed = False
         #: frames not evaluated: older than the newest evaluated of their pass
         self.frames_late = 0
@@ -118,12 +118,12 @@ class AlarmService:
     async def load_vehicle_alarms(self) -> None:
         """Take over the vehicle's alarms still listed (after a restart)."""
 
-        def job(session: Session) -> list[dict[str, Any]]:
+        def job(session: Session) -> list[AlarmPublic]:
             page = alarm_repo.list_alarms(session=session, active=True, limit=1000)
-            return [alarm_repo.alarm_document(r) for r in page.items if r.source == "vehicle"]
+            return [alarm_repo.stored_alarm(r) for r in page.items if r.source == "vehicle"]
 
-        for doc in await self._db.run(job):
-            self._vehicle_book(doc["pass_id"]).restore([Alarm.of_document(doc)])
+        for alarm in await self._db.run(job):
+            self._vehicle_book(alarm.pass_id).restore([alarm])
 
     async def close(self) -> None:
         """Stop watching; what is left to write is written."""
@@ -341,7 +341,7 @@ class AlarmService:
             lambda _severity: limit,
         )
         observation = Observation(
-            VEHICLE_SAFING, "", value, str(Severity.CRITICAL), None, report.since_time_ns
+            VEHICLE_SAFING, "", value, Severity.CRITICAL, None, report.since_time_ns
         )
         now_ns = self._clock.time_ns()
         changes = self._vehicle_book(pass_id).observe([observation], now_ns, text, info)
@@ -372,7 +372,7 @@ class AlarmService:
         clock = self._clock
         now_ns = clock.time_ns()
 
-        def job(session: Session) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        def job(session: Session) -> tuple[AlarmPublic, list[dict[str, Any]]]:
             try:
                 stored = alarm_repo.acknowledge(
                     session=session, alarm_id=alarm_id, actor=actor, time_ns=now_ns,
@@ -392,19 +392,21 @@ class AlarmService:
                 state=stored.state,
                 comment=comment,
             )
-            return alarm_repo.alarm_document(stored), [record(session, event, clock.time_ns())]
+            return alarm_repo.stored_alarm(stored), [record(session, event, clock.time_ns())]
 
-        doc, events = await self._db.run(job, control=True)
+        alarm, events = await self._db.run(job, control=True)
         for book in self._books():
-            held = book.holds(doc["id"])
+            held = book.holds(alarm.id)
             if held is not None:
-                book.acknowledged(doc["id"], actor, now_ns, comment)
+                book.acknowledged(alarm.id, actor, now_ns, comment)
                 # what the monitor knows beyond the stored row (an in-band update not yet
                 # written), with the acknowledgement
-                doc = {**held.document(), **_ack_fields(doc)}
+                alarm = held.model_copy(
+                    update={**_ack_fields(alarm), "timeline": list(held.timeline)}
+                )
         self._publisher.publish(events)
-        self._publisher.publish_alarms([doc])
-        return AlarmPublic.model_validate(doc)
+        self._publisher.publish_alarms([alarm])
+        return alarm
 
 
 def _canonical(pass_id: str | None) -> str | None:
@@ -416,9 +418,9 @@ def _canonical(pass_id: str | None) -> str | None:
         return pass_id
 
 
-def _ack_fields(doc: dict[str, Any]) -> dict[str, Any]:
+def _ack_fields(alarm: AlarmPublic) -> dict[str, Any]:
     keys = ("acknowledged", "acknowledged_by", "acknowledged_time_ns", "comment")
-    return {k: doc[k] for k in keys}
+    return {k: getattr(alarm, k) for k in keys}
 
 
 def list_alarms(
@@ -436,5 +438,5 @@ def list_alarms(
     page = alarm_repo.list_alarms(
         session=session, pass_id=pass_id, active=active, offset=offset, limit=limit
     )
-    alarms = [AlarmPublic.model_validate(alarm_repo.alarm_document(r)) for r in page.items]
+    alarms = [alarm_repo.stored_alarm(r) for r in page.items]
     return AlarmsPublic(alarms=alarms, count=page.count)

@@ -33,14 +33,13 @@ from server.services._console_protocol import (
     StepSpec,
 )
 from server.services.link import LinkStatus
+from telemetry.alarm import AlarmPublic
 from telemetry.layout import DEFAULT_LAYOUT
 
 __all__ = [
     "OMIT_IF_NONE",
     "SERVER_MESSAGES",
     "AlarmMsg",
-    "ConsoleAlarm",
-    "ConsoleAlarmTimelineEntry",
     "ConsoleEvent",
     "ConsoleRole",
     "ErrorMsg",
@@ -214,53 +213,6 @@ class EventMsg(ServerMsg):
     event: ConsoleEvent
 
 
-AlarmSeverity = Literal["watch", "warning", "distress", "critical", "severe"]
-
-
-class ConsoleAlarmTimelineEntry(_Doc):
-    """A change of an alarm's band (``severity`` null: back within limits);
-    ``generation_time_ns`` onboard, ``time_ns`` ground."""
-
-    severity: AlarmSeverity | None
-    generation_time_ns: int | None
-    time_ns: int
-    frame_seq: int | None
-    value: Number | None
-
-
-class ConsoleAlarm(_Doc):
-    """An alarm as written (docs/alarms.md; ``GET /api/alarms``'s items)."""
-
-    id: str
-    pass_id: str | None
-    quantity: str
-    channel: str
-    label: str
-    unit: str
-    direction: Literal["high", "low"]
-    source: Literal["limit", "vehicle"]
-    severity: AlarmSeverity
-    current_severity: AlarmSeverity | None
-    state: Literal["triggered", "cleared"]
-    acknowledged: bool
-    acknowledged_by: str | None
-    acknowledged_time_ns: int | None
-    comment: str | None
-    limit: Number | None
-    trigger_value: Number | None
-    worst_value: Number | None
-    last_value: Number | None
-    count: int
-    raised_frame_seq: int | None
-    raised_generation_time_ns: int | None
-    raised_time_ns: int
-    updated_time_ns: int
-    cleared_generation_time_ns: int | None
-    cleared_time_ns: int | None
-    timeline: list[ConsoleAlarmTimelineEntry]
-    detail: str | None
-
-
 class AlarmMsg(ServerMsg):
     """An alarm raised, changed band, cleared or acknowledged (topic ``alarms``; while it
     stays in its band, at most once per second). Not replayed from the database: a console
@@ -269,7 +221,7 @@ class AlarmMsg(ServerMsg):
     topic: Literal["alarms"] = "alarms"
     type: Literal["alarm"] = "alarm"
     seq: int
-    alarm: ConsoleAlarm
+    alarm: AlarmPublic
 
 
 # --- control -------------------------------------------------------------------------------

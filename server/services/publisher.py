@@ -8,6 +8,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from telemetry.alarm import AlarmPublic
 from telemetry.wire import TelemetryFrame
 
 __all__ = ["AlarmCallback", "FrameCallback", "Publisher"]
@@ -17,7 +18,7 @@ log = logging.getLogger("hikoboshi.ground.db")
 
 FrameCallback = Callable[[str, list[TelemetryFrame], int], None]
 #: Gets an alarm's JSON document (docs/alarms.md) once it is committed.
-AlarmCallback = Callable[[dict[str, Any]], None]
+AlarmCallback = Callable[[AlarmPublic], None]
 
 
 class Publisher:
@@ -43,13 +44,13 @@ class Publisher:
         self._alarm_subscribers.append(callback)
         return lambda: self._alarm_subscribers.remove(callback)
 
-    def publish_alarms(self, alarms: list[dict[str, Any]]) -> None:
+    def publish_alarms(self, alarms: list[AlarmPublic]) -> None:
         for alarm in alarms:
             for callback in list(self._alarm_subscribers):
                 try:
                     callback(alarm)
                 except Exception:
-                    log.exception("alarm subscriber failed on %s", alarm.get("id"))
+                    log.exception("alarm subscriber failed on %s", alarm.id)
 
     def publish_frames(
         self, pass_id: str, frames: list[TelemetryFrame], reception_time_ns: int
