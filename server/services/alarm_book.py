@@ -7,7 +7,11 @@ not yet acknowledged), one per quantity and channel, each the alarm's one model
 readings of one frame batch in frame order (a channel in a band, or a channel whose band
 changed, as :meth:`telemetry.limits.FrameEvaluator.evaluate` reports them):
 
-- a channel entering a band with no listed alarm raises a new alarm at that frame;
+- a channel entering a band with no listed alarm raises a new alarm at that frame, or, with
+  a ``persistence`` of N (the robot's ``[limits] persistence``, as COSMOS's limits have),
+  at the N-th consecutive reading in a band (any band; a reading within limits starts the
+  count again): a value flickering across a threshold for fewer than N samples at a time
+  raises nothing. The same holds for reopening a cleared alarm;
 - a band change of a triggered alarm is a severity change (escalation when it is worse than
   the worst so far: ``severity`` and ``limit`` follow);
 - a channel back within limits clears the alarm (``current_severity`` None); cleared and
@@ -125,7 +129,8 @@ _PRECEDENCE: dict[ChangeKind, int] = {
 class AlarmBook:
     """The listed alarms of one pass (``pass_id`` None: of no pass), by quantity and
     channel; see the module docstring. ``info`` gives a quantity's label, unit, direction
-    and thresholds (None: not a quantity this book knows; its readings are ignored)."""
+    and thresholds (None: not a quantity this book knows; its readings are ignored);
+    ``persistence``: the consecutive readings in a band that raise (or reopen) an alarm."""
 
     def __init__(
         self,
@@ -134,12 +139,16 @@ class AlarmBook:
         *,
         source: AlarmSource = "limit",
         new_id: Callable[[], str] = lambda: str(uuid.uuid4()),
+        persistence: int = 1,
     ) -> None:
         self.pass_id = pass_id
         self.source = source
         self._info = info
         self._new_id = new_id
+        self.persistence = persistence
         self.listed: dict[tuple[str, str], AlarmPublic] = {}
+        #: consecutive readings in a band of the channels with no triggered alarm
+        self._runs: dict[tuple[str, str], int] = {}
 
     def restore(self, alarms: Iterable[AlarmPublic]) -> None:
         """Take over alarms stored before (a restart): those still listed."""
@@ -169,11 +178,14 @@ class AlarmBook:
             key = (o.quantity, o.channel)
             alarm = self.listed.get(key)
             if o.severity is None:
+                self._runs.pop(key, None)
                 if alarm is not None and alarm.state == "triggered":
                     self._clear(alarm, o, now_ns)
                     note(alarm, "cleared")
                     if not alarm.active:  # acknowledged while it was triggered
                         del self.listed[key]
+                continue
+            if (alarm is None or alarm.state == "cleared") and not self._persisted(key):
                 continue
             if alarm is None:
                 described = info or self._info(o.quantity)
@@ -223,6 +235,16 @@ class AlarmBook:
                 alarm.updated_time_ns = max(alarm.updated_time_ns, time_ns)
                 if not alarm.active:
                     del self.listed[key]
+
+    def _persisted(self, key: tuple[str, str]) -> bool:
+        """Count a reading in a band of a channel whose alarm is not triggered: True at the
+        :attr:`persistence`-th in a row (the count starts again)."""
+        run = self._runs.get(key, 0) + 1
+        if run < self.persistence:
+            self._runs[key] = run
+            return False
+        self._runs.pop(key, None)
+        return True
 
     def holds(self, alarm_id: str) -> AlarmPublic | None:
         return next((a for a in self.listed.values() if a.id == alarm_id), None)

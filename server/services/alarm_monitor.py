@@ -148,7 +148,7 @@ class PassMonitor:
         if self.state is None:
             self.state = loaded.state
         self.limits, self.commanded = limits, commanded
-        self.book = AlarmBook(pass_id, _info(limits))
+        self.book = AlarmBook(pass_id, _info(limits), persistence=limits.persistence)
         self.book.restore(loaded.alarms)
         self.evaluator = evaluator
         return True
