@@ -42,7 +42,6 @@ from server.api.deps import (
     IdPath,
     LinkDep,
     OperatorDep,
-    PublisherDep,
     RunnerDep,
     SettingsDep,
     ViewerDep,
@@ -51,9 +50,9 @@ from server.api.deps import (
 from server.schemas import ERROR_RESPONSES, SafeText
 from server.schemas.passes import PassControlPublic
 from server.services.clock import Clock
-from server.services.dbworker import Database, Publisher
+from server.services.dbworker import Database
 from server.services.errors import ConflictError, InvalidRequestError, UnavailableError
-from server.services.events import PassControlRefused, event_job
+from server.services.events import PassControlRefused, Recorded, event_job
 from server.services.flight_rules import Refusal, start_gate_job
 from server.services.link import LinkUnavailable, SafeExitRefused
 from server.services.passes import check_confirmation, control_state, start_lead_s
@@ -93,11 +92,11 @@ class AbortRequest(BaseModel):
 
 def _confirmation_job(
     pass_id: str, action: str, confirm: str, actor: str, clock: Clock
-) -> Callable[[Session], tuple[str, str | None, list[dict[str, Any]]]]:
+) -> Callable[[Session], tuple[str, str | None, list[Recorded]]]:
     """A DB job: the pass's id, and the expected text when ``confirm`` is wrong (then the
     refusal is written to the audit log: its event to publish)."""
 
-    def job(session: Session) -> tuple[str, str | None, list[dict[str, Any]]]:
+    def job(session: Session) -> tuple[str, str | None, list[Recorded]]:
         return check_confirmation(
             session=session,
             pass_id=pass_id,
@@ -114,8 +113,7 @@ async def _confirmed(ground: _Ground, pass_id: str, action: str, confirm: str, a
     # Through the command path's database worker (no blocking database call in the event
     # loop, and its own connections: readers cannot hold it up), ahead of its queue.
     job = _confirmation_job(pass_id, action, confirm, actor, ground.clock)
-    key, expected, events = await ground.db.run(job, control=True)
-    ground.publisher.publish(events)
+    key, expected, _ = await ground.db.run(job, control=True)  # its refusal published on commit
     if expected is not None:
         raise InvalidRequestError(
             "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -135,7 +133,6 @@ class _Ground:
     """What pass control needs of the command path."""
 
     db: Database
-    publisher: Publisher
     clock: Clock
     runner: PassRunner
     settings: Settings
@@ -144,13 +141,12 @@ class _Ground:
 
 def _ground(
     db: DatabaseDep,
-    publisher: PublisherDep,
     clock: ClockDep,
     runner: RunnerDep,
     settings: SettingsDep,
     workers: WorkersDep,
 ) -> _Ground:
-    return _Ground(db, publisher, clock, runner, settings, workers)
+    return _Ground(db, clock, runner, settings, workers)
 
 
 def _refused(refusal: Refusal) -> ConflictError:
@@ -162,8 +158,7 @@ async def _flight_rules_kept(ground: _Ground, pass_id: str, actor: str) -> None:
     (server.services.flight_rules); a database job of the command path, no computation."""
     lead_s = start_lead_s(ground.settings)
     job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s)
-    gate = await ground.db.run(job, control=True)
-    ground.publisher.publish(gate.events)
+    gate = await ground.db.run(job, control=True)  # its refusal published on commit
     if gate.refusal is not None:
         raise _refused(gate.refusal)
 

@@ -11,7 +11,7 @@ takes a worker. The reads are plain functions (FastAPI's threadpool).
 from __future__ import annotations
 
 from functools import partial
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 
@@ -20,7 +20,6 @@ from server.api.deps import (
     ClockDep,
     IdPath,
     OperatorDep,
-    PublisherDep,
     SessionDep,
     SettingsDep,
     ViewerDep,
@@ -48,7 +47,6 @@ async def create_plan(
     who: OperatorDep,
     workers: WorkersDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PlanPublic:
     """Plan ``experiment`` with ``parameters`` for ``robot`` (a robot's name the server
     knows: shipped under ``examples/robots/`` or given at its start; none: ETS-VII) and store
@@ -58,8 +56,7 @@ async def create_plan(
     service.check_parameters(request)
     robot_path = resolve_robot(settings, request.robot)
     plan: PlanPublic
-    events: list[dict[str, Any]]
-    plan, events = await workers.run(
+    plan = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, service.create_plan),
@@ -71,7 +68,6 @@ async def create_plan(
         what=f"planning {request.experiment}",
         client=http,
     )
-    publisher.publish(events)
     return plan
 
 
@@ -109,7 +105,6 @@ async def check_plan(
     who: OperatorDep,
     workers: WorkersDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PlanPublic:
     """Check a stored plan against its robot's flight rules and store the report (for a plan
     stored before the rules, or imported: a pass's start refuses a plan the ground has not
@@ -117,8 +112,7 @@ async def check_plan(
     ``plan_checked``. 404 for an unknown plan, 409 ``robot_unknown`` when the server has no
     description of its robot, 422 ``no_collision_geometry``; 503 ``busy`` as planning."""
     plan: PlanPublic
-    events: list[dict[str, Any]]
-    plan, events = await workers.run(
+    plan = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, check_stored_plan),
@@ -130,7 +124,6 @@ async def check_plan(
         what=f"checking the flight rules of plan {plan_id}",
         client=http,
     )
-    publisher.publish(events)
     return plan
 
 

@@ -21,7 +21,8 @@ from server.services._console_limits import (
 )
 from server.services._console_replay import TelemetryRows, telemetry_rows
 from server.services._console_streams import LinkReport, Payload, Stream
-from server.services.console_messages import ConsoleEvent
+from server.services.console_messages import ConsoleEvent, console_event
+from server.services.event_log import Recorded
 from server.services.link import LinkStatus
 from telemetry.alarm import AlarmPublic
 from telemetry.wire import TelemetryFrame
@@ -87,10 +88,9 @@ class StreamBook:
         for sub in list(stream.subscriptions):
             sub.offer(message, live=True)
 
-    def on_event(self, event: dict[str, Any]) -> None:
-        pass_id = canonical_pass(event.get("pass_id"))
-        key = (event["time_ns"], event["kind"], pass_id)
-        self.deliver_event(ConsoleEvent.model_validate({**event, "pass_id": pass_id}), key)
+    def on_event(self, recorded: Recorded) -> None:
+        event = console_event(recorded)
+        self.deliver_event(event, (event.time_ns, event.kind, event.pass_id))
 
     def deliver_event(self, event: ConsoleEvent, key: Any, seq: int | None = None) -> None:
         """An event into every topic that carries its kind (numbered by JetStream: ``seq``)."""

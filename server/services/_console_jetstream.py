@@ -24,8 +24,9 @@ from pydantic import TypeAdapter
 from server.services._console_limits import canonical_pass, event_class
 from server.services._console_replay import TelemetryRows, telemetry_rows
 from server.services._console_streams import LinkReport, Message, Payload, Stream, render
-from server.services.console_messages import ConsoleEvent
+from server.services.console_messages import ConsoleEvent, console_event
 from server.services.dbworker import Publisher
+from server.services.event_log import Recorded
 from server.services.jetstream import LiveBus
 from server.services.link import LinkStatus
 from telemetry.alarm import AlarmPublic
@@ -98,10 +99,9 @@ class AcrossGrounds:
 
     # -- publishing (the publisher's callbacks: on the event loop, never block) -------------
 
-    def _publish_event(self, event: dict[str, Any]) -> None:
-        pass_id = canonical_pass(event.get("pass_id"))
-        doc = ConsoleEvent.model_validate({**event, "pass_id": pass_id})
-        subject = self.bus.subject(f"event.{event_class(doc.kind)}", pass_id)
+    def _publish_event(self, recorded: Recorded) -> None:
+        doc = console_event(recorded)
+        subject = self.bus.subject(f"event.{event_class(doc.kind)}", doc.pass_id)
         self.bus.publish(subject, doc.model_dump_json().encode())
 
     def _publish_frames(

@@ -1,5 +1,6 @@
 """Writing the ground's alarms (docs/alarms.md): through the command path's database worker,
-each published to the consoles (topic ``alarms``) once its write has committed.
+each published (to the consoles' topic ``alarms``) once its write has committed, after the
+audit events of the same transaction (:func:`~server.services.event_log.on_commit`).
 
 A raise, a change of band and a clear are written at once (one job per batch, with their
 audit events); an in-band update at most once per :data:`IN_BAND_PERIOD_S` per alarm, by a
@@ -19,8 +20,8 @@ from sqlalchemy.orm import Session
 
 from server.services.alarm_book import Change
 from server.services.clock import Clock
-from server.services.dbworker import Database, Publisher
-from server.services.events import AlarmCleared, AlarmRaised, Event, record
+from server.services.dbworker import Database
+from server.services.events import AlarmCleared, AlarmRaised, Event, on_commit, record
 from server.storage import alarms as alarm_repo
 from telemetry.alarm import AlarmPublic
 
@@ -35,9 +36,8 @@ IN_BAND_PERIOD_S = 1.0
 class AlarmWriter:
     """Writes the alarms the books changed and publishes them (see the module docstring)."""
 
-    def __init__(self, *, db: Database, publisher: Publisher, clock: Clock) -> None:
+    def __init__(self, *, db: Database, clock: Clock) -> None:
         self._db = db
-        self._publisher = publisher
         self._clock = clock
         #: ground monotonic s of each alarm's last write (in-band updates wait a second)
         self._written_mono: dict[str, float] = {}
@@ -78,26 +78,23 @@ class AlarmWriter:
             self._dirty.pop(alarm.id, None)
         clock = self._clock
 
-        def job(session: Session) -> list[dict[str, Any]]:
+        def job(session: Session) -> None:
             alarm_repo.save_alarms(
                 session=session, documents=[d.model_dump(mode="json") for d in docs]
             )
-            return [record(session, e, clock.time_ns()) for e in events]
+            for e in events:
+                record(session, e, clock.time_ns())
+            on_commit(session, *docs)  # the alarms after their events, once committed
 
         future = asyncio.ensure_future(self._db.run(job))
         self.pending.add(future)
 
-        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
+        def done(f: asyncio.Future[None]) -> None:
             self.pending.discard(future)
-            if f.cancelled():
-                return
-            if (exc := f.exception()) is not None:
+            if not f.cancelled() and (exc := f.exception()) is not None:
                 log.error("alarms not written: %r", exc)
                 for alarm in alarms:  # written again with the next flush
                     self._dirty.setdefault(alarm.id, alarm)
-                return
-            self._publisher.publish(f.result())
-            self._publisher.publish_alarms(docs)
 
         future.add_done_callback(done)
 

@@ -27,11 +27,13 @@ from pydantic import (
     model_serializer,
 )
 
+from server.services._console_limits import canonical_pass
 from server.services._console_protocol import (
     AsFastAsPossibleSpec,
     RealTimeSpec,
     StepSpec,
 )
+from server.services.event_log import Recorded
 from server.services.link import LinkStatus
 from telemetry.alarm import AlarmPublic
 from telemetry.layout import DEFAULT_LAYOUT
@@ -63,6 +65,7 @@ __all__ = [
     "UnsubscribedMsg",
     "WelcomeLimits",
     "WelcomeMsg",
+    "console_event",
     "omitted_if_none",
 ]
 
@@ -202,6 +205,18 @@ class ConsoleEvent(_Doc):
     pass_id: str | None
     time_ns: int
     id: int | None = omitted_if_none()
+
+
+def console_event(recorded: Recorded) -> ConsoleEvent:
+    """A committed event (typed, as the publisher hands it) as consoles get it."""
+    return ConsoleEvent(
+        kind=recorded.kind,
+        actor=recorded.actor,
+        detail=recorded.event.detail(),
+        pass_id=canonical_pass(recorded.pass_id),
+        time_ns=recorded.time_ns,
+        id=recorded.id,
+    )
 
 
 class EventMsg(ServerMsg):

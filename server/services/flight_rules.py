@@ -34,7 +34,7 @@ from planner.plan import Plan
 from server.schemas.plans import PlanPublic
 from server.services.clock import Clock
 from server.services.errors import ConflictError
-from server.services.events import PassStartRefusedFlightRules, PlanChecked
+from server.services.events import PassStartRefusedFlightRules, PlanChecked, Recorded
 from server.services.events import record as record_event
 from server.services.plans import (
     FLIGHT_RULE_VIOLATION,
@@ -75,7 +75,7 @@ class StartGate:
 
     plan_id: str
     refusal: Refusal | None = None
-    events: list[dict[str, Any]] = field(default_factory=list)
+    events: list[Recorded] = field(default_factory=list)
 
 
 def pass_window_s(record: PassRecord, lead_s: float) -> float:

@@ -28,7 +28,7 @@ import hashlib
 import io
 import time
 import uuid
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -333,7 +333,7 @@ def import_mcap(
 
 def import_file_job(
     url: str, path: str, actor: str, max_uncompressed_bytes: int, now_ns: int | None = None
-) -> tuple[PassImportPublic, list[dict[str, Any]]]:
+) -> tuple[PassImportPublic, Sequence[Any]]:
     """A worker job (:mod:`server.services.workers`): :func:`import_mcap` of the upload the
     route spooled to ``path``, on the job's own connection to ``url``; with the events it
     wrote, for the server to publish."""
