@@ -141,11 +141,8 @@ class AlarmBook:
         new_id: Callable[[], str] = lambda: str(uuid.uuid4()),
         persistence: int = 1,
     ) -> None:
-        self.pass_id = pass_id
-        self.source = source
-        self._info = info
-        self._new_id = new_id
-        self.persistence = persistence
+        self.pass_id, self.source, self.persistence = pass_id, source, persistence
+        self._info, self._new_id = info, new_id
         self.listed: dict[tuple[str, str], AlarmPublic] = {}
         #: consecutive readings in a band of the channels with no triggered alarm
         self._runs: dict[tuple[str, str], int] = {}

@@ -13,22 +13,8 @@ import logging
 from typing import Any
 
 from planner.limits import Severity
+from server.services import events as ev
 from server.services.event_log import Event, Recorded
-from server.services.events_link import (
-    VehicleSafed,
-    VehicleSafeExited,
-    VehicleSafeExitRequested,
-    VehicleSafeExitUnverified,
-)
-from server.services.events_passes import (
-    AlarmAcknowledged,
-    AlarmCleared,
-    AlarmRaised,
-    PassControlRefused,
-    PassStartRefused,
-    PassStartRefusedFlightRules,
-    PassState,
-)
 
 __all__ = ["ALARM_LEVELS", "LOGGED", "LOGGED_KINDS", "log_event"]
 
@@ -44,12 +30,12 @@ def _value(value: Any) -> str:
     return "-" if value is None else f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
-def _pass_state(e: PassState) -> tuple[int, str]:
+def _pass_state(e: ev.PassState) -> tuple[int, str]:
     level = logging.WARNING if e.to in ("aborted", "safed") else logging.INFO
     return level, f"{e.from_state} -> {e.to}: {e.reason}"
 
 
-def _safed(e: VehicleSafed) -> tuple[int, str]:
+def _safed(e: ev.VehicleSafed) -> tuple[int, str]:
     trigger = e.trigger or {}
     what = f"{trigger.get('quantity', '?')} {trigger.get('channel', '')}".rstrip()
     at = f"{_value(trigger.get('value'))} against {_value(trigger.get('limit'))}"
@@ -59,7 +45,7 @@ def _safed(e: VehicleSafed) -> tuple[int, str]:
     )
 
 
-def _alarm_raised(e: AlarmRaised) -> tuple[int, str]:
+def _alarm_raised(e: ev.AlarmRaised) -> tuple[int, str]:
     again = " again" if e.reopened else ""
     return ALARM_LEVELS.get(e.severity, logging.WARNING), (
         f"alarm {e.severity.upper()}{again}: {e.quantity} {e.channel}".rstrip()
@@ -67,59 +53,59 @@ def _alarm_raised(e: AlarmRaised) -> tuple[int, str]:
     )
 
 
-def _alarm_cleared(e: AlarmCleared) -> tuple[int, str]:
+def _alarm_cleared(e: ev.AlarmCleared) -> tuple[int, str]:
     what = f"{e.severity.upper()} {e.quantity} {e.channel}".rstrip()
     return logging.INFO, f"alarm cleared: {what} = {_value(e.value)}"
 
 
-def _alarm_acknowledged(e: AlarmAcknowledged) -> tuple[int, str]:
+def _alarm_acknowledged(e: ev.AlarmAcknowledged) -> tuple[int, str]:
     what = f"{e.severity.upper()} {e.quantity} {e.channel}".rstrip()
     return logging.INFO, f"alarm acknowledged: {what}" + (f": {e.comment}" if e.comment else "")
 
 
-def _start_refused(e: PassStartRefused | PassStartRefusedFlightRules) -> tuple[int, str]:
+def _start_refused(e: ev.PassStartRefused | ev.PassStartRefusedFlightRules) -> tuple[int, str]:
     return logging.WARNING, f"start refused ({e.reason}): {e.message}"
 
 
 def _line(event: Event) -> tuple[int, str] | None:
     """The level and text of an event's line (the actor and pass added), None: no line."""
     match event:
-        case PassState():
+        case ev.PassState():
             return _pass_state(event)
-        case VehicleSafed():
+        case ev.VehicleSafed():
             return _safed(event)
-        case VehicleSafeExitRequested(request_id=request):
+        case ev.VehicleSafeExitRequested(request_id=request):
             return logging.INFO, f"safe exit {request} sent"
-        case VehicleSafeExited(request_id=request):
+        case ev.VehicleSafeExited(request_id=request):
             return logging.WARNING, f"vehicle left SAFE (safe exit {request})"
-        case VehicleSafeExitUnverified(request_id=request, transmissions=n):
+        case ev.VehicleSafeExitUnverified(request_id=request, transmissions=n):
             return logging.WARNING, f"safe exit {request} not confirmed after {n} copies"
-        case AlarmRaised():
+        case ev.AlarmRaised():
             return _alarm_raised(event)
-        case AlarmCleared():
+        case ev.AlarmCleared():
             return _alarm_cleared(event)
-        case AlarmAcknowledged():
+        case ev.AlarmAcknowledged():
             return _alarm_acknowledged(event)
-        case PassStartRefused() | PassStartRefusedFlightRules():
+        case ev.PassStartRefused() | ev.PassStartRefusedFlightRules():
             return _start_refused(event)
-        case PassControlRefused(action=action, confirm=confirm):
+        case ev.PassControlRefused(action=action, confirm=confirm):
             return logging.WARNING, f"{action} refused: the confirmation {confirm!r} does not match"
     return None
 
 
 #: The events that get a line.
 LOGGED: tuple[type[Event], ...] = (
-    PassState,
-    VehicleSafed,
-    VehicleSafeExitRequested,
-    VehicleSafeExited,
-    VehicleSafeExitUnverified,
-    AlarmRaised,
-    AlarmCleared,
-    AlarmAcknowledged,
-    PassStartRefused,
-    PassStartRefusedFlightRules,
-    PassControlRefused,
+    ev.PassState,
+    ev.VehicleSafed,
+    ev.VehicleSafeExitRequested,
+    ev.VehicleSafeExited,
+    ev.VehicleSafeExitUnverified,
+    ev.AlarmRaised,
+    ev.AlarmCleared,
+    ev.AlarmAcknowledged,
+    ev.PassStartRefused,
+    ev.PassStartRefusedFlightRules,
+    ev.PassControlRefused,
 )
 #: The kinds of events that get a line.
 LOGGED_KINDS = frozenset(cls.kind for cls in LOGGED)
