@@ -236,22 +236,12 @@ class WorkerPool:
             raise
 
     async def run_written(
-        self,
-        fn: Callable[..., tuple[T, Sequence[Any]]],
-        /,
-        *args: Any,
-        deadline_s: float,
-        what: str,
-        client: _Disconnectable | None = None,
-        **kwargs: Any,
+        self, fn: Callable[..., tuple[T, Sequence[Any]]], /, *args: Any, **kwargs: Any
     ) -> T:
-        """:meth:`run` of a job that writes and commits on its own connection and returns
-        ``(result, what it wrote to publish)`` (:func:`~server.services.event_log.
-        with_written`): that is published (the job's process has no publisher: the place
-        that commits is out of reach), the result returned."""
-        result, written = await self.run(
-            fn, *args, deadline_s=deadline_s, what=what, client=client, **kwargs
-        )
+        """:meth:`run` of a job that commits on its own connection and returns ``(result,
+        what it wrote to publish)`` (``event_log.with_written``): that is published here (the
+        job's process has no publisher), the result returned."""
+        result, written = await self.run(fn, *args, **kwargs)
         if self.publisher is not None:
             self.publisher.deliver(written)
         return result
