@@ -35,6 +35,7 @@ from planner.errors import InvalidInput
 
 __all__ = [
     "DEFAULT_LIMITS",
+    "MAX_PERSISTENCE",
     "QUANTITIES",
     "RED",
     "SEVERITIES",
@@ -260,14 +261,27 @@ def _levels() -> str:
     return ", ".join(s.value for s in SEVERITIES)
 
 
+#: The most consecutive samples a persistence may ask for (at 10 Hz, 100 s).
+MAX_PERSISTENCE = 1000
+
+
 @dataclass(frozen=True)
 class Limits:
     """A robot's bands, by quantity name (every quantity of :data:`QUANTITIES` when built
-    by :meth:`from_table`)."""
+    by :meth:`from_table`), and its ``persistence`` (as COSMOS's limits have one): a channel
+    must be in a band for this many consecutive samples (frames, or the link's checks)
+    before its alarm is raised; 1, the default, raises on the first."""
 
     bands: Mapping[str, Bands]
+    persistence: int = 1
 
     def __post_init__(self) -> None:
+        n = self.persistence
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_PERSISTENCE:
+            raise InvalidInput(
+                f"[limits].persistence: must be a whole number of samples from 1 to "
+                f"{MAX_PERSISTENCE}, got {n!r}"
+            )
         for name, bands in self.bands.items():
             _quantity(name, "limits")
             if bands.quantity != name:
@@ -276,13 +290,23 @@ class Limits:
 
     @classmethod
     def from_table(cls, table: Mapping[str, object], *, where: str = "[limits]") -> Limits:
-        """A ``[limits]`` table, ``{quantity: {severity: threshold}}``, over
-        :data:`DEFAULT_LIMITS` (a quantity left out takes its default). Refused with
-        :class:`InvalidInput` naming the bad key and value."""
-        return cls({**DEFAULT_LIMITS.bands, **_bands_from_table(table, where)})
+        """A ``[limits]`` table, ``{quantity: {severity: threshold}}`` and an optional
+        ``persistence = N``, over :data:`DEFAULT_LIMITS` (a quantity left out takes its
+        default). Refused with :class:`InvalidInput` naming the bad key and value."""
+        if not isinstance(table, Mapping):
+            raise InvalidInput(f"{where}: must be a table, got {table!r}")
+        quantities = {k: v for k, v in table.items() if k != "persistence"}
+        persistence = table.get("persistence", 1)
+        bands = {**DEFAULT_LIMITS.bands, **_bands_from_table(quantities, where)}
+        return cls(bands, persistence)  # type: ignore[arg-type]  # checked by __post_init__
 
-    def to_table(self) -> dict[str, dict[str, float]]:
-        return {name: bands.to_dict() for name, bands in self.bands.items()}
+    def to_table(self) -> dict[str, dict[str, float] | int]:
+        out: dict[str, dict[str, float] | int] = {
+            name: bands.to_dict() for name, bands in self.bands.items()
+        }
+        if self.persistence != 1:
+            out["persistence"] = self.persistence
+        return out
 
     def safing_limits(self) -> dict[str, float]:
         """The red threshold of each safing quantity that has one."""

@@ -62,6 +62,7 @@ from server.services.console_seats import ConsoleSeats
 from server.services.dbworker import Database, Publisher, frames_apart_for
 from server.services.downlink import GroundDownlink
 from server.services.event_lines import log_event
+from server.services.event_log import publish_on_commit
 from server.services.ground_status import ground_status
 from server.services.imports import SpoolBudget
 from server.services.jetstream import BusConfig, LiveBus
@@ -313,6 +314,10 @@ def create_app(settings: Settings) -> FastAPI:
             clock=SystemClock(),
             authority=authority,
         )
+        # what a request's transaction writes (a pass scheduled, an auth block) is published
+        # when it commits, as the command path's is (its factory is hooked by its worker)
+        for writing in (app.state.sessions, app.state.operator_sessions):
+            publish_on_commit(writing, live.publisher)
         app.state.authority = authority
         live.link.ground_status = ground_status(authority, live.db)
         # before the first transaction of the command path: each is fenced by the lease
@@ -348,6 +353,7 @@ def create_app(settings: Settings) -> FastAPI:
             workers=settings.worker_processes,
             queue=settings.worker_queue,
             memory_bytes=settings.worker_memory_bytes or None,
+            publisher=live.publisher,
         )
         await app.state.workers.start()
         # Heavy artifacts (recording, report, figures): computed once, served from files.

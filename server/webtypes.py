@@ -2,6 +2,7 @@
 
 - the types of the console's server -> console messages, from the JSON Schema of their
   models (:mod:`server.services.console_messages`);
+- the alarms' severities (:data:`planner.limits.SEVERITIES`, the single definition);
 - a command's stages, their ranks and the final ones
   (:data:`server.services.command_stages.FINAL_STAGES`, the single definition);
 - the telemetry frame's layout (:class:`telemetry.layout.FrameLayout`): its vectors' column
@@ -22,6 +23,7 @@ from typing import Any
 
 from pydantic.json_schema import models_json_schema
 
+from planner.limits import SEVERITIES
 from server.services._console_protocol import PROTOCOL_VERSION
 from server.services.command_stages import FINAL_STAGES, STAGE_RANK
 from server.services.console_messages import OMIT_IF_NONE, SERVER_MESSAGES
@@ -260,6 +262,11 @@ def generate() -> str:
         ],
         ["// --- server -> console messages (server/services/console_messages.py) ---"],
         message_types(),
+        ["// --- alarms ---"],
+        [
+            "/** Yamcs's five alarm levels, least severe first (planner/limits.py SEVERITIES). */",
+            f"export const SEVERITIES = {json.dumps([s.value for s in SEVERITIES])} as const;",
+        ],
         ["// --- command stages ---"],
         stage_constants(),
         ["// --- the telemetry frame's layout ---"],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import matplotlib
@@ -23,6 +23,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from planner.limits import Severity
+from telemetry.alarm import AlarmPublic
 from telemetry.analysis import (
     EndpointAnalysis,
     HandAttitudeAnalysis,
@@ -300,17 +302,15 @@ def pass_figures(analysis: PassAnalysis) -> dict[str, bytes]:
 
 #: Band colours of the alarm timeline, lowest severity first (Yamcs's five levels).
 _SEVERITY_COLOURS = {
-    "watch": "#9ecae1",
-    "warning": "#fdd835",
-    "distress": "#fb8c00",
-    "critical": "#e53935",
-    "severe": "#6a1b9a",
+    Severity.WATCH: "#9ecae1",
+    Severity.WARNING: "#fdd835",
+    Severity.DISTRESS: "#fb8c00",
+    Severity.CRITICAL: "#e53935",
+    Severity.SEVERE: "#6a1b9a",
 }
 
 
-def alarm_timeline_figure(
-    alarms: Sequence[Mapping[str, Any]], epoch_ns: int, end_t_s: float
-) -> bytes:
+def alarm_timeline_figure(alarms: Sequence[AlarmPublic], epoch_ns: int, end_t_s: float) -> bytes:
     """One row per alarm (its quantity and channel), coloured by the band it was in over the
     plan's clock (s from ``t = 0``; onboard times of its frames). A band lasts until the
     alarm's next change, or ``end_t_s`` when none came; ground-timed changes (the link's
@@ -319,17 +319,16 @@ def alarm_timeline_figure(
     rows = []
     for alarm in alarms:
         spans = []
-        timeline = [e for e in alarm.get("timeline") or () if e.get("generation_time_ns")]
-        for k, entry in enumerate(timeline):
-            severity = entry.get("severity")
+        timeline = [
+            (e.generation_time_ns, e.severity) for e in alarm.timeline if e.generation_time_ns
+        ]
+        for k, (gen, severity) in enumerate(timeline):
             if severity is None:
                 continue
-            t0 = (int(entry["generation_time_ns"]) - epoch_ns) / 1e9
-            after = timeline[k + 1] if k + 1 < len(timeline) else None
-            t1 = end_t_s if after is None else (int(after["generation_time_ns"]) - epoch_ns) / 1e9
+            t0 = (gen - epoch_ns) / 1e9
+            t1 = end_t_s if k + 1 == len(timeline) else (timeline[k + 1][0] - epoch_ns) / 1e9
             spans.append((t0, max(t1 - t0, 0.0), severity))
-        channel = alarm.get("channel") or ""
-        rows.append((f"{alarm.get('quantity')}{' ' + channel if channel else ''}", spans))
+        rows.append((f"{alarm.quantity}{' ' + alarm.channel if alarm.channel else ''}", spans))
 
     def draw(fig: Figure) -> None:
         ax = fig.subplots()

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.plan import Plan
+from telemetry.alarm import AlarmPublic
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.wire import (
     MAX_BASE_RATE_RADPS,
@@ -152,9 +153,9 @@ class PassRecording:
     events: tuple[EventRow, ...] = ()
     #: Free-form facts about the pass (id, state, relay, AOS/LOS, source).
     meta: Mapping[str, Any] = field(default_factory=dict)
-    #: The pass's alarms, oldest raised first: each the alarm's JSON (docs/alarms.md), its
-    #: ``timeline`` of band changes included.
-    alarms: tuple[Mapping[str, Any], ...] = ()
+    #: The pass's alarms, oldest raised first (docs/alarms.md), each its ``timeline`` of band
+    #: changes included.
+    alarms: tuple[AlarmPublic, ...] = ()
 
     def t_s(self) -> Array:
         """Frame times on the plan's clock: s from the plan's ``t = 0``."""

@@ -20,7 +20,6 @@ from server.api.deps import (
     ClockDep,
     IdPath,
     OperatorDep,
-    PublisherDep,
     SessionDep,
     SettingsDep,
     ViewerDep,
@@ -58,15 +57,12 @@ async def run_analyses(
     settings: SettingsDep,
     who: OperatorDep,
     workers: WorkersDep,
-    publisher: PublisherDep,
     clock: ClockDep,
 ) -> AnalysesPublic:
     """Analyse the flown pass afresh (tens of seconds for a whole pass, in a worker process
     on its own connection; past ``post_pass_deadline_s``, 504) and store one result of each
     kind; an analysis that cannot run on this pass is stored as failed, with the reason."""
-    analyses: AnalysesPublic
-    events: list[dict[str, Any]]
-    analyses, events = await workers.run(
+    analyses: AnalysesPublic = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, service.run_analyses),
@@ -78,7 +74,6 @@ async def run_analyses(
         what=f"the analyses of pass {pass_id}",
         client=http,
     )
-    publisher.publish(events)
     return analyses
 
 

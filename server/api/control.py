@@ -44,7 +44,6 @@ from server.api.deps import (
     IdPath,
     LinkDep,
     OperatorDep,
-    PublisherDep,
     RunnerDep,
     SettingsDep,
     ViewerDep,
@@ -55,9 +54,9 @@ from server.operations.windows import start_lead_s, window_time
 from server.schemas import ERROR_RESPONSES, SafeText
 from server.schemas.passes import PassControlPublic
 from server.services.clock import Clock
-from server.services.dbworker import Database, Publisher
+from server.services.dbworker import Database
 from server.services.errors import ConflictError, InvalidRequestError, UnavailableError
-from server.services.events import PassControlRefused, event_job
+from server.services.events import PassControlRefused, Recorded, event_job
 from server.services.link import GroundLink, LinkUnavailable, SafeExitRefused
 from server.services.passes import check_confirmation, control_state
 from server.services.runner import PassRunner
@@ -96,11 +95,11 @@ class AbortRequest(BaseModel):
 
 def _confirmation_job(
     pass_id: str, action: str, confirm: str, actor: str, clock: Clock
-) -> Callable[[Session], tuple[str, str | None, list[dict[str, Any]]]]:
+) -> Callable[[Session], tuple[str, str | None, list[Recorded]]]:
     """A DB job: the pass's id, and the expected text when ``confirm`` is wrong (then the
     refusal is written to the audit log: its event to publish)."""
 
-    def job(session: Session) -> tuple[str, str | None, list[dict[str, Any]]]:
+    def job(session: Session) -> tuple[str, str | None, list[Recorded]]:
         return check_confirmation(
             session=session,
             pass_id=pass_id,
@@ -117,8 +116,7 @@ async def _confirmed(ground: _Ground, pass_id: str, action: str, confirm: str, a
     # Through the command path's database worker (no blocking database call in the event
     # loop, and its own connections: readers cannot hold it up), ahead of its queue.
     job = _confirmation_job(pass_id, action, confirm, actor, ground.clock)
-    key, expected, events = await ground.db.run(job, control=True)
-    ground.publisher.publish(events)
+    key, expected, _ = await ground.db.run(job, control=True)  # its refusal published on commit
     if expected is not None:
         raise InvalidRequestError(
             "confirmation_mismatch", f"confirm must be exactly {expected!r}, got {confirm!r}"
@@ -138,7 +136,6 @@ class _Ground:
     """What pass control needs of the command path."""
 
     db: Database
-    publisher: Publisher
     clock: Clock
     runner: PassRunner
     settings: Settings
@@ -148,14 +145,13 @@ class _Ground:
 
 def _ground(
     db: DatabaseDep,
-    publisher: PublisherDep,
     clock: ClockDep,
     runner: RunnerDep,
     settings: SettingsDep,
     workers: WorkersDep,
     link: LinkDep,
 ) -> _Ground:
-    return _Ground(db, publisher, clock, runner, settings, workers, link)
+    return _Ground(db, clock, runner, settings, workers, link)
 
 
 async def _may_start(ground: _Ground, pass_id: str, actor: str) -> None:
@@ -167,8 +163,7 @@ async def _may_start(ground: _Ground, pass_id: str, actor: str) -> None:
     lead_s = start_lead_s(ground.settings, link.time_scale if link.connected else 1.0)
     at = window_time(ground.settings, ground.clock.time_ns(), link)
     job = start_gate_job(pass_id=pass_id, actor=actor, clock=ground.clock, lead_s=lead_s, at=at)
-    gate = await ground.db.run(job, control=True)
-    ground.publisher.publish(gate.events)
+    gate = await ground.db.run(job, control=True)  # its refusal published on commit
     if gate.refusal is not None:
         raise gate.refusal.error()
 

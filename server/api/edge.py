@@ -383,12 +383,11 @@ def install_edge(app: FastAPI, settings: Settings) -> AuthGuard:
 
 
 def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> None:
-    """Write an ``auth_blocked`` event to the audit log (the events table) and show it to
-    the consoles: once per blocked window and address, so an attacker cannot make the
-    service write more than that. On the readers' connections, in a thread: never on the
-    command path's."""
+    """Write an ``auth_blocked`` event to the audit log (the events table), shown to the
+    consoles once it commits (the sessions' hook): once per blocked window and address, so
+    an attacker cannot make the service write more than that. On the readers' connections,
+    in a thread: never on the command path's."""
     sessions = getattr(app.state, "sessions", None)
-    publisher = getattr(app.state, "publisher", None)
     clock: Clock = getattr(app.state, "clock", None) or SystemClock()
     if sessions is None:
         return
@@ -397,16 +396,13 @@ def _record_block(app: FastAPI, address: str, failures: int, left_s: float) -> N
         actor="edge", address=address, failures=failures, blocked_s=round(left_s, 1)
     )
 
-    def write() -> dict[str, Any]:
+    def write() -> None:
         with sessions() as session:
-            event = record(session, blocked, clock.time_ns())
+            record(session, blocked, clock.time_ns())
             session.commit()
-            return event
 
-    def done(future: asyncio.Future[dict[str, Any]]) -> None:
+    def done(future: asyncio.Future[None]) -> None:
         if future.cancelled() or future.exception() is not None:
             log.error("auth_blocked event not written: %r", future.exception())
-        elif publisher is not None:
-            publisher.publish([future.result()])
 
     loop.run_in_executor(None, write).add_done_callback(done)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from anyio import from_thread
 from fastapi import APIRouter, Query
 
 from server.api.deps import (
@@ -12,7 +11,6 @@ from server.api.deps import (
     DownlinkDep,
     IdPath,
     OperatorDep,
-    PublisherDep,
     SessionDep,
     SettingsDep,
     ViewerDep,
@@ -34,7 +32,6 @@ from server.schemas.passes import (
     PassSummaryPublic,
 )
 from server.services import passes as service
-from server.services.events import written
 from server.services.summary import pass_summary
 
 __all__ = ["router"]
@@ -49,20 +46,16 @@ def schedule_pass(
     settings: SettingsDep,
     who: OperatorDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PassPublic:
     """Schedule a pass of a stored plan in a window given by hand (``aos_time``,
     ``los_time``) or named (``window``: mission, relay, AOS time; the pass then runs in the
     window's net time, and the window is stored with it). The window must hold the plan and
     the start lead: 409 ``plan_exceeds_window`` (either kind, docs/missions.md); 404
     ``unknown_mission``, ``unknown_relay``, ``no_such_window``."""
-    scheduled = schedule(
+    # its event goes to the consoles when the service commits (the sessions' hook)
+    return schedule(
         session=session, settings=settings, request=request, actor=who.name, now_ns=clock.time_ns()
     )
-    # committed: its event goes to the consoles, on the event loop (this route runs in a
-    # worker thread)
-    from_thread.run_sync(publisher.publish, written(session))
-    return scheduled
 
 
 @router.get("", response_model=PassesPublic)

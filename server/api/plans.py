@@ -14,7 +14,7 @@ functions (FastAPI's threadpool).
 from __future__ import annotations
 
 from functools import partial
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 
@@ -23,7 +23,6 @@ from server.api.deps import (
     ClockDep,
     IdPath,
     OperatorDep,
-    PublisherDep,
     SessionDep,
     SettingsDep,
     ViewerDep,
@@ -53,7 +52,6 @@ async def create_plan(
     who: OperatorDep,
     workers: WorkersDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PlanPublic:
     """Plan ``experiment`` with ``parameters`` for ``robot`` (a robot's name the server
     knows: shipped under ``examples/robots/`` or given at its start; none: ETS-VII) and store
@@ -63,8 +61,7 @@ async def create_plan(
     service.check_parameters(request)
     robot_path = resolve_robot(settings, request.robot)
     plan: PlanPublic
-    events: list[dict[str, Any]]
-    plan, events = await workers.run(
+    plan = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, operations.create_plan),
@@ -76,7 +73,6 @@ async def create_plan(
         what=f"planning {request.experiment}",
         client=http,
     )
-    publisher.publish(events)
     return plan
 
 
@@ -96,7 +92,6 @@ async def upload_plan_document(
     who: OperatorDep,
     workers: WorkersDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PlanPublic:
     """Store a plan document (the body: the file ``hikoboshi plan ... --out FILE`` wrote,
     ``hikoboshi plan upload FILE`` sends it) exactly as its commands are: a pass of it flies
@@ -118,8 +113,7 @@ async def upload_plan_document(
             raise request_too_large(size, limit)
         chunks.append(chunk)
     plan: PlanPublic
-    events: list[dict[str, Any]]
-    plan, events = await workers.run(
+    plan = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, operations.upload_document),
@@ -133,7 +127,6 @@ async def upload_plan_document(
         what="checking an uploaded plan document",
         client=http,
     )
-    publisher.publish(events)
     return plan
 
 
@@ -171,7 +164,6 @@ async def check_plan(
     who: OperatorDep,
     workers: WorkersDep,
     clock: ClockDep,
-    publisher: PublisherDep,
 ) -> PlanPublic:
     """Check a stored plan against its robot's flight rules and store the report (for a plan
     stored before the rules, or imported: a pass's start refuses a plan the ground has not
@@ -179,8 +171,7 @@ async def check_plan(
     ``plan_checked``. 404 for an unknown plan, 409 ``robot_unknown`` when the server has no
     description of its robot, 422 ``no_collision_geometry``; 503 ``busy`` as planning."""
     plan: PlanPublic
-    events: list[dict[str, Any]]
-    plan, events = await workers.run(
+    plan = await workers.run_written(
         session_job,
         settings.resolved_database_url(),
         partial(with_written, operations.check_stored_plan),
@@ -192,7 +183,6 @@ async def check_plan(
         what=f"checking the flight rules of plan {plan_id}",
         client=http,
     )
-    publisher.publish(events)
     return plan
 
 

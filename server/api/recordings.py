@@ -20,7 +20,6 @@ from server.api.deps import (
     ClockDep,
     IdPath,
     OperatorDep,
-    PublisherDep,
     SettingsDep,
     ViewerDep,
     WorkersDep,
@@ -92,7 +91,6 @@ async def import_recording(
     settings: SettingsDep,
     who: OperatorDep,
     workers: WorkersDep,
-    publisher: PublisherDep,
     clock: ClockDep,
     spools: SpoolsDep,
 ) -> PassImportPublic:
@@ -115,7 +113,7 @@ async def import_recording(
     with spools.hold() as hold:
         if declared.isdigit():
             hold.take(int(declared))  # admitted whole, or refused unread
-        return await _spool_and_import(request, settings, who.name, workers, publisher, clock, hold)
+        return await _spool_and_import(request, settings, who.name, workers, clock, hold)
 
 
 async def _spool_and_import(
@@ -123,7 +121,6 @@ async def _spool_and_import(
     settings: SettingsDep,
     actor: str,
     workers: WorkersDep,
-    publisher: PublisherDep,
     clock: ClockDep,
     hold: SpoolHold,
 ) -> PassImportPublic:
@@ -138,7 +135,7 @@ async def _spool_and_import(
                     raise _too_large(size, limit)
                 hold.take(size)
                 spool.write(chunk)
-        imported, events = await workers.run(
+        imported: PassImportPublic = await workers.run_written(
             import_file_job,
             settings.resolved_database_url(),
             str(path),
@@ -149,7 +146,6 @@ async def _spool_and_import(
             what="the import",
             client=request,
         )
-        publisher.publish(events)
         return imported
     finally:
         path.unlink(missing_ok=True)

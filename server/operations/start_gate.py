@@ -25,14 +25,13 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 from sqlalchemy.orm import Session
 
 from planner.flight_rules import FlightRulesReport, fits_pass_row
 from server.operations.windows import Refusal, WindowTime, start_refusal
 from server.services.clock import Clock
-from server.services.events import PassStartRefusedFlightRules
+from server.services.events import PassStartRefusedFlightRules, Recorded
 from server.services.events import record as record_event
 from server.services.plans import FLIGHT_RULE_VIOLATION, violation_message
 from server.storage import repository as repo
@@ -51,7 +50,7 @@ class StartGate:
 
     plan_id: str
     refusal: Refusal | None = None
-    events: list[dict[str, Any]] = field(default_factory=list)
+    events: list[Recorded] = field(default_factory=list)
 
 
 def pass_window_s(record: PassRecord, lead_s: float, scale: float = 1.0) -> float:

@@ -21,8 +21,10 @@ from server.services._console_limits import (
 )
 from server.services._console_replay import TelemetryRows, telemetry_rows
 from server.services._console_streams import LinkReport, Payload, Stream
-from server.services.console_messages import ConsoleAlarm, ConsoleEvent
+from server.services.console_messages import ConsoleEvent, console_event
+from server.services.event_log import Recorded
 from server.services.link import LinkStatus
+from telemetry.alarm import AlarmPublic
 from telemetry.wire import TelemetryFrame
 
 if TYPE_CHECKING:
@@ -86,10 +88,9 @@ class StreamBook:
         for sub in list(stream.subscriptions):
             sub.offer(message, live=True)
 
-    def on_event(self, event: dict[str, Any]) -> None:
-        pass_id = canonical_pass(event.get("pass_id"))
-        key = (event["time_ns"], event["kind"], pass_id)
-        self.deliver_event(ConsoleEvent.model_validate({**event, "pass_id": pass_id}), key)
+    def on_event(self, recorded: Recorded) -> None:
+        event = console_event(recorded)
+        self.deliver_event(event, (event.time_ns, event.kind, event.pass_id))
 
     def deliver_event(self, event: ConsoleEvent, key: Any, seq: int | None = None) -> None:
         """An event into every topic that carries its kind (numbered by JetStream: ``seq``)."""
@@ -114,10 +115,10 @@ class StreamBook:
     ) -> None:
         self.push(self.stream("telemetry", pass_id), key, batch, seq)
 
-    def on_alarm(self, alarm: dict[str, Any]) -> None:
-        self.deliver_alarm(ConsoleAlarm.model_validate(alarm))
+    def on_alarm(self, alarm: AlarmPublic) -> None:
+        self.deliver_alarm(alarm)
 
-    def deliver_alarm(self, alarm: ConsoleAlarm, seq: int | None = None) -> None:
+    def deliver_alarm(self, alarm: AlarmPublic, seq: int | None = None) -> None:
         self.push(self.stream("alarms"), None, alarm, seq)
 
     def deliver_link(self, report: LinkReport, seq: int | None = None) -> None:

@@ -24,10 +24,12 @@ from pydantic import TypeAdapter
 from server.services._console_limits import canonical_pass, event_class
 from server.services._console_replay import TelemetryRows, telemetry_rows
 from server.services._console_streams import LinkReport, Message, Payload, Stream, render
-from server.services.console_messages import ConsoleAlarm, ConsoleEvent
+from server.services.console_messages import ConsoleEvent, console_event
 from server.services.dbworker import Publisher
+from server.services.event_log import Recorded
 from server.services.jetstream import LiveBus
 from server.services.link import LinkStatus
+from telemetry.alarm import AlarmPublic
 from telemetry.wire import TelemetryFrame
 
 if TYPE_CHECKING:
@@ -97,10 +99,9 @@ class AcrossGrounds:
 
     # -- publishing (the publisher's callbacks: on the event loop, never block) -------------
 
-    def _publish_event(self, event: dict[str, Any]) -> None:
-        pass_id = canonical_pass(event.get("pass_id"))
-        doc = ConsoleEvent.model_validate({**event, "pass_id": pass_id})
-        subject = self.bus.subject(f"event.{event_class(doc.kind)}", pass_id)
+    def _publish_event(self, recorded: Recorded) -> None:
+        doc = console_event(recorded)
+        subject = self.bus.subject(f"event.{event_class(doc.kind)}", doc.pass_id)
         self.bus.publish(subject, doc.model_dump_json().encode())
 
     def _publish_frames(
@@ -113,10 +114,9 @@ class AcrossGrounds:
         doc = {"pass_id": pass_id, "columns": batch.columns, "rows": batch.rows}
         self.bus.publish(self.bus.subject("telemetry", pass_id), _json(doc))
 
-    def _publish_alarm(self, alarm: dict[str, Any]) -> None:
-        doc = ConsoleAlarm.model_validate(alarm)
-        subject = self.bus.subject("alarm", canonical_pass(doc.pass_id))
-        self.bus.publish(subject, doc.model_dump_json().encode())
+    def _publish_alarm(self, alarm: AlarmPublic) -> None:
+        subject = self.bus.subject("alarm", canonical_pass(alarm.pass_id))
+        self.bus.publish(subject, alarm.model_dump_json().encode())
 
     def publish_link(self, report: LinkReport) -> None:
         if self._commanding():
@@ -145,7 +145,7 @@ class AcrossGrounds:
             book.deliver_event(payload, None, seq)
         elif isinstance(payload, TelemetryRows):
             book.deliver_frames(pass_id, payload, None, seq)
-        elif isinstance(payload, ConsoleAlarm):
+        elif isinstance(payload, AlarmPublic):
             book.deliver_alarm(payload, seq)
         elif isinstance(payload, LinkReport):
             book.deliver_link(book.with_this_ground(payload), seq)
@@ -157,7 +157,7 @@ class AcrossGrounds:
         if kind.startswith("event."):
             return ConsoleEvent.model_validate_json(data), None
         if kind == "alarm":
-            return ConsoleAlarm.model_validate_json(data), None
+            return AlarmPublic.model_validate_json(data), None
         doc = json.loads(data)
         if kind == "telemetry":
             rows = TelemetryRows(tuple(doc["columns"]), [tuple(r) for r in doc["rows"]])

@@ -21,7 +21,6 @@ from server.services._console_protocol import ProtocolError, SubscribeMsg
 from server.services._console_replay import Row, TelemetryRows
 from server.services.console_messages import (
     AlarmMsg,
-    ConsoleAlarm,
     ConsoleEvent,
     EventMsg,
     EventTopic,
@@ -32,6 +31,7 @@ from server.services.console_messages import (
 )
 from server.services.link import LinkStatus
 from server.storage.models import TELEMETRY_FIELDS
+from telemetry.alarm import AlarmPublic
 
 if TYPE_CHECKING:
     from server.services._console_limits import ConsoleLimits
@@ -62,7 +62,7 @@ class LinkReport(NamedTuple):
 
 
 #: What a stream's message carries: an event, a link report, telemetry rows or an alarm.
-Payload = ConsoleEvent | LinkReport | TelemetryRows | ConsoleAlarm
+Payload = ConsoleEvent | LinkReport | TelemetryRows | AlarmPublic
 
 
 def requested_columns(fields: list[str] | None) -> tuple[str, ...] | None:
@@ -206,7 +206,7 @@ def render(stream: Stream, message: Message, flt: TelemetryFilter | None) -> str
         )
     elif isinstance(payload, LinkReport):
         doc = LinkMsg(seq=message.seq, ground_time_ns=payload.ground_time_ns, status=payload.status)
-    elif isinstance(payload, ConsoleAlarm):
+    elif isinstance(payload, AlarmPublic):
         doc = AlarmMsg(seq=message.seq, alarm=payload)
     else:
         doc = EventMsg(topic=cast(EventTopic, stream.topic), seq=message.seq, event=payload)

@@ -2,11 +2,16 @@
 limit checker in, the changes to write and publish out (docs/alarms.md).
 
 An :class:`AlarmBook` holds the pass's *listed* alarms (active: triggered, or cleared and
-not yet acknowledged), one per quantity and channel. :meth:`AlarmBook.observe` takes the
+not yet acknowledged), one per quantity and channel, each the alarm's one model
+(:class:`telemetry.alarm.AlarmPublic`), changed in place. :meth:`AlarmBook.observe` takes the
 readings of one frame batch in frame order (a channel in a band, or a channel whose band
 changed, as :meth:`telemetry.limits.FrameEvaluator.evaluate` reports them):
 
-- a channel entering a band with no listed alarm raises a new alarm at that frame;
+- a channel entering a band with no listed alarm raises a new alarm at that frame, or, with
+  a ``persistence`` of N (the robot's ``[limits] persistence``, as COSMOS's limits have),
+  at the N-th consecutive reading in a band (any band; a reading within limits starts the
+  count again): a value flickering across a threshold for fewer than N samples at a time
+  raises nothing. The same holds for reopening a cleared alarm;
 - a band change of a triggered alarm is a severity change (escalation when it is worse than
   the worst so far: ``severity`` and ``limit`` follow);
 - a channel back within limits clears the alarm (``current_severity`` None); cleared and
@@ -17,7 +22,7 @@ changed, as :meth:`telemetry.limits.FrameEvaluator.evaluate` reports them):
   the service writes those at most once per second.
 
 Every change of band is appended to the alarm's ``timeline``
-(``{severity, generation_time_ns, time_ns, frame_seq, value}``, at most
+(:class:`~telemetry.alarm.AlarmTimelineEntryPublic`, at most
 :data:`MAX_TIMELINE` entries: the first is kept, then the newest).
 """
 
@@ -25,17 +30,15 @@ from __future__ import annotations
 
 import math
 import uuid
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
-from typing import Any, Literal, NamedTuple
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Literal, NamedTuple
 
-from server.storage.alarms import ALARM_FIELDS
-from server.storage.models import ALARM_SEVERITIES
+from planner.limits import SEVERITY_RANK, Severity
+from telemetry.alarm import AlarmDirection, AlarmPublic, AlarmSource, AlarmTimelineEntryPublic
 
 __all__ = [
     "MAX_TIMELINE",
-    "RANK",
-    "Alarm",
     "AlarmBook",
     "Change",
     "ChangeKind",
@@ -43,8 +46,6 @@ __all__ = [
     "QuantityInfo",
 ]
 
-#: Severity -> rank (watch 1 .. severe 5), the order of planner.limits.Severity.
-RANK = {name: k + 1 for k, name in enumerate(ALARM_SEVERITIES)}
 #: The most timeline entries an alarm keeps (a channel flickering across a threshold for
 #: hours would otherwise grow its row without bound).
 MAX_TIMELINE = 1000
@@ -58,7 +59,7 @@ class Observation(NamedTuple):
     quantity: str
     channel: str
     value: float | None
-    severity: str | None
+    severity: Severity | None
     frame_seq: int | None
     generation_time_ns: int | None
 
@@ -70,89 +71,40 @@ class QuantityInfo:
 
     label: str
     unit: str
-    direction: str
-    threshold: Callable[[str], float | None]
+    direction: AlarmDirection
+    threshold: Callable[[Severity], float | None]
 
 
 def _finite(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-@dataclass
-class Alarm:
-    """One alarm's state: the fields of its JSON (``server.storage.alarms.ALARM_FIELDS``)
-    and the service's bookkeeping of its writes."""
+def _mark(alarm: AlarmPublic, severity: Severity | None, o: Observation, now_ns: int) -> None:
+    """Append a change of band to the alarm's timeline (the first entry kept, then the
+    newest :data:`MAX_TIMELINE`)."""
+    alarm.timeline.append(
+        AlarmTimelineEntryPublic(
+            severity=severity,
+            generation_time_ns=o.generation_time_ns,
+            time_ns=now_ns,
+            frame_seq=o.frame_seq,
+            value=_finite(o.value),
+        )
+    )
+    if len(alarm.timeline) > MAX_TIMELINE:
+        del alarm.timeline[1]
 
-    id: str
-    pass_id: str | None
-    quantity: str
-    channel: str
-    label: str
-    unit: str
-    direction: str
-    source: str
-    severity: str
-    current_severity: str | None
-    state: str
-    acknowledged: bool
-    acknowledged_by: str | None
-    acknowledged_time_ns: int | None
-    comment: str | None
-    limit: float | None
-    trigger_value: float | None
-    worst_value: float | None
-    last_value: float | None
-    count: int
-    raised_frame_seq: int | None
-    raised_generation_time_ns: int | None
-    raised_time_ns: int
-    updated_time_ns: int
-    cleared_generation_time_ns: int | None
-    cleared_time_ns: int | None
-    timeline: list[dict[str, Any]]
-    detail: str | None
-    #: ground monotonic s of the last write (in-band updates wait a second after it)
-    written_mono: float = field(default=-math.inf, compare=False)
-    #: changed since it was last written
-    dirty: bool = field(default=False, compare=False)
 
-    @property
-    def listed(self) -> bool:
-        """Active: triggered, or cleared and not yet acknowledged (latching)."""
-        return self.state == "triggered" or not self.acknowledged
-
-    def document(self) -> dict[str, Any]:
-        """The alarm's JSON (a copy: the timeline's entries are copied too)."""
-        doc = {name: getattr(self, name) for name in ALARM_FIELDS}
-        doc["timeline"] = [dict(entry) for entry in self.timeline]
-        return doc
-
-    @classmethod
-    def of_document(cls, doc: Mapping[str, Any]) -> Alarm:
-        return cls(**{name: doc[name] for name in ALARM_FIELDS})
-
-    def mark(self, severity: str | None, o: Observation, now_ns: int) -> None:
-        entry = {
-            "severity": severity,
-            "generation_time_ns": o.generation_time_ns,
-            "time_ns": now_ns,
-            "frame_seq": o.frame_seq,
-            "value": _finite(o.value),
-        }
-        self.timeline.append(entry)
-        if len(self.timeline) > MAX_TIMELINE:
-            del self.timeline[1]
-
-    def take(self, o: Observation) -> None:
-        """Count a reading in a band: the last value, and the worst (for the direction)."""
-        self.count += 1
-        value = _finite(o.value)
-        self.last_value = value
-        if value is None:
-            return
-        worst = self.worst_value
-        if worst is None or (value > worst if self.direction == "high" else value < worst):
-            self.worst_value = value
+def _take(alarm: AlarmPublic, o: Observation) -> None:
+    """Count a reading in a band: the last value, and the worst (for the direction)."""
+    alarm.count += 1
+    value = _finite(o.value)
+    alarm.last_value = value
+    if value is None:
+        return
+    worst = alarm.worst_value
+    if worst is None or (value > worst if alarm.direction == "high" else value < worst):
+        alarm.worst_value = value
 
 
 @dataclass(frozen=True)
@@ -160,7 +112,7 @@ class Change:
     """An alarm the observation changed, and how (the first change of a batch wins:
     ``raised`` over ``severity`` over ``updated``)."""
 
-    alarm: Alarm
+    alarm: AlarmPublic
     kind: ChangeKind
 
 
@@ -177,26 +129,28 @@ _PRECEDENCE: dict[ChangeKind, int] = {
 class AlarmBook:
     """The listed alarms of one pass (``pass_id`` None: of no pass), by quantity and
     channel; see the module docstring. ``info`` gives a quantity's label, unit, direction
-    and thresholds (None: not a quantity this book knows; its readings are ignored)."""
+    and thresholds (None: not a quantity this book knows; its readings are ignored);
+    ``persistence``: the consecutive readings in a band that raise (or reopen) an alarm."""
 
     def __init__(
         self,
         pass_id: str | None,
         info: Callable[[str], QuantityInfo | None],
         *,
-        source: str = "limit",
+        source: AlarmSource = "limit",
         new_id: Callable[[], str] = lambda: str(uuid.uuid4()),
+        persistence: int = 1,
     ) -> None:
-        self.pass_id = pass_id
-        self.source = source
-        self._info = info
-        self._new_id = new_id
-        self.listed: dict[tuple[str, str], Alarm] = {}
+        self.pass_id, self.source, self.persistence = pass_id, source, persistence
+        self._info, self._new_id = info, new_id
+        self.listed: dict[tuple[str, str], AlarmPublic] = {}
+        #: consecutive readings in a band of the channels with no triggered alarm
+        self._runs: dict[tuple[str, str], int] = {}
 
-    def restore(self, alarms: Iterable[Alarm]) -> None:
+    def restore(self, alarms: Iterable[AlarmPublic]) -> None:
         """Take over alarms stored before (a restart): those still listed."""
         for alarm in alarms:
-            if alarm.listed:
+            if alarm.active:
                 self.listed[(alarm.quantity, alarm.channel)] = alarm
 
     def observe(
@@ -211,24 +165,24 @@ class AlarmBook:
         and ``info`` (instead of the book's own) describe the alarms raised."""
         changes: dict[str, Change] = {}
 
-        def note(alarm: Alarm, kind: ChangeKind) -> None:
+        def note(alarm: AlarmPublic, kind: ChangeKind) -> None:
             old = changes.get(alarm.id)
             if old is None or _PRECEDENCE[kind] > _PRECEDENCE[old.kind]:
                 changes[alarm.id] = Change(alarm, kind)
             alarm.updated_time_ns = now_ns
-            alarm.dirty = True
 
         for o in observations:
             key = (o.quantity, o.channel)
             alarm = self.listed.get(key)
             if o.severity is None:
+                self._runs.pop(key, None)
                 if alarm is not None and alarm.state == "triggered":
                     self._clear(alarm, o, now_ns)
                     note(alarm, "cleared")
-                    if not alarm.listed:  # acknowledged while it was triggered
+                    if not alarm.active:  # acknowledged while it was triggered
                         del self.listed[key]
                 continue
-            if o.severity not in RANK:
+            if (alarm is None or alarm.state == "cleared") and not self._persisted(key):
                 continue
             if alarm is None:
                 described = info or self._info(o.quantity)
@@ -248,7 +202,7 @@ class AlarmBook:
                 self._band(alarm, o, now_ns, info)
                 note(alarm, "severity")
             else:
-                alarm.take(o)
+                _take(alarm, o)
                 note(alarm, "updated")
         return list(changes.values())
 
@@ -261,9 +215,9 @@ class AlarmBook:
                 o = Observation(alarm.quantity, alarm.channel, None, None, None, None)
                 self._clear(alarm, o, now_ns)
                 alarm.detail = why
-                alarm.updated_time_ns, alarm.dirty = now_ns, True
+                alarm.updated_time_ns = now_ns
                 out.append(Change(alarm, "cleared"))
-                if not alarm.listed:
+                if not alarm.active:
                     del self.listed[(alarm.quantity, alarm.channel)]
         return out
 
@@ -276,18 +230,30 @@ class AlarmBook:
                 alarm.acknowledged_time_ns = time_ns
                 alarm.comment = comment
                 alarm.updated_time_ns = max(alarm.updated_time_ns, time_ns)
-                if not alarm.listed:
+                if not alarm.active:
                     del self.listed[key]
 
-    def holds(self, alarm_id: str) -> Alarm | None:
+    def _persisted(self, key: tuple[str, str]) -> bool:
+        """Count a reading in a band of a channel whose alarm is not triggered: True at the
+        :attr:`persistence`-th in a row (the count starts again)."""
+        run = self._runs.get(key, 0) + 1
+        if run < self.persistence:
+            self._runs[key] = run
+            return False
+        self._runs.pop(key, None)
+        return True
+
+    def holds(self, alarm_id: str) -> AlarmPublic | None:
         return next((a for a in self.listed.values() if a.id == alarm_id), None)
 
     # -- transitions -------------------------------------------------------------------------
 
-    def _raise(self, o: Observation, info: QuantityInfo, now_ns: int, detail: str | None) -> Alarm:
+    def _raise(
+        self, o: Observation, info: QuantityInfo, now_ns: int, detail: str | None
+    ) -> AlarmPublic:
         assert o.severity is not None
         value = _finite(o.value)
-        alarm = Alarm(
+        alarm = AlarmPublic(
             id=self._new_id(),
             pass_id=self.pass_id,
             quantity=o.quantity,
@@ -317,27 +283,29 @@ class AlarmBook:
             timeline=[],
             detail=detail,
         )
-        alarm.mark(o.severity, o, now_ns)
+        _mark(alarm, o.severity, o, now_ns)
         return alarm
 
-    def _band(self, alarm: Alarm, o: Observation, now_ns: int, info: QuantityInfo | None) -> None:
+    def _band(
+        self, alarm: AlarmPublic, o: Observation, now_ns: int, info: QuantityInfo | None
+    ) -> None:
         """The alarm enters another band (or the same again, reopened)."""
         assert o.severity is not None
         alarm.current_severity = o.severity
-        alarm.take(o)
-        if RANK[o.severity] > RANK[alarm.severity]:
+        _take(alarm, o)
+        if SEVERITY_RANK[o.severity] > SEVERITY_RANK[alarm.severity]:
             alarm.severity = o.severity
             info = info or self._info(alarm.quantity)
             if info is not None:
                 alarm.limit = _finite(info.threshold(o.severity))
-        alarm.mark(o.severity, o, now_ns)
+        _mark(alarm, o.severity, o, now_ns)
 
     @staticmethod
-    def _clear(alarm: Alarm, o: Observation, now_ns: int) -> None:
+    def _clear(alarm: AlarmPublic, o: Observation, now_ns: int) -> None:
         alarm.state = "cleared"
         alarm.current_severity = None
         alarm.cleared_generation_time_ns = o.generation_time_ns
         alarm.cleared_time_ns = now_ns
         if o.value is not None:
             alarm.last_value = _finite(o.value)
-        alarm.mark(None, o, now_ns)
+        _mark(alarm, None, o, now_ns)

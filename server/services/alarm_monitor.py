@@ -16,19 +16,19 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy.orm import Session
 
-from planner.limits import QUANTITIES, Limits, Severity
+from planner.limits import QUANTITIES, Limits
 from planner.plan import Plan
-from server.services.alarm_book import Alarm, AlarmBook, Observation, QuantityInfo
+from server.services.alarm_book import AlarmBook, Observation, QuantityInfo
 from server.services.dbworker import Database
 from server.services.robots import description_for_plan
 from server.storage import alarms as alarm_repo
 from server.storage import repository as repo
+from telemetry.alarm import AlarmPublic
 from telemetry.limits import (
     CommandedFn,
     FrameEvaluator,
@@ -50,17 +50,16 @@ def _info(limits: Limits) -> Callable[[str], QuantityInfo | None]:
         spec, bands = QUANTITIES.get(quantity), limits.bands.get(quantity)
         if spec is None or bands is None:
             return None
-        return QuantityInfo(
-            spec.label, spec.unit, spec.direction, lambda s: bands.threshold(Severity(s))
-        )
+        return QuantityInfo(spec.label, spec.unit, spec.direction, bands.threshold)
 
     return info
 
 
 def observation(r: Reading) -> Observation:
     """A limit checker's reading as the alarm book observes it."""
-    severity = None if r.severity is None else str(r.severity)
-    return Observation(r.quantity, r.channel, r.value, severity, r.frame_seq, r.generation_time_ns)
+    return Observation(
+        r.quantity, r.channel, r.value, r.severity, r.frame_seq, r.generation_time_ns
+    )
 
 
 @dataclass
@@ -118,7 +117,7 @@ class PassMonitor:
                 document,
                 [c.execute_time_ns for c in joints],
                 [list(c.payload["joints_rad"]) for c in joints],
-                [alarm_repo.alarm_document(r) for r in listed if r.source == "limit"],
+                [alarm_repo.stored_alarm(r) for r in listed if r.source == "limit"],
             )
 
         try:
@@ -149,8 +148,8 @@ class PassMonitor:
         if self.state is None:
             self.state = loaded.state
         self.limits, self.commanded = limits, commanded
-        self.book = AlarmBook(pass_id, _info(limits))
-        self.book.restore(Alarm.of_document(doc) for doc in loaded.alarms)
+        self.book = AlarmBook(pass_id, _info(limits), persistence=limits.persistence)
+        self.book.restore(loaded.alarms)
         self.evaluator = evaluator
         return True
 
@@ -161,4 +160,4 @@ class _Loaded:
     plan_document: str
     tags_ns: list[int]
     targets_rad: list[list[float]]
-    alarms: list[dict[str, Any]]
+    alarms: list[AlarmPublic]

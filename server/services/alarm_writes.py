@@ -1,5 +1,6 @@
 """Writing the ground's alarms (docs/alarms.md): through the command path's database worker,
-each published to the consoles (topic ``alarms``) once its write has committed.
+each published (to the consoles' topic ``alarms``) once its write has committed, after the
+audit events of the same transaction (:func:`~server.services.event_log.on_commit`).
 
 A raise, a change of band and a clear are written at once (one job per batch, with their
 audit events); an in-band update at most once per :data:`IN_BAND_PERIOD_S` per alarm, by a
@@ -12,16 +13,17 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
+import math
 from typing import Any
 
 from sqlalchemy.orm import Session
 
-from server.services.alarm_book import Alarm, AlarmBook, Change
+from server.services.alarm_book import Change
 from server.services.clock import Clock
-from server.services.dbworker import Database, Publisher
-from server.services.events import AlarmCleared, AlarmRaised, Event, record
+from server.services.dbworker import Database
+from server.services.events import AlarmCleared, AlarmRaised, Event, on_commit, record
 from server.storage import alarms as alarm_repo
+from telemetry.alarm import AlarmPublic
 
 __all__ = ["IN_BAND_PERIOD_S", "AlarmWriter"]
 
@@ -32,36 +34,32 @@ IN_BAND_PERIOD_S = 1.0
 
 
 class AlarmWriter:
-    """Writes the alarms of ``books`` (every book the service holds, asked at each flush)
-    and publishes them (see the module docstring)."""
+    """Writes the alarms the books changed and publishes them (see the module docstring)."""
 
-    def __init__(
-        self,
-        *,
-        db: Database,
-        publisher: Publisher,
-        clock: Clock,
-        books: Callable[[], list[AlarmBook]],
-    ) -> None:
+    def __init__(self, *, db: Database, clock: Clock) -> None:
         self._db = db
-        self._publisher = publisher
         self._clock = clock
-        self._books = books
+        #: ground monotonic s of each alarm's last write (in-band updates wait a second)
+        self._written_mono: dict[str, float] = {}
+        #: the alarms changed since they were last written, by id
+        self._dirty: dict[str, AlarmPublic] = {}
         #: the writes not yet committed (or failed)
         self.pending: set[asyncio.Future[Any]] = set()
         self.flusher: asyncio.Task[None] | None = None
         #: set on closing: the flusher stops
         self.closed = False
 
+    def _last_written(self, alarm: AlarmPublic) -> float:
+        return self._written_mono.get(alarm.id, -math.inf)
+
     def apply(self, changes: list[Change], mono: float) -> None:
         """Write the prompt changes now, the in-band updates once their second is up."""
-        due: list[Alarm] = []
+        due: list[AlarmPublic] = []
         events: list[Event] = []
-        waiting = False
         for change in changes:
             alarm = change.alarm
-            if change.kind == "updated" and mono - alarm.written_mono < IN_BAND_PERIOD_S:
-                waiting = True
+            self._dirty[alarm.id] = alarm
+            if change.kind == "updated" and mono - self._last_written(alarm) < IN_BAND_PERIOD_S:
                 continue
             due.append(alarm)
             event = _event(change)
@@ -69,33 +67,34 @@ class AlarmWriter:
                 events.append(event)
         if due:
             self._write(due, events, mono)
-        if waiting:
+        if self._dirty:
             self._flush_soon()
 
-    def _write(self, alarms: list[Alarm], events: list[Event], mono: float) -> None:
-        docs = [a.document() for a in alarms]
+    def _write(self, alarms: list[AlarmPublic], events: list[Event], mono: float) -> None:
+        # as they are now (the books go on changing them; a timeline's entries never change)
+        docs = [a.model_copy(update={"timeline": list(a.timeline)}) for a in alarms]
         for alarm in alarms:
-            alarm.written_mono, alarm.dirty = mono, False
+            self._written_mono[alarm.id] = mono
+            self._dirty.pop(alarm.id, None)
         clock = self._clock
 
-        def job(session: Session) -> list[dict[str, Any]]:
-            alarm_repo.save_alarms(session=session, documents=docs)
-            return [record(session, e, clock.time_ns()) for e in events]
+        def job(session: Session) -> None:
+            alarm_repo.save_alarms(
+                session=session, documents=[d.model_dump(mode="json") for d in docs]
+            )
+            for e in events:
+                record(session, e, clock.time_ns())
+            on_commit(session, *docs)  # the alarms after their events, once committed
 
         future = asyncio.ensure_future(self._db.run(job))
         self.pending.add(future)
 
-        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
+        def done(f: asyncio.Future[None]) -> None:
             self.pending.discard(future)
-            if f.cancelled():
-                return
-            if (exc := f.exception()) is not None:
+            if not f.cancelled() and (exc := f.exception()) is not None:
                 log.error("alarms not written: %r", exc)
-                for alarm in alarms:
-                    alarm.dirty = True  # written again with the next flush
-                return
-            self._publisher.publish(f.result())
-            self._publisher.publish_alarms(docs)
+                for alarm in alarms:  # written again with the next flush
+                    self._dirty.setdefault(alarm.id, alarm)
 
         future.add_done_callback(done)
 
@@ -107,11 +106,8 @@ class AlarmWriter:
 
     async def _flush_loop(self) -> None:
         clock = self._clock
-        while not self.closed:
-            dirty = [a for b in self._books() for a in b.listed.values() if a.dirty]
-            if not dirty:
-                return
-            due_at = min(a.written_mono for a in dirty) + IN_BAND_PERIOD_S
+        while not self.closed and self._dirty:
+            due_at = min(self._last_written(a) for a in self._dirty.values()) + IN_BAND_PERIOD_S
             await clock.sleep_until(due_at)
             self.flush()
 
@@ -120,9 +116,8 @@ class AlarmWriter:
         mono = self._clock.monotonic()
         due = [
             a
-            for b in self._books()
-            for a in b.listed.values()
-            if a.dirty and (force or mono - a.written_mono >= IN_BAND_PERIOD_S)
+            for a in self._dirty.values()
+            if force or mono - self._last_written(a) >= IN_BAND_PERIOD_S
         ]
         if due:
             self._write(due, [], mono)
@@ -132,7 +127,7 @@ def _event(change: Change) -> Event | None:
     """The audit event of a change (none for a change of band or an in-band update)."""
     a = change.alarm
     actor = "vehicle" if a.source == "vehicle" else "ground"
-    last = a.timeline[-1] if a.timeline else {}
+    last = a.timeline[-1] if a.timeline else None
     if change.kind in ("raised", "reopened"):
         return AlarmRaised(
             actor=actor,
@@ -142,10 +137,10 @@ def _event(change: Change) -> Event | None:
             quantity=a.quantity,
             channel=a.channel,
             severity=a.current_severity or a.severity,
-            value=last.get("value"),
+            value=None if last is None else last.value,
             limit=a.limit,
-            frame_seq=last.get("frame_seq"),
-            generation_time_ns=last.get("generation_time_ns"),
+            frame_seq=None if last is None else last.frame_seq,
+            generation_time_ns=None if last is None else last.generation_time_ns,
             reopened=change.kind == "reopened",
             detail_text=a.detail,
         )

@@ -32,7 +32,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import uuid
 from collections.abc import Callable
 from typing import Any
 
@@ -40,14 +39,22 @@ from sqlalchemy.orm import Session
 
 from planner.limits import QUANTITIES, Severity
 from server.schemas.alarms import AlarmPublic, AlarmsPublic
-from server.services.alarm_book import Alarm, AlarmBook, Observation, QuantityInfo
+from server.services._console_limits import canonical_pass
+from server.services.alarm_book import AlarmBook, Observation, QuantityInfo
 from server.services.alarm_monitor import PassMonitor, observation
 from server.services.alarm_writes import AlarmWriter
 from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError, NotFoundError
-from server.services.events import AlarmAcknowledged, record
+from server.services.events import (
+    AlarmAcknowledged,
+    PassResumed,
+    PassState,
+    Recorded,
+    on_commit,
+    record,
+)
 from server.services.link import GroundLink, LinkUnavailable
 from server.settings import Settings
 from server.storage import alarms as alarm_repo
@@ -101,7 +108,7 @@ class AlarmService:
         self._vehicle: dict[str | None, AlarmBook] = {}
         self._unhook: list[Callable[[], None]] = []
         self._link_task: asyncio.Task[None] | None = None
-        self._writer = AlarmWriter(db=db, publisher=publisher, clock=clock, books=self._books)
+        self._writer = AlarmWriter(db=db, clock=clock)
         self._closed = False
         #: frames not evaluated: older than the newest evaluated of their pass
         self.frames_late = 0
@@ -118,12 +125,12 @@ class AlarmService:
     async def load_vehicle_alarms(self) -> None:
         """Take over the vehicle's alarms still listed (after a restart)."""
 
-        def job(session: Session) -> list[dict[str, Any]]:
+        def job(session: Session) -> list[AlarmPublic]:
             page = alarm_repo.list_alarms(session=session, active=True, limit=1000)
-            return [alarm_repo.alarm_document(r) for r in page.items if r.source == "vehicle"]
+            return [alarm_repo.stored_alarm(r) for r in page.items if r.source == "vehicle"]
 
-        for doc in await self._db.run(job):
-            self._vehicle_book(doc["pass_id"]).restore([Alarm.of_document(doc)])
+        for alarm in await self._db.run(job):
+            self._vehicle_book(alarm.pass_id).restore([alarm])
 
     async def close(self) -> None:
         """Stop watching; what is left to write is written."""
@@ -159,15 +166,14 @@ class AlarmService:
 
     # -- passes --------------------------------------------------------------------------
 
-    def _on_event(self, event: dict[str, Any]) -> None:
-        kind, pass_id = event.get("kind"), event.get("pass_id")
-        if pass_id is None or kind not in ("pass_state", "pass_resumed"):
-            return
-        detail = event.get("detail") or {}
-        state = detail.get("to") if kind == "pass_state" else detail.get("state")
-        if not isinstance(state, str):
-            return
-        pass_id = str(pass_id)
+    def _on_event(self, recorded: Recorded) -> None:
+        match recorded.event:
+            case PassState(pass_id=str(pass_id), to=state):
+                pass
+            case PassResumed(pass_id=str(pass_id), state=state):
+                pass
+            case _:
+                return
         monitor = self._monitors.get(pass_id)
         if monitor is None:
             if state not in ("running", "los") or not self.checking:
@@ -176,7 +182,7 @@ class AlarmService:
         was_watched = monitor.watched
         monitor.state = state
         if state == "running" and monitor.last_frame_ns is None:
-            monitor.last_frame_ns = int(event.get("time_ns") or self._clock.time_ns())
+            monitor.last_frame_ns = recorded.time_ns
         if monitor.watched and self.checking:
             self._watch_link()
         elif was_watched and not monitor.watched and monitor.book is not None:
@@ -317,7 +323,7 @@ class AlarmService:
         ``pass_id`` (None: no pass ran): the ``critical`` alarm of source ``vehicle``,
         quantity ``vehicle_safing``, raised (a report repeated while it stays safe updates
         it; after an exit it is raised again, or reopened while still listed)."""
-        pass_id = _canonical(pass_id)
+        pass_id = canonical_pass(pass_id)
         trigger = report.trigger
         spec = None if trigger is None else QUANTITIES.get(trigger.quantity)
         if trigger is None:
@@ -341,7 +347,7 @@ class AlarmService:
             lambda _severity: limit,
         )
         observation = Observation(
-            VEHICLE_SAFING, "", value, str(Severity.CRITICAL), None, report.since_time_ns
+            VEHICLE_SAFING, "", value, Severity.CRITICAL, None, report.since_time_ns
         )
         now_ns = self._clock.time_ns()
         changes = self._vehicle_book(pass_id).observe([observation], now_ns, text, info)
@@ -350,7 +356,7 @@ class AlarmService:
     def vehicle_nominal(self, pass_id: str | None, report: Safing) -> None:
         """The vehicle left SAFE (``report.state`` ``nominal``): its safing alarm of that
         pass clears (it stays listed until acknowledged)."""
-        book = self._vehicle.get(_canonical(pass_id))
+        book = self._vehicle.get(canonical_pass(pass_id))
         if book is None:
             return
         observation = Observation(VEHICLE_SAFING, "", None, None, None, report.onboard_time_ns)
@@ -371,8 +377,12 @@ class AlarmService:
         ``NotFoundError`` ``alarm_not_found``; ``ConflictError`` ``already_acknowledged``."""
         clock = self._clock
         now_ns = clock.time_ns()
+        # what the monitor knows beyond the stored row (an in-band update not yet written)
+        key = canonical_pass(alarm_id) or ""
+        held = next((a for b in self._books() if (a := b.holds(key)) is not None), None)
+        known = None if held is None else held.model_copy(update={"timeline": list(held.timeline)})
 
-        def job(session: Session) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        def job(session: Session) -> AlarmPublic:
             try:
                 stored = alarm_repo.acknowledge(
                     session=session, alarm_id=alarm_id, actor=actor, time_ns=now_ns,
@@ -392,33 +402,26 @@ class AlarmService:
                 state=stored.state,
                 comment=comment,
             )
-            return alarm_repo.alarm_document(stored), [record(session, event, clock.time_ns())]
+            record(session, event, clock.time_ns())
+            alarm = alarm_repo.stored_alarm(stored)
+            if known is not None and known.id == alarm.id:
+                updated_ns = max(known.updated_time_ns, now_ns)
+                alarm = known.model_copy(
+                    update={**_ack_fields(alarm), "updated_time_ns": updated_ns}
+                )
+            on_commit(session, alarm)  # after its event, once committed
+            return alarm
 
-        doc, events = await self._db.run(job, control=True)
+        alarm = await self._db.run(job, control=True)
         for book in self._books():
-            held = book.holds(doc["id"])
-            if held is not None:
-                book.acknowledged(doc["id"], actor, now_ns, comment)
-                # what the monitor knows beyond the stored row (an in-band update not yet
-                # written), with the acknowledgement
-                doc = {**held.document(), **_ack_fields(doc)}
-        self._publisher.publish(events)
-        self._publisher.publish_alarms([doc])
-        return AlarmPublic.model_validate(doc)
+            if book.holds(alarm.id) is not None:
+                book.acknowledged(alarm.id, actor, now_ns, comment)
+        return alarm
 
 
-def _canonical(pass_id: str | None) -> str | None:
-    if pass_id is None:
-        return None
-    try:
-        return str(uuid.UUID(pass_id))
-    except ValueError:
-        return pass_id
-
-
-def _ack_fields(doc: dict[str, Any]) -> dict[str, Any]:
+def _ack_fields(alarm: AlarmPublic) -> dict[str, Any]:
     keys = ("acknowledged", "acknowledged_by", "acknowledged_time_ns", "comment")
-    return {k: doc[k] for k in keys}
+    return {k: getattr(alarm, k) for k in keys}
 
 
 def list_alarms(
@@ -436,5 +439,5 @@ def list_alarms(
     page = alarm_repo.list_alarms(
         session=session, pass_id=pass_id, active=active, offset=offset, limit=limit
     )
-    alarms = [AlarmPublic.model_validate(alarm_repo.alarm_document(r)) for r in page.items]
+    alarms = [alarm_repo.stored_alarm(r) for r in page.items]
     return AlarmsPublic(alarms=alarms, count=page.count)

@@ -18,14 +18,12 @@ order and not waited for (they share commits, and a run of them its statements:
 
 from __future__ import annotations
 
-from typing import Any
-
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
 from server.services.command_stages import set_command_stage
 from server.services.dbworker import Database
-from server.services.events import CommandDeferred, event_job
+from server.services.events import CommandDeferred, Recorded, event_job
 from server.services.stage_writes import StageMove, StageWrites, newest_pass_of
 from server.storage import repository as repo
 from server.storage.stages import acked_stage, expires_unknown
@@ -86,8 +84,8 @@ class CommandFates:
         clock = self._clock
         now_ns = clock.time_ns()
 
-        def job(session: Session) -> list[dict[str, Any]]:
-            events: list[dict[str, Any]] = []
+        def job(session: Session) -> list[Recorded]:
+            events: list[Recorded] = []
             for seq in message.seqs:
                 key = self._pass_of(session, seq)
                 if key is None:

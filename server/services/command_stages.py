@@ -5,12 +5,10 @@ writer's injected clock (``clock``), like every event (:mod:`server.services.eve
 
 from __future__ import annotations
 
-from typing import Any
-
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
-from server.services.events import CommandsCancelled, record
+from server.services.events import CommandsCancelled, Recorded, record
 from server.storage import repository as repo
 from server.storage.stages import FINAL_STAGES, STAGE_RANK
 
@@ -34,7 +32,7 @@ def set_command_stage(
     reason: str | None = None,
     detail: str | None = None,
     transmissions: int | None = None,
-) -> list[dict[str, Any]]:
+) -> list[Recorded]:
     """Move a command forward to ``stage`` at ``time_ns`` (on the clock the storage models
     name for it) and write the event; nothing if that would move it backwards. One move of
     :class:`~server.services.stage_writes.StageWrites`, whose rules the live path's batches
@@ -56,7 +54,7 @@ def cancel_commands(
     actor: str,
     reason: str,
     from_time_ns: int | None,
-) -> list[dict[str, Any]]:
+) -> list[Recorded]:
     """Mark these commands ``cancelled`` (those not already final) in one statement and
     write **one** event, ``commands_cancelled``, with the count and the seq range: an abort
     of a long pass must not flood the consoles with one event per command."""

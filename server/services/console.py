@@ -116,6 +116,7 @@ from server.services.console_messages import (
     WelcomeMsg,
 )
 from server.services.dbworker import Publisher
+from server.services.event_log import Recorded
 from server.services.link import LinkStatus
 from server.storage import repository as repo
 from server.storage.errors import NotFound
@@ -299,8 +300,8 @@ class ConsoleHub:
     def _stream(self, topic: str, pass_id: str | None = None) -> Stream:
         return self.book.stream(topic, pass_id)
 
-    def _on_event(self, event: dict[str, Any]) -> None:
-        self.book.on_event(event)
+    def _on_event(self, recorded: Recorded) -> None:
+        self.book.on_event(recorded)
 
     def push_link_status(self, status: LinkStatus) -> None:
         self.book.push_link_status(status)

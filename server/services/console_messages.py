@@ -27,20 +27,21 @@ from pydantic import (
     model_serializer,
 )
 
+from server.services._console_limits import canonical_pass
 from server.services._console_protocol import (
     AsFastAsPossibleSpec,
     RealTimeSpec,
     StepSpec,
 )
+from server.services.event_log import Recorded
 from server.services.link import LinkStatus
+from telemetry.alarm import AlarmPublic
 from telemetry.layout import DEFAULT_LAYOUT
 
 __all__ = [
     "OMIT_IF_NONE",
     "SERVER_MESSAGES",
     "AlarmMsg",
-    "ConsoleAlarm",
-    "ConsoleAlarmTimelineEntry",
     "ConsoleEvent",
     "ConsoleRole",
     "ErrorMsg",
@@ -64,6 +65,7 @@ __all__ = [
     "UnsubscribedMsg",
     "WelcomeLimits",
     "WelcomeMsg",
+    "console_event",
     "omitted_if_none",
 ]
 
@@ -205,6 +207,18 @@ class ConsoleEvent(_Doc):
     id: int | None = omitted_if_none()
 
 
+def console_event(recorded: Recorded) -> ConsoleEvent:
+    """A committed event (typed, as the publisher hands it) as consoles get it."""
+    return ConsoleEvent(
+        kind=recorded.kind,
+        actor=recorded.actor,
+        detail=recorded.event.detail(),
+        pass_id=canonical_pass(recorded.pass_id),
+        time_ns=recorded.time_ns,
+        id=recorded.id,
+    )
+
+
 class EventMsg(ServerMsg):
     """An event of the ``commands``, ``passes`` or ``events`` topic."""
 
@@ -212,53 +226,6 @@ class EventMsg(ServerMsg):
     type: Literal["event"] = "event"
     seq: int
     event: ConsoleEvent
-
-
-AlarmSeverity = Literal["watch", "warning", "distress", "critical", "severe"]
-
-
-class ConsoleAlarmTimelineEntry(_Doc):
-    """A change of an alarm's band (``severity`` null: back within limits);
-    ``generation_time_ns`` onboard, ``time_ns`` ground."""
-
-    severity: AlarmSeverity | None
-    generation_time_ns: int | None
-    time_ns: int
-    frame_seq: int | None
-    value: Number | None
-
-
-class ConsoleAlarm(_Doc):
-    """An alarm as written (docs/alarms.md; ``GET /api/alarms``'s items)."""
-
-    id: str
-    pass_id: str | None
-    quantity: str
-    channel: str
-    label: str
-    unit: str
-    direction: Literal["high", "low"]
-    source: Literal["limit", "vehicle"]
-    severity: AlarmSeverity
-    current_severity: AlarmSeverity | None
-    state: Literal["triggered", "cleared"]
-    acknowledged: bool
-    acknowledged_by: str | None
-    acknowledged_time_ns: int | None
-    comment: str | None
-    limit: Number | None
-    trigger_value: Number | None
-    worst_value: Number | None
-    last_value: Number | None
-    count: int
-    raised_frame_seq: int | None
-    raised_generation_time_ns: int | None
-    raised_time_ns: int
-    updated_time_ns: int
-    cleared_generation_time_ns: int | None
-    cleared_time_ns: int | None
-    timeline: list[ConsoleAlarmTimelineEntry]
-    detail: str | None
 
 
 class AlarmMsg(ServerMsg):
@@ -269,7 +236,7 @@ class AlarmMsg(ServerMsg):
     topic: Literal["alarms"] = "alarms"
     type: Literal["alarm"] = "alarm"
     seq: int
-    alarm: ConsoleAlarm
+    alarm: AlarmPublic
 
 
 # --- control -------------------------------------------------------------------------------

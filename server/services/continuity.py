@@ -53,6 +53,7 @@ from sqlalchemy.orm import Session
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands
 from server.services.dbworker import Database
+from server.services.event_log import Recorded
 from server.services.link import GroundLink
 from server.services.pass_states import command_from_record
 from server.services.recovery import UnfinishedPass
@@ -151,10 +152,8 @@ def hold_after_gap(
     return Hold(None if held is None else held.seq, broken.seq, withheld, reason)
 
 
-def _cancel_job(
-    pass_id: str, hold: Hold, clock: Clock
-) -> Callable[[Session], list[dict[str, Any]]]:
-    def job(session: Session) -> list[dict[str, Any]]:
+def _cancel_job(pass_id: str, hold: Hold, clock: Clock) -> Callable[[Session], list[Recorded]]:
+    def job(session: Session) -> list[Recorded]:
         return cancel_commands(
             session,
             clock=clock,

@@ -27,6 +27,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from server.services.db_batch import run_jobs, runs
 from server.services.db_outage import RETRY_FIRST_S, RETRY_MAX_S, JournalFull, Outage
+from server.services.event_log import publish_on_commit
 from server.services.publisher import AlarmCallback, FrameCallback, Publisher
 from server.storage.db import database_unreachable
 from server.storage.errors import LeaseLost
@@ -56,7 +57,9 @@ class Database:
     jobs of a kind (the command stages' writes) also share their statements: one read and a
     few writes for the run, not three round trips a job (:mod:`server.services.db_batch`).
 
-    A job returns the event dicts it wrote; they are published once it has committed.
+    What a job writes to publish (its events, :func:`~server.services.event_log.record`) is
+    published once its transaction has committed, by the hook on ``sessions``
+    (:func:`~server.services.event_log.publish_on_commit`, installed here), typed.
 
     An operator's control requests (``run(..., control=True)``: confirm, abort, the state
     after it) go before everything, in a transaction of their own; a group in progress
@@ -104,6 +107,7 @@ class Database:
         journal_max: int = 200_000,
     ) -> None:
         self._sessions = sessions
+        publish_on_commit(sessions, publisher)
         self.journal_max = journal_max
         self.outage = Outage()
         self._publisher = publisher
@@ -373,24 +377,18 @@ class Database:
         or write that someone is waiting for) goes before everything else, alone."""
         return await self._enqueue(job, control=control)
 
-    async def write(
-        self, job: Callable[[Session], list[dict[str, Any]]], *, control: bool = False
-    ) -> None:
-        """Run ``job`` (which returns the events it wrote) and publish its events."""
-        self._publisher.publish(await self.run(job, control=control))
+    async def write(self, job: Callable[[Session], object], *, control: bool = False) -> None:
+        """Run ``job`` (its events are published when it commits) and wait for it."""
+        await self.run(job, control=control)
 
-    def submit(self, job: Callable[[Session], list[dict[str, Any]]]) -> None:
+    def submit(self, job: Callable[[Session], object]) -> None:
         """Queue ``job`` without waiting (the emitter must not wait for a commit); its
         events are published when it commits, a failure is logged."""
         future = self._enqueue(job)
 
-        def done(f: asyncio.Future[list[dict[str, Any]]]) -> None:
-            if f.cancelled():
-                return
-            if (exc := f.exception()) is not None:
+        def done(f: asyncio.Future[object]) -> None:
+            if not f.cancelled() and (exc := f.exception()) is not None:
                 log.error("database write failed: %r", exc)
-                return
-            self._publisher.publish(f.result())
 
         future.add_done_callback(done)
 

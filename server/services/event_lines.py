@@ -1,20 +1,22 @@
 """One log line for each committed event an operator follows in the ground's log
 (docs/operations.md, "Logs"): every pass state change, the vehicle's safing and its exit,
 each alarm raised, cleared and acknowledged, and each refused start or control. A
-subscriber of the publisher (:mod:`server.services.publisher`): a line is written once the
-event has committed, in the service's log format (text or JSON, ``server.logs``), with the
-pass id and the event's kind among the JSON fields. Lines the services write as they act
-(a pass started, an abort, the lease) stay theirs."""
+subscriber of the publisher (:mod:`server.services.publisher`), matching on the event's
+type and fields: a line is written once the event has committed, in the service's log
+format (text or JSON, ``server.logs``), with the pass id and the event's kind among the
+JSON fields. Lines the services write as they act (a pass started, an abort, the lease)
+stay theirs."""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from typing import Any
 
 from planner.limits import Severity
+from server.services import events as ev
+from server.services.event_log import Event, Recorded
 
-__all__ = ["ALARM_LEVELS", "LOGGED_KINDS", "log_event"]
+__all__ = ["ALARM_LEVELS", "LOGGED", "LOGGED_KINDS", "log_event"]
 
 log = logging.getLogger("hikoboshi.ground.events")
 
@@ -28,76 +30,101 @@ def _value(value: Any) -> str:
     return "-" if value is None else f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
-def _pass_state(d: dict[str, Any]) -> tuple[int, str]:
-    level = logging.WARNING if d["to"] in ("aborted", "safed") else logging.INFO
-    return level, f"{d['from']} -> {d['to']}: {d['reason']}"
+def _pass_state(e: ev.PassState) -> tuple[int, str]:
+    level = logging.WARNING if e.to in ("aborted", "safed") else logging.INFO
+    return level, f"{e.from_state} -> {e.to}: {e.reason}"
 
 
-def _safed(d: dict[str, Any]) -> tuple[int, str]:
-    trigger = d.get("trigger") or {}
+def _safed(e: ev.VehicleSafed) -> tuple[int, str]:
+    trigger = e.trigger or {}
     what = f"{trigger.get('quantity', '?')} {trigger.get('channel', '')}".rstrip()
     at = f"{_value(trigger.get('value'))} against {_value(trigger.get('limit'))}"
     return logging.ERROR, (
-        f"vehicle SAFE (on-board safing): {what} {at}; {d.get('cancelled', 0)} commands "
+        f"vehicle SAFE (on-board safing): {what} {at}; {e.cancelled} commands "
         "dropped from its schedule"
     )
 
 
-def _alarm_raised(d: dict[str, Any]) -> tuple[int, str]:
-    again = " again" if d.get("reopened") else ""
-    return ALARM_LEVELS.get(d["severity"], logging.WARNING), (
-        f"alarm {d['severity'].upper()}{again}: {d['quantity']} {d['channel']}".rstrip()
-        + f" = {_value(d.get('value'))} (limit {_value(d.get('limit'))})"
+def _alarm_raised(e: ev.AlarmRaised) -> tuple[int, str]:
+    again = " again" if e.reopened else ""
+    return ALARM_LEVELS.get(e.severity, logging.WARNING), (
+        f"alarm {e.severity.upper()}{again}: {e.quantity} {e.channel}".rstrip()
+        + f" = {_value(e.value)} (limit {_value(e.limit)})"
     )
 
 
-def _alarm(verb: str) -> Callable[[dict[str, Any]], tuple[int, str]]:
-    def line(d: dict[str, Any]) -> tuple[int, str]:
-        what = f"{d['severity'].upper()} {d['quantity']} {d['channel']}".rstrip()
-        said = f" = {_value(d['value'])}" if "value" in d else ""
-        note = f": {d['comment']}" if d.get("comment") else ""
-        return logging.INFO, f"alarm {verb}: {what}{said}{note}"
-
-    return line
+def _alarm_cleared(e: ev.AlarmCleared) -> tuple[int, str]:
+    what = f"{e.severity.upper()} {e.quantity} {e.channel}".rstrip()
+    return logging.INFO, f"alarm cleared: {what} = {_value(e.value)}"
 
 
-def _text(level: int, template: str) -> Callable[[dict[str, Any]], tuple[int, str]]:
-    return lambda d: (level, template.format_map(d))
+def _alarm_acknowledged(e: ev.AlarmAcknowledged) -> tuple[int, str]:
+    what = f"{e.severity.upper()} {e.quantity} {e.channel}".rstrip()
+    return logging.INFO, f"alarm acknowledged: {what}" + (f": {e.comment}" if e.comment else "")
 
 
-#: kind -> the line of an event of that kind (level, text; the actor and pass added).
-_LINES: dict[str, Callable[[dict[str, Any]], tuple[int, str]]] = {
-    "pass_state": _pass_state,
-    "vehicle_safed": _safed,
-    "vehicle_safe_exit_requested": _text(logging.INFO, "safe exit {request_id} sent"),
-    "vehicle_safe_exited": _text(logging.WARNING, "vehicle left SAFE (safe exit {request_id})"),
-    "vehicle_safe_exit_unverified": _text(
-        logging.WARNING, "safe exit {request_id} not confirmed after {transmissions} copies"
-    ),
-    "alarm_raised": _alarm_raised,
-    "alarm_cleared": _alarm("cleared"),
-    "alarm_acknowledged": _alarm("acknowledged"),
-    "pass_start_refused": _text(logging.WARNING, "start refused ({reason}): {message}"),
-    "pass_control_refused": _text(
-        logging.WARNING, "{action} refused: the confirmation {confirm!r} does not match"
-    ),
-}
+def _start_refused(e: ev.PassStartRefused | ev.PassStartRefusedFlightRules) -> tuple[int, str]:
+    return logging.WARNING, f"start refused ({e.reason}): {e.message}"
+
+
+def _line(event: Event) -> tuple[int, str] | None:
+    """The level and text of an event's line (the actor and pass added), None: no line."""
+    match event:
+        case ev.PassState():
+            return _pass_state(event)
+        case ev.VehicleSafed():
+            return _safed(event)
+        case ev.VehicleSafeExitRequested(request_id=request):
+            return logging.INFO, f"safe exit {request} sent"
+        case ev.VehicleSafeExited(request_id=request):
+            return logging.WARNING, f"vehicle left SAFE (safe exit {request})"
+        case ev.VehicleSafeExitUnverified(request_id=request, transmissions=n):
+            return logging.WARNING, f"safe exit {request} not confirmed after {n} copies"
+        case ev.AlarmRaised():
+            return _alarm_raised(event)
+        case ev.AlarmCleared():
+            return _alarm_cleared(event)
+        case ev.AlarmAcknowledged():
+            return _alarm_acknowledged(event)
+        case ev.PassStartRefused() | ev.PassStartRefusedFlightRules():
+            return _start_refused(event)
+        case ev.PassControlRefused(action=action, confirm=confirm):
+            return logging.WARNING, f"{action} refused: the confirmation {confirm!r} does not match"
+    return None
+
+
+#: The events that get a line.
+LOGGED: tuple[type[Event], ...] = (
+    ev.PassState,
+    ev.VehicleSafed,
+    ev.VehicleSafeExitRequested,
+    ev.VehicleSafeExited,
+    ev.VehicleSafeExitUnverified,
+    ev.AlarmRaised,
+    ev.AlarmCleared,
+    ev.AlarmAcknowledged,
+    ev.PassStartRefused,
+    ev.PassStartRefusedFlightRules,
+    ev.PassControlRefused,
+)
 #: The kinds of events that get a line.
-LOGGED_KINDS = frozenset(_LINES)
+LOGGED_KINDS = frozenset(cls.kind for cls in LOGGED)
 
 
-def log_event(event: dict[str, Any]) -> None:
-    """The line of a committed event (as published), if its kind gets one."""
-    make = _LINES.get(event["kind"])
-    if make is None:
+def log_event(recorded: Recorded) -> None:
+    """The line of a committed event (typed, as the publisher hands it), if it gets one."""
+    made = _line(recorded.event)
+    if made is None:
         return
-    detail: dict[str, Any] = event.get("detail") or {}
-    level, text = make(detail)
-    pass_id = event.get("pass_id")  # the line's pass, as every format shows it (server.logs)
+    level, text = made
     log.log(
         level,
         "%s (%s)",
         text,
-        event.get("actor") or "ground",
-        extra={"pass_id": pass_id, "fields": {"event": event["kind"], "event_id": event.get("id")}},
+        recorded.actor or "ground",
+        # the line's pass, as every format shows it (server.logs)
+        extra={
+            "pass_id": recorded.pass_id,
+            "fields": {"event": recorded.kind, "event_id": recorded.id},
+        },
     )

@@ -1,11 +1,17 @@
 """The audit log's writing: :class:`Event`, the frozen base class of every event kind, and
 the one way an event is written, :func:`record` (the row stamped by the injected
-:class:`~server.services.clock.Clock` of its writer, never by the process's own clock), and
-published to the consoles, the dict :func:`record` returns (``kind, actor, detail, pass_id,
-time_ns, id``, the console protocol's ``event``): through the command path's
-:class:`~server.services.dbworker.Database` once its transaction commits, or, for the REST
-side's own transactions, by the route through the publisher once the route's service has
-committed (:func:`written`; :func:`with_written` for a job of a worker process).
+:class:`~server.services.clock.Clock` of its writer, never by the process's own clock).
+
+**Published once, after the commit, typed.** :func:`record` returns the event as written,
+a :class:`Recorded` (the typed event, its row's time and id), and keeps it on the session;
+whatever else a transaction wants published once it commits (an alarm as written) is kept
+there too (:func:`on_commit`). The session factories the ground writes with are hooked
+(:func:`publish_on_commit`): when a transaction commits, what it kept goes to the
+:class:`~server.services.publisher.Publisher`, in the order it was kept; when it rolls
+back, it is dropped. So the place that commits publishes: the command path's database
+worker, a route's session, the edge's; a worker process's job (another process: no
+publisher there) hands what it wrote back (:func:`with_written`) and the worker pool
+publishes it. No route publishes by hand.
 
 ``detail`` is each class's fields but ``actor`` and ``pass_id``, named as the stored and
 published detail has always named them (``from`` for ``PassState``'s ``from_state``). The
@@ -15,19 +21,25 @@ kinds are in :mod:`server.services.events_link` and :mod:`server.services.events
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
-from sqlalchemy.orm import Session
+from sqlalchemy import event as sa_event
+from sqlalchemy.orm import Session, SessionTransaction, sessionmaker
 
 from server.services.clock import Clock
 from server.storage import repository as repo
 
+if TYPE_CHECKING:
+    from server.services.publisher import Publisher
+
 __all__ = [
     "Event",
+    "Recorded",
     "event_job",
-    "published",
+    "on_commit",
+    "publish_on_commit",
     "record",
     "record_many",
     "with_written",
@@ -35,8 +47,12 @@ __all__ = [
 ]
 
 T = TypeVar("T")
-#: ``Session.info`` key of the events recorded on it.
+#: ``Session.info`` key of what a transaction publishes once it commits.
 _WRITTEN = "hikoboshi.events"
+#: ``Session.info`` key of each open savepoint's count of items kept before it.
+_MARKS = "hikoboshi.savepoints"
+#: The attribute of a hooked session factory: the publisher its commits go to.
+_PUBLISHER = "_hikoboshi_publisher"
 #: Fields that are not part of ``detail``.
 _ENVELOPE = ("actor", "pass_id")
 
@@ -66,23 +82,84 @@ class Event:
         return out
 
 
-def published(event: Event, time_ns: int, event_id: int) -> dict[str, Any]:
-    """The dict the consoles get for a stored event."""
-    return {
-        "kind": event.kind,
-        "actor": event.actor,
-        "detail": event.detail(),
-        "pass_id": event.pass_id,
-        "time_ns": time_ns,
-        "id": event_id,
-    }
+@dataclass(frozen=True)
+class Recorded:
+    """An event as written: the typed event, its row's time (ground ns) and id. What every
+    subscriber of the publisher gets (they match on ``type(recorded.event)`` and its
+    fields); :meth:`document` is the console protocol's ``event``."""
+
+    event: Event
+    time_ns: int
+    id: int
+
+    @property
+    def kind(self) -> str:
+        return self.event.kind
+
+    @property
+    def actor(self) -> str:
+        return self.event.actor
+
+    @property
+    def pass_id(self) -> str | None:
+        return self.event.pass_id
+
+    def document(self) -> dict[str, Any]:
+        """``kind, actor, detail, pass_id, time_ns, id``: the stored row, as consoles get it."""
+        return {
+            "kind": self.kind,
+            "actor": self.actor,
+            "detail": self.event.detail(),
+            "pass_id": self.pass_id,
+            "time_ns": self.time_ns,
+            "id": self.id,
+        }
 
 
-def record(session: Session, event: Event, time_ns: int) -> dict[str, Any]:
+def on_commit(session: Session, *items: object) -> None:
+    """Publish ``items`` once the session's transaction commits (dropped if it rolls back)."""
+    session.info.setdefault(_WRITTEN, []).extend(items)
+
+
+def publish_on_commit(sessions: sessionmaker[Session], publisher: Publisher) -> None:
+    """Hook ``sessions``: what a transaction of theirs kept (:func:`record`,
+    :func:`on_commit`) goes to ``publisher`` when it commits (from the committing thread:
+    :meth:`~server.services.publisher.Publisher.deliver` hands it to the event loop), and is
+    dropped when it rolls back. Hooking again changes the publisher (a restarted ground)."""
+    hooked = getattr(sessions, _PUBLISHER, None) is not None
+    setattr(sessions, _PUBLISHER, publisher)
+    if hooked:
+        return
+
+    def committed(session: Session) -> None:
+        session.info.pop(_MARKS, None)
+        items = session.info.pop(_WRITTEN, None)
+        if items:
+            getattr(sessions, _PUBLISHER).deliver(items)
+
+    def began(session: Session, transaction: SessionTransaction) -> None:
+        if transaction.nested:  # a savepoint: what was kept before it stays if it rolls back
+            marks = session.info.setdefault(_MARKS, {})
+            marks[transaction] = len(session.info.get(_WRITTEN, ()))
+
+    def rolled_back(session: Session, previous: SessionTransaction) -> None:
+        if previous.nested:
+            kept = session.info.get(_MARKS, {}).pop(previous, None)
+            if kept is not None and _WRITTEN in session.info:
+                del session.info[_WRITTEN][kept:]
+        else:
+            session.info.pop(_WRITTEN, None)
+            session.info.pop(_MARKS, None)
+
+    sa_event.listen(sessions, "after_transaction_create", began)
+    sa_event.listen(sessions, "after_commit", committed)
+    sa_event.listen(sessions, "after_soft_rollback", rolled_back)
+
+
+def record(session: Session, event: Event, time_ns: int) -> Recorded:
     """Add ``event``'s row stamped ``time_ns`` (read off the writer's injected clock: the
-    command path's when it writes, the request's when a route took it), and return it as the
-    dict to publish once the transaction commits (kept on the session too:
-    :func:`written`)."""
+    command path's when it writes, the request's when a route took it); the event as
+    written, published once the transaction commits (:func:`publish_on_commit`)."""
     row = repo.add_event(
         session=session,
         time_ns=time_ns,
@@ -91,12 +168,12 @@ def record(session: Session, event: Event, time_ns: int) -> dict[str, Any]:
         detail=event.detail(),
         pass_id=event.pass_id,
     )
-    out = published(event, time_ns, row.id)
-    session.info.setdefault(_WRITTEN, []).append(out)
+    out = Recorded(event, time_ns, row.id)
+    on_commit(session, out)
     return out
 
 
-def record_many(session: Session, stamped: list[tuple[Event, int]]) -> list[dict[str, Any]]:
+def record_many(session: Session, stamped: list[tuple[Event, int]]) -> list[Recorded]:
     """:func:`record` of each (event, its time) in order, the rows in one statement."""
     ids = repo.add_events(
         session=session,
@@ -111,27 +188,28 @@ def record_many(session: Session, stamped: list[tuple[Event, int]]) -> list[dict
             for event, time_ns in stamped
         ],
     )
-    out = [published(event, time_ns, i) for (event, time_ns), i in zip(stamped, ids, strict=True)]
-    session.info.setdefault(_WRITTEN, []).extend(out)
+    out = [Recorded(event, time_ns, i) for (event, time_ns), i in zip(stamped, ids, strict=True)]
+    on_commit(session, *out)
     return out
 
 
-def event_job(event: Event, clock: Clock) -> Callable[[Session], list[dict[str, Any]]]:
+def event_job(event: Event, clock: Clock) -> Callable[[Session], list[Recorded]]:
     """A database job (:class:`~server.services.dbworker.Database`) that records ``event``,
     stamped when it runs."""
     return lambda session: [record(session, event, clock.time_ns())]
 
 
-def written(session: Session) -> list[dict[str, Any]]:
-    """The events :func:`record` wrote on ``session`` since the last call (to publish once
-    it has committed)."""
-    events: list[dict[str, Any]] = session.info.pop(_WRITTEN, [])
-    return events
+def written(session: Session) -> list[Any]:
+    """What ``session`` keeps to publish (:func:`record`, :func:`on_commit`), taken off it:
+    for a session no publisher is hooked to (a worker process's)."""
+    items: list[Any] = session.info.pop(_WRITTEN, [])
+    return items
 
 
 def with_written(
     fn: Callable[..., T], /, *, session: Session, **kwargs: Any
-) -> tuple[T, list[dict[str, Any]]]:
-    """``fn(session=session, **kwargs)`` and the events it wrote (for a job a worker process
-    runs: ``partial(with_written, fn)`` goes there, the server publishes what comes back)."""
+) -> tuple[T, Sequence[Any]]:
+    """``fn(session=session, **kwargs)`` and what it wrote to publish (for a job of a worker
+    process: ``partial(with_written, fn)`` goes there; the worker pool publishes what comes
+    back, :meth:`~server.services.workers.WorkerPool.run_written`). ``fn`` commits."""
     return fn(session=session, **kwargs), written(session)

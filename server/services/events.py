@@ -4,8 +4,9 @@ defined here), and every event it writes to its audit log, re-exported: the link
 command stages' and on-board safing's (:mod:`server.services.events_link`), the passes',
 the alarms', the plans', the analyses' and the audit's (:mod:`server.services.events_passes`).
 
-An audit-log event is written in one way, :func:`record`, and published to the consoles in
-one way, the dict :func:`record` returns; both, with the :class:`Event` base class, are in
+An audit-log event is written in one way, :func:`record`, and published in one way: typed
+(a :class:`Recorded`), once its transaction commits, by the hook on the session factory
+(:func:`publish_on_commit`); all of it, with the :class:`Event` base class, is in
 :mod:`server.services.event_log`.
 """
 
@@ -15,8 +16,10 @@ from dataclasses import dataclass
 
 from server.services.event_log import (
     Event,
+    Recorded,
     event_job,
-    published,
+    on_commit,
+    publish_on_commit,
     record,
     with_written,
     written,
@@ -93,6 +96,7 @@ __all__ = [
     "PassState",
     "PlanChecked",
     "PlanCreated",
+    "Recorded",
     "RequestVerified",
     "RetransmitRequested",
     "SafingReported",
@@ -103,7 +107,8 @@ __all__ = [
     "VehicleSafeExited",
     "VehicleSafed",
     "event_job",
-    "published",
+    "on_commit",
+    "publish_on_commit",
     "record",
     "with_written",
     "written",

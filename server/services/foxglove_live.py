@@ -43,6 +43,7 @@ from planner.plan import Plan
 from planner.urdf import urdf_xml
 from server.services.dbworker import Publisher
 from server.services.errors import ConflictError
+from server.services.event_log import Recorded
 from server.services.robots import model_for_plan, urdf_for_plan
 from server.storage import repository as repo
 from telemetry.foxglove import (
@@ -239,8 +240,8 @@ class FoxgloveLive:
     def _on_frames(self, pass_id: str, frames: list[TelemetryFrame], reception_ns: int) -> None:
         self._put(("frames", (pass_id, frames)))
 
-    def _on_event(self, event: dict[str, Any]) -> None:
-        self._put(("event", event))
+    def _on_event(self, recorded: Recorded) -> None:
+        self._put(("event", recorded))
 
     def resend_static(self) -> None:
         """A client subscribed: the current pass's once-only messages go out again."""
@@ -290,9 +291,10 @@ class FoxgloveLive:
         self._channels[topic].log(data, log_time=log_ns)
         self.sent += 1
 
-    def _event(self, event: dict[str, Any]) -> None:
-        message = event_log(event["time_ns"], event["kind"], event["actor"], event["detail"])
-        self._log(TOPIC_EVENT_LOG, json.dumps(message).encode(), int(event["time_ns"]))
+    def _event(self, recorded: Recorded) -> None:
+        r = recorded
+        message = event_log(r.time_ns, r.kind, r.actor, r.event.detail())
+        self._log(TOPIC_EVENT_LOG, json.dumps(message).encode(), r.time_ns)
 
     def _view(self, pass_id: str) -> _PassView | None:
         view = self._views.get(pass_id)

@@ -35,7 +35,6 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -43,7 +42,7 @@ from sqlalchemy.orm import Session
 from planner.plan import Plan
 from server.services.clock import Clock
 from server.services.command_stages import cancel_commands
-from server.services.events import PassStartRefused, PassState
+from server.services.events import PassStartRefused, PassState, Recorded
 from server.services.events import record as record_event
 from server.services.link import GroundLink, RobotIdentity, TelemetryWindow, robot_mismatch
 from server.services.tracker import CommandTracker
@@ -70,7 +69,7 @@ __all__ = [
     "transition",
 ]
 
-Job = Callable[[Session], list[dict[str, Any]]]
+Job = Callable[[Session], list[Recorded]]
 
 #: Allowed transitions: to -> the states it may come from.
 TRANSITIONS = {
@@ -97,7 +96,7 @@ def transition(
     time_ns: int,
     epoch_ns: int | None = None,
     **window_ns: int | None,
-) -> dict[str, Any]:
+) -> Recorded:
     record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
     if record.state not in TRANSITIONS[to]:
         raise Conflict(f"pass {record.name!r} is {record.state}; it cannot go {to}")
@@ -192,7 +191,7 @@ def start_job(
     clock: Clock,
     lead_s: float,
     telemetry_start_ns: int,
-) -> Callable[[Session], tuple[list[dict[str, Any]], Started | None, str | None]]:
+) -> Callable[[Session], tuple[list[Recorded], Started | None, str | None]]:
     """The start transaction: (events, the pass started or None, why it was refused). The
     plan's ``t = 0`` is put on the 0.25 s grid at most ``lead_s`` after onboard now (the
     start lead, :func:`server.operations.windows.start_lead_s`: it holds the onboard time
@@ -200,7 +199,7 @@ def start_job(
     commands are queued with ``seq`` from one past the highest the vehicle or the archive
     has seen."""
 
-    def job(session: Session) -> tuple[list[dict[str, Any]], Started | None, str | None]:
+    def job(session: Session) -> tuple[list[Recorded], Started | None, str | None]:
         record = repo.get_pass(session=session, pass_id=pass_id, refresh=True)
         plan = Plan.from_json(repo.get_plan(session=session, plan_id=record.plan_id).document)
         robot = plan_robot(plan)
@@ -261,10 +260,10 @@ def abort_job(
     ending at ``end_ns``)."""
     why = reason if from_ns is None else f"{reason} (deleted from the schedule)"
 
-    def job(session: Session) -> list[dict[str, Any]]:
+    def job(session: Session) -> list[Recorded]:
         key = repo.get_pass(session=session, pass_id=pass_id, refresh=True).id
         now = clock.time_ns()
-        events: list[dict[str, Any]] = []
+        events: list[Recorded] = []
         if cancel is None:
             rows = repo.list_commands(session=session, pass_id=key, stages=("queued",))
             seqs = [r.seq for r in rows]

@@ -25,7 +25,7 @@ from server.schemas.passes import (
     PassWindowPublic,
 )
 from server.services.errors import InvalidRequestError
-from server.services.events import PassControlRefused, PassScheduled
+from server.services.events import PassControlRefused, PassScheduled, Recorded
 from server.services.events import record as record_event
 from server.storage import repository as repo
 from server.storage.models import CommandRecord, PassRecord
@@ -173,7 +173,7 @@ def check_range(t0_ns: int | None, t1_ns: int | None) -> None:
 
 def check_confirmation(
     *, session: Session, pass_id: str, action: str, confirm: str, actor: str, time_ns: int
-) -> tuple[str, str | None, list[dict[str, Any]]]:
+) -> tuple[str, str | None, list[Recorded]]:
     """The pass's id, and the expected text (``"<ACTION> <pass name>"``) when ``confirm`` is
     not it; then the refusal is written to the audit log (``pass_control_refused``, stamped
     ``time_ns``), for the caller to commit and publish (the events returned) before it

@@ -107,7 +107,7 @@ def load_recording(*, session: Session, pass_id: str) -> PassRecording:
         commands=commands,
         events=events,
         meta=meta,
-        alarms=tuple(alarm_repo.alarm_document(a) for a in reversed(alarms)),
+        alarms=tuple(alarm_repo.stored_alarm(a) for a in reversed(alarms)),
     )
 
 

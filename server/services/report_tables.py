@@ -16,11 +16,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from planner.limits import SEVERITIES
 from planner.plan import ETS7_ROBOT_HASH
 from server.schemas import iso_from_ns
 from server.schemas.analyses import ReportAnalysisPublic, ReportPublic, ReportTablePublic
 from server.services.analyses import KINDS
 from server.services.analysis_tables import TABLES, cells, table
+from telemetry.alarm import AlarmPublic
 from telemetry.analysis.paper import Predicted, Sources, compare_with_flight, compare_with_plan
 
 __all__ = ["FIGURE_CAPTIONS", "build_report", "predicted_of"]
@@ -61,51 +63,50 @@ def _t_s(time_ns: Any, epoch_ns: int | None) -> float | None:
     return (int(time_ns) - epoch_ns) / 1e9
 
 
-def _alarm_tables(
-    alarms: Sequence[Mapping[str, Any]], epoch_ns: int | None
-) -> list[ReportTablePublic]:
+def _alarm_tables(alarms: Sequence[AlarmPublic], epoch_ns: int | None) -> list[ReportTablePublic]:
     """The alarms (oldest raised first) and their timeline."""
     rows, timeline = [], []
     for k, a in enumerate(alarms, start=1):
-        name = f"{k}: {a.get('quantity')}{' ' + a['channel'] if a.get('channel') else ''}"
+        name = f"{k}: {a.quantity}{' ' + a.channel if a.channel else ''}"
         rows.append(
             [
                 name,
-                a.get("source"),
-                a.get("severity"),
-                a.get("state"),
-                a.get("acknowledged_by"),
-                a.get("comment"),
-                _t_s(a.get("raised_generation_time_ns"), epoch_ns),
-                a.get("raised_frame_seq"),
-                _t_s(a.get("cleared_generation_time_ns"), epoch_ns),
-                a.get("trigger_value"),
-                a.get("worst_value"),
-                a.get("limit"),
-                a.get("unit"),
-                a.get("count"),
+                a.source,
+                a.severity.value,
+                a.state,
+                a.acknowledged_by,
+                a.comment,
+                _t_s(a.raised_generation_time_ns, epoch_ns),
+                a.raised_frame_seq,
+                _t_s(a.cleared_generation_time_ns, epoch_ns),
+                a.trigger_value,
+                a.worst_value,
+                a.limit,
+                a.unit,
+                a.count,
             ]
         )
-        for entry in a.get("timeline") or ():
+        for entry in a.timeline:
+            band = "within limits" if entry.severity is None else entry.severity.value
             timeline.append(
                 [
                     name,
-                    entry.get("severity") or "within limits",
-                    _t_s(entry.get("generation_time_ns"), epoch_ns),
-                    entry.get("frame_seq"),
-                    entry.get("value"),
-                    a.get("unit"),
-                    entry.get("time_ns"),
+                    band,
+                    _t_s(entry.generation_time_ns, epoch_ns),
+                    entry.frame_seq,
+                    entry.value,
+                    a.unit,
+                    entry.time_ns,
                 ]
             )
-        if a.get("acknowledged"):
-            ack = f"acknowledged by {a.get('acknowledged_by')}"
-            comment = a.get("comment")
+        if a.acknowledged:
+            ack = f"acknowledged by {a.acknowledged_by}"
+            comment = a.comment
             timeline.append(
                 [name, ack + (f": {comment}" if comment else ""), None, None, None, None,
-                 a.get("acknowledged_time_ns")]
+                 a.acknowledged_time_ns]
             )  # fmt: skip
-    by_severity = {s: sum(a.get("severity") == s for a in alarms) for s in _SEVERITIES}
+    by_severity = {s: sum(a.severity is s for a in alarms) for s in SEVERITIES}
     counts = ", ".join(f"{n} {s}" for s, n in by_severity.items() if n) or "none"
     return [
         table(
@@ -140,9 +141,6 @@ def _alarm_tables(
             timeline,
         ),
     ]
-
-
-_SEVERITIES = ("watch", "warning", "distress", "critical", "severe")
 
 
 def _flight_table(
@@ -224,7 +222,7 @@ def build_report(
     imported: bool,
     documents: Mapping[str, tuple[Mapping[str, Any], int | None]],
     figure_names: Sequence[str],
-    alarms: Sequence[Mapping[str, Any]] = (),
+    alarms: Sequence[AlarmPublic] = (),
     epoch_ns: int | None = None,
     commands: Mapping[str, Any] | None = None,
     plan: Predicted | None = None,

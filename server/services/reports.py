@@ -142,7 +142,7 @@ def stored_report(session: Session, pass_id: str) -> tuple[ReportPublic, dict[st
         imported=imported > 0,
         documents={kind: (r.result, r.created_at_ns) for kind, r in rows.items()},
         figure_names=list(figures),
-        alarms=[alarm_repo.alarm_document(a) for a in reversed(alarms)],
+        alarms=[alarm_repo.stored_alarm(a) for a in reversed(alarms)],
         epoch_ns=record.epoch_ns,
         # a pass flown here (an imported one's report is its recording's, as from the file)
         commands=None if imported else command_outcome(session, record.id).document(),

@@ -75,6 +75,7 @@ from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError
 from server.services.events import (
+    Recorded,
     SafingReported,
 )
 from server.services.link import (
@@ -271,11 +272,10 @@ class PassRunner(PassEnds, PassHandover):
             except BaseException:
                 self._downlink.drop_window(window)
                 raise
-            self._publisher.publish(events)
             if started is None:
                 self._downlink.drop_window(window)
                 raise ConflictError(
-                    "robot_mismatch", refusal or "robot mismatch", events[0].get("detail")
+                    "robot_mismatch", refusal or "robot mismatch", events[0].event.detail()
                 )
             commands = started.commands
             tracker = self._trackers.queued(started.pass_id, commands)
@@ -399,7 +399,7 @@ class PassRunner(PassEnds, PassHandover):
         # own transaction, after the stage writes queued before it.
         now_ns, clock, pass_id = self._clock.time_ns(), self._clock, active.pass_id
 
-        def complete(session: Session) -> list[dict[str, Any]]:
+        def complete(session: Session) -> list[Recorded]:
             reason = f"complete, {command_outcome(session, pass_id).sentence()}"
             return [transition(session, clock, pass_id, "complete", "ground", reason, now_ns)]
 
@@ -410,7 +410,7 @@ class PassRunner(PassEnds, PassHandover):
 
     def _ground_transition(
         self, pass_id: str, to: str, reason: str, **window_ns: int | None
-    ) -> Callable[[Session], list[dict[str, Any]]]:
+    ) -> Callable[[Session], list[Recorded]]:
         """The ground's own transition of the pass to ``to``, timed now."""
         now_ns, clock = self._clock.time_ns(), self._clock
         return lambda s: [transition(s, clock, pass_id, to, "ground", reason, now_ns, **window_ns)]

@@ -15,6 +15,7 @@ from server.services.clock import Clock
 from server.services.dbworker import Database, Publisher
 from server.services.downlink import GroundDownlink
 from server.services.errors import ConflictError
+from server.services.event_log import Recorded
 from server.services.link import GroundLink
 from server.services.pass_states import ActivePass
 from server.services.schedule_delete import ScheduleDeletes
@@ -93,5 +94,5 @@ class RunnerParts:
 
     def _ground_transition(
         self, pass_id: str, to: str, reason: str, **window_ns: int | None
-    ) -> Callable[[Session], list[dict[str, Any]]]:
+    ) -> Callable[[Session], list[Recorded]]:
         raise NotImplementedError

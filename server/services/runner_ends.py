@@ -199,4 +199,4 @@ class PassEnds(RunnerParts):
             pass_id=pass_id, actor=actor, reason=reason, clock=self._clock, cancel=cancel,
             from_ns=from_ns, end_ns=end_ns, to=to,
         )  # fmt: skip
-        self._publisher.publish(await self._db.run(job, control=True))
+        await self._db.run(job, control=True)

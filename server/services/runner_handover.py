@@ -23,12 +23,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Any
 
 from sqlalchemy.orm import Session
 
 from server.services.continuity import resumed_uplink
-from server.services.events import GroundStopped, PassResumed, event_job, record
+from server.services.events import GroundStopped, PassResumed, Recorded, event_job, record
 from server.services.link import LinkUnavailable, TelemetryWindow
 from server.services.pass_reasons import handover_reason
 from server.services.pass_states import ActivePass
@@ -187,7 +186,7 @@ class PassHandover(RunnerParts):
         reason = handover_reason(onboard, active.first_tag_ns, loaded, unsent, policy)
         pass_id, clock = active.pass_id, self._clock
 
-        def job(session: Session) -> list[dict[str, Any]]:
+        def job(session: Session) -> list[Recorded]:
             state = repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
             stopped = GroundStopped(
                 actor="ground", pass_id=pass_id, state=state, reason=reason,

@@ -25,7 +25,13 @@ from server.services.clock import Clock
 from server.services.command_stages import cancel_commands
 from server.services.dbworker import Database
 from server.services.downlink import GroundDownlink
-from server.services.events import ScheduleDeleted, ScheduleDeleteUnverified, event_job, record
+from server.services.events import (
+    Recorded,
+    ScheduleDeleted,
+    ScheduleDeleteUnverified,
+    event_job,
+    record,
+)
 from server.services.link import GroundLink, LinkEvent, LinkUp, RequestVerified, TelemetryWindow
 from server.services.tracker import LINK_DOWN_POLL_S, CommandTracker
 from server.services.uplink import RttEstimator
@@ -171,7 +177,7 @@ class ScheduleDeletes:
         clock = self._clock
         now = clock.time_ns()
 
-        def job(session: Session) -> list[dict[str, Any]]:
+        def job(session: Session) -> list[Recorded]:
             events = [record(session, deleted, clock.time_ns())]
             if seqs:
                 events += cancel_commands(

@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
 from server.services.db_batch import Batched
-from server.services.event_log import Event, record_many
+from server.services.event_log import Event, Recorded, record_many
 from server.services.events import CommandAckUnknown, CommandStage
 from server.storage import repository as repo
 from server.storage._common import canonical_id
@@ -31,7 +31,7 @@ from server.storage.stages import moves
 
 __all__ = ["StageMove", "StageWrites", "newest_pass_of"]
 
-Events = list[dict[str, Any]]
+Events = list[Recorded]
 
 
 @dataclass(frozen=True)

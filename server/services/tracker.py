@@ -27,12 +27,12 @@ import asyncio
 import contextlib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any
 
 from sqlalchemy.orm import Session
 
 from server.services.clock import Clock
 from server.services.dbworker import Database
+from server.services.event_log import Recorded
 from server.services.link import (
     CommandAcked,
     CommandsUnknown,
@@ -67,7 +67,7 @@ EXPIRED_QUERIES = 2
 #: Ground s between looks while the link is down (its return wakes the waiter at once).
 LINK_DOWN_POLL_S = 0.5
 
-Job = Callable[[Session], list[dict[str, Any]]]
+Job = Callable[[Session], list[Recorded]]
 
 
 @dataclass

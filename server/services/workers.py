@@ -47,10 +47,10 @@ import contextlib
 import multiprocessing
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from multiprocessing.process import BaseProcess
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from server.logs import current_log_config
 from server.services.errors import (
@@ -60,6 +60,9 @@ from server.services.errors import (
     UnavailableError,
 )
 from server.services.jobs import run_job
+
+if TYPE_CHECKING:
+    from server.services.publisher import Publisher
 
 __all__ = [
     "POLL_S",
@@ -123,11 +126,14 @@ class WorkerPool:
         memory_bytes: int | None = 2 << 30,
         context: str = "forkserver",
         preload: tuple[str, ...] = PRELOAD,
+        publisher: Publisher | None = None,
     ) -> None:
         if workers < 1 or queue < 0:
             raise ValueError(f"workers {workers} must be >= 1 and queue {queue} >= 0")
         self.workers = workers
         self.queue = queue
+        #: gets what a job wrote to publish (:meth:`run_written`)
+        self.publisher = publisher
         self.memory_bytes = memory_bytes
         self._ctx = multiprocessing.get_context(context)
         if context == "forkserver":
@@ -228,6 +234,17 @@ class WorkerPool:
                 with contextlib.suppress(OSError):
                     cleanup.unlink()
             raise
+
+    async def run_written(
+        self, fn: Callable[..., tuple[T, Sequence[Any]]], /, *args: Any, **kwargs: Any
+    ) -> T:
+        """:meth:`run` of a job that commits on its own connection and returns ``(result,
+        what it wrote to publish)`` (``event_log.with_written``): that is published here (the
+        job's process has no publisher), the result returned."""
+        result, written = await self.run(fn, *args, **kwargs)
+        if self.publisher is not None:
+            self.publisher.deliver(written)
+        return result
 
     async def _admit(
         self,

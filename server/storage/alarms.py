@@ -34,6 +34,7 @@ from server.storage.models import (
     ALARM_STATES,
     AlarmRecord,
 )
+from telemetry.alarm import ALARM_FIELDS, AlarmPublic
 
 __all__ = [
     "ALARM_FIELDS",
@@ -43,39 +44,9 @@ __all__ = [
     "list_alarms",
     "listed_alarms",
     "save_alarms",
+    "stored_alarm",
 ]
 
-#: The fields of an alarm's document, in the order the JSON gives them.
-ALARM_FIELDS = (
-    "id",
-    "pass_id",
-    "quantity",
-    "channel",
-    "label",
-    "unit",
-    "direction",
-    "source",
-    "severity",
-    "current_severity",
-    "state",
-    "acknowledged",
-    "acknowledged_by",
-    "acknowledged_time_ns",
-    "comment",
-    "limit",
-    "trigger_value",
-    "worst_value",
-    "last_value",
-    "count",
-    "raised_frame_seq",
-    "raised_generation_time_ns",
-    "raised_time_ns",
-    "updated_time_ns",
-    "cleared_generation_time_ns",
-    "cleared_time_ns",
-    "timeline",
-    "detail",
-)
 _COLUMN = {"limit": "limit_value"}
 #: Written by :func:`acknowledge` only (and by :func:`save_alarms` when it inserts).
 _ACK_FIELDS = ("acknowledged", "acknowledged_by", "acknowledged_time_ns", "comment")
@@ -85,6 +56,11 @@ _FLOATS = ("limit", "trigger_value", "worst_value", "last_value")
 def alarm_document(record: AlarmRecord) -> dict[str, Any]:
     """The alarm's JSON document (see the module docstring)."""
     return {name: getattr(record, _COLUMN.get(name, name)) for name in ALARM_FIELDS}
+
+
+def stored_alarm(record: AlarmRecord) -> AlarmPublic:
+    """The stored alarm as its one model (:class:`telemetry.alarm.AlarmPublic`)."""
+    return AlarmPublic.model_validate(alarm_document(record))
 
 
 def _active() -> ColumnElement[bool]:

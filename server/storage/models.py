@@ -49,6 +49,8 @@ from sqlalchemy import (
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from planner.limits import SEVERITIES
+from telemetry.alarm import ALARM_DIRECTIONS, ALARM_SOURCES, ALARM_STATES
 from telemetry.layout import FrameLayout
 
 __all__ = [
@@ -100,12 +102,8 @@ COMMAND_STAGES = (
     "cancelled",
 )
 
-#: Yamcs's five levels, lowest first (planner.limits.Severity; storage imports no planner).
-ALARM_SEVERITIES = ("watch", "warning", "distress", "critical", "severe")
-#: ``limit``: the ground's limit check of a quantity; ``vehicle``: the vehicle's safing.
-ALARM_SOURCES = ("limit", "vehicle")
-ALARM_STATES = ("triggered", "cleared")
-ALARM_DIRECTIONS = ("high", "low")
+#: Yamcs's five levels, lowest first (planner.limits.Severity, the one declaration).
+ALARM_SEVERITIES: tuple[str, ...] = tuple(s.value for s in SEVERITIES)
 
 #: An int64 key that autoincrements: on SQLite only ``INTEGER PRIMARY KEY`` aliases the rowid.
 BigIntKey = BigInteger().with_variant(sqlite.INTEGER(), "sqlite")

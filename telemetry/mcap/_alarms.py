@@ -12,11 +12,13 @@ distress ``WARNING``, critical ``ERROR``, severe ``FATAL``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from planner.limits import Severity
+from telemetry.alarm import AlarmPublic
 from telemetry.foxglove import LOG_LEVELS
 from telemetry.recording import FrameArrays
 
@@ -25,13 +27,13 @@ __all__ = ["ALARM_LOG_NAME", "TOPIC_ALARMS", "alarm_logs"]
 TOPIC_ALARMS = "/alarms"
 #: The ``name`` of every ``/alarms`` message (Foxglove's Log panel filters by it).
 ALARM_LOG_NAME = "hikoboshi.alarms"
-_LEVEL = {
+_LEVEL: dict[Severity | None, str] = {
     None: "INFO",
-    "watch": "INFO",
-    "warning": "WARNING",
-    "distress": "WARNING",
-    "critical": "ERROR",
-    "severe": "FATAL",
+    Severity.WATCH: "INFO",
+    Severity.WARNING: "WARNING",
+    Severity.DISTRESS: "WARNING",
+    Severity.CRITICAL: "ERROR",
+    Severity.SEVERE: "FATAL",
 }
 
 
@@ -57,11 +59,6 @@ def _number(value: Any, unit: str) -> str:
     return f"{value:.4g}" + (f" {unit}" if unit and unit != "1" else "")
 
 
-def _what(alarm: Mapping[str, Any]) -> str:
-    channel = alarm.get("channel") or ""
-    return f"{alarm.get('label') or alarm.get('quantity')}{' ' + channel if channel else ''}"
-
-
 def _log(log_ns: int, level: str, message: str, line: int) -> dict[str, Any]:
     return {
         "timestamp": {"sec": log_ns // 10**9, "nsec": log_ns % 10**9},
@@ -74,36 +71,34 @@ def _log(log_ns: int, level: str, message: str, line: int) -> dict[str, Any]:
 
 
 def alarm_logs(
-    alarms: Sequence[Mapping[str, Any]], frames: FrameArrays, epoch_ns: int
+    alarms: Sequence[AlarmPublic], frames: FrameArrays, epoch_ns: int
 ) -> tuple[list[int], list[dict[str, Any]]]:
     """The ``/alarms`` messages of ``alarms`` and their log times (onboard ns), in time
     order."""
     onboard = _GroundToOnboard(frames, epoch_ns)
     out: list[tuple[int, int, dict[str, Any]]] = []
     for a in alarms:
-        what, unit, short = _what(a), str(a.get("unit") or ""), str(a.get("id", ""))[:8]
-        for entry in a.get("timeline") or ():
-            severity = entry.get("severity")
-            gen = entry.get("generation_time_ns")
-            log_ns = int(gen) if gen is not None else onboard(int(entry["time_ns"]))
-            value = _number(entry.get("value"), unit)
+        what, unit, short = a.what, a.unit, a.id[:8]
+        for entry in a.timeline:
+            severity = entry.severity
+            gen = entry.generation_time_ns
+            log_ns = gen if gen is not None else onboard(entry.time_ns)
+            value = _number(entry.value, unit)
             if severity is None:
                 text = f"{what} back within limits: {value} (alarm {short})"
             else:
                 text = (
-                    f"[{severity}] {what}: {value} beyond {a.get('direction')} limits "
-                    f"(alarm {short}, {a.get('source')})"
+                    f"[{severity}] {what}: {value} beyond {a.direction} limits "
+                    f"(alarm {short}, {a.source})"
                 )
-                if a.get("detail"):
-                    text += f": {a['detail']}"
-            seq = entry.get("frame_seq")
-            out.append(
-                (log_ns, len(out), _log(log_ns, _LEVEL.get(severity, "INFO"), text, seq or 0))
-            )
-        if a.get("acknowledged") and a.get("acknowledged_time_ns") is not None:
-            log_ns = onboard(int(a["acknowledged_time_ns"]))
-            comment = a.get("comment")
-            text = f"{what} acknowledged by {a.get('acknowledged_by')} (alarm {short})"
+                if a.detail:
+                    text += f": {a.detail}"
+            seq = entry.frame_seq
+            out.append((log_ns, len(out), _log(log_ns, _LEVEL[severity], text, seq or 0)))
+        if a.acknowledged and a.acknowledged_time_ns is not None:
+            log_ns = onboard(a.acknowledged_time_ns)
+            comment = a.comment
+            text = f"{what} acknowledged by {a.acknowledged_by} (alarm {short})"
             text += f": {comment}" if comment else ""
             out.append((log_ns, len(out), _log(log_ns, "INFO", text, 0)))
     out.sort(key=lambda item: (item[0], item[1]))

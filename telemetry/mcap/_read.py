@@ -28,9 +28,11 @@ from mcap.opcode import Opcode
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Schema
 from mcap.summary import Summary
+from pydantic import ValidationError
 
 from planner.errors import InvalidInput
 from planner.plan import Plan
+from telemetry.alarm import AlarmPublic
 from telemetry.layout import DEFAULT_LAYOUT, FrameLayout
 from telemetry.mcap._errors import RecordingFileError
 from telemetry.mcap._jsonschema import SchemaViolation, Validator
@@ -360,7 +362,7 @@ def _build(
     )
 
 
-def _alarms(meta: Mapping[str, str]) -> tuple[dict[str, Any], ...]:
+def _alarms(meta: Mapping[str, str]) -> tuple[AlarmPublic, ...]:
     """The alarms of the metadata's ``alarms_json`` (none in a file written before alarms,
     or of a pass without any)."""
     try:
@@ -376,7 +378,17 @@ def _alarms(meta: Mapping[str, str]) -> tuple[dict[str, Any], ...]:
             f"metadata {METADATA_NAME!r} says {meta['alarms']} alarms, alarms_json holds "
             f"{len(alarms)}"
         )
-    return tuple(alarms)
+    out = []
+    for k, doc in enumerate(alarms):
+        try:
+            out.append(AlarmPublic.model_validate(doc))
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise RecordingFileError(
+                f"metadata {METADATA_NAME!r}: alarms_json: alarm {k}: {where}: {first['msg']}"
+            ) from None
+    return tuple(out)
 
 
 def read_mcap(

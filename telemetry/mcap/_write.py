@@ -136,7 +136,9 @@ def _metadata(recording: PassRecording) -> dict[str, str]:
     if recording.alarms:
         alarms = {
             "alarms": str(len(recording.alarms)),
-            "alarms_json": json.dumps([dict(a) for a in recording.alarms], allow_nan=False),
+            "alarms_json": json.dumps(
+                [a.model_dump(mode="json") for a in recording.alarms], allow_nan=False
+            ),
         }
     return {
         "format": FORMAT,

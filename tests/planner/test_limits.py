@@ -188,7 +188,20 @@ TABLE_FAULTS: dict[str, tuple[dict[str, object], list[str]]] = {
         {"clearance_m": {"watch": 0.03, "critical": 0.08}},
         ["critical = 0.08 must be strictly below watch = 0.03"],
     ),
+    "persistence_zero": ({"persistence": 0}, ["[limits].persistence", "from 1 to 1000, got 0"]),
+    "persistence_text": ({"persistence": "3"}, ["[limits].persistence", "got '3'"]),
+    "persistence_float": ({"persistence": 2.5}, ["[limits].persistence", "got 2.5"]),
+    "persistence_bool": ({"persistence": True}, ["[limits].persistence", "got True"]),
+    "persistence_huge": ({"persistence": 1001}, ["[limits].persistence", "got 1001"]),
 }
+
+
+def test_a_table_s_persistence_is_kept_and_defaults_to_one() -> None:
+    limits = Limits.from_table({"persistence": 3, "frame_age_s": {"distress": 30}})
+    assert limits.persistence == 3 and DEFAULT_LIMITS.persistence == 1
+    assert limits["frame_age_s"].to_dict() == {"distress": 30.0}
+    assert Limits.from_table(limits.to_table()) == limits
+    assert "persistence" not in DEFAULT_LIMITS.to_table()  # 1: the tables of before
 
 
 @pytest.mark.parametrize("fault", list(TABLE_FAULTS))
@@ -235,6 +248,15 @@ def test_a_description_s_limits_are_read_and_the_rest_default(tmp_path: Path) ->
     assert robot.limits["clearance_m"].to_dict() == {"watch": 0.2, "critical": 0.05}
     assert robot.limits["frame_age_s"] == DEFAULT_LIMITS["frame_age_s"]
     assert robot.content_sha256 != default_robot().content_sha256
+    assert robot.limits.persistence == 1
+
+
+def test_a_description_s_persistence_is_read(tmp_path: Path) -> None:
+    toml = _copy(tmp_path, "ets7")
+    _set_limits(toml, "[limits]\npersistence = 4\n[limits.clearance_m]\nwatch = 0.2\n")
+    robot = load_robot(toml)
+    assert robot.limits.persistence == 4
+    assert robot.limits["clearance_m"].to_dict() == {"watch": 0.2}
 
 
 @pytest.mark.parametrize(
@@ -248,6 +270,7 @@ def test_a_description_s_limits_are_read_and_the_rest_default(tmp_path: Path) ->
         ),
         ("[limits]\nclearance_m = 0.1\n", ["[limits.clearance_m]", "must be a table"]),
         ("limits = 3\n", ["[limits]", "must be a table"]),
+        ("[limits]\npersistence = 0\n", ["[limits].persistence", "from 1 to 1000"]),
     ],
 )
 def test_a_bad_limits_table_names_the_file_and_the_element(

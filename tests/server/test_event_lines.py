@@ -23,11 +23,11 @@ from server.services.events import (
     PassControlRefused,
     PassStartRefused,
     PassState,
+    Recorded,
     VehicleSafed,
     VehicleSafeExited,
     VehicleSafeExitRequested,
     VehicleSafeExitUnverified,
-    published,
 )
 from server.services.publisher import Publisher
 
@@ -127,7 +127,7 @@ def test_each_operator_event_is_one_line_saying_what_happened(
     ]  # fmt: skip
     with caplog.at_level(logging.INFO, logger="hikoboshi.ground.events"):
         for i, event in enumerate([e for e, _, _ in CASES] + quiet):
-            publisher.publish([published(event, 1_000 + i, i)])
+            publisher.publish([Recorded(event, 1_000 + i, i)])
     records = [r for r in caplog.records if r.name == "hikoboshi.ground.events"]
     assert len(records) == len(CASES)  # the command stage and the hello write none
     text, as_json = TextFormatter(), JsonFormatter()

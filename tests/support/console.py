@@ -20,7 +20,7 @@ from server.services.clock import Clock
 from server.services.console import ConsoleHub
 from server.services.dbworker import Database
 from server.services.downlink import GroundDownlink
-from server.services.events import Event, record
+from server.services.events import CommandStage, Event, Recorded, record
 from server.services.link import Connection, GroundLink
 from server.storage import repository as repo
 from spacecraft.offline import OfflineFlight
@@ -238,14 +238,10 @@ def welcome(ws: WebSocketTestSession) -> dict[str, Any]:
     return message
 
 
-def stage_event(n: int, pass_id: str | None = None) -> dict[str, Any]:
+def stage_event(n: int, pass_id: str | None = None) -> Recorded:
     """The ``n``-th command's move from released to sent, at ``n`` ns, as the database
-    worker publishes it to the consoles."""
-    detail = {"seq": n, "from": "released", "stage": "sent", "time_ns": n}
-    return {
-        "kind": "command_stage",
-        "actor": "ground",
-        "detail": detail,
-        "pass_id": pass_id,
-        "time_ns": n,
-    }
+    worker publishes it to the consoles (event id ``n``)."""
+    stage = CommandStage(
+        actor="ground", pass_id=pass_id, seq=n, from_stage="released", stage="sent", time_ns=n
+    )
+    return Recorded(stage, n, n)

@@ -13,6 +13,7 @@ from mcap.reader import make_reader
 
 from planner.plan import Plan
 from spacecraft.offline import OfflineFlight, fly_offline
+from telemetry.alarm import AlarmPublic
 from telemetry.mcap import METADATA_NAME, TOPIC_ALARMS, RecordingFileError, read_mcap, write_mcap
 from telemetry.mcap._alarms import ALARM_LOG_NAME
 from telemetry.recording import PassRecording
@@ -91,7 +92,11 @@ def _recording(flown: tuple[Plan, OfflineFlight], *alarms: dict[str, Any]) -> Pa
     received = frames.reception_time_ns
     received[:] = 1_000 + (frames.seq - frames.seq[0])
     return PassRecording(
-        recording.name, recording.plan, recording.epoch_ns, frames, alarms=tuple(alarms)
+        recording.name,
+        recording.plan,
+        recording.epoch_ns,
+        frames,
+        alarms=tuple(AlarmPublic.model_validate(a) for a in alarms),
     )
 
 
@@ -105,7 +110,8 @@ def test_alarms_become_foxglove_logs_and_read_back(flown: tuple[Plan, OfflineFli
     tracking, link = _alarms(flown[1])
     recording = _recording(flown, tracking, link)
     data = _write(recording)
-    assert read_mcap(io.BytesIO(data)).alarms == (tracking, link)
+    read = read_mcap(io.BytesIO(data)).alarms
+    assert [a.model_dump(mode="json") for a in read] == [tracking, link]
 
     reader = make_reader(io.BytesIO(data))
     validator = jsonschema_rs.validator_for(FOXGLOVE_LOG)

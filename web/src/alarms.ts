@@ -3,18 +3,20 @@
 // their `updated_time_ns`), and how an alarm's values read (units, limits, times).
 
 import { get } from "./api";
-import type { ConsoleAlarm, LinkStatus } from "./protocol.gen";
+import { SEVERITIES } from "./protocol.gen";
+import type { AlarmPublic, LinkStatus, Severity } from "./protocol.gen";
 import { fmt } from "./ui";
 
-export type Alarm = ConsoleAlarm;
-export type Severity = ConsoleAlarm["severity"];
+export type Alarm = AlarmPublic;
+export type { Severity };
 
 /** Yamcs's five levels, worst first (the order the banner and the list show them in). */
-export const SEVERITIES_WORST_FIRST: readonly Severity[] = ["severe", "critical", "distress", "warning", "watch"];
+export const SEVERITIES_WORST_FIRST: readonly Severity[] = [...SEVERITIES].reverse();
 
-export const SEVERITY_RANK: Record<Severity, number> = {
-  watch: 1, warning: 2, distress: 3, critical: 4, severe: 5,
-};
+/** Watch 1 .. severe 5. */
+export const SEVERITY_RANK = Object.fromEntries(
+  SEVERITIES.map((s, k) => [s, k + 1]),
+) as Record<Severity, number>;
 
 /** One colour a severity each, read at a glance: blue watch, yellow warning (COSMOS's
  * yellow), orange distress, red critical (COSMOS's red), magenta severe. */

@@ -12,17 +12,11 @@ export interface AlarmMsg {
   topic: "alarms";
   type: "alarm";
   seq: number;
-  alarm: ConsoleAlarm;
+  alarm: AlarmPublic;
 }
 
-/** As fast as the console takes it, `batch_frames` frames a message. */
-export interface AsFastAsPossibleSpec {
-  mode: "as_fast_as_possible";
-  batch_frames: number;
-}
-
-/** An alarm as written (docs/alarms.md; `GET /api/alarms`'s items). */
-export interface ConsoleAlarm {
+/** An alarm (docs/alarms.md): `severity` the worst band reached, `limit` its threshold; `current_severity` null once back within limits (`state` cleared). Active (listed) while triggered or not acknowledged. `*_generation_time_ns` are onboard times, the other `*_ns` ground times. */
+export interface AlarmPublic {
   id: string;
   pass_id: string | null;
   quantity: string;
@@ -31,8 +25,8 @@ export interface ConsoleAlarm {
   unit: string;
   direction: "high" | "low";
   source: "limit" | "vehicle";
-  severity: "watch" | "warning" | "distress" | "critical" | "severe";
-  current_severity: "watch" | "warning" | "distress" | "critical" | "severe" | null;
+  severity: Severity;
+  current_severity: Severity | null;
   state: "triggered" | "cleared";
   acknowledged: boolean;
   acknowledged_by: string | null;
@@ -49,17 +43,23 @@ export interface ConsoleAlarm {
   updated_time_ns: number;
   cleared_generation_time_ns: number | null;
   cleared_time_ns: number | null;
-  timeline: ConsoleAlarmTimelineEntry[];
+  timeline: AlarmTimelineEntryPublic[];
   detail: string | null;
 }
 
-/** A change of an alarm's band (`severity` null: back within limits); `generation_time_ns` onboard, `time_ns` ground. */
-export interface ConsoleAlarmTimelineEntry {
-  severity: "watch" | "warning" | "distress" | "critical" | "severe" | null;
+/** A change of band: `severity` null when back within limits. `generation_time_ns` (onboard) and `frame_seq` are the frame's (null for the link's health, checked on the ground's timer); `time_ns` is when the ground saw it (ground). */
+export interface AlarmTimelineEntryPublic {
+  severity: Severity | null;
   generation_time_ns: number | null;
   time_ns: number;
   frame_seq: number | null;
   value: number | null;
+}
+
+/** As fast as the console takes it, `batch_frames` frames a message. */
+export interface AsFastAsPossibleSpec {
+  mode: "as_fast_as_possible";
+  batch_frames: number;
 }
 
 /** A committed event as the publisher delivers it (`pass_id` in canonical form). */
@@ -264,6 +264,9 @@ export interface ScheduleStatus {
   as_of_ns: number;
 }
 
+/** Yamcs's five alarm levels, least severe first. */
+export type Severity = "watch" | "warning" | "distress" | "critical" | "severe";
+
 /** Nothing moves by itself: `replay_step` delivers one frame. */
 export interface StepSpec {
   mode: "step";
@@ -345,6 +348,11 @@ export type ServerMessage =
   | ReplayClosedMsg
   | ReplayTelemetryMsg
   | ReplayCommandsMsg;
+
+// --- alarms ---
+
+/** Yamcs's five alarm levels, least severe first (planner/limits.py SEVERITIES). */
+export const SEVERITIES = ["watch", "warning", "distress", "critical", "severe"] as const;
 
 // --- command stages ---
 

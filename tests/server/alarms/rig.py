@@ -94,7 +94,10 @@ class Rig:
             self.live.downlink.open_window(pass_id, 0)
         self.pass_id = pass_id
         self.published: list[dict[str, Any]] = []
-        self.live.publisher.subscribe_alarms(self.published.append)
+        #: every alarm published, as its JSON
+        self.live.publisher.subscribe_alarms(
+            lambda alarm: self.published.append(alarm.model_dump(mode="json"))
+        )
         self.vehicle = SimulatedSpacecraft(self.clock, delay_s=0.0)
 
     async def connect(self) -> None:

@@ -217,17 +217,17 @@ def test_a_generated_client_calls_every_operation(
         ids = _stored(ground)
         calls = _calls(namespace, ids)
         assert set(calls) == set(operations)  # every operation, and none we made up
-        client = client_package.AuthenticatedClient(
-            base_url=ground.url, token=OPERATOR_TOKEN, timeout=120.0
-        )
         wrong = {}
-        for name, (arguments, status, parsed) in sorted(calls.items()):
-            response = operations[name].sync_detailed(client=client, **arguments())
-            got = type(response.parsed).__name__
-            if got == "ErrorPublic":
-                got = response.parsed.code
-            if (response.status_code, got) != (status, parsed):
-                wrong[name] = (response.status_code, got, response.content[:200])
+        with client_package.AuthenticatedClient(
+            base_url=ground.url, token=OPERATOR_TOKEN, timeout=120.0
+        ) as client:  # its connections closed with it
+            for name, (arguments, status, parsed) in sorted(calls.items()):
+                response = operations[name].sync_detailed(client=client, **arguments())
+                got = type(response.parsed).__name__
+                if got == "ErrorPublic":
+                    got = response.parsed.code
+                if (response.status_code, got) != (status, parsed):
+                    wrong[name] = (response.status_code, got, response.content[:200])
         assert wrong == {}, "\n".join(f"{k}: {v[0]} {v[1]}" for k, v in wrong.items())
 
 

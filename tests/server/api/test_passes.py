@@ -226,7 +226,9 @@ def test_rest_side_events_reach_the_consoles_once_committed(
     """Every REST-side event write is published too (issue 23): scheduling a pass, and a
     refused pass control, reach the publisher the consoles subscribe to, as stored."""
     published: list[dict[str, Any]] = []
-    unsubscribe = client.app.state.publisher.subscribe(published.append)  # type: ignore[attr-defined]
+    unsubscribe = client.app.state.publisher.subscribe(  # type: ignore[attr-defined]
+        lambda recorded: published.append(recorded.document())
+    )
     try:
         plan_id = _stored_plan(client, ptp_plan)
         body = _request(plan_id, ptp_plan.duration_s + LEAD_S)

@@ -21,6 +21,7 @@ import pytest
 from server.services._console_jetstream import AcrossGrounds
 from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
+from server.services.events import CommandStage, PassState, Recorded
 from server.services.jetstream import BusConfig, LiveBus, token
 from server.services.link import LinkStatus
 from tests.nats_server import nats_server
@@ -48,9 +49,14 @@ class Socket:
         return [m for m in self.received if m["type"] == "event"]
 
 
-def _event(n: int, kind: str = "command_stage") -> dict[str, Any]:
-    detail = {"seq": n, "from": "released", "stage": "sent", "time_ns": n}
-    return {"kind": kind, "actor": "ground", "detail": detail, "pass_id": None, "time_ns": n}
+def _event(n: int) -> Recorded:
+    stage = CommandStage(actor="ground", seq=n, from_stage="released", stage="sent", time_ns=n)
+    return Recorded(stage, n, n)
+
+
+def _pass_state(n: int) -> Recorded:
+    state = PassState(actor="ground", from_state="aos", to="running", reason="start", version=n)
+    return Recorded(state, n, 10**6 + n)
 
 
 async def _until(predicate: Callable[[], bool], what: str) -> None:
@@ -125,7 +131,7 @@ def test_a_console_on_another_ground_sees_the_same_stream_and_resumes_there(
                 for n in range(1, N + 1):
                     a.publisher.publish([_event(n)])
                     if n == N // 2:
-                        a.publisher.publish([_event(n, "pass_state")])
+                        a.publisher.publish([_pass_state(n)])
                 await _until(lambda: len(on_a.events()) == N, "A's console has every stage")
                 await _until(lambda: len(on_b.events()) == N + 1, "B's console, every event")
                 out["a"], out["b"] = on_a.events(), on_b.events()

@@ -15,6 +15,7 @@ import pytest
 from server.services.clock import Clock, ManualClock, SystemClock
 from server.services.console import ConsoleHub, ConsoleLimits
 from server.services.dbworker import Publisher
+from server.services.events import PassState, Recorded
 from server.services.link import LinkStatus
 from tests.support.console import stage_event
 
@@ -129,9 +130,16 @@ class Recorder:
         return [m for m in self.received if m["type"] == kind]
 
 
-def _abort(pass_id: str) -> dict[str, Any]:
-    detail = {"from": "running", "to": "aborted", "reason": "operator abort", "version": 4}
-    return {"kind": "pass_state", "actor": "otto", "detail": detail, "pass_id": pass_id}
+def _abort(pass_id: str, time_ns: int) -> Recorded:
+    state = PassState(
+        actor="otto",
+        pass_id=pass_id,
+        from_state="running",
+        to="aborted",
+        reason="operator abort",
+        version=4,
+    )
+    return Recorded(state, time_ns, 10**6 + time_ns)
 
 
 PASS = "7d3c0000-0000-4000-8000-000000000001"
@@ -170,7 +178,7 @@ def test_pass_states_jump_the_queue_and_each_stream_stays_in_order() -> None:
         for n in range(1, N_EVENTS + 1):
             publisher.publish([stage_event(n)])
             if n == 10:
-                publisher.publish([{**_abort(PASS), "time_ns": n}])
+                publisher.publish([_abort(PASS, n)])
         await _settle()
         slow.open.set()
         await _settle()
@@ -247,7 +255,7 @@ def test_a_console_behind_past_the_drop_bound_is_told_why_and_closed() -> None:
         hub._lag_watch = asyncio.create_task(hub._watch_lag())
         stuck = Recorder(clock)  # takes nothing at all, control messages included
         await _connect(hub, stuck, "stuck", ["passes"])
-        publisher.publish([{**_abort(PASS), "time_ns": 1}])
+        publisher.publish([_abort(PASS, 1)])
         await clock.advance(limits.behind_drop_s - 1.0)
         before = hub.clients
         await clock.advance(2.0)
@@ -294,7 +302,7 @@ def test_a_slow_console_beside_fast_ones_sees_the_abort_and_how_far_behind_it_is
                 if n % batch == 0:
                     await asyncio.sleep(0)
             if abort_at < 0 and elapsed >= BURST_S / 2:
-                publisher.publish([{**_abort(PASS), "time_ns": n}])
+                publisher.publish([_abort(PASS, n)])
                 abort_at = clock.monotonic()
             await asyncio.sleep(0.01)
         # Until the slow console has been told it caught up after the burst (a guard, not a
@@ -360,7 +368,7 @@ def test_a_console_that_acknowledges_holds_no_more_than_its_window_in_the_socket
             publisher.publish([stage_event(n)])
         await _settle()
         out: dict[str, Any] = {"held": list(socket.received), "queued": client.queued}
-        publisher.publish([{**_abort(PASS), "time_ns": 41}])  # a control message: not held
+        publisher.publish([_abort(PASS, 41)])  # a control message: not held
         await _settle()
         out["abort"] = list(socket.received)
         await ack(len(socket.received))  # read it all: the window lets more go

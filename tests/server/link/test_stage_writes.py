@@ -145,7 +145,7 @@ def test_batched_moves_file_what_one_job_each_filed(engine: Engine) -> None:
         results = StageWrites(clock)(session, [tuple(job) for job in moves(batched)])
         session.commit()
     assert [len(r) for r in results] == [12, 0, 1, 1, 1, 2, 1, 1]  # received after executed: none
-    assert results[-1][0]["kind"] == "command_ack_unknown"
+    assert results[-1][0].kind == "command_ack_unknown"
     columns = ["seq", "stage", "reject_reason", "transmissions", "cancelled_at_ns"]
     columns += [f"{s}_at_ns" for s in ("released", "sent", "received", "executed", "rejected")]
     columns += ["expired_at_ns"]
@@ -160,4 +160,4 @@ def test_batched_moves_file_what_one_job_each_filed(engine: Engine) -> None:
         )
 
     assert stored(batched) == stored(one)
-    assert [e["id"] for r in results for e in r] == sorted(e["id"] for r in results for e in r)
+    assert [e.id for r in results for e in r] == sorted(e.id for r in results for e in r)

@@ -49,7 +49,7 @@ async def _connect_in_turn(url: str, count: int) -> None:
 def test_every_takeover_is_audited_with_both_connections(tmp_path: Path) -> None:
     with running_ground(sqlite_url(tmp_path)) as ground:
         published: list[dict[str, Any]] = []
-        ground.app.state.publisher.subscribe(published.append)
+        ground.app.state.publisher.subscribe(lambda r: published.append(r.document()))
         asyncio.run(_connect_in_turn(ground.ws_url, TAKEOVERS + 1))
         deadline = time.monotonic() + 20.0  # a guard, not a timing assertion
         while len(_events(ground, "link_takeover")) < TAKEOVERS:

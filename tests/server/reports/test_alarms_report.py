@@ -10,6 +10,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from server.services.report_tables import build_report
+from telemetry.alarm import AlarmPublic
 from telemetry.mcap import TOPIC_ALARMS, read_mcap
 from telemetry.recording import PassRecording
 from tests.support.alarms import cleared_alarm
@@ -78,7 +79,8 @@ def test_the_report_lists_the_alarms_with_their_timeline_and_the_recording_keeps
     client: TestClient, short_recording: PassRecording
 ) -> None:
     tracking, safing = _alarms(short_recording)
-    recording = replace(short_recording, alarms=(tracking, safing))
+    models = (AlarmPublic.model_validate(tracking), AlarmPublic.model_validate(safing))
+    recording = replace(short_recording, alarms=models)
     reply = client.post("/api/passes/import", content=mcap_bytes(recording), headers=OPERATOR)
     assert reply.status_code == 201, reply.text
     pass_id = reply.json()["imported"]["id"]
@@ -123,8 +125,8 @@ def test_the_report_lists_the_alarms_with_their_timeline_and_the_recording_keeps
 
     exported = client.get(f"/api/passes/{pass_id}/recording.mcap", headers=VIEWER).content
     again = read_mcap(io.BytesIO(exported))
-    assert [a["quantity"] for a in again.alarms] == [tracking["quantity"], "vehicle_safing"]
-    assert again.alarms[0]["timeline"] == tracking["timeline"]
+    assert [a.quantity for a in again.alarms] == [tracking["quantity"], "vehicle_safing"]
+    assert again.alarms[0].model_dump(mode="json")["timeline"] == tracking["timeline"]
     from mcap.reader import make_reader
 
     logs = list(make_reader(io.BytesIO(exported)).iter_messages(topics=[TOPIC_ALARMS]))
