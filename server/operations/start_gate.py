@@ -2,8 +2,9 @@
 
 ``POST /api/passes/{id}/start`` asks :func:`start_gate_job` (a short database job of the
 command path) before the runner starts the pass. Refused, in this order, each a 409 audited
-as ``pass_start_refused``
-(:class:`~server.services.events.PassStartRefusedFlightRules`, told apart by ``reason``;
+as ``pass_start_refused`` (:class:`~server.services.events.PassStartRefusedWindow` with the
+window, :class:`~server.services.events.PassStartRefusedFlightRules` with the failing rows;
+told apart by ``reason``;
 the pass stays ``scheduled`` and nothing reaches the link):
 
 1. **The window** (:func:`server.operations.windows.start_refusal`, read on the ground's
@@ -31,7 +32,12 @@ from sqlalchemy.orm import Session
 from planner.flight_rules import FlightRulesReport, fits_pass_row
 from server.operations.windows import Refusal, WindowTime, start_refusal
 from server.services.clock import Clock
-from server.services.events import PassStartRefusedFlightRules, Recorded
+from server.services.events import (
+    Event,
+    PassStartRefusedFlightRules,
+    PassStartRefusedWindow,
+    Recorded,
+)
 from server.services.events import record as record_event
 from server.services.plans import FLIGHT_RULE_VIOLATION, violation_message
 from server.storage import repository as repo
@@ -76,19 +82,29 @@ def start_gate_job(
         refusal = None
         if at is not None:
             refusal = start_refusal(record, plan_s=plan.duration_s, lead_s=lead_s, at=at)
-        if refusal is None:
+        event: Event
+        if refusal is not None:
+            event = PassStartRefusedWindow(
+                actor=actor,
+                pass_id=record.id,
+                reason=refusal.code,
+                message=refusal.message,
+                plan_id=record.plan_id,
+                window=dict(refusal.detail),
+            )
+        else:
             refusal = _flight_rules_refusal(record, plan.document, plan.duration_s, window_s)
-        if refusal is None:
-            return StartGate(record.plan_id)
-        event = PassStartRefusedFlightRules(
-            actor=actor,
-            pass_id=record.id,
-            reason=refusal.code,
-            message=refusal.message,
-            plan_id=record.plan_id,
-            rows=list(refusal.detail.get("rows", [])),
-            window_s=window_s,
-        )
+            if refusal is None:
+                return StartGate(record.plan_id)
+            event = PassStartRefusedFlightRules(
+                actor=actor,
+                pass_id=record.id,
+                reason=refusal.code,
+                message=refusal.message,
+                plan_id=record.plan_id,
+                rows=list(refusal.detail.get("rows", [])),
+                window_s=window_s,
+            )
         written = record_event(session, event, clock.time_ns())
         return StartGate(record.plan_id, refusal=refusal, events=[written])
 

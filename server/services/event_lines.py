@@ -63,7 +63,9 @@ def _alarm_acknowledged(e: ev.AlarmAcknowledged) -> tuple[int, str]:
     return logging.INFO, f"alarm acknowledged: {what}" + (f": {e.comment}" if e.comment else "")
 
 
-def _start_refused(e: ev.PassStartRefused | ev.PassStartRefusedFlightRules) -> tuple[int, str]:
+def _start_refused(
+    e: ev.PassStartRefused | ev.PassStartRefusedFlightRules | ev.PassStartRefusedWindow,
+) -> tuple[int, str]:
     return logging.WARNING, f"start refused ({e.reason}): {e.message}"
 
 
@@ -86,7 +88,7 @@ def _line(event: Event) -> tuple[int, str] | None:
             return _alarm_cleared(event)
         case ev.AlarmAcknowledged():
             return _alarm_acknowledged(event)
-        case ev.PassStartRefused() | ev.PassStartRefusedFlightRules():
+        case ev.PassStartRefused() | ev.PassStartRefusedFlightRules() | ev.PassStartRefusedWindow():
             return _start_refused(event)
         case ev.PassControlRefused(action=action, confirm=confirm):
             return logging.WARNING, f"{action} refused: the confirmation {confirm!r} does not match"
@@ -105,6 +107,7 @@ LOGGED: tuple[type[Event], ...] = (
     ev.AlarmAcknowledged,
     ev.PassStartRefused,
     ev.PassStartRefusedFlightRules,
+    ev.PassStartRefusedWindow,
     ev.PassControlRefused,
 )
 #: The kinds of events that get a line.

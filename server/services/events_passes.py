@@ -27,6 +27,7 @@ __all__ = [
     "PassScheduled",
     "PassStartRefused",
     "PassStartRefusedFlightRules",
+    "PassStartRefusedWindow",
     "PassState",
     "PlanChecked",
     "PlanCreated",
@@ -80,6 +81,21 @@ class PassStartRefusedFlightRules(Event):
     plan_id: str
     rows: list[dict[str, Any]]
     window_s: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class PassStartRefusedWindow(Event):
+    """A start refused by the pass's window (server.operations.windows): ``reason``
+    ``outside_window`` (before its usable part opens or after it closed) or
+    ``plan_exceeds_window`` (too late in it for the plan's last command); ``window`` is the
+    refusal's detail: the window's AOS and LOS, its usable start and end, and the ground's
+    time it was judged at. The kind of every refused start."""
+
+    kind = "pass_start_refused"
+    reason: str
+    message: str
+    plan_id: str
+    window: dict[str, Any]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -305,6 +305,10 @@ def test_a_pass_starts_only_inside_its_window_and_early_enough_for_its_plan(
     events = client.get("/api/events?kind=pass_start_refused", headers=VIEWER).json()["data"]
     got = sorted((e["detail"]["reason"], e["detail"]["message"]) for e in events)
     assert got == sorted(refused)
+    for e in events:  # the window it was judged by, and the ground's time, in the audit
+        window = e["detail"]["window"]
+        assert {"aos_time", "los_time"} <= set(window), window
+        assert "ground_time" in window, window  # the test's ground judges on its own clock
     assert client.get(f"/api/passes/{pass_id}", headers=VIEWER).json()["state"] == "scheduled"
 
     for at in (net_start, latest - timedelta(seconds=1)):
