@@ -58,5 +58,7 @@ def test_a_ground_that_is_gone_is_a_demo_error_too() -> None:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]  # closed again: nothing listens there
-    with pytest.raises(DemoError, match=r"^GET /api/link/status: no answer"):
+    with pytest.raises(
+        DemoError, match=r"^GET /api/link/status: http://127.0.0.1:\d+ refused the connection"
+    ):
         _Api(f"http://127.0.0.1:{port}", "token").call("GET", "/api/link/status", timeout_s=2.0)

@@ -42,6 +42,16 @@ TOPICS = {"/tf", "/events", "/scene", "/robot_description"}
 CLIENTS = Path(__file__).resolve().parents[2] / "clients"  # tests/clients: npm, locked
 
 
+def _reap(node: subprocess.Popen[str]) -> None:
+    """The client process ended and its pipes closed, whatever happened to the test."""
+    if node.poll() is None:
+        node.kill()
+    node.wait(timeout=30)  # a guard: a killed process ends at once
+    for pipe in (node.stdin, node.stdout, node.stderr):
+        if pipe is not None and not pipe.closed:
+            pipe.close()
+
+
 def official_client(url: str, token: str) -> subprocess.Popen[str]:
     """Foxglove's own client in Node, subscribed to every channel (tests/clients/
     foxglove_subscribe.mjs): it prints a line once subscribed, and its counts once it has
@@ -70,13 +80,19 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
         subscribed = asyncio.Event()
         client = asyncio.create_task(listen(ws_url, TOPICS, received, subscribed, headers=VIEWER))
         node = official_client(ws_url, VIEWER["Authorization"].removeprefix("Bearer "))
-        assert node.stdout is not None and node.stdin is not None
-        line = await asyncio.wait_for(asyncio.to_thread(node.stdout.readline), 30.0)  # guard
-        assert json.loads(line or "{}").get("event") == "subscribed", (line, node.stderr)
-        process, _ = spacecraft(ground)
         try:
+            assert node.stdout is not None and node.stdin is not None
+            line = await asyncio.wait_for(asyncio.to_thread(node.stdout.readline), 60.0)  # guard
+            assert json.loads(line or "{}").get("event") == "subscribed", (line, node.stderr)
+            # both clients subscribed before the vehicle flies; a client that failed says why
+            waiting = asyncio.create_task(subscribed.wait())
+            await asyncio.wait({client, waiting}, timeout=60.0, return_when=asyncio.FIRST_COMPLETED)
+            waiting.cancel()
+            if client.done():
+                client.result()  # its error, if it ended
+            assert subscribed.is_set(), "our client did not subscribe in 60 s (a hang guard)"
+            process, _ = spacecraft(ground)
             async with in_contact(process, ground_url) as rest:
-                await asyncio.wait_for(subscribed.wait(), 20.0)  # hang guard
                 await start_pass(rest, pass_id, "fox-1")
                 await wait_for(lambda: settled(ground, pass_id), 60.0, "the pass settled")
 
@@ -100,8 +116,7 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
             assert node.returncode == 0, err
             official.update(json.loads(out.strip().splitlines()[-1]))
         finally:
-            if node.poll() is None:
-                node.kill()
+            _reap(node)
             client.cancel()
             await asyncio.gather(client, return_exceptions=True)
 
