@@ -59,7 +59,7 @@ from hikoboshi.demo_harness import (
 from hikoboshi.demo_summary import read_truth_log
 from server.settings import Role, Settings
 
-__all__ = ["run_campaign_demo"]
+__all__ = ["StoredPlans", "run_campaign_demo"]
 
 
 def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None) -> dict[str, Any]:
@@ -92,42 +92,17 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     flown_passes: list[tuple[int, str, str, _PassSpec, Any, int, float]] = []
     with _ground(settings, port):
         api = _Api(base, operator)
-        plans: dict[str, dict[str, Any]] = {}
-
-        def make_plan(parameters: dict[str, Any], document: str | None = None) -> dict[str, Any]:
-            """The stored plan: ``document`` uploaded (the campaign's, planned once), else
-            ``parameters`` planned by the ground; once each."""
-            key = json.dumps(parameters, sort_keys=True)
-            if key not in plans:
-                # planning and checking run in the ground's workers: minutes when loaded
-                if document is not None:
-                    data = document.encode()
-                    plans[key] = api.call(
-                        "POST", "/api/plans/documents", data=data, timeout_s=900.0
-                    )
-                else:
-                    body = {"experiment": "pass", "parameters": parameters}
-                    plans[key] = api.call("POST", "/api/plans", body, timeout_s=900.0)
-            return plans[key]
-
-        def parameters_for(experiments: tuple[str, ...]) -> dict[str, Any]:
-            return {"experiments": list(experiments), **(options.pass_parameters or {})}
-
-        def plan_of(spec: _PassSpec) -> dict[str, Any]:
-            if spec.parameters is not None:
-                return make_plan(spec.parameters, spec.document)
-            return make_plan(parameters_for(spec.experiments))
-
+        plans = StoredPlans(api, options.pass_parameters)
         report("planning the campaign", 0, 1)
-        specs = _campaign(options, lambda e: float(make_plan(parameters_for(e))["duration_s"]))
+        specs = _campaign(options, lambda e: float(plans.of_experiments(e)["duration_s"]))
         report("planning the campaign", 1, 1)
         report("the ground stores and checks each pass's plan", 0, len(specs))
         for k, spec in enumerate(specs, start=1):
-            plan_of(spec)
+            plans.of(spec)
             report("the ground stores and checks each pass's plan", k, len(specs))
         flown = _service_windows(
             specs,
-            [float(plan_of(s)["duration_s"]) for s in specs],
+            [float(plans.of(s)["duration_s"]) for s in specs],
             options.speed,
             options.service_tail_s,
         )
@@ -158,7 +133,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             start_ns = _truth_start(truth_log, proc)
             for i, (spec, window) in enumerate(zip(specs, flown, strict=True), start=1):
-                plan = plan_of(spec)
+                plan = plans.of(spec)
                 duration_s = float(plan["duration_s"])
                 name = f"{mission.name} pass {i} {format_utc(window.aos_utc)}"
                 record = api.call(
@@ -226,6 +201,41 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
     (out / "campaign.json").write_text(json.dumps(doc, indent=2) + "\n")
     (out / "campaign.md").write_text(campaign_markdown(doc))
     return doc
+
+
+class StoredPlans:
+    """Each pass's plan stored on the ground, once per parameters: the campaign's document
+    uploaded (``POST /api/plans/documents``: the ground predicts and checks it again, and
+    flies its commands), else the ground plans the pass (``POST /api/plans``) of the
+    experiments with ``pass_parameters``. Planning and checking run in the ground's workers:
+    minutes when the machine is loaded."""
+
+    def __init__(self, api: _Api, pass_parameters: dict[str, Any] | None = None) -> None:
+        self._api = api
+        self._pass_parameters = pass_parameters or {}
+        self._plans: dict[str, dict[str, Any]] = {}
+
+    def _stored(self, parameters: dict[str, Any], document: str | None) -> dict[str, Any]:
+        key = json.dumps(parameters, sort_keys=True)
+        if key not in self._plans:
+            if document is not None:
+                self._plans[key] = self._api.call(
+                    "POST", "/api/plans/documents", data=document.encode(), timeout_s=900.0
+                )
+            else:
+                body = {"experiment": "pass", "parameters": parameters}
+                self._plans[key] = self._api.call("POST", "/api/plans", body, timeout_s=900.0)
+        return self._plans[key]
+
+    def of_experiments(self, experiments: tuple[str, ...]) -> dict[str, Any]:
+        """The ground's plan of a pass of ``experiments`` from the nominal start."""
+        return self._stored({"experiments": list(experiments), **self._pass_parameters}, None)
+
+    def of(self, spec: _PassSpec) -> dict[str, Any]:
+        """``spec``'s plan: its document uploaded, else the ground's of its experiments."""
+        if spec.parameters is not None:
+            return self._stored(spec.parameters, spec.document)
+        return self.of_experiments(spec.experiments)
 
 
 def _relabel(report: Progress, phase: str) -> Progress:

@@ -70,6 +70,9 @@ class CampaignOptions:
     pass_parameters: dict[str, Any] | None = None
     #: onboard s each pass keeps its relay after its plan ends (a shorter booking: the tests)
     service_tail_s: float = SERVICE_TAIL_S
+    #: the campaign planner's passes, each its experiments (None: the paper's
+    #: ``DEFAULT_ASSIGNMENT``; a shorter campaign of uploaded plans: the tests)
+    assignment: tuple[tuple[str, ...], ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -98,7 +101,7 @@ def _campaign(options: CampaignOptions, plan_duration: Any) -> list[_PassSpec]:
 
     mission = load_mission(options.mission)
     if options.pass_experiments is None and options.relay is None:
-        campaign = plan_campaign(mission, options.start_utc)
+        campaign = plan_campaign(mission, options.start_utc, assignment=options.assignment)
 
         def floats(values: Any) -> list[float]:
             return [float(x) for x in values]

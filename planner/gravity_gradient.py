@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Orbit", "gravity_gradient_torque_base_nm"]
+__all__ = ["Orbit", "gravity_gradient_torque_base_nm", "orbit_of_radius"]
 
 Array = NDArray[np.float64]
 
@@ -37,6 +37,16 @@ class Orbit:
     def gradient_coefficient_ps2(self) -> float:
         """``3 mu / R^3`` (1/s^2), the factor of eq. (13)."""
         return 3.0 * self.mu_m3ps2 / self.radius_m**3
+
+
+def orbit_of_radius(radius_m: float) -> Orbit:
+    """The orbit of radius ``radius_m`` (m) about the nominal Earth."""
+    nominal = Orbit()
+    return Orbit(
+        altitude_m=radius_m - nominal.earth_radius_m,
+        earth_radius_m=nominal.earth_radius_m,
+        mu_m3ps2=nominal.mu_m3ps2,
+    )
 
 
 def gravity_gradient_torque_base_nm(

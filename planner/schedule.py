@@ -29,7 +29,7 @@ from planner.experiments import (
     plan_reactionless,
 )
 from planner.gjm import GjmParams, plan_gjm
-from planner.gravity_gradient import Orbit
+from planner.gravity_gradient import Orbit, orbit_of_radius
 from planner.parameters import parameters_from_values
 from planner.plan import AcsCommand, Plan, Segment, check_plan_limits, plan_for_robot
 from planner.prediction import predict
@@ -261,12 +261,7 @@ def plan_pass(
     if params.gravity_gradient_radius_m > 0.0:
         if orbit is not None:
             raise InvalidInput("the pass's orbit is given twice: as a parameter and an orbit")
-        nominal = Orbit()
-        orbit = Orbit(
-            altitude_m=params.gravity_gradient_radius_m - nominal.earth_radius_m,
-            earth_radius_m=nominal.earth_radius_m,
-            mu_m3ps2=nominal.mu_m3ps2,
-        )
+        orbit = orbit_of_radius(params.gravity_gradient_radius_m)
     if initial_state is not None:
         if initial_state.joints_rad.shape != (model.n_joints,):
             raise InvalidInput(

@@ -96,10 +96,13 @@ async def upload_plan_document(
     """Store a plan document (the body: the file ``hikoboshi plan ... --out FILE`` wrote,
     ``hikoboshi plan upload FILE`` sends it) exactly as its commands are: a pass of it flies
     them. Its robot is the one its ``robot_hash`` names (422 ``unknown_robot`` when the
-    server has no such description); the document's own flight-rules report is never
-    trusted: the ground checks the plan again and stores its own report (a failing plan is
-    stored, and a pass of it will not start). A document that is not a plan is refused with
-    422 ``invalid_plan_document`` and the reason, nothing stored; 413 over
+    server has no such description); the document's own prediction and flight-rules
+    report are never trusted: the ground predicts the plan again from its commands (422
+    ``invalid_plan_document`` naming the quantity, the time and both values when the
+    document's prediction differs by more than 1e-6; within it, the ground's is stored),
+    checks it and stores its own report (a failing plan is stored, and a pass of it will not
+    start). A document that is not a plan is refused with 422 ``invalid_plan_document`` and
+    the reason, nothing stored; 413 over
     ``max_plan_document_bytes``; 503 ``busy`` and 504 as planning."""
     limit = settings.max_plan_document_bytes
     declared = http.headers.get("content-length", "")

@@ -14,6 +14,16 @@ attitude-control modes, a 64-digit robot hash) or when it checks one read from o
 order, a prediction row per command). A robot the server has no description of is
 ``unknown_robot``. The document's own flight-rules report is read and then thrown away: the
 ground checks the plan again (:func:`server.operations.planning.check`).
+
+    with_ground_prediction(plan, description) -> Plan   the ground's prediction, or refused
+
+Nor is its prediction trusted: the ground predicts the plan again from its commands and its
+stated start with the planner's own prediction (:func:`planner.reprediction.repredict`) for
+the robot the document names, and refuses a document whose prediction differs from it by more
+than :data:`planner.reprediction.PREDICTION_TOLERANCE` in any value (``invalid_plan_document``
+naming the quantity, the time and both values; ``detail``: the same as fields). A document
+within it is stored with the ground's prediction in place of its own, so that the rules, the
+stored plan and a later re-check all read the one prediction the ground made.
 """
 
 from __future__ import annotations
@@ -21,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
@@ -38,6 +49,7 @@ __all__ = [
     "description_for_document",
     "document_schema",
     "read_document",
+    "with_ground_prediction",
 ]
 
 INVALID_PLAN_DOCUMENT = "invalid_plan_document"
@@ -116,3 +128,26 @@ def description_for_document(
         return description_for_plan(plan, robot_files)
     except ConflictError as exc:
         raise InvalidRequestError(UNKNOWN_ROBOT, exc.message) from None
+
+
+def with_ground_prediction(plan: Plan, description: RobotDescription) -> Plan:
+    """``plan`` carrying the ground's prediction of it (module docstring); refused with
+    ``invalid_plan_document`` when its own prediction differs from that one, or when it
+    cannot be predicted on ``description``'s model (its joints are not the robot's)."""
+    from planner.dynamics import DynamicsWorkspace
+    from planner.errors import PlannerError
+    from planner.reprediction import prediction_difference, repredict
+
+    try:
+        ws = DynamicsWorkspace(description.model)
+        ground = repredict(
+            plan, ws, acs_gains=description.acs_gains(ws), servo_gains=description.servo_gains()
+        )
+    except PlannerError as exc:
+        _refuse(f"cannot be predicted for robot {description.name!r}: {exc}")
+    except (ArithmeticError, ValueError, IndexError) as exc:
+        _refuse(f"cannot be predicted for robot {description.name!r}: {exc!r}")
+    difference = prediction_difference(plan.prediction, ground)
+    if difference is not None:
+        _refuse(f"its prediction is not the ground's: {difference}", difference.to_dict())
+    return replace(plan, prediction=ground)

@@ -21,6 +21,7 @@ from server.operations.plan_documents import (
     INVALID_PLAN_DOCUMENT,
     description_for_document,
     read_document,
+    with_ground_prediction,
 )
 from server.operations.planning import check as check_plan
 from server.operations.planning import experiment_parameters, plan_checked
@@ -77,12 +78,14 @@ def upload_document(
     max_depth: int,
 ) -> PlanPublic:
     """Store the plan document ``data`` (``hikoboshi plan ... --out`` wrote it) exactly as
-    its commands are, with the ground's flight-rules report in place of its own: refused
-    with ``invalid_plan_document`` or ``unknown_robot`` (module
-    :mod:`server.operations.plan_documents`) before anything is written."""
+    its commands are, with the ground's prediction and flight-rules report in place of its
+    own: refused with ``invalid_plan_document`` (a prediction that is not the ground's among
+    the reasons) or ``unknown_robot`` (module :mod:`server.operations.plan_documents`)
+    before anything is written."""
     session.rollback()  # no transaction (no SQLite write lock) while the plan is checked
     plan = read_document(data, max_bytes=max_bytes, max_depth=max_depth)
     description = description_for_document(plan, [Path(p) for p in robot_files])
+    plan = with_ground_prediction(plan, description)
     try:
         checked = check_plan(plan, description)
     except (PlannerError, ValueError, ArithmeticError, IndexError) as exc:
