@@ -95,12 +95,13 @@ def telemetry(
             limit=limit + 1,
         )
         kept = [tuple(row) for row in rows[:limit]]
-        return TelemetryPublic(
-            pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+        return _answer(
+            session,
+            pass_id,
+            names,
+            t0_ns,
+            t1_ns,
             mode="raw",
-            fields=names,
-            t0_ns=t0_ns,
-            t1_ns=t1_ns,
             count=len(kept),
             truncated=len(rows) > limit,
             rows=[
@@ -127,12 +128,13 @@ def telemetry(
     result = repo.telemetry_buckets(
         session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
     )
-    return TelemetryPublic(
-        pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+    return _answer(
+        session,
+        pass_id,
+        names,
+        t0_ns,
+        t1_ns,
         mode="buckets",
-        fields=names,
-        t0_ns=t0_ns,
-        t1_ns=t1_ns,
         count=len(result),
         width_ns=-(-(t1_ns - t0_ns) // buckets),
         buckets=[
@@ -146,6 +148,20 @@ def telemetry(
             )
             for b in result
         ],
+    )
+
+
+def _answer(
+    session: Session, pass_id: str, names: list[str], t0_ns: int, t1_ns: int, **read: Any
+) -> TelemetryPublic:
+    """What was read of the pass (its stored id), its ``names`` over ``[t0_ns, t1_ns)``:
+    ``read`` the rows or the buckets, their count and the mode."""
+    return TelemetryPublic(
+        pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+        fields=names,
+        t0_ns=t0_ns,
+        t1_ns=t1_ns,
+        **read,
     )
 
 
