@@ -95,12 +95,8 @@ def telemetry(
             limit=limit + 1,
         )
         kept = [tuple(row) for row in rows[:limit]]
-        return _answer(
-            session,
-            pass_id,
-            names,
-            t0_ns,
-            t1_ns,
+        return TelemetryPublic(
+            **_read(session, pass_id, names, t0_ns, t1_ns),
             mode="raw",
             count=len(kept),
             truncated=len(rows) > limit,
@@ -128,12 +124,8 @@ def telemetry(
     result = repo.telemetry_buckets(
         session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
     )
-    return _answer(
-        session,
-        pass_id,
-        names,
-        t0_ns,
-        t1_ns,
+    return TelemetryPublic(
+        **_read(session, pass_id, names, t0_ns, t1_ns),
         mode="buckets",
         count=len(result),
         width_ns=-(-(t1_ns - t0_ns) // buckets),
@@ -151,18 +143,13 @@ def telemetry(
     )
 
 
-def _answer(
-    session: Session, pass_id: str, names: list[str], t0_ns: int, t1_ns: int, **read: Any
-) -> TelemetryPublic:
-    """What was read of the pass (its stored id), its ``names`` over ``[t0_ns, t1_ns)``:
-    ``read`` the rows or the buckets, their count and the mode."""
-    return TelemetryPublic(
-        pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
-        fields=names,
-        t0_ns=t0_ns,
-        t1_ns=t1_ns,
-        **read,
-    )
+def _read(
+    session: Session, pass_id: str, names: list[str], t0_ns: int, t1_ns: int
+) -> dict[str, Any]:
+    """A telemetry answer's header, raw or in buckets: what was read of which pass (its
+    stored id), the ``names`` over ``[t0_ns, t1_ns)``."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    return {"pass_id": record.id, "fields": names, "t0_ns": t0_ns, "t1_ns": t1_ns}
 
 
 def across_passes(
