@@ -30,7 +30,6 @@ the ground and the spacecraft are run as by ``hikoboshi demo`` (:mod:`hikoboshi.
 from __future__ import annotations
 
 import json
-import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -47,11 +46,13 @@ from hikoboshi.demo_harness import (
     Progress,
     _Api,
     _ClockSampler,
+    _drain,
     _follow,
     _ground,
     _port,
     _settle,
     _spacecraft,
+    _start,
     _token_of,
     _tokens,
     spacecraft_command,
@@ -111,14 +112,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
             json.dumps({"windows": [w.to_dict() for w in flown]}, indent=2) + "\n"
         )
         args = [
-            *spacecraft_command(
-                port,
-                speed=options.speed,
-                loss=options.loss,
-                seed=options.seed,
-                log_format=options.log_format,
-                log_level=options.log_level,
-            ),
+            *spacecraft_command(port, options),
             "--mission",
             str(options.mission.resolve()),
             "--mission-start",
@@ -153,10 +147,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                 net_start_s = (window.net_start_utc - options.start_utc).total_seconds()
                 phase = f"pass {i}: waiting for {window.relay}'s window"
                 _wait_onboard(api, proc, start_ns, net_start_s, options, report, phase)
-                started_pass = api.call(
-                    "POST", f"/api/passes/{pass_id}/start", {"confirm": f"START {name}"}
-                )
-                epoch_ns = int(started_pass["epoch_ns"])
+                epoch_ns = _start(api, pass_id, name)
                 state = _follow(
                     api,
                     proc,
@@ -170,13 +161,7 @@ def run_campaign_demo(options: CampaignOptions, progress: Progress | None = None
                 _settle(api, pass_id, options.speed)
                 # the reports wait for the end: the next window does not
                 flown_passes.append((i, pass_id, state, spec, window, epoch_ns, duration_s))
-            report("draining the onboard telemetry store", 0, 1)
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=120.0)
-            except Exception:
-                raise DemoError("the spacecraft did not drain its telemetry in 120 s") from None
-            report("draining the onboard telemetry store", 1, 1)
+            _drain(proc, report)
         for i, pass_id, state, spec, window, epoch_ns, duration_s in flown_passes:
             report("per-pass summaries and reports", i - 1, len(flown_passes))
             results.append(

@@ -47,8 +47,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import signal
-import subprocess
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -62,11 +60,13 @@ from hikoboshi.demo_harness import (
     _all,
     _Api,
     _ClockSampler,
+    _drain,
     _follow,
     _ground,
     _port,
     _settle,
     _spacecraft,
+    _start,
     _token_of,
     _tokens,
     _wait_connected,
@@ -197,14 +197,7 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         )
         pass_id = record["id"]
         args = [
-            *spacecraft_command(
-                port,
-                speed=options.speed,
-                loss=options.loss,
-                seed=options.seed,
-                log_format=options.log_format,
-                log_level=options.log_level,
-            ),
+            *spacecraft_command(port, options),
             *(a for o in options.outages for a in ("--outage", o)),
             *(() if robot is None else ("--robot", str(robot))),
             *(a for f in options.faults for a in ("--fault", f)),
@@ -217,23 +210,14 @@ def run_demo(options: DemoOptions, progress: Progress | None = None) -> dict[str
         token_env = {"HIKOBOSHI_SPACECRAFT_TOKEN": _token_of(tokens, Role.SPACECRAFT)}
         with _spacecraft(args, out / "spacecraft.log", token_env) as proc:
             _wait_connected(api, proc)
-            started_pass = api.call(
-                "POST", f"/api/passes/{pass_id}/start", {"confirm": f"START {name}"}
-            )
-            epoch_ns = int(started_pass["epoch_ns"])
+            epoch_ns = _start(api, pass_id, name)
             state = _follow(
                 api, proc, pass_id, epoch_ns, duration_s, options.timeout_s, report, sampler
             )
             _settle(api, pass_id, options.speed)
             # the vehicle's mode as the pass left it (the spacecraft is still connected)
             link_end = api.call("GET", "/api/link/status")
-            report("draining the onboard telemetry store", 0, 1)
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=120.0)
-            except subprocess.TimeoutExpired:
-                raise DemoError("the spacecraft did not drain its telemetry in 120 s") from None
-            report("draining the onboard telemetry store", 1, 1)
+            _drain(proc, report)
         summary = api.call("GET", f"/api/passes/{pass_id}/summary")
         link = api.call("GET", "/api/link/status")
         truth = read_truth_log(truth_log)

@@ -24,12 +24,12 @@ import urllib.request
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypedDict, Unpack
 
 from hikoboshi.demo_summary import TERMINAL_STATES, OnboardClock
 from server.settings import ApiToken, Role, Settings
 
-__all__ = ["DemoError", "Progress", "spacecraft_command"]
+__all__ = ["DemoError", "Progress", "VehicleOptions", "spacecraft_command"]
 
 #: Progress callback: (phase, done, total).
 Progress = Callable[[str, float, float], None]
@@ -37,6 +37,14 @@ Progress = Callable[[str, float, float], None]
 
 class DemoError(RuntimeError):
     """The demo could not run to the end; the message says where it stopped."""
+
+
+class _Send(TypedDict, total=False):
+    """How :class:`_Api` sends a request: its timeout (120 s unless given), a body that is
+    JSON already."""
+
+    timeout_s: float
+    data: bytes | None
 
 
 class _Api:
@@ -50,27 +58,14 @@ class _Api:
         self._token = token
         self._logs = logs
 
-    def call(
-        self,
-        method: str,
-        path: str,
-        body: Any = None,
-        timeout_s: float = 120.0,
-        *,
-        data: bytes | None = None,
-    ) -> Any:
-        """The answer's JSON; ``body`` sent as JSON, or ``data`` (JSON already) as it is."""
-        return json.loads(self.raw(method, path, body, timeout_s, data=data))
+    def call(self, method: str, path: str, body: Any = None, **send: Unpack[_Send]) -> Any:
+        """The answer's JSON (:meth:`raw`'s bytes, read)."""
+        return json.loads(self.raw(method, path, body, **send))
 
-    def raw(
-        self,
-        method: str,
-        path: str,
-        body: Any = None,
-        timeout_s: float = 120.0,
-        *,
-        data: bytes | None = None,
-    ) -> bytes:
+    def raw(self, method: str, path: str, body: Any = None, **send: Unpack[_Send]) -> bytes:
+        """The answer's bytes; ``body`` sent as JSON, or ``data`` (JSON already) as it is."""
+        timeout_s = send.get("timeout_s", 120.0)
+        data = send.get("data")
         if data is None and body is not None:
             data = json.dumps(body).encode()
         request = urllib.request.Request(
@@ -148,9 +143,22 @@ def _ground(settings: Settings, port: int) -> Iterator[None]:
         thread.join(timeout=60.0)
 
 
-def spacecraft_command(
-    port: int, *, speed: float, loss: float, seed: int, log_format: str, log_level: str
-) -> list[str]:
+class VehicleOptions(Protocol):
+    """What a demo's options say of its simulated vehicle (both demos' options have it)."""
+
+    @property
+    def speed(self) -> float: ...
+    @property
+    def loss(self) -> float: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def log_format(self) -> str: ...
+    @property
+    def log_level(self) -> str: ...
+
+
+def spacecraft_command(port: int, options: VehicleOptions) -> list[str]:
     """``hikoboshi spacecraft``'s command line for a demo's vehicle on ``port``, before its
     demo's own options (its token goes in its environment, never here)."""
     return [
@@ -161,15 +169,15 @@ def spacecraft_command(
         "--ground",
         f"ws://127.0.0.1:{port}/api/link",
         "--log-format",
-        log_format,
+        options.log_format,
         "--log-level",
-        log_level,
+        options.log_level,
         "--time-scale",
-        repr(speed),
+        repr(options.speed),
         "--loss",
-        repr(loss),
+        repr(options.loss),
         "--seed",
-        str(seed),
+        str(options.seed),
     ]
 
 
@@ -231,6 +239,24 @@ def _wait_connected(api: _Api, proc: subprocess.Popen[bytes]) -> None:
         if time.monotonic() > deadline:
             raise DemoError("the spacecraft did not connect within 60 s")
         time.sleep(0.1)
+
+
+def _start(api: _Api, pass_id: str, name: str) -> int:
+    """Start the pass (its confirmation typed as an operator types it); its epoch (ns)."""
+    started = api.call("POST", f"/api/passes/{pass_id}/start", {"confirm": f"START {name}"})
+    return int(started["epoch_ns"])
+
+
+def _drain(proc: subprocess.Popen[bytes], report: Progress) -> None:
+    """Stop the spacecraft (SIGTERM: it downlinks what its telemetry store still holds
+    first) and wait for it to end, at most 120 s."""
+    report("draining the onboard telemetry store", 0, 1)
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=120.0)
+    except subprocess.TimeoutExpired:
+        raise DemoError("the spacecraft did not drain its telemetry in 120 s") from None
+    report("draining the onboard telemetry store", 1, 1)
 
 
 def _settle(api: _Api, pass_id: str, speed: float, timeout_s: float = 60.0) -> None:

@@ -269,6 +269,20 @@ async def _keep_command(
     authority.start(on_acquired=took_over, on_lost=lost)
 
 
+def _api_engine(settings: Settings, url: str, size: int, overflow: int) -> Engine:
+    """An engine for the API's requests: ``size`` (+ ``overflow``) connections, the API's
+    wait for one and its statements' timeout."""
+    return make_engine(
+        url,
+        pool=PoolSizes(
+            size=size,
+            overflow=overflow,
+            timeout_s=settings.api_pool_timeout_s,
+            statement_timeout_s=settings.api_statement_timeout_s,
+        ),
+    )
+
+
 def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -280,25 +294,11 @@ def create_app(settings: Settings) -> FastAPI:
         # the link needs (docs/security.md).
         link_engine = make_engine(url, pool=PoolSizes(size=2, overflow=1, timeout_s=30.0))
         upgrade(link_engine)
-        engine = make_engine(
-            url,
-            pool=PoolSizes(
-                size=settings.api_pool_size,
-                overflow=settings.api_pool_overflow,
-                timeout_s=settings.api_pool_timeout_s,
-                statement_timeout_s=settings.api_statement_timeout_s,
-            ),
-        )
+        engine = _api_engine(settings, url, settings.api_pool_size, settings.api_pool_overflow)
         # And the operators' own (their requests, the consoles' hub): no viewer holds one
         # (server/api/lanes.py).
-        operator_engine = make_engine(
-            url,
-            pool=PoolSizes(
-                size=settings.operator_pool_size,
-                overflow=settings.operator_pool_overflow,
-                timeout_s=settings.api_pool_timeout_s,
-                statement_timeout_s=settings.api_statement_timeout_s,
-            ),
+        operator_engine = _api_engine(
+            settings, url, settings.operator_pool_size, settings.operator_pool_overflow
         )
         app.state.settings = settings
         app.state.engine = engine

@@ -10,29 +10,19 @@ the ``ETag``). A full pool answers 503 ``busy`` with ``Retry-After``; past
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Request
 from fastapi.responses import HTMLResponse, Response
 
-from server.api.deps import (
-    ClockDep,
-    IdPath,
-    OperatorDep,
-    SessionDep,
-    SettingsDep,
-    ViewerDep,
-    WorkersDep,
-)
+from server.api.deps import IdPath, OperatorDep, SessionDep, ViewerDep
+from server.api.jobs import JobsDep
 from server.api.openapi import file_content
 from server.api.served import NOT_MODIFIED, ArtifactsDep, serve_artifact
 from server.schemas import ERROR_RESPONSES, SafeLine
 from server.schemas.analyses import AnalysesPublic, AnalysisKind, AnalysisPublic, ReportPublic
 from server.services import analyses as service
 from server.services.artifacts import ArtifactRef
-from server.services.events import with_written
-from server.services.jobs import session_job
 
 __all__ = ["router"]
 
@@ -51,30 +41,18 @@ _JSON_ERRORS: dict[int | str, dict[str, Any]] = {
 
 
 @router.post("/{pass_id}/analyses", status_code=201, response_model=AnalysesPublic)
-async def run_analyses(
-    pass_id: IdPath,
-    http: Request,
-    settings: SettingsDep,
-    who: OperatorDep,
-    workers: WorkersDep,
-    clock: ClockDep,
-) -> AnalysesPublic:
+async def run_analyses(pass_id: IdPath, who: OperatorDep, jobs: JobsDep) -> AnalysesPublic:
     """Analyse the flown pass afresh (tens of seconds for a whole pass, in a worker process
     on its own connection; past ``post_pass_deadline_s``, 504) and store one result of each
     kind; an analysis that cannot run on this pass is stored as failed, with the reason."""
-    analyses: AnalysesPublic = await workers.run_written(
-        session_job,
-        settings.resolved_database_url(),
-        partial(with_written, service.run_analyses),
+    return await jobs.written(
+        service.run_analyses,
         pass_id=pass_id,
         actor=who.name,
-        now_ns=clock.time_ns(),
-        robot_files=tuple(str(p) for p in settings.robot_files),
-        deadline_s=settings.post_pass_deadline_s,
+        robot_files=jobs.robot_files,
+        deadline_s=jobs.settings.post_pass_deadline_s,
         what=f"the analyses of pass {pass_id}",
-        client=http,
     )
-    return analyses
 
 
 @router.get("/{pass_id}/analyses", response_model=AnalysesPublic)

@@ -13,30 +13,20 @@ functions (FastAPI's threadpool).
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 
 from planner.errors import PlannerError
-from server.api.deps import (
-    ClockDep,
-    IdPath,
-    OperatorDep,
-    SessionDep,
-    SettingsDep,
-    ViewerDep,
-    WorkersDep,
-)
+from server.api.deps import IdPath, OperatorDep, SessionDep, SettingsDep, ViewerDep, WorkersDep
 from server.api.edge_checks import request_too_large
+from server.api.jobs import JobsDep
 from server.operations import plans as operations
 from server.operations.plan_documents import document_schema
 from server.schemas import ERROR_RESPONSES, ErrorPublic, SafeLine
 from server.schemas.plans import PlanCreate, PlanPublic, PlansPublic, PlanValidation
 from server.services import plans as service
 from server.services.errors import DomainError
-from server.services.events import with_written
-from server.services.jobs import session_job
 from server.services.robots import resolve_robot
 
 __all__ = ["router"]
@@ -45,35 +35,22 @@ router = APIRouter(prefix="/api/plans", tags=["plans"], responses=ERROR_RESPONSE
 
 
 @router.post("", status_code=201, response_model=PlanPublic)
-async def create_plan(
-    request: PlanCreate,
-    http: Request,
-    settings: SettingsDep,
-    who: OperatorDep,
-    workers: WorkersDep,
-    clock: ClockDep,
-) -> PlanPublic:
+async def create_plan(request: PlanCreate, who: OperatorDep, jobs: JobsDep) -> PlanPublic:
     """Plan ``experiment`` with ``parameters`` for ``robot`` (a robot's name the server
     knows: shipped under ``examples/robots/`` or given at its start; none: ETS-VII) and store
     the plan; 422 with the planner's message when the experiment or a parameter is refused,
     422 ``unknown_robot`` for a robot the server does not know; 503 ``busy``
     (``Retry-After``) when every worker is taken; 504 past ``plan_deadline_s``."""
     service.check_parameters(request)
-    robot_path = resolve_robot(settings, request.robot)
-    plan: PlanPublic
-    plan = await workers.run_written(
-        session_job,
-        settings.resolved_database_url(),
-        partial(with_written, operations.create_plan),
+    robot_path = resolve_robot(jobs.settings, request.robot)
+    return await jobs.written(
+        operations.create_plan,
         request=request,
         actor=who.name,
-        now_ns=clock.time_ns(),
         robot_path=None if robot_path is None else str(robot_path),
-        deadline_s=settings.plan_deadline_s,
+        deadline_s=jobs.settings.plan_deadline_s,
         what=f"planning {request.experiment}",
-        client=http,
     )
-    return plan
 
 
 _DOCUMENT = {"application/json": {"schema": document_schema()}}
@@ -86,13 +63,7 @@ _DOCUMENT = {"application/json": {"schema": document_schema()}}
     openapi_extra={"requestBody": {"required": True, "content": _DOCUMENT}},
     responses={413: {"model": ErrorPublic, "description": "Over max_plan_document_bytes"}},
 )
-async def upload_plan_document(
-    http: Request,
-    settings: SettingsDep,
-    who: OperatorDep,
-    workers: WorkersDep,
-    clock: ClockDep,
-) -> PlanPublic:
+async def upload_plan_document(http: Request, who: OperatorDep, jobs: JobsDep) -> PlanPublic:
     """Store a plan document (the body: the file ``hikoboshi plan ... --out FILE`` wrote,
     ``hikoboshi plan upload FILE`` sends it) exactly as its commands are: a pass of it flies
     them. Its robot is the one its ``robot_hash`` names (422 ``unknown_robot`` when the
@@ -104,6 +75,7 @@ async def upload_plan_document(
     start). A document that is not a plan is refused with 422 ``invalid_plan_document`` and
     the reason, nothing stored; 413 over
     ``max_plan_document_bytes``; 503 ``busy`` and 504 as planning."""
+    settings = jobs.settings
     limit = settings.max_plan_document_bytes
     declared = http.headers.get("content-length", "")
     if declared.isdigit() and int(declared) > limit:
@@ -115,22 +87,16 @@ async def upload_plan_document(
         if size > limit:
             raise request_too_large(size, limit)
         chunks.append(chunk)
-    plan: PlanPublic
-    plan = await workers.run_written(
-        session_job,
-        settings.resolved_database_url(),
-        partial(with_written, operations.upload_document),
+    return await jobs.written(
+        operations.upload_document,
         data=b"".join(chunks),
         actor=who.name,
-        now_ns=clock.time_ns(),
-        robot_files=tuple(str(p) for p in settings.robot_files),
+        robot_files=jobs.robot_files,
         max_bytes=limit,
         max_depth=settings.max_json_depth,
         deadline_s=settings.plan_deadline_s,
         what="checking an uploaded plan document",
-        client=http,
     )
-    return plan
 
 
 @router.post("/validate", response_model=PlanValidation)
@@ -160,33 +126,20 @@ async def validate_plan(
 
 
 @router.post("/{plan_id}/check", response_model=PlanPublic)
-async def check_plan(
-    plan_id: IdPath,
-    http: Request,
-    settings: SettingsDep,
-    who: OperatorDep,
-    workers: WorkersDep,
-    clock: ClockDep,
-) -> PlanPublic:
+async def check_plan(plan_id: IdPath, who: OperatorDep, jobs: JobsDep) -> PlanPublic:
     """Check a stored plan against its robot's flight rules and store the report (for a plan
     stored before the rules, or imported: a pass's start refuses a plan the ground has not
     checked, ``flight_rules_unchecked``); the plan with its ``flight_rules``, audited as
     ``plan_checked``. 404 for an unknown plan, 409 ``robot_unknown`` when the server has no
     description of its robot, 422 ``no_collision_geometry``; 503 ``busy`` as planning."""
-    plan: PlanPublic
-    plan = await workers.run_written(
-        session_job,
-        settings.resolved_database_url(),
-        partial(with_written, operations.check_stored_plan),
+    return await jobs.written(
+        operations.check_stored_plan,
         plan_id=plan_id,
         actor=who.name,
-        now_ns=clock.time_ns(),
-        robot_files=tuple(str(p) for p in settings.robot_files),
-        deadline_s=settings.plan_deadline_s,
+        robot_files=jobs.robot_files,
+        deadline_s=jobs.settings.plan_deadline_s,
         what=f"checking the flight rules of plan {plan_id}",
-        client=http,
     )
-    return plan
 
 
 @router.get("", response_model=PlansPublic)

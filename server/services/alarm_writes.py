@@ -126,16 +126,19 @@ class AlarmWriter:
 def _event(change: Change) -> Event | None:
     """The audit event of a change (none for a change of band or an in-band update)."""
     a = change.alarm
-    actor = "vehicle" if a.source == "vehicle" else "ground"
+    # the alarm, as both its events name it
+    alarm: dict[str, Any] = {
+        "actor": "vehicle" if a.source == "vehicle" else "ground",
+        "pass_id": a.pass_id,
+        "alarm_id": a.id,
+        "quantity": a.quantity,
+        "channel": a.channel,
+    }
     last = a.timeline[-1] if a.timeline else None
     if change.kind in ("raised", "reopened"):
         return AlarmRaised(
-            actor=actor,
-            pass_id=a.pass_id,
-            alarm_id=a.id,
+            **alarm,
             source=a.source,
-            quantity=a.quantity,
-            channel=a.channel,
             severity=a.current_severity or a.severity,
             value=None if last is None else last.value,
             limit=a.limit,
@@ -146,11 +149,7 @@ def _event(change: Change) -> Event | None:
         )
     if change.kind == "cleared":
         return AlarmCleared(
-            actor=actor,
-            pass_id=a.pass_id,
-            alarm_id=a.id,
-            quantity=a.quantity,
-            channel=a.channel,
+            **alarm,
             severity=a.severity,
             value=a.last_value,
             generation_time_ns=a.cleared_generation_time_ns,

@@ -55,13 +55,12 @@ from server.services.command_stages import cancel_commands
 from server.services.dbworker import Database
 from server.services.event_log import Recorded
 from server.services.link import GroundLink
-from server.services.pass_states import command_from_record
+from server.services.pass_states import command_from_record, uplink_timing
 from server.services.recovery import UnfinishedPass
 from server.services.tracker import CommandTracker
 from server.services.uplink import Uplink, UplinkCommand
 from server.settings import Settings
 from server.storage.models import CommandRecord
-from telemetry.uplink import Command
 
 __all__ = [
     "CLOCK_CONFIRM_EXTRA_S",
@@ -69,7 +68,6 @@ __all__ = [
     "Hold",
     "ResumedUplink",
     "hold_after_gap",
-    "resumed_uplink",
 ]
 
 log = logging.getLogger("hikoboshi.ground.continuity")
@@ -176,7 +174,6 @@ class ResumedUplink(Uplink):
 
     def __init__(
         self,
-        commands: list[Command],
         p: UnfinishedPass,
         link: GroundLink,
         settings: Settings,
@@ -184,19 +181,17 @@ class ResumedUplink(Uplink):
         clock: Clock,
         tracker: CommandTracker,
     ) -> None:
-        super().__init__(
-            commands,
-            one_way_delay_s=settings.link_one_way_delay_s,
-            margin_s=settings.uplink_margin_s,
-            lead_window_s=settings.uplink_lead_window_s,
-            capacity=link.schedule_capacity,
-            time_scale=link.time_scale,
-        )
+        """The uplink of the resumed pass ``p`` (its spacecraft back): its commands not
+        final; what the earlier process sent and the vehicle did not acknowledge is owed
+        again at once (:meth:`~server.services.uplink.Uplink.restore`)."""
+        commands = [command_from_record(r) for r in p.pending]
+        super().__init__(commands, **uplink_timing(settings, link))
         self._pass, self._link, self._db, self._clock, self._tracker = p, link, db, clock, tracker
         self._waiting_since: float | None = None
         #: the decision, once made (None before, or when nothing is held)
         self.hold: Hold | None = None
         self.decided = False
+        self.restore(p.transmitted)
 
     def _ready(self, onboard_ns: int) -> bool:
         """Whether the hold is decided (deciding it now if the clock allows)."""
@@ -244,21 +239,3 @@ class ResumedUplink(Uplink):
         if not self.decided and not self.stopped:
             wake = min(wake, self._clock.monotonic() + CLOCK_CONFIRM_POLL_S)
         return wake
-
-
-def resumed_uplink(
-    p: UnfinishedPass,
-    link: GroundLink,
-    settings: Settings,
-    db: Database,
-    clock: Clock,
-    tracker: CommandTracker,
-) -> ResumedUplink:
-    """The uplink of the resumed pass ``p`` (its spacecraft back): its commands not final;
-    what the earlier process sent and the vehicle did not acknowledge is owed again at once
-    (:meth:`~server.services.uplink.Uplink.restore`), once the clock is confirmed and the
-    hold decided (:class:`ResumedUplink`)."""
-    commands = [command_from_record(r) for r in p.pending]
-    uplink = ResumedUplink(commands, p, link, settings, db, clock, tracker)
-    uplink.restore(p.transmitted)
-    return uplink

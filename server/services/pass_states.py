@@ -35,6 +35,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -67,6 +68,7 @@ __all__ = [
     "plan_robot",
     "start_job",
     "transition",
+    "uplink_timing",
 ]
 
 Job = Callable[[Session], list[Recorded]]
@@ -137,16 +139,21 @@ def command_from_record(record: CommandRecord) -> Command:
     return AcsCommandMsg.model_validate(fields)
 
 
+def uplink_timing(settings: Settings, link: GroundLink) -> dict[str, Any]:
+    """An uplink's keywords besides its commands: the ground's delay, margin and lead
+    window, the connected vehicle's schedule capacity and time scale."""
+    return {
+        "one_way_delay_s": settings.link_one_way_delay_s,
+        "margin_s": settings.uplink_margin_s,
+        "lead_window_s": settings.uplink_lead_window_s,
+        "capacity": link.schedule_capacity,
+        "time_scale": link.time_scale,
+    }
+
+
 def new_uplink(commands: list[Command], settings: Settings, link: GroundLink) -> Uplink:
     """The windowed uplink of a pass's ``commands`` to the vehicle now connected."""
-    return Uplink(
-        commands,
-        one_way_delay_s=settings.link_one_way_delay_s,
-        margin_s=settings.uplink_margin_s,
-        lead_window_s=settings.uplink_lead_window_s,
-        capacity=link.schedule_capacity,
-        time_scale=link.time_scale,
-    )
+    return Uplink(commands, **uplink_timing(settings, link))
 
 
 @dataclass(frozen=True)

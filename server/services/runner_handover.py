@@ -26,7 +26,7 @@ import logging
 
 from sqlalchemy.orm import Session
 
-from server.services.continuity import resumed_uplink
+from server.services.continuity import ResumedUplink
 from server.services.events import GroundStopped, PassResumed, Recorded, event_job, record
 from server.services.link import LinkUnavailable, TelemetryWindow
 from server.services.pass_reasons import handover_reason
@@ -109,7 +109,7 @@ class PassHandover(RunnerParts):
         self, p: UnfinishedPass, window: TelemetryWindow, tracker: CommandTracker
     ) -> None:
         link = self._link  # the uplink holds after a gap past the lead window (continuity)
-        uplink = resumed_uplink(p, link, self._settings, self._db, self._clock, tracker)
+        uplink = ResumedUplink(p, link, self._settings, self._db, self._clock, tracker)
         tags = {r.seq: r.execute_time_ns for r in p.commands}
         active = ActivePass.of(p.id, p.name, uplink, window, tracker, tags, p.robot, resumed=True)
         if p.state == "los":

@@ -96,11 +96,8 @@ def telemetry(
         )
         kept = [tuple(row) for row in rows[:limit]]
         return TelemetryPublic(
-            pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+            **_read(session, pass_id, names, t0_ns, t1_ns),
             mode="raw",
-            fields=names,
-            t0_ns=t0_ns,
-            t1_ns=t1_ns,
             count=len(kept),
             truncated=len(rows) > limit,
             rows=[
@@ -128,11 +125,8 @@ def telemetry(
         session=session, pass_id=pass_id, t0_ns=t0_ns, t1_ns=t1_ns, fields=names, buckets=buckets
     )
     return TelemetryPublic(
-        pass_id=repo.get_pass(session=session, pass_id=pass_id).id,
+        **_read(session, pass_id, names, t0_ns, t1_ns),
         mode="buckets",
-        fields=names,
-        t0_ns=t0_ns,
-        t1_ns=t1_ns,
         count=len(result),
         width_ns=-(-(t1_ns - t0_ns) // buckets),
         buckets=[
@@ -147,6 +141,15 @@ def telemetry(
             for b in result
         ],
     )
+
+
+def _read(
+    session: Session, pass_id: str, names: list[str], t0_ns: int, t1_ns: int
+) -> dict[str, Any]:
+    """A telemetry answer's header, raw or in buckets: what was read of which pass (its
+    stored id), the ``names`` over ``[t0_ns, t1_ns)``."""
+    record = repo.get_pass(session=session, pass_id=pass_id)
+    return {"pass_id": record.id, "fields": names, "t0_ns": t0_ns, "t1_ns": t1_ns}
 
 
 def across_passes(

@@ -48,9 +48,10 @@ import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from multiprocessing.process import BaseProcess
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 from server.logs import current_log_config
 from server.services.errors import (
@@ -228,7 +229,7 @@ class WorkerPool:
         ``client`` (the Starlette request) is watched for a disconnect; ``cleanup`` is a
         file deleted if the job fails (its result file)."""
         try:
-            return await self._admit(fn, args, kwargs, deadline_s, what, client)
+            return await self._admit(_Job(fn, args, kwargs, deadline_s, what, client))
         except BaseException:
             if cleanup is not None:
                 with contextlib.suppress(OSError):
@@ -246,15 +247,8 @@ class WorkerPool:
             self.publisher.deliver(written)
         return result
 
-    async def _admit(
-        self,
-        fn: Callable[..., T],
-        args: tuple[Any, ...],
-        kwargs: dict[str, Any],
-        deadline_s: float,
-        what: str,
-        request: _Disconnectable | None,
-    ) -> T:
+    async def _admit(self, job: _Job[T]) -> T:
+        what, deadline_s = job.what, job.deadline_s
         if self._closed:
             raise _stopping(what)
         if self._admitted >= self.workers + self.queue:
@@ -265,42 +259,33 @@ class WorkerPool:
             )
         self._admitted += 1
         try:
-            acquired = await _race(
-                self._slots.acquire(),
-                deadline_s,
-                request,
-                lost=self._slots.release,
-                stop=self._stop_event(),
+            acquired = job.raced(
+                await _race(
+                    self._slots.acquire(),
+                    deadline_s,
+                    job.client,
+                    lost=self._slots.release,
+                    stop=self._stop_event(),
+                )
             )
-            if acquired is _STOPPED:
-                raise _stopping(what)
-            if acquired is _GONE:
-                raise _client_gone(what)
             if acquired is _LATE:
                 raise busy(f"{what}: no worker became free within {deadline_s:g} s", 10.0)
             try:
-                return await self._run(fn, args, kwargs, deadline_s, what, request)
+                return await self._run(job)
             finally:
                 self._slots.release()
         finally:
             self._admitted -= 1
 
-    async def _run(
-        self,
-        fn: Callable[..., T],
-        args: tuple[Any, ...],
-        kwargs: dict[str, Any],
-        deadline_s: float,
-        what: str,
-        request: _Disconnectable | None,
-    ) -> T:
+    async def _run(self, job: _Job[T]) -> T:
+        what, deadline_s = job.what, job.deadline_s
         if self._closed:
             raise _stopping(what)
         loop = asyncio.get_running_loop()
         receiver, sender = self._ctx.Pipe(duplex=False)
         process: BaseProcess = self._ctx.Process(  # type: ignore[attr-defined]
             target=run_job,
-            args=(sender, self.memory_bytes, fn, args, kwargs, os.getpid(), current_log_config()),
+            args=(sender, self.memory_bytes, *job.call, os.getpid(), current_log_config()),
             name=f"hikoboshi-job: {what}",
             daemon=True,
         )
@@ -337,15 +322,11 @@ class WorkerPool:
         outcome: Any = None
         try:
             outcome = await _race(
-                asyncio.shield(ready), deadline_s, request, stop=self._stop_event()
+                asyncio.shield(ready), deadline_s, job.client, stop=self._stop_event()
             )
             loop.remove_reader(receiver.fileno())
             loop.remove_reader(process.sentinel)
-            if outcome is _STOPPED:
-                raise _stopping(what)
-            if outcome is _GONE:
-                raise _client_gone(what)
-            if outcome is _LATE:
+            if job.raced(outcome) is _LATE:
                 raise DeadlineExceededError(
                     "deadline_exceeded",
                     f"{what} did not finish within {deadline_s:g} s and was stopped",
@@ -402,6 +383,30 @@ class WorkerPool:
 _GONE = object()
 _LATE = object()
 _STOPPED = object()
+
+
+@dataclass(frozen=True)
+class _Job(Generic[T]):
+    """A request's ``fn(*args, **kwargs)``, named ``what``; its client watched (:meth:`run`)."""
+
+    fn: Callable[..., T]
+    args: tuple[Any, ...]
+    kwargs: dict[str, Any]
+    deadline_s: float
+    what: str
+    client: _Disconnectable | None
+
+    @property
+    def call(self) -> tuple[Callable[..., T], tuple[Any, ...], dict[str, Any]]:
+        return self.fn, self.args, self.kwargs
+
+    def raced(self, outcome: Any) -> Any:
+        """:func:`_race`'s outcome, or the refusal it is: the pool stopping, the client gone."""
+        if outcome is _STOPPED:
+            raise _stopping(self.what)
+        if outcome is _GONE:
+            raise _client_gone(self.what)
+        return outcome
 
 
 async def _race(
