@@ -37,6 +37,14 @@ def captured() -> Iterator[Callable[[str], io.StringIO]]:
     the root logger as it was afterwards."""
     root = logging.getLogger()
     level, handlers, factory = root.level, list(root.handlers), logging.getLogRecordFactory()
+    # uvicorn's loggers as serve leaves them (to the root), not as a uvicorn.Config of an
+    # earlier test in this worker left them (its own handlers, no propagation, warning)
+    uvicorn = [logging.getLogger(n) for n in ("uvicorn", "uvicorn.access", "uvicorn.error")]
+    kept = [(lg, lg.level, lg.propagate, list(lg.handlers)) for lg in uvicorn]
+    for lg in uvicorn:
+        lg.setLevel(logging.NOTSET)
+        lg.propagate = True
+        lg.handlers[:] = []
     stream = io.StringIO()
     holder: list[logging.Handler] = []
 
@@ -50,6 +58,10 @@ def captured() -> Iterator[Callable[[str], io.StringIO]]:
     root.handlers[:] = handlers
     root.setLevel(level)
     logging.setLogRecordFactory(factory)
+    for lg, lg_level, propagate, lg_handlers in kept:
+        lg.setLevel(lg_level)
+        lg.propagate = propagate
+        lg.handlers[:] = lg_handlers
 
 
 def test_a_text_line(captured: Callable[[str], io.StringIO]) -> None:

@@ -34,7 +34,13 @@ from server.services.link import Connection, GroundLink
 from server.services.runner import PassRunner
 from server.settings import Settings
 from server.storage import repository as repo
-from server.storage.db import make_engine, session_factory, sqlite_url, upgrade
+from server.storage.db import (
+    make_engine,
+    read_session_factory,
+    session_factory,
+    sqlite_url,
+    upgrade,
+)
 from telemetry.wire import (
     AcsCommandMsg,
     CommandAck,
@@ -482,7 +488,9 @@ def commands(sessions: sessionmaker[Session], pass_id: str) -> list[Any]:
 
 
 def pass_state(sessions: sessionmaker[Session], pass_id: str) -> str:
-    with sessions() as session:
+    """The pass's state, read as a reader does (no write lock on SQLite: a job the test
+    holds in the database worker's transaction does not block it)."""
+    with read_session_factory(sessions.kw["bind"])() as session:
         return repo.get_pass(session=session, pass_id=pass_id, refresh=True).state
 
 
