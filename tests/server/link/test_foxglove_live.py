@@ -78,8 +78,13 @@ def test_a_foxglove_client_receives_tf_and_events_during_a_pass(tmp_path: Path) 
 
     async def scenario(ws_url: str, ground_url: str, pass_id: str) -> None:
         subscribed = asyncio.Event()
-        client = asyncio.create_task(listen(ws_url, TOPICS, received, subscribed, headers=VIEWER))
-        node = official_client(ws_url, VIEWER["Authorization"].removeprefix("Bearer "))
+        # ours presents the token in the URL, as the Foxglove app does; Foxglove's own client
+        # in the Authorization header: both ways in one pass
+        viewer = VIEWER["Authorization"].removeprefix("Bearer ")
+        client = asyncio.create_task(
+            listen(f"{ws_url}/?token={viewer}", TOPICS, received, subscribed)
+        )
+        node = official_client(ws_url, viewer)
         try:
             assert node.stdout is not None and node.stdin is not None
             line = await asyncio.wait_for(asyncio.to_thread(node.stdout.readline), 60.0)  # guard
