@@ -2,7 +2,7 @@
 
 Below the command line (:mod:`hikoboshi`) and the routes (:mod:`server.api`), above the
 services, the planner, the mission and storage. A rule of operations is written here once and
-used by the CLI, the routes, the demo and the campaign demo alike (issue 40):
+used by the CLI, the routes, the demo and the campaign demo alike:
 
 - checked planning: plan an experiment, check it against its robot's flight rules and fit it
   to a window, in one call;

@@ -343,7 +343,6 @@ def plan_campaign(
                     plan_id=f"of pass {k}",
                     plan_s=plan.duration_s,
                     lead_s=start_lead_s,
-                    available_s=pass_window.usable_s,
                 )
         except DomainError as exc:
             raise CampaignInfeasible(f"{where}: {exc.message}") from exc

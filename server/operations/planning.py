@@ -1,5 +1,5 @@
 """Checked planning, once: plan an experiment for a robot and check it against the robot's
-flight rules, or check a plan someone else made, in one call for every caller (issue 40).
+flight rules, or check a plan someone else made, in one call for every caller.
 
     plan_checked(experiment, params, robot=, window_s=)  -> CheckedPlan   plan, then check
     check(plan, description, window_s=)                  -> CheckedPlan   check (never trust)
@@ -149,7 +149,6 @@ def plan_checked(
             plan_id=f"of {experiment}",
             plan_s=plan.duration_s,
             lead_s=lead_s,
-            available_s=window.usable_s,
         )
         return dataclasses.replace(checked, misfit=misfit)
     except (PlannerError, DomainError):

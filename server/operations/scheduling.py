@@ -56,7 +56,6 @@ def schedule_pass(
             plan_id=plan.id,
             plan_s=plan.duration_s,
             lead_s=start_lead_s(settings),
-            available_s=span.usable_s,
         )
         if refusal is not None:
             raise refusal.error()

@@ -207,12 +207,14 @@ def check_fit(
     plan_id: str,
     plan_s: float,
     lead_s: float,
-    available_s: float,
+    available_s: float | None = None,
     at: WindowTime | None = None,
 ) -> Refusal | None:
     """The window-fit rule: the plan (``plan_s``) and the start lead (``lead_s``, onboard
-    s) against the ``available_s`` s of ``window`` left (from ``at``'s now, or all of it);
-    a refusal ``plan_exceeds_window`` where they do not fit, else None."""
+    s) against the ``available_s`` s of ``window`` left (from ``at``'s now; None: all of its
+    usable time); a refusal ``plan_exceeds_window`` where they do not fit, else None."""
+    if available_s is None:
+        available_s = window.usable_s
     scale = 1.0 if at is None else at.scale
     needed_s = (plan_s + lead_s) / scale
     if needed_s <= available_s:
